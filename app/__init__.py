@@ -1,0 +1,1 @@
+"""app: the weldpool service (REST API, browser UI, database, job queue, CLI)."""

@@ -1,0 +1,225 @@
+"""The ``weldpool`` command line."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import click
+import sqlalchemy as sa
+from pydantic import ValidationError
+
+from app.config import Settings, get_settings
+from app.db import create_db_engine, create_session_factory, migrate, require_current_schema
+from app.errors import WeldpoolError
+from app.logs import configure_logging
+from app.models import Role
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _fail(message: str) -> None:
+    click.echo(f"weldpool: {message}", err=True)
+    sys.exit(2)
+
+
+def friendly_errors(func: F) -> F:
+    """Turn user-facing errors into one line on stderr and exit status 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except WeldpoolError as exc:
+            _fail(exc.message)
+        except sa.exc.OperationalError as exc:
+            _fail(f"The database is unreachable ({str(exc.orig).strip().splitlines()[0]}); "
+                  "check WELDPOOL_DATABASE_URL.")
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _settings() -> Settings:
+    try:
+        return get_settings()
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        _fail(f"Bad setting WELDPOOL_{str(first['loc'][0]).upper()}: {first['msg']}.")
+        raise  # unreachable
+
+
+def _sessions(settings: Settings, *, migrated: bool = True) -> Any:
+    engine = create_db_engine(settings.resolved_database_url)
+    if migrated:
+        require_current_schema(engine)
+    return create_session_factory(engine)
+
+
+@click.group()
+@click.version_option(package_name="weldpool")
+def main() -> None:
+    """weldpool: learn the shape of a molten weld pool from camera frames."""
+    settings = _settings()
+    configure_logging(settings.log_level, settings.log_format)
+
+
+@main.command("migrate")
+@friendly_errors
+def migrate_cmd() -> None:
+    """Bring the database schema to the newest revision."""
+    settings = _settings()
+    settings.ensure_home()
+    migrate(create_db_engine(settings.resolved_database_url))
+    click.echo("database is at the newest revision", err=True)
+
+
+
+@main.command()
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
+@click.option("--port", default=8000, show_default=True, type=int)
+@click.option("--no-worker", is_flag=True, help="Run no embedded worker (use `weldpool worker`).")
+@friendly_errors
+def serve(host: str, port: int, no_worker: bool) -> None:
+    """Migrate, then serve the API and the browser UI (with an embedded worker)."""
+    import uvicorn
+
+    from app.main import create_app
+
+    settings = _settings()
+    settings.ensure_home()
+    migrate(create_db_engine(settings.resolved_database_url))
+    app = create_app(settings, embedded_worker=not no_worker)
+    click.echo(f"weldpool serving on http://{host}:{port}", err=True)
+    uvicorn.run(app, host=host, port=port, log_config=None, access_log=True)
+
+
+@main.command()
+@click.option("--threads", default=None, type=int, help="Worker threads [WELDPOOL_WORKERS].")
+@friendly_errors
+def worker(threads: int | None) -> None:
+    """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM)."""
+    from app.queue import JobQueue, run_standalone_worker
+
+    settings = _settings()
+    queue = JobQueue(settings, _sessions(settings))
+    run_standalone_worker(queue, threads or settings.workers)
+
+
+# --- users and tokens -------------------------------------------------------------------------
+
+
+@main.group()
+def user() -> None:
+    """Manage users."""
+
+
+@user.command("add")
+@click.argument("name")
+@click.option("--role", type=click.Choice([r.value for r in Role]), required=True)
+@click.option("--password-stdin", is_flag=True, help="Read the password from standard input.")
+@friendly_errors
+def user_add(name: str, role: str, password_stdin: bool) -> None:
+    """Add a user; the password comes from a prompt or --password-stdin."""
+    from app.users.service import create_user
+
+    if password_stdin:
+        password = sys.stdin.readline().rstrip("\r\n")
+    else:
+        password = click.prompt("Password", hide_input=True, confirmation_prompt=True)
+    with _sessions(_settings())() as session:
+        created = create_user(session, name, password, Role(role))
+    click.echo(f"added user {created.username} ({created.role.value})", err=True)
+
+
+@user.command("list")
+@friendly_errors
+def user_list() -> None:
+    """List users."""
+    from app.users.service import list_users
+
+    with _sessions(_settings())() as session:
+        for row in list_users(session):
+            state = "" if row.is_active else "  (inactive)"
+            click.echo(f"{row.id}\t{row.username}\t{row.role.value}{state}")
+
+
+@main.command()
+@click.argument("name")
+@click.option("--label", default="cli", show_default=True, help="A name for the token.")
+@friendly_errors
+def token(name: str, label: str) -> None:
+    """Print a new API token for user NAME (stdout: the token alone)."""
+    from app.users.service import create_token, user_by_name
+
+    with _sessions(_settings())() as session:
+        _, text = create_token(session, user_by_name(session, name), label)
+    click.echo(text)
+
+
+@main.group()
+def tokens() -> None:
+    """List and revoke API tokens."""
+
+
+@tokens.command("list")
+@click.argument("name")
+@friendly_errors
+def tokens_list(name: str) -> None:
+    """List user NAME's tokens."""
+    from app.users.service import list_tokens, user_by_name
+
+    with _sessions(_settings())() as session:
+        for row in list_tokens(session, user_by_name(session, name)):
+            state = f"revoked {row.revoked_at:%Y-%m-%d %H:%M}" if row.revoked_at else "active"
+            click.echo(f"{row.id}\t{row.prefix}…\t{row.name}\t{state}")
+
+
+@tokens.command("revoke")
+@click.argument("token_id", type=int)
+@friendly_errors
+def tokens_revoke(token_id: int) -> None:
+    """Revoke token TOKEN_ID."""
+    from app.users.service import revoke_token
+
+    with _sessions(_settings())() as session:
+        revoke_token(session, token_id, actor=None)
+    click.echo(f"revoked token {token_id}", err=True)
+
+
+# --- teacher weights --------------------------------------------------------------------------
+
+
+@main.group()
+def weights() -> None:
+    """Download and check the teacher's model weights."""
+
+
+def _weights_refs(settings: Settings) -> list[tuple[str, str]]:
+    return [(settings.dino, "WELDPOOL_DINO"), (settings.sam2, "WELDPOOL_SAM2")]
+
+
+@weights.command("status")
+@friendly_errors
+def weights_status_cmd() -> None:
+    """Report where the teacher weights are; exit 2 when any is missing."""
+    from weldpool_core.teacher.weights import weights_status
+
+    statuses = [weights_status(ref, var) for ref, var in _weights_refs(_settings())]
+    click.echo(json.dumps([s.as_dict() for s in statuses], indent=2))
+    missing = [s for s in statuses if not s.available]
+    if missing:
+        _fail(missing[0].detail)
+
+
+@weights.command("fetch")
+@friendly_errors
+def weights_fetch() -> None:
+    """Download the teacher weights into the Hugging Face cache (needs internet)."""
+    from weldpool_core.teacher.weights import fetch_weights
+
+    for ref, var in _weights_refs(_settings()):
+        status = fetch_weights(ref, var)
+        click.echo(f"{ref}: {status.detail} ({status.path})", err=True)

@@ -1,0 +1,90 @@
+"""Settings: one object read from the environment (prefix ``WELDPOOL_``) and a ``.env`` file."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Everything the service can be configured with; see the README's configuration table."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="WELDPOOL_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
+    )
+
+    home: Path = Field(
+        default=Path("./weldpool-data"),
+        description="Where the embedded default keeps its SQLite file, frames, models, caches.",
+    )
+    database_url: str | None = Field(
+        default=None,
+        description="SQLAlchemy URL; default: SQLite file weldpool.sqlite3 in home.",
+    )
+    queue_url: str | None = Field(
+        default=None,
+        description="redis://… for workers on other machines; default: SQLite queue file in home.",
+    )
+    queue_name: str = Field(
+        default="weldpool", description="Queue name; instances sharing one Redis need distinct names."
+    )
+    dino: str = Field(default="facebook/dino-vits8", description="DINO hub id or local directory.")
+    sam2: str = Field(
+        default="facebook/sam2.1-hiera-tiny", description="SAM2 hub id or local directory."
+    )
+    device: str = Field(default="auto", description="cpu, cuda, cuda:N, mps or auto.")
+    retrain_every: int = Field(
+        default=20, ge=0, description="New reviewed labels that start a training job; 0 turns it off."
+    )
+
+    workers: int = Field(default=1, ge=1, description="Worker threads of one worker process.")
+    job_heartbeat_s: float = Field(
+        default=5.0, gt=0, description="How often a worker reports that it is alive."
+    )
+    job_stale_after_s: float = Field(
+        default=60.0,
+        gt=0,
+        description="A running job whose worker has not reported for this long is failed or retried.",
+    )
+    session_ttl_hours: float = Field(default=12.0, gt=0, description="Browser session lifetime.")
+    cookie_secure: bool = Field(
+        default=False, description="Send the session cookie over HTTPS only (set behind TLS)."
+    )
+    log_level: str = Field(default="INFO")
+    log_format: Literal["console", "json"] = Field(default="console")
+
+    @field_validator("queue_url")
+    @classmethod
+    def _queue_scheme(cls, value: str | None) -> str | None:
+        if value and not value.startswith(("redis://", "rediss://", "unix://")):
+            raise ValueError(
+                "WELDPOOL_QUEUE_URL must be empty (embedded queue) or a redis://… URL"
+            )
+        return value or None
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The database URL, defaulting to a SQLite file in ``home``."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.home / 'weldpool.sqlite3').resolve()}"
+
+    @property
+    def queue_file(self) -> Path:
+        """The embedded queue's SQLite file (used when ``queue_url`` is not set)."""
+        return self.home / "queue.sqlite3"
+
+    def ensure_home(self) -> None:
+        """Create the home directory and its standard subfolders."""
+        for sub in ("", "frames", "artefacts", "models", "cache", "tmp"):
+            (self.home / sub).mkdir(parents=True, exist_ok=True)
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The process-wide settings, read once from the environment."""
+    return Settings()

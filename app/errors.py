@@ -1,0 +1,56 @@
+"""Typed errors of the service; each maps to one HTTP status and one clear sentence."""
+
+from __future__ import annotations
+
+from weldpool_core.errors import InvalidInputError, WeightsUnavailableError, WeldpoolError
+
+__all__ = [
+    "AuthenticationError",
+    "ConfigurationError",
+    "ConflictError",
+    "InvalidInputError",
+    "NotFoundError",
+    "PermissionDeniedError",
+    "WeightsUnavailableError",
+    "WeldpoolError",
+    "http_status_of",
+]
+
+
+class ConfigurationError(WeldpoolError):
+    """The service is configured wrongly (a setting, an unmigrated database)."""
+
+
+class NotFoundError(WeldpoolError):
+    """The addressed object does not exist."""
+
+
+class ConflictError(WeldpoolError):
+    """The request conflicts with the current state (a stale revision, a duplicate name)."""
+
+
+class AuthenticationError(WeldpoolError):
+    """No valid credentials were given."""
+
+
+class PermissionDeniedError(WeldpoolError):
+    """The user is known but their role does not allow this."""
+
+
+_STATUS: dict[type[WeldpoolError], int] = {
+    InvalidInputError: 400,
+    AuthenticationError: 401,
+    PermissionDeniedError: 403,
+    NotFoundError: 404,
+    ConflictError: 409,
+    WeightsUnavailableError: 503,
+    ConfigurationError: 503,
+}
+
+
+def http_status_of(error: WeldpoolError) -> int:
+    """The HTTP status for a typed error (400 for any other user-facing error)."""
+    for cls in type(error).__mro__:
+        if cls in _STATUS:
+            return _STATUS[cls]
+    return 400

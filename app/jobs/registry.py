@@ -1,0 +1,95 @@
+"""Job kinds and their handlers: each domain's ``tasks.py`` registers what its jobs do."""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.config import Settings
+from app.db import utcnow
+from app.models import Job, JobStatus
+
+# Modules whose import registers job handlers (each domain's tasks.py).
+HANDLER_MODULES = ("app.jobs.tasks",)
+
+
+class JobCancelled(Exception):
+    """Raised inside a handler when a user asked to cancel its job."""
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """What a job kind runs, and how often a lost run may be tried again."""
+
+    kind: str
+    handler: Callable[[JobContext], dict[str, Any] | None]
+    max_attempts: int = 1
+
+
+_HANDLERS: dict[str, JobSpec] = {}
+
+
+def job_handler(
+    kind: str, *, max_attempts: int = 1
+) -> Callable[[Callable[[JobContext], dict[str, Any] | None]], Callable[..., Any]]:
+    """Register ``handler`` as what jobs of ``kind`` run (in a worker)."""
+
+    def register(
+        handler: Callable[[JobContext], dict[str, Any] | None],
+    ) -> Callable[[JobContext], dict[str, Any] | None]:
+        _HANDLERS[kind] = JobSpec(kind, handler, max_attempts)
+        return handler
+
+    return register
+
+
+def job_spec(kind: str) -> JobSpec | None:
+    """The registered spec of a job kind, importing every domain's handlers on first use."""
+    if not _HANDLERS:
+        for module in HANDLER_MODULES:
+            importlib.import_module(module)
+    return _HANDLERS.get(kind)
+
+
+@dataclass
+class JobContext:
+    """What a running handler may use: its parameters, the database and a progress reporter."""
+
+    job_id: int
+    params: dict[str, Any]
+    settings: Settings
+    session_factory: sessionmaker[Session]
+    worker_id: str
+    min_interval_s: float = 0.25
+    _last_write: float = field(default=0.0, repr=False)
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Record progress (0..1); raises JobCancelled when a user asked to cancel."""
+        now = time.monotonic()
+        if now - self._last_write < self.min_interval_s and fraction < 1.0:
+            return
+        self._last_write = now
+        with self.session_factory() as session:
+            session.execute(
+                sa.update(Job)
+                .where(Job.id == self.job_id, Job.worker_id == self.worker_id)
+                .values(progress=min(max(fraction, 0.0), 1.0), message=message[:500],
+                        heartbeat_at=utcnow())
+            )
+            session.commit()
+        self.check_cancelled()
+
+    def check_cancelled(self) -> None:
+        """Raise JobCancelled when a user asked to cancel this job."""
+        with self.session_factory() as session:
+            row = session.execute(
+                sa.select(Job.cancel_requested, Job.status).where(Job.id == self.job_id)
+            ).one()
+        if row.cancel_requested or row.status != JobStatus.running:
+            raise JobCancelled()

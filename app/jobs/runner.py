@@ -1,0 +1,182 @@
+"""What a worker does with a job id: claim the row, run the handler, record the outcome.
+
+Also the reaper, which finds jobs whose worker died and fails or re-queues them.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import socket
+from collections.abc import Callable
+
+import sqlalchemy as sa
+import structlog
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.config import Settings
+from app.db import utcnow
+from app.jobs.registry import JobCancelled, JobContext, job_spec
+from app.models import Job, JobStatus, Worker
+from weldpool_core.errors import WeldpoolError
+
+log = structlog.get_logger(__name__)
+
+HOSTNAME = socket.gethostname()
+
+
+def new_worker_id() -> str:
+    """host:pid:random, so that a worker on the same host can tell whether its peer is alive."""
+    return f"{HOSTNAME}:{os.getpid()}:{os.urandom(3).hex()}"
+
+
+def _finish(
+    session_factory: sessionmaker[Session], job_id: int, worker_id: str, **values: object
+) -> bool:
+    """Write a final state, only if this worker still owns the running job."""
+    with session_factory() as session:
+        done = session.execute(
+            sa.update(Job)
+            .where(Job.id == job_id, Job.worker_id == worker_id, Job.status == JobStatus.running)
+            .values(finished_at=utcnow(), heartbeat_at=utcnow(), **values)
+        )
+        session.commit()
+        return done.rowcount == 1  # type: ignore[attr-defined,no-any-return]
+
+
+def execute_job(
+    job_id: int, settings: Settings, session_factory: sessionmaker[Session], worker_id: str
+) -> None:
+    """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
+    with session_factory() as session:
+        claimed = session.execute(
+            sa.update(Job)
+            .where(Job.id == job_id, Job.status == JobStatus.queued)
+            .values(status=JobStatus.running, worker_id=worker_id, attempts=Job.attempts + 1,
+                    started_at=utcnow(), heartbeat_at=utcnow(), progress=0.0, message="")
+        )
+        session.commit()
+        if claimed.rowcount != 1:  # type: ignore[attr-defined]
+            log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
+            return
+        job = session.get_one(Job, job_id)
+        kind, params = job.kind, dict(job.params or {})
+
+    log.info("job.started", job_id=job_id, kind=kind, worker=worker_id)
+    spec = job_spec(kind)
+    if spec is None:
+        _finish(session_factory, job_id, worker_id, status=JobStatus.failed,
+                error=f"This worker does not know job kind {kind!r}; update the worker.")
+        return
+    context = JobContext(job_id, params, settings, session_factory, worker_id)
+    try:
+        result = spec.handler(context)
+    except JobCancelled:
+        _finish(session_factory, job_id, worker_id, status=JobStatus.cancelled,
+                message="cancelled by a user")
+        log.info("job.cancelled", job_id=job_id)
+    except WeldpoolError as exc:
+        _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=exc.message)
+        log.warning("job.failed", job_id=job_id, error=exc.message)
+    except Exception as exc:
+        message = f"Unexpected error ({type(exc).__name__}): {exc}"
+        _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=message)
+        log.exception("job.crashed", job_id=job_id)
+    else:
+        _finish(session_factory, job_id, worker_id, status=JobStatus.succeeded, progress=1.0,
+                result=result or {})
+        log.info("job.succeeded", job_id=job_id)
+
+
+def _pid_is_dead(worker_id: str) -> bool:
+    host, _, rest = worker_id.partition(":")
+    pid_text = rest.partition(":")[0]
+    if host != HOSTNAME or not pid_text.isdigit() or int(pid_text) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid_text), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+def reap_lost_jobs(
+    session_factory: sessionmaker[Session],
+    stale_after_s: float,
+    enqueue: Callable[[int], None],
+) -> list[int]:
+    """Fail or re-queue running jobs whose worker died (a dead pid here, or no heartbeat).
+
+    Returns the ids of the jobs it handled. Safe to run in many workers at once: each job is
+    taken by one conditional update.
+    """
+    cutoff = utcnow() - dt.timedelta(seconds=stale_after_s)
+    handled: list[int] = []
+    with session_factory() as session:
+        running = session.execute(
+            sa.select(Job.id, Job.worker_id, Job.heartbeat_at, Job.attempts, Job.max_attempts)
+            .where(Job.status == JobStatus.running)
+        ).all()
+        for job_id, worker_id, heartbeat_at, attempts, max_attempts in running:
+            stale = heartbeat_at is None or heartbeat_at < cutoff
+            if not stale and not _pid_is_dead(worker_id or ""):
+                continue
+            seen = heartbeat_at.isoformat(timespec="seconds") if heartbeat_at else "never"
+            retry = attempts < max_attempts
+            values: dict[str, object] = (
+                {"status": JobStatus.queued, "worker_id": None,
+                 "message": f"retrying: worker {worker_id} stopped (last seen {seen})"}
+                if retry else
+                {"status": JobStatus.failed, "finished_at": utcnow(),
+                 "error": f"The worker running this job stopped without finishing it "
+                          f"(worker {worker_id}, last seen {seen}); start the job again."}
+            )
+            taken = session.execute(
+                sa.update(Job)
+                .where(Job.id == job_id, Job.status == JobStatus.running,
+                       Job.worker_id == worker_id)
+                .values(**values)
+            )
+            session.commit()
+            if taken.rowcount == 1:  # type: ignore[attr-defined]
+                handled.append(job_id)
+                log.warning("job.lost", job_id=job_id, worker=worker_id, retry=retry)
+                if retry:
+                    enqueue(job_id)
+    return handled
+
+
+def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> None:
+    """Mark this worker and the jobs it runs as alive."""
+    now = utcnow()
+    with session_factory() as session:
+        updated = session.execute(
+            sa.update(Worker).where(Worker.id == worker.id).values(last_seen_at=now)
+        )
+        if updated.rowcount == 0:  # type: ignore[attr-defined]
+            session.add(Worker(id=worker.id, hostname=worker.hostname, pid=worker.pid,
+                               threads=worker.threads, started_at=worker.started_at,
+                               last_seen_at=now))
+        session.execute(
+            sa.update(Job)
+            .where(Job.worker_id == worker.id, Job.status == JobStatus.running)
+            .values(heartbeat_at=now)
+        )
+        # Forget workers not seen for a day (their jobs were reaped long ago).
+        session.execute(
+            sa.delete(Worker).where(Worker.last_seen_at < now - dt.timedelta(days=1))
+        )
+        session.commit()
+
+
+def live_workers(session_factory: sessionmaker[Session], stale_after_s: float) -> int:
+    """How many workers reported a heartbeat within ``stale_after_s``."""
+    cutoff = utcnow() - dt.timedelta(seconds=stale_after_s)
+    with session_factory() as session:
+        return int(
+            session.scalar(
+                sa.select(sa.func.count()).select_from(Worker).where(Worker.last_seen_at >= cutoff)
+            ) or 0
+        )

@@ -1,0 +1,71 @@
+"""Creating, listing and cancelling jobs. The web layer only enqueues and reads rows."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.db import utcnow
+from app.errors import ConfigurationError, InvalidInputError, NotFoundError
+from app.jobs.registry import job_spec
+from app.models import Job, JobStatus, User
+from app.queue import JobQueue
+
+
+def create_job(
+    session: Session, queue: JobQueue, kind: str, params: dict[str, Any], user: User | None
+) -> Job:
+    """Record a queued job and put it on the queue; a job that cannot be queued is failed."""
+    spec = job_spec(kind)
+    if spec is None:
+        raise InvalidInputError(f"There is no job kind {kind!r}.")
+    job = Job(kind=kind, params=params, max_attempts=spec.max_attempts,
+              created_by_id=user.id if user else None)
+    session.add(job)
+    session.commit()
+    try:
+        queue.enqueue(job.id)
+    except ConfigurationError as exc:
+        job.status, job.error, job.finished_at = JobStatus.failed, exc.message, utcnow()
+        session.commit()
+        raise
+    return job
+
+
+def get_job(session: Session, job_id: int) -> Job:
+    job = session.get(Job, job_id)
+    if job is None:
+        raise NotFoundError(f"There is no job {job_id}.")
+    return job
+
+
+def list_jobs(
+    session: Session, kind: str | None, status: JobStatus | None, limit: int, offset: int
+) -> tuple[list[Job], int]:
+    """Newest first, filtered by kind and status."""
+    query = sa.select(Job)
+    if kind:
+        query = query.where(Job.kind == kind)
+    if status:
+        query = query.where(Job.status == status)
+    total = session.scalar(sa.select(sa.func.count()).select_from(query.subquery())) or 0
+    rows = session.scalars(query.order_by(Job.id.desc()).limit(limit).offset(offset)).all()
+    return list(rows), total
+
+
+def cancel_job(session: Session, job_id: int) -> Job:
+    """Cancel a queued job at once; ask a running one to stop at its next progress report."""
+    job = get_job(session, job_id)
+    if job.status == JobStatus.queued:
+        session.execute(
+            sa.update(Job).where(Job.id == job_id, Job.status == JobStatus.queued)
+            .values(status=JobStatus.cancelled, cancel_requested=True, finished_at=utcnow(),
+                    message="cancelled before it started")
+        )
+    elif job.status == JobStatus.running:
+        job.cancel_requested = True
+    session.commit()
+    session.refresh(job)
+    return job

@@ -1,0 +1,114 @@
+"""The app factory: REST API under /api/v1, browser pages, static files, embedded worker."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import structlog
+from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from app.config import Settings, get_settings
+from app.db import create_db_engine, create_session_factory
+from app.errors import AuthenticationError, WeldpoolError, http_status_of
+from app.jobs.routes import router as jobs_router
+from app.queue import EmbeddedWorker, JobQueue
+from app.security import current_user
+from app.system.routes import router as system_router
+from app.users.routes import router as users_router
+from app.web.routes import router as web_router
+
+ROOT = Path(__file__).resolve().parent.parent
+log = structlog.get_logger(__name__)
+
+
+def _validation_sentence(exc: RequestValidationError) -> str:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first.get("loc", ()) if p not in ("body", "query", "path"))
+    message = str(first.get("msg", "is invalid")).rstrip(".")
+    return f"{where or 'The request'}: {message}."
+
+
+def _install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(WeldpoolError)
+    async def weldpool_error(request: Request, exc: WeldpoolError) -> Response:
+        status = http_status_of(exc)
+        wants_html = "text/html" in request.headers.get("accept", "")
+        if isinstance(exc, AuthenticationError) and wants_html and request.method == "GET" \
+                and not request.url.path.startswith("/api/"):
+            return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
+        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+        return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(_request: Request, exc: RequestValidationError) -> Response:
+        errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]
+        return JSONResponse({"detail": _validation_sentence(exc), "errors": errors},
+                            status_code=422)
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, exc: Exception) -> Response:
+        log.exception("request.crashed", path=request.url.path)
+        return JSONResponse(
+            {"detail": "Internal error; the server log has the details."}, status_code=500
+        )
+
+
+def create_app(settings: Settings | None = None, *, embedded_worker: bool = False) -> FastAPI:
+    """Build the service; with ``embedded_worker`` it also runs jobs in this process."""
+    settings = settings or get_settings()
+    settings.ensure_home()
+    engine = create_db_engine(settings.resolved_database_url)
+    session_factory = create_session_factory(engine)
+    queue = JobQueue(settings, session_factory)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        worker = EmbeddedWorker(queue, settings.workers) if embedded_worker else None
+        if worker:
+            worker.start()
+        try:
+            yield
+        finally:
+            if worker:
+                worker.stop()
+            engine.dispose()
+
+    app = FastAPI(
+        title="weldpool",
+        summary="Learn the shape of a molten weld pool from camera frames.",
+        version="0.1.0",
+        docs_url=None,
+        redoc_url=None,
+        openapi_url=None,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.session_factory = session_factory
+    app.state.queue = queue
+    _install_error_handlers(app)
+
+    api = APIRouter(prefix="/api/v1")
+    api.include_router(system_router)
+    protected = [Depends(current_user)]
+    api.include_router(users_router, dependencies=protected)
+    api.include_router(jobs_router, dependencies=protected)
+    app.include_router(api)
+    app.include_router(web_router)
+
+    @app.get("/api/v1/openapi.json", include_in_schema=False, dependencies=protected)
+    def openapi() -> JSONResponse:
+        return JSONResponse(app.openapi())
+
+    @app.get("/docs", include_in_schema=False, dependencies=protected)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url="/api/v1/openapi.json", title="weldpool API")
+
+    app.mount("/static", StaticFiles(directory=ROOT / "static"), name="static")
+    return app

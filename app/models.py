@@ -1,0 +1,311 @@
+"""ORM tables: the core of weldpool's domain. Migrations in ``migrations/`` create them."""
+
+from __future__ import annotations
+
+import datetime as dt
+import enum
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+from app.db import Base, UTCDateTime, utcnow
+
+JSONType = sa.JSON()
+
+
+class Role(enum.StrEnum):
+    """What a user may do: annotators label; reviewers also accept, reject and train; admins
+    also manage users."""
+
+    annotator = "annotator"
+    reviewer = "reviewer"
+    admin = "admin"
+
+    @property
+    def rank(self) -> int:
+        return _ROLE_RANK[self]
+
+
+_ROLE_RANK = {Role.annotator: 1, Role.reviewer: 2, Role.admin: 3}
+
+
+class Split(enum.StrEnum):
+    """Which set a frame belongs to; validation frames never train the student."""
+
+    train = "train"
+    validation = "validation"
+    test = "test"
+
+
+class FrameStatus(enum.StrEnum):
+    """Where a frame stands in the review loop."""
+
+    new = "new"
+    proposed = "proposed"
+    accepted = "accepted"
+    corrected = "corrected"
+    rejected = "rejected"
+
+
+class LabelStatus(enum.StrEnum):
+    """A reviewer's verdict on a frame."""
+
+    accepted = "accepted"
+    corrected = "corrected"
+    rejected = "rejected"
+
+
+class JobStatus(enum.StrEnum):
+    """The life of a background job."""
+
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+    @property
+    def finished(self) -> bool:
+        return self in (JobStatus.succeeded, JobStatus.failed, JobStatus.cancelled)
+
+
+def _enum(cls: type[enum.StrEnum], name: str) -> sa.Enum:
+    # Stored as plain strings with a CHECK constraint: portable and easy to extend by migration.
+    return sa.Enum(cls, name=name, native_enum=False, length=16, validate_strings=True,
+                   values_callable=lambda e: [m.value for m in e])
+
+
+class User(Base):
+    __tablename__ = "users"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    username: Mapped[str] = mapped_column(sa.String(64), unique=True)
+    password_hash: Mapped[str] = mapped_column(sa.String(255))
+    role: Mapped[Role] = mapped_column(_enum(Role, "role"))
+    is_active: Mapped[bool] = mapped_column(default=True)
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class ApiToken(Base):
+    """A bearer token; only its SHA-256 is stored, the token itself is shown once."""
+
+    __tablename__ = "api_tokens"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    user_id: Mapped[int] = mapped_column(sa.ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(sa.String(64), default="")
+    token_hash: Mapped[str] = mapped_column(sa.String(64), unique=True)
+    prefix: Mapped[str] = mapped_column(sa.String(16))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    last_used_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+    revoked_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+
+    user: Mapped[User] = relationship(lazy="joined")
+
+
+class WebSession(Base):
+    """A browser login; the cookie holds a random id whose SHA-256 is stored here."""
+
+    __tablename__ = "web_sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    user_id: Mapped[int] = mapped_column(sa.ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    session_hash: Mapped[str] = mapped_column(sa.String(64), unique=True)
+    csrf_token: Mapped[str] = mapped_column(sa.String(64))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    expires_at: Mapped[dt.datetime] = mapped_column(UTCDateTime)
+
+    user: Mapped[User] = relationship(lazy="joined")
+
+
+class Sequence(Base):
+    """A weld run, with the process parameters of the paper's Table I."""
+
+    __tablename__ = "sequences"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(sa.String(200), unique=True)
+    wire_feed_m_min: Mapped[float | None] = mapped_column(sa.Float)
+    voltage_v: Mapped[float | None] = mapped_column(sa.Float)
+    current_a: Mapped[float | None] = mapped_column(sa.Float)
+    arc_length_correction_pct: Mapped[float | None] = mapped_column(sa.Float)
+    robot_speed_cm_min: Mapped[float | None] = mapped_column(sa.Float)
+    synergic_law: Mapped[str | None] = mapped_column(sa.String(200))
+    joint_type: Mapped[str | None] = mapped_column(sa.String(64))
+    notes: Mapped[str] = mapped_column(sa.Text, default="")
+    created_by_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL")
+    )
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Frame(Base):
+    """One stored camera frame; the file lives under WELDPOOL_HOME, named by its content hash."""
+
+    __tablename__ = "frames"
+    __table_args__ = (
+        sa.Index("ix_frames_sequence_sha", "sequence_id", "sha256"),
+        sa.Index("ix_frames_sequence_index", "sequence_id", "frame_index"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sequence_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE")
+    )
+    sha256: Mapped[str] = mapped_column(sa.String(64), index=True)
+    path: Mapped[str] = mapped_column(sa.String(500))
+    original_name: Mapped[str] = mapped_column(sa.String(255), default="")
+    media_type: Mapped[str] = mapped_column(sa.String(64))
+    size_bytes: Mapped[int] = mapped_column(sa.BigInteger)
+    width: Mapped[int]
+    height: Mapped[int]
+    channels: Mapped[int] = mapped_column(default=1)
+    bit_depth: Mapped[int] = mapped_column(default=8)
+    frame_index: Mapped[int | None]
+    timestamp_s: Mapped[float | None] = mapped_column(sa.Float)
+    split: Mapped[Split] = mapped_column(_enum(Split, "split"), default=Split.train, index=True)
+    status: Mapped[FrameStatus] = mapped_column(
+        _enum(FrameStatus, "frame_status"), default=FrameStatus.new, index=True
+    )
+    uncertainty: Mapped[float | None] = mapped_column(sa.Float, index=True)
+    uploaded_by_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL")
+    )
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Proposal(Base):
+    """A teacher's or student's proposed mask, heatmap and keypoints for one frame."""
+
+    __tablename__ = "proposals"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
+                                          index=True)
+    source: Mapped[str] = mapped_column(sa.String(16))  # "teacher" or "student"
+    model_id: Mapped[str] = mapped_column(sa.String(255))
+    model_version_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("model_versions.id", ondelete="SET NULL")
+    )
+    job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
+    mask_path: Mapped[str] = mapped_column(sa.String(500))
+    heatmap_path: Mapped[str | None] = mapped_column(sa.String(500))
+    keypoints: Mapped[list[Any]] = mapped_column(JSONType, default=list)
+    prompts: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    scores: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    timings: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Label(Base):
+    """The current reviewed label of a frame; ``revision`` guards against lost updates."""
+
+    __tablename__ = "labels"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
+                                          unique=True)
+    revision: Mapped[int] = mapped_column(default=1)
+    status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
+    mask_path: Mapped[str | None] = mapped_column(sa.String(500))
+    keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
+    proposal_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("proposals.id", ondelete="SET NULL")
+    )
+    updated_by_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL")
+    )
+    updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class LabelRevision(Base):
+    """Every change to a label, kept: who, when, what."""
+
+    __tablename__ = "label_revisions"
+    __table_args__ = (sa.UniqueConstraint("frame_id", "revision"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
+                                          index=True)
+    revision: Mapped[int]
+    status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
+    mask_path: Mapped[str | None] = mapped_column(sa.String(500))
+    keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
+    proposal_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("proposals.id", ondelete="SET NULL")
+    )
+    user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class ValidationKeypoints(Base):
+    """Keypoints placed by hand; their frame is in the validation split."""
+
+    __tablename__ = "validation_keypoints"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
+                                          unique=True)
+    keypoints: Mapped[list[Any]] = mapped_column(JSONType)
+    user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
+    updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Job(Base):
+    """A background job: the row is the truth about its state, the queue only carries its id."""
+
+    __tablename__ = "jobs"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    kind: Mapped[str] = mapped_column(sa.String(32), index=True)
+    status: Mapped[JobStatus] = mapped_column(
+        _enum(JobStatus, "job_status"), default=JobStatus.queued, index=True
+    )
+    progress: Mapped[float] = mapped_column(sa.Float, default=0.0)
+    message: Mapped[str] = mapped_column(sa.String(500), default="")
+    params: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
+    error: Mapped[str | None] = mapped_column(sa.Text)
+    attempts: Mapped[int] = mapped_column(default=0)
+    max_attempts: Mapped[int] = mapped_column(default=1)
+    cancel_requested: Mapped[bool] = mapped_column(default=False)
+    worker_id: Mapped[str | None] = mapped_column(sa.String(200))
+    heartbeat_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+    created_by_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL")
+    )
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
+    started_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+    finished_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+
+
+class Worker(Base):
+    """A worker process that is (or was) consuming the queue; ``last_seen_at`` is its heartbeat."""
+
+    __tablename__ = "workers"
+
+    id: Mapped[str] = mapped_column(sa.String(200), primary_key=True)
+    hostname: Mapped[str] = mapped_column(sa.String(200))
+    pid: Mapped[int]
+    threads: Mapped[int] = mapped_column(default=1)
+    started_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    last_seen_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class ModelVersion(Base):
+    """A trained student: its checkpoint, metrics and training curve."""
+
+    __tablename__ = "model_versions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(sa.String(100), unique=True)
+    checkpoint_path: Mapped[str | None] = mapped_column(sa.String(500))
+    config: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    metrics: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    curve: Mapped[list[Any]] = mapped_column(JSONType, default=list)
+    train_label_count: Mapped[int] = mapped_column(default=0)
+    is_promoted: Mapped[bool] = mapped_column(default=False, index=True)
+    job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    promoted_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)

@@ -1,0 +1,151 @@
+"""The job queue: Huey on a SQLite file by default, on Redis for workers on other machines.
+
+The queue carries only job ids; the jobs table is the truth about a job's state. A worker is a
+Huey consumer plus a presence thread that reports heartbeats and reaps jobs of dead workers.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import structlog
+from huey import Huey, RedisHuey, SqliteHuey
+from huey.consumer import Consumer
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.config import Settings
+from app.db import utcnow
+from app.errors import ConfigurationError
+from app.jobs.runner import execute_job, new_worker_id, reap_lost_jobs, record_heartbeat
+from app.models import Worker
+
+log = structlog.get_logger(__name__)
+
+
+class JobQueue:
+    """A Huey instance with the one task that runs a job row by id."""
+
+    def __init__(self, settings: Settings, session_factory: sessionmaker[Session]) -> None:
+        self.settings = settings
+        self.session_factory = session_factory
+        self.worker_id = new_worker_id()
+        if settings.queue_url:
+            self.backend = "redis"
+            self.huey: Huey = RedisHuey(settings.queue_name, url=settings.queue_url,
+                                        results=False)
+        else:
+            self.backend = "sqlite"
+            settings.home.mkdir(parents=True, exist_ok=True)
+            self.huey = SqliteHuey(settings.queue_name, filename=str(settings.queue_file),
+                                   results=False)
+        self._run_job = self.huey.task(name="weldpool.run_job")(self._execute)
+
+    def _execute(self, job_id: int) -> None:
+        execute_job(job_id, self.settings, self.session_factory, self.worker_id)
+
+    def enqueue(self, job_id: int) -> None:
+        """Put a job id on the queue; raises ConfigurationError when the queue is unreachable."""
+        try:
+            self._run_job(job_id)
+        except Exception as exc:
+            raise ConfigurationError(
+                f"The job queue ({self.backend}) is unreachable: {exc}; "
+                "check WELDPOOL_QUEUE_URL."
+            ) from exc
+
+    def pending(self) -> int:
+        """How many job ids wait in the queue (raises when the queue is unreachable)."""
+        return int(self.huey.pending_count())
+
+    def consumer(self, threads: int, embedded: bool = False) -> Consumer:
+        """A Huey consumer for this queue; an embedded one installs no signal handlers."""
+        cls = _EmbeddedConsumer if embedded else Consumer
+        # max_delay bounds how long an idle SQLite queue waits between polls (Redis blocks).
+        return cls(self.huey, workers=threads, worker_type="thread", periodic=False,
+                   check_worker_health=True, max_delay=1.0)
+
+
+class _EmbeddedConsumer(Consumer):  # type: ignore[misc]
+    """A consumer that runs inside the web server's process, whose signals belong to uvicorn."""
+
+    def _set_signal_handlers(self) -> None:
+        pass
+
+
+class WorkerPresence:
+    """Registers a worker, reports its heartbeat and reaps jobs of dead workers."""
+
+    def __init__(self, queue: JobQueue, threads: int) -> None:
+        self.queue = queue
+        host, pid, _ = queue.worker_id.split(":")
+        self.row = Worker(id=queue.worker_id, hostname=host, pid=int(pid), threads=threads,
+                          started_at=utcnow())
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="weldpool-presence", daemon=True)
+
+    def beat(self) -> None:
+        """One heartbeat and one reaping pass."""
+        record_heartbeat(self.queue.session_factory, self.row)
+        reap_lost_jobs(self.queue.session_factory, self.queue.settings.job_stale_after_s,
+                       self.queue.enqueue)
+
+    def start(self) -> None:
+        self.beat()
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.queue.settings.job_heartbeat_s):
+            try:
+                self.beat()
+            except Exception:  # a database hiccup must not kill the heartbeat
+                log.exception("worker.heartbeat_failed", worker=self.row.id)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+        try:
+            with self.queue.session_factory() as session:
+                worker = session.get(Worker, self.row.id)
+                if worker is not None:
+                    session.delete(worker)
+                    session.commit()
+        except Exception:
+            log.exception("worker.unregister_failed", worker=self.row.id)
+
+
+class EmbeddedWorker:
+    """The worker that ``weldpool serve`` runs in its own process, in threads."""
+
+    def __init__(self, queue: JobQueue, threads: int) -> None:
+        self.consumer = queue.consumer(threads, embedded=True)
+        self.presence = WorkerPresence(queue, threads)
+
+    def start(self) -> None:
+        self.presence.start()
+        self.consumer.start()
+        log.info("worker.embedded_started", worker=self.presence.row.id)
+
+    def stop(self) -> None:
+        self.consumer.stop(graceful=False)
+        self.presence.stop()
+
+
+def run_standalone_worker(queue: JobQueue, threads: int) -> None:
+    """Consume the queue until SIGINT/SIGTERM (``weldpool worker``)."""
+    presence = WorkerPresence(queue, threads)
+    presence.start()
+    log.info("worker.started", worker=presence.row.id, queue=queue.backend, threads=threads)
+    try:
+        queue.consumer(threads).run()
+    finally:
+        presence.stop()
+
+
+def describe(queue: JobQueue) -> dict[str, Any]:
+    """The queue's part of /health."""
+    try:
+        return {"status": "ok", "backend": queue.backend, "pending": queue.pending()}
+    except Exception as exc:
+        return {"status": "error", "backend": queue.backend, "detail": str(exc)}

@@ -1,0 +1,190 @@
+"""Passwords, API tokens, browser sessions, CSRF and role checks."""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import hmac
+import secrets
+from typing import Annotated
+
+import sqlalchemy as sa
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from app.deps import SessionDep
+from app.errors import AuthenticationError, PermissionDeniedError
+from app.db import utcnow
+from app.models import ApiToken, Role, User, WebSession
+
+SESSION_COOKIE = "weldpool_session"
+LOGIN_CSRF_COOKIE = "weldpool_login_csrf"
+CSRF_HEADER = "X-CSRF-Token"
+TOKEN_PREFIX = "wp_"
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+_hasher = PasswordHasher()
+
+
+def hash_password(password: str) -> str:
+    """An Argon2id hash of ``password``."""
+    return _hasher.hash(password)
+
+
+def verify_password(password_hash: str, password: str) -> bool:
+    """Whether ``password`` matches; never raises for a wrong or malformed hash."""
+    try:
+        return _hasher.verify(password_hash, password)
+    except (VerificationError, InvalidHashError):
+        return False
+
+
+def _sha256(value: str) -> str:
+    return hashlib.sha256(value.encode()).hexdigest()
+
+
+def constant_time_equal(a: str, b: str) -> bool:
+    """Compare two secrets without leaking where they differ."""
+    return hmac.compare_digest(a.encode(), b.encode())
+
+
+def new_csrf_token() -> str:
+    """A random token for a form or a session."""
+    return secrets.token_urlsafe(32)
+
+
+# --- API tokens ------------------------------------------------------------------------------
+
+
+def issue_token(session: Session, user: User, name: str = "") -> tuple[ApiToken, str]:
+    """Create a token for ``user``; returns the row and the token text (shown only once)."""
+    text = TOKEN_PREFIX + secrets.token_urlsafe(32)
+    row = ApiToken(user_id=user.id, name=name, token_hash=_sha256(text), prefix=text[:10])
+    session.add(row)
+    session.flush()
+    return row, text
+
+
+def user_for_token(session: Session, text: str) -> User:
+    """The active user owning an unrevoked token, or an AuthenticationError."""
+    row = session.scalar(sa.select(ApiToken).where(ApiToken.token_hash == _sha256(text)))
+    if row is None or row.revoked_at is not None or not row.user.is_active:
+        raise AuthenticationError("The API token is invalid or revoked; create a new one.")
+    now = utcnow()
+    if row.last_used_at is None or now - row.last_used_at > dt.timedelta(minutes=1):
+        row.last_used_at = now
+        session.commit()
+    return row.user
+
+
+# --- browser sessions ------------------------------------------------------------------------
+
+
+def open_web_session(session: Session, user: User, ttl_hours: float) -> tuple[WebSession, str]:
+    """Log ``user`` in; returns the session row and the cookie value."""
+    cookie = secrets.token_urlsafe(32)
+    row = WebSession(
+        user_id=user.id,
+        session_hash=_sha256(cookie),
+        csrf_token=new_csrf_token(),
+        expires_at=utcnow() + dt.timedelta(hours=ttl_hours),
+    )
+    session.add(row)
+    session.flush()
+    return row, cookie
+
+
+def web_session_for_cookie(session: Session, cookie: str) -> WebSession | None:
+    """The live session for a cookie value, or None when unknown or expired."""
+    row = session.scalar(sa.select(WebSession).where(WebSession.session_hash == _sha256(cookie)))
+    if row is None or row.expires_at <= utcnow() or not row.user.is_active:
+        return None
+    return row
+
+
+def close_web_session(session: Session, cookie: str) -> None:
+    """Log out: forget the session behind a cookie."""
+    session.execute(sa.delete(WebSession).where(WebSession.session_hash == _sha256(cookie)))
+
+
+def authenticate(session: Session, username: str, password: str) -> User | None:
+    """The active user with these credentials, or None."""
+    user = session.scalar(sa.select(User).where(User.username == username))
+    if user is None:
+        hash_password(password)  # spend the same time as a real check: no user enumeration
+        return None
+    if not user.is_active or not verify_password(user.password_hash, password):
+        return None
+    return user
+
+
+# --- FastAPI dependencies --------------------------------------------------------------------
+
+
+async def sent_csrf_token(request: Request) -> str:
+    """The CSRF token a request carries: the X-CSRF-Token header, or a plain form's field."""
+    sent = request.headers.get(CSRF_HEADER, "")
+    content_type = request.headers.get("content-type", "")
+    if not sent and request.method not in SAFE_METHODS and content_type.startswith(
+        "application/x-www-form-urlencoded"
+    ):
+        form = await request.form()  # Starlette caches it: the route reads the same form
+        value = form.get("csrf_token")
+        sent = value if isinstance(value, str) else ""
+    return sent
+
+
+def optional_user(
+    request: Request, session: SessionDep, sent_csrf: Annotated[str, Depends(sent_csrf_token)]
+) -> User | None:
+    """The caller: by bearer token, else by session cookie (with CSRF on unsafe methods)."""
+    header = request.headers.get("authorization", "")
+    if header:
+        scheme, _, credentials = header.partition(" ")
+        if scheme.lower() != "bearer" or not credentials.strip():
+            raise AuthenticationError("The Authorization header must be 'Bearer <token>'.")
+        return user_for_token(session, credentials.strip())
+    cookie = request.cookies.get(SESSION_COOKIE)
+    if not cookie:
+        return None
+    web_session = web_session_for_cookie(session, cookie)
+    if web_session is None:
+        return None
+    if request.method not in SAFE_METHODS:
+        if not constant_time_equal(sent_csrf, web_session.csrf_token):
+            raise PermissionDeniedError(
+                f"The {CSRF_HEADER} header is missing or wrong; reload the page and try again."
+            )
+    request.state.web_session = web_session
+    return web_session.user
+
+
+def current_user(user: Annotated[User | None, Depends(optional_user)]) -> User:
+    """The caller, or 401."""
+    if user is None:
+        raise AuthenticationError(
+            "Authentication required: send 'Authorization: Bearer <token>' or log in at /login."
+        )
+    return user
+
+
+CurrentUser = Annotated[User, Depends(current_user)]
+
+
+def require_role(minimum: Role) -> object:
+    """A dependency that lets through users whose role is ``minimum`` or higher."""
+
+    def check(user: CurrentUser) -> User:
+        if user.role.rank < minimum.rank:
+            raise PermissionDeniedError(
+                f"This needs the {minimum.value} role or higher; you are {user.role.value}."
+            )
+        return user
+
+    return Depends(check)
+
+
+ReviewerUser = Annotated[User, require_role(Role.reviewer)]
+AdminUser = Annotated[User, require_role(Role.admin)]

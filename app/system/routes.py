@@ -1,0 +1,52 @@
+"""/api/v1/health: is the service usable, and what is missing."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import sqlalchemy as sa
+from fastapi import APIRouter, Request
+from fastapi.responses import JSONResponse
+
+from app.db import schema_revision
+from app.queue import describe
+from weldpool_core.teacher.weights import weights_status
+
+router = APIRouter(tags=["system"])
+
+
+def _database(request: Request) -> dict[str, Any]:
+    engine = request.app.state.engine
+    try:
+        current, head = schema_revision(engine)
+    except sa.exc.SQLAlchemyError as exc:
+        return {"status": "error", "backend": engine.dialect.name,
+                "detail": str(exc).splitlines()[0]}
+    state = "ok" if current == head else "error"
+    return {"status": state, "backend": engine.dialect.name, "revision": current, "head": head}
+
+
+def _workers(request: Request) -> dict[str, Any]:
+    from app.jobs.runner import live_workers
+
+    try:
+        return {"alive": live_workers(request.app.state.session_factory,
+                                      request.app.state.settings.job_stale_after_s)}
+    except sa.exc.SQLAlchemyError:
+        return {"alive": None}
+
+
+@router.get("/health")
+def health(request: Request) -> JSONResponse:
+    """Database, queue and teacher weights; 200 when the service can work, else 503."""
+    settings = request.app.state.settings
+    database = _database(request)
+    queue = describe(request.app.state.queue) | _workers(request)
+    teacher = {
+        "dino": weights_status(settings.dino, "WELDPOOL_DINO").as_dict(),
+        "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").as_dict(),
+    }
+    ok = database["status"] == "ok" and queue["status"] == "ok"
+    body = {"status": "ok" if ok else "error", "database": database, "queue": queue,
+            "teacher": teacher}
+    return JSONResponse(body, status_code=200 if ok else 503)

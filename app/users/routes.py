@@ -1,0 +1,61 @@
+"""/api/v1/users and /api/v1/tokens: who may use weldpool, and their API tokens."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+
+from app.deps import SessionDep
+from app.security import AdminUser, CurrentUser
+from app.users import service
+from app.users.schemas import TokenCreated, TokenIn, TokenOut, UserIn, UserOut, UserPatch
+
+router = APIRouter(tags=["users"])
+
+
+@router.get("/users/me", response_model=UserOut)
+def me(user: CurrentUser) -> UserOut:
+    """The caller."""
+    return UserOut.model_validate(user)
+
+
+@router.get("/users", response_model=list[UserOut])
+def list_users(session: SessionDep, _admin: AdminUser) -> list[UserOut]:
+    """Every user (admins only)."""
+    return [UserOut.model_validate(u) for u in service.list_users(session)]
+
+
+@router.post("/users", response_model=UserOut, status_code=status.HTTP_201_CREATED)
+def create_user(body: UserIn, session: SessionDep, _admin: AdminUser) -> UserOut:
+    """Add a user (admins only)."""
+    return UserOut.model_validate(
+        service.create_user(session, body.username, body.password, body.role)
+    )
+
+
+@router.patch("/users/{user_id}", response_model=UserOut)
+def update_user(user_id: int, body: UserPatch, session: SessionDep, _admin: AdminUser) -> UserOut:
+    """Change a user's role, activity or password (admins only)."""
+    user = service.get_user(session, user_id)
+    return UserOut.model_validate(
+        service.update_user(session, user, role=body.role, is_active=body.is_active,
+                            password=body.password)
+    )
+
+
+@router.get("/tokens", response_model=list[TokenOut])
+def list_tokens(session: SessionDep, user: CurrentUser) -> list[TokenOut]:
+    """The caller's API tokens (never the tokens themselves)."""
+    return [TokenOut.model_validate(t) for t in service.list_tokens(session, user)]
+
+
+@router.post("/tokens", response_model=TokenCreated, status_code=status.HTTP_201_CREATED)
+def create_token(body: TokenIn, session: SessionDep, user: CurrentUser) -> TokenCreated:
+    """A new API token for the caller; the answer is the only place the token appears."""
+    row, text = service.create_token(session, user, body.name)
+    return TokenCreated(token=text, **TokenOut.model_validate(row).model_dump())
+
+
+@router.delete("/tokens/{token_id}", response_model=TokenOut)
+def revoke_token(token_id: int, session: SessionDep, user: CurrentUser) -> TokenOut:
+    """Revoke a token (one's own; admins any)."""
+    return TokenOut.model_validate(service.revoke_token(session, token_id, user))

@@ -1,0 +1,111 @@
+"""Users and their API tokens (the REST API and the CLI both call these)."""
+
+from __future__ import annotations
+
+import re
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.db import utcnow
+from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
+from app.models import ApiToken, Role, User, WebSession
+from app.security import hash_password, issue_token
+from app.users.schemas import USERNAME_PATTERN
+
+MIN_PASSWORD_LENGTH = 8
+
+
+def _check_password(password: str) -> None:
+    if len(password) < MIN_PASSWORD_LENGTH:
+        raise InvalidInputError(
+            f"The password must have at least {MIN_PASSWORD_LENGTH} characters."
+        )
+
+
+def create_user(session: Session, username: str, password: str, role: Role) -> User:
+    """A new active user; the name must be free."""
+    if not re.fullmatch(USERNAME_PATTERN, username):
+        raise InvalidInputError(
+            "A user name has 1 to 64 letters, digits or the characters _ . @ -."
+        )
+    _check_password(password)
+    if session.scalar(sa.select(User.id).where(User.username == username)) is not None:
+        raise ConflictError(f"There is already a user named {username!r}.")
+    user = User(username=username, password_hash=hash_password(password), role=role)
+    session.add(user)
+    session.commit()
+    return user
+
+
+def get_user(session: Session, user_id: int) -> User:
+    user = session.get(User, user_id)
+    if user is None:
+        raise NotFoundError(f"There is no user {user_id}.")
+    return user
+
+
+def user_by_name(session: Session, username: str) -> User:
+    user = session.scalar(sa.select(User).where(User.username == username))
+    if user is None:
+        raise NotFoundError(f"There is no user named {username!r}; add one with `weldpool user add`.")
+    return user
+
+
+def list_users(session: Session) -> list[User]:
+    return list(session.scalars(sa.select(User).order_by(User.username)).all())
+
+
+def update_user(
+    session: Session,
+    user: User,
+    *,
+    role: Role | None = None,
+    is_active: bool | None = None,
+    password: str | None = None,
+) -> User:
+    """Change a user's role, activity or password; deactivation logs them out everywhere."""
+    if role is not None:
+        user.role = role
+    if password is not None:
+        _check_password(password)
+        user.password_hash = hash_password(password)
+    if is_active is not None:
+        user.is_active = is_active
+        if not is_active:
+            session.execute(sa.delete(WebSession).where(WebSession.user_id == user.id))
+    if not session.scalar(
+        sa.select(sa.func.count()).where(User.role == Role.admin, User.is_active.is_(True))
+    ):
+        session.rollback()
+        raise ConflictError("This would leave no active admin; promote another user first.")
+    session.commit()
+    return user
+
+
+def create_token(session: Session, user: User, name: str = "") -> tuple[ApiToken, str]:
+    """A new API token for ``user``; the text is returned once and stored only hashed."""
+    row, text = issue_token(session, user, name)
+    session.commit()
+    return row, text
+
+
+def list_tokens(session: Session, user: User) -> list[ApiToken]:
+    return list(
+        session.scalars(
+            sa.select(ApiToken).where(ApiToken.user_id == user.id).order_by(ApiToken.id)
+        ).all()
+    )
+
+
+def revoke_token(session: Session, token_id: int, actor: User | None) -> ApiToken:
+    """Revoke a token; users revoke their own, admins any (``actor`` None: the CLI)."""
+    row = session.get(ApiToken, token_id)
+    if row is None:
+        raise NotFoundError(f"There is no token {token_id}.")
+    if actor is not None and row.user_id != actor.id and actor.role != Role.admin:
+        raise PermissionDeniedError("Only admins may revoke other users' tokens.")
+    if row.revoked_at is None:
+        row.revoked_at = utcnow()
+        session.commit()
+    return row

@@ -1,0 +1,106 @@
+"""Browser pages: login, logout and the home page (the review UI builds on these)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Form, Request
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.templating import Jinja2Templates
+
+from app.deps import SessionDep, SettingsDep
+from app.models import User
+from app.security import (
+    LOGIN_CSRF_COOKIE,
+    SESSION_COOKIE,
+    authenticate,
+    close_web_session,
+    constant_time_equal,
+    current_user,
+    new_csrf_token,
+    open_web_session,
+    optional_user,
+)
+
+TEMPLATES = Jinja2Templates(directory=Path(__file__).resolve().parents[2] / "templates")
+router = APIRouter(include_in_schema=False)
+
+
+def _safe_next(target: str | None) -> str:
+    """Only same-site paths: never redirect a login to another host."""
+    if not target or not target.startswith("/") or target.startswith("//") or "\\" in target:
+        return "/"
+    return target
+
+
+def render(request: Request, name: str, status_code: int = 200, **context: Any) -> HTMLResponse:
+    """A page with the logged-in user and their CSRF token in its context."""
+    web_session = getattr(request.state, "web_session", None)
+    context.setdefault("user", web_session.user if web_session else None)
+    context.setdefault("csrf_token", web_session.csrf_token if web_session else "")
+    return TEMPLATES.TemplateResponse(request, name, context, status_code=status_code)
+
+
+def _login_page(request: Request, next_url: str, error: str = "", status_code: int = 200) -> Response:
+    token = new_csrf_token()
+    response = render(request, "login.html", status_code, next=next_url, error=error,
+                      login_csrf=token)
+    response.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict",
+                        path="/login")
+    return response
+
+
+@router.get("/login")
+def login_form(
+    request: Request, user: Annotated[User | None, Depends(optional_user)], next: str = "/"
+) -> Response:
+    if user is not None:
+        return RedirectResponse(_safe_next(next), status_code=303)
+    return _login_page(request, _safe_next(next))
+
+
+@router.post("/login")
+def login(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    username: Annotated[str, Form()] = "",
+    password: Annotated[str, Form()] = "",
+    csrf_token: Annotated[str, Form()] = "",
+    next: Annotated[str, Form()] = "/",
+) -> Response:
+    expected = request.cookies.get(LOGIN_CSRF_COOKIE, "")
+    if not expected or not constant_time_equal(expected, csrf_token):
+        return _login_page(request, _safe_next(next),
+                           "The form expired; please log in again.", 403)
+    user = authenticate(session, username, password)
+    if user is None:
+        return _login_page(request, _safe_next(next), "Wrong user name or password.", 401)
+    _, cookie = open_web_session(session, user, settings.session_ttl_hours)
+    session.commit()
+    response = RedirectResponse(_safe_next(next), status_code=303)
+    response.set_cookie(SESSION_COOKIE, cookie, httponly=True, samesite="lax",
+                        secure=settings.cookie_secure,
+                        max_age=int(settings.session_ttl_hours * 3600))
+    response.delete_cookie(LOGIN_CSRF_COOKIE, path="/login")
+    return response
+
+
+@router.post("/logout")
+def logout(
+    request: Request,
+    session: SessionDep,
+    _user: Annotated[User, Depends(current_user)],
+) -> Response:
+    # current_user has checked the form's csrf_token against the session.
+    close_web_session(session, request.cookies.get(SESSION_COOKIE, ""))
+    session.commit()
+    response = RedirectResponse("/login", status_code=303)
+    response.delete_cookie(SESSION_COOKIE)
+    return response
+
+
+@router.get("/")
+def home(request: Request, _user: Annotated[User, Depends(current_user)]) -> Response:
+    return render(request, "home.html")

@@ -1,0 +1,1 @@
+"""The teacher: DINO attention → prompts → SAM2, and the weights it loads."""

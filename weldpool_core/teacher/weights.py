@@ -1,0 +1,85 @@
+"""The one place that resolves teacher weights: a local directory or a Hugging Face hub id.
+
+A local directory holds a model as ``save_pretrained`` writes it (``config.json`` + weights).
+A hub id is looked up in the local hub cache; ``fetch_weights`` downloads it when online.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+WEIGHT_FILES = ("model.safetensors", "model.safetensors.index.json", "pytorch_model.bin",
+                "pytorch_model.bin.index.json")
+DOWNLOAD_PATTERNS = ["*.json", "*.safetensors", "*.txt"]
+
+
+@dataclass(frozen=True)
+class WeightsStatus:
+    """Where a model's weights are, and whether they can be loaded without a download."""
+
+    ref: str
+    setting: str
+    source: str  # "local" or "hub"
+    available: bool
+    path: str | None
+    detail: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _looks_local(ref: str) -> bool:
+    return ref.startswith(("/", ".", "~")) or Path(ref).expanduser().exists()
+
+
+def _weights_in(directory: Path) -> bool:
+    return (directory / "config.json").is_file() and any(
+        (directory / name).is_file() for name in WEIGHT_FILES
+    )
+
+
+def weights_status(ref: str, setting: str) -> WeightsStatus:
+    """Whether the model ``ref`` (the value of the variable ``setting``) is ready to load."""
+    if _looks_local(ref):
+        directory = Path(ref).expanduser()
+        if _weights_in(directory):
+            return WeightsStatus(ref, setting, "local", True, str(directory), "ready")
+        return WeightsStatus(
+            ref, setting, "local", False, str(directory),
+            f"{directory} holds no config.json with model weights; set {setting} to a "
+            "directory written by save_pretrained or to a Hugging Face model id.",
+        )
+    from huggingface_hub import try_to_load_from_cache
+
+    config = try_to_load_from_cache(ref, "config.json")
+    if isinstance(config, str):
+        snapshot = Path(config).parent
+        if _weights_in(snapshot):
+            return WeightsStatus(ref, setting, "hub", True, str(snapshot), "ready (hub cache)")
+    return WeightsStatus(
+        ref, setting, "hub", False, None,
+        f"The weights of {ref} are not downloaded; run `weldpool weights fetch` on a machine "
+        f"with internet access, or set {setting} to a local directory.",
+    )
+
+
+def fetch_weights(ref: str, setting: str) -> WeightsStatus:
+    """Download ``ref`` into the hub cache (a local directory is only checked)."""
+    from weldpool_core.errors import WeightsUnavailableError
+
+    if not _looks_local(ref):
+        from huggingface_hub import snapshot_download
+
+        try:
+            snapshot_download(ref, allow_patterns=DOWNLOAD_PATTERNS)
+        except Exception as exc:
+            raise WeightsUnavailableError(
+                f"Could not download {ref} ({type(exc).__name__}); check the network, or set "
+                f"{setting} to a local directory with the model."
+            ) from exc
+    status = weights_status(ref, setting)
+    if not status.available:
+        raise WeightsUnavailableError(status.detail)
+    return status
