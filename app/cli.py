@@ -36,8 +36,10 @@ def friendly_errors(func: F) -> F:
         except WeldpoolError as exc:
             _fail(exc.message)
         except sa.exc.OperationalError as exc:
-            _fail(f"The database is unreachable ({str(exc.orig).strip().splitlines()[0]}); "
-                  "check WELDPOOL_DATABASE_URL.")
+            _fail(
+                f"The database is unreachable ({str(exc.orig).strip().splitlines()[0]}); "
+                "check WELDPOOL_DATABASE_URL."
+            )
 
     return wrapper  # type: ignore[return-value]
 
@@ -76,7 +78,6 @@ def migrate_cmd() -> None:
     click.echo("database is at the newest revision", err=True)
 
 
-
 @main.command()
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
 @click.option("--port", default=8000, show_default=True, type=int)
@@ -87,10 +88,17 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     import uvicorn
 
     from app.main import create_app
+    from app.users.service import ensure_initial_admin
 
     settings = _settings()
     settings.ensure_home()
-    migrate(create_db_engine(settings.resolved_database_url))
+    engine = create_db_engine(settings.resolved_database_url)
+    migrate(engine)
+    with create_session_factory(engine)() as session:
+        password_file = ensure_initial_admin(session, settings.home)
+    engine.dispose()
+    if password_file:
+        click.echo(f"created user 'admin'; its password is in {password_file}", err=True)
     app = create_app(settings, embedded_worker=not no_worker)
     click.echo(f"weldpool serving on http://{host}:{port}", err=True)
     uvicorn.run(app, host=host, port=port, log_config=None, access_log=True)

@@ -30,7 +30,8 @@ class Settings(BaseSettings):
         description="redis://… for workers on other machines; default: SQLite queue file in home.",
     )
     queue_name: str = Field(
-        default="weldpool", description="Queue name; instances sharing one Redis need distinct names."
+        default="weldpool",
+        description="Queue name; instances sharing one Redis need distinct names.",
     )
     dino: str = Field(default="facebook/dino-vits8", description="DINO hub id or local directory.")
     sam2: str = Field(
@@ -38,7 +39,9 @@ class Settings(BaseSettings):
     )
     device: str = Field(default="auto", description="cpu, cuda, cuda:N, mps or auto.")
     retrain_every: int = Field(
-        default=20, ge=0, description="New reviewed labels that start a training job; 0 turns it off."
+        default=20,
+        ge=0,
+        description="New reviewed labels that start a training job; 0 turns it off.",
     )
 
     workers: int = Field(default=1, ge=1, description="Worker threads of one worker process.")
@@ -48,7 +51,7 @@ class Settings(BaseSettings):
     job_stale_after_s: float = Field(
         default=60.0,
         gt=0,
-        description="A running job whose worker has not reported for this long is failed or retried.",
+        description="A running job whose worker is silent this long is failed or retried.",
     )
     session_ttl_hours: float = Field(default=12.0, gt=0, description="Browser session lifetime.")
     cookie_secure: bool = Field(
@@ -61,9 +64,7 @@ class Settings(BaseSettings):
     @classmethod
     def _queue_scheme(cls, value: str | None) -> str | None:
         if value and not value.startswith(("redis://", "rediss://", "unix://")):
-            raise ValueError(
-                "WELDPOOL_QUEUE_URL must be empty (embedded queue) or a redis://… URL"
-            )
+            raise ValueError("WELDPOOL_QUEUE_URL must be empty (embedded queue) or a redis://… URL")
         return value or None
 
     @property

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 
 
 def get_settings_dep(request: Request) -> Settings:
-    return request.app.state.settings  # type: ignore[no-any-return]
+    return request.app.state.settings
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -27,7 +27,7 @@ def get_session(request: Request) -> Iterator[Session]:
 
 
 def get_queue(request: Request) -> JobQueue:
-    return request.app.state.queue  # type: ignore[no-any-return]
+    return request.app.state.queue
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings_dep)]

@@ -39,8 +39,12 @@ def _install_error_handlers(app: FastAPI) -> None:
     async def weldpool_error(request: Request, exc: WeldpoolError) -> Response:
         status = http_status_of(exc)
         wants_html = "text/html" in request.headers.get("accept", "")
-        if isinstance(exc, AuthenticationError) and wants_html and request.method == "GET" \
-                and not request.url.path.startswith("/api/"):
+        if (
+            isinstance(exc, AuthenticationError)
+            and wants_html
+            and request.method == "GET"
+            and not request.url.path.startswith("/api/")
+        ):
             return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
         return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
@@ -48,8 +52,9 @@ def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, exc: RequestValidationError) -> Response:
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]
-        return JSONResponse({"detail": _validation_sentence(exc), "errors": errors},
-                            status_code=422)
+        return JSONResponse(
+            {"detail": _validation_sentence(exc), "errors": errors}, status_code=422
+        )
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> Response:

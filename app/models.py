@@ -72,8 +72,14 @@ class JobStatus(enum.StrEnum):
 
 def _enum(cls: type[enum.StrEnum], name: str) -> sa.Enum:
     # Stored as plain strings with a CHECK constraint: portable and easy to extend by migration.
-    return sa.Enum(cls, name=name, native_enum=False, length=16, validate_strings=True,
-                   values_callable=lambda e: [m.value for m in e])
+    return sa.Enum(
+        cls,
+        name=name,
+        native_enum=False,
+        length=16,
+        validate_strings=True,
+        values_callable=lambda e: [m.value for m in e],
+    )
 
 
 class User(Base):
@@ -181,8 +187,9 @@ class Proposal(Base):
     __tablename__ = "proposals"
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
-                                          index=True)
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), index=True
+    )
     source: Mapped[str] = mapped_column(sa.String(16))  # "teacher" or "student"
     model_id: Mapped[str] = mapped_column(sa.String(255))
     model_version_id: Mapped[int | None] = mapped_column(
@@ -204,8 +211,9 @@ class Label(Base):
     __tablename__ = "labels"
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
-                                          unique=True)
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), unique=True
+    )
     revision: Mapped[int] = mapped_column(default=1)
     status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
     mask_path: Mapped[str | None] = mapped_column(sa.String(500))
@@ -226,8 +234,9 @@ class LabelRevision(Base):
     __table_args__ = (sa.UniqueConstraint("frame_id", "revision"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
-                                          index=True)
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), index=True
+    )
     revision: Mapped[int]
     status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
     mask_path: Mapped[str | None] = mapped_column(sa.String(500))
@@ -245,8 +254,9 @@ class ValidationKeypoints(Base):
     __tablename__ = "validation_keypoints"
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    frame_id: Mapped[int] = mapped_column(sa.ForeignKey("frames.id", ondelete="CASCADE"),
-                                          unique=True)
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), unique=True
+    )
     keypoints: Mapped[list[Any]] = mapped_column(JSONType)
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -32,13 +32,13 @@ class JobQueue:
         self.worker_id = new_worker_id()
         if settings.queue_url:
             self.backend = "redis"
-            self.huey: Huey = RedisHuey(settings.queue_name, url=settings.queue_url,
-                                        results=False)
+            self.huey: Huey = RedisHuey(settings.queue_name, url=settings.queue_url, results=False)
         else:
             self.backend = "sqlite"
             settings.home.mkdir(parents=True, exist_ok=True)
-            self.huey = SqliteHuey(settings.queue_name, filename=str(settings.queue_file),
-                                   results=False)
+            self.huey = SqliteHuey(
+                settings.queue_name, filename=str(settings.queue_file), results=False
+            )
         self._run_job = self.huey.task(name="weldpool.run_job")(self._execute)
 
     def _execute(self, job_id: int) -> None:
@@ -50,8 +50,7 @@ class JobQueue:
             self._run_job(job_id)
         except Exception as exc:
             raise ConfigurationError(
-                f"The job queue ({self.backend}) is unreachable: {exc}; "
-                "check WELDPOOL_QUEUE_URL."
+                f"The job queue ({self.backend}) is unreachable: {exc}; check WELDPOOL_QUEUE_URL."
             ) from exc
 
     def pending(self) -> int:
@@ -62,8 +61,14 @@ class JobQueue:
         """A Huey consumer for this queue; an embedded one installs no signal handlers."""
         cls = _EmbeddedConsumer if embedded else Consumer
         # max_delay bounds how long an idle SQLite queue waits between polls (Redis blocks).
-        return cls(self.huey, workers=threads, worker_type="thread", periodic=False,
-                   check_worker_health=True, max_delay=1.0)
+        return cls(
+            self.huey,
+            workers=threads,
+            worker_type="thread",
+            periodic=False,
+            check_worker_health=True,
+            max_delay=1.0,
+        )
 
 
 class _EmbeddedConsumer(Consumer):  # type: ignore[misc]
@@ -79,16 +84,18 @@ class WorkerPresence:
     def __init__(self, queue: JobQueue, threads: int) -> None:
         self.queue = queue
         host, pid, _ = queue.worker_id.split(":")
-        self.row = Worker(id=queue.worker_id, hostname=host, pid=int(pid), threads=threads,
-                          started_at=utcnow())
+        self.row = Worker(
+            id=queue.worker_id, hostname=host, pid=int(pid), threads=threads, started_at=utcnow()
+        )
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="weldpool-presence", daemon=True)
 
     def beat(self) -> None:
         """One heartbeat and one reaping pass."""
         record_heartbeat(self.queue.session_factory, self.row)
-        reap_lost_jobs(self.queue.session_factory, self.queue.settings.job_stale_after_s,
-                       self.queue.enqueue)
+        reap_lost_jobs(
+            self.queue.session_factory, self.queue.settings.job_stale_after_s, self.queue.enqueue
+        )
 
     def start(self) -> None:
         self.beat()

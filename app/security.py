@@ -14,9 +14,9 @@ from argon2.exceptions import InvalidHashError, VerificationError
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
+from app.db import utcnow
 from app.deps import SessionDep
 from app.errors import AuthenticationError, PermissionDeniedError
-from app.db import utcnow
 from app.models import ApiToken, Role, User, WebSession
 
 SESSION_COOKIE = "weldpool_session"
@@ -127,8 +127,10 @@ async def sent_csrf_token(request: Request) -> str:
     """The CSRF token a request carries: the X-CSRF-Token header, or a plain form's field."""
     sent = request.headers.get(CSRF_HEADER, "")
     content_type = request.headers.get("content-type", "")
-    if not sent and request.method not in SAFE_METHODS and content_type.startswith(
-        "application/x-www-form-urlencoded"
+    if (
+        not sent
+        and request.method not in SAFE_METHODS
+        and content_type.startswith("application/x-www-form-urlencoded")
     ):
         form = await request.form()  # Starlette caches it: the route reads the same form
         value = form.get("csrf_token")
@@ -152,11 +154,12 @@ def optional_user(
     web_session = web_session_for_cookie(session, cookie)
     if web_session is None:
         return None
-    if request.method not in SAFE_METHODS:
-        if not constant_time_equal(sent_csrf, web_session.csrf_token):
-            raise PermissionDeniedError(
-                f"The {CSRF_HEADER} header is missing or wrong; reload the page and try again."
-            )
+    if request.method not in SAFE_METHODS and not constant_time_equal(
+        sent_csrf, web_session.csrf_token
+    ):
+        raise PermissionDeniedError(
+            f"The {CSRF_HEADER} header is missing or wrong; reload the page and try again."
+        )
     request.state.web_session = web_session
     return web_session.user
 

@@ -16,4 +16,4 @@ class InvalidInputError(WeldpoolError):
 
 
 class WeightsUnavailableError(WeldpoolError):
-    """Model weights are neither in a local directory nor in the hub cache, and cannot be fetched."""
+    """Model weights are neither in a local directory nor in the hub cache, nor downloadable."""

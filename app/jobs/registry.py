@@ -33,6 +33,7 @@ class JobSpec:
 
 
 _HANDLERS: dict[str, JobSpec] = {}
+_loaded = False
 
 
 def job_handler(
@@ -51,9 +52,11 @@ def job_handler(
 
 def job_spec(kind: str) -> JobSpec | None:
     """The registered spec of a job kind, importing every domain's handlers on first use."""
-    if not _HANDLERS:
+    global _loaded
+    if not _loaded:
         for module in HANDLER_MODULES:
             importlib.import_module(module)
+        _loaded = True
     return _HANDLERS.get(kind)
 
 
@@ -79,8 +82,11 @@ class JobContext:
             session.execute(
                 sa.update(Job)
                 .where(Job.id == self.job_id, Job.worker_id == self.worker_id)
-                .values(progress=min(max(fraction, 0.0), 1.0), message=message[:500],
-                        heartbeat_at=utcnow())
+                .values(
+                    progress=min(max(fraction, 0.0), 1.0),
+                    message=message[:500],
+                    heartbeat_at=utcnow(),
+                )
             )
             session.commit()
         self.check_cancelled()

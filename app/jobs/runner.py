@@ -41,7 +41,7 @@ def _finish(
             .values(finished_at=utcnow(), heartbeat_at=utcnow(), **values)
         )
         session.commit()
-        return done.rowcount == 1  # type: ignore[attr-defined,no-any-return]
+        return done.rowcount == 1  # type: ignore[attr-defined]
 
 
 def execute_job(
@@ -52,8 +52,15 @@ def execute_job(
         claimed = session.execute(
             sa.update(Job)
             .where(Job.id == job_id, Job.status == JobStatus.queued)
-            .values(status=JobStatus.running, worker_id=worker_id, attempts=Job.attempts + 1,
-                    started_at=utcnow(), heartbeat_at=utcnow(), progress=0.0, message="")
+            .values(
+                status=JobStatus.running,
+                worker_id=worker_id,
+                attempts=Job.attempts + 1,
+                started_at=utcnow(),
+                heartbeat_at=utcnow(),
+                progress=0.0,
+                message="",
+            )
         )
         session.commit()
         if claimed.rowcount != 1:  # type: ignore[attr-defined]
@@ -65,15 +72,25 @@ def execute_job(
     log.info("job.started", job_id=job_id, kind=kind, worker=worker_id)
     spec = job_spec(kind)
     if spec is None:
-        _finish(session_factory, job_id, worker_id, status=JobStatus.failed,
-                error=f"This worker does not know job kind {kind!r}; update the worker.")
+        _finish(
+            session_factory,
+            job_id,
+            worker_id,
+            status=JobStatus.failed,
+            error=f"This worker does not know job kind {kind!r}; update the worker.",
+        )
         return
     context = JobContext(job_id, params, settings, session_factory, worker_id)
     try:
         result = spec.handler(context)
     except JobCancelled:
-        _finish(session_factory, job_id, worker_id, status=JobStatus.cancelled,
-                message="cancelled by a user")
+        _finish(
+            session_factory,
+            job_id,
+            worker_id,
+            status=JobStatus.cancelled,
+            message="cancelled by a user",
+        )
         log.info("job.cancelled", job_id=job_id)
     except WeldpoolError as exc:
         _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=exc.message)
@@ -83,8 +100,14 @@ def execute_job(
         _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=message)
         log.exception("job.crashed", job_id=job_id)
     else:
-        _finish(session_factory, job_id, worker_id, status=JobStatus.succeeded, progress=1.0,
-                result=result or {})
+        _finish(
+            session_factory,
+            job_id,
+            worker_id,
+            status=JobStatus.succeeded,
+            progress=1.0,
+            result=result or {},
+        )
         log.info("job.succeeded", job_id=job_id)
 
 
@@ -116,8 +139,9 @@ def reap_lost_jobs(
     handled: list[int] = []
     with session_factory() as session:
         running = session.execute(
-            sa.select(Job.id, Job.worker_id, Job.heartbeat_at, Job.attempts, Job.max_attempts)
-            .where(Job.status == JobStatus.running)
+            sa.select(
+                Job.id, Job.worker_id, Job.heartbeat_at, Job.attempts, Job.max_attempts
+            ).where(Job.status == JobStatus.running)
         ).all()
         for job_id, worker_id, heartbeat_at, attempts, max_attempts in running:
             stale = heartbeat_at is None or heartbeat_at < cutoff
@@ -126,17 +150,24 @@ def reap_lost_jobs(
             seen = heartbeat_at.isoformat(timespec="seconds") if heartbeat_at else "never"
             retry = attempts < max_attempts
             values: dict[str, object] = (
-                {"status": JobStatus.queued, "worker_id": None,
-                 "message": f"retrying: worker {worker_id} stopped (last seen {seen})"}
-                if retry else
-                {"status": JobStatus.failed, "finished_at": utcnow(),
-                 "error": f"The worker running this job stopped without finishing it "
-                          f"(worker {worker_id}, last seen {seen}); start the job again."}
+                {
+                    "status": JobStatus.queued,
+                    "worker_id": None,
+                    "message": f"retrying: worker {worker_id} stopped (last seen {seen})",
+                }
+                if retry
+                else {
+                    "status": JobStatus.failed,
+                    "finished_at": utcnow(),
+                    "error": f"The worker running this job stopped without finishing it "
+                    f"(worker {worker_id}, last seen {seen}); start the job again.",
+                }
             )
             taken = session.execute(
                 sa.update(Job)
-                .where(Job.id == job_id, Job.status == JobStatus.running,
-                       Job.worker_id == worker_id)
+                .where(
+                    Job.id == job_id, Job.status == JobStatus.running, Job.worker_id == worker_id
+                )
                 .values(**values)
             )
             session.commit()
@@ -156,18 +187,23 @@ def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> 
             sa.update(Worker).where(Worker.id == worker.id).values(last_seen_at=now)
         )
         if updated.rowcount == 0:  # type: ignore[attr-defined]
-            session.add(Worker(id=worker.id, hostname=worker.hostname, pid=worker.pid,
-                               threads=worker.threads, started_at=worker.started_at,
-                               last_seen_at=now))
+            session.add(
+                Worker(
+                    id=worker.id,
+                    hostname=worker.hostname,
+                    pid=worker.pid,
+                    threads=worker.threads,
+                    started_at=worker.started_at,
+                    last_seen_at=now,
+                )
+            )
         session.execute(
             sa.update(Job)
             .where(Job.worker_id == worker.id, Job.status == JobStatus.running)
             .values(heartbeat_at=now)
         )
         # Forget workers not seen for a day (their jobs were reaped long ago).
-        session.execute(
-            sa.delete(Worker).where(Worker.last_seen_at < now - dt.timedelta(days=1))
-        )
+        session.execute(sa.delete(Worker).where(Worker.last_seen_at < now - dt.timedelta(days=1)))
         session.commit()
 
 
@@ -178,5 +214,6 @@ def live_workers(session_factory: sessionmaker[Session], stale_after_s: float) -
         return int(
             session.scalar(
                 sa.select(sa.func.count()).select_from(Worker).where(Worker.last_seen_at >= cutoff)
-            ) or 0
+            )
+            or 0
         )

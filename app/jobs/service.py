@@ -21,8 +21,12 @@ def create_job(
     spec = job_spec(kind)
     if spec is None:
         raise InvalidInputError(f"There is no job kind {kind!r}.")
-    job = Job(kind=kind, params=params, max_attempts=spec.max_attempts,
-              created_by_id=user.id if user else None)
+    job = Job(
+        kind=kind,
+        params=params,
+        max_attempts=spec.max_attempts,
+        created_by_id=user.id if user else None,
+    )
     session.add(job)
     session.commit()
     try:
@@ -60,9 +64,14 @@ def cancel_job(session: Session, job_id: int) -> Job:
     job = get_job(session, job_id)
     if job.status == JobStatus.queued:
         session.execute(
-            sa.update(Job).where(Job.id == job_id, Job.status == JobStatus.queued)
-            .values(status=JobStatus.cancelled, cancel_requested=True, finished_at=utcnow(),
-                    message="cancelled before it started")
+            sa.update(Job)
+            .where(Job.id == job_id, Job.status == JobStatus.queued)
+            .values(
+                status=JobStatus.cancelled,
+                cancel_requested=True,
+                finished_at=utcnow(),
+                message="cancelled before it started",
+            )
         )
     elif job.status == JobStatus.running:
         job.cancel_requested = True

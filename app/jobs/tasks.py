@@ -26,5 +26,9 @@ def diagnostic(ctx: JobContext) -> dict[str, Any]:
         ctx.progress((step + 1) / steps, f"step {step + 1} of {steps}")
     if ctx.params.get("fail"):
         raise WeldpoolError(str(ctx.params["fail"]))
-    return {"seconds": seconds, "worker": ctx.worker_id, "host": socket.gethostname(),
-            "pid": os.getpid()}
+    return {
+        "seconds": seconds,
+        "worker": ctx.worker_id,
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+    }

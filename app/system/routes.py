@@ -20,8 +20,11 @@ def _database(request: Request) -> dict[str, Any]:
     try:
         current, head = schema_revision(engine)
     except sa.exc.SQLAlchemyError as exc:
-        return {"status": "error", "backend": engine.dialect.name,
-                "detail": str(exc).splitlines()[0]}
+        return {
+            "status": "error",
+            "backend": engine.dialect.name,
+            "detail": str(exc).splitlines()[0],
+        }
     state = "ok" if current == head else "error"
     return {"status": state, "backend": engine.dialect.name, "revision": current, "head": head}
 
@@ -30,8 +33,11 @@ def _workers(request: Request) -> dict[str, Any]:
     from app.jobs.runner import live_workers
 
     try:
-        return {"alive": live_workers(request.app.state.session_factory,
-                                      request.app.state.settings.job_stale_after_s)}
+        return {
+            "alive": live_workers(
+                request.app.state.session_factory, request.app.state.settings.job_stale_after_s
+            )
+        }
     except sa.exc.SQLAlchemyError:
         return {"alive": None}
 
@@ -47,6 +53,10 @@ def health(request: Request) -> JSONResponse:
         "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").as_dict(),
     }
     ok = database["status"] == "ok" and queue["status"] == "ok"
-    body = {"status": "ok" if ok else "error", "database": database, "queue": queue,
-            "teacher": teacher}
+    body = {
+        "status": "ok" if ok else "error",
+        "database": database,
+        "queue": queue,
+        "teacher": teacher,
+    }
     return JSONResponse(body, status_code=200 if ok else 503)

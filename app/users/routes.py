@@ -37,8 +37,9 @@ def update_user(user_id: int, body: UserPatch, session: SessionDep, _admin: Admi
     """Change a user's role, activity or password (admins only)."""
     user = service.get_user(session, user_id)
     return UserOut.model_validate(
-        service.update_user(session, user, role=body.role, is_active=body.is_active,
-                            password=body.password)
+        service.update_user(
+            session, user, role=body.role, is_active=body.is_active, password=body.password
+        )
     )
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import re
+import secrets
+from pathlib import Path
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
@@ -48,7 +51,9 @@ def get_user(session: Session, user_id: int) -> User:
 def user_by_name(session: Session, username: str) -> User:
     user = session.scalar(sa.select(User).where(User.username == username))
     if user is None:
-        raise NotFoundError(f"There is no user named {username!r}; add one with `weldpool user add`.")
+        raise NotFoundError(
+            f"There is no user named {username!r}; add one with `weldpool user add`."
+        )
     return user
 
 
@@ -109,3 +114,24 @@ def revoke_token(session: Session, token_id: int, actor: User | None) -> ApiToke
         row.revoked_at = utcnow()
         session.commit()
     return row
+
+
+INITIAL_ADMIN = "admin"
+INITIAL_PASSWORD_FILE = "initial-admin-password"
+
+
+def ensure_initial_admin(session: Session, home: Path) -> Path | None:
+    """On a fresh instance (no users at all), create ``admin`` with a random password.
+
+    The password goes to a file readable only by its owner in ``home`` (never to the log);
+    returns that file's path, or None when users already exist.
+    """
+    if session.scalar(sa.select(sa.func.count()).select_from(User)):
+        return None
+    password = secrets.token_urlsafe(12)
+    create_user(session, INITIAL_ADMIN, password, Role.admin)
+    path = home / INITIAL_PASSWORD_FILE
+    descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(descriptor, "w") as handle:
+        handle.write(password + "\n")
+    return path

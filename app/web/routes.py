@@ -42,12 +42,14 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
     return TEMPLATES.TemplateResponse(request, name, context, status_code=status_code)
 
 
-def _login_page(request: Request, next_url: str, error: str = "", status_code: int = 200) -> Response:
+def _login_page(
+    request: Request, next_url: str, error: str = "", status_code: int = 200
+) -> Response:
     token = new_csrf_token()
-    response = render(request, "login.html", status_code, next=next_url, error=error,
-                      login_csrf=token)
-    response.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict",
-                        path="/login")
+    response = render(
+        request, "login.html", status_code, next=next_url, error=error, login_csrf=token
+    )
+    response.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict", path="/login")
     return response
 
 
@@ -72,17 +74,21 @@ def login(
 ) -> Response:
     expected = request.cookies.get(LOGIN_CSRF_COOKIE, "")
     if not expected or not constant_time_equal(expected, csrf_token):
-        return _login_page(request, _safe_next(next),
-                           "The form expired; please log in again.", 403)
+        return _login_page(request, _safe_next(next), "The form expired; please log in again.", 403)
     user = authenticate(session, username, password)
     if user is None:
         return _login_page(request, _safe_next(next), "Wrong user name or password.", 401)
     _, cookie = open_web_session(session, user, settings.session_ttl_hours)
     session.commit()
     response = RedirectResponse(_safe_next(next), status_code=303)
-    response.set_cookie(SESSION_COOKIE, cookie, httponly=True, samesite="lax",
-                        secure=settings.cookie_secure,
-                        max_age=int(settings.session_ttl_hours * 3600))
+    response.set_cookie(
+        SESSION_COOKIE,
+        cookie,
+        httponly=True,
+        samesite="lax",
+        secure=settings.cookie_secure,
+        max_age=int(settings.session_ttl_hours * 3600),
+    )
     response.delete_cookie(LOGIN_CSRF_COOKIE, path="/login")
     return response
 

@@ -10,8 +10,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-WEIGHT_FILES = ("model.safetensors", "model.safetensors.index.json", "pytorch_model.bin",
-                "pytorch_model.bin.index.json")
+WEIGHT_FILES = (
+    "model.safetensors",
+    "model.safetensors.index.json",
+    "pytorch_model.bin",
+    "pytorch_model.bin.index.json",
+)
 DOWNLOAD_PATTERNS = ["*.json", "*.safetensors", "*.txt"]
 
 
@@ -47,7 +51,11 @@ def weights_status(ref: str, setting: str) -> WeightsStatus:
         if _weights_in(directory):
             return WeightsStatus(ref, setting, "local", True, str(directory), "ready")
         return WeightsStatus(
-            ref, setting, "local", False, str(directory),
+            ref,
+            setting,
+            "local",
+            False,
+            str(directory),
             f"{directory} holds no config.json with model weights; set {setting} to a "
             "directory written by save_pretrained or to a Hugging Face model id.",
         )
@@ -59,7 +67,11 @@ def weights_status(ref: str, setting: str) -> WeightsStatus:
         if _weights_in(snapshot):
             return WeightsStatus(ref, setting, "hub", True, str(snapshot), "ready (hub cache)")
     return WeightsStatus(
-        ref, setting, "hub", False, None,
+        ref,
+        setting,
+        "hub",
+        False,
+        None,
         f"The weights of {ref} are not downloaded; run `weldpool weights fetch` on a machine "
         f"with internet access, or set {setting} to a local directory.",
     )

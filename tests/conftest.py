@@ -1,0 +1,110 @@
+"""Shared fixtures: settings per test, SQLite and the real PostgreSQL, clients and users.
+
+PostgreSQL and Redis are used for real; when they are unreachable the tests that need them
+fail with a clear message (CI must not pass without them).
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+import pytest
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.db import create_db_engine, create_session_factory, migrate
+from app.main import create_app
+from app.models import Role, User
+from app.security import hash_password, issue_token
+from tests.helpers import POSTGRES_URL, REDIS_URL, make_settings
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """A URL whose connections live in a fresh schema of the real PostgreSQL, dropped after."""
+    schema = f"wp_test_{uuid.uuid4().hex[:12]}"
+    admin = sa.create_engine(POSTGRES_URL)
+    try:
+        with admin.begin() as connection:
+            connection.execute(sa.text(f'CREATE SCHEMA "{schema}"'))
+    except sa.exc.OperationalError as exc:
+        pytest.fail(
+            f"PostgreSQL at {POSTGRES_URL} is unreachable ({exc.orig}); start it or set "
+            "WELDPOOL_TEST_POSTGRES_URL. The suite must run against a real PostgreSQL.",
+            pytrace=False,
+        )
+    url = sa.engine.make_url(POSTGRES_URL).update_query_dict({"options": f"-csearch_path={schema}"})
+    yield url.render_as_string(hide_password=False)
+    with admin.begin() as connection:
+        connection.execute(sa.text(f'DROP SCHEMA "{schema}" CASCADE'))
+    admin.dispose()
+
+
+@pytest.fixture
+def redis_url() -> str:
+    """The real Redis; fails (not skips) when it is unreachable."""
+    import redis
+
+    try:
+        redis.Redis.from_url(REDIS_URL).ping()
+    except redis.exceptions.ConnectionError as exc:
+        pytest.fail(
+            f"Redis at {REDIS_URL} is unreachable ({exc}); start it or set "
+            "WELDPOOL_TEST_REDIS_URL.",
+            pytrace=False,
+        )
+    return REDIS_URL
+
+
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
+def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """Each test that uses it runs twice: on a SQLite file and on the real PostgreSQL."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'weldpool.sqlite3'}"
+    return str(request.getfixturevalue("postgres_url"))
+
+
+@pytest.fixture
+def settings(tmp_path: Path, database_url: str) -> Settings:
+    return make_settings(tmp_path / "home", database_url=database_url)
+
+
+@pytest.fixture
+def session_factory(settings: Settings) -> Iterator[Any]:
+    engine = create_db_engine(settings.resolved_database_url)
+    migrate(engine)
+    yield create_session_factory(engine)
+    engine.dispose()
+
+
+@pytest.fixture
+def client(settings: Settings, session_factory: Any) -> Iterator[TestClient]:
+    """The app with its embedded worker, as `weldpool serve` runs it."""
+    app = create_app(settings, embedded_worker=True)
+    with TestClient(app) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def make_user(session_factory: Any) -> Callable[..., tuple[User, str]]:
+    """Create a user with a role; returns the user and a bearer token."""
+
+    def make(
+        name: str, role: Role = Role.annotator, password: str = "correct horse"
+    ) -> tuple[User, str]:
+        with session_factory() as session:
+            user = User(username=name, password_hash=hash_password(password), role=role)
+            session.add(user)
+            session.flush()
+            _, token = issue_token(session, user, "test")
+            session.commit()
+            return user, token
+
+    return make

@@ -1,0 +1,58 @@
+"""Helpers for tests: settings, authentication headers, polling."""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+
+POSTGRES_URL = os.environ.get(
+    "WELDPOOL_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+)
+REDIS_URL = os.environ.get("WELDPOOL_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def make_settings(home: Path, **overrides: Any) -> Settings:
+    """Settings for a test: its own home and queue name, fast heartbeats, no .env file."""
+    values: dict[str, Any] = {
+        "home": home,
+        "queue_name": f"wp-test-{uuid.uuid4().hex[:8]}",
+        "job_heartbeat_s": 0.2,
+        "job_stale_after_s": 30.0,
+    }
+    values.update(overrides)
+    return Settings(_env_file=None, **values)  # type: ignore[call-arg]
+
+
+def auth(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def wait_for(predicate: Callable[[], Any], timeout: float = 20.0, interval: float = 0.05) -> Any:
+    """Poll until ``predicate`` returns something truthy; fail after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    raise AssertionError(f"condition not met within {timeout} s")
+
+
+def wait_for_job(client: TestClient, job_id: int, token: str, timeout: float = 20.0) -> dict:
+    """Poll a job until it has finished; returns its JSON."""
+
+    def finished() -> dict | None:
+        body = client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json()
+        return body if body["status"] in ("succeeded", "failed", "cancelled") else None
+
+    return wait_for(finished, timeout)

@@ -1,0 +1,170 @@
+"""Jobs through the embedded worker: progress, success, failure, cancellation, lost workers."""
+
+from __future__ import annotations
+
+import datetime as dt
+import threading
+import time
+
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.db import utcnow
+from app.jobs.registry import JobContext, job_handler
+from app.jobs.runner import execute_job, reap_lost_jobs
+from app.jobs.service import create_job
+from app.models import Job, JobStatus, Role
+from tests.helpers import auth, wait_for, wait_for_job
+
+release = threading.Event()
+
+
+@job_handler("test-crash")
+def _crash(ctx: JobContext) -> dict:
+    ctx.progress(0.5, "about to crash")
+    raise ZeroDivisionError("division by zero")
+
+
+@job_handler("test-wait")
+def _wait(ctx: JobContext) -> dict:
+    while not release.wait(0.05):
+        ctx.progress(0.1, "waiting")
+    return {"waited": True}
+
+
+@job_handler("test-retry", max_attempts=2)
+def _retry(ctx: JobContext) -> dict:
+    return {"attempt": "second"}
+
+
+def _start(client: TestClient, token: str, **params: object) -> int:
+    response = client.post("/api/v1/jobs/diagnostic", json=params, headers=auth(token))
+    assert response.status_code == 202, response.text
+    return int(response.json()["job_id"])
+
+
+def test_job_runs_with_progress_and_result(client: TestClient, make_user) -> None:
+    _, token = make_user("admin", Role.admin)
+    job_id = _start(client, token, seconds=1.0)
+    seen = wait_for(lambda: (b := client.get(f"/api/v1/jobs/{job_id}", headers=auth(token))
+                             .json())["status"] == "running" and 0 < b["progress"] < 1)  # fmt: skip
+    assert seen
+    job = wait_for_job(client, job_id, token)
+    assert job["status"] == "succeeded"
+    assert job["progress"] == 1.0
+    assert job["result"]["seconds"] == 1.0
+    assert job["error"] is None and job["attempts"] == 1
+    assert job["started_at"] and job["finished_at"]
+    listed = client.get("/api/v1/jobs", params={"kind": "diagnostic"}, headers=auth(token)).json()
+    assert listed["total"] == 1 and listed["items"][0]["id"] == job_id
+
+
+def test_job_that_raises_is_failed_with_its_message(client: TestClient, make_user) -> None:
+    _, token = make_user("admin", Role.admin)
+    job = wait_for_job(client, _start(client, token, seconds=0, fail="The camera is off."), token)
+    assert job["status"] == "failed"
+    assert job["error"] == "The camera is off."
+
+
+def test_unexpected_exception_is_recorded(client: TestClient, make_user, session_factory) -> None:
+    admin, token = make_user("admin", Role.admin)
+    with session_factory() as session:
+        job = create_job(session, client.app.state.queue, "test-crash", {}, admin)
+    body = wait_for_job(client, job.id, token)
+    assert body["status"] == "failed"
+    assert body["error"] == "Unexpected error (ZeroDivisionError): division by zero"
+    assert body["progress"] == 0.5
+
+
+def test_cancel_running_and_queued_jobs(client: TestClient, make_user, session_factory) -> None:
+    admin, token = make_user("admin", Role.admin)
+    release.clear()
+    queue = client.app.state.queue
+    with session_factory() as session:
+        running = create_job(session, queue, "test-wait", {}, admin)
+        wait_for(lambda: client.get(f"/api/v1/jobs/{running.id}", headers=auth(token))
+                 .json()["status"] == "running")  # fmt: skip
+        queued = create_job(session, queue, "test-wait", {}, admin)  # one worker: stays queued
+    response = client.post(f"/api/v1/jobs/{queued.id}/cancel", headers=auth(token))
+    assert response.json()["status"] == "cancelled"
+    response = client.post(f"/api/v1/jobs/{running.id}/cancel", headers=auth(token))
+    assert response.json()["cancel_requested"] is True
+    assert wait_for_job(client, running.id, token)["status"] == "cancelled"
+    release.set()
+    time.sleep(0.3)  # the cancelled queued job is dequeued and skipped, never run
+    assert client.get(f"/api/v1/jobs/{queued.id}", headers=auth(token)).json()["attempts"] == 0
+
+
+def test_unknown_job_is_404(client: TestClient, make_user) -> None:
+    _, token = make_user("someone")
+    response = client.get("/api/v1/jobs/12345", headers=auth(token))
+    assert response.status_code == 404
+    assert response.json()["detail"] == "There is no job 12345."
+
+
+def _running_job(session_factory, kind: str, worker_id: str, seconds_ago: float) -> int:
+    with session_factory() as session:
+        job = Job(
+            kind=kind,
+            status=JobStatus.running,
+            worker_id=worker_id,
+            attempts=1,
+            max_attempts=2 if kind == "test-retry" else 1,
+            heartbeat_at=utcnow() - dt.timedelta(seconds=seconds_ago),
+        )
+        session.add(job)
+        session.commit()
+        return job.id
+
+
+def test_reaper_fails_or_retries_jobs_of_silent_workers(
+    session_factory, settings: Settings
+) -> None:
+    enqueued: list[int] = []
+    silent = _running_job(session_factory, "diagnostic", "elsewhere:1:abc", seconds_ago=120)
+    retried = _running_job(session_factory, "test-retry", "elsewhere:1:abc", seconds_ago=120)
+    alive = _running_job(session_factory, "diagnostic", "elsewhere:2:def", seconds_ago=1)
+    handled = reap_lost_jobs(session_factory, 60.0, enqueued.append)
+    assert sorted(handled) == sorted([silent, retried])
+    assert enqueued == [retried]
+    with session_factory() as session:
+        failed = session.get_one(Job, silent)
+        assert failed.status == JobStatus.failed
+        assert failed.error.startswith("The worker running this job stopped without finishing")
+        assert session.get_one(Job, retried).status == JobStatus.queued
+        assert session.get_one(Job, alive).status == JobStatus.running
+    # The re-queued job runs again and finishes.
+    execute_job(retried, settings, session_factory, "here:1:xyz")
+    with session_factory() as session:
+        job = session.get_one(Job, retried)
+        assert (job.status, job.attempts, job.result) == (
+            JobStatus.succeeded, 2, {"attempt": "second"})  # fmt: skip
+
+
+def test_stale_worker_cannot_overwrite_a_reaped_job(session_factory, settings: Settings) -> None:
+    job_id = _running_job(session_factory, "diagnostic", "old:1:aaa", seconds_ago=120)
+    reap_lost_jobs(session_factory, 60.0, lambda _id: None)
+    from app.jobs.runner import _finish
+
+    assert not _finish(session_factory, job_id, "old:1:aaa", status=JobStatus.succeeded)
+    with session_factory() as session:
+        assert session.get_one(Job, job_id).status == JobStatus.failed
+
+
+def test_unreachable_queue_fails_the_job_with_a_clear_503(
+    tmp_path, make_user, session_factory, settings: Settings
+) -> None:
+    from app.main import create_app
+
+    broken = settings.model_copy(update={"queue_url": "redis://127.0.0.1:1/0"})
+    _, token = make_user("admin", Role.admin)
+    with TestClient(create_app(broken)) as client:
+        response = client.post("/api/v1/jobs/diagnostic", json={}, headers=auth(token))
+        assert response.status_code == 503
+        assert response.json()["detail"].startswith("The job queue (redis) is unreachable")
+        health = client.get("/api/v1/health")
+        assert health.status_code == 503 and health.json()["queue"]["status"] == "error"
+    with session_factory() as session:
+        job = session.scalars(sa.select(Job)).one()
+        assert job.status == JobStatus.failed and "unreachable" in job.error

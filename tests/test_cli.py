@@ -1,0 +1,103 @@
+"""The `weldpool` command: users, tokens, migrate, weights, and one-line errors with exit 2."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+from tests.helpers import REPO, auth, make_settings
+
+
+def run(settings: Settings, *args: str, stdin: str = "", **env: str) -> subprocess.CompletedProcess:
+    environment = dict(os.environ, WELDPOOL_HOME=str(settings.home),
+                       WELDPOOL_DATABASE_URL=settings.resolved_database_url, **env)  # fmt: skip
+    return subprocess.run([sys.executable, "-m", "app", *args], input=stdin, text=True,
+                          capture_output=True, env=environment, cwd=REPO, timeout=120)  # fmt: skip
+
+
+@pytest.fixture
+def cli_settings(tmp_path: Path, database_url: str) -> Settings:
+    return make_settings(tmp_path / "home", database_url=database_url)
+
+
+def test_console_script_is_installed() -> None:
+    script = Path(sys.executable).parent / "weldpool"
+    assert script.exists(), "pip install -e . should install the `weldpool` command"
+    result = subprocess.run([str(script), "--help"], capture_output=True, text=True)
+    assert result.returncode == 0
+    for command in ("serve", "worker", "migrate", "user", "token", "weights"):
+        assert command in result.stdout
+
+
+def test_user_add_token_and_api_access(cli_settings: Settings) -> None:
+    assert run(cli_settings, "migrate").returncode == 0
+    added = run(cli_settings, "user", "add", "welder", "--role", "reviewer", "--password-stdin",
+                stdin="a good password\n")  # fmt: skip
+    assert added.returncode == 0, added.stderr
+    token = run(cli_settings, "token", "welder")
+    assert token.returncode == 0
+    text = token.stdout.strip()
+    assert token.stdout == text + "\n" and text.startswith("wp_")  # stdout: the token alone
+
+    with TestClient(create_app(cli_settings)) as client:
+        me = client.get("/api/v1/users/me", headers=auth(text)).json()
+        assert me == me | {"username": "welder", "role": "reviewer"}
+
+    listed = run(cli_settings, "tokens", "list", "welder")
+    token_id = listed.stdout.split("\t")[0]
+    assert run(cli_settings, "tokens", "revoke", token_id).returncode == 0
+    with TestClient(create_app(cli_settings)) as client:
+        assert client.get("/api/v1/users/me", headers=auth(text)).status_code == 401
+
+
+def test_errors_are_one_line_with_exit_status_2(cli_settings: Settings, tmp_path: Path) -> None:
+    unmigrated = run(cli_settings, "token", "nobody")
+    assert unmigrated.returncode == 2
+    assert unmigrated.stderr.strip().splitlines() == [
+        "weldpool: The database schema is at revision none, not 0001; run `weldpool migrate` first."
+    ]
+    run(cli_settings, "migrate")
+    unknown = run(cli_settings, "token", "nobody")
+    assert unknown.returncode == 2
+    assert len(unknown.stderr.strip().splitlines()) == 1
+    assert "There is no user named 'nobody'" in unknown.stderr
+
+    short = run(cli_settings, "user", "add", "x", "--role", "admin", "--password-stdin",
+                stdin="short\n")  # fmt: skip
+    assert short.returncode == 2
+    assert short.stderr.strip() == "weldpool: The password must have at least 8 characters."
+
+    bad_role = run(cli_settings, "user", "add", "x", "--role", "boss", "--password-stdin")
+    assert bad_role.returncode == 2
+
+    bad_setting = run(cli_settings, "migrate", WELDPOOL_QUEUE_URL="amqp://nope")
+    assert bad_setting.returncode == 2
+    assert bad_setting.stderr.startswith("weldpool: Bad setting WELDPOOL_QUEUE_URL")
+    assert "Traceback" not in bad_setting.stderr
+
+
+def test_unreachable_database_is_one_line(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path, database_url="postgresql+psycopg://nobody@127.0.0.1:1/x")
+    result = run(settings, "migrate")
+    assert result.returncode == 2
+    assert result.stderr.startswith("weldpool: The database is unreachable")
+    assert "Traceback" not in result.stderr
+
+
+def test_weights_status_names_the_variable_to_set(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    result = run(settings, "weights", "status", HF_HUB_OFFLINE="1",
+                 HF_HOME=str(tmp_path / "hf"))  # fmt: skip
+    assert result.returncode == 2
+    assert "set WELDPOOL_DINO to a local directory" in result.stderr
+    fetched = run(settings, "weights", "fetch", HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"))
+    assert fetched.returncode == 2
+    assert fetched.stderr.count("\n") == 1 and "WELDPOOL_DINO" in fetched.stderr
+    assert "Traceback" not in fetched.stderr

@@ -1,0 +1,67 @@
+"""docker-compose.yml is valid Compose and starts what the README says (no Docker engine here).
+
+The file is checked against the Compose specification (the compose-spec package, after YAML
+anchors and merge keys are resolved as `docker compose` resolves them), and cross-checked with
+this project: every command exists in the CLI and every WELDPOOL_ variable is a setting.
+"""
+
+from __future__ import annotations
+
+import shlex
+
+import yaml
+from click.testing import CliRunner
+from compose_spec import PyCompose
+
+from app.cli import main
+from app.config import Settings
+from tests.helpers import REPO
+
+COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+SERVICES = COMPOSE["services"]
+
+
+def test_compose_file_follows_the_compose_specification() -> None:
+    resolved = {k: v for k, v in COMPOSE.items() if not k.startswith("x-")}
+    parsed = PyCompose.from_yaml(yaml.safe_dump(resolved))
+    assert set(parsed.service_names()) == {"postgres", "redis", "api", "worker", "worker-gpu"}
+
+
+def test_services_depend_on_services_that_exist_and_become_healthy() -> None:
+    for name, service in SERVICES.items():
+        for dependency, condition in (service.get("depends_on") or {}).items():
+            assert dependency in SERVICES, (name, dependency)
+            if condition["condition"] == "service_healthy":
+                assert "healthcheck" in SERVICES[dependency], dependency
+
+
+def test_api_serves_without_worker_and_workers_scale() -> None:
+    assert SERVICES["api"]["command"][:2] == ["weldpool", "serve"]
+    assert "--no-worker" in SERVICES["api"]["command"]
+    for name in ("worker", "worker-gpu"):
+        worker = SERVICES[name]
+        assert worker["command"] == ["weldpool", "worker"]
+        # --scale worker=N needs workers without fixed names or published ports.
+        assert "container_name" not in worker and "ports" not in worker
+    gpu = SERVICES["worker-gpu"]
+    assert gpu["profiles"] == ["gpu"]  # optional: only with --profile gpu
+    assert gpu["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
+    assert gpu["environment"]["WELDPOOL_DEVICE"] == "cuda"
+
+
+def test_commands_and_variables_exist_in_this_project() -> None:
+    fields = {f"WELDPOOL_{name.upper()}" for name in Settings.model_fields}
+    runner = CliRunner()
+    for name, service in SERVICES.items():
+        env = service.get("environment") or {}
+        unknown = {k for k in env if k.startswith("WELDPOOL_")} - fields
+        assert not unknown, (name, unknown)
+        command = service.get("command")
+        if command and command[0] == "weldpool":
+            args = command[1:] if isinstance(command, list) else shlex.split(command)[1:]
+            result = runner.invoke(main, [*args, "--help"])
+            assert result.exit_code == 0, (name, result.output)
+    assert SERVICES["api"]["environment"]["WELDPOOL_DATABASE_URL"].startswith(
+        "postgresql+psycopg://"
+    )
+    assert SERVICES["worker"]["environment"]["WELDPOOL_QUEUE_URL"].startswith("redis://")

@@ -1,0 +1,87 @@
+"""The README's first command: `weldpool serve` on embedded defaults, as a user runs it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.helpers import wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def test_serve_migrates_serves_and_runs_jobs(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}
+    env.update(WELDPOOL_HOME=str(tmp_path / "data"), HF_HUB_OFFLINE="1")
+    weldpool = [sys.executable, "-m", "app"]
+    port = _free_port()
+    log = open(tmp_path / "serve.log", "w")  # noqa: SIM115
+    server = subprocess.Popen([*weldpool, "serve", "--port", str(port)], env=env, cwd=tmp_path,
+                              stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+    try:
+
+        def health() -> dict | None:
+            try:
+                return httpx.get(f"{base}/api/v1/health", timeout=2).json()
+            except httpx.HTTPError:
+                return None
+
+        body = wait_for(health, timeout=60, interval=0.2)
+        assert body["status"] == "ok"
+        assert body["database"] == body["database"] | {"backend": "sqlite", "status": "ok"}
+        assert body["queue"] == body["queue"] | {"backend": "sqlite", "status": "ok"}
+        assert body["teacher"]["dino"]["available"] is False  # no weights on this machine
+        assert (tmp_path / "data" / "weldpool.sqlite3").exists()
+        assert "Log in" in httpx.get(f"{base}/login").text
+
+        # A fresh instance has an admin whose password is in a file only its owner reads.
+        password_file = tmp_path / "data" / "initial-admin-password"
+        assert password_file.stat().st_mode & 0o777 == 0o600
+        password = password_file.read_text().strip()
+        browser = httpx.Client(base_url=base, follow_redirects=True)
+        csrf = browser.get("/login").text.split('name="csrf_token" value="')[1].split('"')[0]
+        login = browser.post("/login", data={"username": "admin", "password": password,
+                                             "csrf_token": csrf})  # fmt: skip
+        assert 'data-testid="current-user">admin<' in login.text
+        token = subprocess.run([*weldpool, "token", "admin"], env=env, capture_output=True,
+                               text=True, check=True).stdout.strip()  # fmt: skip
+        headers = {"Authorization": f"Bearer {token}"}
+        job_id = httpx.post(f"{base}/api/v1/jobs/diagnostic", json={"seconds": 0.2},
+                            headers=headers).json()["job_id"]  # fmt: skip
+        job = wait_for(lambda: (j := httpx.get(f"{base}/api/v1/jobs/{job_id}",
+                                               headers=headers).json())["status"]
+                       in ("succeeded", "failed") and j, timeout=30)  # fmt: skip
+        assert job["status"] == "succeeded"
+        assert job["result"]["pid"] == server.pid  # the embedded worker ran it
+        docs = httpx.get(f"{base}/docs", headers=headers)
+        assert docs.status_code == 200 and "swagger" in docs.text.lower()
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+        log.close()
+    # uvicorn shuts down cleanly, then re-raises SIGTERM so the exit status tells why it ended.
+    assert server.returncode in (0, -signal.SIGTERM)
+    assert "Application shutdown complete." in (tmp_path / "serve.log").read_text()
+
+
+def test_serve_binds_loopback_by_default() -> None:
+    from click.testing import CliRunner
+
+    from app.cli import main
+
+    help_text = CliRunner().invoke(main, ["serve", "--help"]).output
+    assert "default: 127.0.0.1" in help_text

@@ -1,0 +1,209 @@
+"""Authentication and roles: tokens, browser sessions with CSRF, 401 and 403."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.models import Role, User
+from tests.helpers import auth
+
+PUBLIC_PATHS = {"/api/v1/health", "/login"}
+
+
+PAGES = [("GET", "/"), ("POST", "/logout"), ("GET", "/docs"), ("GET", "/api/v1/openapi.json")]
+
+
+def _protected_routes(client: TestClient) -> list[tuple[str, str]]:
+    """Every operation of the OpenAPI schema, and the pages that are not in it."""
+    schema = client.app.openapi()  # type: ignore[attr-defined]
+    routes = [
+        (method.upper(), path)
+        for path, operations in schema["paths"].items()
+        if path not in PUBLIC_PATHS
+        for method in operations
+    ]
+    return routes + PAGES
+
+
+def test_every_endpoint_but_health_and_login_needs_a_user(client: TestClient) -> None:
+    routes = _protected_routes(client)
+    assert len(routes) > 10
+    for method, path in routes:
+        url = re.sub(r"\{[^}]+\}", "1", path)
+        response = client.request(method, url, headers={"accept": "application/json"},
+                                  follow_redirects=False)  # fmt: skip
+        assert response.status_code == 401, (method, path, response.status_code)
+        assert "detail" in response.json()
+    assert client.get("/api/v1/health").status_code == 200
+    assert client.get("/login").status_code == 200
+
+
+def test_a_page_redirects_a_browser_to_login(client: TestClient) -> None:
+    response = client.get("/", headers={"accept": "text/html"}, follow_redirects=False)
+    assert response.status_code == 303
+    assert response.headers["location"] == "/login?next=/"
+
+
+def test_token_works_and_revoked_token_does_not(client: TestClient, make_user) -> None:
+    _, token = make_user("ana", Role.annotator)
+    me = client.get("/api/v1/users/me", headers=auth(token))
+    assert me.status_code == 200 and me.json()["username"] == "ana"
+
+    created = client.post("/api/v1/tokens", json={"name": "script"}, headers=auth(token)).json()
+    second = created["token"]
+    assert client.get("/api/v1/users/me", headers=auth(second)).status_code == 200
+    listed = client.get("/api/v1/tokens", headers=auth(token)).json()
+    assert {t["name"] for t in listed} == {"test", "script"}
+    assert all("token" not in t for t in listed)
+
+    revoked = client.delete(f"/api/v1/tokens/{created['id']}", headers=auth(token))
+    assert revoked.status_code == 200 and revoked.json()["revoked_at"]
+    response = client.get("/api/v1/users/me", headers=auth(second))
+    assert response.status_code == 401
+    assert response.json()["detail"] == "The API token is invalid or revoked; create a new one."
+    assert client.get("/api/v1/users/me", headers=auth(token)).status_code == 200
+
+
+def test_malformed_or_unknown_credentials_get_401(client: TestClient) -> None:
+    for header in ("Bearer wp_nope", "Basic YWxpY2U6c2VjcmV0", "Bearer "):
+        response = client.get("/api/v1/users/me", headers={"Authorization": header})
+        assert response.status_code == 401, header
+        assert response.headers["www-authenticate"] == "Bearer"
+
+
+def test_wrong_role_gets_403(client: TestClient, make_user) -> None:
+    _, annotator = make_user("ann", Role.annotator)
+    _, reviewer = make_user("rev", Role.reviewer)
+    _, admin = make_user("adm", Role.admin)
+    body = {"username": "newbie", "password": "long enough", "role": "annotator"}
+    for token in (annotator, reviewer):
+        response = client.post("/api/v1/users", json=body, headers=auth(token))
+        assert response.status_code == 403
+        assert "admin role" in response.json()["detail"]
+        assert client.post("/api/v1/jobs/diagnostic", json={}, headers=auth(token)).status_code \
+            == 403  # fmt: skip
+    assert client.post("/api/v1/users", json=body, headers=auth(admin)).status_code == 201
+
+
+def test_users_cannot_revoke_others_tokens(client: TestClient, make_user, session_factory) -> None:
+    _, first = make_user("first")
+    _, second = make_user("second")
+    token_id = client.get("/api/v1/tokens", headers=auth(first)).json()[0]["id"]
+    response = client.delete(f"/api/v1/tokens/{token_id}", headers=auth(second))
+    assert response.status_code == 403
+    assert client.get("/api/v1/users/me", headers=auth(first)).status_code == 200
+
+
+def test_deactivated_user_is_locked_out(client: TestClient, make_user) -> None:
+    _, admin = make_user("boss", Role.admin)
+    user, token = make_user("leaver")
+    patch = client.patch(f"/api/v1/users/{user.id}", json={"is_active": False},
+                         headers=auth(admin))  # fmt: skip
+    assert patch.status_code == 200
+    assert client.get("/api/v1/users/me", headers=auth(token)).status_code == 401
+
+
+def test_last_admin_cannot_be_demoted(client: TestClient, make_user) -> None:
+    admin, token = make_user("only-admin", Role.admin)
+    response = client.patch(f"/api/v1/users/{admin.id}", json={"role": "reviewer"},
+                            headers=auth(token))  # fmt: skip
+    assert response.status_code == 409
+    assert client.get("/api/v1/users/me", headers=auth(token)).json()["role"] == "admin"
+
+
+def test_passwords_and_tokens_are_stored_hashed(client: TestClient, make_user, session_factory):
+    _, token = make_user("hashy", password="correct horse")
+    with session_factory() as session:
+        from app.models import ApiToken
+
+        user = session.query(User).filter_by(username="hashy").one()
+        assert user.password_hash.startswith("$argon2id$")
+        stored = [t.token_hash for t in session.query(ApiToken).all()]
+    assert token not in stored and all(len(h) == 64 for h in stored)
+
+
+def test_bad_input_gets_a_sentence_not_a_500(client: TestClient, make_user) -> None:
+    _, admin = make_user("adm2", Role.admin)
+    response = client.post("/api/v1/users", json={"username": "x"}, headers=auth(admin))
+    assert response.status_code == 422
+    assert response.json()["detail"] == "password: Field required."
+    response = client.post("/api/v1/users", content=b"{not json", headers=auth(admin) | {
+        "content-type": "application/json"})  # fmt: skip
+    assert response.status_code == 422
+    dup = {"username": "adm2", "password": "long enough", "role": "admin"}
+    response = client.post("/api/v1/users", json=dup, headers=auth(admin))
+    assert response.status_code == 409
+    assert response.json()["detail"] == "There is already a user named 'adm2'."
+
+
+# --- browser login -----------------------------------------------------------------------------
+
+
+def _login(client: TestClient, username: str, password: str, next_url: str = "/"):
+    page = client.get("/login", params={"next": next_url})
+    csrf = re.search(r'name="csrf_token" value="([^"]+)"', page.text)
+    assert csrf, page.text
+    return client.post(
+        "/login",
+        data={"username": username, "password": password, "csrf_token": csrf.group(1),
+              "next": next_url},
+        follow_redirects=False,
+    )  # fmt: skip
+
+
+def test_login_session_cookie_and_csrf(client: TestClient, make_user) -> None:
+    make_user("carla", Role.reviewer, password="s3cret-pass")
+    response = _login(client, "carla", "s3cret-pass", "/")
+    assert response.status_code == 303 and response.headers["location"] == "/"
+    cookie = response.cookies.get("weldpool_session")
+    assert cookie
+    assert "httponly" in response.headers["set-cookie"].lower()
+
+    home = client.get("/")
+    assert home.status_code == 200
+    assert 'data-testid="current-user">carla<' in home.text
+    assert 'data-testid="current-role">reviewer<' in home.text
+    csrf = re.search(r'<meta name="csrf-token" content="([^"]+)"', home.text).group(1)
+
+    # The session cookie authenticates API reads; writes also need the CSRF token.
+    assert client.get("/api/v1/users/me").json()["username"] == "carla"
+    refused = client.post("/api/v1/tokens", json={"name": "x"})
+    assert refused.status_code == 403 and "CSRF" in refused.json()["detail"]
+    accepted = client.post("/api/v1/tokens", json={"name": "x"}, headers={"X-CSRF-Token": csrf})
+    assert accepted.status_code == 201
+
+    # Logging out needs the form's token too, and ends the session for good.
+    assert client.post("/logout", data={"csrf_token": "forged"}).status_code == 403
+    out = client.post("/logout", data={"csrf_token": csrf}, follow_redirects=False)
+    assert out.status_code == 303
+    client.cookies.set("weldpool_session", cookie)
+    assert client.get("/api/v1/users/me").status_code == 401
+
+
+def test_wrong_password_and_forged_login_form(client: TestClient, make_user) -> None:
+    make_user("dora", password="right-password")
+    response = _login(client, "dora", "wrong-password")
+    assert response.status_code == 401
+    assert "Wrong user name or password." in response.text
+    assert "weldpool_session" not in response.cookies
+    response = _login(client, "nobody", "whatever1")
+    assert response.status_code == 401
+
+    forged = client.post(
+        "/login",
+        data={"username": "dora", "password": "right-password", "csrf_token": "guess"},
+        follow_redirects=False,
+    )
+    assert forged.status_code == 403
+    assert "weldpool_session" not in forged.cookies
+
+
+@pytest.mark.parametrize("target", ["https://evil.example/", "//evil.example/", "/\\evil"])
+def test_login_never_redirects_off_site(client: TestClient, make_user, target: str) -> None:
+    make_user("erin", password="right-password")
+    response = _login(client, "erin", "right-password", target)
+    assert response.status_code == 303
+    assert response.headers["location"] == "/"
