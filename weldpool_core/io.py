@@ -1,0 +1,199 @@
+"""The one image reader and the one mask codec of weldpool.
+
+``read_image`` accepts PNG, JPEG, TIFF and BMP files, 8- or 16-bit, gray, RGB or RGBA, checks
+them (format by content, pixel limit before decoding, truncation) and decodes them once.
+``to_rgb8`` turns any decoded frame into what the models take: RGB ``uint8``.
+
+16-bit → 8-bit mapping (``stretch_to_uint8``): a linear stretch between the 0.5th percentile
+(the background) and the 99.99th percentile of the frame (so that a few hot pixels do not set
+the white point, while a small bright melt pool keeps its inner gradient instead of being
+clipped flat). Frames whose values span less than 1 grey level map to black.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from PIL import Image, UnidentifiedImageError
+
+from weldpool_core.errors import InvalidInputError
+
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # errors are raised as ours
+Image.MAX_IMAGE_PIXELS = None  # our own limit (max_pixels) applies, before any decoding
+
+MEDIA_TYPES = {"PNG": "image/png", "JPEG": "image/jpeg", "TIFF": "image/tiff", "BMP": "image/bmp"}
+EXTENSIONS = {"PNG": ".png", "JPEG": ".jpg", "TIFF": ".tif", "BMP": ".bmp"}
+DEFAULT_MAX_PIXELS = 50_000_000
+LOW_PERCENTILE = 0.5
+HIGH_PERCENTILE = 99.99
+_SUPPORTED = "upload PNG, JPEG, TIFF or BMP"
+
+ImageArray = NDArray[Any]
+"""Pixels of a frame: H×W or H×W×C (RGB order), uint8 or uint16."""
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What a frame file is: format, size, channels and bits per channel."""
+
+    format: str
+    media_type: str
+    extension: str
+    width: int
+    height: int
+    channels: int
+    bit_depth: int
+
+
+@dataclass(frozen=True)
+class DecodedImage:
+    """A decoded frame: ``pixels`` is H×W (gray) or H×W×C in RGB(A) order, uint8 or uint16."""
+
+    pixels: ImageArray
+    info: ImageInfo
+
+
+def _sniff_text(data: bytes) -> str | None:
+    head = data[:512].lstrip().lower()
+    if head.startswith(b"<?xml") or b"<svg" in head:
+        return "SVG images are not supported"
+    if head.startswith((b"<!doctype", b"<html")) or b"<html" in head:
+        return "HTML files are not images"
+    return None
+
+
+def _probe(data: bytes, max_pixels: int) -> str:
+    """The format of ``data`` (PNG, JPEG, TIFF, BMP) from its header; refuses the rest."""
+    if not data:
+        raise InvalidInputError("The file is empty.")
+    text = _sniff_text(data)
+    if text:
+        raise InvalidInputError(f"{text}; {_SUPPORTED}.")
+    try:
+        with Image.open(io.BytesIO(data)) as probe:
+            fmt, (width, height) = str(probe.format), probe.size
+    except UnidentifiedImageError:
+        raise InvalidInputError(
+            f"The file is not a readable image (or is truncated); {_SUPPORTED}."
+        ) from None
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise InvalidInputError(f"The image header is corrupt ({exc}).") from None
+    if fmt not in MEDIA_TYPES:
+        raise InvalidInputError(f"{fmt} files are not supported; {_SUPPORTED}.")
+    if width * height > max_pixels:
+        raise InvalidInputError(
+            f"The image has {width}×{height} pixels, more than the limit of {max_pixels:,} "
+            "(WELDPOOL_MAX_IMAGE_PIXELS)."
+        )
+    return fmt
+
+
+def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> DecodedImage:
+    """Check and decode a frame file (bytes or a path); the original values are kept.
+
+    Raises InvalidInputError with one sentence for empty, truncated, corrupt, oversized or
+    unsupported files.
+    """
+    data = source if isinstance(source, bytes) else Path(source).read_bytes()
+    fmt = _probe(data, max_pixels)
+    pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise InvalidInputError("The image is truncated or corrupt and cannot be decoded.")
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise InvalidInputError(
+            f"{pixels.dtype} pixels are not supported; use 8- or 16-bit integer images."
+        )
+    if pixels.ndim == 3 and pixels.shape[2] == 1:
+        pixels = pixels[:, :, 0]
+    if pixels.ndim == 3:
+        code = cv2.COLOR_BGRA2RGBA if pixels.shape[2] == 4 else cv2.COLOR_BGR2RGB
+        pixels = cv2.cvtColor(pixels, code)
+    height, width = pixels.shape[:2]
+    info = ImageInfo(
+        format=fmt,
+        media_type=MEDIA_TYPES[fmt],
+        extension=EXTENSIONS[fmt],
+        width=width,
+        height=height,
+        channels=1 if pixels.ndim == 2 else pixels.shape[2],
+        bit_depth=16 if pixels.dtype == np.uint16 else 8,
+    )
+    return DecodedImage(pixels, info)
+
+
+def stretch_to_uint8(
+    pixels: ImageArray,
+    low_percentile: float = LOW_PERCENTILE,
+    high_percentile: float = HIGH_PERCENTILE,
+) -> NDArray[np.uint8]:
+    """Map 16-bit values to 8 bits linearly between two percentiles (see the module doc)."""
+    histogram = np.bincount(pixels.ravel(), minlength=65536)
+    cumulative = np.cumsum(histogram) / pixels.size
+    low = int(np.searchsorted(cumulative, low_percentile / 100))
+    high = int(np.searchsorted(cumulative, high_percentile / 100))
+    if high - low < 1:
+        return np.zeros(pixels.shape, np.uint8)
+    lut = np.clip((np.arange(65536, dtype=np.float32) - low) * (255.0 / (high - low)), 0, 255)
+    mapped: NDArray[np.uint8] = lut.round().astype(np.uint8)[pixels]
+    return mapped
+
+
+def to_rgb8(image: DecodedImage | ImageArray) -> NDArray[np.uint8]:
+    """RGB uint8 (H×W×3) for the models: gray is repeated, alpha dropped, 16-bit stretched."""
+    pixels = image.pixels if isinstance(image, DecodedImage) else image
+    if pixels.dtype == np.uint16:
+        pixels = stretch_to_uint8(pixels)  # one mapping for all channels keeps colours
+    if pixels.ndim == 2:
+        return np.ascontiguousarray(np.repeat(pixels[:, :, None], 3, axis=2), dtype=np.uint8)
+    return np.ascontiguousarray(pixels[:, :, :3], dtype=np.uint8)
+
+
+def load_rgb8(path: str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> NDArray[np.uint8]:
+    """Read a frame file and return it as RGB uint8."""
+    return to_rgb8(read_image(path, max_pixels=max_pixels))
+
+
+def encode_png(pixels: ImageArray, compression: int = 1) -> bytes:
+    """PNG bytes of a gray, RGB or RGBA array (RGB order), 8- or 16-bit; fast compression."""
+    if pixels.ndim == 3:
+        code = cv2.COLOR_RGBA2BGRA if pixels.shape[2] == 4 else cv2.COLOR_RGB2BGR
+        pixels = cv2.cvtColor(pixels, code)
+    ok, buffer = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, compression])
+    if not ok:
+        raise InvalidInputError("The array cannot be encoded as PNG.")
+    return buffer.tobytes()
+
+
+def encode_mask_png(mask: ImageArray) -> bytes:
+    """A mask as a single-channel PNG with values 0 and 255."""
+    if mask.ndim != 2:
+        raise InvalidInputError(f"A mask must be a 2-D array, not of shape {mask.shape}.")
+    return encode_png(np.where(mask > 0, 255, 0).astype(np.uint8), compression=3)
+
+
+def decode_mask_png(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> NDArray[np.bool_]:
+    """A boolean mask from a PNG: 0/255 (or 0/1) single channel; colour masks use channel max.
+
+    Values ≥ 128 are foreground, or > 0 when the image holds only 0 and 1.
+    """
+    image = read_image(data, max_pixels=max_pixels)
+    if image.info.format != "PNG":
+        raise InvalidInputError(f"A mask must be a PNG file, not {image.info.format}.")
+    pixels = image.pixels
+    if pixels.ndim == 3:
+        pixels = pixels[:, :, :3].max(axis=2)
+    if pixels.dtype == np.uint16:
+        pixels = (pixels >> 8).astype(np.uint8)
+    peak = int(pixels.max()) if pixels.size else 0
+    return pixels > 0 if peak <= 1 else pixels >= 128
+
+
+def read_mask(path: str | Path) -> NDArray[np.bool_]:
+    """A boolean mask from a PNG file (see ``decode_mask_png``)."""
+    return decode_mask_png(Path(path).read_bytes())
