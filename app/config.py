@@ -53,6 +53,15 @@ class Settings(BaseSettings):
         gt=0,
         description="A running job whose worker is silent this long is failed or retried.",
     )
+    max_image_pixels: int = Field(
+        default=50_000_000, gt=0, description="Largest frame accepted (a decompression-bomb guard)."
+    )
+    max_request_mb: float = Field(
+        default=2048.0, gt=0, description="Largest request body accepted, in MiB (413 above)."
+    )
+    max_files_per_request: int = Field(
+        default=2000, ge=1, description="Most files one upload request may carry."
+    )
     session_ttl_hours: float = Field(default=12.0, gt=0, description="Browser session lifetime.")
     cookie_secure: bool = Field(
         default=False, description="Send the session cookie over HTTPS only (set behind TLS)."

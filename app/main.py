@@ -16,9 +16,12 @@ from fastapi.staticfiles import StaticFiles
 from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
 from app.errors import AuthenticationError, WeldpoolError, http_status_of
+from app.frames.routes import router as frames_router
 from app.jobs.routes import router as jobs_router
+from app.limits import BodySizeLimit
 from app.queue import EmbeddedWorker, JobQueue
 from app.security import current_user
+from app.storage import Storage
 from app.system.routes import router as system_router
 from app.users.routes import router as users_router
 from app.web.routes import router as web_router
@@ -97,6 +100,8 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.engine = engine
     app.state.session_factory = session_factory
     app.state.queue = queue
+    app.state.storage = Storage(settings.home)
+    app.add_middleware(BodySizeLimit, max_bytes=int(settings.max_request_mb * 2**20))
     _install_error_handlers(app)
 
     api = APIRouter(prefix="/api/v1")
@@ -104,6 +109,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     protected = [Depends(current_user)]
     api.include_router(users_router, dependencies=protected)
     api.include_router(jobs_router, dependencies=protected)
+    api.include_router(frames_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

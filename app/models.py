@@ -146,12 +146,49 @@ class Sequence(Base):
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class Video(Base):
+    """An uploaded weld video; a job extracts every n-th frame of it into its sequence."""
+
+    __tablename__ = "videos"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE"), index=True
+    )
+    sha256: Mapped[str] = mapped_column(sa.String(64))
+    path: Mapped[str] = mapped_column(sa.String(500))
+    original_name: Mapped[str] = mapped_column(sa.String(255), default="")
+    container: Mapped[str] = mapped_column(sa.String(16))
+    size_bytes: Mapped[int] = mapped_column(sa.BigInteger)
+    width: Mapped[int]
+    height: Mapped[int]
+    fps: Mapped[float] = mapped_column(sa.Float)
+    frame_count: Mapped[int]
+    every_nth: Mapped[int] = mapped_column(default=1)
+    job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
+    uploaded_by_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL")
+    )
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
 class Frame(Base):
-    """One stored camera frame; the file lives under WELDPOOL_HOME, named by its content hash."""
+    """One stored camera frame; the file lives under WELDPOOL_HOME, named by its content hash.
+
+    A sequence holds a given content once: (sequence_id, sha256) is unique, and so is the hash
+    among frames without a sequence.
+    """
 
     __tablename__ = "frames"
     __table_args__ = (
-        sa.Index("ix_frames_sequence_sha", "sequence_id", "sha256"),
+        sa.Index("uq_frames_sequence_sha", "sequence_id", "sha256", unique=True),
+        sa.Index(
+            "uq_frames_unsequenced_sha",
+            "sha256",
+            unique=True,
+            sqlite_where=sa.text("sequence_id IS NULL"),
+            postgresql_where=sa.text("sequence_id IS NULL"),
+        ),
         sa.Index("ix_frames_sequence_index", "sequence_id", "frame_index"),
     )
 
@@ -168,6 +205,9 @@ class Frame(Base):
     height: Mapped[int]
     channels: Mapped[int] = mapped_column(default=1)
     bit_depth: Mapped[int] = mapped_column(default=8)
+    video_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("videos.id", ondelete="SET NULL"), index=True
+    )
     frame_index: Mapped[int | None]
     timestamp_s: Mapped[float | None] = mapped_column(sa.Float)
     split: Mapped[Split] = mapped_column(_enum(Split, "split"), default=Split.train, index=True)

@@ -85,6 +85,7 @@ def user_for_token(session: Session, text: str) -> User:
 def open_web_session(session: Session, user: User, ttl_hours: float) -> tuple[WebSession, str]:
     """Log ``user`` in; returns the session row and the cookie value."""
     cookie = secrets.token_urlsafe(32)
+    session.execute(sa.delete(WebSession).where(WebSession.expires_at <= utcnow()))
     row = WebSession(
         user_id=user.id,
         session_hash=_sha256(cookie),

@@ -8,9 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
+from alembic.script import ScriptDirectory
 from fastapi.testclient import TestClient
 
 from app.config import Settings
+from app.db import MIGRATIONS_DIR
 from app.main import create_app
 from tests.helpers import REPO, auth, make_settings
 
@@ -60,8 +62,10 @@ def test_user_add_token_and_api_access(cli_settings: Settings) -> None:
 def test_errors_are_one_line_with_exit_status_2(cli_settings: Settings, tmp_path: Path) -> None:
     unmigrated = run(cli_settings, "token", "nobody")
     assert unmigrated.returncode == 2
+    head = ScriptDirectory(str(MIGRATIONS_DIR)).get_current_head()
     assert unmigrated.stderr.strip().splitlines() == [
-        "weldpool: The database schema is at revision none, not 0001; run `weldpool migrate` first."
+        f"weldpool: The database schema is at revision none, not {head}; "
+        "run `weldpool migrate` first."
     ]
     run(cli_settings, "migrate")
     unknown = run(cli_settings, "token", "nobody")

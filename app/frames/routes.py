@@ -1,0 +1,253 @@
+"""/api/v1/sequences, /frames and /videos: weld runs, frame upload and listing, video upload."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Query, Request, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, JSONResponse, Response
+from starlette.datastructures import FormData, UploadFile
+
+from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.errors import InvalidInputError
+from app.frames import service
+from app.frames.schemas import (
+    Duplicate,
+    FrameDetail,
+    FrameOut,
+    FramePage,
+    IngestOut,
+    Rejected,
+    SequenceIn,
+    SequenceOut,
+    SequencePatch,
+    VideoAccepted,
+    VideoOut,
+)
+from app.jobs.service import create_job
+from app.models import FrameStatus, Split
+from app.security import CurrentUser
+
+router = APIRouter(tags=["frames"])
+
+
+def _multipart(fields: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    """An OpenAPI request body for a multipart form parsed by hand (to set its limits)."""
+    return {
+        "requestBody": {
+            "required": True,
+            "content": {
+                "multipart/form-data": {
+                    "schema": {"type": "object", "properties": fields, "required": required}
+                }
+            },
+        }
+    }
+
+
+async def _form(request: Request, max_files: int) -> FormData:
+    if not request.headers.get("content-type", "").startswith("multipart/form-data"):
+        raise InvalidInputError("Send the upload as multipart/form-data.")
+    return await request.form(max_files=max_files, max_fields=64)
+
+
+def _optional_int(form: FormData, name: str, default: int | None = None) -> int | None:
+    value = form.get(name)
+    if value is None or value == "":
+        return default
+    if not isinstance(value, str) or not value.strip().lstrip("-").isdigit():
+        raise InvalidInputError(f"{name} must be an integer.")
+    return int(value)
+
+
+# --- sequences ---------------------------------------------------------------------------------
+
+
+def _sequence_out(sequence: Any, count: int) -> SequenceOut:
+    return SequenceOut.model_validate(sequence).model_copy(update={"frame_count": count})
+
+
+@router.post("/sequences", response_model=SequenceOut, status_code=status.HTTP_201_CREATED)
+def create_sequence(body: SequenceIn, session: SessionDep, user: CurrentUser) -> SequenceOut:
+    """A named weld run with its process parameters."""
+    return _sequence_out(service.create_sequence(session, body.model_dump(), user), 0)
+
+
+@router.get("/sequences", response_model=list[SequenceOut])
+def list_sequences(session: SessionDep, _user: CurrentUser) -> list[SequenceOut]:
+    """Every weld run, newest first, with its number of frames."""
+    sequences = service.list_sequences(session)
+    counts = service.frame_counts(session, [s.id for s in sequences])
+    return [_sequence_out(s, counts.get(s.id, 0)) for s in sequences]
+
+
+@router.get("/sequences/{sequence_id}", response_model=SequenceOut)
+def get_sequence(sequence_id: int, session: SessionDep, _user: CurrentUser) -> SequenceOut:
+    sequence = service.get_sequence(session, sequence_id)
+    return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
+
+
+@router.patch("/sequences/{sequence_id}", response_model=SequenceOut)
+def update_sequence(
+    sequence_id: int, body: SequencePatch, session: SessionDep, _user: CurrentUser
+) -> SequenceOut:
+    """Change a weld run's name, process parameters or notes."""
+    sequence = service.update_sequence(
+        session, service.get_sequence(session, sequence_id), body.model_dump(exclude_unset=True)
+    )
+    return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
+
+
+# --- frames ------------------------------------------------------------------------------------
+
+
+@router.post(
+    "/frames",
+    response_model=IngestOut,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=_multipart(
+        {
+            "files": {"type": "array", "items": {"type": "string", "format": "binary"}},
+            "sequence_id": {"type": "integer"},
+        },
+        ["files"],
+    ),
+    responses={200: {"description": "Nothing new: every file was a duplicate."},
+               422: {"description": "No file could be stored; each has its reason."}},
+)  # fmt: skip
+async def upload_frames(
+    request: Request,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    user: CurrentUser,
+) -> Response:
+    """Upload one or many frames (PNG, JPEG, TIFF, BMP; 8/16-bit): each is checked, decoded
+    once, stored by content hash and recorded; duplicates and refusals are listed."""
+    form = await _form(request, settings.max_files_per_request)
+    sequence_id = _optional_int(form, "sequence_id")
+    uploads = [u for u in form.getlist("files") if isinstance(u, UploadFile)]
+    if not uploads:
+        raise InvalidInputError("The request has no `files` part; attach one or more frames.")
+    files = [service.IncomingFile(u.filename or "", await u.read()) for u in uploads]
+    await form.close()
+    result = await run_in_threadpool(
+        service.ingest_frames, session, storage, files, sequence_id=sequence_id, user=user,
+        max_pixels=settings.max_image_pixels,
+    )  # fmt: skip
+    body = IngestOut(
+        stored=[FrameOut.model_validate(f) for f in result.stored],
+        duplicates=[Duplicate(name=d.name, sha256=d.sha256, frame_id=d.frame_id)
+                    for d in result.duplicates],
+        rejected=[Rejected(name=r.name, reason=r.reason) for r in result.rejected],
+    )  # fmt: skip
+    if result.stored:
+        code = status.HTTP_201_CREATED
+    elif result.rejected:
+        code = status.HTTP_422_UNPROCESSABLE_CONTENT
+    else:
+        code = status.HTTP_200_OK
+    payload = body.model_dump(mode="json")
+    if code == status.HTTP_422_UNPROCESSABLE_CONTENT:
+        first = result.rejected[0]
+        payload["detail"] = f"No frame was stored; {first.name or 'the file'}: {first.reason}"
+    return JSONResponse(payload, status_code=code)
+
+
+@router.get("/frames", response_model=FramePage)
+def list_frames(
+    session: SessionDep,
+    _user: CurrentUser,
+    sequence_id: int | None = None,
+    status: FrameStatus | None = None,
+    split: Split | None = None,
+    order: str = Query("id", pattern="^(id|-id|frame_index|uncertainty)$",
+                       description="`uncertainty`: the active-learning queue, most unsure first."),
+    limit: int = Query(50, ge=1, le=500),
+    offset: int = Query(0, ge=0),
+) -> FramePage:  # fmt: skip
+    """Frames, filtered and paginated."""
+    rows, total = service.list_frames(
+        session, sequence_id=sequence_id, status=status, split=split, order=order, limit=limit,
+        offset=offset,
+    )  # fmt: skip
+    return FramePage(items=[FrameOut.model_validate(r) for r in rows], total=total, limit=limit,
+                     offset=offset)  # fmt: skip
+
+
+@router.get("/frames/{frame_id}", response_model=FrameDetail)
+def get_frame(frame_id: int, session: SessionDep, _user: CurrentUser) -> FrameDetail:
+    """A frame's metadata with its label and proposal state."""
+    frame = service.get_frame(session, frame_id)
+    return FrameDetail.model_validate(
+        FrameOut.model_validate(frame).model_dump() | service.frame_state(session, frame)
+    )
+
+
+@router.get(
+    "/frames/{frame_id}/image",
+    response_class=FileResponse,
+    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/tiff": {},
+                                 "image/bmp": {}}}},
+)  # fmt: skip
+def get_frame_image(
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    variant: str = Query("original", pattern="^(original|display|thumb)$",
+                         description="original: the stored file, untouched; display: 8-bit "
+                                     "PNG for browsers; thumb: 8-bit PNG, 256 px."),
+) -> Response:  # fmt: skip
+    """The frame's image: the original file, or an 8-bit PNG for display."""
+    frame = service.get_frame(session, frame_id)
+    headers = {"Cache-Control": "private, max-age=31536000, immutable"}
+    if variant == "original":
+        return FileResponse(storage.absolute(frame.path), media_type=frame.media_type,
+                            headers=headers)  # fmt: skip
+    path = service.display_image(storage, frame, variant)
+    return FileResponse(path, media_type="image/png", headers=headers)
+
+
+# --- videos ------------------------------------------------------------------------------------
+
+
+@router.post(
+    "/videos",
+    response_model=VideoAccepted,
+    status_code=status.HTTP_202_ACCEPTED,
+    openapi_extra=_multipart(
+        {
+            "file": {"type": "string", "format": "binary"},
+            "every_nth": {"type": "integer", "default": 1},
+            "sequence_id": {"type": "integer"},
+        },
+        ["file"],
+    ),
+)
+async def upload_video(
+    request: Request,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: CurrentUser,
+) -> VideoAccepted:
+    """Upload an MP4 or AVI video; a job extracts every n-th frame into the sequence (a new
+    sequence named after the file when none is given)."""
+    form = await _form(request, 1)
+    upload = form.get("file")
+    if not isinstance(upload, UploadFile):
+        raise InvalidInputError("The request has no `file` part; attach one video.")
+    every_nth = _optional_int(form, "every_nth", 1) or 0
+    sequence_id = _optional_int(form, "sequence_id")
+    try:
+        video = await run_in_threadpool(
+            service.store_video, session, storage, upload.file, name=upload.filename or "",
+            every_nth=every_nth, sequence_id=sequence_id, user=user,
+            create_job=lambda s, params: create_job(s, queue, "extract_video", params, user),
+        )  # fmt: skip
+    finally:
+        await form.close()
+    return VideoAccepted(job_id=video.job_id or 0, video=VideoOut.model_validate(video))

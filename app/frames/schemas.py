@@ -1,0 +1,141 @@
+"""Sequence, frame and video payloads of the REST API."""
+
+from __future__ import annotations
+
+import datetime as dt
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from app.models import FrameStatus, LabelStatus, Split
+
+
+class SequenceIn(BaseModel):
+    """A weld run and its process parameters (the paper's Table I)."""
+
+    name: str = Field(min_length=1, max_length=200)
+    wire_feed_m_min: float | None = Field(default=None, ge=0, description="Wire feed rate, m/min.")
+    voltage_v: float | None = Field(default=None, ge=0, description="Voltage, V.")
+    current_a: float | None = Field(default=None, ge=0, description="Current, A.")
+    arc_length_correction_pct: float | None = Field(
+        default=None, description="Arc length correction, %."
+    )
+    robot_speed_cm_min: float | None = Field(default=None, ge=0, description="Robot speed, cm/min.")
+    synergic_law: str | None = Field(
+        default=None, max_length=200, description="Synergic law used instead of fixed V / A."
+    )
+    joint_type: str | None = Field(default=None, max_length=64, description="e.g. fillet (Tee).")
+    notes: str = Field(default="", max_length=10_000)
+
+
+class SequencePatch(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+    wire_feed_m_min: float | None = Field(default=None, ge=0)
+    voltage_v: float | None = Field(default=None, ge=0)
+    current_a: float | None = Field(default=None, ge=0)
+    arc_length_correction_pct: float | None = None
+    robot_speed_cm_min: float | None = Field(default=None, ge=0)
+    synergic_law: str | None = Field(default=None, max_length=200)
+    joint_type: str | None = Field(default=None, max_length=64)
+    notes: str | None = Field(default=None, max_length=10_000)
+
+
+class SequenceOut(SequenceIn):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    created_at: dt.datetime
+    frame_count: int = 0
+
+
+class FrameOut(BaseModel):
+    """A stored frame."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    sequence_id: int | None
+    sha256: str
+    original_name: str
+    media_type: str
+    size_bytes: int
+    width: int
+    height: int
+    channels: int
+    bit_depth: int
+    video_id: int | None
+    frame_index: int | None
+    timestamp_s: float | None
+    split: Split
+    status: FrameStatus
+    uncertainty: float | None
+    created_at: dt.datetime
+
+
+class LabelState(BaseModel):
+    status: LabelStatus
+    revision: int
+    updated_at: dt.datetime
+
+
+class ProposalState(BaseModel):
+    id: int
+    source: str
+    model_id: str
+    created_at: dt.datetime
+
+
+class FrameDetail(FrameOut):
+    """A frame with where it stands in the review loop."""
+
+    label: LabelState | None = None
+    proposal: ProposalState | None = None
+    has_validation_keypoints: bool = False
+
+
+class FramePage(BaseModel):
+    items: list[FrameOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class Rejected(BaseModel):
+    name: str
+    reason: str
+
+
+class Duplicate(BaseModel):
+    name: str
+    sha256: str
+    frame_id: int = Field(description="The frame that already holds this content.")
+
+
+class IngestOut(BaseModel):
+    """What became of each uploaded file."""
+
+    stored: list[FrameOut]
+    duplicates: list[Duplicate]
+    rejected: list[Rejected]
+
+
+class VideoOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    sequence_id: int
+    sha256: str
+    original_name: str
+    container: str
+    size_bytes: int
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+    every_nth: int
+    job_id: int | None
+    created_at: dt.datetime
+
+
+class VideoAccepted(BaseModel):
+    job_id: int
+    video: VideoOut

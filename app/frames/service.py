@@ -1,0 +1,471 @@
+"""Sequences, frame ingest and videos: every file is checked, decoded once, stored by content
+hash and recorded atomically (files first, then one commit; a failed commit removes the files).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Callable, Iterable
+from collections.abc import Sequence as Seq
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.errors import ConflictError, InvalidInputError, NotFoundError
+from app.models import (
+    Frame,
+    FrameStatus,
+    Label,
+    Proposal,
+    Sequence,
+    Split,
+    User,
+    ValidationKeypoints,
+    Video,
+)
+from app.storage import Storage, StoredFile
+from weldpool_core.io import EXTENSIONS, MEDIA_TYPES, ImageInfo, encode_png, read_image
+from weldpool_core.video import probe_video, sniff_container
+
+_BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
+_POOL = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="ingest")
+
+
+# --- sequences ---------------------------------------------------------------------------------
+
+
+def create_sequence(session: Session, values: dict[str, Any], user: User | None) -> Sequence:
+    """A new weld run; names are unique."""
+    if session.scalar(sa.select(Sequence.id).where(Sequence.name == values["name"])):
+        raise ConflictError(f"There is already a sequence named {values['name']!r}.")
+    sequence = Sequence(**values, created_by_id=user.id if user else None)
+    session.add(sequence)
+    session.commit()
+    return sequence
+
+
+def get_sequence(session: Session, sequence_id: int) -> Sequence:
+    sequence = session.get(Sequence, sequence_id)
+    if sequence is None:
+        raise NotFoundError(f"There is no sequence {sequence_id}.")
+    return sequence
+
+
+def sequence_by_name(session: Session, name: str, user: User | None) -> Sequence:
+    """The sequence called ``name``, created when missing (command-line import)."""
+    sequence = session.scalar(sa.select(Sequence).where(Sequence.name == name))
+    return sequence or create_sequence(session, {"name": name}, user)
+
+
+def unique_sequence_name(session: Session, base: str) -> str:
+    """``base``, or ``base (2)``, ``base (3)``… whichever is free."""
+    taken = set(session.scalars(sa.select(Sequence.name).where(Sequence.name.like(f"{base}%"))))
+    name, number = base, 1
+    while name in taken:
+        number += 1
+        name = f"{base} ({number})"
+    return name
+
+
+def update_sequence(session: Session, sequence: Sequence, values: dict[str, Any]) -> Sequence:
+    renamed = "name" in values and values["name"] != sequence.name
+    if renamed and session.scalar(sa.select(Sequence.id).where(Sequence.name == values["name"])):
+        raise ConflictError(f"There is already a sequence named {values['name']!r}.")
+    for key, value in values.items():
+        setattr(sequence, key, value)
+    session.commit()
+    return sequence
+
+
+def frame_counts(session: Session, sequence_ids: Iterable[int]) -> dict[int, int]:
+    rows = session.execute(
+        sa.select(Frame.sequence_id, sa.func.count())
+        .where(Frame.sequence_id.in_(list(sequence_ids)))
+        .group_by(Frame.sequence_id)
+    )
+    return {sequence_id: count for sequence_id, count in rows if sequence_id is not None}
+
+
+def list_sequences(session: Session) -> list[Sequence]:
+    return list(session.scalars(sa.select(Sequence).order_by(Sequence.id.desc())))
+
+
+# --- frame ingest ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IncomingFile:
+    """An uploaded or imported file: the client's name (metadata only) and its bytes."""
+
+    name: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class CheckedFrame:
+    """A frame that passed the checks, ready to be stored."""
+
+    name: str
+    data: bytes
+    sha256: str
+    info: ImageInfo
+    frame_index: int | None = None
+    timestamp_s: float | None = None
+
+
+@dataclass(frozen=True)
+class Rejection:
+    name: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class DuplicateFrame:
+    name: str
+    sha256: str
+    frame_id: int
+
+
+@dataclass
+class IngestResult:
+    """What became of each file of a batch."""
+
+    stored: list[Frame] = field(default_factory=list)
+    duplicates: list[DuplicateFrame] = field(default_factory=list)
+    rejected: list[Rejection] = field(default_factory=list)
+
+
+def name_problem(name: str) -> str | None:
+    """Why a client-given file name is refused (it is metadata, never a path), or None."""
+    if not name:
+        return "The file has no name."
+    if len(name) > 255:
+        return "The file name is longer than 255 characters."
+    if _BAD_NAME.search(name) or name in (".", "..") or name.startswith(".."):
+        return "The file name must not contain path parts ('/', '\\\\', '..') or control codes."
+    return None
+
+
+def check_frame_file(incoming: IncomingFile, max_pixels: int) -> CheckedFrame | Rejection:
+    """Name, content and decodability of one file; decodes it exactly once."""
+    problem = name_problem(incoming.name)
+    if problem:
+        return Rejection(incoming.name, problem)
+    try:
+        image = read_image(incoming.data, max_pixels=max_pixels)
+    except InvalidInputError as exc:
+        return Rejection(incoming.name, exc.message)
+    digest = hashlib.sha256(incoming.data).hexdigest()
+    return CheckedFrame(incoming.name, incoming.data, digest, image.info)
+
+
+def _existing(session: Session, sequence_id: int | None, hashes: Seq[str]) -> dict[str, int]:
+    found: dict[str, int] = {}
+    for start in range(0, len(hashes), 500):
+        chunk = list(hashes[start : start + 500])
+        query = sa.select(Frame.sha256, Frame.id).where(Frame.sha256.in_(chunk))
+        query = query.where(
+            Frame.sequence_id == sequence_id if sequence_id is not None
+            else Frame.sequence_id.is_(None)
+        )  # fmt: skip
+        found.update(dict(session.execute(query).tuples().all()))
+    return found
+
+
+def _paths_in_use(session: Session, paths: list[str]) -> set[str]:
+    in_use: set[str] = set()
+    for start in range(0, len(paths), 500):
+        chunk = paths[start : start + 500]
+        in_use.update(session.scalars(sa.select(Frame.path).where(Frame.path.in_(chunk))))
+    return in_use
+
+
+def record_frames(
+    session: Session,
+    storage: Storage,
+    frames: Seq[CheckedFrame],
+    *,
+    sequence_id: int | None,
+    user: User | None,
+    video_id: int | None = None,
+) -> IngestResult:
+    """Store and record checked frames in one transaction; same content in the same sequence
+    is reported as a duplicate. Safe against a concurrent upload of the same content."""
+    for attempt in (1, 2):
+        result = IngestResult()
+        existing = _existing(session, sequence_id, [f.sha256 for f in frames])
+        new: dict[str, CheckedFrame] = {}
+        for frame in frames:
+            if frame.sha256 in existing:
+                result.duplicates.append(
+                    DuplicateFrame(frame.name, frame.sha256, existing[frame.sha256])
+                )
+            elif frame.sha256 in new:
+                result.duplicates.append(DuplicateFrame(frame.name, frame.sha256, -1))
+            else:
+                new[frame.sha256] = frame
+        written: list[StoredFile] = []
+        try:
+            rows = []
+            for frame in new.values():
+                stored = storage.put(frame.data, frame.sha256, frame.info.extension)
+                written.append(stored)
+                rows.append(_frame_row(frame, stored.path, sequence_id, user, video_id))
+            session.add_all(rows)
+            session.commit()
+        except sa.exc.IntegrityError:
+            session.rollback()
+            storage.discard(written, _paths_in_use(session, [w.path for w in written]))
+            if attempt == 2:
+                raise
+            continue  # another upload stored some of this content meanwhile: look again
+        except BaseException:
+            session.rollback()
+            storage.discard(written, _paths_in_use(session, [w.path for w in written]))
+            raise
+        by_hash = {row.sha256: row.id for row in rows}
+        result.duplicates = [
+            d if d.frame_id != -1 else DuplicateFrame(d.name, d.sha256, by_hash[d.sha256])
+            for d in result.duplicates
+        ]
+        result.stored = rows
+        return result
+    raise AssertionError("unreachable")
+
+
+def _frame_row(
+    frame: CheckedFrame, path: str, sequence_id: int | None, user: User | None,
+    video_id: int | None,
+) -> Frame:  # fmt: skip
+    info = frame.info
+    return Frame(
+        sequence_id=sequence_id,
+        sha256=frame.sha256,
+        path=path,
+        original_name=frame.name,
+        media_type=info.media_type,
+        size_bytes=len(frame.data),
+        width=info.width,
+        height=info.height,
+        channels=info.channels,
+        bit_depth=info.bit_depth,
+        video_id=video_id,
+        frame_index=frame.frame_index,
+        timestamp_s=frame.timestamp_s,
+        split=Split.train,
+        status=FrameStatus.new,
+        uploaded_by_id=user.id if user else None,
+    )
+
+
+def ingest_frames(
+    session: Session,
+    storage: Storage,
+    files: Seq[IncomingFile],
+    *,
+    sequence_id: int | None,
+    user: User | None,
+    max_pixels: int,
+) -> IngestResult:
+    """Check every file (in parallel), then store and record the good ones atomically."""
+    if sequence_id is not None:
+        get_sequence(session, sequence_id)
+    checked = list(_POOL.map(lambda f: check_frame_file(f, max_pixels), files))
+    good = [c for c in checked if isinstance(c, CheckedFrame)]
+    result = record_frames(session, storage, good, sequence_id=sequence_id, user=user)
+    result.rejected = [c for c in checked if isinstance(c, Rejection)]
+    return result
+
+
+# --- reading frames ----------------------------------------------------------------------------
+
+_ORDERINGS: dict[str, tuple[Any, ...]] = {
+    "id": (Frame.id,),
+    "-id": (Frame.id.desc(),),
+    "frame_index": (Frame.sequence_id, Frame.frame_index, Frame.id),
+    "uncertainty": (Frame.uncertainty.desc().nulls_last(), Frame.id),
+}
+
+
+def list_frames(
+    session: Session,
+    *,
+    sequence_id: int | None = None,
+    status: FrameStatus | None = None,
+    split: Split | None = None,
+    order: str = "id",
+    limit: int = 50,
+    offset: int = 0,
+) -> tuple[list[Frame], int]:
+    """Frames filtered and paginated; ``order=uncertainty`` is the review queue (most unsure
+    first, frames without a score last)."""
+    query = sa.select(Frame)
+    if sequence_id is not None:
+        query = query.where(Frame.sequence_id == sequence_id)
+    if status is not None:
+        query = query.where(Frame.status == status)
+    if split is not None:
+        query = query.where(Frame.split == split)
+    total = session.scalar(sa.select(sa.func.count()).select_from(query.subquery())) or 0
+    rows = session.scalars(query.order_by(*_ORDERINGS[order]).limit(limit).offset(offset)).all()
+    return list(rows), total
+
+
+def get_frame(session: Session, frame_id: int) -> Frame:
+    frame = session.get(Frame, frame_id)
+    if frame is None:
+        raise NotFoundError(f"There is no frame {frame_id}.")
+    return frame
+
+
+def frame_state(session: Session, frame: Frame) -> dict[str, Any]:
+    """The frame's label, latest proposal and whether it has manual keypoints."""
+    label = session.scalar(sa.select(Label).where(Label.frame_id == frame.id))
+    proposal = session.scalar(
+        sa.select(Proposal).where(Proposal.frame_id == frame.id).order_by(Proposal.id.desc())
+    )
+    manual = session.scalar(
+        sa.select(ValidationKeypoints.id).where(ValidationKeypoints.frame_id == frame.id)
+    )
+    return {
+        "label": label and {"status": label.status, "revision": label.revision,
+                            "updated_at": label.updated_at},
+        "proposal": proposal and {"id": proposal.id, "source": proposal.source,
+                                  "model_id": proposal.model_id,
+                                  "created_at": proposal.created_at},
+        "has_validation_keypoints": manual is not None,
+    }  # fmt: skip
+
+
+def display_image(storage: Storage, frame: Frame, variant: str) -> Path:
+    """An 8-bit PNG of the frame for browsers (``display``: full size; ``thumb``: 256 px),
+    made once from the original by the one reader and cached under ``cache/``."""
+    import cv2
+
+    from weldpool_core.io import to_rgb8
+
+    relative = f"cache/{variant}/{frame.sha256[:2]}/{frame.sha256}.png"
+    if (target := storage.absolute(relative)).exists():
+        return target
+    rgb = to_rgb8(read_image(storage.absolute(frame.path)))
+    pixels: Any = rgb[:, :, 0] if frame.channels == 1 else rgb
+    if variant == "thumb":
+        scale = 256 / max(frame.width, frame.height)
+        if scale < 1:
+            size = (max(1, round(frame.width * scale)), max(1, round(frame.height * scale)))
+            pixels = cv2.resize(pixels, size, interpolation=cv2.INTER_AREA)
+    return storage.write(relative, encode_png(pixels))
+
+
+# --- videos ------------------------------------------------------------------------------------
+
+
+def store_video(
+    session: Session,
+    storage: Storage,
+    source: BinaryIO,
+    *,
+    name: str,
+    every_nth: int,
+    sequence_id: int | None,
+    user: User | None,
+    create_job: Callable[[Session, dict[str, Any]], Any],
+) -> Video:
+    """Store an uploaded video, check that it decodes, and queue the extraction job."""
+    problem = name_problem(name)
+    if problem:
+        raise InvalidInputError(problem)
+    if every_nth < 1:
+        raise InvalidInputError("every_nth must be 1 or more.")
+    sequence = get_sequence(session, sequence_id) if sequence_id is not None else None
+    head = source.read(16)
+    if not head:
+        raise InvalidInputError("The file is empty.")
+    container = sniff_container(head)
+    if container is None:
+        raise InvalidInputError("The file is not a video; upload an MP4 or AVI video.")
+    source.seek(0)
+    stored, sha256, size = storage.put_stream(source, f".{container}", area="videos")
+    try:
+        info = probe_video(storage.absolute(stored.path))
+        if sequence is None:
+            base = Path(name).stem or "video"
+            sequence = create_sequence(session, {"name": unique_sequence_name(session, base)},
+                                       user)  # fmt: skip
+        video = Video(sequence_id=sequence.id, sha256=sha256, path=stored.path,
+                      original_name=name, container=container, size_bytes=size,
+                      width=info.width, height=info.height, fps=info.fps,
+                      frame_count=info.frame_count, every_nth=every_nth,
+                      uploaded_by_id=user.id if user else None)  # fmt: skip
+        session.add(video)
+        session.commit()
+    except BaseException:
+        session.rollback()
+        in_use = set(session.scalars(sa.select(Video.path).where(Video.path == stored.path)))
+        storage.discard([stored], in_use)
+        raise
+    job = create_job(session, {"video_id": video.id})
+    video.job_id = job.id
+    session.commit()
+    return video
+
+
+def encode_video_frame(index: int, timestamp_s: float, pixels: Any, name: str) -> CheckedFrame:
+    """A decoded video frame as a lossless PNG ready to be recorded."""
+    data = encode_png(pixels)
+    height, width = pixels.shape[:2]
+    info = ImageInfo(
+        format="PNG", media_type=MEDIA_TYPES["PNG"], extension=EXTENSIONS["PNG"],
+        width=width, height=height, channels=1 if pixels.ndim == 2 else pixels.shape[2],
+        bit_depth=8,
+    )  # fmt: skip
+    return CheckedFrame(name, data, hashlib.sha256(data).hexdigest(), info, index, timestamp_s)
+
+
+def extract_video_frames(
+    session: Session,
+    storage: Storage,
+    video: Video,
+    *,
+    user: User | None,
+    progress: Callable[[float, str], None],
+    batch_size: int = 32,
+) -> dict[str, int]:
+    """Every n-th frame of ``video`` into its sequence, recorded batch by batch with progress.
+
+    Re-running it is harmless: frames already stored are reported as duplicates.
+    """
+    from weldpool_core.video import iter_video_frames
+
+    stem = Path(video.original_name).stem or f"video{video.id}"
+    expected = max(1, -(-video.frame_count // video.every_nth))
+    stored = duplicates = done = 0
+    batch: list[Any] = []
+
+    def flush() -> None:
+        nonlocal stored, duplicates, done
+        checked = list(_POOL.map(
+            lambda f: encode_video_frame(f.index, f.timestamp_s, f.pixels,
+                                         f"{stem}_f{f.index:06d}.png"), batch))  # fmt: skip
+        result = record_frames(session, storage, checked, sequence_id=video.sequence_id,
+                               user=user, video_id=video.id)  # fmt: skip
+        stored += len(result.stored)
+        duplicates += len(result.duplicates)
+        done += len(batch)
+        batch.clear()
+        progress(min(done / expected, 0.999), f"{done} of about {expected} frames")
+
+    for frame in iter_video_frames(storage.absolute(video.path), video.every_nth):
+        batch.append(frame)
+        if len(batch) == batch_size:
+            flush()
+    if batch:
+        flush()
+    return {"video_id": video.id, "frames": stored, "duplicates": duplicates,
+            "sequence_id": video.sequence_id}  # fmt: skip
