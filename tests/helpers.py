@@ -56,3 +56,25 @@ def wait_for_job(client: TestClient, job_id: int, token: str, timeout: float = 2
         return body if body["status"] in ("succeeded", "failed", "cancelled") else None
 
     return wait_for(finished, timeout)
+
+
+def image_bytes(
+    width: int = 64,
+    height: int = 48,
+    *,
+    channels: int = 1,
+    bit_depth: int = 8,
+    fmt: str = ".png",
+    seed: int = 0,
+) -> bytes:
+    """An encoded test image with random content (distinct per seed)."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    dtype, top = (np.uint16, 65535) if bit_depth == 16 else (np.uint8, 255)
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    pixels = rng.integers(0, top, size=shape, endpoint=True).astype(dtype)
+    ok, buffer = cv2.imencode(fmt, pixels)
+    assert ok
+    return buffer.tobytes()

@@ -83,7 +83,9 @@ def _probe(data: bytes, max_pixels: int) -> str:
             f"The file is not a readable image (or is truncated); {_SUPPORTED}."
         ) from None
     except (OSError, ValueError, SyntaxError) as exc:
-        raise InvalidInputError(f"The image header is corrupt ({exc}).") from None
+        raise InvalidInputError(
+            f"The image is truncated or its header is corrupt ({exc})."
+        ) from None
     if fmt not in MEDIA_TYPES:
         raise InvalidInputError(f"{fmt} files are not supported; {_SUPPORTED}.")
     if width * height > max_pixels:

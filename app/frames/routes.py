@@ -246,8 +246,10 @@ async def upload_video(
         video = await run_in_threadpool(
             service.store_video, session, storage, upload.file, name=upload.filename or "",
             every_nth=every_nth, sequence_id=sequence_id, user=user,
-            create_job=lambda s, params: create_job(s, queue, "extract_video", params, user),
         )  # fmt: skip
     finally:
         await form.close()
-    return VideoAccepted(job_id=video.job_id or 0, video=VideoOut.model_validate(video))
+    job = create_job(session, queue, "extract_video", {"video_id": video.id}, user)
+    video.job_id = job.id
+    session.commit()
+    return VideoAccepted(job_id=job.id, video=VideoOut.model_validate(video))

@@ -174,7 +174,7 @@ def _existing(session: Session, sequence_id: int | None, hashes: Seq[str]) -> di
             Frame.sequence_id == sequence_id if sequence_id is not None
             else Frame.sequence_id.is_(None)
         )  # fmt: skip
-        found.update(dict(session.execute(query).tuples().all()))
+        found.update({sha: frame_id for sha, frame_id in session.execute(query)})
     return found
 
 
@@ -375,9 +375,9 @@ def store_video(
     every_nth: int,
     sequence_id: int | None,
     user: User | None,
-    create_job: Callable[[Session, dict[str, Any]], Any],
 ) -> Video:
-    """Store an uploaded video, check that it decodes, and queue the extraction job."""
+    """Store a video file and record it, after checking that it decodes; the frames are
+    extracted separately (a job in the service, in-process on the command line)."""
     problem = name_problem(name)
     if problem:
         raise InvalidInputError(problem)
@@ -410,9 +410,6 @@ def store_video(
         in_use = set(session.scalars(sa.select(Video.path).where(Video.path == stored.path)))
         storage.discard([stored], in_use)
         raise
-    job = create_job(session, {"video_id": video.id})
-    video.job_id = job.id
-    session.commit()
     return video
 
 
@@ -469,3 +466,11 @@ def extract_video_frames(
         flush()
     return {"video_id": video.id, "frames": stored, "duplicates": duplicates,
             "sequence_id": video.sequence_id}  # fmt: skip
+
+
+def sweep_orphan_files(session: Session, storage: Storage, older_than_s: float = 3600.0) -> int:
+    """Remove frame and video files that no row names (left by a crash mid-upload)."""
+    known = set(session.scalars(sa.select(Frame.path))) | set(
+        session.scalars(sa.select(Video.path))
+    )
+    return len(storage.sweep_orphans(("frames", "videos"), known, older_than_s))

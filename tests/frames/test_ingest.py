@@ -1,0 +1,270 @@
+"""Frame upload through the REST API, on SQLite and PostgreSQL: storage, refusals, duplicates,
+limits and atomicity."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from pathlib import Path
+
+import pytest
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from app.config import Settings
+from app.frames import service
+from app.main import create_app
+from app.models import Frame, Role
+from app.storage import Storage
+from tests.helpers import auth, image_bytes
+
+
+@pytest.fixture
+def token(make_user) -> str:
+    return make_user("uploader", Role.annotator)[1]
+
+
+def _sequence(client: TestClient, token: str, name: str = "run-1", **params) -> int:
+    response = client.post("/api/v1/sequences", json={"name": name, **params},
+                           headers=auth(token))  # fmt: skip
+    assert response.status_code == 201, response.text
+    return int(response.json()["id"])
+
+
+def _upload(client: TestClient, token: str, files: list[tuple[str, bytes]], **data):
+    parts = [("files", (name, content, "application/octet-stream")) for name, content in files]
+    return client.post("/api/v1/frames", files=parts, data=data, headers=auth(token))
+
+
+def _stored_files(settings: Settings) -> list[Path]:
+    root = settings.home / "frames"
+    return [p for p in root.rglob("*") if p.is_file()] if root.exists() else []
+
+
+def _bomb() -> bytes:
+    buffer = io.BytesIO()
+    Image.new("1", (20000, 20000)).save(buffer, "PNG")
+    return buffer.getvalue()
+
+
+def test_sequence_with_process_parameters(client: TestClient, token: str) -> None:
+    params = {"wire_feed_m_min": 8.5, "voltage_v": 24.1, "current_a": 190.0,
+              "arc_length_correction_pct": -5.0, "robot_speed_cm_min": 45.0,
+              "joint_type": "fillet", "notes": "Tee joint, CMT"}  # fmt: skip
+    sequence_id = _sequence(client, token, "run-A", **params)
+    body = client.get(f"/api/v1/sequences/{sequence_id}", headers=auth(token)).json()
+    assert body == body | params | {"frame_count": 0}
+    again = client.post("/api/v1/sequences", json={"name": "run-A"}, headers=auth(token))
+    assert again.status_code == 409
+    assert again.json()["detail"] == "There is already a sequence named 'run-A'."
+    bad = client.post("/api/v1/sequences", json={"name": "x", "voltage_v": -3},
+                      headers=auth(token))  # fmt: skip
+    assert bad.status_code == 422 and bad.json()["detail"].startswith("voltage_v:")
+    patched = client.patch(f"/api/v1/sequences/{sequence_id}", json={"notes": "synergic"},
+                           headers=auth(token))  # fmt: skip
+    assert patched.json()["notes"] == "synergic" and patched.json()["voltage_v"] == 24.1
+
+
+def test_batch_of_every_supported_kind(client: TestClient, token: str, settings: Settings):
+    sequence_id = _sequence(client, token)
+    files = [
+        ("gray8.png", image_bytes(seed=1)),
+        ("gray16.png", image_bytes(seed=2, bit_depth=16)),
+        ("rgba.png", image_bytes(seed=3, channels=4)),
+        ("color.jpg", image_bytes(seed=4, channels=3, fmt=".jpg")),
+        ("gray16.tif", image_bytes(seed=5, bit_depth=16, fmt=".tif")),
+        ("color.bmp", image_bytes(seed=6, channels=3, fmt=".bmp")),
+    ]
+    response = _upload(client, token, files, sequence_id=str(sequence_id))
+    assert response.status_code == 201, response.text
+    body = response.json()
+    assert body["rejected"] == [] and body["duplicates"] == []
+    stored = {f["original_name"]: f for f in body["stored"]}
+    assert stored["gray16.png"] == stored["gray16.png"] | {
+        "bit_depth": 16,
+        "channels": 1,
+        "media_type": "image/png",
+    }
+    assert stored["rgba.png"]["channels"] == 4
+    assert stored["color.jpg"]["media_type"] == "image/jpeg"
+    assert stored["gray16.tif"] == stored["gray16.tif"] | {
+        "bit_depth": 16,
+        "media_type": "image/tiff",
+    }
+    assert all(f["width"] == 64 and f["height"] == 48 for f in body["stored"])
+    for name, content in files:
+        frame = stored[name]
+        assert frame["sha256"] == hashlib.sha256(content).hexdigest()
+        original = client.get(f"/api/v1/frames/{frame['id']}/image", headers=auth(token))
+        assert original.content == content  # stored untouched
+        assert original.headers["content-type"] == frame["media_type"]
+    display = client.get(f"/api/v1/frames/{stored['gray16.png']['id']}/image",
+                         params={"variant": "display"}, headers=auth(token))  # fmt: skip
+    shown = Image.open(io.BytesIO(display.content))
+    assert shown.mode == "L" and shown.size == (64, 48)
+    thumb = client.get(f"/api/v1/frames/{stored['color.bmp']['id']}/image",
+                       params={"variant": "thumb"}, headers=auth(token))  # fmt: skip
+    assert Image.open(io.BytesIO(thumb.content)).mode == "RGB"
+    # Files are named by content, never by the client's name.
+    suffix = {"image/png": ".png", "image/jpeg": ".jpg", "image/tiff": ".tif", "image/bmp": ".bmp"}
+    names = {p.name for p in _stored_files(settings)}
+    assert names == {f["sha256"] + suffix[f["media_type"]] for f in stored.values()}
+    assert client.get("/api/v1/health").json()["status"] == "ok"
+
+
+def test_mixed_batch_stores_the_good_and_names_each_refusal(
+    client: TestClient, token: str, settings: Settings
+) -> None:
+    good = [("a.png", image_bytes(seed=10)), ("b.png", image_bytes(seed=11))]
+    bad = [
+        ("empty.png", b""),
+        ("notes.png", b"just some text, not an image"),
+        ("cut.png", image_bytes(seed=12)[:200]),
+        ("drawing.svg", b'<svg xmlns="http://www.w3.org/2000/svg"><rect/></svg>'),
+        ("page.png", b"<!doctype html><html><script>alert(1)</script></html>"),
+        ("bomb.png", _bomb()),
+        ("../../etc/evil.png", image_bytes(seed=13)),
+        ("dir\\evil.png", image_bytes(seed=14)),
+    ]
+    response = _upload(client, token, good[:1] + bad + good[1:])
+    assert response.status_code == 201
+    body = response.json()
+    assert [f["original_name"] for f in body["stored"]] == ["a.png", "b.png"]
+    reasons = {r["name"]: r["reason"] for r in body["rejected"]}
+    assert reasons["empty.png"] == "The file is empty."
+    assert "not a readable image" in reasons["notes.png"]
+    assert "truncated" in reasons["cut.png"]
+    assert "SVG images are not supported" in reasons["drawing.svg"]
+    assert "HTML files are not images" in reasons["page.png"]
+    assert "more than the limit" in reasons["bomb.png"]
+    assert "path parts" in reasons["../../etc/evil.png"]
+    assert "path parts" in reasons["dir\\evil.png"]
+    assert len(_stored_files(settings)) == 2  # nothing of the refused files was written
+    assert not list(settings.home.parent.rglob("evil.png"))
+    assert client.get("/api/v1/frames", headers=auth(token)).json()["total"] == 2
+
+
+def test_all_refused_is_422_with_a_sentence(client: TestClient, token: str, settings) -> None:
+    response = _upload(client, token, [("x.gif", b"GIF89a\x01\x00\x01\x00\x00\x00\x00;")])
+    assert response.status_code == 422
+    assert response.json()["detail"].startswith("No frame was stored; x.gif: ")
+    assert _stored_files(settings) == []
+
+
+def test_duplicates_are_reported_not_stored_twice(
+    client: TestClient, token: str, settings: Settings
+) -> None:
+    first_run, second_run = _sequence(client, token, "one"), _sequence(client, token, "two")
+    content = image_bytes(seed=20)
+    response = _upload(client, token, [("x.png", content), ("copy.png", content)],
+                       sequence_id=str(first_run))  # fmt: skip
+    body = response.json()
+    assert len(body["stored"]) == 1
+    frame_id = body["stored"][0]["id"]
+    assert body["duplicates"] == [{"name": "copy.png", "sha256": body["stored"][0]["sha256"],
+                                   "frame_id": frame_id}]  # fmt: skip
+    again = _upload(client, token, [("x.png", content)], sequence_id=str(first_run))
+    assert again.status_code == 200
+    assert again.json()["duplicates"][0]["frame_id"] == frame_id
+    elsewhere = _upload(client, token, [("x.png", content)], sequence_id=str(second_run))
+    assert elsewhere.status_code == 201  # another run may hold the same content…
+    assert len(_stored_files(settings)) == 1  # …sharing one file
+    loose = [_upload(client, token, [("x.png", content)]) for _ in range(2)]
+    assert [r.status_code for r in loose] == [201, 200]  # also deduplicated without sequence
+
+
+def test_request_over_the_size_limit_is_413(
+    tmp_path: Path, settings: Settings, session_factory, make_user
+) -> None:
+    _, token = make_user("big", Role.annotator)
+    small = settings.model_copy(update={"max_request_mb": 0.05})  # 51 kB
+    big = image_bytes(200, 200, seed=30, channels=3)  # ~120 kB of noise
+    with TestClient(create_app(small)) as client:
+        response = _upload(client, token, [("big.png", big)])
+        assert response.status_code == 413
+        assert "WELDPOOL_MAX_REQUEST_MB" in response.json()["detail"]
+
+        def chunks():  # no Content-Length: the limit applies while streaming
+            yield b'--x\r\nContent-Disposition: form-data; name="files"; filename="a.png"'
+            yield b"\r\n\r\n" + big + b"\r\n--x--\r\n"
+
+        streamed = client.post("/api/v1/frames", content=chunks(), headers=auth(token) | {
+            "content-type": "multipart/form-data; boundary=x"})  # fmt: skip
+        assert streamed.status_code == 413
+        assert client.get("/api/v1/health").status_code == 200
+        ok = _upload(client, token, [("small.png", image_bytes(seed=31))])
+        assert ok.status_code == 201
+    assert len(_stored_files(small)) == 1
+
+
+def test_bad_requests(client: TestClient, token: str) -> None:
+    missing = _upload(client, token, [("a.png", image_bytes())], sequence_id="999")
+    assert missing.status_code == 404 and missing.json()["detail"] == "There is no sequence 999."
+    not_int = _upload(client, token, [("a.png", image_bytes())], sequence_id="seven")
+    assert not_int.status_code == 400
+    as_json = client.post("/api/v1/frames", json={"files": []}, headers=auth(token))
+    assert as_json.status_code == 400
+    assert as_json.json()["detail"] == "Send the upload as multipart/form-data."
+    no_files = client.post("/api/v1/frames", files={"other": ("a", b"x")}, headers=auth(token))
+    assert no_files.status_code == 400 and "`files`" in no_files.json()["detail"]
+    assert client.get("/api/v1/frames/4242", headers=auth(token)).status_code == 404
+    assert client.get("/api/v1/frames/4242/image", headers=auth(token)).status_code == 404
+
+
+def test_failed_commit_leaves_no_file_and_no_row(
+    settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    storage = Storage(settings.home)
+    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=40 + i)) for i in range(3)]
+    with session_factory() as session:
+        monkeypatch.setattr(session, "commit", lambda: (_ for _ in ()).throw(
+            sa.exc.OperationalError("COMMIT", {}, Exception("disk I/O error"))))  # fmt: skip
+        with pytest.raises(sa.exc.OperationalError):
+            service.ingest_frames(session, storage, files, sequence_id=None, user=None,
+                                  max_pixels=10**6)  # fmt: skip
+    with session_factory() as session:
+        assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
+    assert _stored_files(settings) == []
+
+
+def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) -> None:
+    storage = Storage(settings.home)
+    with session_factory() as session:
+        kept = service.ingest_frames(session, storage, [service.IncomingFile("k.png",
+                                     image_bytes(seed=50))], sequence_id=None, user=None,
+                                     max_pixels=10**6).stored[0]  # fmt: skip
+        orphan = storage.put(image_bytes(seed=51), "f" * 64, ".png")  # renamed, never committed
+        assert service.sweep_orphan_files(session, storage, older_than_s=3600) == 0  # too new
+        assert service.sweep_orphan_files(session, storage, older_than_s=0) == 1
+    assert not storage.absolute(orphan.path).exists()
+    assert storage.absolute(kept.path).exists()
+
+
+def test_listing_filters_pagination_and_queue_order(
+    client: TestClient, token: str, session_factory
+) -> None:
+    run = _sequence(client, token)
+    files = [(f"{i}.png", image_bytes(seed=60 + i)) for i in range(5)]
+    ids = [f["id"] for f in _upload(client, token, files, sequence_id=str(run)).json()["stored"]]
+    _upload(client, token, [("loose.png", image_bytes(seed=70))])
+    with session_factory() as session:
+        for frame_id, score in zip(ids, [0.1, None, 0.9, 0.5, None], strict=True):
+            session.get_one(Frame, frame_id).uncertainty = score
+        session.commit()
+    page = client.get("/api/v1/frames", params={"sequence_id": run, "limit": 2, "offset": 2},
+                      headers=auth(token)).json()  # fmt: skip
+    assert page["total"] == 5 and [f["id"] for f in page["items"]] == ids[2:4]
+    queue = client.get("/api/v1/frames", params={"sequence_id": run, "order": "uncertainty"},
+                       headers=auth(token)).json()["items"]  # fmt: skip
+    assert [f["id"] for f in queue] == [ids[2], ids[3], ids[0], ids[1], ids[4]]
+    by_status = client.get("/api/v1/frames", params={"status": "new", "split": "train"},
+                           headers=auth(token)).json()  # fmt: skip
+    assert by_status["total"] == 6
+    assert client.get("/api/v1/frames", params={"status": "bogus"},
+                      headers=auth(token)).status_code == 422  # fmt: skip
+    detail = client.get(f"/api/v1/frames/{ids[0]}", headers=auth(token)).json()
+    assert detail == detail | {"label": None, "proposal": None, "has_validation_keypoints": False,
+                               "status": "new", "split": "train"}  # fmt: skip
+    listed = client.get("/api/v1/sequences", headers=auth(token)).json()
+    assert listed[0]["frame_count"] == 5
