@@ -101,8 +101,9 @@ def serve(host: str, port: int, no_worker: bool) -> None:
         swept = sweep_orphan_files(session, Storage(settings.home))
     engine.dispose()
     if swept:
-        click.echo(f"removed {swept} stored files that no row named (an interrupted upload)",
-                   err=True)  # fmt: skip
+        click.echo(
+            f"removed {swept} stored files that no row named (an interrupted upload)", err=True
+        )
     if password_file:
         click.echo(f"created user 'admin'; its password is in {password_file}", err=True)
     app = create_app(settings, embedded_worker=not no_worker)
@@ -180,8 +181,9 @@ def _bar_progress(bar: Any, total: int) -> Callable[[float, str], None]:
 )
 @click.option("--user", "username", default=None, help="Record the frames as this user's.")
 @friendly_errors
-def import_cmd(paths: tuple[str, ...], sequence_name: str, every_nth: int,
-               username: str | None) -> None:  # fmt: skip
+def import_cmd(
+    paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
+) -> None:
     """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files or directories."""
     from app.frames import service
     from app.storage import Storage
@@ -203,21 +205,30 @@ def import_cmd(paths: tuple[str, ...], sequence_name: str, every_nth: int,
                     chunk = images[start : start + IMPORT_BATCH]
                     files = [service.IncomingFile(p.name, p.read_bytes()) for p in chunk]
                     result = service.ingest_frames(
-                        session, storage, files, sequence_id=sequence.id, user=user,
+                        session,
+                        storage,
+                        files,
+                        sequence_id=sequence.id,
+                        user=user,
                         max_pixels=settings.max_image_pixels,
-                    )  # fmt: skip
+                    )
                     stored += len(result.stored)
                     duplicates += len(result.duplicates)
                     rejected += [f"{r.name}: {r.reason}" for r in result.rejected]
                     bar.update(len(chunk))
         for video_path in videos:
             with open(video_path, "rb") as handle:
-                video = service.store_video(session, storage, handle, name=video_path.name,
-                                            every_nth=every_nth, sequence_id=sequence.id,
-                                            user=user)  # fmt: skip
+                video = service.store_video(
+                    session,
+                    storage,
+                    handle,
+                    name=video_path.name,
+                    every_nth=every_nth,
+                    sequence_id=sequence.id,
+                    user=user,
+                )
             expected = -(-video.frame_count // every_nth)
-            with click.progressbar(length=expected, label=video_path.name,
-                                   file=sys.stderr) as bar:  # fmt: skip
+            with click.progressbar(length=expected, label=video_path.name, file=sys.stderr) as bar:
                 counts = service.extract_video_frames(
                     session, storage, video, user=user, progress=_bar_progress(bar, expected)
                 )
@@ -225,8 +236,11 @@ def import_cmd(paths: tuple[str, ...], sequence_name: str, every_nth: int,
             duplicates += counts["duplicates"]
     for line in rejected:
         click.echo(f"refused {line}", err=True)
-    click.echo(f"sequence {sequence_name!r}: {stored} frames stored, {duplicates} duplicates, "
-               f"{len(rejected)} refused", err=True)  # fmt: skip
+    click.echo(
+        f"sequence {sequence_name!r}: {stored} frames stored, {duplicates} duplicates, "
+        f"{len(rejected)} refused",
+        err=True,
+    )
     if rejected and not stored and not duplicates:
         sys.exit(2)
 

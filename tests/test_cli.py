@@ -18,10 +18,21 @@ from tests.helpers import REPO, auth, make_settings
 
 
 def run(settings: Settings, *args: str, stdin: str = "", **env: str) -> subprocess.CompletedProcess:
-    environment = dict(os.environ, WELDPOOL_HOME=str(settings.home),
-                       WELDPOOL_DATABASE_URL=settings.resolved_database_url, **env)  # fmt: skip
-    return subprocess.run([sys.executable, "-m", "app", *args], input=stdin, text=True,
-                          capture_output=True, env=environment, cwd=REPO, timeout=120)  # fmt: skip
+    environment = dict(
+        os.environ,
+        WELDPOOL_HOME=str(settings.home),
+        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
+        **env,
+    )
+    return subprocess.run(
+        [sys.executable, "-m", "app", *args],
+        input=stdin,
+        text=True,
+        capture_output=True,
+        env=environment,
+        cwd=REPO,
+        timeout=120,
+    )
 
 
 @pytest.fixture
@@ -40,8 +51,16 @@ def test_console_script_is_installed() -> None:
 
 def test_user_add_token_and_api_access(cli_settings: Settings) -> None:
     assert run(cli_settings, "migrate").returncode == 0
-    added = run(cli_settings, "user", "add", "welder", "--role", "reviewer", "--password-stdin",
-                stdin="a good password\n")  # fmt: skip
+    added = run(
+        cli_settings,
+        "user",
+        "add",
+        "welder",
+        "--role",
+        "reviewer",
+        "--password-stdin",
+        stdin="a good password\n",
+    )
     assert added.returncode == 0, added.stderr
     token = run(cli_settings, "token", "welder")
     assert token.returncode == 0
@@ -73,8 +92,9 @@ def test_errors_are_one_line_with_exit_status_2(cli_settings: Settings, tmp_path
     assert len(unknown.stderr.strip().splitlines()) == 1
     assert "There is no user named 'nobody'" in unknown.stderr
 
-    short = run(cli_settings, "user", "add", "x", "--role", "admin", "--password-stdin",
-                stdin="short\n")  # fmt: skip
+    short = run(
+        cli_settings, "user", "add", "x", "--role", "admin", "--password-stdin", stdin="short\n"
+    )
     assert short.returncode == 2
     assert short.stderr.strip() == "weldpool: The password must have at least 8 characters."
 
@@ -97,8 +117,7 @@ def test_unreachable_database_is_one_line(tmp_path: Path) -> None:
 
 def test_weights_status_names_the_variable_to_set(tmp_path: Path) -> None:
     settings = make_settings(tmp_path)
-    result = run(settings, "weights", "status", HF_HUB_OFFLINE="1",
-                 HF_HOME=str(tmp_path / "hf"))  # fmt: skip
+    result = run(settings, "weights", "status", HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"))
     assert result.returncode == 2
     assert "set WELDPOOL_DINO to a local directory" in result.stderr
     fetched = run(settings, "weights", "fetch", HF_HUB_OFFLINE="1", HF_HOME=str(tmp_path / "hf"))

@@ -9,9 +9,19 @@ from alembic.runtime.migration import MigrationContext
 from app.db import Base, create_db_engine, migrate, schema_revision
 
 CORE_TABLES = {
-    "users", "api_tokens", "web_sessions", "sequences", "frames", "proposals", "labels",
-    "label_revisions", "validation_keypoints", "jobs", "workers", "model_versions",
-}  # fmt: skip
+    "users",
+    "api_tokens",
+    "web_sessions",
+    "sequences",
+    "frames",
+    "proposals",
+    "labels",
+    "label_revisions",
+    "validation_keypoints",
+    "jobs",
+    "workers",
+    "model_versions",
+}
 
 
 def test_upgrade_empty_database_to_head(database_url: str) -> None:

@@ -29,8 +29,13 @@ def test_serve_migrates_serves_and_runs_jobs(tmp_path: Path) -> None:
     weldpool = [sys.executable, "-m", "app"]
     port = _free_port()
     log = open(tmp_path / "serve.log", "w")  # noqa: SIM115
-    server = subprocess.Popen([*weldpool, "serve", "--port", str(port)], env=env, cwd=tmp_path,
-                              stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    server = subprocess.Popen(
+        [*weldpool, "serve", "--port", str(port)],
+        env=env,
+        cwd=tmp_path,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     base = f"http://127.0.0.1:{port}"
     try:
 
@@ -54,17 +59,25 @@ def test_serve_migrates_serves_and_runs_jobs(tmp_path: Path) -> None:
         password = password_file.read_text().strip()
         browser = httpx.Client(base_url=base, follow_redirects=True)
         csrf = browser.get("/login").text.split('name="csrf_token" value="')[1].split('"')[0]
-        login = browser.post("/login", data={"username": "admin", "password": password,
-                                             "csrf_token": csrf})  # fmt: skip
+        login = browser.post(
+            "/login", data={"username": "admin", "password": password, "csrf_token": csrf}
+        )
         assert 'data-testid="current-user">admin<' in login.text
-        token = subprocess.run([*weldpool, "token", "admin"], env=env, capture_output=True,
-                               text=True, check=True).stdout.strip()  # fmt: skip
+        token = subprocess.run(
+            [*weldpool, "token", "admin"], env=env, capture_output=True, text=True, check=True
+        ).stdout.strip()
         headers = {"Authorization": f"Bearer {token}"}
-        job_id = httpx.post(f"{base}/api/v1/jobs/diagnostic", json={"seconds": 0.2},
-                            headers=headers).json()["job_id"]  # fmt: skip
-        job = wait_for(lambda: (j := httpx.get(f"{base}/api/v1/jobs/{job_id}",
-                                               headers=headers).json())["status"]
-                       in ("succeeded", "failed") and j, timeout=30)  # fmt: skip
+        job_id = httpx.post(
+            f"{base}/api/v1/jobs/diagnostic", json={"seconds": 0.2}, headers=headers
+        ).json()["job_id"]
+        job = wait_for(
+            lambda: (
+                (j := httpx.get(f"{base}/api/v1/jobs/{job_id}", headers=headers).json())["status"]
+                in ("succeeded", "failed")
+                and j
+            ),
+            timeout=30,
+        )
         assert job["status"] == "succeeded"
         assert job["result"]["pid"] == server.pid  # the embedded worker ran it
         docs = httpx.get(f"{base}/docs", headers=headers)

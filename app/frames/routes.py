@@ -113,9 +113,11 @@ def update_sequence(
         },
         ["files"],
     ),
-    responses={200: {"description": "Nothing new: every file was a duplicate."},
-               422: {"description": "No file could be stored; each has its reason."}},
-)  # fmt: skip
+    responses={
+        200: {"description": "Nothing new: every file was a duplicate."},
+        422: {"description": "No file could be stored; each has its reason."},
+    },
+)
 async def upload_frames(
     request: Request,
     session: SessionDep,
@@ -133,15 +135,21 @@ async def upload_frames(
     files = [service.IncomingFile(u.filename or "", await u.read()) for u in uploads]
     await form.close()
     result = await run_in_threadpool(
-        service.ingest_frames, session, storage, files, sequence_id=sequence_id, user=user,
+        service.ingest_frames,
+        session,
+        storage,
+        files,
+        sequence_id=sequence_id,
+        user=user,
         max_pixels=settings.max_image_pixels,
-    )  # fmt: skip
+    )
     body = IngestOut(
         stored=[FrameOut.model_validate(f) for f in result.stored],
-        duplicates=[Duplicate(name=d.name, sha256=d.sha256, frame_id=d.frame_id)
-                    for d in result.duplicates],
+        duplicates=[
+            Duplicate(name=d.name, sha256=d.sha256, frame_id=d.frame_id) for d in result.duplicates
+        ],
         rejected=[Rejected(name=r.name, reason=r.reason) for r in result.rejected],
-    )  # fmt: skip
+    )
     if result.stored:
         code = status.HTTP_201_CREATED
     elif result.rejected:
@@ -162,18 +170,27 @@ def list_frames(
     sequence_id: int | None = None,
     status: FrameStatus | None = None,
     split: Split | None = None,
-    order: str = Query("id", pattern="^(id|-id|frame_index|uncertainty)$",
-                       description="`uncertainty`: the active-learning queue, most unsure first."),
+    order: str = Query(
+        "id",
+        pattern="^(id|-id|frame_index|uncertainty)$",
+        description="`uncertainty`: the active-learning queue, most unsure first.",
+    ),
     limit: int = Query(50, ge=1, le=500),
     offset: int = Query(0, ge=0),
-) -> FramePage:  # fmt: skip
+) -> FramePage:
     """Frames, filtered and paginated."""
     rows, total = service.list_frames(
-        session, sequence_id=sequence_id, status=status, split=split, order=order, limit=limit,
+        session,
+        sequence_id=sequence_id,
+        status=status,
+        split=split,
+        order=order,
+        limit=limit,
         offset=offset,
-    )  # fmt: skip
-    return FramePage(items=[FrameOut.model_validate(r) for r in rows], total=total, limit=limit,
-                     offset=offset)  # fmt: skip
+    )
+    return FramePage(
+        items=[FrameOut.model_validate(r) for r in rows], total=total, limit=limit, offset=offset
+    )
 
 
 @router.get("/frames/{frame_id}", response_model=FrameDetail)
@@ -188,24 +205,29 @@ def get_frame(frame_id: int, session: SessionDep, _user: CurrentUser) -> FrameDe
 @router.get(
     "/frames/{frame_id}/image",
     response_class=FileResponse,
-    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/tiff": {},
-                                 "image/bmp": {}}}},
-)  # fmt: skip
+    responses={
+        200: {"content": {"image/png": {}, "image/jpeg": {}, "image/tiff": {}, "image/bmp": {}}}
+    },
+)
 def get_frame_image(
     frame_id: int,
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
-    variant: str = Query("original", pattern="^(original|display|thumb)$",
-                         description="original: the stored file, untouched; display: 8-bit "
-                                     "PNG for browsers; thumb: 8-bit PNG, 256 px."),
-) -> Response:  # fmt: skip
+    variant: str = Query(
+        "original",
+        pattern="^(original|display|thumb)$",
+        description="original: the stored file, untouched; display: 8-bit "
+        "PNG for browsers; thumb: 8-bit PNG, 256 px.",
+    ),
+) -> Response:
     """The frame's image: the original file, or an 8-bit PNG for display."""
     frame = service.get_frame(session, frame_id)
     headers = {"Cache-Control": "private, max-age=31536000, immutable"}
     if variant == "original":
-        return FileResponse(storage.absolute(frame.path), media_type=frame.media_type,
-                            headers=headers)  # fmt: skip
+        return FileResponse(
+            storage.absolute(frame.path), media_type=frame.media_type, headers=headers
+        )
     path = service.display_image(storage, frame, variant)
     return FileResponse(path, media_type="image/png", headers=headers)
 
@@ -244,9 +266,15 @@ async def upload_video(
     sequence_id = _optional_int(form, "sequence_id")
     try:
         video = await run_in_threadpool(
-            service.store_video, session, storage, upload.file, name=upload.filename or "",
-            every_nth=every_nth, sequence_id=sequence_id, user=user,
-        )  # fmt: skip
+            service.store_video,
+            session,
+            storage,
+            upload.file,
+            name=upload.filename or "",
+            every_nth=every_nth,
+            sequence_id=sequence_id,
+            user=user,
+        )
     finally:
         await form.close()
     job = create_job(session, queue, "extract_video", {"video_id": video.id}, user)

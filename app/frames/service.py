@@ -171,9 +171,10 @@ def _existing(session: Session, sequence_id: int | None, hashes: Seq[str]) -> di
         chunk = list(hashes[start : start + 500])
         query = sa.select(Frame.sha256, Frame.id).where(Frame.sha256.in_(chunk))
         query = query.where(
-            Frame.sequence_id == sequence_id if sequence_id is not None
+            Frame.sequence_id == sequence_id
+            if sequence_id is not None
             else Frame.sequence_id.is_(None)
-        )  # fmt: skip
+        )
         found.update({sha: frame_id for sha, frame_id in session.execute(query)})
     return found
 
@@ -240,9 +241,12 @@ def record_frames(
 
 
 def _frame_row(
-    frame: CheckedFrame, path: str, sequence_id: int | None, user: User | None,
+    frame: CheckedFrame,
+    path: str,
+    sequence_id: int | None,
+    user: User | None,
     video_id: int | None,
-) -> Frame:  # fmt: skip
+) -> Frame:
     info = frame.info
     return Frame(
         sequence_id=sequence_id,
@@ -334,13 +338,17 @@ def frame_state(session: Session, frame: Frame) -> dict[str, Any]:
         sa.select(ValidationKeypoints.id).where(ValidationKeypoints.frame_id == frame.id)
     )
     return {
-        "label": label and {"status": label.status, "revision": label.revision,
-                            "updated_at": label.updated_at},
-        "proposal": proposal and {"id": proposal.id, "source": proposal.source,
-                                  "model_id": proposal.model_id,
-                                  "created_at": proposal.created_at},
+        "label": label
+        and {"status": label.status, "revision": label.revision, "updated_at": label.updated_at},
+        "proposal": proposal
+        and {
+            "id": proposal.id,
+            "source": proposal.source,
+            "model_id": proposal.model_id,
+            "created_at": proposal.created_at,
+        },
         "has_validation_keypoints": manual is not None,
-    }  # fmt: skip
+    }
 
 
 def display_image(storage: Storage, frame: Frame, variant: str) -> Path:
@@ -396,13 +404,21 @@ def store_video(
         info = probe_video(storage.absolute(stored.path))
         if sequence is None:
             base = Path(name).stem or "video"
-            sequence = create_sequence(session, {"name": unique_sequence_name(session, base)},
-                                       user)  # fmt: skip
-        video = Video(sequence_id=sequence.id, sha256=sha256, path=stored.path,
-                      original_name=name, container=container, size_bytes=size,
-                      width=info.width, height=info.height, fps=info.fps,
-                      frame_count=info.frame_count, every_nth=every_nth,
-                      uploaded_by_id=user.id if user else None)  # fmt: skip
+            sequence = create_sequence(session, {"name": unique_sequence_name(session, base)}, user)
+        video = Video(
+            sequence_id=sequence.id,
+            sha256=sha256,
+            path=stored.path,
+            original_name=name,
+            container=container,
+            size_bytes=size,
+            width=info.width,
+            height=info.height,
+            fps=info.fps,
+            frame_count=info.frame_count,
+            every_nth=every_nth,
+            uploaded_by_id=user.id if user else None,
+        )
         session.add(video)
         session.commit()
     except BaseException:
@@ -418,10 +434,14 @@ def encode_video_frame(index: int, timestamp_s: float, pixels: Any, name: str) -
     data = encode_png(pixels)
     height, width = pixels.shape[:2]
     info = ImageInfo(
-        format="PNG", media_type=MEDIA_TYPES["PNG"], extension=EXTENSIONS["PNG"],
-        width=width, height=height, channels=1 if pixels.ndim == 2 else pixels.shape[2],
+        format="PNG",
+        media_type=MEDIA_TYPES["PNG"],
+        extension=EXTENSIONS["PNG"],
+        width=width,
+        height=height,
+        channels=1 if pixels.ndim == 2 else pixels.shape[2],
         bit_depth=8,
-    )  # fmt: skip
+    )
     return CheckedFrame(name, data, hashlib.sha256(data).hexdigest(), info, index, timestamp_s)
 
 
@@ -447,11 +467,17 @@ def extract_video_frames(
 
     def flush() -> None:
         nonlocal stored, duplicates, done
-        checked = list(_POOL.map(
-            lambda f: encode_video_frame(f.index, f.timestamp_s, f.pixels,
-                                         f"{stem}_f{f.index:06d}.png"), batch))  # fmt: skip
-        result = record_frames(session, storage, checked, sequence_id=video.sequence_id,
-                               user=user, video_id=video.id)  # fmt: skip
+        checked = list(
+            _POOL.map(
+                lambda f: encode_video_frame(
+                    f.index, f.timestamp_s, f.pixels, f"{stem}_f{f.index:06d}.png"
+                ),
+                batch,
+            )
+        )
+        result = record_frames(
+            session, storage, checked, sequence_id=video.sequence_id, user=user, video_id=video.id
+        )
         stored += len(result.stored)
         duplicates += len(result.duplicates)
         done += len(batch)
@@ -464,8 +490,12 @@ def extract_video_frames(
             flush()
     if batch:
         flush()
-    return {"video_id": video.id, "frames": stored, "duplicates": duplicates,
-            "sequence_id": video.sequence_id}  # fmt: skip
+    return {
+        "video_id": video.id,
+        "frames": stored,
+        "duplicates": duplicates,
+        "sequence_id": video.sequence_id,
+    }
 
 
 def sweep_orphan_files(session: Session, storage: Storage, older_than_s: float = 3600.0) -> int:

@@ -26,8 +26,7 @@ def token(make_user) -> str:
 
 
 def _sequence(client: TestClient, token: str, name: str = "run-1", **params) -> int:
-    response = client.post("/api/v1/sequences", json={"name": name, **params},
-                           headers=auth(token))  # fmt: skip
+    response = client.post("/api/v1/sequences", json={"name": name, **params}, headers=auth(token))
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 
@@ -49,20 +48,26 @@ def _bomb() -> bytes:
 
 
 def test_sequence_with_process_parameters(client: TestClient, token: str) -> None:
-    params = {"wire_feed_m_min": 8.5, "voltage_v": 24.1, "current_a": 190.0,
-              "arc_length_correction_pct": -5.0, "robot_speed_cm_min": 45.0,
-              "joint_type": "fillet", "notes": "Tee joint, CMT"}  # fmt: skip
+    params = {
+        "wire_feed_m_min": 8.5,
+        "voltage_v": 24.1,
+        "current_a": 190.0,
+        "arc_length_correction_pct": -5.0,
+        "robot_speed_cm_min": 45.0,
+        "joint_type": "fillet",
+        "notes": "Tee joint, CMT",
+    }
     sequence_id = _sequence(client, token, "run-A", **params)
     body = client.get(f"/api/v1/sequences/{sequence_id}", headers=auth(token)).json()
     assert body == body | params | {"frame_count": 0}
     again = client.post("/api/v1/sequences", json={"name": "run-A"}, headers=auth(token))
     assert again.status_code == 409
     assert again.json()["detail"] == "There is already a sequence named 'run-A'."
-    bad = client.post("/api/v1/sequences", json={"name": "x", "voltage_v": -3},
-                      headers=auth(token))  # fmt: skip
+    bad = client.post("/api/v1/sequences", json={"name": "x", "voltage_v": -3}, headers=auth(token))
     assert bad.status_code == 422 and bad.json()["detail"].startswith("voltage_v:")
-    patched = client.patch(f"/api/v1/sequences/{sequence_id}", json={"notes": "synergic"},
-                           headers=auth(token))  # fmt: skip
+    patched = client.patch(
+        f"/api/v1/sequences/{sequence_id}", json={"notes": "synergic"}, headers=auth(token)
+    )
     assert patched.json()["notes"] == "synergic" and patched.json()["voltage_v"] == 24.1
 
 
@@ -99,12 +104,18 @@ def test_batch_of_every_supported_kind(client: TestClient, token: str, settings:
         original = client.get(f"/api/v1/frames/{frame['id']}/image", headers=auth(token))
         assert original.content == content  # stored untouched
         assert original.headers["content-type"] == frame["media_type"]
-    display = client.get(f"/api/v1/frames/{stored['gray16.png']['id']}/image",
-                         params={"variant": "display"}, headers=auth(token))  # fmt: skip
+    display = client.get(
+        f"/api/v1/frames/{stored['gray16.png']['id']}/image",
+        params={"variant": "display"},
+        headers=auth(token),
+    )
     shown = Image.open(io.BytesIO(display.content))
     assert shown.mode == "L" and shown.size == (64, 48)
-    thumb = client.get(f"/api/v1/frames/{stored['color.bmp']['id']}/image",
-                       params={"variant": "thumb"}, headers=auth(token))  # fmt: skip
+    thumb = client.get(
+        f"/api/v1/frames/{stored['color.bmp']['id']}/image",
+        params={"variant": "thumb"},
+        headers=auth(token),
+    )
     assert Image.open(io.BytesIO(thumb.content)).mode == "RGB"
     # Files are named by content, never by the client's name.
     suffix = {"image/png": ".png", "image/jpeg": ".jpg", "image/tiff": ".tif", "image/bmp": ".bmp"}
@@ -157,13 +168,15 @@ def test_duplicates_are_reported_not_stored_twice(
 ) -> None:
     first_run, second_run = _sequence(client, token, "one"), _sequence(client, token, "two")
     content = image_bytes(seed=20)
-    response = _upload(client, token, [("x.png", content), ("copy.png", content)],
-                       sequence_id=str(first_run))  # fmt: skip
+    response = _upload(
+        client, token, [("x.png", content), ("copy.png", content)], sequence_id=str(first_run)
+    )
     body = response.json()
     assert len(body["stored"]) == 1
     frame_id = body["stored"][0]["id"]
-    assert body["duplicates"] == [{"name": "copy.png", "sha256": body["stored"][0]["sha256"],
-                                   "frame_id": frame_id}]  # fmt: skip
+    assert body["duplicates"] == [
+        {"name": "copy.png", "sha256": body["stored"][0]["sha256"], "frame_id": frame_id}
+    ]
     again = _upload(client, token, [("x.png", content)], sequence_id=str(first_run))
     assert again.status_code == 200
     assert again.json()["duplicates"][0]["frame_id"] == frame_id
@@ -189,8 +202,11 @@ def test_request_over_the_size_limit_is_413(
             yield b'--x\r\nContent-Disposition: form-data; name="files"; filename="a.png"'
             yield b"\r\n\r\n" + big + b"\r\n--x--\r\n"
 
-        streamed = client.post("/api/v1/frames", content=chunks(), headers=auth(token) | {
-            "content-type": "multipart/form-data; boundary=x"})  # fmt: skip
+        streamed = client.post(
+            "/api/v1/frames",
+            content=chunks(),
+            headers=auth(token) | {"content-type": "multipart/form-data; boundary=x"},
+        )
         assert streamed.status_code == 413
         assert client.get("/api/v1/health").status_code == 200
         ok = _upload(client, token, [("small.png", image_bytes(seed=31))])
@@ -218,11 +234,17 @@ def test_failed_commit_leaves_no_file_and_no_row(
     storage = Storage(settings.home)
     files = [service.IncomingFile(f"{i}.png", image_bytes(seed=40 + i)) for i in range(3)]
     with session_factory() as session:
-        monkeypatch.setattr(session, "commit", lambda: (_ for _ in ()).throw(
-            sa.exc.OperationalError("COMMIT", {}, Exception("disk I/O error"))))  # fmt: skip
+        monkeypatch.setattr(
+            session,
+            "commit",
+            lambda: (_ for _ in ()).throw(
+                sa.exc.OperationalError("COMMIT", {}, Exception("disk I/O error"))
+            ),
+        )
         with pytest.raises(sa.exc.OperationalError):
-            service.ingest_frames(session, storage, files, sequence_id=None, user=None,
-                                  max_pixels=10**6)  # fmt: skip
+            service.ingest_frames(
+                session, storage, files, sequence_id=None, user=None, max_pixels=10**6
+            )
     with session_factory() as session:
         assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
     assert _stored_files(settings) == []
@@ -231,9 +253,14 @@ def test_failed_commit_leaves_no_file_and_no_row(
 def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) -> None:
     storage = Storage(settings.home)
     with session_factory() as session:
-        kept = service.ingest_frames(session, storage, [service.IncomingFile("k.png",
-                                     image_bytes(seed=50))], sequence_id=None, user=None,
-                                     max_pixels=10**6).stored[0]  # fmt: skip
+        kept = service.ingest_frames(
+            session,
+            storage,
+            [service.IncomingFile("k.png", image_bytes(seed=50))],
+            sequence_id=None,
+            user=None,
+            max_pixels=10**6,
+        ).stored[0]
         orphan = storage.put(image_bytes(seed=51), "f" * 64, ".png")  # renamed, never committed
         assert service.sweep_orphan_files(session, storage, older_than_s=3600) == 0  # too new
         assert service.sweep_orphan_files(session, storage, older_than_s=0) == 1
@@ -252,19 +279,29 @@ def test_listing_filters_pagination_and_queue_order(
         for frame_id, score in zip(ids, [0.1, None, 0.9, 0.5, None], strict=True):
             session.get_one(Frame, frame_id).uncertainty = score
         session.commit()
-    page = client.get("/api/v1/frames", params={"sequence_id": run, "limit": 2, "offset": 2},
-                      headers=auth(token)).json()  # fmt: skip
+    page = client.get(
+        "/api/v1/frames", params={"sequence_id": run, "limit": 2, "offset": 2}, headers=auth(token)
+    ).json()
     assert page["total"] == 5 and [f["id"] for f in page["items"]] == ids[2:4]
-    queue = client.get("/api/v1/frames", params={"sequence_id": run, "order": "uncertainty"},
-                       headers=auth(token)).json()["items"]  # fmt: skip
+    queue = client.get(
+        "/api/v1/frames", params={"sequence_id": run, "order": "uncertainty"}, headers=auth(token)
+    ).json()["items"]
     assert [f["id"] for f in queue] == [ids[2], ids[3], ids[0], ids[1], ids[4]]
-    by_status = client.get("/api/v1/frames", params={"status": "new", "split": "train"},
-                           headers=auth(token)).json()  # fmt: skip
+    by_status = client.get(
+        "/api/v1/frames", params={"status": "new", "split": "train"}, headers=auth(token)
+    ).json()
     assert by_status["total"] == 6
-    assert client.get("/api/v1/frames", params={"status": "bogus"},
-                      headers=auth(token)).status_code == 422  # fmt: skip
+    assert (
+        client.get("/api/v1/frames", params={"status": "bogus"}, headers=auth(token)).status_code
+        == 422
+    )
     detail = client.get(f"/api/v1/frames/{ids[0]}", headers=auth(token)).json()
-    assert detail == detail | {"label": None, "proposal": None, "has_validation_keypoints": False,
-                               "status": "new", "split": "train"}  # fmt: skip
+    assert detail == detail | {
+        "label": None,
+        "proposal": None,
+        "has_validation_keypoints": False,
+        "status": "new",
+        "split": "train",
+    }
     listed = client.get("/api/v1/sequences", headers=auth(token)).json()
     assert listed[0]["frame_count"] == 5

@@ -36,8 +36,12 @@ def token(make_user) -> str:
 
 def _upload(client: TestClient, token: str, path: Path, **data: str):
     with open(path, "rb") as handle:
-        return client.post("/api/v1/videos", files={"file": (path.name, handle, "video/avi")},
-                           data=data, headers=auth(token))  # fmt: skip
+        return client.post(
+            "/api/v1/videos",
+            files={"file": (path.name, handle, "video/avi")},
+            data=data,
+            headers=auth(token),
+        )
 
 
 def test_avi_every_nth_frame_into_a_new_sequence(client: TestClient, token: str, tmp_path):
@@ -45,16 +49,25 @@ def test_avi_every_nth_frame_into_a_new_sequence(client: TestClient, token: str,
     response = _upload(client, token, video, every_nth="3")
     assert response.status_code == 202, response.text
     body = response.json()
-    assert body["video"] == body["video"] | {"container": "avi", "width": 64, "height": 48,
-                                             "fps": 10.0, "every_nth": 3}  # fmt: skip
+    assert body["video"] == body["video"] | {
+        "container": "avi",
+        "width": 64,
+        "height": 48,
+        "fps": 10.0,
+        "every_nth": 3,
+    }
     job = wait_for_job(client, body["job_id"], token, timeout=60)
     assert job["status"] == "succeeded", job
     assert job["result"] == job["result"] | {"frames": 10, "duplicates": 0}
-    sequence = client.get(f"/api/v1/sequences/{body['video']['sequence_id']}",
-                          headers=auth(token)).json()  # fmt: skip
+    sequence = client.get(
+        f"/api/v1/sequences/{body['video']['sequence_id']}", headers=auth(token)
+    ).json()
     assert sequence["name"] == "weld run 7" and sequence["frame_count"] == 10
-    frames = client.get("/api/v1/frames", params={"sequence_id": sequence["id"],
-                        "order": "frame_index"}, headers=auth(token)).json()["items"]  # fmt: skip
+    frames = client.get(
+        "/api/v1/frames",
+        params={"sequence_id": sequence["id"], "order": "frame_index"},
+        headers=auth(token),
+    ).json()["items"]
     assert [f["frame_index"] for f in frames] == list(range(0, 30, 3))
     assert [round(f["timestamp_s"], 3) for f in frames] == [i / 10 for i in range(0, 30, 3)]
     assert all(f["video_id"] == body["video"]["id"] and f["channels"] == 3 for f in frames)
@@ -71,8 +84,11 @@ def test_real_weld_video(client: TestClient, token: str) -> None:
     assert response.json()["video"]["frame_count"] == 496
     job = wait_for_job(client, response.json()["job_id"], token, timeout=120)
     assert job["status"] == "succeeded", job
-    frames = client.get("/api/v1/frames", params={"sequence_id": run["id"], "limit": 100,
-                        "order": "frame_index"}, headers=auth(token)).json()  # fmt: skip
+    frames = client.get(
+        "/api/v1/frames",
+        params={"sequence_id": run["id"], "limit": 100, "order": "frame_index"},
+        headers=auth(token),
+    ).json()
     assert frames["total"] == 20  # frames 0, 25, …, 475
     first, last = frames["items"][0], frames["items"][-1]
     assert (first["width"], first["height"], first["channels"]) == (1280, 800, 1)  # gray
@@ -107,21 +123,47 @@ def test_command_line_import(tmp_path: Path, settings: Settings, session_factory
     (folder / "readme.txt").write_text("not a frame")  # ignored: not an image name
     (folder / "bad.png").write_bytes(b"broken")
     video = synthetic_avi(tmp_path / "clip.avi", frames=12)
-    env = dict(os.environ, WELDPOOL_HOME=str(settings.home),
-               WELDPOOL_DATABASE_URL=settings.resolved_database_url)  # fmt: skip
+    env = dict(
+        os.environ,
+        WELDPOOL_HOME=str(settings.home),
+        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
+    )
     result = subprocess.run(
-        [sys.executable, "-m", "app", "import", str(folder), str(video), "--sequence", "bulk",
-         "--every-nth", "4"], env=env, cwd=REPO, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "import",
+            str(folder),
+            str(video),
+            "--sequence",
+            "bulk",
+            "--every-nth",
+            "4",
+        ],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr
     assert "refused bad.png: The file is not a readable image" in result.stderr
     assert "sequence 'bulk': 6 frames stored, 0 duplicates, 1 refused" in result.stderr
     again = subprocess.run(
         [sys.executable, "-m", "app", "import", str(folder), "--sequence", "bulk"],
-        env=env, cwd=REPO, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert "0 frames stored, 3 duplicates" in again.stderr
-    missing = subprocess.run([sys.executable, "-m", "app", "import", str(tmp_path / "nope"),
-                              "--sequence", "x"], env=env, cwd=REPO, capture_output=True,
-                             text=True)  # fmt: skip
+    missing = subprocess.run(
+        [sys.executable, "-m", "app", "import", str(tmp_path / "nope"), "--sequence", "x"],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
     assert missing.returncode == 2 and missing.stderr.strip().endswith("does not exist.")

@@ -47,8 +47,13 @@ def _start(client: TestClient, token: str, **params: object) -> int:
 def test_job_runs_with_progress_and_result(client: TestClient, make_user) -> None:
     _, token = make_user("admin", Role.admin)
     job_id = _start(client, token, seconds=1.0)
-    seen = wait_for(lambda: (b := client.get(f"/api/v1/jobs/{job_id}", headers=auth(token))
-                             .json())["status"] == "running" and 0 < b["progress"] < 1)  # fmt: skip
+    seen = wait_for(
+        lambda: (
+            (b := client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json())["status"]
+            == "running"
+            and 0 < b["progress"] < 1
+        )
+    )
     assert seen
     job = wait_for_job(client, job_id, token)
     assert job["status"] == "succeeded"
@@ -83,8 +88,12 @@ def test_cancel_running_and_queued_jobs(client: TestClient, make_user, session_f
     queue = client.app.state.queue
     with session_factory() as session:
         running = create_job(session, queue, "test-wait", {}, admin)
-        wait_for(lambda: client.get(f"/api/v1/jobs/{running.id}", headers=auth(token))
-                 .json()["status"] == "running")  # fmt: skip
+        wait_for(
+            lambda: (
+                client.get(f"/api/v1/jobs/{running.id}", headers=auth(token)).json()["status"]
+                == "running"
+            )
+        )
         queued = create_job(session, queue, "test-wait", {}, admin)  # one worker: stays queued
     response = client.post(f"/api/v1/jobs/{queued.id}/cancel", headers=auth(token))
     assert response.json()["status"] == "cancelled"
@@ -139,7 +148,10 @@ def test_reaper_fails_or_retries_jobs_of_silent_workers(
     with session_factory() as session:
         job = session.get_one(Job, retried)
         assert (job.status, job.attempts, job.result) == (
-            JobStatus.succeeded, 2, {"attempt": "second"})  # fmt: skip
+            JobStatus.succeeded,
+            2,
+            {"attempt": "second"},
+        )
 
 
 def test_stale_worker_cannot_overwrite_a_reaped_job(session_factory, settings: Settings) -> None:

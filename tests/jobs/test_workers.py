@@ -25,13 +25,15 @@ pytestmark = pytest.mark.slow
 
 def _env(settings: Settings) -> dict[str, str]:
     env = dict(os.environ)
-    env.update({
-        "WELDPOOL_HOME": str(settings.home),
-        "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
-        "WELDPOOL_QUEUE_NAME": settings.queue_name,
-        "WELDPOOL_JOB_HEARTBEAT_S": str(settings.job_heartbeat_s),
-        "WELDPOOL_JOB_STALE_AFTER_S": str(settings.job_stale_after_s),
-    })  # fmt: skip
+    env.update(
+        {
+            "WELDPOOL_HOME": str(settings.home),
+            "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
+            "WELDPOOL_QUEUE_NAME": settings.queue_name,
+            "WELDPOOL_JOB_HEARTBEAT_S": str(settings.job_heartbeat_s),
+            "WELDPOOL_JOB_STALE_AFTER_S": str(settings.job_stale_after_s),
+        }
+    )
     env.pop("WELDPOOL_QUEUE_URL", None)
     if settings.queue_url:
         env["WELDPOOL_QUEUE_URL"] = settings.queue_url
@@ -44,8 +46,13 @@ def spawn_worker(tmp_path: Path) -> Iterator:
 
     def spawn(settings: Settings) -> subprocess.Popen:
         log = open(tmp_path / f"worker-{len(procs)}.log", "w")  # noqa: SIM115
-        proc = subprocess.Popen([sys.executable, "-m", "app", "worker"], env=_env(settings),
-                                cwd=REPO, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app", "worker"],
+            env=_env(settings),
+            cwd=REPO,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
         procs.append(proc)
         return proc
 
@@ -98,8 +105,7 @@ def test_job_through_real_redis_and_a_separate_worker(
     with TestClient(create_app(settings)) as client:
         health = client.get("/api/v1/health").json()
         assert health["queue"]["backend"] == "redis" and health["queue"]["alive"] == 1
-        response = client.post("/api/v1/jobs/diagnostic", json={"seconds": 0},
-                               headers=auth(token))  # fmt: skip
+        response = client.post("/api/v1/jobs/diagnostic", json={"seconds": 0}, headers=auth(token))
         job_id = response.json()["job_id"]
         wait_for(lambda: _job(factory, job_id).status == JobStatus.succeeded, timeout=30)
 

@@ -33,8 +33,9 @@ def test_every_endpoint_but_health_and_login_needs_a_user(client: TestClient) ->
     assert len(routes) > 10
     for method, path in routes:
         url = re.sub(r"\{[^}]+\}", "1", path)
-        response = client.request(method, url, headers={"accept": "application/json"},
-                                  follow_redirects=False)  # fmt: skip
+        response = client.request(
+            method, url, headers={"accept": "application/json"}, follow_redirects=False
+        )
         assert response.status_code == 401, (method, path, response.status_code)
         assert "detail" in response.json()
     assert client.get("/api/v1/health").status_code == 200
@@ -83,8 +84,9 @@ def test_wrong_role_gets_403(client: TestClient, make_user) -> None:
         response = client.post("/api/v1/users", json=body, headers=auth(token))
         assert response.status_code == 403
         assert "admin role" in response.json()["detail"]
-        assert client.post("/api/v1/jobs/diagnostic", json={}, headers=auth(token)).status_code \
-            == 403  # fmt: skip
+        assert (
+            client.post("/api/v1/jobs/diagnostic", json={}, headers=auth(token)).status_code == 403
+        )
     assert client.post("/api/v1/users", json=body, headers=auth(admin)).status_code == 201
 
 
@@ -100,16 +102,16 @@ def test_users_cannot_revoke_others_tokens(client: TestClient, make_user, sessio
 def test_deactivated_user_is_locked_out(client: TestClient, make_user) -> None:
     _, admin = make_user("boss", Role.admin)
     user, token = make_user("leaver")
-    patch = client.patch(f"/api/v1/users/{user.id}", json={"is_active": False},
-                         headers=auth(admin))  # fmt: skip
+    patch = client.patch(f"/api/v1/users/{user.id}", json={"is_active": False}, headers=auth(admin))
     assert patch.status_code == 200
     assert client.get("/api/v1/users/me", headers=auth(token)).status_code == 401
 
 
 def test_last_admin_cannot_be_demoted(client: TestClient, make_user) -> None:
     admin, token = make_user("only-admin", Role.admin)
-    response = client.patch(f"/api/v1/users/{admin.id}", json={"role": "reviewer"},
-                            headers=auth(token))  # fmt: skip
+    response = client.patch(
+        f"/api/v1/users/{admin.id}", json={"role": "reviewer"}, headers=auth(token)
+    )
     assert response.status_code == 409
     assert client.get("/api/v1/users/me", headers=auth(token)).json()["role"] == "admin"
 
@@ -130,8 +132,11 @@ def test_bad_input_gets_a_sentence_not_a_500(client: TestClient, make_user) -> N
     response = client.post("/api/v1/users", json={"username": "x"}, headers=auth(admin))
     assert response.status_code == 422
     assert response.json()["detail"] == "password: Field required."
-    response = client.post("/api/v1/users", content=b"{not json", headers=auth(admin) | {
-        "content-type": "application/json"})  # fmt: skip
+    response = client.post(
+        "/api/v1/users",
+        content=b"{not json",
+        headers=auth(admin) | {"content-type": "application/json"},
+    )
     assert response.status_code == 422
     dup = {"username": "adm2", "password": "long enough", "role": "admin"}
     response = client.post("/api/v1/users", json=dup, headers=auth(admin))
@@ -148,10 +153,14 @@ def _login(client: TestClient, username: str, password: str, next_url: str = "/"
     assert csrf, page.text
     return client.post(
         "/login",
-        data={"username": username, "password": password, "csrf_token": csrf.group(1),
-              "next": next_url},
+        data={
+            "username": username,
+            "password": password,
+            "csrf_token": csrf.group(1),
+            "next": next_url,
+        },
         follow_redirects=False,
-    )  # fmt: skip
+    )
 
 
 def test_login_session_cookie_and_csrf(client: TestClient, make_user) -> None:
