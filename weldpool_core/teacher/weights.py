@@ -95,3 +95,13 @@ def fetch_weights(ref: str, setting: str) -> WeightsStatus:
     if not status.available:
         raise WeightsUnavailableError(status.detail)
     return status
+
+
+def resolve_weights(ref: str, setting: str) -> Path:
+    """The local directory that holds ``ref``'s weights, or a WeightsUnavailableError."""
+    from weldpool_core.errors import WeightsUnavailableError
+
+    status = weights_status(ref, setting)
+    if not status.available or status.path is None:
+        raise WeightsUnavailableError(status.detail)
+    return Path(status.path)

@@ -1,0 +1,134 @@
+"""SAM2 processing and the predictor: our decoder equals transformers' Sam2Model, clicks never
+re-encode the image, coordinates follow the frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tests.models import full_sam2, tiny_sam2
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.teacher.sam2 import Prompts
+
+FRAME = np.random.default_rng(3).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+
+
+def _reference(predictor, embedding, prompts: Prompts, multimask: bool):
+    """Sam2Model.forward on the same embedding: the straightforward path."""
+    height, width = embedding.image_size
+    scale = torch.tensor([1024 / width, 1024 / height])
+    kwargs = {}
+    if prompts.points:
+        kwargs["input_points"] = torch.tensor(prompts.points)[None, None] * scale
+        kwargs["input_labels"] = torch.tensor(prompts.labels)[None, None]
+    if prompts.box:
+        kwargs["input_boxes"] = (torch.tensor(prompts.box).view(2, 2) * scale).view(1, 1, 4)
+    if prompts.mask_logits is not None:
+        kwargs["input_masks"] = torch.tensor(prompts.mask_logits)[None, None]
+    with torch.inference_mode():
+        out = predictor.model(
+            image_embeddings=list(embedding.features), multimask_output=multimask, **kwargs
+        )
+    logits, iou = out.pred_masks[0, 0], out.iou_scores[0, 0]
+    order = torch.argsort(iou, descending=True)
+    return logits[order].numpy(), iou[order].numpy()
+
+
+@pytest.fixture(scope="module")
+def predictor():
+    return tiny_sam2()
+
+
+@pytest.fixture(scope="module")
+def embedding(predictor):
+    return predictor.set_image(FRAME)
+
+
+@pytest.mark.parametrize("multimask", [True, False])
+@pytest.mark.parametrize(
+    "prompts",
+    [
+        Prompts(((80.0, 60.0),), (1,)),
+        Prompts(((80.0, 60.0), (10.0, 100.0)), (1, 0)),
+        Prompts(box=(20.0, 15.0, 140.0, 110.0)),
+        Prompts(((80.0, 60.0),), (1,), box=(20.0, 15.0, 140.0, 110.0)),
+    ],
+)
+def test_decoder_equals_sam2model(predictor, embedding, prompts, multimask) -> None:
+    ours = predictor.predict(embedding, prompts, multimask=multimask)
+    logits, iou = _reference(predictor, embedding, prompts, multimask)
+    assert np.abs(logits).max() > 0.1  # random weights, but not a trivial output
+    np.testing.assert_allclose(ours.low_res_logits, logits, atol=1e-4, rtol=1e-4)
+    np.testing.assert_allclose(ours.scores, iou, atol=1e-5)
+
+
+def test_decoder_with_a_previous_mask_equals_sam2model(predictor, embedding) -> None:
+    first = predictor.predict(embedding, Prompts(((80.0, 60.0),), (1,)))
+    again = Prompts(((80.0, 60.0), (30.0, 30.0)), (1, 0), mask_logits=first.low_res_logits[0])
+    ours = predictor.predict(embedding, again, multimask=False)
+    logits, _ = _reference(predictor, embedding, again, False)
+    np.testing.assert_allclose(ours.low_res_logits, logits, atol=1e-4, rtol=1e-4)
+
+
+def test_clicks_after_set_image_never_run_the_image_encoder(predictor) -> None:
+    calls = []
+    hook = predictor.model.vision_encoder.register_forward_hook(lambda *a: calls.append(1))
+    try:
+        embedding = predictor.set_image(FRAME)
+        assert len(calls) == 1
+        for x in (20.0, 60.0, 100.0):
+            predictor.predict(embedding, Prompts(((x, 50.0),), (1,)))
+        predictor.predict(embedding, Prompts(box=(10.0, 10.0, 90.0, 90.0)))
+        assert len(calls) == 1
+    finally:
+        hook.remove()
+
+
+def test_masks_come_back_at_frame_size_best_first(predictor, embedding) -> None:
+    prediction = predictor.predict(embedding, Prompts(((80.0, 60.0),), (1,)))
+    assert prediction.mask.shape == (120, 160) and prediction.mask.dtype == bool
+    assert prediction.low_res_logits.shape == (3, 256, 256)
+    assert list(prediction.scores) == sorted(prediction.scores, reverse=True)
+    single = predictor.predict(embedding, Prompts(((80.0, 60.0), (5.0, 5.0)), (1, 0)))
+    assert single.low_res_logits.shape == (1, 256, 256)  # several points: one mask
+
+
+def test_coordinates_scale_with_the_frame(predictor) -> None:
+    """The same relative click on a frame and on its 2× copy gives the same low-res mask."""
+    small = FRAME
+    large = np.repeat(np.repeat(FRAME, 2, axis=0), 2, axis=1)
+    a = predictor.predict(predictor.set_image(small), Prompts(((40.0, 30.0),), (1,)))
+    b = predictor.predict(predictor.set_image(large), Prompts(((80.0, 60.0),), (1,)))
+    sparse_a = predictor._sparse(Prompts(((40.0, 30.0),), (1,)), (120, 160))
+    sparse_b = predictor._sparse(Prompts(((80.0, 60.0),), (1,)), (240, 320))
+    torch.testing.assert_close(sparse_a, sparse_b)
+    assert a.mask.shape == (120, 160) and b.mask.shape == (240, 320)
+
+
+def test_bad_prompts_are_clear_errors(predictor, embedding) -> None:
+    with pytest.raises(InvalidInputError, match="needs a label"):
+        Prompts(((1.0, 2.0),), ())
+    with pytest.raises(InvalidInputError, match="x0 < x1"):
+        Prompts(box=(10.0, 10.0, 5.0, 20.0))
+    with pytest.raises(InvalidInputError, match="at least one point"):
+        predictor.predict(embedding, Prompts())
+    with pytest.raises(InvalidInputError, match="256×256"):
+        predictor.predict(embedding, Prompts(mask_logits=np.zeros((64, 64), np.float32)))
+
+
+@pytest.mark.slow
+def test_full_size_sam2_hiera_tiny_end_to_end() -> None:
+    predictor = full_sam2()
+    frame = np.random.default_rng(0).integers(0, 256, (800, 1280, 3), dtype=np.uint8)
+    embedding = predictor.set_image(frame)
+    assert [tuple(f.shape) for f in embedding.features] == [
+        (1, 32, 256, 256),
+        (1, 64, 128, 128),
+        (1, 256, 64, 64),
+    ]
+    prompts = Prompts(((640.0, 400.0), (100.0, 100.0)), (1, 0), box=(300.0, 200.0, 1000.0, 650.0))
+    ours = predictor.predict(embedding, prompts, multimask=False)
+    logits, _ = _reference(predictor, embedding, prompts, False)
+    np.testing.assert_allclose(ours.low_res_logits, logits, atol=1e-4, rtol=1e-4)
+    assert ours.mask.shape == (800, 1280)

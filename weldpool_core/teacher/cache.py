@@ -1,0 +1,116 @@
+"""The embedding cache: SAM2 image embeddings by frame hash and model, in memory and on disk.
+
+Memory holds the last few embeddings (LRU, full precision) for interactive clicks; disk holds
+many more in fp16 (about 8 MB a frame) as safetensors files, the least recently used ones
+removed beyond a size limit. A click on a frame the teacher has seen never re-encodes it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+import uuid
+from collections import OrderedDict
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from weldpool_core.teacher.sam2 import ImageEmbedding
+
+_NAMES = ("s0", "s1", "image")
+
+
+def embedding_key(image_sha256: str, model_id: str) -> str:
+    """The cache key of one frame's embedding under one SAM2 model."""
+    return hashlib.sha256(f"{model_id}\n{image_sha256}".encode()).hexdigest()[:40]
+
+
+class EmbeddingCache:
+    """A two-level cache of ``ImageEmbedding`` objects (thread-safe).
+
+    Args:
+        directory: where fp16 copies live; None keeps the cache in memory only.
+        memory_items: embeddings kept in memory (each about 17 MB in fp32).
+        disk_limit_bytes: the disk part's size limit; oldest-used files go first.
+    """
+
+    def __init__(
+        self,
+        directory: Path | None = None,
+        memory_items: int = 8,
+        disk_limit_bytes: int = 20 * 2**30,
+    ) -> None:
+        self.directory = directory
+        self.memory_items = memory_items
+        self.disk_limit_bytes = disk_limit_bytes
+        self._memory: OrderedDict[str, ImageEmbedding] = OrderedDict()
+        self._lock = threading.Lock()
+        self.hits = {"memory": 0, "disk": 0, "miss": 0}
+        if directory is not None:
+            directory.mkdir(parents=True, exist_ok=True)
+
+    def _path(self, key: str) -> Path:
+        assert self.directory is not None
+        return self.directory / key[:2] / f"{key}.safetensors"
+
+    def get(self, key: str, device: torch.device | None = None) -> ImageEmbedding | None:
+        """The embedding under ``key`` (on ``device``), or None."""
+        with self._lock:
+            if key in self._memory:
+                self._memory.move_to_end(key)
+                self.hits["memory"] += 1
+                return self._memory[key]
+        if self.directory is not None and (path := self._path(key)).exists():
+            try:
+                tensors = load_file(str(path), device=str(device or "cpu"))
+            except (OSError, ValueError, RuntimeError, SafetensorError):
+                path.unlink(missing_ok=True)  # a damaged file is a miss
+            else:
+                os.utime(path)  # mark as recently used for the size limit
+                size = tuple(int(v) for v in tensors.pop("image_size").tolist())
+                features = tuple(tensors[name].float() for name in _NAMES)
+                embedding = ImageEmbedding(features, (size[0], size[1]))  # type: ignore[arg-type]
+                self._remember(key, embedding)
+                self.hits["disk"] += 1
+                return embedding
+        self.hits["miss"] += 1
+        return None
+
+    def put(self, key: str, embedding: ImageEmbedding) -> None:
+        """Keep ``embedding`` in memory and (if a directory is set) on disk in fp16."""
+        self._remember(key, embedding)
+        if self.directory is None:
+            return
+        path = self._path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tensors = {
+            name: t.detach().to("cpu", torch.float16).contiguous()
+            for name, t in zip(_NAMES, embedding.features, strict=True)
+        }
+        tensors["image_size"] = torch.tensor(embedding.image_size, dtype=torch.int64)
+        temporary = path.with_name(f".{uuid.uuid4().hex}.part")
+        save_file(tensors, str(temporary))
+        os.replace(temporary, path)
+        self._enforce_limit()
+
+    def _remember(self, key: str, embedding: ImageEmbedding) -> None:
+        with self._lock:
+            self._memory[key] = embedding
+            self._memory.move_to_end(key)
+            while len(self._memory) > self.memory_items:
+                self._memory.popitem(last=False)
+
+    def _enforce_limit(self) -> None:
+        assert self.directory is not None
+        files = [
+            (p.stat().st_mtime, p.stat().st_size, p) for p in self.directory.glob("*/*.safetensors")
+        ]
+        total = sum(size for _, size, _ in files)
+        for _, size, path in sorted(files):
+            if total <= self.disk_limit_bytes:
+                break
+            path.unlink(missing_ok=True)
+            total -= size

@@ -1,0 +1,259 @@
+"""The teacher: DINO attention → prompts → SAM2 mask → Algorithm 1 heatmap and keypoints."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.teacher.cache import EmbeddingCache, embedding_key
+from weldpool_core.teacher.dino import AttentionMaps, DinoAttention
+from weldpool_core.teacher.prompts import PROMPT_STRATEGIES, HeuristicParams
+from weldpool_core.teacher.sam2 import (
+    ImageEmbedding,
+    MaskPrediction,
+    Prompts,
+    Sam2Predictor,
+    decode_masks,
+)
+
+
+@dataclass(frozen=True)
+class TeacherConfig:
+    """How the teacher proposes a mask.
+
+    Attributes:
+        prompts: ``none``, ``center`` or ``heuristic`` (default; the paper's best).
+        heuristic: parameters of the heuristic prompts.
+        grid_points: for ``none``: SAM2's automatic mode clicks an n×n grid (default 8, i.e.
+            64 candidate prompts; the paper's SAM2 default of 32×32 costs 16× more on CPU).
+        grid_batch: grid prompts decoded together.
+        stability_threshold: automatic-mode candidates whose stability score (IoU of the mask
+            at logit thresholds +1 and −1) is below this are passed over when others pass.
+        heatmap_k: keypoints per frame for Algorithm 1.
+    """
+
+    prompts: str = "heuristic"
+    heuristic: HeuristicParams = field(default_factory=HeuristicParams)
+    grid_points: int = 8
+    grid_batch: int = 16
+    stability_threshold: float = 0.9
+    heatmap_k: int = 4
+
+    def __post_init__(self) -> None:
+        if self.prompts not in PROMPT_STRATEGIES:
+            raise InvalidInputError(
+                f"Unknown prompt configuration {self.prompts!r}; use none, center or heuristic."
+            )
+
+
+@dataclass(frozen=True)
+class TeacherResult:
+    """Everything the teacher proposes for one frame.
+
+    ``heatmap`` is Algorithm 1's H×W×2 array and ``keypoints`` its k (x, y) points; both are
+    None with a ``warning`` when the mask is empty or too small for Algorithm 1.
+    """
+
+    mask: NDArray[np.bool_]
+    score: float
+    object_score: float
+    prompts: Prompts
+    attention: AttentionMaps
+    heatmap: NDArray[np.float32] | None
+    keypoints: list[list[float]]
+    keypoint_rules: list[str]
+    low_res_logits: NDArray[np.float32]
+    timings: dict[str, float]
+    warning: str | None = None
+
+
+class Teacher:
+    """Owns DINO, SAM2 and the embedding cache; ``run`` proposes a mask for one frame.
+
+    Args:
+        dino: DINO attention maps.
+        sam2: the SAM2 predictor.
+        sam2_id: names the SAM2 weights in cache keys (a hub id or a directory).
+        cache: the embedding cache shared with the click endpoint; None caches nothing.
+        config: prompt configuration and parameters.
+    """
+
+    def __init__(
+        self,
+        dino: DinoAttention,
+        sam2: Sam2Predictor,
+        sam2_id: str,
+        cache: EmbeddingCache | None = None,
+        config: TeacherConfig | None = None,
+    ) -> None:
+        self.dino = dino
+        self.sam2 = sam2
+        self.sam2_id = sam2_id
+        self.cache = cache
+        self.config = config or TeacherConfig()
+
+    @classmethod
+    def load(
+        cls,
+        dino_ref: str,
+        sam2_ref: str,
+        *,
+        device: str = "auto",
+        cache_dir: Path | None = None,
+        config: TeacherConfig | None = None,
+        dino_input_size: int = 480,
+    ) -> Teacher:
+        """Load both models from hub ids (already fetched) or local directories.
+
+        Raises WeightsUnavailableError naming WELDPOOL_DINO / WELDPOOL_SAM2 when missing.
+        """
+        from transformers import Sam2Model, ViTModel
+
+        from weldpool_core.device import inference_dtype, resolve_device
+        from weldpool_core.teacher.weights import resolve_weights
+
+        torch_device = resolve_device(device)
+        dtype = inference_dtype(torch_device)
+        dino_path = resolve_weights(dino_ref, "WELDPOOL_DINO")
+        sam2_path = resolve_weights(sam2_ref, "WELDPOOL_SAM2")
+        vit = ViTModel.from_pretrained(
+            dino_path, add_pooling_layer=False, attn_implementation="sdpa", dtype=dtype
+        )
+        sam = Sam2Model.from_pretrained(sam2_path, attn_implementation="sdpa", dtype=dtype)
+        return cls(
+            DinoAttention(vit, dino_input_size, torch_device),
+            Sam2Predictor(sam, torch_device),
+            sam2_ref,
+            EmbeddingCache(cache_dir) if cache_dir else EmbeddingCache(None),
+            config,
+        )
+
+    @property
+    def model_id(self) -> str:
+        """Names this teacher's output: models, DINO input size and prompt configuration."""
+        return f"dino:{self.dino.input_size}+{self.sam2_id}+{self.config.prompts}"
+
+    def embedding(
+        self, image: NDArray[np.uint8], image_sha256: str | None = None
+    ) -> ImageEmbedding:
+        """SAM2's embedding of ``image``, from the cache when ``image_sha256`` is known."""
+        if image_sha256 is None or self.cache is None:
+            return self.sam2.set_image(image)
+        key = embedding_key(image_sha256, self.sam2_id)
+        cached = self.cache.get(key, self.sam2.device)
+        if cached is not None and cached.image_size == image.shape[:2]:
+            return cached
+        embedding = self.sam2.set_image(image)
+        self.cache.put(key, embedding)
+        return embedding
+
+    def run(self, image: NDArray[np.uint8], image_sha256: str | None = None) -> TeacherResult:
+        """Propose a mask, heatmap and keypoints for one RGB uint8 frame."""
+        from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+
+        timings: dict[str, float] = {}
+        start = time.perf_counter()
+        attention = self.dino(image)
+        timings["dino_s"] = time.perf_counter() - start
+
+        mark = time.perf_counter()
+        embedding = self.embedding(image, image_sha256)
+        timings["sam2_encode_s"] = time.perf_counter() - mark
+
+        mark = time.perf_counter()
+        strategy = PROMPT_STRATEGIES[self.config.prompts]
+        prompts = strategy(attention, self.config.heuristic)
+        prediction = (
+            self._automatic(embedding) if prompts.empty else self.sam2.predict(embedding, prompts)
+        )
+        mask = prediction.mask
+        timings["sam2_decode_s"] = time.perf_counter() - mark
+
+        mark = time.perf_counter()
+        heatmap, keypoints, rules, warning = None, [], [], None
+        try:
+            result = heatmap_from_mask(mask, HeatmapParams(k=self.config.heatmap_k))
+        except InvalidInputError as exc:
+            warning = f"No keypoints: {exc.message}"
+        else:
+            heatmap = result.heatmap
+            keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+            rules = [str(rule) for rule in result.rules]
+        timings["heatmap_s"] = time.perf_counter() - mark
+        timings["total_s"] = time.perf_counter() - start
+        return TeacherResult(
+            mask=mask,
+            score=prediction.score,
+            object_score=prediction.object_score,
+            prompts=prompts,
+            attention=attention,
+            heatmap=heatmap,
+            keypoints=keypoints,
+            keypoint_rules=rules,
+            low_res_logits=prediction.low_res_logits[0],
+            timings=timings,
+            warning=warning,
+        )
+
+    def run_batch(
+        self, frames: Iterable[tuple[NDArray[np.uint8], str | None]]
+    ) -> Iterator[TeacherResult]:
+        """``run`` over (image, sha256) pairs, one at a time (memory stays flat)."""
+        for image, sha256 in frames:
+            yield self.run(image, sha256)
+
+    @torch.inference_mode()
+    def _automatic(self, embedding: ImageEmbedding) -> MaskPrediction:
+        """SAM2 without prompts: click an n×n grid, keep the best stable candidate."""
+        height, width = embedding.image_size
+        n = self.config.grid_points
+        xs = (np.arange(n) + 0.5) * width / n
+        ys = (np.arange(n) + 0.5) * height / n
+        grid = torch.tensor([[x, y] for y in ys for x in xs], dtype=torch.float32)
+        scale = torch.tensor([1024 / width, 1024 / height])
+        encoder = self.sam2.model.prompt_encoder
+        best: tuple[float, float, Any, Any, float] | None = None
+        for start in range(0, len(grid), self.config.grid_batch):
+            points = (grid[start : start + self.config.grid_batch] * scale)[None, :, None, :]
+            labels = torch.ones(points.shape[:3], dtype=torch.int64)
+            sparse = encoder._embed_points(
+                points.to(self.sam2.device), labels.to(self.sam2.device), pad=True
+            )
+            low_res, iou, objects = decode_masks(
+                self.sam2.model,
+                embedding,
+                self.sam2._image_pe,
+                sparse.to(self.sam2.dtype),
+                None,
+                True,
+            )
+            low_res, iou = low_res.float(), iou.float()
+            stability = _stability(low_res)
+            for b in range(low_res.shape[0]):
+                for c in range(low_res.shape[1]):
+                    stable = float(stability[b, c]) >= self.config.stability_threshold
+                    rank = (stable, float(iou[b, c]))
+                    if best is None or rank > best[:2]:
+                        best = (*rank, low_res[b, c], iou[b, c], float(objects[b]))
+        assert best is not None
+        return MaskPrediction(
+            low_res_logits=best[2][None].cpu().numpy(),
+            scores=np.array([float(best[3])], np.float32),
+            object_score=best[4],
+            image_size=embedding.image_size,
+        )
+
+
+def _stability(logits: torch.Tensor, offset: float = 1.0) -> torch.Tensor:
+    """SAM's stability score: IoU of the masks at logit thresholds +offset and −offset."""
+    inner = (logits > offset).flatten(-2).sum(-1).float()
+    outer = (logits > -offset).flatten(-2).sum(-1).float()
+    return torch.where(outer > 0, inner / outer.clamp(min=1), torch.ones_like(outer))
