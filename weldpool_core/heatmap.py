@@ -6,8 +6,9 @@ explicit in ``HeatmapParams``:
 1. ``S`` is the mask box-blurred (``blur_size``); the contour is the outer boundary of the
    largest region of ``S ≥ 0.5`` (``cv2.findContours``, every pixel kept, holes ignored).
 2. Sobel x and y on ``S`` give the normal angle θᵢ = atan2(gy, gx) at each contour point.
-3. The turn Δθᵢ = wrap(θᵢ₊ₛ − θᵢ₋ₛ), s = ``turn_step``: a central difference, so it does not
-   depend on where the contour starts or which way it runs. Points with |Δθᵢ| > λ
+3. The turn Δθᵢ = wrap(θᵢ₊ₛ − θᵢ₋ₛ): a central difference, so it does not depend on where the
+   contour starts or which way it runs; s is ``turn_step`` of the contour's points, so that a
+   bend is judged alike at any resolution. Points with |Δθᵢ| > λ
    (``turn_threshold``) are the high-curvature points.
 4. K-means groups them into at most k groups. It starts from the means of the k strongest
    bends (runs of consecutive high-curvature points, by summed |Δθ|) rather than from random
@@ -63,7 +64,8 @@ class HeatmapParams:
     Attributes:
         k: number of keypoints.
         blur_size: odd box-blur size in pixels for S (the paper's Block_B).
-        turn_step: s in Δθᵢ = θᵢ₊ₛ − θᵢ₋ₛ, in contour points.
+        turn_step: s in Δθᵢ = θᵢ₊ₛ − θᵢ₋ₛ, as a fraction of the contour's points (at least 2
+            points), so λ means the same at 256×256 and at 1280×800.
         turn_threshold: λ in radians; |Δθᵢ| above it marks a high-curvature point.
         covariance_floor: pixels² added to each group's covariance (σ ≥ √floor everywhere).
         kmeans_iterations: most Lloyd iterations of K-means (it starts from the strongest
@@ -79,8 +81,8 @@ class HeatmapParams:
 
     k: int = 4
     blur_size: int = 9
-    turn_step: int = 4
-    turn_threshold: float = 0.35
+    turn_step: float = 0.01
+    turn_threshold: float = 0.5
     covariance_floor: float = 4.0
     kmeans_iterations: int = 30
     min_separation: float | None = None
@@ -100,8 +102,8 @@ class HeatmapParams:
             problems.append(f"k must be at least 1, not {self.k}")
         if self.blur_size < 1 or self.blur_size % 2 == 0:
             problems.append(f"blur_size must be a positive odd number, not {self.blur_size}")
-        if self.turn_step < 1 or self.kmeans_iterations < 1:
-            problems.append("turn_step and kmeans_iterations must be at least 1")
+        if not 0 < self.turn_step < 0.25 or self.kmeans_iterations < 1:
+            problems.append("turn_step must lie in (0, 0.25), kmeans_iterations be at least 1")
         if self.turn_threshold < 0 or self.covariance_floor <= 0 or self.completion_sigma <= 0:
             problems.append("turn_threshold must be ≥ 0, covariance_floor and completion_sigma > 0")
         limit = 0.5 / (self.k - 1) if self.k > 1 else 0.5
@@ -208,6 +210,11 @@ def _centroid(contour: NDArray[np.int32]) -> tuple[float, float]:
     if moments["m00"] > 0:
         return moments["m10"] / moments["m00"], moments["m01"] / moments["m00"]
     return float(contour[:, 0].mean()), float(contour[:, 1].mean())
+
+
+def _step(points: int, params: HeatmapParams) -> int:
+    """s of the turn Δθᵢ = θᵢ₊ₛ − θᵢ₋ₛ for a contour of ``points`` points."""
+    return max(2, round(params.turn_step * points))
 
 
 def _turns(smoothed: NDArray[np.float32], contour: NDArray[np.int32], step: int) -> NDArray[Any]:
@@ -338,7 +345,7 @@ def _curvature_groups(
     by summed |Δθ|). Unlike random k-means++ seeds, this start does not depend on the order of
     the points, so the groups do not change when the contour starts elsewhere or is mirrored.
     """
-    runs = _bend_runs(turns > params.turn_threshold, params.turn_step)
+    runs = _bend_runs(turns > params.turn_threshold, _step(len(contour), params))
     if not runs:
         return []
     strength = [float(turns[run].sum()) for run in runs]
@@ -491,7 +498,7 @@ def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -
     foreground = _foreground(mask)
     smoothed = _smoothed(foreground, params.blur_size)
     local = _outer_contour(smoothed.values, params.min_area)
-    turns = _turns(smoothed.values, local, params.turn_step)
+    turns = _turns(smoothed.values, local, _step(len(local), params))
     centre = _centroid(local)
     keypoints, covariances, rules = _select_keypoints(local, turns, centre, params)
     origin = np.array(smoothed.origin, np.float64)
