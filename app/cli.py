@@ -389,20 +389,20 @@ def eval_keypoints(pred_dir: Path, gt_dir: Path, matching: str) -> None:
     """
     from weldpool_core.metrics import keypoint_scores
 
-    truth_dir = _part(gt_dir, "keypoints")
+    truth_dir, predicted_dir = _part(gt_dir, "keypoints"), _part(pred_dir, "keypoints")
     truths = {p.stem: p for p in sorted(truth_dir.glob("*.json"))}
     if not truths:
         _fail(f"{truth_dir} holds no ground-truth keypoints (<stem>.json).")
     pairs: dict[str, tuple[list[Any], list[Any]]] = {}
     missing: list[str] = []
     for stem, truth_path in truths.items():
-        predicted_path = _part(pred_dir, "keypoints") / f"{stem}.json"
+        predicted_path = predicted_dir / f"{stem}.json"
         if not predicted_path.is_file():
             missing.append(stem)
         predicted = _keypoint_file(predicted_path) if predicted_path.is_file() else []
         pairs[stem] = (predicted, _keypoint_file(truth_path))
     if len(missing) == len(truths):
-        _fail(f"{pred_dir} holds no prediction for the keypoints in {truth_dir} "
+        _fail(f"{predicted_dir} holds no prediction for the keypoints in {truth_dir} "
               "(expected <stem>.json).")  # fmt: skip
     scores = keypoint_scores(pairs, matching="order" if matching == "order" else "hungarian")
     click.echo(json.dumps(scores.as_dict() | {"missing": missing}, indent=2))

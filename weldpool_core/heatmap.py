@@ -24,6 +24,9 @@ explicit in ``HeatmapParams``:
    Completion keypoints get an isotropic Gaussian of ``completion_sigma``.
 6. F = Σⱼ fⱼ with peak-1 Gaussians (so each keypoint is equally visible to the student), rendered
    only within ``window_sigmas`` standard deviations; channel 0 is F ⊙ S, channel 1 the mask.
+   S is taken at full strength on the outline, min(1, 2S): the heatmap still fades out over the
+   blur width outside the pool, but peaks exactly at the keypoints (with S itself, 0.5 on the
+   outline, every peak would move inward by up to half the blur).
 
 Keypoints are ``(x, y)`` pixel coordinates (origin at the top-left pixel's centre) in the order
 rule of ``weldpool_core.keypoints`` (clockwise on screen around the pool's centroid from
@@ -459,7 +462,7 @@ def _render(
     covariances: NDArray[np.float64],
     window_sigmas: float,
 ) -> None:
-    """Step 6: add each Gaussian times S into ``heatmap``, within its window only."""
+    """Step 6: add each Gaussian times min(1, 2S) into ``heatmap``, within its window only."""
     height, width = heatmap.shape
     ox, oy = smoothed.origin
     crop_h, crop_w = smoothed.values.shape
@@ -485,7 +488,8 @@ def _render(
             + np.float32(inverse[1, 1]) * dy * dy
         )
         gaussian = np.exp(np.float32(-0.5) * quadratic)
-        heatmap[y0:y1, x0:x1] += gaussian * smoothed.values[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
+        pool = smoothed.values[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
+        heatmap[y0:y1, x0:x1] += gaussian * np.minimum(pool + pool, np.float32(1))
 
 
 def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:

@@ -206,7 +206,7 @@ def _scene(
     surface = 1 / (1 + np.exp(-(ys - horizon) / (6 * scale)))
     surface *= 1 / (1 + np.exp((ys - height * 0.86) / (25 * scale)))
     grain = cv2.GaussianBlur(rng.normal(0, 1, (height, width)).astype(np.float32), (0, 0), 1.2)
-    image = 10 + surface * (70 + 14 * grain)
+    image = 10 + surface * (52 + 12 * grain)
     # The solid bead trailing left: bright ripples concentric with the pool's trailing edge.
     rx = (xs - cx) / (pool.half_length.at(time_s) * width)
     ry = (ys - cy) / (pool.half_width.at(time_s) * height)
@@ -215,7 +215,7 @@ def _scene(
     bead = surface * np.clip((cx - xs) / (0.15 * width), 0, 1)
     bead *= np.clip((1.15 - np.abs(ry)) / 0.2, 0, 1)
     sparkle = np.clip(rng.normal(0, 1, (height, width)).astype(np.float32), 0, None)
-    image += bead * (25 + 70 * (0.5 + 0.5 * np.cos(phase)) ** 6 + 30 * sparkle)
+    image += bead * (15 + 70 * (0.5 + 0.5 * np.cos(phase)) ** 6 + 30 * sparkle)
     # The pool: dark, a faint reflection, bright oxide islands, and a bright rim outside it.
     inside = mask.astype(np.float32)
     reflection = 20 * np.clip(1 - np.hypot(rx + 0.3, ry), 0, 1)
