@@ -8,8 +8,8 @@ explicit in ``HeatmapParams``:
 2. Sobel x and y on ``S`` give the normal angle θᵢ = atan2(gy, gx) at each contour point.
 3. The turn Δθᵢ = wrap(θᵢ₊ₛ − θᵢ₋ₛ): a central difference, so it does not depend on where the
    contour starts or which way it runs; s is ``turn_step`` of the contour's points, so that a
-   bend is judged alike at any resolution. Points with |Δθᵢ| > λ
-   (``turn_threshold``) are the high-curvature points.
+   bend is judged alike at any resolution. Points with |Δθᵢ| > λ (``turn_threshold``) are the
+   high-curvature points.
 4. K-means groups them into at most k groups. It starts from the means of the k strongest
    bends (runs of consecutive high-curvature points, by summed |Δθ|) rather than from random
    seeds, which would depend on the order of the points and so break mirror symmetry. A group's
@@ -35,7 +35,8 @@ symmetric, else by the smaller ``(y, x)``.
 
 Degenerate masks: an empty mask, or one whose largest region is smaller than ``min_area`` or
 too thin to survive the blur, raises ``InvalidInputError``. With several regions the keypoints
-mark the largest one (the heatmap keeps every region in S). Holes are ignored. A region that
+mark the largest one by area after smoothing (equal areas: the one reaching higher, then
+further left); the heatmap keeps every region in S. Holes are ignored. A region that
 touches the image border is cut by it: the border is part of its outline.
 """
 
@@ -69,7 +70,9 @@ class HeatmapParams:
         blur_size: odd box-blur size in pixels for S (the paper's Block_B).
         turn_step: s in Δθᵢ = θᵢ₊ₛ − θᵢ₋ₛ, as a fraction of the contour's points (at least 2
             points), so λ means the same at 256×256 and at 1280×800.
-        turn_threshold: λ in radians; |Δθᵢ| above it marks a high-curvature point.
+        turn_threshold: λ in radians; |Δθᵢ| above it marks a high-curvature point. 0.5 is
+            sharper than the ends of a 2:1 ellipse: only real corners (the wire's notch, a
+            pointed tail) count, and weak bends do not flicker in and out between frames.
         covariance_floor: pixels² added to each group's covariance (σ ≥ √floor everywhere).
         kmeans_iterations: most Lloyd iterations of K-means (it starts from the strongest
             bends, so it has no random seed and needs no restarts).
@@ -146,6 +149,7 @@ class _Smoothed:
 
 
 def _foreground(mask: NDArray[Any]) -> NDArray[np.bool_]:
+    """The pool pixels: True, nonzero integers, or floats ≥ 0.5 (a predicted probability)."""
     array = np.asarray(mask)
     if array.ndim == 3 and array.shape[2] == 1:
         array = array[:, :, 0]
