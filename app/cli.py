@@ -6,6 +6,7 @@ import functools
 import json
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import click
@@ -360,3 +361,177 @@ def weights_fetch() -> None:
     for ref, var in _weights_refs(_settings()):
         status = fetch_weights(ref, var)
         click.echo(f"{ref}: {status.detail} ({status.path})", err=True)
+
+
+# --- heatmaps and evaluation ----------------------------------------------------------------
+# Masks are PNG files (0 / 255). A file `<stem>_mask.png` (what `teacher` and `predict` write)
+# counts as the mask of `<stem>`, so outputs and ground truth line up by stem. A folder holding a
+# `masks/` (or `keypoints/`) subfolder is read as a DATASET folder.
+
+
+def _stem(path: Path) -> str:
+    return path.stem.removesuffix("_mask")
+
+
+def _input_masks(inputs: tuple[str, ...]) -> list[Path]:
+    """The PNG masks named on the command line, folders expanded (sorted by name)."""
+    paths: list[Path] = []
+    for text in inputs:
+        path = Path(text)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() == ".png")
+            if not found:
+                _fail(f"The folder {path} holds no PNG mask.")
+            paths.extend(found)
+        elif path.is_file():
+            paths.append(path)
+        else:
+            _fail(f"{path} does not exist; give PNG mask files or folders of them.")
+    stems = [_stem(p) for p in paths]
+    twice = sorted({s for s in stems if stems.count(s) > 1})
+    if twice:
+        _fail(f"Several masks would write outputs named {twice[0]!r}; give each mask its own stem.")
+    return paths
+
+
+def _part(folder: Path, part: str) -> Path:
+    """``folder/part`` when ``folder`` is a DATASET folder, else ``folder`` itself."""
+    if not folder.is_dir():
+        _fail(f"{folder} is not a folder.")
+    return folder / part if (folder / part).is_dir() else folder
+
+
+@main.command("heatmap")
+@click.argument("masks", nargs=-1, required=True)
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--k", default=4, show_default=True, type=int, help="Keypoints per mask.")
+@friendly_errors
+def heatmap_cmd(masks: tuple[str, ...], out_dir: Path, k: int) -> None:
+    """Algorithm 1 on binary PNG masks (files or folders).
+
+    Writes per mask <stem>_heatmap.npy (H×W×2 float32: heatmap, mask) and <stem>.json
+    ({"keypoints": [[x, y], …], "rules": […]}); a mask named <stem>_mask.png gives <stem>.
+    """
+    import numpy as np
+
+    from weldpool_core.errors import InvalidInputError
+    from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+    from weldpool_core.io import read_mask
+
+    params = HeatmapParams(k=k)
+    paths = _input_masks(masks)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for path in paths:
+        try:
+            result = heatmap_from_mask(read_mask(path), params)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{path}: {exc.message}") from None
+        stem = _stem(path)
+        np.save(out_dir / f"{stem}_heatmap.npy", result.heatmap)
+        height, width = result.heatmap.shape[:2]
+        record = {
+            "keypoints": result.keypoints.tolist(),
+            "rules": list(result.rules),
+            "width": width,
+            "height": height,
+            "mask": str(path),
+        }
+        (out_dir / f"{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
+    click.echo(f"wrote {len(paths)} heatmap(s) to {out_dir}", err=True)
+
+
+@main.group("eval")
+def eval_group() -> None:
+    """Score predictions against ground truth; JSON on stdout."""
+
+
+@eval_group.command("segmentation")
+@click.option("--pred", "pred_dir", required=True, type=click.Path(path_type=Path))
+@click.option("--gt", "gt_dir", required=True, type=click.Path(path_type=Path))
+@friendly_errors
+def eval_segmentation(pred_dir: Path, gt_dir: Path) -> None:
+    """IoU per frame, mIoU and quartiles (fractions in [0, 1]).
+
+    Ground truth: <stem>.png in --gt (or its masks/). Prediction: <stem>_mask.png or <stem>.png
+    in --pred (or its masks/). A missing prediction scores as an empty mask and is listed.
+    """
+    import numpy as np
+
+    from weldpool_core.errors import InvalidInputError
+    from weldpool_core.io import read_mask
+    from weldpool_core.metrics import iou, segmentation_scores
+
+    truth_dir, predicted_dir = _part(gt_dir, "masks"), _part(pred_dir, "masks")
+    truths = {_stem(p): p for p in sorted(truth_dir.glob("*.png"))}
+    if not truths:
+        _fail(f"{truth_dir} holds no ground-truth mask (<stem>.png).")
+    per_image: dict[str, float] = {}
+    missing: list[str] = []
+    for stem, truth_path in truths.items():
+        candidates = [predicted_dir / f"{stem}_mask.png", predicted_dir / f"{stem}.png"]
+        found = next((c for c in candidates if c.is_file()), None)
+        try:
+            truth = read_mask(truth_path)
+            predicted = read_mask(found) if found else np.zeros_like(truth)
+            per_image[stem] = iou(predicted, truth)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{stem}: {exc.message}") from None
+        if found is None:
+            missing.append(stem)
+    if len(missing) == len(truths):
+        _fail(f"{predicted_dir} holds no prediction for the masks in {truth_dir} "
+              "(expected <stem>_mask.png or <stem>.png).")  # fmt: skip
+    report = segmentation_scores(per_image).as_dict() | {"missing": missing}
+    click.echo(json.dumps(report, indent=2))
+
+
+def _keypoint_file(path: Path) -> list[Any]:
+    from weldpool_core.errors import InvalidInputError
+
+    try:
+        keypoints = json.loads(path.read_text())["keypoints"]
+        if not isinstance(keypoints, list):
+            raise TypeError
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InvalidInputError(
+            f'{path} is not a keypoints file; expected {{"keypoints": [[x, y], …]}}.'
+        ) from None
+    return keypoints
+
+
+@eval_group.command("keypoints")
+@click.option("--pred", "pred_dir", required=True, type=click.Path(path_type=Path))
+@click.option("--gt", "gt_dir", required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--matching",
+    type=click.Choice(["hungarian", "order"]),
+    default="hungarian",
+    show_default=True,
+    help="Pair keypoints by least distance, or by position.",
+)
+@friendly_errors
+def eval_keypoints(pred_dir: Path, gt_dir: Path, matching: str) -> None:
+    """mED, mED_k and std in pixels, and the distances per frame.
+
+    Ground truth: <stem>.json in --gt (or its keypoints/); prediction: <stem>.json in --pred. A
+    missing prediction counts as empty: its keypoints are missed, and it is listed.
+    """
+    from weldpool_core.metrics import keypoint_scores
+
+    truth_dir, predicted_dir = _part(gt_dir, "keypoints"), _part(pred_dir, "keypoints")
+    truths = {p.stem: p for p in sorted(truth_dir.glob("*.json"))}
+    if not truths:
+        _fail(f"{truth_dir} holds no ground-truth keypoints (<stem>.json).")
+    pairs: dict[str, tuple[list[Any], list[Any]]] = {}
+    missing: list[str] = []
+    for stem, truth_path in truths.items():
+        predicted_path = predicted_dir / f"{stem}.json"
+        if not predicted_path.is_file():
+            missing.append(stem)
+        predicted = _keypoint_file(predicted_path) if predicted_path.is_file() else []
+        pairs[stem] = (predicted, _keypoint_file(truth_path))
+    if len(missing) == len(truths):
+        _fail(f"{predicted_dir} holds no prediction for the keypoints in {truth_dir} "
+              "(expected <stem>.json).")  # fmt: skip
+    scores = keypoint_scores(pairs, matching="order" if matching == "order" else "hungarian")
+    click.echo(json.dumps(scores.as_dict() | {"missing": missing}, indent=2))
