@@ -37,6 +37,9 @@ class Settings(BaseSettings):
     sam2: str = Field(
         default="facebook/sam2.1-hiera-tiny", description="SAM2 hub id or local directory."
     )
+    dino_input_size: int = Field(
+        default=480, ge=64, description="DINO sees frames resized to this square (multiple of 8)."
+    )
     device: str = Field(default="auto", description="cpu, cuda, cuda:N, mps or auto.")
     retrain_every: int = Field(
         default=20,

@@ -46,9 +46,14 @@ def straightforward_heatmap(mask: NDArray[np.bool_], params: HeatmapParams) -> N
     if len(bends) < params.k:
         bends = [[float(x), float(y)] for x, y in contour]
     cv2.setRNGSeed(0)
-    _, labels, _ = cv2.kmeans(np.array(bends, np.float32), params.k, None,
-                              (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-3),
-                              3, cv2.KMEANS_PP_CENTERS)  # fmt: skip
+    _, labels, _ = cv2.kmeans(
+        np.array(bends, np.float32),
+        params.k,
+        None,
+        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-3),
+        3,
+        cv2.KMEANS_PP_CENTERS,
+    )
     ys, xs = np.mgrid[0 : mask.shape[0], 0 : mask.shape[1]].astype(np.float32)
     heat = np.zeros(mask.shape, np.float32)
     for group in range(params.k):
@@ -60,8 +65,9 @@ def straightforward_heatmap(mask: NDArray[np.bool_], params: HeatmapParams) -> N
         sxy = sum((p[0] - mx) * (p[1] - my) for p in members) / len(members)
         inverse = np.linalg.inv(np.array([[sxx, sxy], [sxy, syy]]))
         dx, dy = xs - mx, ys - my
-        heat += np.exp(-0.5 * (inverse[0, 0] * dx * dx + 2 * inverse[0, 1] * dx * dy
-                               + inverse[1, 1] * dy * dy))  # fmt: skip
+        heat += np.exp(
+            -0.5 * (inverse[0, 0] * dx * dx + 2 * inverse[0, 1] * dx * dy + inverse[1, 1] * dy * dy)
+        )
     return np.dstack([heat * smoothed, mask.astype(np.float32)])
 
 
@@ -77,16 +83,19 @@ def median_ms(function: Callable[[], object]) -> float:
 
 def main() -> None:
     params = HeatmapParams()
-    print(f"Algorithm 1, median of {REPEATS} calls, {os.cpu_count()} CPU cores, "
-          f"OpenCV threads {cv2.getNumThreads()}")  # fmt: skip
+    print(
+        f"Algorithm 1, median of {REPEATS} calls, {os.cpu_count()} CPU cores, "
+        f"OpenCV threads {cv2.getNumThreads()}"
+    )
     print(f"{'mask':>10} | {'heatmap_from_mask':>17} | {'straightforward':>15} | {'ratio':>6}")
     print(f"{'-' * 10}-+-{'-' * 17}-+-{'-' * 15}-+-{'-' * 6}")
     for width, height in ((1280, 800), (256, 256)):
         mask = synth_frame(0, SynthParams(width=width, height=height)).mask
         fast = median_ms(lambda mask=mask: heatmap_from_mask(mask, params))
         plain = median_ms(lambda mask=mask: straightforward_heatmap(mask, params))
-        print(f"{width:>5}×{height:<4} | {fast:>14.2f} ms | {plain:>12.2f} ms | "
-              f"{plain / fast:>5.1f}×")  # fmt: skip
+        print(
+            f"{width:>5}×{height:<4} | {fast:>14.2f} ms | {plain:>12.2f} ms | {plain / fast:>5.1f}×"
+        )
 
 
 if __name__ == "__main__":

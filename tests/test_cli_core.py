@@ -21,8 +21,14 @@ SMALL = SynthParams(width=160, height=100)
 
 def run(tmp_path: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
     environment = dict(os.environ, WELDPOOL_HOME=str(tmp_path / "home"))
-    return subprocess.run([sys.executable, "-m", "app", *map(str, args)], capture_output=True,
-                          text=True, env=environment, cwd=REPO, timeout=120)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "app", *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd=REPO,
+        timeout=120,
+    )
 
 
 def _one_line_error(result: subprocess.CompletedProcess[str], text: str) -> None:
@@ -67,8 +73,9 @@ def test_heatmap_takes_files_k_and_strips_mask_suffix(tmp_path: Path, dataset: P
 
 
 def test_heatmap_bad_input_is_one_line(tmp_path: Path) -> None:
-    _one_line_error(run(tmp_path, "heatmap", tmp_path / "nope", "--out", tmp_path / "o"),
-                    "does not exist")  # fmt: skip
+    _one_line_error(
+        run(tmp_path, "heatmap", tmp_path / "nope", "--out", tmp_path / "o"), "does not exist"
+    )
     text = tmp_path / "notes.png"
     text.write_text("not an image")
     _one_line_error(run(tmp_path, "heatmap", text, "--out", tmp_path / "o"), "notes.png")
@@ -88,8 +95,9 @@ def test_eval_segmentation(tmp_path: Path, dataset: Path) -> None:
     (predictions / "frame0_mask.png").write_bytes(encode_mask_png(truth))  # IoU 1
     half = truth.copy()
     half[:, :80] = False
-    (predictions / "frame1.png").write_bytes(encode_mask_png(half & read_mask(
-        dataset / "masks" / "frame1.png")))  # fmt: skip
+    (predictions / "frame1.png").write_bytes(
+        encode_mask_png(half & read_mask(dataset / "masks" / "frame1.png"))
+    )
     result = run(tmp_path, "eval", "segmentation", "--pred", predictions, "--gt", dataset)
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
@@ -115,28 +123,44 @@ def test_eval_keypoints(tmp_path: Path, dataset: Path) -> None:
     assert report["mED"] == pytest.approx(5.0) and report["std"] == pytest.approx(0.0)
     assert report["mED_k"] == pytest.approx([5.0] * 4)
     assert report["per_image"]["frame1"] == pytest.approx([5.0] * 4)
-    in_order = run(tmp_path, "eval", "keypoints", "--pred", predictions, "--gt", tmp_path / "gt",
-                   "--matching", "order")  # fmt: skip
+    in_order = run(
+        tmp_path,
+        "eval",
+        "keypoints",
+        "--pred",
+        predictions,
+        "--gt",
+        tmp_path / "gt",
+        "--matching",
+        "order",
+    )
     assert json.loads(in_order.stdout)["mED"] > 5.0
 
 
 def test_eval_bad_input_is_one_line(tmp_path: Path, dataset: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
-    _one_line_error(run(tmp_path, "eval", "segmentation", "--pred", empty, "--gt", dataset),
-                    "holds no prediction")  # fmt: skip
-    _one_line_error(run(tmp_path, "eval", "segmentation", "--pred", dataset, "--gt", empty),
-                    "no ground-truth mask")  # fmt: skip
+    _one_line_error(
+        run(tmp_path, "eval", "segmentation", "--pred", empty, "--gt", dataset),
+        "holds no prediction",
+    )
+    _one_line_error(
+        run(tmp_path, "eval", "segmentation", "--pred", dataset, "--gt", empty),
+        "no ground-truth mask",
+    )
     truth = tmp_path / "kp"
     truth.mkdir()
     (truth / "a.json").write_text('{"keypoints": [[1, 2]]}')
-    _one_line_error(run(tmp_path, "eval", "keypoints", "--pred", tmp_path / "x", "--gt", truth),
-                    "not a folder")  # fmt: skip
+    _one_line_error(
+        run(tmp_path, "eval", "keypoints", "--pred", tmp_path / "x", "--gt", truth), "not a folder"
+    )
     (empty / "a.json").write_text("{oops")
-    _one_line_error(run(tmp_path, "eval", "keypoints", "--pred", empty, "--gt", truth),
-                    "not a keypoints file")  # fmt: skip
+    _one_line_error(
+        run(tmp_path, "eval", "keypoints", "--pred", empty, "--gt", truth), "not a keypoints file"
+    )
     small = tmp_path / "small"
     small.mkdir()
     (small / "frame0.png").write_bytes(encode_mask_png(np.ones((10, 10), bool)))
-    _one_line_error(run(tmp_path, "eval", "segmentation", "--pred", small, "--gt", dataset),
-                    "differ in size")  # fmt: skip
+    _one_line_error(
+        run(tmp_path, "eval", "segmentation", "--pred", small, "--gt", dataset), "differ in size"
+    )

@@ -178,8 +178,12 @@ def test_a_pool_cut_by_the_image_border() -> None:
     assert len(result.keypoints) == 4
     assert np.all((result.keypoints >= 0) & (result.keypoints <= [159, 119]))
     full = heatmap_from_mask(np.ones((50, 60), bool))
-    assert _set_distance(full.keypoints, np.array([[1.5, 1.5], [57.5, 1.5], [57.5, 47.5],
-                                                    [1.5, 47.5]])) <= 1.0  # fmt: skip
+    assert (
+        _set_distance(
+            full.keypoints, np.array([[1.5, 1.5], [57.5, 1.5], [57.5, 47.5], [1.5, 47.5]])
+        )
+        <= 1.0
+    )
 
 
 @pytest.mark.parametrize(

@@ -93,7 +93,9 @@ class Teacher:
         sam2_id: str,
         cache: EmbeddingCache | None = None,
         config: TeacherConfig | None = None,
+        dino_id: str = "dino",
     ) -> None:
+        self.dino_id = dino_id
         self.dino = dino
         self.sam2 = sam2
         self.sam2_id = sam2_id
@@ -134,12 +136,13 @@ class Teacher:
             sam2_ref,
             EmbeddingCache(cache_dir) if cache_dir else EmbeddingCache(None),
             config,
+            dino_ref,
         )
 
     @property
     def model_id(self) -> str:
         """Names this teacher's output: models, DINO input size and prompt configuration."""
-        return f"dino:{self.dino.input_size}+{self.sam2_id}+{self.config.prompts}"
+        return f"{self.dino_id}@{self.dino.input_size}+{self.sam2_id}+{self.config.prompts}"
 
     def embedding(
         self, image: NDArray[np.uint8], image_sha256: str | None = None
@@ -157,19 +160,30 @@ class Teacher:
 
     def run(self, image: NDArray[np.uint8], image_sha256: str | None = None) -> TeacherResult:
         """Propose a mask, heatmap and keypoints for one RGB uint8 frame."""
-        from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
-
-        timings: dict[str, float] = {}
         start = time.perf_counter()
         attention = self.dino(image)
-        timings["dino_s"] = time.perf_counter() - start
-
+        dino_s = time.perf_counter() - start
         mark = time.perf_counter()
         embedding = self.embedding(image, image_sha256)
-        timings["sam2_encode_s"] = time.perf_counter() - mark
+        encode_s = time.perf_counter() - mark
+        return self.propose(
+            attention, embedding, self.config.prompts, {"dino_s": dino_s, "sam2_encode_s": encode_s}
+        )
 
+    def propose(
+        self,
+        attention: AttentionMaps,
+        embedding: ImageEmbedding,
+        prompt_config: str,
+        timings: dict[str, float] | None = None,
+    ) -> TeacherResult:
+        """The prompt → mask → heatmap part, on attention and an embedding already computed
+        (``weldpool eval teacher`` compares the three configurations on the same frame)."""
+        from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+
+        timings = dict(timings or {})
         mark = time.perf_counter()
-        strategy = PROMPT_STRATEGIES[self.config.prompts]
+        strategy = PROMPT_STRATEGIES[prompt_config]
         prompts = strategy(attention, self.config.heuristic)
         prediction = (
             self._automatic(embedding) if prompts.empty else self.sam2.predict(embedding, prompts)
@@ -188,7 +202,7 @@ class Teacher:
             keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
             rules = [str(rule) for rule in result.rules]
         timings["heatmap_s"] = time.perf_counter() - mark
-        timings["total_s"] = time.perf_counter() - start
+        timings["total_s"] = sum(timings.values())
         return TeacherResult(
             mask=mask,
             score=prediction.score,

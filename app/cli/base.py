@@ -1,0 +1,93 @@
+"""The ``weldpool`` command line: the group, and what every command shares (settings, the
+database, one-line errors with exit status 2). Commands live beside it, one module per domain.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+import sqlalchemy as sa
+from pydantic import ValidationError
+
+from app.config import Settings, get_settings
+from app.db import create_db_engine, create_session_factory, require_current_schema
+from app.errors import WeldpoolError
+from app.logs import configure_logging
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def fail(message: str) -> None:
+    click.echo(f"weldpool: {message}", err=True)
+    sys.exit(2)
+
+
+def friendly_errors(func: F) -> F:
+    """Turn user-facing errors into one line on stderr and exit status 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except WeldpoolError as exc:
+            fail(exc.message)
+        except sa.exc.OperationalError as exc:
+            fail(
+                f"The database is unreachable ({str(exc.orig).strip().splitlines()[0]}); "
+                "check WELDPOOL_DATABASE_URL."
+            )
+
+    return wrapper  # type: ignore[return-value]
+
+
+def load_settings() -> Settings:
+    try:
+        return get_settings()
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        fail(f"Bad setting WELDPOOL_{str(first['loc'][0]).upper()}: {first['msg']}.")
+        raise  # unreachable
+
+
+def open_sessions(settings: Settings, *, migrated: bool = True) -> Any:
+    engine = create_db_engine(settings.resolved_database_url)
+    if migrated:
+        require_current_schema(engine)
+    return create_session_factory(engine)
+
+
+@click.group()
+@click.version_option(package_name="weldpool")
+def main() -> None:
+    """weldpool: learn the shape of a molten weld pool from camera frames."""
+    settings = load_settings()
+    configure_logging(settings.log_level, settings.log_format)
+
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
+
+
+def image_files(arguments: tuple[str, ...]) -> list[Path]:
+    """Image files named on the command line, folders expanded to their images (sorted)."""
+    files: list[Path] = []
+    for text in arguments:
+        path = Path(text)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                fail(f"The folder {path} holds no image (PNG, JPEG, TIFF or BMP).")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            fail(f"{path} does not exist; give image files or folders of them.")
+    stems = [p.stem for p in files]
+    twice = sorted({s for s in stems if stems.count(s) > 1})
+    if twice:
+        fail(f"Several images are named {twice[0]!r}; outputs are named by stem.")
+    return files

@@ -1,0 +1,130 @@
+"""Bulk import of frames and videos from the command line."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from app.cli.base import IMAGE_SUFFIXES, friendly_errors, load_settings, main, open_sessions
+from app.errors import WeldpoolError
+
+IMPORT_BATCH = 64
+
+
+def _import_sources(paths: tuple[str, ...]) -> tuple[list[Any], list[Any]]:
+    """Split the arguments into image files and video files (directories are listed, sorted)."""
+
+    from weldpool_core.video import sniff_container
+
+    images, videos = [], []
+    for argument in paths:
+        path = Path(argument)
+        if not path.exists():
+            raise WeldpoolError(f"{argument} does not exist.")
+        candidates = sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
+        for candidate in candidates:
+            with open(candidate, "rb") as handle:
+                is_video = sniff_container(handle.read(16)) is not None
+            if is_video:
+                videos.append(candidate)
+            elif candidate.suffix.lower() in IMAGE_SUFFIXES or not path.is_dir():
+                images.append(candidate)
+    return images, videos
+
+
+def _bar_progress(bar: Any, total: int) -> Callable[[float, str], None]:
+    """A progress callback (fraction, message) that advances a click progress bar."""
+    done = 0
+
+    def advance(fraction: float, _message: str) -> None:
+        nonlocal done
+        now = round(fraction * total)
+        bar.update(now - done)
+        done = now
+
+    return advance
+
+
+@main.command("import")
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
+@click.option(
+    "--sequence",
+    "sequence_name",
+    required=True,
+    help="Weld run to import into (created when missing).",
+)
+@click.option(
+    "--every-nth",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="For videos: keep every n-th frame.",
+)
+@click.option("--user", "username", default=None, help="Record the frames as this user's.")
+@friendly_errors
+def import_cmd(
+    paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
+) -> None:
+    """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files or directories."""
+    from app.frames import service
+    from app.storage import Storage
+    from app.users.service import user_by_name
+
+    settings = load_settings()
+    images, videos = _import_sources(paths)
+    if not images and not videos:
+        raise WeldpoolError("No frames or videos found in the given paths.")
+    storage = Storage(settings.home)
+    stored = duplicates = 0
+    rejected: list[str] = []
+    with open_sessions(settings)() as session:
+        user = user_by_name(session, username) if username else None
+        sequence = service.sequence_by_name(session, sequence_name, user)
+        if images:
+            with click.progressbar(length=len(images), label="frames", file=sys.stderr) as bar:
+                for start in range(0, len(images), IMPORT_BATCH):
+                    chunk = images[start : start + IMPORT_BATCH]
+                    files = [service.IncomingFile(p.name, p.read_bytes()) for p in chunk]
+                    result = service.ingest_frames(
+                        session,
+                        storage,
+                        files,
+                        sequence_id=sequence.id,
+                        user=user,
+                        max_pixels=settings.max_image_pixels,
+                    )
+                    stored += len(result.stored)
+                    duplicates += len(result.duplicates)
+                    rejected += [f"{r.name}: {r.reason}" for r in result.rejected]
+                    bar.update(len(chunk))
+        for video_path in videos:
+            with open(video_path, "rb") as handle:
+                video = service.store_video(
+                    session,
+                    storage,
+                    handle,
+                    name=video_path.name,
+                    every_nth=every_nth,
+                    sequence_id=sequence.id,
+                    user=user,
+                )
+            expected = -(-video.frame_count // every_nth)
+            with click.progressbar(length=expected, label=video_path.name, file=sys.stderr) as bar:
+                counts = service.extract_video_frames(
+                    session, storage, video, user=user, progress=_bar_progress(bar, expected)
+                )
+            stored += counts["frames"]
+            duplicates += counts["duplicates"]
+    for line in rejected:
+        click.echo(f"refused {line}", err=True)
+    click.echo(
+        f"sequence {sequence_name!r}: {stored} frames stored, {duplicates} duplicates, "
+        f"{len(rejected)} refused",
+        err=True,
+    )
+    if rejected and not stored and not duplicates:
+        sys.exit(2)

@@ -1,0 +1,123 @@
+"""The whole teacher on random weights: plumbing, cache reuse, configurations, loading."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.helpers import SHARED_DATA
+from tests.models import full_dino, full_sam2, tiny_dino, tiny_sam2
+from weldpool_core.errors import InvalidInputError, WeightsUnavailableError
+from weldpool_core.io import load_rgb8
+from weldpool_core.synth import synth_frame
+from weldpool_core.teacher.cache import EmbeddingCache
+from weldpool_core.teacher.teacher import Teacher, TeacherConfig
+
+
+def _rgb(image: np.ndarray) -> np.ndarray:
+    return np.repeat(image[:, :, None], 3, axis=2) if image.ndim == 2 else image
+
+
+@pytest.fixture(scope="module")
+def frame() -> np.ndarray:
+    return _rgb(synth_frame(seed=1).image)
+
+
+@pytest.fixture(scope="module")
+def models():
+    return tiny_dino(input_size=64), tiny_sam2()
+
+
+@pytest.mark.parametrize("prompts", ["heuristic", "center", "none"])
+def test_run_gives_a_full_proposal(models, frame, prompts: str) -> None:
+    dino, sam2 = models
+    teacher = Teacher(dino, sam2, "tiny-sam2", config=TeacherConfig(prompts=prompts, grid_points=3))
+    result = teacher.run(frame)
+    height, width = frame.shape[:2]
+    assert result.mask.shape == (height, width) and result.mask.dtype == bool
+    assert 0.0 <= result.score <= 1.0
+    assert result.low_res_logits.shape == (256, 256)
+    assert result.attention.image_size == (height, width)
+    if prompts == "none":
+        assert result.prompts.empty
+    else:
+        assert result.prompts.labels[0] == 1
+    assert set(result.timings) == {
+        "dino_s",
+        "sam2_encode_s",
+        "sam2_decode_s",
+        "heatmap_s",
+        "total_s",
+    }
+    if result.heatmap is not None:  # random weights may give a mask Algorithm 1 refuses
+        assert result.heatmap.shape == (height, width, 2)
+        assert np.array_equal(result.heatmap[:, :, 1] > 0.5, result.mask)
+        assert len(result.keypoints) == 4
+    else:
+        assert result.warning and result.keypoints == []
+    assert teacher.model_id == f"dino@64+tiny-sam2+{prompts}"
+
+
+def test_second_run_reuses_the_cached_embedding(models, frame, tmp_path: Path) -> None:
+    dino, sam2 = models
+    cache = EmbeddingCache(tmp_path)
+    teacher = Teacher(dino, sam2, "tiny-sam2", cache)
+    calls = []
+    hook = sam2.model.vision_encoder.register_forward_hook(lambda *a: calls.append(1))
+    try:
+        first = teacher.run(frame, image_sha256="f" * 64)
+        second = teacher.run(frame, image_sha256="f" * 64)
+    finally:
+        hook.remove()
+    assert len(calls) == 1 and cache.hits["memory"] == 1
+    assert np.array_equal(first.mask, second.mask)
+    fresh = Teacher(dino, sam2, "tiny-sam2", EmbeddingCache(tmp_path))  # another process
+    assert fresh.embedding(frame, "f" * 64) is not None and fresh.cache.hits["disk"] == 1
+
+
+def test_unknown_prompt_configuration_is_refused() -> None:
+    with pytest.raises(InvalidInputError, match="none, center or heuristic"):
+        TeacherConfig(prompts="magic")
+
+
+def test_load_from_local_directories(models, frame, tmp_path: Path) -> None:
+    dino, sam2 = models
+    dino.model.save_pretrained(tmp_path / "dino")
+    sam2.model.save_pretrained(tmp_path / "sam2")
+    teacher = Teacher.load(
+        str(tmp_path / "dino"),
+        str(tmp_path / "sam2"),
+        device="cpu",
+        cache_dir=tmp_path / "cache",
+        dino_input_size=64,
+    )
+    loaded = teacher.run(frame, "a" * 64)
+    original = Teacher(dino, sam2, "x").run(frame)
+    assert np.array_equal(loaded.mask, original.mask)  # the same weights came back
+
+
+def test_missing_weights_name_the_variable(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    with pytest.raises(WeightsUnavailableError, match="WELDPOOL_DINO"):
+        Teacher.load(str(tmp_path / "nothing"), "facebook/sam2.1-hiera-tiny")
+    (tmp_path / "dino").mkdir()
+    (tmp_path / "dino" / "config.json").write_text("{}")
+    (tmp_path / "dino" / "model.safetensors").write_bytes(b"")
+    with pytest.raises(WeightsUnavailableError, match="WELDPOOL_SAM2"):
+        Teacher.load(str(tmp_path / "dino"), "facebook/sam2.1-hiera-tiny")
+
+
+@pytest.mark.slow
+def test_full_size_teacher_on_a_real_frame() -> None:
+    frames = sorted((SHARED_DATA / "waam" / "frames").glob("*.png"))
+    if not frames:
+        pytest.skip("../shared/data/waam/frames is absent (a fresh checkout has no ../shared)")
+    image = load_rgb8(frames[len(frames) // 2])
+    teacher = Teacher(full_dino(480), full_sam2(), "facebook/sam2.1-hiera-tiny")
+    result = teacher.run(image)
+    assert result.mask.shape == (800, 1280)
+    assert result.attention.heads.shape == (6, 60, 60)
+    assert result.prompts.box is not None  # heuristic prompts found a region
+    assert result.timings["total_s"] > 0
