@@ -20,6 +20,7 @@ from app.frames.routes import router as frames_router
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
 from app.queue import EmbeddedWorker, JobQueue
+from app.review.routes import router as review_router
 from app.security import current_user
 from app.storage import Storage
 from app.system.routes import router as system_router
@@ -50,7 +51,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         ):
             return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-        return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
+        body = {"detail": exc.message} | getattr(exc, "extra", {})
+        return JSONResponse(body, status_code=status, headers=headers)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, exc: RequestValidationError) -> Response:
@@ -110,6 +112,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(users_router, dependencies=protected)
     api.include_router(jobs_router, dependencies=protected)
     api.include_router(frames_router, dependencies=protected)
+    api.include_router(review_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

@@ -86,3 +86,16 @@ def full_dino(input_size: int = 480) -> DinoAttention:
 def full_sam2() -> Sam2Predictor:
     torch.manual_seed(0)
     return Sam2Predictor.from_config(Sam2Config())
+
+
+def save_tiny_teacher(directory) -> dict[str, object]:  # type: ignore[no-untyped-def]
+    """Tiny random DINO and SAM2 saved as Hugging Face directories; returns the settings that
+    point the service at them."""
+    tiny_dino().model.save_pretrained(directory / "dino")
+    tiny_sam2().model.save_pretrained(directory / "sam2")
+    return {
+        "dino": str(directory / "dino"),
+        "sam2": str(directory / "sam2"),
+        "dino_input_size": 64,
+        "device": "cpu",
+    }

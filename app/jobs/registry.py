@@ -16,7 +16,7 @@ from app.db import utcnow
 from app.models import Job, JobStatus
 
 # Modules whose import registers job handlers (each domain's tasks.py).
-HANDLER_MODULES = ("app.jobs.tasks", "app.frames.tasks")
+HANDLER_MODULES = ("app.jobs.tasks", "app.frames.tasks", "app.review.tasks")
 
 
 class JobCancelled(Exception):

@@ -1,0 +1,248 @@
+"""/api/v1: teacher runs, proposals, click segmentation, labels and validation keypoints."""
+
+from __future__ import annotations
+
+import base64
+import binascii
+
+import numpy as np
+from fastapi import APIRouter, Response, status
+
+from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.errors import InvalidInputError, NotFoundError
+from app.frames.service import get_frame
+from app.jobs.schemas import JobCreated
+from app.jobs.service import create_job
+from app.models import User
+from app.review import service
+from app.review.schemas import (
+    KeypointsIn,
+    KeypointsOut,
+    LabelIn,
+    LabelOut,
+    LabelRevisionOut,
+    ProposalOut,
+    SegmentIn,
+    SegmentOut,
+    TeacherRunIn,
+)
+from app.security import CurrentUser
+from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
+
+router = APIRouter(tags=["review"])
+
+
+def _b64(data: bytes) -> str:
+    return base64.b64encode(data).decode("ascii")
+
+
+def _png_bytes(text: str, what: str) -> bytes:
+    try:
+        return base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError):
+        raise InvalidInputError(f"{what} is not valid base64.") from None
+
+
+@router.post("/teacher/runs", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
+def start_teacher_run(
+    body: TeacherRunIn, session: SessionDep, queue: QueueDep, user: CurrentUser
+) -> JobCreated:
+    """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
+    frame_ids = service.frames_for_run(session, body.frame_ids, body.sequence_id)
+    params = {"frame_ids": frame_ids, "prompts": body.prompts, "force": body.force}
+    return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
+
+
+def _proposal(session: SessionDep, frame_id: int):  # type: ignore[no-untyped-def]
+    get_frame(session, frame_id)
+    proposal = service.latest_proposal(session, frame_id)
+    if proposal is None:
+        raise NotFoundError(f"Frame {frame_id} has no proposal yet; run the teacher on it.")
+    return proposal
+
+
+@router.get("/frames/{frame_id}/proposal", response_model=ProposalOut)
+def get_proposal(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> ProposalOut:
+    """The newest proposal: mask (base64 PNG), keypoints, prompts, scores."""
+    proposal = _proposal(session, frame_id)
+    return ProposalOut(
+        id=proposal.id,
+        frame_id=frame_id,
+        source=proposal.source,
+        model_id=proposal.model_id,
+        mask_png=_b64(storage.absolute(proposal.mask_path).read_bytes()),
+        keypoints=proposal.keypoints,
+        prompts=proposal.prompts,
+        scores=proposal.scores,
+        timings=proposal.timings,
+        created_at=proposal.created_at,
+    )
+
+
+@router.get(
+    "/frames/{frame_id}/proposal/mask.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}},
+)
+def get_proposal_mask(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> Response:
+    """The newest proposal's mask as a PNG (0 / 255)."""
+    proposal = _proposal(session, frame_id)
+    return Response(storage.absolute(proposal.mask_path).read_bytes(), media_type="image/png")
+
+
+@router.get(
+    "/frames/{frame_id}/proposal/heatmap.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}},
+)
+def get_proposal_heatmap_png(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> Response:
+    """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
+    import cv2
+
+    heat = service.load_heatmap(storage, _proposal(session, frame_id))[:, :, 0]
+    scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
+    colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+    rgba = np.dstack([colours[:, :, ::-1], (scaled * 255).astype(np.uint8)])
+    return Response(encode_png(rgba), media_type="image/png")
+
+
+@router.get(
+    "/frames/{frame_id}/proposal/heatmap.npy",
+    response_class=Response,
+    responses={200: {"content": {"application/octet-stream": {}}}},
+)
+def get_proposal_heatmap_npy(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> Response:
+    """The raw H×W×2 float32 array (heatmap, mask) as a .npy file."""
+    import io
+
+    buffer = io.BytesIO()
+    np.save(buffer, service.load_heatmap(storage, _proposal(session, frame_id)))
+    return Response(buffer.getvalue(), media_type="application/octet-stream")
+
+
+@router.post("/frames/{frame_id}/segment", response_model=SegmentOut)
+def segment(
+    frame_id: int,
+    body: SegmentIn,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    _user: CurrentUser,
+) -> SegmentOut:
+    """A new mask from clicks / a box / a previous mask, from the frame's cached embedding."""
+    frame = get_frame(session, frame_id)
+    previous = None
+    if body.mask_png:
+        previous = decode_mask_png(_png_bytes(body.mask_png, "mask_png"))
+    result = service.segment(
+        storage,
+        settings,
+        frame,
+        [(p.x, p.y, p.positive) for p in body.points],
+        body.box,
+        previous,
+    )
+    return SegmentOut(
+        mask_png=_b64(encode_mask_png(result.mask)),
+        score=result.score,
+        scores=result.scores,
+        elapsed_ms=result.elapsed_ms,
+        embedding=result.embedding,
+    )
+
+
+def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # type: ignore[no-untyped-def]
+    mask = _b64(storage.absolute(label.mask_path).read_bytes()) if label.mask_path else None
+    return LabelOut(
+        frame_id=label.frame_id,
+        revision=label.revision,
+        status=label.status,
+        mask_png=mask,
+        keypoints=label.keypoints,
+        updated_by=user.username if user else None,
+        updated_at=label.updated_at,
+    )
+
+
+@router.get("/frames/{frame_id}/label", response_model=LabelOut)
+def get_label(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> LabelOut:
+    """The frame's current label."""
+    get_frame(session, frame_id)
+    label = service.current_label(session, frame_id)
+    if label is None:
+        raise NotFoundError(f"Frame {frame_id} has no label yet.")
+    author = session.get(User, label.updated_by_id) if label.updated_by_id else None
+    return _label_out(storage, label, author)
+
+
+@router.put(
+    "/frames/{frame_id}/label",
+    response_model=LabelOut,
+    responses={409: {"description": "base_revision is stale; the body has `revision`."}},
+)
+def put_label(
+    frame_id: int, body: LabelIn, session: SessionDep, storage: StorageDep, user: CurrentUser
+) -> LabelOut:
+    """Accept, correct or reject; a stale base_revision gets 409 with the current revision."""
+    frame = get_frame(session, frame_id)
+    mask_png = _png_bytes(body.mask_png, "mask_png") if body.mask_png else None
+    label = service.save_label(
+        session,
+        storage,
+        frame,
+        user,
+        status=body.status,
+        base_revision=body.base_revision,
+        mask_png=mask_png,
+        keypoints=body.keypoints,
+    )
+    return _label_out(storage, label, user)
+
+
+@router.get("/frames/{frame_id}/label/history", response_model=list[LabelRevisionOut])
+def get_label_history(
+    frame_id: int, session: SessionDep, _user: CurrentUser
+) -> list[LabelRevisionOut]:
+    """Every change of the frame's label: who, when, what."""
+    get_frame(session, frame_id)
+    return [
+        LabelRevisionOut(
+            revision=r.revision,
+            status=r.status,
+            keypoints=r.keypoints,
+            has_mask=r.mask_path is not None,
+            user=name,
+            created_at=r.created_at,
+        )
+        for r, name in service.label_history(session, frame_id)
+    ]
+
+
+@router.put("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
+def put_validation_keypoints(
+    frame_id: int, body: KeypointsIn, session: SessionDep, user: CurrentUser
+) -> KeypointsOut:
+    """Keypoints placed by hand; the frame joins the validation split."""
+    row = service.save_validation_keypoints(
+        session, get_frame(session, frame_id), user, body.keypoints
+    )
+    return KeypointsOut(frame_id=frame_id, keypoints=row.keypoints, updated_at=row.updated_at)
+
+
+@router.get("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
+def get_validation_keypoints(
+    frame_id: int, session: SessionDep, _user: CurrentUser
+) -> KeypointsOut:
+    get_frame(session, frame_id)
+    row = service.get_validation_keypoints(session, frame_id)
+    return KeypointsOut(frame_id=frame_id, keypoints=row.keypoints, updated_at=row.updated_at)

@@ -1,0 +1,86 @@
+"""The teacher's models in this process: loaded once, on first use, and shared by the worker's
+teacher jobs and the web process's click endpoint (one SAM2, one embedding cache)."""
+
+from __future__ import annotations
+
+import threading
+from functools import lru_cache
+from pathlib import Path
+
+from app.config import Settings
+from weldpool_core.teacher.cache import EmbeddingCache
+from weldpool_core.teacher.dino import DinoAttention
+from weldpool_core.teacher.sam2 import Sam2Predictor
+from weldpool_core.teacher.teacher import Teacher, TeacherConfig
+
+_lock = threading.Lock()
+
+
+@lru_cache(maxsize=4)
+def _sam2(ref: str, device: str) -> Sam2Predictor:
+    from transformers import Sam2Model
+
+    from weldpool_core.device import inference_dtype, resolve_device
+    from weldpool_core.teacher.weights import resolve_weights
+
+    torch_device = resolve_device(device)
+    model = Sam2Model.from_pretrained(
+        resolve_weights(ref, "WELDPOOL_SAM2"),
+        attn_implementation="sdpa",
+        dtype=inference_dtype(torch_device),
+    )
+    return Sam2Predictor(model, torch_device)
+
+
+@lru_cache(maxsize=4)
+def _dino(ref: str, device: str, input_size: int) -> DinoAttention:
+    from transformers import ViTModel
+
+    from weldpool_core.device import inference_dtype, resolve_device
+    from weldpool_core.teacher.weights import resolve_weights
+
+    torch_device = resolve_device(device)
+    model = ViTModel.from_pretrained(
+        resolve_weights(ref, "WELDPOOL_DINO"),
+        add_pooling_layer=False,
+        attn_implementation="sdpa",
+        dtype=inference_dtype(torch_device),
+    )
+    return DinoAttention(model, input_size, torch_device)
+
+
+@lru_cache(maxsize=4)
+def _cache(directory: Path) -> EmbeddingCache:
+    return EmbeddingCache(directory)
+
+
+def embedding_cache(settings: Settings) -> EmbeddingCache:
+    """The process's embedding cache (memory + WELDPOOL_HOME/cache/embeddings)."""
+    return _cache((settings.home / "cache" / "embeddings").resolve())
+
+
+def sam2_predictor(settings: Settings) -> Sam2Predictor:
+    """SAM2 as WELDPOOL_SAM2 names it (raises WeightsUnavailableError when missing)."""
+    with _lock:
+        return _sam2(settings.sam2, settings.device)
+
+
+def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
+    """The teacher as the settings name it, sharing this process's SAM2 and cache."""
+    with _lock:
+        dino = _dino(settings.dino, settings.device, settings.dino_input_size)
+        sam2 = _sam2(settings.sam2, settings.device)
+    return Teacher(
+        dino,
+        sam2,
+        settings.sam2,
+        embedding_cache(settings),
+        TeacherConfig(prompts=prompts),
+        settings.dino,
+    )
+
+
+def forget_models() -> None:
+    """Drop loaded models (tests that switch weights between apps in one process)."""
+    for cached in (_sam2, _dino, _cache):
+        cached.cache_clear()

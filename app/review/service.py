@@ -1,0 +1,404 @@
+"""The review loop's logic: teacher proposals, click corrections, revisioned labels, manual
+validation keypoints. Every computation is weldpool_core's; this module stores and checks."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from app.config import Settings
+from app.db import utcnow
+from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
+from app.models import (
+    Frame,
+    FrameStatus,
+    Label,
+    LabelRevision,
+    LabelStatus,
+    Proposal,
+    Role,
+    Split,
+    User,
+    ValidationKeypoints,
+)
+from app.storage import Storage
+from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+
+EmbeddingSource = Literal["memory", "disk", "computed"]
+
+# --- artefacts ---------------------------------------------------------------------------------
+
+
+def store_mask(storage: Storage, mask: NDArray[np.bool_]) -> str:
+    """A mask as a content-addressed PNG under artefacts/; returns its relative path."""
+    data = encode_mask_png(mask)
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".png", area="artefacts").path
+
+
+def store_heatmap(storage: Storage, heatmap: NDArray[np.float32]) -> str:
+    """Channel 0 of Algorithm 1's array (the mask is stored apart) as compressed float16."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, heatmap=heatmap[:, :, 0].astype(np.float16))
+    data = buffer.getvalue()
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts").path
+
+
+def load_mask(storage: Storage, path: str) -> NDArray[np.bool_]:
+    return decode_mask_png(storage.absolute(path).read_bytes())
+
+
+def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
+    """The H×W×2 array (heatmap, mask) of a proposal, as Algorithm 1 returned it."""
+    mask = load_mask(storage, proposal.mask_path).astype(np.float32)
+    if proposal.heatmap_path is None:
+        return np.stack([np.zeros_like(mask), mask], axis=2)
+    with np.load(storage.absolute(proposal.heatmap_path)) as data:
+        heat = data["heatmap"].astype(np.float32)
+    return np.stack([heat, mask], axis=2)
+
+
+def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
+    """The frame as the models see it (RGB uint8, 16-bit stretched)."""
+    return to_rgb8(read_image(storage.absolute(frame.path)))
+
+
+# --- proposals ---------------------------------------------------------------------------------
+
+
+def latest_proposal(session: Session, frame_id: int) -> Proposal | None:
+    return session.scalar(
+        sa.select(Proposal).where(Proposal.frame_id == frame_id).order_by(Proposal.id.desc())
+    )
+
+
+def has_proposal(session: Session, frame_id: int, model_id: str) -> bool:
+    return (
+        session.scalar(
+            sa.select(Proposal.id).where(
+                Proposal.frame_id == frame_id, Proposal.model_id == model_id
+            )
+        )
+        is not None
+    )
+
+
+def record_teacher_proposal(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    result: Any,
+    model_id: str,
+    job_id: int | None,
+) -> Proposal:
+    """Store a TeacherResult as the frame's newest proposal."""
+    proposal = Proposal(
+        frame_id=frame.id,
+        source="teacher",
+        model_id=model_id,
+        job_id=job_id,
+        mask_path=store_mask(storage, result.mask),
+        heatmap_path=store_heatmap(storage, result.heatmap) if result.heatmap is not None else None,
+        keypoints=result.keypoints,
+        prompts=result.prompts.as_dict(),
+        scores={
+            "sam2_iou": result.score,
+            "object_score": result.object_score,
+            "mask_fraction": float(result.mask.mean()),
+            "warning": result.warning,
+            "keypoint_rules": result.keypoint_rules,
+        },
+        timings=result.timings,
+    )
+    session.add(proposal)
+    if frame.status == FrameStatus.new:
+        frame.status = FrameStatus.proposed
+    session.commit()
+    return proposal
+
+
+def frames_for_run(
+    session: Session, frame_ids: list[int] | None, sequence_id: int | None
+) -> list[int]:
+    """The frames a teacher run covers: the given ids (all must exist) or a whole sequence."""
+    if frame_ids:
+        found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(frame_ids))))
+        missing = sorted(set(frame_ids) - found)
+        if missing:
+            raise NotFoundError(f"There is no frame {missing[0]}.")
+        return list(dict.fromkeys(frame_ids))
+    if sequence_id is not None:
+        ids = list(
+            session.scalars(
+                sa.select(Frame.id).where(Frame.sequence_id == sequence_id).order_by(Frame.id)
+            )
+        )
+        if not ids:
+            raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
+        return ids
+    raise InvalidInputError("Give frame_ids or a sequence_id.")
+
+
+# --- click corrections -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """The answer to a click: the best mask and how it was made."""
+
+    mask: NDArray[np.bool_]
+    score: float
+    scores: list[float]
+    elapsed_ms: float
+    embedding: EmbeddingSource
+
+
+def _mask_prompt(mask: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """A binary mask as SAM2's 256×256 mask-logit input (±8 by the covered fraction)."""
+    import cv2
+
+    fraction = cv2.resize(mask.astype(np.float32), (256, 256), interpolation=cv2.INTER_AREA)
+    return (fraction * 16.0 - 8.0).astype(np.float32)
+
+
+def segment(
+    storage: Storage,
+    settings: Settings,
+    frame: Frame,
+    points: list[tuple[float, float, bool]],
+    box: tuple[float, float, float, float] | None,
+    previous_mask: NDArray[np.bool_] | None,
+) -> Segmentation:
+    """A new mask for ``frame`` from clicks, a box and/or a previous mask, using the frame's
+    cached SAM2 embedding (computed and cached on first use)."""
+    from app.review import runtime
+    from weldpool_core.teacher.cache import embedding_key
+    from weldpool_core.teacher.sam2 import Prompts
+
+    start = time.perf_counter()
+    for x, y, _ in points:
+        if not (0 <= x <= frame.width and 0 <= y <= frame.height):
+            raise InvalidInputError(
+                f"The point ({x:g}, {y:g}) lies outside the {frame.width}×{frame.height} frame."
+            )
+    if previous_mask is not None and previous_mask.shape != (frame.height, frame.width):
+        raise InvalidInputError("The previous mask must have the frame's size.")
+    prompts = Prompts(
+        tuple((x, y) for x, y, _ in points),
+        tuple(1 if positive else 0 for _, _, positive in points),
+        box,
+        _mask_prompt(previous_mask) if previous_mask is not None else None,
+    )
+    if prompts.empty:
+        raise InvalidInputError("Give at least one point, a box or a previous mask.")
+    predictor = runtime.sam2_predictor(settings)
+    cache = runtime.embedding_cache(settings)
+    key = embedding_key(frame.sha256, settings.sam2)
+    before = dict(cache.hits)
+    embedding = cache.get(key, predictor.device)
+    source: EmbeddingSource
+    if embedding is None:
+        embedding = predictor.set_image(frame_rgb(storage, frame))
+        cache.put(key, embedding)
+        source = "computed"
+    else:
+        source = "memory" if cache.hits["memory"] > before["memory"] else "disk"
+    prediction = predictor.predict(embedding, prompts)
+    return Segmentation(
+        mask=prediction.mask,
+        score=prediction.score,
+        scores=[float(s) for s in prediction.scores],
+        elapsed_ms=(time.perf_counter() - start) * 1000,
+        embedding=source,
+    )
+
+
+# --- labels ------------------------------------------------------------------------------------
+
+
+def current_label(session: Session, frame_id: int) -> Label | None:
+    return session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
+
+
+def _keypoints_for(mask: NDArray[np.bool_]) -> list[list[float]]:
+    from weldpool_core.heatmap import heatmap_from_mask
+
+    try:
+        result = heatmap_from_mask(mask)
+    except InvalidInputError as exc:
+        raise InvalidInputError(
+            f"Keypoints cannot be computed for this mask: {exc.message}"
+        ) from None
+    return [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+
+
+def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[float]]:
+    """Keypoints as [[x, y], …] inside the frame, or a clear error."""
+    for point in keypoints:
+        if len(point) != 2:
+            raise InvalidInputError("Each keypoint is [x, y].")
+        x, y = point
+        if not (0 <= x <= frame.width and 0 <= y <= frame.height):
+            raise InvalidInputError(
+                f"The keypoint ({x:g}, {y:g}) lies outside the {frame.width}×{frame.height} frame."
+            )
+    return [[float(x), float(y)] for x, y in keypoints]
+
+
+def save_label(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    user: User,
+    *,
+    status: LabelStatus,
+    base_revision: int,
+    mask_png: bytes | None,
+    keypoints: list[list[float]] | None,
+) -> Label:
+    """Accept, correct or reject a frame's proposal, guarded by the label's revision.
+
+    ``base_revision`` is the revision the client saw (0 when there was no label); a stale one
+    raises ConflictError with the current revision. Every change is kept in the history.
+    Keypoints of a corrected mask are recomputed by Algorithm 1 unless given.
+    """
+    if (
+        status in (LabelStatus.accepted, LabelStatus.rejected)
+        and user.role.rank < Role.reviewer.rank
+    ):
+        raise PermissionDeniedError(
+            f"Only reviewers may mark a label {status.value}; save it as corrected instead."
+        )
+    proposal = latest_proposal(session, frame.id)
+    mask_path: str | None = None
+    if status == LabelStatus.rejected:
+        keypoints = None
+    elif mask_png is not None:
+        mask = decode_mask_png(mask_png)
+        if mask.shape != (frame.height, frame.width):
+            raise InvalidInputError(
+                f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
+                f"{frame.width}×{frame.height}."
+            )
+        if not mask.any():
+            raise InvalidInputError("The mask is empty; reject the frame instead.")
+        mask_path = store_mask(storage, mask)
+        keypoints = check_keypoints(frame, keypoints) if keypoints else _keypoints_for(mask)
+    elif proposal is not None:
+        mask_path = proposal.mask_path
+        keypoints = check_keypoints(frame, keypoints) if keypoints else proposal.keypoints
+    else:
+        raise InvalidInputError(
+            "The frame has no proposal to accept; send a mask_png or run the teacher first."
+        )
+
+    label = current_label(session, frame.id)
+    current = label.revision if label else 0
+    if base_revision != current:
+        raise StaleRevision(current)
+    values = {
+        "status": status,
+        "mask_path": mask_path,
+        "keypoints": keypoints,
+        "proposal_id": proposal.id if proposal else None,
+        "updated_by_id": user.id,
+        "updated_at": utcnow(),
+    }
+    try:
+        if label is None:
+            label = Label(frame_id=frame.id, revision=1, **values)
+            session.add(label)
+            session.flush()
+        else:
+            updated = session.execute(
+                sa.update(Label)
+                .where(Label.frame_id == frame.id, Label.revision == base_revision)
+                .values(revision=base_revision + 1, **values)
+            )
+            if updated.rowcount != 1:  # type: ignore[attr-defined]
+                raise StaleRevision(current_revision(session, frame.id))
+        session.add(
+            LabelRevision(
+                frame_id=frame.id,
+                revision=base_revision + 1,
+                status=status,
+                mask_path=mask_path,
+                keypoints=keypoints,
+                proposal_id=values["proposal_id"],
+                user_id=user.id,
+            )
+        )
+        frame.status = FrameStatus(status.value)
+        session.commit()
+    except sa.exc.IntegrityError:  # two first labels at once: the second is stale
+        session.rollback()
+        raise StaleRevision(current_revision(session, frame.id)) from None
+    session.refresh(label)
+    return label
+
+
+class StaleRevision(ConflictError):
+    """The label changed since the client read it."""
+
+    def __init__(self, current: int) -> None:
+        super().__init__(
+            f"The label was changed by someone else (now at revision {current}); reload it "
+            "and apply your change again, or overwrite with base_revision "
+            f"{current}."
+        )
+        self.current = current
+        self.extra = {"revision": current}
+
+
+def current_revision(session: Session, frame_id: int) -> int:
+    return session.scalar(sa.select(Label.revision).where(Label.frame_id == frame_id)) or 0
+
+
+def label_history(session: Session, frame_id: int) -> list[tuple[LabelRevision, str | None]]:
+    """Every revision of a frame's label, oldest first, with the user's name."""
+    rows = session.execute(
+        sa.select(LabelRevision, User.username)
+        .outerjoin(User, User.id == LabelRevision.user_id)
+        .where(LabelRevision.frame_id == frame_id)
+        .order_by(LabelRevision.revision)
+    )
+    return [(revision, name) for revision, name in rows]
+
+
+# --- validation keypoints ----------------------------------------------------------------------
+
+
+def save_validation_keypoints(
+    session: Session, frame: Frame, user: User, keypoints: list[list[float]]
+) -> ValidationKeypoints:
+    """Manual keypoints; the frame moves to the validation split and never trains the student."""
+    if not keypoints:
+        raise InvalidInputError("Give at least one keypoint.")
+    points = check_keypoints(frame, keypoints)
+    row = session.scalar(
+        sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
+    )
+    if row is None:
+        row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id)
+        session.add(row)
+    else:
+        row.keypoints, row.user_id, row.updated_at = points, user.id, utcnow()
+    frame.split = Split.validation
+    session.commit()
+    return row
+
+
+def get_validation_keypoints(session: Session, frame_id: int) -> ValidationKeypoints:
+    row = session.scalar(
+        sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame_id)
+    )
+    if row is None:
+        raise NotFoundError(f"Frame {frame_id} has no validation keypoints.")
+    return row

@@ -1,0 +1,55 @@
+"""Background work of the review domain: the teacher proposing masks for frames."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import structlog
+
+from app.jobs.registry import JobContext, job_handler
+from app.models import Frame
+from app.review import runtime
+from app.review.service import frame_rgb, has_proposal, record_teacher_proposal
+from app.storage import Storage
+from weldpool_core.errors import WeldpoolError
+
+log = structlog.get_logger(__name__)
+
+
+@job_handler("teacher", max_attempts=2)
+def teacher_run(ctx: JobContext) -> dict[str, Any]:
+    """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame; frames the
+    same teacher already saw are skipped, so a lost run is simply re-run."""
+    frame_ids: list[int] = [int(i) for i in ctx.params["frame_ids"]]
+    prompts = str(ctx.params.get("prompts", "heuristic"))
+    force = bool(ctx.params.get("force", False))
+    ctx.progress(0.0, "loading the teacher")
+    teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
+    storage = Storage(ctx.settings.home)
+    proposed, skipped, failed = 0, 0, []
+    for done, frame_id in enumerate(frame_ids):
+        with ctx.session_factory() as session:
+            frame = session.get(Frame, frame_id)
+            if frame is None:
+                failed.append({"frame_id": frame_id, "error": "The frame no longer exists."})
+            elif not force and has_proposal(session, frame_id, teacher.model_id):
+                skipped += 1
+            else:
+                try:
+                    result = teacher.run(frame_rgb(storage, frame), frame.sha256)
+                except (WeldpoolError, OSError) as exc:
+                    message = getattr(exc, "message", None) or str(exc)
+                    failed.append({"frame_id": frame_id, "error": message})
+                    log.warning("teacher.frame_failed", frame_id=frame_id, error=message)
+                else:
+                    record_teacher_proposal(
+                        session, storage, frame, result, teacher.model_id, ctx.job_id
+                    )
+                    proposed += 1
+        ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
+    return {
+        "proposed": proposed,
+        "skipped": skipped,
+        "failed": failed,
+        "model_id": teacher.model_id,
+    }

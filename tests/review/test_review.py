@@ -1,0 +1,222 @@
+"""The review loop through the REST API, on SQLite and PostgreSQL: teacher job, proposal,
+click, labels with revisions and history, validation keypoints."""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.models import Role
+from tests.helpers import auth, wait_for_job
+from weldpool_core.io import decode_mask_png, encode_mask_png
+from weldpool_core.synth import SynthParams, synth_frame
+
+SIZE = SynthParams(width=160, height=100)
+
+
+def _upload_synthetic(client: TestClient, token: str, count: int = 2) -> list[int]:
+    files = []
+    for seed in range(count):
+        _, data = cv2.imencode(".png", synth_frame(seed=seed, params=SIZE).image)
+        files.append(("files", (f"s{seed}.png", data.tobytes(), "image/png")))
+    response = client.post("/api/v1/frames", files=files, headers=auth(token))
+    assert response.status_code == 201, response.text
+    return [f["id"] for f in response.json()["stored"]]
+
+
+def _teacher(client: TestClient, token: str, frame_ids: list[int]) -> dict:
+    response = client.post(
+        "/api/v1/teacher/runs", json={"frame_ids": frame_ids}, headers=auth(token)
+    )
+    assert response.status_code == 202, response.text
+    return wait_for_job(client, response.json()["job_id"], token, timeout=120)
+
+
+def _mask(text: str) -> np.ndarray:
+    return decode_mask_png(base64.b64decode(text))
+
+
+@pytest.fixture
+def people(make_user) -> dict[str, str]:
+    return {
+        "reviewer": make_user("rita", Role.reviewer)[1],
+        "other": make_user("otto", Role.reviewer)[1],
+        "annotator": make_user("anna", Role.annotator)[1],
+    }
+
+
+def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) -> None:
+    token = people["reviewer"]
+    frame_ids = _upload_synthetic(client, token)
+    job = _teacher(client, token, frame_ids)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["proposed"] == 2 and job["result"]["failed"] == []
+    proposal = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).json()
+    assert _mask(proposal["mask_png"]).shape == (100, 160)
+    assert proposal["source"] == "teacher" and proposal["model_id"] == job["result"]["model_id"]
+    assert set(proposal["scores"]) >= {"sam2_iou", "object_score"}
+    assert proposal["prompts"]["labels"][0] == 1
+    frame = client.get(f"/api/v1/frames/{frame_ids[0]}", headers=auth(token)).json()
+    assert frame["status"] == "proposed" and frame["proposal"]["id"] == proposal["id"]
+    png = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal/mask.png", headers=auth(token))
+    assert png.headers["content-type"] == "image/png"
+    colour = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal/heatmap.png", headers=auth(token))
+    assert cv2.imdecode(np.frombuffer(colour.content, np.uint8), -1).shape == (100, 160, 4)
+    raw = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal/heatmap.npy", headers=auth(token))
+    heatmap = np.load(io.BytesIO(raw.content))
+    assert heatmap.shape == (100, 160, 2)
+    assert np.array_equal(heatmap[:, :, 1] > 0.5, _mask(proposal["mask_png"]))
+
+    again = _teacher(client, token, frame_ids)
+    assert (again["result"]["proposed"], again["result"]["skipped"]) == (0, 2)
+
+
+def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
+    token = people["reviewer"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    first = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={"points": [{"x": 80, "y": 50, "positive": True}]},
+        headers=auth(token),
+    )
+    assert first.status_code == 200, first.text
+    assert first.json()["embedding"] == "computed"
+    second = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={
+            "points": [{"x": 80, "y": 50}, {"x": 5, "y": 5, "positive": False}],
+            "box": [20, 10, 150, 90],
+            "mask_png": first.json()["mask_png"],
+        },
+        headers=auth(token),
+    ).json()
+    assert second["embedding"] == "memory" and second["elapsed_ms"] > 0
+    assert _mask(second["mask_png"]).shape == (100, 160)
+    outside = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={"points": [{"x": 500, "y": 50}]},
+        headers=auth(token),
+    )
+    assert outside.status_code == 400 and "outside" in outside.json()["detail"]
+    empty = client.post(f"/api/v1/frames/{frame_id}/segment", json={}, headers=auth(token))
+    assert empty.status_code == 400
+
+
+def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> None:
+    rita, otto, anna = people["reviewer"], people["other"], people["annotator"]
+    frame_id = _upload_synthetic(client, rita, 1)[0]
+    url = f"/api/v1/frames/{frame_id}/label"
+    nothing = client.put(url, json={"status": "accepted", "base_revision": 0}, headers=auth(rita))
+    assert nothing.status_code == 400 and "no proposal" in nothing.json()["detail"]
+    _teacher(client, rita, [frame_id])
+
+    forbidden = client.put(url, json={"status": "accepted", "base_revision": 0}, headers=auth(anna))
+    assert forbidden.status_code == 403
+    accepted = client.put(url, json={"status": "accepted", "base_revision": 0}, headers=auth(rita))
+    assert accepted.status_code == 200 and accepted.json()["revision"] == 1
+
+    # Both reviewers saw revision 1; Rita corrects first, Otto's stale write is refused.
+    mask = np.zeros((100, 160), bool)
+    mask[20:80, 30:130] = True
+    corrected = {
+        "status": "corrected",
+        "base_revision": 1,
+        "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
+    }
+    first = client.put(url, json=corrected, headers=auth(rita))
+    assert first.status_code == 200 and first.json()["revision"] == 2
+    assert len(first.json()["keypoints"]) == 4  # recomputed by Algorithm 1
+    stale = client.put(url, json={"status": "rejected", "base_revision": 1}, headers=auth(otto))
+    assert stale.status_code == 409
+    assert stale.json()["revision"] == 2 and "changed by someone else" in stale.json()["detail"]
+    overwrite = client.put(url, json={"status": "rejected", "base_revision": 2}, headers=auth(otto))
+    assert overwrite.json() == overwrite.json() | {
+        "revision": 3,
+        "status": "rejected",
+        "mask_png": None,
+        "updated_by": "otto",
+    }
+    by_annotator = client.put(
+        url,
+        json={
+            "status": "corrected",
+            "base_revision": 3,
+            "keypoints": [[40, 30], [120, 30], [120, 70], [40, 70]],
+            "mask_png": corrected["mask_png"],
+        },
+        headers=auth(anna),
+    )
+    assert by_annotator.status_code == 200 and by_annotator.json()["keypoints"][0] == [40, 30]
+
+    history = client.get(f"{url}/history", headers=auth(rita)).json()
+    assert [(h["revision"], h["status"], h["user"]) for h in history] == [
+        (1, "accepted", "rita"),
+        (2, "corrected", "rita"),
+        (3, "rejected", "otto"),
+        (4, "corrected", "anna"),
+    ]
+    current = client.get(url, headers=auth(rita)).json()
+    assert current["revision"] == 4 and np.array_equal(_mask(current["mask_png"]), mask)
+    assert (
+        client.get(f"/api/v1/frames/{frame_id}", headers=auth(rita)).json()["status"] == "corrected"
+    )
+
+
+def test_bad_label_input(client: TestClient, people) -> None:
+    token = people["reviewer"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    url = f"/api/v1/frames/{frame_id}/label"
+    small = base64.b64encode(encode_mask_png(np.ones((10, 10), bool))).decode()
+    wrong_size = client.put(
+        url,
+        json={"status": "corrected", "base_revision": 0, "mask_png": small},
+        headers=auth(token),
+    )
+    assert wrong_size.status_code == 400 and "10×10" in wrong_size.json()["detail"]
+    garbage = client.put(
+        url,
+        json={"status": "corrected", "base_revision": 0, "mask_png": "not base64!"},
+        headers=auth(token),
+    )
+    assert garbage.status_code == 400
+    no_change = client.put(
+        url, json={"status": "corrected", "base_revision": 0}, headers=auth(token)
+    )
+    assert no_change.status_code == 422
+    assert client.get(url, headers=auth(token)).status_code == 404
+
+
+def test_validation_keypoints_move_the_frame(client: TestClient, people) -> None:
+    token = people["annotator"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    url = f"/api/v1/frames/{frame_id}/validation-keypoints"
+    points = [[30.5, 40.0], [100.0, 20.0], [140.0, 60.0], [60.0, 90.0]]
+    saved = client.put(url, json={"keypoints": points}, headers=auth(token))
+    assert saved.status_code == 200 and saved.json()["keypoints"] == points
+    frame = client.get(f"/api/v1/frames/{frame_id}", headers=auth(token)).json()
+    assert frame["split"] == "validation" and frame["has_validation_keypoints"] is True
+    assert client.get(url, headers=auth(token)).json()["keypoints"] == points
+    outside = client.put(url, json={"keypoints": [[999, 1]]}, headers=auth(token))
+    assert outside.status_code == 400
+
+
+def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_user, tmp_path):
+    from app.main import create_app
+
+    broken = settings.model_copy(update={"dino": str(tmp_path / "no-dino")})
+    _, token = make_user("weightless", Role.reviewer)
+    with TestClient(create_app(broken, embedded_worker=True)) as client:
+        frame_ids = _upload_synthetic(client, token, 1)
+        job = _teacher(client, token, frame_ids)
+        assert job["status"] == "failed"
+        assert "WELDPOOL_DINO" in job["error"] and job["error"].endswith(".")
+        assert client.get("/api/v1/health").json()["status"] == "ok"
+        assert (
+            client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).status_code
+            == 404
+        )
