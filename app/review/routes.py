@@ -4,17 +4,21 @@ from __future__ import annotations
 
 import base64
 import binascii
+from typing import Literal
 
 import numpy as np
 from fastapi import APIRouter, Response, status
+from fastapi.responses import FileResponse
+from starlette.background import BackgroundTask
 
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError, NotFoundError
 from app.frames.service import get_frame
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import User
+from app.models import Split, User
 from app.review import service
+from app.review.export import build_export
 from app.review.schemas import (
     KeypointsIn,
     KeypointsOut,
@@ -246,3 +250,26 @@ def get_validation_keypoints(
     get_frame(session, frame_id)
     row = service.get_validation_keypoints(session, frame_id)
     return KeypointsOut(frame_id=frame_id, keypoints=row.keypoints, updated_at=row.updated_at)
+
+
+@router.get(
+    "/export", response_class=FileResponse, responses={200: {"content": {"application/zip": {}}}}
+)
+def export(
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    format: Literal["coco", "masks"] = "masks",
+    sequence_id: int | None = None,
+    split: Split | None = None,
+) -> FileResponse:
+    """A zip of the accepted and corrected labels: COCO, or the DATASET layout of
+    `weldpool train` (images/, masks/, keypoints/, manifest.json)."""
+    path = build_export(session, storage, format, sequence_id=sequence_id, split=split)
+    name = f"weldpool-{format}.zip"
+    return FileResponse(
+        path,
+        media_type="application/zip",
+        filename=name,
+        background=BackgroundTask(path.unlink, missing_ok=True),
+    )

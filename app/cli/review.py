@@ -1,0 +1,87 @@
+"""The review loop from the command line: export of the reviewed labels, and the demo."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import click
+
+from app.cli.base import friendly_errors, load_settings, main, open_sessions
+from app.errors import WeldpoolError
+
+
+@main.command("export")
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["coco", "masks"]),
+    default="masks",
+    show_default=True,
+    help="COCO, or the DATASET layout `weldpool train` reads.",
+)
+@click.option(
+    "--out",
+    "out_path",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The zip file to write.",
+)
+@click.option("--sequence", "sequence_name", default=None, help="Only this weld run.")
+@click.option("--split", type=click.Choice(["train", "validation", "test"]), default=None)
+@friendly_errors
+def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str | None) -> None:
+    """Export the accepted and corrected labels as a zip."""
+    import sqlalchemy as sa
+
+    from app.models import Sequence, Split
+    from app.review.export import build_export
+    from app.storage import Storage
+
+    settings = load_settings()
+    with open_sessions(settings)() as session:
+        sequence_id = None
+        if sequence_name:
+            sequence_id = session.scalar(
+                sa.select(Sequence.id).where(Sequence.name == sequence_name)
+            )
+            if sequence_id is None:
+                raise WeldpoolError(f"There is no sequence named {sequence_name!r}.")
+        temporary = build_export(
+            session,
+            Storage(settings.home),
+            fmt,  # type: ignore[arg-type]
+            sequence_id=sequence_id,
+            split=Split(split) if split else None,
+        )
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    shutil.move(temporary, out_path)
+    click.echo(f"wrote {out_path}", err=True)
+
+
+@main.command("demo")
+@click.option("--frames", default=24, show_default=True, type=click.IntRange(4, 500))
+@click.option("--seed", default=0, show_default=True, type=int)
+@friendly_errors
+def demo_cmd(frames: int, seed: int) -> None:
+    """Fill this instance with a synthetic weld run, so the whole loop shows at once.
+
+    Frames come from weldpool_core.synth; half of them get labels from the generator's ground
+    truth (user `demo`, status accepted) and a few get manual validation keypoints, so the
+    student can be trained at once; the rest wait in the review queue. When the teacher's
+    weights are present, a teacher job is queued for the unlabelled frames.
+    """
+    from app.demo import fill_demo
+
+    settings = load_settings()
+    with open_sessions(settings)() as session:
+        summary = fill_demo(
+            session,
+            settings,
+            frames=frames,
+            seed=seed,
+            progress=lambda text: click.echo(text, err=True),
+        )
+    click.echo(summary, err=True)
+    sys.exit(0)

@@ -1,0 +1,195 @@
+"""Exports of the reviewed labels (accepted and corrected), as one zip file.
+
+``masks``: the DATASET layout that ``weldpool train`` reads — ``images/<stem>.<ext>`` (the
+original files), ``masks/<stem>.png`` (0 / 255), ``keypoints/<stem>.json``; manual validation
+keypoints go to ``validation_keypoints/<stem>.json``; ``manifest.json`` lists every frame with
+its id, sequence, split and label. ``coco``: ``annotations.json`` in COCO format (polygons,
+bounding boxes, keypoints; each image record carries its weld run's process parameters) with
+the images beside it. Stems are the frame ids, zero-padded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInputError
+from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
+from app.review.service import load_mask
+from app.storage import Storage
+
+ExportFormat = Literal["coco", "masks"]
+PROCESS_FIELDS = (
+    "wire_feed_m_min",
+    "voltage_v",
+    "current_a",
+    "arc_length_correction_pct",
+    "robot_speed_cm_min",
+    "synergic_law",
+    "joint_type",
+    "notes",
+)
+
+
+def _stem(frame: Frame) -> str:
+    return f"{frame.id:07d}"
+
+
+def _extension(frame: Frame) -> str:
+    return Path(frame.path).suffix
+
+
+def _polygons(mask: NDArray[np.bool_]) -> list[list[float]]:
+    contours, _ = cv2.findContours(
+        mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
+    )
+    return [c.reshape(-1).astype(float).tolist() for c in contours if len(c) >= 3]
+
+
+def _rows(
+    session: Session, sequence_id: int | None, split: Split | None
+) -> list[tuple[Frame, Label, Sequence | None, ValidationKeypoints | None]]:
+    query = (
+        sa.select(Frame, Label, Sequence, ValidationKeypoints)
+        .join(Label, Label.frame_id == Frame.id)
+        .outerjoin(Sequence, Sequence.id == Frame.sequence_id)
+        .outerjoin(ValidationKeypoints, ValidationKeypoints.frame_id == Frame.id)
+        .where(Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]))
+        .order_by(Frame.id)
+    )
+    if sequence_id is not None:
+        query = query.where(Frame.sequence_id == sequence_id)
+    if split is not None:
+        query = query.where(Frame.split == split)
+    return [tuple(row) for row in session.execute(query)]  # type: ignore[misc]
+
+
+def build_export(
+    session: Session,
+    storage: Storage,
+    fmt: ExportFormat,
+    *,
+    sequence_id: int | None = None,
+    split: Split | None = None,
+) -> Path:
+    """Write the export to a temporary zip file and return its path (the caller removes it)."""
+    rows = _rows(session, sequence_id, split)
+    if not rows:
+        raise InvalidInputError("There are no accepted or corrected labels to export.")
+    (storage.home / "tmp").mkdir(parents=True, exist_ok=True)
+    descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.home / "tmp")
+    os.close(descriptor)
+    target = Path(name)
+    try:
+        with zipfile.ZipFile(target, "w", zipfile.ZIP_STORED) as archive:
+            if fmt == "masks":
+                _write_masks(archive, storage, rows)
+            else:
+                _write_coco(archive, storage, rows)
+    except BaseException:
+        target.unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> None:
+    manifest = []
+    for frame, label, sequence, manual in rows:
+        stem = _stem(frame)
+        archive.write(storage.absolute(frame.path), f"images/{stem}{_extension(frame)}")
+        archive.write(storage.absolute(label.mask_path), f"masks/{stem}.png")
+        archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
+        if manual is not None:
+            archive.writestr(
+                f"validation_keypoints/{stem}.json", json.dumps({"keypoints": manual.keypoints})
+            )
+        manifest.append(
+            {
+                "stem": stem,
+                "frame_id": frame.id,
+                "original_name": frame.original_name,
+                "sequence": sequence.name if sequence else None,
+                "split": frame.split.value,
+                "label": label.status.value,
+                "revision": label.revision,
+                "frame_index": frame.frame_index,
+                "timestamp_s": frame.timestamp_s,
+            }
+        )
+    archive.writestr("manifest.json", json.dumps({"frames": manifest}, indent=1))
+
+
+def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> None:
+    images, annotations = [], []
+    k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
+    for frame, label, sequence, manual in rows:
+        file_name = f"images/{_stem(frame)}{_extension(frame)}"
+        archive.write(storage.absolute(frame.path), file_name)
+        process = {f: getattr(sequence, f) for f in PROCESS_FIELDS} if sequence else {}
+        images.append(
+            {
+                "id": frame.id,
+                "file_name": file_name,
+                "width": frame.width,
+                "height": frame.height,
+                "original_name": frame.original_name,
+                "sequence": sequence.name if sequence else None,
+                "process": process,
+                "frame_index": frame.frame_index,
+                "timestamp_s": frame.timestamp_s,
+                "split": frame.split.value,
+                "bit_depth": frame.bit_depth,
+            }
+        )
+        mask = load_mask(storage, label.mask_path)
+        ys, xs = np.nonzero(mask)
+        keypoints = label.keypoints or []
+        flat: list[float] = []
+        for x, y in keypoints:
+            flat += [float(x), float(y), 2]
+        flat += [0.0, 0.0, 0] * (k - len(keypoints))
+        annotation = {
+            "id": frame.id,
+            "image_id": frame.id,
+            "category_id": 1,
+            "iscrowd": 0,
+            "segmentation": _polygons(mask),
+            "area": int(mask.sum()),
+            "bbox": [
+                int(xs.min()),
+                int(ys.min()),
+                int(xs.max() - xs.min() + 1),
+                int(ys.max() - ys.min() + 1),
+            ],
+            "keypoints": flat,
+            "num_keypoints": len(keypoints),
+            "label": label.status.value,
+        }
+        if manual is not None:
+            annotation["validation_keypoints"] = manual.keypoints
+        annotations.append(annotation)
+    coco = {
+        "info": {"description": "weldpool reviewed labels", "version": "1.0"},
+        "images": images,
+        "annotations": annotations,
+        "categories": [
+            {
+                "id": 1,
+                "name": "weld_pool",
+                "supercategory": "weld",
+                "keypoints": [f"keypoint_{i + 1}" for i in range(k)],
+                "skeleton": [],
+            }
+        ],
+    }
+    archive.writestr("annotations.json", json.dumps(coco))

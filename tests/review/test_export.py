@@ -1,0 +1,116 @@
+"""Exports of reviewed labels (COCO and the DATASET layout), the demo, and `weldpool export`."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.demo import fill_demo
+from app.models import Role
+from tests.helpers import REPO, auth
+from weldpool_core.io import decode_mask_png
+
+
+def _demo(settings: Settings, session_factory, frames: int = 8) -> str:
+    with session_factory() as session:
+        return fill_demo(session, settings, frames=frames, seed=3, progress=lambda _t: None)
+
+
+def test_demo_then_masks_export_in_the_dataset_layout(
+    client, settings, session_factory, make_user
+) -> None:
+    summary = _demo(settings, session_factory)
+    assert "8 frames; 4 labelled from ground truth, 2 with validation keypoints" in summary
+    assert "Teacher job" in summary  # the tiny teacher's weights are configured here
+    _, token = make_user("exporter", Role.annotator)
+    response = client.get("/api/v1/export", params={"format": "masks"}, headers=auth(token))
+    assert response.status_code == 200
+    assert response.headers["content-type"] == "application/zip"
+    archive = zipfile.ZipFile(io.BytesIO(response.content))
+    names = archive.namelist()
+    images = sorted(n for n in names if n.startswith("images/"))
+    assert len(images) == 4
+    for image in images:
+        stem = Path(image).stem
+        mask = decode_mask_png(archive.read(f"masks/{stem}.png"))
+        assert mask.shape == (800, 1280) and mask.any()
+        assert len(json.loads(archive.read(f"keypoints/{stem}.json"))["keypoints"]) == 4
+    manifest = json.loads(archive.read("manifest.json"))["frames"]
+    assert {m["label"] for m in manifest} == {"accepted"}
+    leftovers = [p for p in (settings.home / "tmp").glob("*.zip")]
+    assert leftovers == []  # the temporary zip is removed after sending
+
+
+def test_coco_export_carries_process_parameters(
+    client, settings, session_factory, make_user
+) -> None:
+    _demo(settings, session_factory, frames=4)
+    _, token = make_user("cocoa", Role.annotator)
+    response = client.get("/api/v1/export", params={"format": "coco"}, headers=auth(token))
+    coco = json.loads(zipfile.ZipFile(io.BytesIO(response.content)).read("annotations.json"))
+    assert len(coco["images"]) == len(coco["annotations"]) == 2
+    image, annotation = coco["images"][0], coco["annotations"][0]
+    assert image["process"]["voltage_v"] == 22.5 and image["process"]["joint_type"] == "fillet"
+    assert annotation["num_keypoints"] == 4 and len(annotation["keypoints"]) == 12
+    x, y, w, h = annotation["bbox"]
+    assert w > 0 and h > 0 and annotation["area"] > 0
+    polygon = np.array(annotation["segmentation"][0]).reshape(-1, 2)
+    assert polygon[:, 0].min() >= x and polygon[:, 0].max() < x + w
+    assert polygon[:, 1].min() >= y and polygon[:, 1].max() < y + h
+    assert coco["categories"][0]["keypoints"] == [f"keypoint_{i}" for i in range(1, 5)]
+
+
+def test_nothing_to_export_is_a_clear_400(client: TestClient, make_user) -> None:
+    _, token = make_user("empty", Role.annotator)
+    response = client.get("/api/v1/export", headers=auth(token))
+    assert response.status_code == 400
+    assert response.json()["detail"] == "There are no accepted or corrected labels to export."
+    bad = client.get("/api/v1/export", params={"format": "yolo"}, headers=auth(token))
+    assert bad.status_code == 422
+
+
+def test_command_line_export(settings: Settings, session_factory, tmp_path: Path) -> None:
+    _demo(settings, session_factory, frames=4)
+    env = dict(
+        os.environ,
+        WELDPOOL_HOME=str(settings.home),
+        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
+    )
+    out = tmp_path / "export" / "labels.zip"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "export",
+            "--out",
+            str(out),
+            "--sequence",
+            "demo weld run (synthetic)",
+        ],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert len([n for n in zipfile.ZipFile(out).namelist() if n.startswith("masks/")]) == 2
+    missing = subprocess.run(
+        [sys.executable, "-m", "app", "export", "--out", str(out), "--sequence", "nope"],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert missing.returncode == 2 and "There is no sequence named 'nope'." in missing.stderr
