@@ -24,6 +24,7 @@ from app.review.routes import router as review_router
 from app.security import current_user
 from app.storage import Storage
 from app.system.routes import router as system_router
+from app.training.routes import router as training_router
 from app.users.routes import router as users_router
 from app.web.routes import router as web_router
 
@@ -113,6 +114,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(jobs_router, dependencies=protected)
     api.include_router(frames_router, dependencies=protected)
     api.include_router(review_router, dependencies=protected)
+    api.include_router(training_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

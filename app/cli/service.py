@@ -27,7 +27,7 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
     import uvicorn
 
-    from app.frames.service import sweep_orphan_files
+    from app.housekeeping import sweep_orphan_files
     from app.main import create_app
     from app.storage import Storage
     from app.users.service import ensure_initial_admin

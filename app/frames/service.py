@@ -496,11 +496,3 @@ def extract_video_frames(
         "duplicates": duplicates,
         "sequence_id": video.sequence_id,
     }
-
-
-def sweep_orphan_files(session: Session, storage: Storage, older_than_s: float = 3600.0) -> int:
-    """Remove frame and video files that no row names (left by a crash mid-upload)."""
-    known = set(session.scalars(sa.select(Frame.path))) | set(
-        session.scalars(sa.select(Video.path))
-    )
-    return len(storage.sweep_orphans(("frames", "videos"), known, older_than_s))

@@ -14,6 +14,7 @@ from PIL import Image
 
 from app.config import Settings
 from app.frames import service
+from app.housekeeping import sweep_orphan_files
 from app.main import create_app
 from app.models import Frame, Role
 from app.storage import Storage
@@ -262,8 +263,8 @@ def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) ->
             max_pixels=10**6,
         ).stored[0]
         orphan = storage.put(image_bytes(seed=51), "f" * 64, ".png")  # renamed, never committed
-        assert service.sweep_orphan_files(session, storage, older_than_s=3600) == 0  # too new
-        assert service.sweep_orphan_files(session, storage, older_than_s=0) == 1
+        assert sweep_orphan_files(session, storage, older_than_s=3600) == 0  # too new
+        assert sweep_orphan_files(session, storage, older_than_s=0) == 1
     assert not storage.absolute(orphan.path).exists()
     assert storage.absolute(kept.path).exists()
 

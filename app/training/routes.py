@@ -1,0 +1,68 @@
+"""/api/v1/student and /api/v1/models: training jobs, model versions, promotion."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+
+from app.deps import QueueDep, SessionDep
+from app.errors import InvalidInputError
+from app.jobs.schemas import JobCreated
+from app.jobs.service import create_job
+from app.review.service import frames_for_run
+from app.security import CurrentUser, ReviewerUser
+from app.training import service
+from app.training.schemas import ModelVersionOut, StudentRunIn, TrainIn
+
+router = APIRouter(tags=["training"])
+
+
+@router.post("/student/train", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
+def train(body: TrainIn, session: SessionDep, queue: QueueDep, user: ReviewerUser) -> JobCreated:
+    """Train a new student version on the accepted and corrected labels, in a worker job."""
+    if not service.training_frame_ids(session):
+        raise InvalidInputError(
+            "There are no accepted or corrected labels outside the validation split to train on."
+        )
+    job = create_job(session, queue, "train_student", body.model_dump(), user)
+    return JobCreated(job_id=job.id)
+
+
+@router.post("/student/runs", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
+def student_run(
+    body: StudentRunIn, session: SessionDep, queue: QueueDep, user: CurrentUser
+) -> JobCreated:
+    """The promoted student proposes masks and scores uncertainty for frames, in a worker job."""
+    model = service.promoted_model(session)
+    if model is None:
+        raise InvalidInputError("No student is promoted yet; train one and promote it.")
+    frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
+    job = create_job(
+        session, queue, "student", {"frame_ids": frame_ids, "model_version_id": model.id}, user
+    )
+    return JobCreated(job_id=job.id)
+
+
+@router.get("/models", response_model=list[ModelVersionOut])
+def list_models(session: SessionDep, _user: CurrentUser) -> list[ModelVersionOut]:
+    """Student versions, newest first, with their metrics and training curves."""
+    return [ModelVersionOut.model_validate(m) for m in service.list_models(session)]
+
+
+@router.get("/models/{model_id}", response_model=ModelVersionOut)
+def get_model(model_id: int, session: SessionDep, _user: CurrentUser) -> ModelVersionOut:
+    return ModelVersionOut.model_validate(service.get_model(session, model_id))
+
+
+@router.post("/models/{model_id}/promote", response_model=ModelVersionOut)
+def promote(
+    model_id: int, session: SessionDep, queue: QueueDep, user: ReviewerUser
+) -> ModelVersionOut:
+    """Make this version the student that proposes for frames; queues a student run on the
+    frames that have no reviewed label yet."""
+    model = service.promote(session, service.get_model(session, model_id))
+    unlabelled = service.unreviewed_frame_ids(session)
+    if unlabelled:
+        create_job(
+            session, queue, "student", {"frame_ids": unlabelled, "model_version_id": model.id}, user
+        )
+    return ModelVersionOut.model_validate(model)

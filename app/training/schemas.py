@@ -1,0 +1,38 @@
+"""Payloads of student training and model versions."""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class TrainIn(BaseModel):
+    """Options of a training job; the defaults suit a CPU worker."""
+
+    epochs: int | None = Field(default=None, ge=1, le=1000)
+    size: str | None = Field(default=None, description="Model size: default, light or large.")
+    seed: int = 0
+
+
+class StudentRunIn(BaseModel):
+    """Which frames the promoted student should propose for."""
+
+    frame_ids: list[int] | None = Field(default=None, max_length=100_000)
+    sequence_id: int | None = None
+
+
+class ModelVersionOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    name: str
+    created_at: dt.datetime
+    is_promoted: bool
+    promoted_at: dt.datetime | None
+    train_label_count: int
+    metrics: dict[str, Any]
+    curve: list[Any]
+    config: dict[str, Any]
+    job_id: int | None

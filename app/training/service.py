@@ -1,0 +1,101 @@
+"""Model versions of the student: listing, promotion, and the training set from reviewed labels."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from app.db import utcnow
+from app.errors import NotFoundError
+from app.models import Frame, Label, LabelStatus, ModelVersion, Split, ValidationKeypoints
+from app.review.service import frame_rgb, load_mask
+from app.storage import Storage
+
+TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
+
+
+def list_models(session: Session) -> list[ModelVersion]:
+    return list(session.scalars(sa.select(ModelVersion).order_by(ModelVersion.id.desc())))
+
+
+def get_model(session: Session, model_id: int) -> ModelVersion:
+    model = session.get(ModelVersion, model_id)
+    if model is None:
+        raise NotFoundError(f"There is no model version {model_id}.")
+    return model
+
+
+def promoted_model(session: Session) -> ModelVersion | None:
+    return session.scalar(sa.select(ModelVersion).where(ModelVersion.is_promoted.is_(True)))
+
+
+def promote(session: Session, model: ModelVersion) -> ModelVersion:
+    """Make ``model`` the student that proposes for new frames (one promoted at a time)."""
+    session.execute(sa.update(ModelVersion).values(is_promoted=False))
+    model.is_promoted, model.promoted_at = True, utcnow()
+    session.commit()
+    session.refresh(model)
+    return model
+
+
+def next_name(session: Session) -> str:
+    count = session.scalar(sa.select(sa.func.count()).select_from(ModelVersion)) or 0
+    return f"student-v{count + 1}"
+
+
+def training_frame_ids(session: Session) -> list[int]:
+    """Frames with an accepted or corrected label, outside the validation split."""
+    return list(
+        session.scalars(
+            sa.select(Frame.id)
+            .join(Label, Label.frame_id == Frame.id)
+            .where(Label.status.in_(TRAINABLE), Frame.split != Split.validation)
+            .order_by(Frame.id)
+        )
+    )
+
+
+def validation_frame_ids(session: Session) -> list[int]:
+    """Validation frames that have a reviewed mask or manual keypoints."""
+    labelled = sa.select(Label.frame_id).where(Label.status.in_(TRAINABLE))
+    manual = sa.select(ValidationKeypoints.frame_id)
+    return list(
+        session.scalars(
+            sa.select(Frame.id)
+            .where(Frame.split == Split.validation, Frame.id.in_(labelled.union(manual)))
+            .order_by(Frame.id)
+        )
+    )
+
+
+def labelled_samples(
+    session: Session, storage: Storage, frame_ids: list[int]
+) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.bool_] | None, Any]]:
+    """(frame id, RGB image, reviewed mask or None, keypoints or None) for each frame.
+
+    Keypoints: the manual validation keypoints when there are some, else the label's.
+    """
+    for frame_id in frame_ids:
+        frame = session.get_one(Frame, frame_id)
+        label = session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
+        manual = session.scalar(
+            sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame_id)
+        )
+        mask = None
+        if label is not None and label.status in TRAINABLE and label.mask_path:
+            mask = load_mask(storage, label.mask_path)
+        keypoints = manual.keypoints if manual else (label.keypoints if label else None)
+        yield frame_id, frame_rgb(storage, frame), mask, keypoints
+
+
+def unreviewed_frame_ids(session: Session) -> list[int]:
+    """Frames without an accepted, corrected or rejected label (the review queue)."""
+    reviewed = sa.select(Label.frame_id)
+    return list(
+        session.scalars(sa.select(Frame.id).where(Frame.id.not_in(reviewed)).order_by(Frame.id))
+    )
