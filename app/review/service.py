@@ -111,6 +111,7 @@ def record_teacher_proposal(
         scores={
             "sam2_iou": result.score,
             "object_score": result.object_score,
+            "prompt_stability": result.prompt_stability,
             "mask_fraction": float(result.mask.mean()),
             "warning": result.warning,
             "keypoint_rules": result.keypoint_rules,

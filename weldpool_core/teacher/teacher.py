@@ -38,6 +38,10 @@ class TeacherConfig:
         stability_threshold: automatic-mode candidates whose stability score (IoU of the mask
             at logit thresholds +1 and −1) is below this are passed over when others pass.
         heatmap_k: keypoints per frame for Algorithm 1.
+        stability_samples: how many jittered copies of the prompts are decoded to measure how
+            stable the mask is (0 turns it off); each costs one decoder pass.
+        stability_jitter: the jitter's standard deviation, as a fraction of the frame's longer
+            side (points move, box corners move).
     """
 
     prompts: str = "heuristic"
@@ -46,6 +50,8 @@ class TeacherConfig:
     grid_batch: int = 16
     stability_threshold: float = 0.9
     heatmap_k: int = 4
+    stability_samples: int = 4
+    stability_jitter: float = 0.02
 
     def __post_init__(self) -> None:
         if self.prompts not in PROMPT_STRATEGIES:
@@ -73,6 +79,7 @@ class TeacherResult:
     low_res_logits: NDArray[np.float32]
     timings: dict[str, float]
     warning: str | None = None
+    prompt_stability: float | None = None
 
 
 class Teacher:
@@ -189,6 +196,9 @@ class Teacher:
             self._automatic(embedding) if prompts.empty else self.sam2.predict(embedding, prompts)
         )
         mask = prediction.mask
+        stability = (
+            None if prompts.empty else self._prompt_stability(embedding, prompts, prediction)
+        )
         timings["sam2_decode_s"] = time.perf_counter() - mark
 
         mark = time.perf_counter()
@@ -215,6 +225,7 @@ class Teacher:
             low_res_logits=prediction.low_res_logits[0],
             timings=timings,
             warning=warning,
+            prompt_stability=stability,
         )
 
     def run_batch(
@@ -223,6 +234,39 @@ class Teacher:
         """``run`` over (image, sha256) pairs, one at a time (memory stays flat)."""
         for image, sha256 in frames:
             yield self.run(image, sha256)
+
+    def _prompt_stability(
+        self, embedding: ImageEmbedding, prompts: Prompts, prediction: MaskPrediction
+    ) -> float | None:
+        """Mean IoU between the mask and the masks of jittered prompts (1: perfectly stable).
+
+        Compared on SAM2's 256×256 grid; the jitter is seeded, so the score is reproducible.
+        """
+        samples = self.config.stability_samples
+        if samples < 1:
+            return None
+        height, width = embedding.image_size
+        sigma = self.config.stability_jitter * max(height, width)
+        rng = np.random.default_rng(0)
+        reference = prediction.low_res_logits[0] > 0
+        scores = []
+        for _ in range(samples):
+            points = tuple(
+                (
+                    float(np.clip(x + rng.normal(0, sigma), 0, width)),
+                    float(np.clip(y + rng.normal(0, sigma), 0, height)),
+                )
+                for x, y in prompts.points
+            )
+            box = None
+            if prompts.box is not None:
+                x0, y0, x1, y1 = (v + rng.normal(0, sigma) for v in prompts.box)
+                box = (min(x0, x1 - 1), min(y0, y1 - 1), max(x1, x0 + 1), max(y1, y0 + 1))
+            jittered = self.sam2.predict(embedding, Prompts(points, prompts.labels, box))
+            other = jittered.low_res_logits[0] > 0
+            union = np.logical_or(reference, other).sum()
+            scores.append(1.0 if union == 0 else np.logical_and(reference, other).sum() / union)
+        return float(np.mean(scores))
 
     @torch.inference_mode()
     def _automatic(self, embedding: ImageEmbedding) -> MaskPrediction:

@@ -121,3 +121,17 @@ def test_full_size_teacher_on_a_real_frame() -> None:
     assert result.attention.heads.shape == (6, 60, 60)
     assert result.prompts.box is not None  # heuristic prompts found a region
     assert result.timings["total_s"] > 0
+
+
+def test_prompt_stability_is_reproducible_and_bounded(models, frame) -> None:
+    dino, sam2 = models
+    teacher = Teacher(dino, sam2, "s", config=TeacherConfig(prompts="heuristic"))
+    first, second = teacher.run(frame), teacher.run(frame)
+    assert first.prompt_stability is not None and 0.0 <= first.prompt_stability <= 1.0
+    assert first.prompt_stability == second.prompt_stability
+    still = Teacher(dino, sam2, "s", config=TeacherConfig(stability_jitter=0.0)).run(frame)
+    assert still.prompt_stability == 1.0  # no jitter: the same prompts give the same mask
+    off = Teacher(dino, sam2, "s", config=TeacherConfig(stability_samples=0)).run(frame)
+    assert off.prompt_stability is None
+    automatic = Teacher(dino, sam2, "s", config=TeacherConfig(prompts="none", grid_points=2))
+    assert automatic.run(frame).prompt_stability is None  # no prompts to jitter

@@ -1,0 +1,158 @@
+"""Background work of the training domain: training a student version, and the promoted
+student's proposals and uncertainty scores."""
+
+from __future__ import annotations
+
+import shutil
+from typing import Any
+
+import structlog
+
+from app.jobs.registry import JobContext, job_handler
+from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
+from app.review.service import frame_rgb, store_heatmap, store_mask
+from app.storage import Storage
+from app.training import service
+from weldpool_core.errors import InvalidInputError
+
+log = structlog.get_logger(__name__)
+
+UNCERTAINTY_SAMPLES = 8
+
+
+def _remove_stale_work(models_dir: Any, session: Any) -> None:
+    """Work folders of training jobs that are over (a killed worker leaves one behind)."""
+    for folder in models_dir.glob(".work-job*"):
+        job_id = folder.name.removeprefix(".work-job")
+        job = session.get(Job, int(job_id)) if job_id.isdigit() else None
+        if job is None or job.status.finished:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+@job_handler("train_student")
+def train_student_version(ctx: JobContext) -> dict[str, Any]:
+    """Train a student on the accepted and corrected labels; validate on the validation split.
+
+    The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
+    only when training finished: a killed or cancelled job leaves no half-written version.
+    """
+    from weldpool_core.student.model import student_config
+    from weldpool_core.student.train import TrainConfig, train_student
+
+    settings, storage = ctx.settings, Storage(ctx.settings.home)
+    models_dir = settings.home / "models"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    work = models_dir / f".work-job{ctx.job_id}"
+    with ctx.session_factory() as session:
+        _remove_stale_work(models_dir, session)
+        train_ids = service.training_frame_ids(session)
+        validation_ids = service.validation_frame_ids(session)
+    if not train_ids:
+        raise InvalidInputError("There are no accepted or corrected labels to train on.")
+    shutil.rmtree(work, ignore_errors=True)
+
+    options = {
+        "epochs": ctx.params.get("epochs"),
+        "seed": int(ctx.params.get("seed", 0)),
+        "device": settings.device,
+    }
+    config = TrainConfig(**{k: v for k, v in options.items() if v is not None})
+    student = student_config(str(ctx.params.get("size") or "default"))
+    with ctx.session_factory() as session:
+        training = (
+            (image, mask, keypoints)
+            for _, image, mask, keypoints in service.labelled_samples(session, storage, train_ids)
+            if mask is not None
+        )
+        validation = [
+            (image, mask, keypoints)
+            for _, image, mask, keypoints in service.labelled_samples(
+                session, storage, validation_ids
+            )
+            if mask is not None
+        ]
+        result = train_student(
+            training,
+            work,
+            student,
+            config,
+            progress=lambda fraction, message: ctx.progress(0.98 * fraction, message),
+            validation=validation or None,
+        )
+
+    with ctx.session_factory() as session:
+        name = service.next_name(session)
+        final = models_dir / name
+        work.rename(final)
+        try:
+            version = ModelVersion(
+                name=name,
+                checkpoint_path=f"models/{name}",
+                job_id=ctx.job_id,
+                config={"student": student.as_dict(), "training": config.as_dict()},
+                metrics=result.metrics
+                | {
+                    "best_epoch": result.best_epoch,
+                    "validation_frames": result.validation_frames,
+                    "pretrained_encoder": result.pretrained_encoder,
+                },
+                curve=[record.as_dict() for record in result.curve],
+                train_label_count=result.train_frames,
+            )
+            session.add(version)
+            session.commit()
+        except BaseException:
+            session.rollback()
+            shutil.rmtree(final, ignore_errors=True)
+            raise
+    return {"model_version_id": version.id, "name": name, "metrics": version.metrics}
+
+
+@job_handler("student", max_attempts=2)
+def student_proposals(ctx: JobContext) -> dict[str, Any]:
+    """The promoted student's mask, heatmap and keypoints for frames, with its uncertainty
+    (spread over latent samples) stored on the frame for the review queue."""
+    from weldpool_core.student.predict import StudentPredictor
+
+    storage = Storage(ctx.settings.home)
+    frame_ids = [int(i) for i in ctx.params["frame_ids"]]
+    with ctx.session_factory() as session:
+        version = session.get(ModelVersion, int(ctx.params["model_version_id"]))
+        if version is None or version.checkpoint_path is None:
+            raise InvalidInputError("The model version of this run no longer exists.")
+        name, path = version.name, storage.absolute(version.checkpoint_path)
+        version_id = version.id
+    predictor = StudentPredictor.load(path, ctx.settings.device)
+    proposed = 0
+    for done, frame_id in enumerate(frame_ids):
+        with ctx.session_factory() as session:
+            frame = session.get(Frame, frame_id)
+            if frame is not None:
+                prediction = predictor.predict(
+                    [frame_rgb(storage, frame)], samples=UNCERTAINTY_SAMPLES
+                )[0]
+                session.add(
+                    Proposal(
+                        frame_id=frame.id,
+                        source="student",
+                        model_id=name,
+                        model_version_id=version_id,
+                        job_id=ctx.job_id,
+                        mask_path=store_mask(storage, prediction.mask),
+                        heatmap_path=store_heatmap(storage, prediction.heatmap),
+                        keypoints=[[float(x), float(y)] for x, y in prediction.keypoints],
+                        prompts={},
+                        timings={},
+                        scores={
+                            "uncertainty": prediction.uncertainty,
+                            "mask_fraction": float(prediction.mask.mean()),
+                        },
+                    )
+                )
+                frame.uncertainty = prediction.uncertainty
+                if frame.status == FrameStatus.new:
+                    frame.status = FrameStatus.proposed
+                session.commit()
+                proposed += 1
+        ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
+    return {"proposed": proposed, "model": name}
