@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -53,12 +52,21 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as root:
         torch.manual_seed(0)
         Sam2Model(Sam2Config()).save_pretrained(Path(root) / "sam2")
-        env = dict(os.environ, WELDPOOL_HOME=str(Path(root) / "home"), WELDPOOL_LOG_LEVEL="WARNING",
-                   WELDPOOL_SAM2=str(Path(root) / "sam2"), OMP_NUM_THREADS="2")  # fmt: skip
+        env = dict(
+            os.environ,
+            WELDPOOL_HOME=str(Path(root) / "home"),
+            WELDPOOL_LOG_LEVEL="WARNING",
+            WELDPOOL_SAM2=str(Path(root) / "sam2"),
+            OMP_NUM_THREADS="2",
+        )
         port = _free_port()
         weldpool = [sys.executable, "-m", "app"]
-        server = subprocess.Popen([*weldpool, "serve", "--port", str(port), "--no-worker"],
-                                  env=env, cwd=REPO, stderr=subprocess.DEVNULL)  # fmt: skip
+        server = subprocess.Popen(
+            [*weldpool, "serve", "--port", str(port), "--no-worker"],
+            env=env,
+            cwd=REPO,
+            stderr=subprocess.DEVNULL,
+        )
         url = f"http://127.0.0.1:{port}"
         try:
             for _ in range(300):
@@ -67,15 +75,23 @@ def main() -> None:
                     break
                 except httpx.HTTPError:
                     time.sleep(0.1)
-            token = subprocess.run([*weldpool, "token", "admin"], env=env, cwd=REPO, text=True,
-                                   capture_output=True, check=True).stdout.strip()  # fmt: skip
+            token = subprocess.run(
+                [*weldpool, "token", "admin"],
+                env=env,
+                cwd=REPO,
+                text=True,
+                capture_output=True,
+                check=True,
+            ).stdout.strip()
             headers = {"Authorization": f"Bearer {token}"}
             with httpx.Client(base_url=url, headers=headers, timeout=120) as http:
-                frame_id = http.post("/api/v1/frames", files=[("files", ("frame.png", _frame_png(),
-                                     "image/png"))]).json()["stored"][0]["id"]  # fmt: skip
+                frame_id = http.post(
+                    "/api/v1/frames", files=[("files", ("frame.png", _frame_png(), "image/png"))]
+                ).json()["stored"][0]["id"]
                 start = time.perf_counter()
-                first = http.post(f"/api/v1/frames/{frame_id}/segment",
-                                  json={"points": [{"x": 640, "y": 400}]}).json()  # fmt: skip
+                first = http.post(
+                    f"/api/v1/frames/{frame_id}/segment", json={"points": [{"x": 640, "y": 400}]}
+                ).json()
                 cold = time.perf_counter() - start
                 rng = np.random.default_rng(1)
                 round_trips, server_ms = [], []
@@ -100,17 +116,24 @@ def main() -> None:
     decoder = []
     for _ in range(args.clicks):
         start = time.perf_counter()
-        predictor.predict(embedding, Prompts(((300.0, 300.0), (640.0, 400.0)), (1, 1))).mask
+        _ = predictor.predict(embedding, Prompts(((300.0, 300.0), (640.0, 400.0)), (1, 1))).mask
         decoder.append((time.perf_counter() - start) * 1000)
 
-    print(f"\nclick on a 1280×800 frame, SAM2 hiera-tiny (random weights), CPU, {args.clicks} clicks")
+    print(
+        f"\nclick on a 1280×800 frame, SAM2 hiera-tiny (random weights), CPU, {args.clicks} clicks"
+    )
     print(f"{'measure':<44} {'p50 ms':>8} {'p95 ms':>8}")
-    rows = [("HTTP round trip (client)", round_trips), ("server time (elapsed_ms)", server_ms),
-            ("decoder + upsampling alone (in-process)", decoder)]  # fmt: skip
+    rows = [
+        ("HTTP round trip (client)", round_trips),
+        ("server time (elapsed_ms)", server_ms),
+        ("decoder + upsampling alone (in-process)", decoder),
+    ]
     for name, values in rows:
         print(f"{name:<44} {_percentile(values, 50):>8.1f} {_percentile(values, 95):>8.1f}")
-    print(f"first click (loads SAM2, encodes, caches): {cold:.1f} s; first answer's embedding: "
-          f"{first['embedding']}")  # fmt: skip
+    print(
+        f"first click (loads SAM2, encodes, caches): {cold:.1f} s; first answer's embedding: "
+        f"{first['embedding']}"
+    )
 
 
 if __name__ == "__main__":
