@@ -47,6 +47,27 @@ class Settings(BaseSettings):
         description="New reviewed labels that start a training job; 0 turns it off.",
     )
 
+    uncertainty_weights: dict[str, float] = Field(
+        default_factory=lambda: {
+            "teacher_iou": 1.0,
+            "instability": 1.0,
+            "disagreement": 1.0,
+            "student_spread": 1.0,
+        },
+        description="Weights of the uncertainty components in the review queue's score (JSON).",
+    )
+    queue_diversity: float = Field(
+        default=0.5,
+        ge=0,
+        le=1,
+        description="0: the queue is the pure uncertainty ranking; up to 1: more diverse frames.",
+    )
+    queue_diversity_pool: int = Field(
+        default=50, ge=1, description="How many top-ranked frames the diversity pick reorders."
+    )
+    auto_promote: bool = Field(
+        default=True, description="Promote a newly trained student when it beats the promoted one."
+    )
     workers: int = Field(default=1, ge=1, description="Worker threads of one worker process.")
     job_heartbeat_s: float = Field(
         default=5.0, gt=0, description="How often a worker reports that it is alive."

@@ -215,6 +215,9 @@ class Frame(Base):
         _enum(FrameStatus, "frame_status"), default=FrameStatus.new, index=True
     )
     uncertainty: Mapped[float | None] = mapped_column(sa.Float, index=True)
+    uncertainty_components: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
+    uncertainty_reason: Mapped[str | None] = mapped_column(sa.String(32))
+    descriptor: Mapped[list[float] | None] = mapped_column(JSONType)
     uploaded_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
@@ -303,9 +306,21 @@ class ValidationKeypoints(Base):
 
 
 class Job(Base):
-    """A background job: the row is the truth about its state, the queue only carries its id."""
+    """A background job: the row is the truth about its state, the queue only carries its id.
+
+    At most one training job is queued or running at a time (a partial unique index).
+    """
 
     __tablename__ = "jobs"
+    __table_args__ = (
+        sa.Index(
+            "uq_jobs_one_training",
+            "kind",
+            unique=True,
+            sqlite_where=sa.text("kind = 'train_student' AND status IN ('queued', 'running')"),
+            postgresql_where=sa.text("kind = 'train_student' AND status IN ('queued', 'running')"),
+        ),
+    )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     kind: Mapped[str] = mapped_column(sa.String(32), index=True)

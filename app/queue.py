@@ -22,6 +22,8 @@ from app.models import Worker
 
 log = structlog.get_logger(__name__)
 
+SHUTDOWN_TIMEOUT_S = 30.0  # how long a stopping worker waits for running jobs to notice
+
 
 class JobQueue:
     """A Huey instance with the one task that runs a job row by id."""
@@ -30,6 +32,7 @@ class JobQueue:
         self.settings = settings
         self.session_factory = session_factory
         self.worker_id = new_worker_id()
+        self.stopping = threading.Event()  # set when this process's worker shuts down
         if settings.queue_url:
             self.backend = "redis"
             self.huey: Huey = RedisHuey(settings.queue_name, url=settings.queue_url, results=False)
@@ -42,7 +45,9 @@ class JobQueue:
         self._run_job = self.huey.task(name="weldpool.run_job")(self._execute)
 
     def _execute(self, job_id: int) -> None:
-        execute_job(job_id, self.settings, self.session_factory, self.worker_id)
+        execute_job(
+            job_id, self.settings, self.session_factory, self.worker_id, self.stopping, self.enqueue
+        )
 
     def enqueue(self, job_id: int) -> None:
         """Put a job id on the queue; raises ConfigurationError when the queue is unreachable."""
@@ -68,6 +73,7 @@ class JobQueue:
             periodic=False,
             check_worker_health=True,
             max_delay=1.0,
+            shutdown_timeout=SHUTDOWN_TIMEOUT_S,
         )
 
 
@@ -126,6 +132,7 @@ class EmbeddedWorker:
     """The worker that ``weldpool serve`` runs in its own process, in threads."""
 
     def __init__(self, queue: JobQueue, threads: int) -> None:
+        self.queue = queue
         self.consumer = queue.consumer(threads, embedded=True)
         self.presence = WorkerPresence(queue, threads)
 
@@ -135,7 +142,10 @@ class EmbeddedWorker:
         log.info("worker.embedded_started", worker=self.presence.row.id)
 
     def stop(self) -> None:
-        self.consumer.stop(graceful=False)
+        """Interrupt running jobs at their next progress report (they are re-queued), wait
+        for the worker threads, then unregister."""
+        self.queue.stopping.set()
+        self.consumer.stop(graceful=True)
         self.presence.stop()
 
 
@@ -147,6 +157,7 @@ def run_standalone_worker(queue: JobQueue, threads: int) -> None:
     try:
         queue.consumer(threads).run()
     finally:
+        queue.stopping.set()  # running jobs stop at their next progress report, re-queued
         presence.stop()
 
 

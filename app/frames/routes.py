@@ -166,6 +166,7 @@ async def upload_frames(
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
+    settings: SettingsDep,
     _user: CurrentUser,
     sequence_id: int | None = None,
     status: FrameStatus | None = None,
@@ -187,6 +188,8 @@ def list_frames(
         order=order,
         limit=limit,
         offset=offset,
+        diversity=settings.queue_diversity,
+        diversity_pool=settings.queue_diversity_pool,
     )
     return FramePage(
         items=[FrameOut.model_validate(r) for r in rows], total=total, limit=limit, offset=offset

@@ -68,6 +68,9 @@ class FrameOut(BaseModel):
     split: Split
     status: FrameStatus
     uncertainty: float | None
+    uncertainty_reason: str | None = Field(
+        default=None, description="The component that puts the frame high in the queue."
+    )
     created_at: dt.datetime
 
 
@@ -87,6 +90,7 @@ class ProposalState(BaseModel):
 class FrameDetail(FrameOut):
     """A frame with where it stands in the review loop."""
 
+    uncertainty_components: dict[str, float | None] | None = None
     label: LabelState | None = None
     proposal: ProposalState | None = None
     has_validation_keypoints: bool = False

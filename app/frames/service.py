@@ -306,9 +306,12 @@ def list_frames(
     order: str = "id",
     limit: int = 50,
     offset: int = 0,
+    diversity: float = 0.0,
+    diversity_pool: int = 50,
 ) -> tuple[list[Frame], int]:
     """Frames filtered and paginated; ``order=uncertainty`` is the review queue (most unsure
-    first, frames without a score last)."""
+    first, frames without a score last), whose first ``diversity_pool`` frames are reordered
+    for diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
     query = sa.select(Frame)
     if sequence_id is not None:
         query = query.where(Frame.sequence_id == sequence_id)
@@ -317,7 +320,16 @@ def list_frames(
     if split is not None:
         query = query.where(Frame.split == split)
     total = session.scalar(sa.select(sa.func.count()).select_from(query.subquery())) or 0
-    rows = session.scalars(query.order_by(*_ORDERINGS[order]).limit(limit).offset(offset)).all()
+    ordered = query.order_by(*_ORDERINGS[order])
+    if order == "uncertainty" and diversity > 0 and offset < diversity_pool:
+        from app.review.queue import diverse_head
+
+        head = diverse_head(list(session.scalars(ordered.limit(diversity_pool))), diversity)
+        page = head[offset : offset + limit]
+        if len(page) < limit and len(head) == diversity_pool:
+            page += session.scalars(ordered.offset(diversity_pool).limit(limit - len(page))).all()
+        return page, total
+    rows = session.scalars(ordered.limit(limit).offset(offset)).all()
     return list(rows), total
 
 
@@ -348,6 +360,7 @@ def frame_state(session: Session, frame: Frame) -> dict[str, Any]:
             "created_at": proposal.created_at,
         },
         "has_validation_keypoints": manual is not None,
+        "uncertainty_components": frame.uncertainty_components,
     }
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,6 +22,10 @@ HANDLER_MODULES = ("app.jobs.tasks", "app.frames.tasks", "app.review.tasks")
 
 class JobCancelled(Exception):
     """Raised inside a handler when a user asked to cancel its job."""
+
+
+class JobInterrupted(Exception):
+    """Raised inside a handler when its worker is shutting down; the job runs again later."""
 
 
 @dataclass(frozen=True)
@@ -69,11 +74,15 @@ class JobContext:
     settings: Settings
     session_factory: sessionmaker[Session]
     worker_id: str
+    stopping: threading.Event = field(default_factory=threading.Event)
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
 
     def progress(self, fraction: float, message: str = "") -> None:
-        """Record progress (0..1); raises JobCancelled when a user asked to cancel."""
+        """Record progress (0..1); raises JobCancelled when a user asked to cancel, and
+        JobInterrupted when the worker is shutting down."""
+        if self.stopping.is_set():
+            raise JobInterrupted()
         now = time.monotonic()
         if now - self._last_write < self.min_interval_s and fraction < 1.0:
             return

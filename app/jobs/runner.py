@@ -8,6 +8,7 @@ from __future__ import annotations
 import datetime as dt
 import os
 import socket
+import threading
 from collections.abc import Callable
 
 import sqlalchemy as sa
@@ -16,7 +17,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import utcnow
-from app.jobs.registry import JobCancelled, JobContext, job_spec
+from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_spec
 from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
 
@@ -31,21 +32,26 @@ def new_worker_id() -> str:
 
 
 def _finish(
-    session_factory: sessionmaker[Session], job_id: int, worker_id: str, **values: object
+    session_factory: sessionmaker[Session], job_id: int, owner: str, **values: object
 ) -> bool:
-    """Write a final state, only if this worker still owns the running job."""
+    """Write a final state, only if worker ``owner`` still owns the running job."""
     with session_factory() as session:
         done = session.execute(
             sa.update(Job)
-            .where(Job.id == job_id, Job.worker_id == worker_id, Job.status == JobStatus.running)
-            .values(finished_at=utcnow(), heartbeat_at=utcnow(), **values)
+            .where(Job.id == job_id, Job.worker_id == owner, Job.status == JobStatus.running)
+            .values(**({"finished_at": utcnow(), "heartbeat_at": utcnow()} | values))
         )
         session.commit()
         return done.rowcount == 1  # type: ignore[attr-defined]
 
 
 def execute_job(
-    job_id: int, settings: Settings, session_factory: sessionmaker[Session], worker_id: str
+    job_id: int,
+    settings: Settings,
+    session_factory: sessionmaker[Session],
+    worker_id: str,
+    stopping: threading.Event | None = None,
+    enqueue: Callable[[int], None] | None = None,
 ) -> None:
     """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
     with session_factory() as session:
@@ -80,9 +86,24 @@ def execute_job(
             error=f"This worker does not know job kind {kind!r}; update the worker.",
         )
         return
-    context = JobContext(job_id, params, settings, session_factory, worker_id)
+    context = JobContext(
+        job_id, params, settings, session_factory, worker_id, stopping or threading.Event()
+    )
     try:
         result = spec.handler(context)
+    except JobInterrupted:
+        requeued = _finish(
+            session_factory,
+            job_id,
+            worker_id,
+            status=JobStatus.queued,
+            finished_at=None,
+            worker_id=None,
+            message="interrupted by a worker shutdown; it will run again",
+        )
+        if requeued and enqueue is not None:
+            enqueue(job_id)
+        log.info("job.interrupted", job_id=job_id)
     except JobCancelled:
         _finish(
             session_factory,

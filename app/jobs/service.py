@@ -8,7 +8,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import ConfigurationError, InvalidInputError, NotFoundError
+from app.errors import ConfigurationError, ConflictError, InvalidInputError, NotFoundError
 from app.jobs.registry import job_spec
 from app.models import Job, JobStatus, User
 from app.queue import JobQueue
@@ -28,7 +28,11 @@ def create_job(
         created_by_id=user.id if user else None,
     )
     session.add(job)
-    session.commit()
+    try:
+        session.commit()
+    except sa.exc.IntegrityError:  # the one-training-job-at-a-time index
+        session.rollback()
+        raise ConflictError(f"A {kind} job is already queued or running; wait for it.") from None
     try:
         queue.enqueue(job.id)
     except ConfigurationError as exc:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -29,6 +30,7 @@ from app.models import (
     User,
     ValidationKeypoints,
 )
+from app.review.queue import rescore_frame
 from app.storage import Storage
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
 
@@ -97,8 +99,10 @@ def record_teacher_proposal(
     result: Any,
     model_id: str,
     job_id: int | None,
+    weights: Mapping[str, float],
 ) -> Proposal:
-    """Store a TeacherResult as the frame's newest proposal."""
+    """Store a TeacherResult as the frame's newest proposal, with the frame's DINO descriptor
+    and its uncertainty re-scored."""
     proposal = Proposal(
         frame_id=frame.id,
         source="teacher",
@@ -121,6 +125,9 @@ def record_teacher_proposal(
     session.add(proposal)
     if frame.status == FrameStatus.new:
         frame.status = FrameStatus.proposed
+    frame.descriptor = [round(float(v), 5) for v in result.attention.cls]
+    session.flush()
+    rescore_frame(session, frame, weights)
     session.commit()
     return proposal
 

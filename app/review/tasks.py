@@ -43,7 +43,13 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
                     log.warning("teacher.frame_failed", frame_id=frame_id, error=message)
                 else:
                     record_teacher_proposal(
-                        session, storage, frame, result, teacher.model_id, ctx.job_id
+                        session,
+                        storage,
+                        frame,
+                        result,
+                        teacher.model_id,
+                        ctx.job_id,
+                        ctx.settings.uncertainty_weights,
                     )
                     proposed += 1
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")

@@ -180,3 +180,36 @@ def test_unreachable_queue_fails_the_job_with_a_clear_503(
     with session_factory() as session:
         job = session.scalars(sa.select(Job)).one()
         assert job.status == JobStatus.failed and "unreachable" in job.error
+
+
+def test_stopping_the_server_requeues_a_running_job(
+    settings: Settings, session_factory, make_user
+) -> None:
+    from app.main import create_app
+
+    _, token = make_user("admin", Role.admin)
+    with TestClient(create_app(settings, embedded_worker=True)) as client:
+        job_id = _start(client, token, seconds=60)
+        wait_for(
+            lambda: (
+                client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json()["status"]
+                == "running"
+            )
+        )
+        started = time.monotonic()
+    assert time.monotonic() - started < 10  # it noticed at its next progress report
+    with session_factory() as session:
+        job = session.get_one(Job, job_id)
+        assert job.status == JobStatus.queued and job.worker_id is None
+        assert "interrupted by a worker shutdown" in job.message
+    # The next server picks it up again.
+    with TestClient(create_app(settings, embedded_worker=True)) as client:
+        wait_for(
+            lambda: (
+                client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json()["status"]
+                == "running"
+            ),
+            timeout=30,
+        )
+        client.post(f"/api/v1/jobs/{job_id}/cancel", headers=auth(token))
+        assert wait_for_job(client, job_id, token)["status"] == "cancelled"
