@@ -46,7 +46,7 @@ class JobQueue:
 
     def _execute(self, job_id: int) -> None:
         execute_job(
-            job_id, self.settings, self.session_factory, self.worker_id, self.stopping, self.enqueue
+            job_id, self.settings, self.session_factory, self.worker_id, self.stopping, self
         )
 
     def enqueue(self, job_id: int) -> None:

@@ -17,7 +17,12 @@ from app.db import utcnow
 from app.models import Job, JobStatus
 
 # Modules whose import registers job handlers (each domain's tasks.py).
-HANDLER_MODULES = ("app.jobs.tasks", "app.frames.tasks", "app.review.tasks")
+HANDLER_MODULES = (
+    "app.jobs.tasks",
+    "app.frames.tasks",
+    "app.review.tasks",
+    "app.training.tasks",
+)
 
 
 class JobCancelled(Exception):
@@ -75,6 +80,7 @@ class JobContext:
     session_factory: sessionmaker[Session]
     worker_id: str
     stopping: threading.Event = field(default_factory=threading.Event)
+    queue: Any = field(default=None, repr=False)  # the JobQueue, for jobs that start jobs
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
 

@@ -10,6 +10,7 @@ import os
 import socket
 import threading
 from collections.abc import Callable
+from typing import Any
 
 import sqlalchemy as sa
 import structlog
@@ -51,7 +52,7 @@ def execute_job(
     session_factory: sessionmaker[Session],
     worker_id: str,
     stopping: threading.Event | None = None,
-    enqueue: Callable[[int], None] | None = None,
+    queue: Any = None,
 ) -> None:
     """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
     with session_factory() as session:
@@ -87,7 +88,7 @@ def execute_job(
         )
         return
     context = JobContext(
-        job_id, params, settings, session_factory, worker_id, stopping or threading.Event()
+        job_id, params, settings, session_factory, worker_id, stopping or threading.Event(), queue
     )
     try:
         result = spec.handler(context)
@@ -101,8 +102,8 @@ def execute_job(
             worker_id=None,
             message="interrupted by a worker shutdown; it will run again",
         )
-        if requeued and enqueue is not None:
-            enqueue(job_id)
+        if requeued and queue is not None:
+            queue.enqueue(job_id)
         log.info("job.interrupted", job_id=job_id)
     except JobCancelled:
         _finish(

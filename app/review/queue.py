@@ -14,6 +14,10 @@ from app.models import Frame, Proposal
 from weldpool_core.active import combined_score, diverse_order, main_reason, teacher_components
 
 
+def latest_teacher_proposal(session: Session, frame_id: int) -> Proposal | None:
+    return _latest(session, frame_id, "teacher")
+
+
 def _latest(session: Session, frame_id: int, source: str) -> Proposal | None:
     return session.scalar(
         sa.select(Proposal)
@@ -27,8 +31,9 @@ def rescore_frame(session: Session, frame: Frame, weights: Mapping[str, float]) 
     components: dict[str, Any] = {}
     teacher = _latest(session, frame.id, "teacher")
     if teacher is not None:
-        components |= teacher_components(teacher.scores.get("sam2_iou"),
-                                         teacher.scores.get("prompt_stability"))  # fmt: skip
+        components |= teacher_components(
+            teacher.scores.get("sam2_iou"), teacher.scores.get("prompt_stability")
+        )
     student = _latest(session, frame.id, "student")
     if student is not None:
         components["student_spread"] = student.scores.get("uncertainty")

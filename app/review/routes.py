@@ -31,6 +31,7 @@ from app.review.schemas import (
     TeacherRunIn,
 )
 from app.security import CurrentUser
+from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
 
 router = APIRouter(tags=["review"])
@@ -195,7 +196,13 @@ def get_label(
     responses={409: {"description": "base_revision is stale; the body has `revision`."}},
 )
 def put_label(
-    frame_id: int, body: LabelIn, session: SessionDep, storage: StorageDep, user: CurrentUser
+    frame_id: int,
+    body: LabelIn,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: CurrentUser,
 ) -> LabelOut:
     """Accept, correct or reject; a stale base_revision gets 409 with the current revision."""
     frame = get_frame(session, frame_id)
@@ -210,6 +217,7 @@ def put_label(
         mask_png=mask_png,
         keypoints=body.keypoints,
     )
+    maybe_retrain(session, queue, settings.retrain_every, user)
     return _label_out(storage, label, user)
 
 

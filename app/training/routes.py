@@ -23,7 +23,7 @@ def train(body: TrainIn, session: SessionDep, queue: QueueDep, user: ReviewerUse
         raise InvalidInputError(
             "There are no accepted or corrected labels outside the validation split to train on."
         )
-    job = create_job(session, queue, "train_student", body.model_dump(), user)
+    job = create_job(session, queue, service.TRAIN_KIND, body.model_dump(), user)
     return JobCreated(job_id=job.id)
 
 

@@ -12,11 +12,21 @@ from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.errors import NotFoundError
-from app.models import Frame, Label, LabelStatus, ModelVersion, Split, ValidationKeypoints
+from app.models import (
+    Frame,
+    Job,
+    Label,
+    LabelRevision,
+    LabelStatus,
+    ModelVersion,
+    Split,
+    ValidationKeypoints,
+)
 from app.review.service import frame_rgb, load_mask
 from app.storage import Storage
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
+TRAIN_KIND = "train_student"
 
 
 def list_models(session: Session) -> list[ModelVersion]:
@@ -99,3 +109,40 @@ def unreviewed_frame_ids(session: Session) -> list[int]:
     return list(
         session.scalars(sa.select(Frame.id).where(Frame.id.not_in(reviewed)).order_by(Frame.id))
     )
+
+
+def labels_since_last_training(session: Session) -> int:
+    """Accepted or corrected label changes made since the newest training job was created."""
+    last = session.scalar(sa.select(sa.func.max(Job.created_at)).where(Job.kind == TRAIN_KIND))
+    query = (
+        sa.select(sa.func.count())
+        .select_from(LabelRevision)
+        .where(LabelRevision.status.in_(TRAINABLE))
+    )
+    if last is not None:
+        query = query.where(LabelRevision.created_at > last)
+    return int(session.scalar(query) or 0)
+
+
+def maybe_retrain(session: Session, queue: Any, every: int, user: Any) -> Job | None:
+    """Start a training job after ``every`` new reviewed labels (0: never), unless one is
+    queued or running — the database guarantees there is never a second one."""
+    from app.errors import ConflictError
+    from app.jobs.service import create_job
+
+    if every <= 0 or labels_since_last_training(session) < every:
+        return None
+    if not training_frame_ids(session):
+        return None
+    try:
+        return create_job(session, queue, TRAIN_KIND, {"automatic": True}, user)
+    except ConflictError:
+        return None
+
+
+def better_than(candidate: dict[str, Any], incumbent: dict[str, Any]) -> bool:
+    """Whether validation metrics beat another version's: lower mED when both have one,
+    else higher mIoU."""
+    if candidate.get("mED") is not None and incumbent.get("mED") is not None:
+        return float(candidate["mED"]) < float(incumbent["mED"])
+    return float(candidate.get("mIoU") or 0.0) > float(incumbent.get("mIoU") or 0.0)

@@ -10,9 +10,11 @@ import structlog
 
 from app.jobs.registry import JobContext, job_handler
 from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
-from app.review.service import frame_rgb, store_heatmap, store_mask
+from app.review.queue import latest_teacher_proposal, rescore_frame
+from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
 from app.storage import Storage
 from app.training import service
+from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
 
 log = structlog.get_logger(__name__)
@@ -53,7 +55,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
 
     options = {
         "epochs": ctx.params.get("epochs"),
-        "seed": int(ctx.params.get("seed", 0)),
+        "seed": int(ctx.params.get("seed") or 0),
         "device": settings.device,
     }
     config = TrainConfig(**{k: v for k, v in options.items() if v is not None})
@@ -105,7 +107,38 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             session.rollback()
             shutil.rmtree(final, ignore_errors=True)
             raise
-    return {"model_version_id": version.id, "name": name, "metrics": version.metrics}
+    promoted = _maybe_promote(ctx, version.id)
+    return {
+        "model_version_id": version.id,
+        "name": name,
+        "metrics": version.metrics,
+        "promoted": promoted,
+    }
+
+
+def _maybe_promote(ctx: JobContext, version_id: int) -> bool:
+    """Promote the new version when it beats the promoted one (WELDPOOL_AUTO_PROMOTE), then
+    re-score the review queue with it."""
+    from app.jobs.service import create_job
+
+    if not ctx.settings.auto_promote:
+        return False
+    with ctx.session_factory() as session:
+        version = session.get_one(ModelVersion, version_id)
+        incumbent = service.promoted_model(session)
+        if incumbent is not None and not service.better_than(version.metrics, incumbent.metrics):
+            return False
+        service.promote(session, version)
+        unreviewed = service.unreviewed_frame_ids(session)
+        if unreviewed and ctx.queue is not None:
+            create_job(
+                session,
+                ctx.queue,
+                "student",
+                {"frame_ids": unreviewed, "model_version_id": version_id},
+                None,
+            )
+    return True
 
 
 @job_handler("student", max_attempts=2)
@@ -131,6 +164,16 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
                 prediction = predictor.predict(
                     [frame_rgb(storage, frame)], samples=UNCERTAINTY_SAMPLES
                 )[0]
+                keypoints = [[float(x), float(y)] for x, y in prediction.keypoints]
+                teacher = latest_teacher_proposal(session, frame.id)
+                disagreement = None
+                if teacher is not None:
+                    disagreement = teacher_disagreement(
+                        prediction.mask,
+                        load_mask(storage, teacher.mask_path),
+                        keypoints,
+                        teacher.keypoints,
+                    )
                 session.add(
                     Proposal(
                         frame_id=frame.id,
@@ -140,16 +183,18 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
                         job_id=ctx.job_id,
                         mask_path=store_mask(storage, prediction.mask),
                         heatmap_path=store_heatmap(storage, prediction.heatmap),
-                        keypoints=[[float(x), float(y)] for x, y in prediction.keypoints],
+                        keypoints=keypoints,
                         prompts={},
                         timings={},
                         scores={
                             "uncertainty": prediction.uncertainty,
+                            "disagreement": disagreement,
                             "mask_fraction": float(prediction.mask.mean()),
                         },
                     )
                 )
-                frame.uncertainty = prediction.uncertainty
+                session.flush()
+                rescore_frame(session, frame, ctx.settings.uncertainty_weights)
                 if frame.status == FrameStatus.new:
                     frame.status = FrameStatus.proposed
                 session.commit()
