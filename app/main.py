@@ -17,6 +17,7 @@ from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
 from app.errors import AuthenticationError, WeldpoolError, http_status_of
 from app.frames.routes import router as frames_router
+from app.insights.routes import router as insights_router
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
 from app.queue import EmbeddedWorker, JobQueue
@@ -115,6 +116,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(frames_router, dependencies=protected)
     api.include_router(review_router, dependencies=protected)
     api.include_router(training_router, dependencies=protected)
+    api.include_router(insights_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

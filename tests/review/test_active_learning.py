@@ -1,0 +1,149 @@
+"""The review queue by uncertainty, automatic retraining, and the metrics figures."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.main import create_app
+from app.models import Frame, Job, JobStatus, Proposal, Role
+from app.review.queue import rescore_frame
+from tests.helpers import auth, image_bytes
+from tests.review.test_review import _teacher, _upload_synthetic
+from weldpool_core.io import encode_mask_png
+
+
+def _frames(client: TestClient, token: str, count: int) -> list[int]:
+    files = [
+        ("files", (f"{i}.png", image_bytes(32, 24, seed=200 + i), "image/png"))
+        for i in range(count)
+    ]
+    return [
+        f["id"]
+        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    ]
+
+
+def _propose(
+    session_factory, frame_id: int, sam2_iou: float, stability: float, descriptor: list[float]
+) -> None:
+    with session_factory() as session:
+        frame = session.get_one(Frame, frame_id)
+        session.add(
+            Proposal(
+                frame_id=frame_id,
+                source="teacher",
+                model_id="t",
+                mask_path="artefacts/none.png",
+                scores={"sam2_iou": sam2_iou, "prompt_stability": stability},
+            )
+        )
+        frame.descriptor = descriptor
+        session.flush()
+        rescore_frame(session, frame, {"teacher_iou": 1.0, "instability": 1.0})
+        session.commit()
+
+
+def test_unstable_proposal_ranks_above_stable_and_reason_is_shown(
+    client: TestClient, session_factory, make_user
+) -> None:
+    _, token = make_user("queue", Role.reviewer)
+    stable, unstable, unscored = _frames(client, token, 3)
+    _propose(session_factory, stable, sam2_iou=0.9, stability=0.97, descriptor=[1.0, 0.0])
+    _propose(session_factory, unstable, sam2_iou=0.9, stability=0.35, descriptor=[0.0, 1.0])
+    queue = client.get(
+        "/api/v1/frames", params={"order": "uncertainty"}, headers=auth(token)
+    ).json()["items"]
+    assert [f["id"] for f in queue] == [unstable, stable, unscored]
+    assert queue[0]["uncertainty_reason"] == "instability"
+    detail = client.get(f"/api/v1/frames/{unstable}", headers=auth(token)).json()
+    assert detail["uncertainty_components"]["instability"] == 0.65
+
+
+def test_diversity_breaks_runs_of_near_identical_frames(
+    client: TestClient, session_factory, make_user
+) -> None:
+    _, token = make_user("diverse", Role.reviewer)
+    ids = _frames(client, token, 6)
+    for index, frame_id in enumerate(ids[:5]):  # five look-alikes; the last is the most unsure
+        _propose(session_factory, frame_id, 0.5, 0.5 - 0.01 * index, [1.0, 0.01 * index])
+    _propose(session_factory, ids[5], 0.6, 0.5, [0.0, 1.0])  # different, a bit less uncertain
+    order = [
+        f["id"]
+        for f in client.get(
+            "/api/v1/frames", params={"order": "uncertainty"}, headers=auth(token)
+        ).json()["items"]
+    ]
+    assert order[0] == ids[4] and order[1] == ids[5]  # the most unsure, then the different one
+
+
+def test_retraining_starts_once_per_threshold_and_never_twice(
+    settings, session_factory, make_user
+) -> None:
+    _, token = make_user("trainer", Role.reviewer)
+    every_two = settings.model_copy(update={"retrain_every": 2})
+    with TestClient(create_app(every_two)) as client:  # no worker: jobs stay queued
+        ids = _frames(client, token, 5)
+        mask = np.zeros((24, 32), bool)
+        mask[4:20, 6:26] = True
+        body = {
+            "status": "corrected",
+            "base_revision": 0,
+            "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
+        }
+
+        def trainings() -> list[Job]:
+            with session_factory() as session:
+                return list(session.scalars(sa.select(Job).where(Job.kind == "train_student")))
+
+        client.put(f"/api/v1/frames/{ids[0]}/label", json=body, headers=auth(token))
+        assert trainings() == []
+        client.put(f"/api/v1/frames/{ids[1]}/label", json=body, headers=auth(token))
+        assert len(trainings()) == 1 and trainings()[0].params == {"automatic": True}
+        for frame_id in ids[2:]:  # two more labels while the first job is still queued
+            client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+        assert len(trainings()) == 1  # never a second one at the same time
+        manual = client.post("/api/v1/student/train", json={}, headers=auth(token))
+        assert manual.status_code == 409 and "already queued or running" in manual.json()["detail"]
+        with session_factory() as session:
+            job = session.get_one(Job, trainings()[0].id)
+            job.status = JobStatus.failed
+            session.commit()
+        again = client.put(
+            f"/api/v1/frames/{ids[2]}/label", json=body | {"base_revision": 1}, headers=auth(token)
+        )
+        assert again.status_code == 200
+        assert len(trainings()) == 2  # 3 new labels since the last job: a new one starts
+
+
+def test_metrics_figures(client: TestClient, make_user) -> None:
+    _, token = make_user("metrics", Role.reviewer)
+    ids = _upload_synthetic(client, token, 2)
+    assert _teacher(client, token, ids)["status"] == "succeeded"
+    client.put(
+        f"/api/v1/frames/{ids[0]}/label",
+        json={"status": "accepted", "base_revision": 0},
+        headers=auth(token),
+    )
+    mask = np.zeros((100, 160), bool)
+    mask[10:90, 10:150] = True
+    client.put(
+        f"/api/v1/frames/{ids[1]}/label",
+        headers=auth(token),
+        json={
+            "status": "corrected",
+            "base_revision": 0,
+            "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
+        },
+    )
+    figures = client.get("/api/v1/metrics", headers=auth(token)).json()
+    assert figures["review"]["labels"] == {"accepted": 1, "corrected": 1, "rejected": 0}
+    assert figures["review"]["teacher_acceptance_rate"] == 0.5
+    teacher = figures["teacher"]["overall"]
+    assert teacher["frames"] == 2 and 0 <= teacher["q1"] <= teacher["mIoU"] <= 1.0
+    assert teacher["mIoU"] >= 0.5  # the accepted proposal matches its label exactly (IoU 1)
+    assert figures["student"] == [] and figures["queue"]["scored_frames"] == 2
+    assert figures["review"]["over_time"][0]["accepted"] == 1
