@@ -11,25 +11,19 @@ clients; one file per request is the naive way the ratio compares with.
 from __future__ import annotations
 
 import argparse
-import os
-import socket
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
 import zlib
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from pathlib import Path
 
 import cv2
 import httpx
 import numpy as np
+from common import SHARED_DATA, local_server
 
-REPO = Path(__file__).resolve().parents[1]
-REAL_FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
+REAL_FRAMES = SHARED_DATA / "waam" / "frames"
 
 
 def generated_frames(count: int, seed: int = 0) -> list[tuple[str, bytes]]:
@@ -47,44 +41,6 @@ def generated_frames(count: int, seed: int = 0) -> list[tuple[str, bytes]]:
         _, data = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 3])
         frames.append((f"gen_{seed}_{index:05d}.png", data.tobytes()))
     return frames
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-@contextmanager
-def local_server() -> Iterator[tuple[str, str]]:
-    """A throw-away `weldpool serve` on a temporary home; yields (url, admin token)."""
-    with tempfile.TemporaryDirectory() as home:
-        env = dict(os.environ, WELDPOOL_HOME=home, WELDPOOL_LOG_LEVEL="WARNING")
-        weldpool = [sys.executable, "-m", "app"]
-        port = _free_port()
-        server = subprocess.Popen(
-            [*weldpool, "serve", "--port", str(port)], env=env, cwd=REPO, stderr=subprocess.DEVNULL
-        )
-        url = f"http://127.0.0.1:{port}"
-        try:
-            for _ in range(300):
-                try:
-                    httpx.get(f"{url}/api/v1/health", timeout=1)
-                    break
-                except httpx.HTTPError:
-                    time.sleep(0.1)
-            token = subprocess.run(
-                [*weldpool, "token", "admin"],
-                env=env,
-                cwd=REPO,
-                text=True,
-                capture_output=True,
-                check=True,
-            ).stdout.strip()
-            yield url, token
-        finally:
-            server.terminate()
-            server.wait(timeout=30)
 
 
 def upload_run(

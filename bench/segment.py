@@ -11,9 +11,6 @@ clicks from a client; compares with the decoder alone in-process.
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,12 +19,9 @@ import cv2
 import httpx
 import numpy as np
 import torch
+from common import SHARED_DATA, local_server
 
-REPO = Path(__file__).resolve().parents[1]
-REAL_FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
-sys.path.insert(0, str(REPO / "bench"))
-
-from ingest import _free_port  # noqa: E402
+REAL_FRAMES = SHARED_DATA / "waam" / "frames"
 
 
 def _frame_png() -> bytes:
@@ -52,60 +46,30 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as root:
         torch.manual_seed(0)
         Sam2Model(Sam2Config()).save_pretrained(Path(root) / "sam2")
-        env = dict(
-            os.environ,
-            WELDPOOL_HOME=str(Path(root) / "home"),
-            WELDPOOL_LOG_LEVEL="WARNING",
-            WELDPOOL_SAM2=str(Path(root) / "sam2"),
-            OMP_NUM_THREADS="2",
-        )
-        port = _free_port()
-        weldpool = [sys.executable, "-m", "app"]
-        server = subprocess.Popen(
-            [*weldpool, "serve", "--port", str(port), "--no-worker"],
-            env=env,
-            cwd=REPO,
-            stderr=subprocess.DEVNULL,
-        )
-        url = f"http://127.0.0.1:{port}"
-        try:
-            for _ in range(300):
-                try:
-                    httpx.get(f"{url}/api/v1/health", timeout=1)
-                    break
-                except httpx.HTTPError:
-                    time.sleep(0.1)
-            token = subprocess.run(
-                [*weldpool, "token", "admin"],
-                env=env,
-                cwd=REPO,
-                text=True,
-                capture_output=True,
-                check=True,
-            ).stdout.strip()
-            headers = {"Authorization": f"Bearer {token}"}
-            with httpx.Client(base_url=url, headers=headers, timeout=120) as http:
-                frame_id = http.post(
-                    "/api/v1/frames", files=[("files", ("frame.png", _frame_png(), "image/png"))]
-                ).json()["stored"][0]["id"]
+        env = {"WELDPOOL_SAM2": str(Path(root) / "sam2"), "OMP_NUM_THREADS": "2"}
+        with (
+            local_server(env, worker=False) as (url, token),
+            httpx.Client(
+                base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120
+            ) as http,
+        ):
+            upload = [("files", ("frame.png", _frame_png(), "image/png"))]
+            frame_id = http.post("/api/v1/frames", files=upload).json()["stored"][0]["id"]
+            start = time.perf_counter()
+            first = http.post(
+                f"/api/v1/frames/{frame_id}/segment", json={"points": [{"x": 640, "y": 400}]}
+            ).json()
+            cold = time.perf_counter() - start
+            rng = np.random.default_rng(1)
+            round_trips, server_ms = [], []
+            for _ in range(args.clicks):
+                x, y = float(rng.uniform(100, 1180)), float(rng.uniform(100, 700))
+                body = {"points": [{"x": x, "y": y}, {"x": 640, "y": 400}]}
                 start = time.perf_counter()
-                first = http.post(
-                    f"/api/v1/frames/{frame_id}/segment", json={"points": [{"x": 640, "y": 400}]}
-                ).json()
-                cold = time.perf_counter() - start
-                rng = np.random.default_rng(1)
-                round_trips, server_ms = [], []
-                for _ in range(args.clicks):
-                    x, y = float(rng.uniform(100, 1180)), float(rng.uniform(100, 700))
-                    body = {"points": [{"x": x, "y": y}, {"x": 640, "y": 400}]}
-                    start = time.perf_counter()
-                    answer = http.post(f"/api/v1/frames/{frame_id}/segment", json=body).json()
-                    round_trips.append((time.perf_counter() - start) * 1000)
-                    server_ms.append(answer["elapsed_ms"])
-                    assert answer["embedding"] == "memory"
-        finally:
-            server.terminate()
-            server.wait(timeout=30)
+                answer = http.post(f"/api/v1/frames/{frame_id}/segment", json=body).json()
+                round_trips.append((time.perf_counter() - start) * 1000)
+                server_ms.append(answer["elapsed_ms"])
+                assert answer["embedding"] == "memory"
 
     from weldpool_core.teacher.sam2 import Prompts, Sam2Predictor
 

@@ -1,0 +1,58 @@
+"""What the benchmark scripts share: a throw-away `weldpool serve` on a temporary home."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@contextmanager
+def local_server(
+    env: dict[str, str] | None = None, worker: bool = True
+) -> Iterator[tuple[str, str]]:
+    """`weldpool serve` on a temporary home (SQLite); yields (url, the first admin's token)."""
+    with tempfile.TemporaryDirectory() as home:
+        environment = dict(os.environ, WELDPOOL_HOME=home, WELDPOOL_LOG_LEVEL="WARNING")
+        environment.update(env or {})
+        weldpool = [sys.executable, "-m", "app"]
+        port = free_port()
+        command = [*weldpool, "serve", "--port", str(port)] + ([] if worker else ["--no-worker"])
+        server = subprocess.Popen(command, env=environment, cwd=REPO, stderr=subprocess.DEVNULL)
+        url = f"http://127.0.0.1:{port}"
+        try:
+            for _ in range(600):
+                try:
+                    httpx.get(f"{url}/api/v1/health", timeout=1)
+                    break
+                except httpx.HTTPError:
+                    time.sleep(0.1)
+            token = subprocess.run(
+                [*weldpool, "token", "admin"],
+                env=environment,
+                cwd=REPO,
+                text=True,
+                capture_output=True,
+                check=True,
+            ).stdout.strip()
+            yield url, token
+        finally:
+            server.terminate()
+            server.wait(timeout=60)
