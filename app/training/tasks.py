@@ -59,7 +59,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         "device": settings.device,
     }
     config = TrainConfig(**{k: v for k, v in options.items() if v is not None})
-    student = student_config(str(ctx.params.get("size") or "default"))
+    student = student_config(str(ctx.params.get("size") or "resnet18"))
     with ctx.session_factory() as session:
         training = (
             (image, mask, keypoints)
