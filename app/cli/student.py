@@ -1,0 +1,221 @@
+"""The student from the command line: train on a DATASET folder, predict, export."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+from app.cli.base import fail, friendly_errors, image_files, load_settings, main
+from app.errors import WeldpoolError
+
+MODEL_SIZES = ("resnet18", "resnet34", "light")
+
+
+class _ProgressBar:
+    """A stderr progress bar that appears at the first report (so that input errors found
+    before any work stay one line), and the training callback that moves it."""
+
+    def __init__(self) -> None:
+        self.bar: Any = None
+        self.shown = 0
+
+    def __call__(self, fraction: float, message: str) -> None:
+        if self.bar is None:
+            self.bar = click.progressbar(length=1000, label=message, file=sys.stderr)
+            self.bar.__enter__()
+        target = min(1000, max(self.shown, round(fraction * 1000)))
+        self.bar.label = message
+        self.bar.update(target - self.shown)
+        self.shown = target
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+
+
+def _given(ctx: click.Context, *names: str) -> bool:
+    return any(
+        ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT for name in names
+    )
+
+
+@main.command("train")
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--epochs", default=30, show_default=True, type=click.IntRange(min=1))
+@click.option(
+    "--model",
+    "size",
+    type=click.Choice(MODEL_SIZES),
+    default="resnet18",
+    show_default=True,
+    help="Model size: ResNet18 or ResNet34 encoder, or the light one for a CPU next to the robot.",
+)
+@click.option("--input-size", type=click.IntRange(min=32), help="Square input side (×32).")
+@click.option("--aspect", type=click.Choice(["letterbox", "resize"]), help="Frame → square input.")
+@click.option("--batch-size", default=8, show_default=True, type=click.IntRange(min=1))
+@click.option("--learning-rate", default=3e-3, show_default=True, type=click.FloatRange(min=0))
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--resume", is_flag=True, help="Continue the run in --out after its last epoch.")
+@click.option("--device", help="cpu, cuda, cuda:N, mps or auto (default: WELDPOOL_DEVICE).")
+@click.option(
+    "--encoder-weights",
+    help="ImageNet ResNet weights: a save_pretrained folder or a hub id in the local cache.",
+)
+@click.option("--no-pretrained", is_flag=True, help="Start the encoder from random weights.")
+@click.pass_context
+@friendly_errors
+def train_cmd(
+    ctx: click.Context,
+    dataset: Path,
+    out_dir: Path,
+    epochs: int,
+    size: str,
+    input_size: int | None,
+    aspect: str | None,
+    batch_size: int,
+    learning_rate: float,
+    seed: int,
+    resume: bool,
+    device: str | None,
+    encoder_weights: str | None,
+    no_pretrained: bool,
+) -> None:
+    """Train a student on DATASET (images/, masks/, optional keypoints/) into --out.
+
+    Keypoints come from keypoints/<stem>.json, else from Algorithm 1 on the mask. Writes the
+    best weights, config.json, metrics.json and curve.json; prints the best metrics as JSON.
+    """
+    from weldpool_core.student.model import student_config
+    from weldpool_core.student.train import TrainConfig, train_from_folder
+
+    settings = load_settings()
+    model_options = ("size", "input_size", "aspect", "encoder_weights", "no_pretrained")
+    student = None
+    if not resume or _given(ctx, *model_options):
+        changes: dict[str, Any] = {}
+        if input_size is not None:
+            changes["input_size"] = input_size
+        if aspect is not None:
+            changes["aspect"] = aspect
+        if encoder_weights is not None:
+            changes["encoder_weights"] = encoder_weights
+        if no_pretrained:
+            changes["pretrained"] = False
+        student = student_config(size, **changes)
+    config = TrainConfig(
+        epochs=epochs,
+        batch_size=batch_size,
+        learning_rate=learning_rate,
+        seed=seed,
+        device=device or settings.device,
+    )
+    bar = _ProgressBar()
+    try:
+        result = train_from_folder(dataset, out_dir, student, config, bar, resume=resume)
+    finally:
+        bar.close()
+    summary = {
+        "model_dir": str(result.model_dir),
+        "best_epoch": result.best_epoch,
+        "epochs": len(result.curve),
+        "train_frames": result.train_frames,
+        "validation_frames": result.validation_frames,
+        "pretrained_encoder": result.pretrained_encoder,
+        "metrics": result.metrics,
+    }
+    click.echo(json.dumps(summary, indent=2))
+    click.echo(f"trained a student into {out_dir} (best epoch {result.best_epoch})", err=True)
+
+
+@main.command("predict")
+@click.argument("model_dir", type=click.Path(path_type=Path))
+@click.argument("images", nargs=-1, required=True)
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--samples",
+    default=0,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Latent samples for the uncertainty score in each JSON (0: none).",
+)
+@click.option("--batch-size", default=16, show_default=True, type=click.IntRange(min=1))
+@click.option("--device", help="cpu, cuda, cuda:N, mps or auto (default: WELDPOOL_DEVICE).")
+@friendly_errors
+def predict_cmd(
+    model_dir: Path,
+    images: tuple[str, ...],
+    out_dir: Path,
+    samples: int,
+    batch_size: int,
+    device: str | None,
+) -> None:
+    """Run a trained student on images (files or folders).
+
+    Writes per image <stem>_mask.png (0 / 255), <stem>_heatmap.npy (H×W×2: heatmap, mask
+    probability) and <stem>.json (keypoints in full-resolution pixels, and the uncertainty
+    with --samples).
+    """
+    import numpy as np
+
+    from weldpool_core.io import encode_mask_png, read_image, to_rgb8
+    from weldpool_core.student.predict import StudentPredictor
+
+    settings = load_settings()
+    files = image_files(images)
+    predictor = StudentPredictor.load(model_dir, device or settings.device, batch_size)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bar = _ProgressBar()  # appears after the first batch, so a bad first image stays one line
+    try:
+        for start in range(0, len(files), batch_size):
+            chunk = files[start : start + batch_size]
+            frames = []
+            for path in chunk:
+                try:
+                    frames.append(to_rgb8(read_image(path, max_pixels=settings.max_image_pixels)))
+                except WeldpoolError as exc:
+                    fail(f"{path}: {exc.message}")
+            for path, found in zip(chunk, predictor.predict(frames, samples), strict=True):
+                (out_dir / f"{path.stem}_mask.png").write_bytes(encode_mask_png(found.mask))
+                np.save(out_dir / f"{path.stem}_heatmap.npy", found.heatmap)
+                record = {
+                    "keypoints": found.keypoints.tolist(),
+                    "uncertainty": found.uncertainty,
+                    "samples": samples,
+                    "width": int(found.mask.shape[1]),
+                    "height": int(found.mask.shape[0]),
+                    "image": str(path),
+                    "model": str(model_dir),
+                }
+                (out_dir / f"{path.stem}.json").write_text(json.dumps(record, indent=2) + "\n")
+            bar((start + len(chunk)) / len(files), "predict")
+    finally:
+        bar.close()
+    click.echo(f"wrote student predictions for {len(files)} image(s) to {out_dir}", err=True)
+
+
+@main.command("export-student")
+@click.argument("model_dir", type=click.Path(path_type=Path))
+@click.option(
+    "--format",
+    "formats",
+    multiple=True,
+    type=click.Choice(["onnx", "torchscript"]),
+    help="Repeat for several; default both.",
+)
+@friendly_errors
+def export_cmd(model_dir: Path, formats: tuple[str, ...]) -> None:
+    """Export a trained student as ONNX and/or TorchScript into MODEL_DIR, checked against
+    PyTorch; prints the files and their largest difference as JSON."""
+    from weldpool_core.student.export import FORMATS, export_student
+
+    result = export_student(model_dir, formats or FORMATS)
+    report = {
+        "files": {name: str(path) for name, path in result.files.items()},
+        "max_abs_difference": result.differences,
+    }
+    click.echo(json.dumps(report, indent=2))

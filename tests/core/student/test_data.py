@@ -1,0 +1,162 @@
+"""Frame geometry both ways, training targets, augmentation that keeps keypoints consistent,
+and the DATASET folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.core.student.common import TINY_FRAME, synthetic_frames
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+from weldpool_core.io import encode_mask_png
+from weldpool_core.keypoints import keypoints_from_heatmap
+from weldpool_core.student.data import (
+    Augmentation,
+    FrameGeometry,
+    FrameSet,
+    TrainingFrame,
+    _affine,
+    make_targets,
+    prepare_frame,
+    read_dataset,
+)
+from weldpool_core.synth import synth_frame
+
+
+@pytest.mark.parametrize("aspect", ["letterbox", "resize"])
+@pytest.mark.parametrize(("height", "width"), [(800, 1280), (160, 256), (300, 100), (64, 64)])
+def test_points_map_to_the_input_and_back(aspect: str, height: int, width: int) -> None:
+    geometry = FrameGeometry.fit(height, width, 256, aspect)  # type: ignore[arg-type]
+    points = np.array([[0.0, 0.0], [width - 1.0, height - 1.0], [width / 3, height / 2]])
+    assert np.allclose(geometry.to_frame(geometry.to_input(points)), points)
+    corners = geometry.to_input(np.array([[-0.5, -0.5], [width - 0.5, height - 0.5]]))
+    assert np.allclose(corners[0], [geometry.offset_x - 0.5, geometry.offset_y - 0.5])
+    assert np.allclose(
+        corners[1],
+        [
+            geometry.offset_x + geometry.inner_width - 0.5,
+            geometry.offset_y + geometry.inner_height - 0.5,
+        ],
+    )
+    if aspect == "letterbox":
+        assert geometry.scale_x == pytest.approx(geometry.scale_y, rel=0.02)
+        assert max(geometry.inner_width, geometry.inner_height) == 256
+    else:
+        assert geometry.inner_width == geometry.inner_height == 256
+
+
+@pytest.mark.parametrize("aspect", ["letterbox", "resize"])
+def test_a_spot_in_the_frame_lands_where_the_geometry_says(aspect: str) -> None:
+    frame = np.zeros((800, 1280), np.float32)
+    cv2.circle(frame, (900, 250), 40, 1.0, -1)
+    geometry = FrameGeometry.fit(800, 1280, 256, aspect)  # type: ignore[arg-type]
+    scaled = geometry.image_to_input(frame)
+    moments = cv2.moments(scaled)
+    centre = (moments["m10"] / moments["m00"], moments["m01"] / moments["m00"])
+    assert np.allclose(centre, geometry.to_input(np.array([[900.0, 250.0]]))[0], atol=0.3)
+    back = geometry.map_to_frame(scaled)
+    assert back.shape == (800, 1280)
+    assert abs(float(back.sum()) - float(frame.sum())) / float(frame.sum()) < 0.02
+    if aspect == "letterbox":
+        assert not scaled[: geometry.offset_y].any()  # the pad stays black
+
+
+def test_targets_come_from_algorithm_1_or_from_given_keypoints() -> None:
+    frame = synthetic_frames(1)[0]
+    params = HeatmapParams()
+    derived = prepare_frame(frame, 64, "letterbox", params)
+    truth = heatmap_from_mask(frame.mask, params)
+    assert np.allclose(derived.frame_keypoints, truth.keypoints)
+    assert np.allclose(derived.geometry.to_frame(derived.keypoints), truth.keypoints)
+    assert np.array_equal(derived.truth_mask(), frame.mask)
+    given = np.array([[10.0, 20.0], [50.0, 30.0]])
+    labelled = prepare_frame(TrainingFrame(frame.image, frame.mask, given), 64, "letterbox", params)
+    assert np.allclose(labelled.frame_keypoints, given) and len(labelled.keypoints) == 2
+
+
+def test_an_empty_mask_trains_with_an_empty_heatmap() -> None:
+    image = np.zeros((40, 60, 3), np.uint8)
+    prepared = prepare_frame(
+        TrainingFrame(image, np.zeros((40, 60), bool)), 64, "letterbox", HeatmapParams()
+    )
+    targets = make_targets(prepared, 3.0)
+    assert prepared.keypoints.shape == (0, 2)
+    assert float(targets.heatmap.max()) == 0.0 and float(targets.mask.max()) == 0.0
+
+
+def test_the_heatmap_peaks_at_the_keypoints_on_the_pool() -> None:
+    prepared = prepare_frame(synthetic_frames(1)[0], 96, "letterbox", HeatmapParams())
+    targets = make_targets(prepared, 2.0)
+    heat = targets.heatmap.numpy()
+    assert heat.max() <= 1.0 and heat.min() >= 0.0
+    modes = keypoints_from_heatmap(heat, k=4)
+    distances = np.linalg.norm(modes[:, None] - prepared.keypoints[None], axis=2).min(axis=1)
+    assert distances.max() < 2.0
+    near_pool = cv2.dilate((targets.mask.numpy() > 0).astype(np.uint8), np.ones((3, 3)))
+    assert near_pool[heat > 0.5].all()  # min(1, 2S) lets a peak reach one pixel past the outline
+
+
+def test_augmentation_moves_image_mask_and_keypoints_together() -> None:
+    prepared = prepare_frame(synthetic_frames(1)[0], 96, "letterbox", HeatmapParams())
+    geometric = Augmentation(
+        gain=0, offset=0, glare_probability=0, noise_sigma=0, blur_probability=0
+    )
+    rng = np.random.default_rng(5)
+    targets = make_targets(prepared, 2.0, geometric, rng)
+    matrix = _affine(np.random.default_rng(5), 96, geometric)
+    moved = prepared.keypoints @ matrix[:, :2].T + matrix[:, 2]
+    modes = keypoints_from_heatmap(targets.heatmap.numpy(), k=4)
+    distances = np.linalg.norm(modes[:, None] - moved[None], axis=2).min(axis=1)
+    assert distances.max() < 2.0
+    warped = cv2.warpAffine(prepared.image.astype(np.float32), matrix, (96, 96)) / 255
+    assert np.allclose(targets.image.numpy().transpose(1, 2, 0), warped, atol=1e-5)
+    assert not np.allclose(targets.mask.numpy(), prepared.mask / 255.0)
+
+
+def test_augmentation_depends_only_on_seed_epoch_and_index() -> None:
+    prepared = [prepare_frame(f, 64, "letterbox", HeatmapParams()) for f in synthetic_frames(2)]
+    first = FrameSet(prepared, 3.0, Augmentation(), seed=1, epoch=3)
+    second = FrameSet(prepared, 3.0, Augmentation(), seed=1, epoch=3)
+    assert np.array_equal(first[1].image.numpy(), second[1].image.numpy())
+    second.epoch = 4
+    assert not np.array_equal(first[1].image.numpy(), second[1].image.numpy())
+
+
+def _write_dataset(root: Path, count: int = 3) -> None:
+    (root / "images").mkdir(parents=True)
+    (root / "masks").mkdir()
+    (root / "keypoints").mkdir()
+    for seed in range(count):
+        frame = synth_frame(seed, TINY_FRAME)
+        cv2.imwrite(str(root / "images" / f"f{seed}.png"), frame.image)
+        (root / "masks" / f"f{seed}.png").write_bytes(encode_mask_png(frame.mask))
+    (root / "keypoints" / "f1.json").write_text(json.dumps({"keypoints": [[5, 6], [7, 8]]}))
+    cv2.imwrite(str(root / "images" / "unlabelled.png"), np.zeros((8, 8), np.uint8))
+
+
+def test_a_dataset_folder_reads_frames_masks_and_keypoints(tmp_path: Path) -> None:
+    _write_dataset(tmp_path / "data")
+    frames = list(read_dataset(tmp_path / "data"))
+    assert [f.name for f in frames] == ["f0", "f1", "f2"]
+    assert frames[0].image.shape == (64, 96, 3) and frames[0].image.dtype == np.uint8
+    assert frames[0].keypoints is None
+    assert frames[1].keypoints is not None and frames[1].keypoints.tolist() == [[5, 6], [7, 8]]
+
+
+def test_bad_dataset_folders_are_one_sentence(tmp_path: Path) -> None:
+    with pytest.raises(InvalidInputError, match="not a DATASET folder"):
+        list(read_dataset(tmp_path))
+    _write_dataset(tmp_path / "data")
+    (tmp_path / "data" / "masks" / "f2.png").write_bytes(
+        encode_mask_png(np.ones((10, 10), np.uint8))
+    )
+    with pytest.raises(InvalidInputError, match=r"f2: .*mask is 10×10"):
+        list(read_dataset(tmp_path / "data"))
+    (tmp_path / "data" / "keypoints" / "f1.json").write_text("[1, 2]")
+    with pytest.raises(InvalidInputError, match="not a keypoints file"):
+        list(read_dataset(tmp_path / "data"))

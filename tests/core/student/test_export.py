@@ -1,0 +1,53 @@
+"""ONNX and TorchScript exports agree with PyTorch (mean latent) within 1e-4."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.checkpoint import load_student
+from weldpool_core.student.export import (
+    StudentExport,
+    export_student,
+    load_torchscript,
+    run_onnx,
+)
+from weldpool_core.student.predict import StudentPredictor, frames_to_batch, to_frame
+from weldpool_core.student.train import TrainResult
+from weldpool_core.synth import SynthParams, synth_frame
+
+
+def test_onnx_and_torchscript_match_pytorch(trained: TrainResult) -> None:
+    result = export_student(trained.model_dir)
+    assert set(result.files) == {"onnx", "torchscript"}
+    assert all(d <= 1e-4 for d in result.differences.values())
+    model = load_student(trained.model_dir)
+    frames = [synth_frame(seed, SynthParams(width=96, height=64)).image for seed in range(5)]
+    images, geometries = frames_to_batch(frames, model.config)
+    with torch.inference_mode():
+        mask, heatmap = StudentExport(model.eval())(images)
+    for batch in (images[:1], images):  # the batch size is dynamic
+        onnx_mask, onnx_heatmap = run_onnx(result.files["onnx"], batch.numpy())
+        assert np.abs(onnx_mask - mask[: len(batch)].numpy()).max() <= 1e-4
+        assert np.abs(onnx_heatmap - heatmap[: len(batch)].numpy()).max() <= 1e-4
+    with torch.inference_mode():
+        script_mask, script_heatmap = load_torchscript(result.files["torchscript"])(images)
+    assert torch.allclose(script_mask, mask, atol=1e-4)
+    assert torch.allclose(script_heatmap, heatmap, atol=1e-4)
+    described = json.loads((trained.model_dir / "export.json").read_text())
+    assert described["input"]["shape"] == ["batch", 3, 64, 64]
+    # A controller reproduces the predictor from the ONNX outputs and the geometry.
+    predicted = StudentPredictor.load(trained.model_dir, "cpu").predict(frames)
+    for index, geometry in enumerate(geometries):
+        rebuilt = to_frame(onnx_mask[index], onnx_heatmap[index], geometry, model.config.k)
+        assert np.mean(rebuilt.mask == predicted[index].mask) > 0.999
+        assert np.allclose(rebuilt.heatmap, predicted[index].heatmap, atol=1e-3)
+
+
+def test_unknown_formats_are_refused(trained: TrainResult) -> None:
+    with pytest.raises(InvalidInputError, match="Unknown export format"):
+        export_student(trained.model_dir, ["tflite"])

@@ -1,0 +1,99 @@
+"""The ResNet-VAE: sizes, shapes, the latent, ImageNet weights from a local folder, BN folding."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import torch
+from transformers import ResNetModel
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.model import (
+    STUDENT_SIZES,
+    StudentConfig,
+    _resnet_config,
+    build_student,
+    fuse_batchnorm,
+    kl_divergence,
+    student_config,
+)
+
+
+@pytest.mark.parametrize("size", sorted(STUDENT_SIZES))
+def test_every_size_maps_frames_to_two_maps_at_the_input_size(size: str) -> None:
+    config = student_config(size, input_size=64, pretrained=False)
+    model = build_student(config).model.eval()
+    images = torch.rand(2, 3, 64, 64)
+    output = model(images, sample=False)
+    assert output.mask_logits.shape == output.heatmap_logits.shape == (2, 64, 64)
+    assert output.mean.shape == output.logvar.shape == (2, config.latent_channels, 2, 2)
+
+
+def test_resnet34_is_deeper_and_light_is_narrower_than_the_default() -> None:
+    def parameters(config: StudentConfig) -> int:
+        return sum(p.numel() for p in build_student(config).model.parameters())
+
+    default = parameters(student_config("resnet18", pretrained=False))
+    assert parameters(student_config("resnet34", pretrained=False)) > 1.5 * default
+    assert parameters(student_config("light")) < default / 10
+    assert STUDENT_SIZES["resnet18"].input_size == 256
+
+
+def test_samples_differ_and_the_mean_is_deterministic() -> None:
+    model = build_student(student_config("light", input_size=64)).model.eval()
+    images = torch.rand(1, 3, 64, 64)
+    with torch.no_grad():
+        model.to_latent.bias.fill_(0.5)  # a visible posterior spread
+        first, again = model(images, sample=False), model(images, sample=False)
+        drawn = model(images, sample=True, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(first.mask_logits, again.mask_logits)
+    assert not torch.allclose(first.mask_logits, drawn.mask_logits)
+
+
+def test_kl_is_zero_at_the_prior_and_positive_elsewhere() -> None:
+    zeros = torch.zeros(2, 4, 3, 3)
+    assert float(kl_divergence(zeros, zeros)) == 0.0
+    assert float(kl_divergence(zeros + 1, zeros)) == pytest.approx(0.5)
+
+
+def test_imagenet_weights_load_from_a_local_folder(tmp_path: Path) -> None:
+    config = student_config("resnet18", input_size=64)
+    reference = ResNetModel(_resnet_config(config))
+    reference.save_pretrained(tmp_path / "resnet")
+    built = build_student(StudentConfig(input_size=64, encoder_weights=str(tmp_path / "resnet")))
+    assert built.pretrained and not built.notes
+    stem = built.model.stem.embedder.convolution.weight
+    assert torch.equal(stem, reference.embedder.embedder.convolution.weight)
+    missing = build_student(StudentConfig(input_size=64, encoder_weights=str(tmp_path / "none")))
+    assert not missing.pretrained and "random" in missing.notes[0]
+
+
+def test_folding_batchnorm_keeps_the_outputs() -> None:
+    model = build_student(student_config("light", input_size=64)).model
+    model.train()
+    with torch.no_grad():  # give BatchNorm statistics that are not the identity
+        for _ in range(3):
+            model(torch.rand(4, 3, 64, 64))
+    model.eval()
+    images = torch.rand(2, 3, 64, 64)
+    with torch.no_grad():
+        expected = model(images, sample=False).mask_logits
+        fused = fuse_batchnorm(copy.deepcopy(model))
+        found = fused(images, sample=False).mask_logits  # type: ignore[operator]
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fused.modules())
+    assert torch.allclose(found, expected, atol=1e-4)
+
+
+def test_configurations_round_trip_and_bad_ones_are_refused() -> None:
+    config = student_config("light", aspect="resize")
+    assert StudentConfig.from_dict(config.as_dict()) == config
+    with pytest.raises(InvalidInputError, match="multiple of 32"):
+        StudentConfig(input_size=100)
+    with pytest.raises(InvalidInputError, match="encoder must be one of"):
+        StudentConfig(encoder="resnet50")
+    with pytest.raises(InvalidInputError, match="Unknown model size"):
+        student_config("huge")
+    with pytest.raises(InvalidInputError, match="Unknown student configuration keys"):
+        StudentConfig.from_dict({"layers": 3})

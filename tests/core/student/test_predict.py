@@ -1,0 +1,65 @@
+"""Inference: outputs mapped back to each frame's full resolution, batches, uncertainty."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.predict import StudentPredictor, to_frame
+from weldpool_core.student.train import TrainResult
+from weldpool_core.synth import SynthParams, synth_frame
+
+
+def _spot(size: int, x: float, y: float, sigma: float = 1.5) -> np.ndarray:
+    axis = np.arange(size, dtype=np.float32)
+    return np.exp(-((axis[None, :] - x) ** 2 + (axis[:, None] - y) ** 2) / (2 * sigma**2))
+
+
+@pytest.mark.parametrize("aspect", ["letterbox", "resize"])
+def test_keypoints_and_maps_come_back_in_frame_pixels(aspect: str) -> None:
+    geometry = FrameGeometry.fit(200, 320, 64, aspect)  # type: ignore[arg-type]
+    truth = np.array([[100.0, 50.0], [250.0, 150.0]])
+    at_input = geometry.to_input(truth)
+    heatmap = _spot(64, *at_input[0]) + _spot(64, *at_input[1])
+    mask = np.zeros((64, 64), np.float32)
+    mask[geometry.inner_rows, geometry.inner_columns] = 1.0
+    found = to_frame(mask, heatmap.astype(np.float32), geometry, k=4)
+    assert found.mask.shape == (200, 320) and found.mask.all()
+    assert found.heatmap.shape == (200, 320, 2) and found.heatmap.dtype == np.float32
+    order = np.argsort(found.keypoints[:, 0])
+    assert np.allclose(found.keypoints[order], truth, atol=0.6)
+
+
+def test_frames_of_any_size_and_kind_predict_in_one_batch(trained: TrainResult) -> None:
+    predictor = StudentPredictor.load(trained.model_dir, "cpu", batch_size=2)
+    wide = synth_frame(0, SynthParams(width=160, height=100)).image  # gray uint8
+    tall = np.zeros((90, 70, 3), np.uint8)
+    deep = synth_frame(1, SynthParams(width=96, height=64, bit_depth=16)).image
+    found = predictor.predict([wide, tall, deep])
+    assert [p.mask.shape for p in found] == [(100, 160), (90, 70), (64, 96)]
+    assert [p.heatmap.shape[:2] for p in found] == [(100, 160), (90, 70), (64, 96)]
+    for prediction in found:
+        assert prediction.uncertainty is None and len(prediction.keypoints) <= 4
+        assert np.array_equal(prediction.mask, prediction.heatmap[:, :, 1] >= 0.5)
+        assert prediction.heatmap.min() >= 0 and prediction.heatmap.max() <= 1
+
+
+def test_uncertainty_is_a_reproducible_spread_in_zero_one(trained: TrainResult) -> None:
+    predictor = StudentPredictor.load(trained.model_dir, "cpu")
+    frames = [synth_frame(seed, SynthParams(width=96, height=64)).image for seed in (3, 4)]
+    first = predictor.predict(frames, samples=6)
+    again = predictor.predict(frames, samples=6)
+    scores = [p.uncertainty for p in first]
+    assert scores == [p.uncertainty for p in again]
+    assert all(s is not None and 0 < s <= 1 for s in scores)
+    plain = predictor.predict(frames)
+    assert np.array_equal(plain[0].mask, first[0].mask)  # sampling never changes the answer
+    with pytest.raises(InvalidInputError, match="samples"):
+        predictor.predict(frames, samples=-1)
+
+
+def test_a_folder_without_a_model_is_one_sentence(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(InvalidInputError, match="not a student model folder"):
+        StudentPredictor.load(tmp_path, "cpu")

@@ -1,0 +1,138 @@
+"""The student's MODEL_DIR: what a training run leaves behind, and how it is read back.
+
+Layout (every file written atomically: a temporary file, then a rename):
+
+- ``config.json``: ``{"format": "weldpool-student", "version": 1, "student": StudentConfig,
+  "training": TrainConfig}``, what the predictor needs to rebuild the network.
+- ``model.safetensors``: the weights of the best epoch (by the validation score).
+- ``metrics.json``: the best epoch's validation metrics, the last epoch's, and facts of the run
+  (frames, whether the encoder started from ImageNet weights).
+- ``curve.json``: one record per epoch (losses, β, learning rate, mIoU, mED, seconds).
+- ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
+  from which ``resume`` continues; not needed for inference.
+- after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.model import ResNetVAE, StudentConfig, build_student
+
+FORMAT = "weldpool-student"
+VERSION = 1
+CONFIG_FILE = "config.json"
+WEIGHTS_FILE = "model.safetensors"
+METRICS_FILE = "metrics.json"
+CURVE_FILE = "curve.json"
+STATE_FILE = "training_state.pt"
+
+
+def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """Write ``path`` through a temporary file in its folder, then rename it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    os.close(handle)
+    try:
+        write(Path(temporary))
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Pretty JSON, atomically."""
+
+    def write(temporary: Path) -> None:
+        temporary.write_text(json.dumps(data, indent=2) + "\n")
+
+    write_atomic(path, write)
+
+
+def read_json(path: Path) -> Any:
+    """JSON from a MODEL_DIR file, or an InvalidInputError naming it."""
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InvalidInputError(
+            f"{path.parent} is not a student model folder ({path.name} is missing); train one "
+            "with `weldpool train`."
+        ) from None
+    except (OSError, ValueError) as exc:
+        raise InvalidInputError(f"{path} cannot be read ({exc}).") from None
+
+
+def save_weights(model_dir: Path, model: ResNetVAE) -> None:
+    """The network's weights as ``model.safetensors``."""
+    state = {
+        name: tensor.detach().cpu().contiguous() for name, tensor in model.state_dict().items()
+    }
+    write_atomic(model_dir / WEIGHTS_FILE, lambda p: save_file(state, str(p)))
+
+
+def save_config(model_dir: Path, student: StudentConfig, training: dict[str, Any]) -> None:
+    """``config.json``: the architecture and the training settings."""
+    write_json(
+        model_dir / CONFIG_FILE,
+        {"format": FORMAT, "version": VERSION, "student": student.as_dict(), "training": training},
+    )
+
+
+def read_student_config(model_dir: str | Path) -> StudentConfig:
+    """The architecture stored in a MODEL_DIR."""
+    data = read_json(Path(model_dir) / CONFIG_FILE)
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InvalidInputError(f"{model_dir} does not hold a weldpool student model.")
+    if data.get("version") != VERSION:
+        raise InvalidInputError(
+            f"{model_dir} holds a student model of format version {data.get('version')}; this "
+            f"weldpool reads version {VERSION}."
+        )
+    return StudentConfig.from_dict(data["student"])
+
+
+def load_student(model_dir: str | Path, device: torch.device | None = None) -> ResNetVAE:
+    """The best network of a MODEL_DIR, in eval mode on ``device`` (CPU by default)."""
+    root = Path(model_dir)
+    config = read_student_config(root)
+    model = build_student(config, load_pretrained=False).model
+    weights = root / WEIGHTS_FILE
+    if not weights.is_file():
+        raise InvalidInputError(
+            f"{root} has no {WEIGHTS_FILE}; the training did not finish an epoch."
+        )
+    try:
+        state = load_file(str(weights))
+        model.load_state_dict(state)
+    except (OSError, RuntimeError) as exc:
+        raise InvalidInputError(f"{weights} does not fit its config.json ({exc}).") from None
+    return model.to(device or torch.device("cpu")).eval()
+
+
+def save_state(model_dir: Path, state: dict[str, Any]) -> None:
+    """The resumable training state (``training_state.pt``)."""
+    write_atomic(model_dir / STATE_FILE, lambda p: torch.save(state, p))
+
+
+def load_state(model_dir: Path) -> dict[str, Any] | None:
+    """The resumable training state, or None when the folder has none."""
+    path = model_dir / STATE_FILE
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError) as exc:
+        raise InvalidInputError(f"{path} cannot be read ({exc}); train without --resume.") from None
+    if not isinstance(state, dict):
+        raise InvalidInputError(f"{path} is not a training state; train without --resume.")
+    return state

@@ -1,0 +1,325 @@
+"""The student: a ResNet-VAE that maps a frame to the pool's mask and keypoint heatmap.
+
+ResNet encoder (transformers' ``ResNetModel``, no torchvision) → a spatial latent at stride 32
+(mean and log-variance per cell, ``latent_channels`` deep) → a sample (training) or the mean
+(inference) → a convolutional decoder (four ×2 nearest-neighbour upsamplings, each followed by a
+3×3 conv, BatchNorm and ReLU, to half the input size; a 1×1 head; a final ×2 bilinear
+upsampling) → two channels at the input size: the mask logit and the heatmap logit. The last
+step is bilinear rather than a fifth conv stage because the targets are smooth at that scale
+(antialiased mask edges, Gaussians of σ ≥ 2 px) while a conv stage at full size costs more time
+than any other part of training on a CPU (memory traffic, not arithmetic).
+
+The latent is spatial rather than one vector so that the decoder keeps the pool's position
+without learning it from scratch; there are no skip connections, so everything the decoder draws
+passes through the latent and latent samples really move the outputs.
+
+The encoder takes RGB in [0, 1]; the ImageNet normalisation happens inside the model, so an
+exported model needs nothing but the letterboxed (or resized) frame scaled to [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal, TypeVar, cast
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from transformers import ResNetConfig, ResNetModel
+
+from weldpool_core.errors import InvalidInputError
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+STRIDE = 32
+"""The encoder's output stride: the input size must be a multiple of it."""
+
+Aspect = Literal["letterbox", "resize"]
+ModuleT = TypeVar("ModuleT", bound=nn.Module)
+
+
+@dataclass(frozen=True)
+class EncoderSpec:
+    """A ResNet family member: blocks per stage, and the hub id of its ImageNet weights."""
+
+    depths: tuple[int, int, int, int]
+    hub_id: str
+    widths: tuple[int, int, int, int] = (64, 128, 256, 512)
+
+
+ENCODERS: dict[str, EncoderSpec] = {
+    "resnet18": EncoderSpec((2, 2, 2, 2), "microsoft/resnet-18"),
+    "resnet34": EncoderSpec((3, 4, 6, 3), "microsoft/resnet-34"),
+}
+"""The encoders on offer, by name (a registry, so a new one is one line)."""
+
+
+@dataclass(frozen=True)
+class StudentConfig:
+    """The student's architecture and input geometry (stored in every checkpoint).
+
+    Attributes:
+        encoder: a name in ``ENCODERS`` (``resnet18`` default, ``resnet34``).
+        width: channel multiplier of the encoder and decoder; 1.0 is the standard ResNet, whose
+            ImageNet weights can load; narrower encoders start from random weights.
+        input_size: side of the square model input, a multiple of 32 (default 256).
+        aspect: ``letterbox`` (default: scale the frame to fit, pad the rest with black, so
+            shapes keep their proportions) or ``resize`` (stretch to the square). Either way the
+            outputs are mapped back to full-resolution pixels (see ``student.data.FrameGeometry``).
+        latent_channels: depth of the latent per stride-32 cell.
+        decoder_channels: channels after each of the four decoder upsamplings (before
+            ``width``).
+        k: keypoints read from the predicted heatmap.
+        pretrained: start the encoder from ImageNet weights when they are on this machine
+            (``encoder_weights``: a local ``save_pretrained`` directory or a hub id in the local
+            cache; default the encoder's ``hub_id``); random weights otherwise.
+        encoder_weights: where the ImageNet weights are, overriding the encoder's hub id.
+    """
+
+    encoder: str = "resnet18"
+    width: float = 1.0
+    input_size: int = 256
+    aspect: Aspect = "letterbox"
+    latent_channels: int = 64
+    decoder_channels: tuple[int, int, int, int] = (256, 128, 64, 32)
+    k: int = 4
+    pretrained: bool = True
+    encoder_weights: str | None = None
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.encoder not in ENCODERS:
+            problems.append(f"encoder must be one of {', '.join(ENCODERS)}, not {self.encoder!r}")
+        if self.input_size < STRIDE or self.input_size % STRIDE:
+            problems.append(f"input_size must be a positive multiple of 32, not {self.input_size}")
+        if self.aspect not in ("letterbox", "resize"):
+            problems.append(f"aspect must be letterbox or resize, not {self.aspect!r}")
+        if not 0 < self.width <= 4 or self.latent_channels < 1 or self.k < 1:
+            problems.append("width must lie in (0, 4], latent_channels and k be positive")
+        if len(self.decoder_channels) != 4 or min(self.decoder_channels) < 1:
+            problems.append("decoder_channels must be four positive numbers")
+        if problems:
+            raise InvalidInputError(f"Bad student configuration: {'; '.join(problems)}.")
+
+    @property
+    def spec(self) -> EncoderSpec:
+        """The encoder's registry entry."""
+        return ENCODERS[self.encoder]
+
+    def channels(self, base: int) -> int:
+        """``base`` channels scaled by ``width`` (at least 8)."""
+        return max(8, round(base * self.width))
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (``from_dict`` reads it back)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> StudentConfig:
+        """The configuration saved by ``as_dict``; unknown keys are refused."""
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise InvalidInputError(f"Unknown student configuration keys: {', '.join(unknown)}.")
+        values = dict(data)
+        if "decoder_channels" in values:
+            values["decoder_channels"] = tuple(values["decoder_channels"])
+        return cls(**values)
+
+
+STUDENT_SIZES: dict[str, StudentConfig] = {
+    "resnet18": StudentConfig(),
+    "resnet34": StudentConfig(encoder="resnet34"),
+    "light": StudentConfig(width=0.25, latent_channels=32, pretrained=False),
+}
+"""Named model sizes: the default ResNet18 at 256², ResNet34, and ``light`` for the robot cell's
+CPU: the ResNet18 layout at a quarter of the channels, still at 256² so that keypoints keep the
+default's pixel precision (about 1/14 of the default's FLOPs; random start, as no ImageNet
+weights exist at that width)."""
+
+
+def student_config(size: str, **changes: Any) -> StudentConfig:
+    """The configuration of a named size (``STUDENT_SIZES``), with ``changes`` applied."""
+    if size not in STUDENT_SIZES:
+        raise InvalidInputError(
+            f"Unknown model size {size!r}; use one of {', '.join(STUDENT_SIZES)}."
+        )
+    return replace(STUDENT_SIZES[size], **changes)
+
+
+@dataclass
+class StudentOutput:
+    """What the ResNet-VAE returns for a batch (N×… tensors at the input size).
+
+    Attributes:
+        mask_logits: N×H×W logits of the pool mask.
+        heatmap_logits: N×H×W logits of the keypoint heatmap (``sigmoid`` gives [0, 1]).
+        mean: N×C×h×w latent mean (h = H / 32).
+        logvar: N×C×h×w latent log-variance.
+    """
+
+    mask_logits: torch.Tensor
+    heatmap_logits: torch.Tensor
+    mean: torch.Tensor
+    logvar: torch.Tensor
+
+
+def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(in_channels, out_channels, kernel, padding=kernel // 2, bias=False),
+        nn.BatchNorm2d(out_channels),
+        nn.ReLU(inplace=True),
+    )
+
+
+class Decoder(nn.Module):
+    """Latent (stride 32) → two logit channels at the input size (see the module doc)."""
+
+    def __init__(self, latent_channels: int, channels: tuple[int, ...]) -> None:
+        super().__init__()
+        self.entry = _conv_bn_relu(latent_channels, channels[0], 1)
+        stages = []
+        previous = channels[0]
+        for out_channels in channels:
+            stages.append(_conv_bn_relu(previous, out_channels, 3))
+            previous = out_channels
+        self.stages = nn.ModuleList(stages)
+        self.head = nn.Conv2d(previous, 2, 1)
+
+    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+        """Decode an N×C×h×w latent into N×2×32h×32w logits (mask, heatmap)."""
+        features = self.entry(latent)
+        for stage in self.stages:
+            features = stage(F.interpolate(features, scale_factor=2.0, mode="nearest"))
+        logits = self.head(features)
+        return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
+
+
+def _resnet_config(config: StudentConfig) -> ResNetConfig:
+    spec = config.spec
+    return ResNetConfig(
+        num_channels=3,
+        embedding_size=config.channels(spec.widths[0]),
+        hidden_sizes=[config.channels(w) for w in spec.widths],
+        depths=list(spec.depths),
+        layer_type="basic",
+        hidden_act="relu",
+        downsample_in_first_stage=False,
+    )
+
+
+class ResNetVAE(nn.Module):
+    """The student network (see the module doc); ``forward`` takes RGB in [0, 1], N×3×S×S."""
+
+    pixel_mean: torch.Tensor
+    pixel_std: torch.Tensor
+
+    def __init__(self, config: StudentConfig, encoder: ResNetModel | None = None) -> None:
+        super().__init__()
+        self.config = config
+        resnet = encoder if encoder is not None else ResNetModel(_resnet_config(config))
+        self.stem = resnet.embedder
+        self.stages = resnet.encoder
+        features = config.channels(config.spec.widths[-1])
+        self.to_latent = nn.Conv2d(features, 2 * config.latent_channels, 1)
+        self.decoder = Decoder(
+            config.latent_channels, tuple(config.channels(c) for c in config.decoder_channels)
+        )
+        self.register_buffer("pixel_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
+        self.register_buffer("pixel_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
+        with torch.no_grad():
+            self.to_latent.weight.zero_()  # start at mean 0, log-variance 0: the prior
+            cast(torch.Tensor, self.to_latent.bias).zero_()
+            # the heatmap is mostly 0: start it low (as CenterNet does)
+            cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
+
+    def encode(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent mean and log-variance (N×C×S/32×S/32) of RGB images in [0, 1]."""
+        pixels = (images - self.pixel_mean) / self.pixel_std
+        features = self.stages(self.stem(pixels), return_dict=False)[0]
+        mean, logvar = self.to_latent(features).chunk(2, dim=1)
+        return mean, logvar.clamp(-12.0, 6.0)
+
+    def decode(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mask logits and heatmap logits (N×S×S each) of a latent."""
+        logits = self.decoder(latent)
+        return logits[:, 0], logits[:, 1]
+
+    def forward(
+        self, images: torch.Tensor, sample: bool = True, generator: torch.Generator | None = None
+    ) -> StudentOutput:
+        """Encode, sample the latent (or take its mean when ``sample`` is False), decode."""
+        mean, logvar = self.encode(images)
+        latent = mean
+        if sample:
+            noise = torch.randn(
+                mean.shape, generator=generator, device=mean.device, dtype=mean.dtype
+            )
+            latent = mean + noise * torch.exp(0.5 * logvar)
+        mask_logits, heatmap_logits = self.decode(latent)
+        return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
+
+
+def kl_divergence(mean: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+    """KL(q(z|x) ‖ N(0, I)), averaged over latent elements and the batch."""
+    return 0.5 * torch.mean(mean.pow(2) + logvar.exp() - 1.0 - logvar)
+
+
+def _pretrained_encoder(config: StudentConfig) -> ResNetModel | None:
+    """ImageNet ResNet weights when they are on this machine (never downloads), else None."""
+    if not config.pretrained or not math.isclose(config.width, 1.0):
+        return None
+    from weldpool_core.teacher.weights import weights_status
+
+    ref = config.encoder_weights or config.spec.hub_id
+    status = weights_status(ref, "encoder_weights")
+    if not status.available or status.path is None:
+        return None
+    return ResNetModel.from_pretrained(status.path)
+
+
+@dataclass(frozen=True)
+class BuiltStudent:
+    """A fresh student and whether its encoder starts from ImageNet weights."""
+
+    model: ResNetVAE
+    pretrained: bool
+    notes: list[str] = field(default_factory=list)
+
+
+def build_student(config: StudentConfig, *, load_pretrained: bool = True) -> BuiltStudent:
+    """A new ResNet-VAE; its encoder from ImageNet weights when asked for and present."""
+    encoder = _pretrained_encoder(config) if load_pretrained else None
+    notes = []
+    if load_pretrained and config.pretrained and encoder is None:
+        notes.append("ImageNet encoder weights not found on this machine; random start")
+    return BuiltStudent(ResNetVAE(config, encoder), encoder is not None, notes)
+
+
+def channels_last(model: ModuleT) -> ModuleT:
+    """``model`` with its weights in channels-last memory (faster convolutions on CPUs)."""
+    moved: ModuleT = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    return moved
+
+
+def fuse_batchnorm(model: ModuleT) -> ModuleT:
+    """Fold every eval-mode BatchNorm into the convolution before it (in place; inference only).
+
+    Saves one pass over each feature map; the outputs are unchanged up to rounding.
+    """
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    for module in model.modules():
+        conv, norm = getattr(module, "convolution", None), getattr(module, "normalization", None)
+        if isinstance(conv, nn.Conv2d) and isinstance(norm, nn.BatchNorm2d):
+            module.convolution = fuse_conv_bn_eval(conv, norm)
+            module.normalization = nn.Identity()
+        if isinstance(module, nn.Sequential):
+            children = list(module)
+            for index in range(len(children) - 1):
+                first, second = children[index], children[index + 1]
+                if isinstance(first, nn.Conv2d) and isinstance(second, nn.BatchNorm2d):
+                    module[index] = fuse_conv_bn_eval(first, second)
+                    module[index + 1] = nn.Identity()
+    return model
