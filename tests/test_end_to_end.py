@@ -149,7 +149,7 @@ def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> N
             str(tmp_path / "model"),
             "--epochs",
             "1",
-            "--size",
+            "--model",
             "light",
         ],
         env=env,

@@ -4,6 +4,7 @@ student's proposals and uncertainty scores."""
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from typing import Any
 
 import structlog
@@ -53,12 +54,9 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         raise InvalidInputError("There are no accepted or corrected labels to train on.")
     shutil.rmtree(work, ignore_errors=True)
 
-    options = {
-        "epochs": ctx.params.get("epochs"),
-        "seed": int(ctx.params.get("seed") or 0),
-        "device": settings.device,
-    }
-    config = TrainConfig(**{k: v for k, v in options.items() if v is not None})
+    config = TrainConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
+    if ctx.params.get("epochs"):
+        config = replace(config, epochs=int(ctx.params["epochs"]))
     student = student_config(str(ctx.params.get("size") or "resnet18"))
     with ctx.session_factory() as session:
         training = (
