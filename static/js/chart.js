@@ -53,7 +53,7 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   for (const t of ticks(x0, x1, 5).filter((v) => Number.isInteger(v) || x1 - x0 < 5)) {
     grid.append(svg("text", { x: sx(t), y: height - pad.bottom + 16, "text-anchor": "middle" }, format(t)));
   }
-  grid.append(svg("text", { x: width - pad.right, y: height - 2, "text-anchor": "end", class: "axis-label" }, "epoch"));
+  grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, "epoch"));
   root.append(grid);
   for (const s of series) {
     const points = s.points.filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));

@@ -15,7 +15,7 @@ function describe(job) {
   const parts = [job.message];
   if (job.status === "succeeded" && job.result) {
     const summary = Object.entries(job.result)
-      .filter(([, v]) => ["number", "string"].includes(typeof v) || (Array.isArray(v) && v.length < 4))
+      .filter(([, v]) => typeof v === "number" || (typeof v === "string" && v.length <= 40) || Array.isArray(v))
       .slice(0, 4).map(([k, v]) => `${k}: ${Array.isArray(v) ? v.length : v}`).join(", ");
     if (summary) parts.push(summary);
   }

@@ -79,6 +79,7 @@ class LiveServer:
             WELDPOOL_DINO_INPUT_SIZE=str(teacher["dino_input_size"]),
             WELDPOOL_DEVICE=str(teacher["device"]),
             WELDPOOL_RETRAIN_EVERY="0",
+            WELDPOOL_WORKERS="2",
             WELDPOOL_JOB_HEARTBEAT_S="0.5",
             WELDPOOL_LOG_LEVEL="WARNING",
         )
@@ -126,7 +127,9 @@ class LiveServer:
     def api(self, method: str, path: str, user: str = "rita", **kwargs: Any) -> httpx.Response:
         """Call the REST API as ``user`` with a bearer token."""
         headers = {"Authorization": f"Bearer {self.tokens[user]}"}
-        return httpx.request(method, f"{self.url}/api/v1{path}", headers=headers, timeout=60, **kwargs)
+        return httpx.request(
+            method, f"{self.url}/api/v1{path}", headers=headers, timeout=60, **kwargs
+        )
 
     def wait_for_job(self, job_id: int, timeout: float = 120) -> dict[str, Any]:
         def finished() -> dict[str, Any] | None:

@@ -57,7 +57,9 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     # A weld run to upload into, then two frames (and a file that is refused, with its reason).
     page.fill("#new-sequence input[name=name]", "Browser scenario run")
     page.click("#new-sequence button[type=submit]")
-    page.wait_for_selector("#sequence-list li.active, #upload-target:has-text('Browser scenario run')")
+    page.wait_for_selector(
+        "#sequence-list li.active, #upload-target:has-text('Browser scenario run')"
+    )
     page.set_input_files(
         "[data-testid=upload-input]",
         files=[
@@ -74,7 +76,8 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     page.wait_for_function("document.querySelectorAll('[data-testid=frame-row]').length === 2")
     rows = page.locator("[data-testid=frame-row]")
     frame_ids = [int(rows.nth(i).get_attribute("data-frame-id")) for i in range(2)]
-    assert frame_ids == sorted(frame_ids)  # no uncertainty yet: the queue falls back to upload order
+    # No uncertainty yet: the queue falls back to upload order.
+    assert frame_ids == sorted(frame_ids)
     assert page.input_value("select[name=order]") == "uncertainty"
 
     # The teacher proposes masks for the selection (a real job with the tiny teacher).
@@ -173,6 +176,7 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     page.wait_for_selector("body[data-ready]")
     assert page.inner_text("h1") == "Student models"
     assert page.is_visible("[data-testid=train-button]")
-    assert page.is_visible("[data-testid=models-empty]") or page.locator(
-        "[data-testid=model-card]"
-    ).count()
+    assert (
+        page.is_visible("[data-testid=models-empty]")
+        or page.locator("[data-testid=model-card]").count()
+    )

@@ -131,7 +131,7 @@ function renderVerdictNote() {
   } else if (!proposal) {
     note.textContent = "No proposal: Accept saves what you drew as corrected.";
   } else if (!isProposal()) {
-    note.textContent = "You changed the proposal: Accept saves it as corrected.";
+    note.textContent = "The label shown differs from the proposal: Accept saves it as corrected.";
   } else {
     note.textContent = "Accept keeps the proposal as it is.";
   }
