@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.helpers import image_bytes
 from tests.web.conftest import synthetic_png
 from tests.web.server import LiveServer, login
 from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
@@ -308,3 +309,104 @@ def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> No
     row.locator("[data-testid=cancel-job]").click()
     page.locator(f"[data-job-id='{job['job_id']}'][data-status=cancelled]").wait_for(timeout=20_000)
     assert server.api("GET", f"/jobs/{job['job_id']}").json()["status"] == "cancelled"
+
+
+def test_box_negative_click_and_keypoint_removal(page: Any, server: LiveServer) -> None:
+    frame_id = add_frame(server, 601)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+
+    area = canvas_data(page, "mask-area")
+    page.click("[data-testid=tool-box]")
+    stroke(page, (300, 250), (1000, 700))
+    page.wait_for_function(
+        "([sel, before]) => { const c = document.querySelector(sel);"
+        " return c.dataset.pending === '0' && Number(c.dataset.maskArea) !== before; }",
+        arg=[CANVAS, area],
+        timeout=60_000,
+    )
+
+    # Shift+click with the positive tool is a negative click in the same session.
+    page.click("[data-testid=tool-positive]")
+    page.keyboard.down("Shift")
+    page.mouse.click(*to_page(page, 650, 450))
+    page.keyboard.up("Shift")
+    assert canvas_data(page, "clicks") == 1
+    page.wait_for_function(
+        "(sel) => document.querySelector(sel).dataset.pending === '0'", arg=CANVAS
+    )
+    assert "SAM2 IoU" in page.inner_text("[data-testid=last-click]")
+    page.keyboard.press("Escape")  # end the click session, keep the mask
+    assert canvas_data(page, "clicks") == 0
+
+    # Keypoints: add one with the keypoint tool, remove it with a right-click, and another
+    # with the Delete key.
+    page.keyboard.press("6")
+    count = len(canvas_data(page, "keypoints"))
+    page.mouse.click(*to_page(page, 100, 100))
+    assert len(canvas_data(page, "keypoints")) == count + 1
+    page.mouse.click(*to_page(page, 100, 100), button="right")
+    assert len(canvas_data(page, "keypoints")) == count
+    if count:
+        x, y = canvas_data(page, "keypoints")[0]
+        page.mouse.click(*to_page(page, x, y))
+        page.keyboard.press("Delete")
+        assert len(canvas_data(page, "keypoints")) == count - 1
+
+
+def test_missing_frame_says_so(page: Any, server: LiveServer) -> None:
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/999999")
+    message = page.locator("#stage-message.error")
+    message.wait_for()
+    assert "There is no frame 999999." in message.inner_text()
+    assert page.is_disabled("[data-testid=accept]")
+
+
+def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer) -> None:
+    sequence = server.api("POST", "/sequences", json={"name": "Pagination run"}).json()
+    files = [
+        ("files", (f"small-{i}.png", image_bytes(seed=1000 + i), "image/png")) for i in range(53)
+    ]
+    stored = server.api("POST", "/frames", files=files, data={"sequence_id": sequence["id"]})
+    assert len(stored.json()["stored"]) == 53
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    assert page.inner_text("[data-testid=page-info]") == "1–50 of 53"
+    assert page.locator("[data-testid=frame-row]").count() == 50
+    page.click("#next-page")
+    page.wait_for_function(
+        "document.querySelector('[data-testid=page-info]').textContent === '51–53 of 53'"
+    )
+    assert "offset=50" in page.url
+    page.select_option("select[name=status]", "accepted")
+    page.wait_for_function(
+        "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
+    )
+    page.select_option("select[name=status]", "")
+    page.wait_for_function(
+        "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 53'"
+    )
+
+    # Dropping files on the drop zone uploads them, each with its own progress bar.
+    page.evaluate(
+        """async (pngs) => {
+          const transfer = new DataTransfer();
+          pngs.forEach((b64, i) => transfer.items.add(new File(
+            [Uint8Array.from(atob(b64), (c) => c.charCodeAt(0))], `dropped-${i}.png`,
+            { type: "image/png" })));
+          document.getElementById("dropzone").dispatchEvent(
+            new DragEvent("drop", { dataTransfer: transfer, bubbles: true, cancelable: true }));
+        }""",
+        [base64.b64encode(image_bytes(seed=2000 + i)).decode() for i in range(2)],
+    )
+    for i in range(2):
+        page.wait_for_selector(
+            f"[data-testid=upload-item][data-name='dropped-{i}.png'][data-state=ok]"
+        )
+    page.wait_for_function(
+        "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 55'"
+    )

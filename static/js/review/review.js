@@ -398,7 +398,7 @@ async function saveLabel(kind, baseRevision = revision) {
 
 function showConflict(kind, error) {
   const current = error.body?.revision ?? 0;
-  $("conflict-text").textContent = `${error.message} Reload to see their label (your changes are dropped), or overwrite it with yours.`;
+  $("conflict-text").textContent = `Someone else saved this frame's label while you were working on it (it is now at revision ${current}). Reload to see theirs (your changes are dropped), or overwrite it with yours.`;
   const dialog = $("conflict");
   $("conflict-overwrite").onclick = () => { dialog.close(); saveLabel(kind, current); };
   $("conflict-reload").onclick = () => { dialog.close(); leaving = true; location.reload(); };
@@ -583,7 +583,10 @@ function bindControls() {
     stage.canvas.dataset.view = JSON.stringify({ scale: stage.scale, tx: stage.tx, ty: stage.ty });
   };
   stage.onViewChange();
-  for (const button of document.querySelectorAll("#tools .tool")) button.addEventListener("click", () => setTool(button.dataset.tool));
+  // Tool buttons hand the keyboard back to the canvas (Space pans there, it must not click).
+  for (const button of document.querySelectorAll("#tools .tool")) {
+    button.addEventListener("click", () => { setTool(button.dataset.tool); stage.canvas.focus(); });
+  }
   $("brush-size").addEventListener("input", (event) => setBrushSize(Number(event.target.value)));
   $("undo").addEventListener("click", undo);
   $("redo").addEventListener("click", redo);
