@@ -24,7 +24,7 @@ function filters() {
 }
 
 /** The list's filters as the review page's queue context. */
-export function queueContext() {
+function queueContext() {
   return query(filters());
 }
 

@@ -13,7 +13,7 @@ import { Stage } from "./stage.js";
 
 const FRAME_ID = Number(document.getElementById("review").dataset.frameId);
 const K = 4;
-const HISTORY_LIMIT = 60;
+const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
 const $ = (id) => document.getElementById(id);
 
 /** The list's filters this frame was opened from: the queue that "next" walks. */
@@ -524,7 +524,13 @@ function onKey(event) {
   if (ctrl && key === "y") { event.preventDefault(); redo(); return; }
   if (ctrl && key === "s") { event.preventDefault(); saveLabel("correct"); return; }
   if (ctrl || event.altKey) return;
-  if (key === " ") { spaceHeld = true; stage.canvas.classList.add("panning"); event.preventDefault(); return; }
+  if (key === " ") {
+    if (target instanceof HTMLInputElement || target instanceof HTMLButtonElement) return;
+    spaceHeld = true;
+    stage.canvas.classList.add("panning");
+    event.preventDefault();
+    return;
+  }
   if (TOOL_KEYS[key]) { setTool(TOOL_KEYS[key]); return; }
   const actions = {
     "[": () => setBrushSize(Number($("brush-size").value) - 4),
