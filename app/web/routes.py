@@ -1,4 +1,7 @@
-"""Browser pages: login, logout and the home page (the review UI builds on these)."""
+"""Browser pages: login and logout, the frame list, the review page, jobs and models.
+
+Each page is a template plus one ES module under static/js/ that calls the REST API; these
+routes only check the login and render (no data is loaded here)."""
 
 from __future__ import annotations
 
@@ -107,6 +110,28 @@ def logout(
     return response
 
 
+LoggedIn = Annotated[User, Depends(current_user)]
+
+
 @router.get("/")
-def home(request: Request, _user: Annotated[User, Depends(current_user)]) -> Response:
-    return render(request, "home.html")
+def home(request: Request, _user: LoggedIn) -> Response:
+    """Sequences, frames (the review queue by default) and uploads."""
+    return render(request, "home.html", page="frames")
+
+
+@router.get("/frames/{frame_id}")
+def review(request: Request, frame_id: int, _user: LoggedIn) -> Response:
+    """Review one frame: mask, keypoints, click corrections, verdict; validation keypoints."""
+    return render(request, "review.html", page="review", frame_id=frame_id)
+
+
+@router.get("/jobs")
+def jobs(request: Request, _user: LoggedIn) -> Response:
+    """Background jobs with live progress."""
+    return render(request, "jobs.html", page="jobs")
+
+
+@router.get("/models")
+def models(request: Request, _user: LoggedIn) -> Response:
+    """Student model versions: metrics, training curves, promotion, training."""
+    return render(request, "models.html", page="models")

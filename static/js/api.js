@@ -1,0 +1,95 @@
+// The REST API as the pages use it: same-origin fetches with the session cookie, the CSRF
+// header on state-changing calls, and errors as ApiError carrying the server's one sentence.
+
+const CSRF = document.querySelector('meta[name="csrf-token"]')?.content ?? "";
+export const ROLE = document.querySelector('meta[name="user-role"]')?.content ?? "annotator";
+const RANK = { annotator: 1, reviewer: 2, admin: 3 };
+
+/** Whether the logged-in user is a reviewer or admin. */
+export const isReviewer = () => (RANK[ROLE] ?? 0) >= RANK.reviewer;
+
+export class ApiError extends Error {
+  constructor(status, detail, body) {
+    super(detail);
+    this.status = status;
+    this.body = body;
+  }
+}
+
+function describe(status, body) {
+  if (body && typeof body.detail === "string") return body.detail;
+  if (status === 401) return "Your session has ended; log in again.";
+  return `The server answered ${status}.`;
+}
+
+/**
+ * Call `/api/v1${path}`; `json` is sent as the body. Returns the parsed JSON (or the
+ * Response itself with `raw: true`); throws ApiError for any non-2xx answer.
+ */
+export async function api(path, { method = "GET", json, body, raw = false, signal } = {}) {
+  const headers = { Accept: "application/json" };
+  if (method !== "GET" && method !== "HEAD") headers["X-CSRF-Token"] = CSRF;
+  if (json !== undefined) {
+    headers["Content-Type"] = "application/json";
+    body = JSON.stringify(json);
+  }
+  let response;
+  try {
+    response = await fetch(`/api/v1${path}`, { method, headers, body, signal, credentials: "same-origin" });
+  } catch (error) {
+    if (error.name === "AbortError") throw error;
+    throw new ApiError(0, "The server cannot be reached; check that weldpool is running.", null);
+  }
+  if (raw && response.ok) return response;
+  const text = await response.text();
+  let parsed = null;
+  try { parsed = text ? JSON.parse(text) : null; } catch { parsed = null; }
+  if (!response.ok) throw new ApiError(response.status, describe(response.status, parsed), parsed);
+  return parsed;
+}
+
+/**
+ * A multipart upload through XMLHttpRequest, for its upload progress events.
+ * `onProgress(fraction)` is called while the body is sent. Resolves with
+ * `{status, body}` for any HTTP answer (the caller reads refusals from the body).
+ */
+export function upload(path, formData, onProgress) {
+  return new Promise((resolve, reject) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open("POST", `/api/v1${path}`);
+    xhr.setRequestHeader("X-CSRF-Token", CSRF);
+    xhr.setRequestHeader("Accept", "application/json");
+    xhr.upload.addEventListener("progress", (event) => {
+      if (event.lengthComputable) onProgress(event.loaded / event.total);
+    });
+    xhr.addEventListener("load", () => {
+      let body = null;
+      try { body = JSON.parse(xhr.responseText); } catch { body = null; }
+      resolve({ status: xhr.status, body });
+    });
+    xhr.addEventListener("error", () => reject(new ApiError(0, "The upload was interrupted; check the connection and try again.", null)));
+    xhr.send(formData);
+  });
+}
+
+/** Query string from an object, leaving out empty values. */
+export function query(params) {
+  const search = new URLSearchParams();
+  for (const [key, value] of Object.entries(params)) {
+    if (value !== undefined && value !== null && value !== "") search.set(key, value);
+  }
+  const text = search.toString();
+  return text ? `?${text}` : "";
+}
+
+const FINISHED = new Set(["succeeded", "failed", "cancelled"]);
+
+/** Poll a job until it has finished; `onUpdate(job)` sees each state. Resolves with the job. */
+export async function waitForJob(jobId, onUpdate = () => {}, intervalMs = 500) {
+  for (;;) {
+    const job = await api(`/jobs/${jobId}`);
+    onUpdate(job);
+    if (FINISHED.has(job.status)) return job;
+    await new Promise((resolve) => setTimeout(resolve, intervalMs));
+  }
+}

@@ -1,0 +1,75 @@
+// Inline SVG line charts (no library): one small chart per quantity, epochs on the x axis.
+
+const NS = "http://www.w3.org/2000/svg";
+
+function svg(tag, attrs = {}, text) {
+  const node = document.createElementNS(NS, tag);
+  for (const [key, value] of Object.entries(attrs)) node.setAttribute(key, String(value));
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+
+/** Round, readable tick values covering [low, high]. */
+export function ticks(low, high, count = 4) {
+  if (!(high > low)) return [low];
+  const raw = (high - low) / count;
+  const step = [1, 2, 2.5, 5, 10].map((m) => m * 10 ** Math.floor(Math.log10(raw))).find((s) => s >= raw);
+  const out = [];
+  for (let v = Math.ceil(low / step) * step; v <= high + step * 1e-9; v += step) out.push(Number(v.toPrecision(12)));
+  return out;
+}
+
+function format(value) {
+  const abs = Math.abs(value);
+  if (abs !== 0 && (abs < 0.01 || abs >= 1e4)) return value.toExponential(1);
+  return String(Number(value.toPrecision(3)));
+}
+
+/**
+ * A line chart of `series` ([{name, colour, points: [[x, y], …]}]) as an <svg> element.
+ * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data.
+ */
+export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "" }) {
+  const pad = { left: 44, right: 12, top: 22, bottom: 26 };
+  const all = series.flatMap((s) => s.points).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
+  const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, width, height, class: "chart", role: "img", "aria-label": title });
+  root.append(svg("text", { x: pad.left, y: 14, class: "chart-title" }, title + (unit ? ` (${unit})` : "")));
+  if (!all.length) {
+    root.append(svg("text", { x: width / 2, y: height / 2, class: "chart-empty", "text-anchor": "middle" }, "no data"));
+    return root;
+  }
+  const xs = all.map(([x]) => x);
+  const ys = all.map(([, y]) => y);
+  const [x0, x1] = [Math.min(...xs), Math.max(...xs) === Math.min(...xs) ? Math.min(...xs) + 1 : Math.max(...xs)];
+  let [y0, y1] = domain ?? [Math.min(...ys), Math.max(...ys)];
+  if (y1 - y0 < 1e-12) { y0 -= 0.5 * (Math.abs(y0) || 1); y1 += 0.5 * (Math.abs(y1) || 1); }
+  const sx = (x) => pad.left + ((x - x0) / (x1 - x0)) * (width - pad.left - pad.right);
+  const sy = (y) => height - pad.bottom - ((y - y0) / (y1 - y0)) * (height - pad.top - pad.bottom);
+  const grid = svg("g", { class: "grid" });
+  for (const t of ticks(y0, y1)) {
+    grid.append(svg("line", { x1: pad.left, x2: width - pad.right, y1: sy(t), y2: sy(t) }));
+    grid.append(svg("text", { x: pad.left - 6, y: sy(t) + 4, "text-anchor": "end" }, format(t)));
+  }
+  for (const t of ticks(x0, x1, 5).filter((v) => Number.isInteger(v) || x1 - x0 < 5)) {
+    grid.append(svg("text", { x: sx(t), y: height - pad.bottom + 16, "text-anchor": "middle" }, format(t)));
+  }
+  grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, "epoch"));
+  root.append(grid);
+  for (const s of series) {
+    const points = s.points.filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
+    if (!points.length) continue;
+    const d = points.map(([x, y], i) => `${i ? "L" : "M"}${sx(x).toFixed(1)},${sy(y).toFixed(1)}`).join("");
+    root.append(svg("path", { d, class: "line", stroke: s.colour, "data-series": s.name }));
+    const [lx, ly] = points[points.length - 1];
+    root.append(svg("circle", { cx: sx(lx), cy: sy(ly), r: 3, fill: s.colour }));
+  }
+  if (series.length > 1) {
+    let x = width - pad.right;
+    for (const s of [...series].reverse()) {
+      const label = svg("text", { x, y: 14, "text-anchor": "end", fill: s.colour, class: "legend" }, s.name);
+      root.append(label);
+      x -= s.name.length * 6.5 + 12;
+    }
+  }
+  return root;
+}

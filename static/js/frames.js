@@ -1,0 +1,283 @@
+// The frames page: sequences, the filtered frame list (the review queue by default), uploads
+// of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
+
+import { api, query, upload, waitForJob } from "./api.js";
+import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
+
+const PAGE_SIZE = 50;
+const VIDEO = /\.(mp4|avi)$/i;
+const FILTERS = ["sequence_id", "status", "split", "order"];
+
+const filterForm = document.getElementById("filters");
+const rows = document.getElementById("frame-rows");
+const selected = new Set();
+let sequences = [];
+let offset = Number(new URLSearchParams(location.search).get("offset") ?? 0) || 0;
+let lastPage = { items: [], total: 0 };
+
+// --- filters and the URL ----------------------------------------------------------------------
+
+function filters() {
+  const values = Object.fromEntries(new FormData(filterForm));
+  values.order ||= "uncertainty";
+  return values;
+}
+
+/** The list's filters as the review page's queue context. */
+function queueContext() {
+  return query(filters());
+}
+
+function restoreFilters() {
+  const params = new URLSearchParams(location.search);
+  for (const name of FILTERS) {
+    const field = filterForm.elements[name];
+    if (params.has(name)) field.value = params.get(name);
+  }
+  if (!filterForm.elements.order.value) filterForm.elements.order.value = "uncertainty";
+}
+
+function syncUrl() {
+  history.replaceState(null, "", `/${query({ ...filters(), offset: offset || "" })}`);
+}
+
+// --- sequences --------------------------------------------------------------------------------
+
+async function loadSequences() {
+  sequences = await api("/sequences");
+  const list = document.getElementById("sequence-list");
+  const select = document.getElementById("filter-sequence");
+  const current = new URLSearchParams(location.search).get("sequence_id") ?? select.value;
+  list.replaceChildren();
+  select.replaceChildren(h("option", { value: "" }, "all"));
+  if (!sequences.length) list.append(h("li", { class: "muted" }, "No sequences yet. Add one below, or upload frames without one."));
+  for (const sequence of sequences) {
+    select.append(h("option", { value: String(sequence.id) }, sequence.name));
+    const active = String(sequence.id) === current;
+    list.append(
+      h("li", { class: active ? "active" : "", "data-sequence-id": String(sequence.id) },
+        h("button", { type: "button", class: "link", onclick: () => pickSequence(sequence.id) }, sequence.name),
+        h("span", { class: "muted count" }, `${sequence.frame_count} frames`),
+        h("button", {
+          type: "button", class: "secondary small", title: "Propose masks for every frame of this sequence",
+          disabled: sequence.frame_count === 0, onclick: () => runTeacher({ sequence_id: sequence.id }, sequence.name),
+        }, "Run teacher"),
+      ),
+    );
+  }
+  select.value = current ?? "";
+  updateUploadTarget();
+}
+
+function pickSequence(id) {
+  filterForm.elements.sequence_id.value = String(id);
+  offset = 0;
+  refresh();
+}
+
+function updateUploadTarget() {
+  const id = filterForm.elements.sequence_id.value;
+  const sequence = sequences.find((s) => String(s.id) === id);
+  document.getElementById("upload-target").textContent = sequence ? `sequence “${sequence.name}”` : "no sequence";
+  for (const item of document.querySelectorAll("#sequence-list li")) item.classList.toggle("active", item.dataset.sequenceId === id);
+}
+
+document.getElementById("new-sequence").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const form = event.currentTarget;
+  try {
+    const sequence = await api("/sequences", { method: "POST", json: { name: form.elements.name.value.trim() } });
+    form.reset();
+    toast(`Sequence “${sequence.name}” added.`, "ok");
+    await loadSequences();
+    pickSequence(sequence.id);
+  } catch (error) {
+    toast(error.message, "error");
+  }
+});
+
+// --- the frame list ---------------------------------------------------------------------------
+
+function frameRow(frame) {
+  const href = `/frames/${frame.id}${queueContext()}`;
+  const box = h("input", {
+    type: "checkbox", "aria-label": `select frame ${frame.id}`, checked: selected.has(frame.id),
+    onchange: (event) => { event.target.checked ? selected.add(frame.id) : selected.delete(frame.id); updateSelection(); },
+  });
+  const uncertainty = frame.uncertainty === null ? "—" : frame.uncertainty.toFixed(3);
+  return h("tr", { "data-frame-id": String(frame.id), "data-testid": "frame-row" },
+    h("td", {}, box),
+    h("td", { class: "thumb" }, h("a", { href, tabindex: "-1" },
+      h("img", { src: `/api/v1/frames/${frame.id}/image?variant=thumb`, alt: "", loading: "lazy", width: "96", height: String(Math.round(96 * frame.height / frame.width)) }))),
+    h("td", {}, h("a", { href, class: "frame-link" }, `#${frame.id}`), " ",
+      h("span", { class: "muted name" }, frame.original_name || (frame.frame_index !== null ? `frame ${frame.frame_index}` : ""))),
+    h("td", { class: "muted" }, `${frame.width}×${frame.height}`, frame.bit_depth === 16 ? " · 16-bit" : "", h("br"), formatBytes(frame.size_bytes)),
+    h("td", {}, badge(frame.status)),
+    h("td", {}, frame.split),
+    h("td", { class: "num" }, uncertainty),
+  );
+}
+
+async function loadFrames() {
+  const params = { ...filters(), limit: PAGE_SIZE, offset };
+  try {
+    lastPage = await api(`/frames${query(params)}`);
+  } catch (error) {
+    rows.replaceChildren(h("tr", {}, h("td", { colspan: "7", class: "error" }, error.message)));
+    return;
+  }
+  if (!lastPage.items.length && offset > 0) {
+    offset = Math.max(0, offset - PAGE_SIZE);
+    return loadFrames();
+  }
+  rows.replaceChildren(...(lastPage.items.length
+    ? lastPage.items.map(frameRow)
+    : [h("tr", {}, h("td", { colspan: "7", class: "empty" }, "No frames match. Drop frames above to start."))]));
+  const last = Math.min(offset + PAGE_SIZE, lastPage.total);
+  document.getElementById("page-info").textContent = lastPage.total ? `${offset + 1}–${last} of ${lastPage.total}` : "0 frames";
+  document.getElementById("prev-page").disabled = offset === 0;
+  document.getElementById("next-page").disabled = last >= lastPage.total;
+  document.getElementById("select-all").checked = lastPage.items.length > 0 && lastPage.items.every((f) => selected.has(f.id));
+  document.getElementById("review-queue").disabled = lastPage.total === 0;
+}
+
+function updateSelection() {
+  document.getElementById("selection-count").textContent = `${selected.size} selected`;
+  document.getElementById("teacher-selection").disabled = selected.size === 0;
+}
+
+async function refresh() {
+  syncUrl();
+  updateUploadTarget();
+  await loadFrames();
+}
+
+filterForm.addEventListener("change", () => { offset = 0; refresh(); });
+document.getElementById("prev-page").addEventListener("click", () => { offset = Math.max(0, offset - PAGE_SIZE); refresh(); });
+document.getElementById("next-page").addEventListener("click", () => { offset += PAGE_SIZE; refresh(); });
+document.getElementById("select-all").addEventListener("change", (event) => {
+  for (const frame of lastPage.items) event.target.checked ? selected.add(frame.id) : selected.delete(frame.id);
+  updateSelection();
+  loadFrames();
+});
+document.getElementById("review-queue").addEventListener("click", () => {
+  const first = lastPage.items[0];
+  if (first) location.href = `/frames/${first.id}${queueContext()}`;
+});
+document.getElementById("teacher-selection").addEventListener("click", () => {
+  runTeacher({ frame_ids: [...selected] }, `${selected.size} frames`);
+});
+
+// --- teacher runs -----------------------------------------------------------------------------
+
+async function runTeacher(body, what) {
+  let created;
+  try {
+    created = await api("/teacher/runs", { method: "POST", json: body });
+  } catch (error) {
+    toast(error.message, "error");
+    return;
+  }
+  toast(`Teacher job #${created.job_id} started for ${what}; follow it on the Jobs page.`, "info");
+  const job = await waitForJob(created.job_id, () => {}, 1000).catch((error) => ({ status: "failed", error: error.message }));
+  if (job.status === "succeeded") {
+    const result = job.result ?? {};
+    toast(`Teacher job #${created.job_id} done: ${result.proposed ?? 0} proposed, ${result.skipped ?? 0} skipped.`, "ok");
+    selected.clear();
+    updateSelection();
+  } else {
+    toast(`Teacher job #${created.job_id} ${job.status}: ${job.error ?? ""}`, "error");
+  }
+  loadFrames();
+}
+
+// --- uploads ----------------------------------------------------------------------------------
+
+const uploadList = document.getElementById("upload-list");
+
+function uploadItem(file) {
+  const bar = progressBar(0, file.name);
+  const result = h("span", { class: "result muted" }, "waiting");
+  const item = h("li", { "data-testid": "upload-item", "data-name": file.name },
+    h("span", { class: "name" }, file.name), h("span", { class: "muted size" }, formatBytes(file.size)), bar, result);
+  uploadList.prepend(item);
+  return {
+    progress: (fraction) => { setProgress(bar, fraction); result.textContent = `${Math.round(fraction * 100)} %`; },
+    done: (text, kind) => {
+      setProgress(bar, 1);
+      item.classList.add(kind);
+      item.dataset.state = kind;
+      result.className = `result ${kind}`;
+      result.textContent = text;
+    },
+  };
+}
+
+function targetSequence() {
+  return filterForm.elements.sequence_id.value;
+}
+
+async function uploadFrame(file, item) {
+  const form = new FormData();
+  form.append("files", file, file.name);
+  const sequence = targetSequence();
+  if (sequence) form.append("sequence_id", sequence);
+  const { status, body } = await upload("/frames", form, item.progress);
+  if (body?.stored?.length) return item.done(`stored as frame #${body.stored[0].id}`, "ok");
+  if (body?.duplicates?.length) return item.done(`already stored as frame #${body.duplicates[0].frame_id}`, "duplicate");
+  if (body?.rejected?.length) return item.done(`refused: ${body.rejected[0].reason}`, "refused");
+  item.done(`refused: ${body?.detail ?? `the server answered ${status}`}`, "refused");
+}
+
+async function uploadVideo(file, item) {
+  const form = new FormData();
+  form.append("file", file, file.name);
+  form.append("every_nth", String(Math.max(1, Number(document.getElementById("every-nth").value) || 1)));
+  const sequence = targetSequence();
+  if (sequence) form.append("sequence_id", sequence);
+  const { status, body } = await upload("/videos", form, item.progress);
+  if (status !== 202) return item.done(`refused: ${body?.detail ?? `the server answered ${status}`}`, "refused");
+  item.progress(0);
+  const job = await waitForJob(body.job_id, (state) => item.progress(state.progress), 1000);
+  if (job.status === "succeeded") {
+    const count = job.result?.stored ?? job.result?.frames ?? "";
+    item.done(`extracted ${count} frames (job #${job.id})`.replace("  ", " "), "ok");
+  } else {
+    item.done(`video job #${job.id} ${job.status}: ${job.error ?? ""}`, "refused");
+  }
+}
+
+async function uploadAll(files) {
+  const queue = [...files].map((file) => ({ file, item: uploadItem(file) }));
+  const worker = async () => {
+    for (let next = queue.shift(); next; next = queue.shift()) {
+      try {
+        await (VIDEO.test(next.file.name) ? uploadVideo : uploadFrame)(next.file, next.item);
+      } catch (error) {
+        next.item.done(`failed: ${error.message}`, "refused");
+      }
+    }
+  };
+  await Promise.all([worker(), worker(), worker()]);
+  await Promise.all([loadSequences(), loadFrames()]);
+}
+
+const dropzone = document.getElementById("dropzone");
+const input = document.getElementById("upload-input");
+input.addEventListener("change", () => { if (input.files.length) uploadAll(input.files).finally(() => { input.value = ""; }); });
+for (const name of ["dragenter", "dragover"]) {
+  dropzone.addEventListener(name, (event) => { event.preventDefault(); dropzone.classList.add("over"); });
+}
+for (const name of ["dragleave", "drop"]) dropzone.addEventListener(name, () => dropzone.classList.remove("over"));
+dropzone.addEventListener("drop", (event) => {
+  event.preventDefault();
+  if (event.dataTransfer?.files?.length) uploadAll(event.dataTransfer.files);
+});
+
+// --- start ------------------------------------------------------------------------------------
+
+restoreFilters();
+await loadSequences().catch((error) => toast(error.message, "error"));
+restoreFilters();
+await refresh();
+document.body.dataset.ready = "1";

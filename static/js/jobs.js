@@ -1,0 +1,77 @@
+// The jobs page: recent background jobs with live progress (polled: every second while any job
+// is queued or running, every five seconds otherwise), their errors, and cancellation.
+
+import { api, query } from "./api.js";
+import { badge, formatDate, h, progressBar, toast } from "./ui.js";
+
+const ACTIVE = new Set(["queued", "running"]);
+const form = document.getElementById("job-filters");
+const rows = document.getElementById("job-rows");
+const highlight = Number(new URLSearchParams(location.search).get("job") ?? 0);
+let timer = null;
+
+function describe(job) {
+  if (job.error) return h("span", { class: "error" }, job.error);
+  const parts = [job.message];
+  if (job.status === "succeeded" && job.result) {
+    const summary = Object.entries(job.result)
+      .filter(([, v]) => typeof v === "number" || (typeof v === "string" && v.length <= 40) || Array.isArray(v))
+      .slice(0, 4).map(([k, v]) => `${k}: ${Array.isArray(v) ? v.length : v}`).join(", ");
+    if (summary) parts.push(summary);
+  }
+  if (job.cancel_requested && ACTIVE.has(job.status)) parts.push("cancelling…");
+  return parts.filter(Boolean).join(" — ");
+}
+
+async function cancel(job) {
+  try {
+    await api(`/jobs/${job.id}/cancel`, { method: "POST" });
+    toast(`Job #${job.id}: cancel requested.`, "info");
+  } catch (error) {
+    toast(error.message, "error");
+  }
+  load();
+}
+
+function jobRow(job) {
+  return h("tr", { "data-job-id": String(job.id), "data-status": job.status, "data-testid": "job-row", class: job.id === highlight ? "highlight" : "" },
+    h("td", { class: "num" }, String(job.id)),
+    h("td", {}, job.kind),
+    h("td", {}, badge(job.status), job.attempts > 1 ? h("span", { class: "muted" }, ` try ${job.attempts}`) : ""),
+    h("td", { class: "progress-col" }, progressBar(job.progress), h("span", { class: "muted small-text" }, `${Math.round(job.progress * 100)} %`)),
+    h("td", { class: "message" }, describe(job)),
+    h("td", { class: "muted" }, formatDate(job.created_at)),
+    h("td", { class: "muted" }, formatDate(job.finished_at)),
+    h("td", {}, ACTIVE.has(job.status) && !job.cancel_requested
+      ? h("button", { type: "button", class: "secondary small", "data-testid": "cancel-job", onclick: () => cancel(job) }, "Cancel")
+      : ""),
+  );
+}
+
+async function load() {
+  clearTimeout(timer);
+  let page;
+  try {
+    page = await api(`/jobs${query({ ...Object.fromEntries(new FormData(form)), limit: 100 })}`);
+  } catch (error) {
+    document.getElementById("poll-state").textContent = error.message;
+    timer = setTimeout(load, 5000);
+    return;
+  }
+  const kinds = form.elements.kind;
+  for (const kind of new Set(page.items.map((j) => j.kind))) {
+    if (![...kinds.options].some((o) => o.value === kind)) kinds.append(h("option", {}, kind));
+  }
+  rows.replaceChildren(...(page.items.length
+    ? page.items.map(jobRow)
+    : [h("tr", {}, h("td", { colspan: "8", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here."))]));
+  const active = page.items.some((j) => ACTIVE.has(j.status));
+  document.getElementById("poll-state").textContent =
+    `${page.total} jobs · updated ${new Date().toLocaleTimeString()} · ${active ? "live" : "idle"}`;
+  document.body.dataset.ready = "1";
+  timer = setTimeout(load, active ? 1000 : 5000);
+}
+
+form.addEventListener("change", load);
+document.addEventListener("visibilitychange", () => { if (!document.hidden) load(); });
+load();

@@ -1,0 +1,119 @@
+// The models page: every student version with its metrics and training curves, the promote
+// button, and (for reviewers) starting a training job.
+
+import { api, ApiError, isReviewer, waitForJob } from "./api.js";
+import { lineChart } from "./chart.js";
+import { badge, formatDate, h, toast } from "./ui.js";
+
+const list = document.getElementById("models");
+const PALETTE = ["#d9480f", "#1971c2", "#2f9e44", "#9c36b5", "#e8590c"];
+
+function formatMetric(name, value) {
+  if (typeof value !== "number") return String(value);
+  if (/iou|acc|f1|dice/i.test(name)) return value.toFixed(3);
+  if (/ed\b|med|px/i.test(name)) return `${value.toFixed(1)} px`;
+  return Number(value.toPrecision(4)).toString();
+}
+
+/** The curve's quantities grouped into small charts: losses, mIoU, mED, then anything else. */
+export function curveCharts(curve) {
+  const keys = [...new Set(curve.flatMap((row) => Object.keys(row)))].filter((k) => k !== "epoch");
+  const groups = [
+    { title: "Loss", keys: keys.filter((k) => /loss/i.test(k)) },
+    { title: "Validation mIoU", keys: keys.filter((k) => /miou/i.test(k)), domain: [0, 1] },
+    { title: "Validation mED", keys: keys.filter((k) => /med/i.test(k)), unit: "px" },
+  ];
+  const used = new Set(groups.flatMap((g) => g.keys));
+  for (const key of keys.filter((k) => !used.has(k))) groups.push({ title: key, keys: [key] });
+  return groups.filter((g) => g.keys.length).map((g) => lineChart({
+    title: g.title,
+    unit: g.unit,
+    domain: g.domain,
+    series: g.keys.map((key, i) => ({
+      name: key,
+      colour: PALETTE[i % PALETTE.length],
+      points: curve.filter((row) => typeof row[key] === "number").map((row) => [row.epoch, row[key]]),
+    })),
+  }));
+}
+
+async function promote(model) {
+  try {
+    await api(`/models/${model.id}/promote`, { method: "POST" });
+    toast(`${model.name} now makes the proposals.`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  }
+  load();
+}
+
+export function modelCard(model) {
+  const metrics = Object.entries(model.metrics ?? {});
+  const charts = curveCharts(model.curve ?? []);
+  return h("article", { class: `model-card${model.is_promoted ? " promoted" : ""}`, "data-testid": "model-card", "data-model-id": String(model.id) },
+    h("header", {},
+      h("h2", {}, model.name ?? `version ${model.id}`),
+      model.is_promoted ? badge("promoted") : "",
+      h("span", { class: "spacer" }),
+      isReviewer() && !model.is_promoted
+        ? h("button", { type: "button", class: "secondary", "data-testid": "promote", onclick: () => promote(model) }, "Promote")
+        : ""),
+    h("p", { class: "muted" },
+      `trained on ${model.train_label_count ?? "?"} labels · ${formatDate(model.created_at)}`,
+      model.job_id ? [" · ", h("a", { href: `/jobs?job=${model.job_id}` }, `job #${model.job_id}`)] : ""),
+    h("div", { class: "model-body" },
+      h("table", { class: "metrics" },
+        h("tbody", {}, metrics.length
+          ? metrics.map(([name, value]) => h("tr", {}, h("th", {}, name), h("td", { class: "num" }, formatMetric(name, value))))
+          : h("tr", {}, h("td", { class: "muted" }, "no metrics recorded")))),
+      h("div", { class: "charts" }, charts.length ? charts : h("p", { class: "muted" }, "no training curve recorded"))),
+  );
+}
+
+function emptyState(note) {
+  return h("div", { class: "empty-state", "data-testid": "models-empty" },
+    h("h2", {}, "No models yet"),
+    h("p", {}, "A student version appears here after its training job has run on the reviewed labels (accepted and corrected frames of the train split)."),
+    h("p", { class: "muted" }, isReviewer() ? "Start one with “Train a new version”." : "A reviewer can start training."),
+    note ? h("p", { class: "muted small-text" }, note) : "");
+}
+
+async function load() {
+  let models;
+  try {
+    models = await api("/models");
+  } catch (error) {
+    const missing = error instanceof ApiError && error.status === 404;
+    list.replaceChildren(emptyState(missing ? "This server has no model registry yet." : error.message));
+    document.body.dataset.ready = "1";
+    return;
+  }
+  const items = Array.isArray(models) ? models : models?.items ?? [];
+  list.replaceChildren(...(items.length ? items.map(modelCard) : [emptyState("")]));
+  document.body.dataset.ready = "1";
+}
+
+const trainForm = document.getElementById("train-form");
+trainForm?.addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const epochs = Number(trainForm.elements.epochs.value);
+  const button = trainForm.querySelector("button");
+  const stateLine = document.getElementById("train-state");
+  button.disabled = true;
+  try {
+    const { job_id: jobId } = await api("/student/train", { method: "POST", json: epochs > 0 ? { epochs } : {} });
+    stateLine.replaceChildren("Training job ", h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), " started.");
+    const job = await waitForJob(jobId, (j) => {
+      stateLine.replaceChildren(`Training job `, h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);
+    }, 1500);
+    toast(`Training job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+    load();
+  } catch (error) {
+    const missing = error instanceof ApiError && error.status === 404;
+    toast(missing ? "This server cannot train students yet (no /api/v1/student/train)." : error.message, "error");
+  } finally {
+    button.disabled = false;
+  }
+});
+
+load();

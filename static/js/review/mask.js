@@ -1,0 +1,141 @@
+// A binary mask in frame pixels (one byte per pixel, 0 or 1): PNG codec, brush stamps, and the
+// translucent overlay the stage draws over the frame.
+
+export class Mask {
+  constructor(width, height, data = new Uint8Array(width * height)) {
+    this.width = width;
+    this.height = height;
+    this.data = data;
+  }
+
+  clone() {
+    return new Mask(this.width, this.height, this.data.slice());
+  }
+
+  any() {
+    return this.data.some((v) => v !== 0);
+  }
+
+  area() {
+    let n = 0;
+    for (const v of this.data) n += v;
+    return n;
+  }
+
+  equals(other) {
+    if (!other || other.width !== this.width || other.height !== this.height) return false;
+    if (other === this) return true;
+    const a = this.data;
+    const b = other.data;
+    for (let i = 0; i < a.length; i++) if (a[i] !== b[i]) return false;
+    return true;
+  }
+
+  /** A mask from a base64 PNG (0 / 255; any channel count); resized by nearest neighbour if needed. */
+  static async fromPng(base64, width, height) {
+    const bytes = Uint8Array.from(atob(base64), (c) => c.charCodeAt(0));
+    const bitmap = await createImageBitmap(new Blob([bytes], { type: "image/png" }), {
+      premultiplyAlpha: "none", colorSpaceConversion: "none",
+    });
+    const canvas = new OffscreenCanvas(width, height);
+    const ctx = canvas.getContext("2d", { willReadFrequently: true });
+    ctx.imageSmoothingEnabled = false;
+    ctx.drawImage(bitmap, 0, 0, width, height);
+    bitmap.close();
+    const rgba = ctx.getImageData(0, 0, width, height).data;
+    const data = new Uint8Array(width * height);
+    for (let i = 0, j = 0; i < data.length; i++, j += 4) data[i] = rgba[j] >= 128 ? 1 : 0;
+    return new Mask(width, height, data);
+  }
+
+  /** The mask as a base64 PNG with values 0 / 255. */
+  async toPng() {
+    const canvas = new OffscreenCanvas(this.width, this.height);
+    const ctx = canvas.getContext("2d");
+    const image = ctx.createImageData(this.width, this.height);
+    const rgba = image.data;
+    for (let i = 0, j = 0; i < this.data.length; i++, j += 4) {
+      const v = this.data[i] ? 255 : 0;
+      rgba[j] = v; rgba[j + 1] = v; rgba[j + 2] = v; rgba[j + 3] = 255;
+    }
+    ctx.putImageData(image, 0, 0);
+    const blob = await canvas.convertToBlob({ type: "image/png" });
+    const bytes = new Uint8Array(await blob.arrayBuffer());
+    let text = "";
+    for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+    return btoa(text);
+  }
+
+  /** Paint a disc of `radius` at (cx, cy) with `value`; returns the touched rectangle. */
+  stamp(cx, cy, radius, value) {
+    const x0 = Math.max(0, Math.floor(cx - radius));
+    const x1 = Math.min(this.width - 1, Math.ceil(cx + radius));
+    const y0 = Math.max(0, Math.floor(cy - radius));
+    const y1 = Math.min(this.height - 1, Math.ceil(cy + radius));
+    const r2 = radius * radius;
+    for (let y = y0; y <= y1; y++) {
+      const dy = y - cy;
+      const row = y * this.width;
+      for (let x = x0; x <= x1; x++) {
+        const dx = x - cx;
+        if (dx * dx + dy * dy <= r2) this.data[row + x] = value;
+      }
+    }
+    return { x0, y0, x1, y1 };
+  }
+
+  /** A brush stroke segment from (ax, ay) to (bx, by); returns the touched rectangle. */
+  line(ax, ay, bx, by, radius, value) {
+    const steps = Math.max(1, Math.ceil(Math.hypot(bx - ax, by - ay) / Math.max(0.5, radius / 3)));
+    let rect = null;
+    for (let s = 0; s <= steps; s++) {
+      const t = s / steps;
+      rect = union(rect, this.stamp(ax + (bx - ax) * t, ay + (by - ay) * t, radius, value));
+    }
+    return rect;
+  }
+}
+
+export function union(a, b) {
+  if (!a) return b;
+  if (!b) return a;
+  return { x0: Math.min(a.x0, b.x0), y0: Math.min(a.y0, b.y0), x1: Math.max(a.x1, b.x1), y1: Math.max(a.y1, b.y1) };
+}
+
+const FILL = [0, 184, 255, 96];
+const EDGE = [0, 230, 255, 255];
+
+/** The mask drawn as a translucent fill with an opaque outline, on a canvas of the frame's size. */
+export class MaskOverlay {
+  constructor(width, height) {
+    this.canvas = new OffscreenCanvas(width, height);
+    this.ctx = this.canvas.getContext("2d");
+    this.image = this.ctx.createImageData(width, height);
+    this.mask = null;
+  }
+
+  /** Redraw everything (a new mask) or only `rect` (a brush stroke on the same mask). */
+  paint(mask, rect = null) {
+    const { width, height } = mask;
+    const full = rect === null || mask !== this.mask;
+    this.mask = mask;
+    const x0 = full ? 0 : Math.max(0, rect.x0 - 1);
+    const y0 = full ? 0 : Math.max(0, rect.y0 - 1);
+    const x1 = full ? width - 1 : Math.min(width - 1, rect.x1 + 1);
+    const y1 = full ? height - 1 : Math.min(height - 1, rect.y1 + 1);
+    const m = mask.data;
+    const out = this.image.data;
+    for (let y = y0; y <= y1; y++) {
+      for (let x = x0; x <= x1; x++) {
+        const i = y * width + x;
+        const j = i * 4;
+        if (!m[i]) { out[j + 3] = 0; continue; }
+        const edge = x === 0 || y === 0 || x === width - 1 || y === height - 1
+          || !m[i - 1] || !m[i + 1] || !m[i - width] || !m[i + width];
+        const c = edge ? EDGE : FILL;
+        out[j] = c[0]; out[j + 1] = c[1]; out[j + 2] = c[2]; out[j + 3] = c[3];
+      }
+    }
+    this.ctx.putImageData(this.image, 0, 0, x0, y0, x1 - x0 + 1, y1 - y0 + 1);
+  }
+}

@@ -1,0 +1,701 @@
+// The review page: one frame with its proposal or label, click corrections through the segment
+// endpoint, brush and eraser, keypoint editing, undo / redo, the verdict with revision checks,
+// the queue's next frame, and the validation mode for keypoints placed by hand.
+//
+// Every edit makes a new immutable `state` ({mask, keypoints, manual, session, maskEdited,
+// kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
+// are not the ones last loaded or saved.
+
+import { api, ApiError, isReviewer, ROLE, waitForJob } from "../api.js";
+import { badge, formatDate, h, toast } from "../ui.js";
+import { Mask, MaskOverlay } from "./mask.js";
+import { Stage } from "./stage.js";
+
+const FRAME_ID = Number(document.getElementById("review").dataset.frameId);
+const K = 4;
+const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
+const $ = (id) => document.getElementById(id);
+
+/** The list's filters this frame was opened from: the queue that "next" walks. */
+const CONTEXT = new URLSearchParams(location.search);
+if (!CONTEXT.has("order")) CONTEXT.set("order", "uncertainty");
+
+let frame = null;
+let proposal = null; // {mask, keypoints, scores, source, model_id}
+let revision = 0;
+let labelStatus = null;
+let stage = null;
+let overlay = null;
+let state = null;
+let labelClean = null;
+let manualClean = null;
+const past = [];
+const future = [];
+let tool = "positive";
+let toolBeforeValidation = "positive";
+let maskBeforeValidation = true;
+let validation = false;
+let leaving = false;
+let spaceHeld = false;
+let gesture = null;
+const inflight = new Set();
+const pngCache = new WeakMap();
+
+// --- state and history ----------------------------------------------------------------------
+
+function commit(next) {
+  past.push(state);
+  if (past.length > HISTORY_LIMIT) past.shift();
+  future.length = 0;
+  state = next;
+  changed();
+}
+
+function undo() {
+  if (!past.length) return;
+  future.push(state);
+  state = past.pop();
+  changed();
+}
+
+function redo() {
+  if (!future.length) return;
+  past.push(state);
+  state = future.pop();
+  changed();
+}
+
+const labelDirty = () => state && (state.mask !== labelClean.mask || state.keypoints !== labelClean.keypoints);
+const manualDirty = () => state && state.manual !== manualClean;
+
+function sameKeypoints(a, b) {
+  return a.length === b.length && a.every(([x, y], i) => Math.abs(x - b[i][0]) < 1e-6 && Math.abs(y - b[i][1]) < 1e-6);
+}
+
+/** Whether the shown label is the newest proposal, untouched (Accept then stores "accepted"). */
+function isProposal() {
+  return proposal !== null && state.mask.equals(proposal.mask) && sameKeypoints(state.keypoints, proposal.keypoints);
+}
+
+/** Refresh the canvas and the side panel after any change of `state`. */
+function changed() {
+  if (overlay.mask !== state.mask) overlay.paint(state.mask);
+  exposeState();
+  stage.keypoints = validation ? state.manual : state.keypoints;
+  stage.keypointStyle = validation ? "manual" : "keypoint";
+  stage.dimKeypoints = !validation && state.maskEdited && !state.kpEdited;
+  if (stage.selected >= stage.keypoints.length) stage.selected = -1;
+  stage.points = state.session?.points ?? [];
+  stage.box = state.session?.box ?? null;
+  stage.requestRender();
+  $("undo").disabled = !past.length;
+  $("redo").disabled = !future.length;
+  $("dirty").hidden = !labelDirty() && !manualDirty();
+  renderKeypointList();
+  renderManualCount();
+  renderVerdictNote();
+}
+
+/** What the canvas shows, as data attributes: for people inspecting the page and for tests. */
+function exposeState() {
+  const data = stage.canvas.dataset;
+  data.maskArea = String(state.mask.area());
+  data.keypoints = JSON.stringify(state.keypoints.map(([x, y]) => [Math.round(x * 10) / 10, Math.round(y * 10) / 10]));
+  data.manual = JSON.stringify(state.manual.map(([x, y]) => [Math.round(x * 10) / 10, Math.round(y * 10) / 10]));
+  data.clicks = String(state.session?.points.length ?? 0);
+  data.revision = String(revision);
+  data.pending = String(inflight.size);
+}
+
+// --- side panel -----------------------------------------------------------------------------
+
+function renderKeypointList() {
+  const list = $("keypoint-list");
+  const points = validation ? state.manual : state.keypoints;
+  list.replaceChildren(...points.map(([x, y], i) => h("li", { class: i === stage.selected ? "selected" : "" },
+    h("span", {}, `${x.toFixed(1)}, ${y.toFixed(1)}`),
+    h("button", { type: "button", class: "quiet tiny-btn", title: "Remove this keypoint", onclick: () => deleteKeypoint(i) }, "×"))));
+  if (!points.length) list.append(h("li", { class: "muted plain" }, validation ? "none placed yet" : "none"));
+  if (stage.dimKeypoints) list.append(h("li", { class: "muted plain" }, "The mask changed: the keypoints are recomputed from it on save, unless you move one."));
+}
+
+function renderManualCount() {
+  $("manual-count").textContent = `${state.manual.length} of ${K} placed`;
+  $("save-validation").disabled = state.manual.length !== K || !manualDirty();
+}
+
+function renderVerdictNote() {
+  const note = $("verdict-note");
+  if (!isReviewer()) {
+    note.textContent = `As ${ROLE} you save corrections; a reviewer accepts or rejects.`;
+  } else if (!proposal) {
+    note.textContent = "No proposal: Accept saves what you drew as corrected.";
+  } else if (!isProposal()) {
+    note.textContent = "The label shown differs from the proposal: Accept saves it as corrected.";
+  } else {
+    note.textContent = "Accept keeps the proposal as it is.";
+  }
+}
+
+function renderFrameInfo() {
+  $("frame-title").textContent = `Frame #${frame.id}`;
+  const parts = [frame.original_name, `${frame.width}×${frame.height}`, `${frame.bit_depth}-bit`, `${frame.split} split`];
+  if (frame.frame_index !== null) parts.push(`index ${frame.frame_index}`);
+  $("frame-meta").textContent = parts.filter(Boolean).join(" · ");
+  const pieces = [badge(frame.status)];
+  if (revision) pieces.push(h("span", { class: "muted" }, ` revision ${revision}`));
+  if (proposal) {
+    const iou = proposal.scores?.sam2_iou;
+    pieces.push(h("br"), h("span", { class: "muted" }, `${proposal.source} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
+    if (frame.uncertainty !== null) pieces.push(h("span", { class: "muted" }, ` · uncertainty ${frame.uncertainty.toFixed(3)}`));
+    if (proposal.scores?.warning) pieces.push(h("br"), h("span", { class: "warning" }, proposal.scores.warning));
+  }
+  $("frame-state").replaceChildren(...pieces);
+  $("frame-state").dataset.status = frame.status;
+}
+
+async function loadHistory() {
+  try {
+    const rows = await api(`/frames/${FRAME_ID}/label/history`);
+    const list = $("history");
+    list.replaceChildren(...rows.slice().reverse().slice(0, 8).map((r) =>
+      h("li", {}, `rev ${r.revision} · `, badge(r.status), ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`)));
+    if (!rows.length) list.append(h("li", {}, "no label yet"));
+  } catch { /* the history is a convenience */ }
+}
+
+// --- tools ----------------------------------------------------------------------------------
+
+function setTool(name) {
+  if (validation && name !== "keypoint") return;
+  tool = name;
+  for (const button of document.querySelectorAll("#tools .tool")) {
+    button.classList.toggle("active", button.dataset.tool === name);
+    button.setAttribute("aria-pressed", String(button.dataset.tool === name));
+  }
+  stage.canvas.dataset.tool = name;
+  if (name !== "brush" && name !== "eraser") stage.cursor = null;
+  stage.requestRender();
+}
+
+const brushRadius = () => Number($("brush-size").value) / 2;
+
+function setBrushSize(value) {
+  const input = $("brush-size");
+  input.value = String(Math.min(Number(input.max), Math.max(Number(input.min), value)));
+  $("brush-size-value").textContent = input.value;
+  if (stage.cursor) { stage.cursor.radius = brushRadius(); stage.requestRender(); }
+}
+
+/** End the click session: the next click starts from the mask shown now. */
+function endSession() {
+  if (state.session) commit({ ...state, session: null });
+}
+
+function addClick(x, y, positive) {
+  const session = state.session ?? { points: [], box: null, base: state.mask.any() ? state.mask : null };
+  if (session.points.length >= 64) { toast("At most 64 clicks; press Esc to start a new click session.", "error"); return; }
+  commit({ ...state, session: { ...session, points: [...session.points, { x, y, positive }] } });
+  segment(state);
+}
+
+function setBox(box) {
+  const session = state.session ?? { points: [], box: null, base: state.mask.any() ? state.mask : null };
+  commit({ ...state, session: { ...session, box } });
+  segment(state);
+}
+
+function pngOf(mask) {
+  if (!pngCache.has(mask)) pngCache.set(mask, mask.toPng());
+  return pngCache.get(mask);
+}
+
+/** Ask the segment endpoint for `target`'s click session; the answer becomes its mask. */
+function segment(target) {
+  const run = (async () => {
+    const { points, box, base } = target.session;
+    const body = { points: points.map((p) => ({ x: p.x, y: p.y, positive: p.positive })) };
+    if (box) body.box = box;
+    if (base) body.mask_png = await pngOf(base);
+    const answer = await api(`/frames/${FRAME_ID}/segment`, { method: "POST", json: body });
+    const mask = await Mask.fromPng(answer.mask_png, frame.width, frame.height);
+    target.mask = mask;
+    target.maskEdited = true;
+    $("last-click").textContent = `mask in ${Math.round(answer.elapsed_ms)} ms · SAM2 IoU ${answer.score.toFixed(2)}`;
+    if (target === state) changed();
+  })();
+  inflight.add(run);
+  $("busy").hidden = false;
+  exposeState();
+  run.catch((error) => toast(error.message, "error")).finally(() => {
+    inflight.delete(run);
+    $("busy").hidden = inflight.size === 0;
+    exposeState();
+  });
+}
+
+function deleteKeypoint(index) {
+  if (validation) {
+    commit({ ...state, manual: state.manual.filter((_, i) => i !== index) });
+  } else {
+    commit({ ...state, keypoints: state.keypoints.filter((_, i) => i !== index), kpEdited: true });
+  }
+  stage.selected = -1;
+  changed();
+}
+
+// --- pointer gestures on the canvas ---------------------------------------------------------
+
+function local(event) {
+  const rect = stage.canvas.getBoundingClientRect();
+  return [event.clientX - rect.left, event.clientY - rect.top];
+}
+
+function clampToFrame([x, y]) {
+  return [Math.min(frame.width, Math.max(0, x)), Math.min(frame.height, Math.max(0, y))];
+}
+
+function onPointerDown(event) {
+  const [sx, sy] = local(event);
+  stage.canvas.focus();
+  stage.canvas.setPointerCapture(event.pointerId);
+  const [x, y] = stage.toImage(sx, sy);
+  const inside = x >= 0 && y >= 0 && x <= frame.width && y <= frame.height;
+  gesture = { kind: "pan", sx, sy, lastX: sx, lastY: sy, moved: 0 };
+  if (event.button === 1 || spaceHeld) return;
+  if (tool === "keypoint") {
+    const index = stage.keypointAt(sx, sy);
+    const key = validation ? "manual" : "keypoints";
+    if (event.button === 2) {
+      gesture = null;
+      if (index >= 0) deleteKeypoint(index);
+      return;
+    }
+    if (index < 0) {
+      if (!inside) return;
+      if (validation && state.manual.length >= K) {
+        toast(`All ${K} keypoints are placed; drag one to move it, or remove one first.`, "info");
+        gesture = null;
+        return;
+      }
+      commit({ ...state, [key]: [...state[key].map((p) => [...p]), [x, y]], kpEdited: state.kpEdited || !validation });
+    }
+    stage.selected = index >= 0 ? index : state[key].length - 1;
+    // Selecting an existing keypoint is no edit; moving it is (committed on the first move).
+    gesture = { kind: "keypoint", key, index: stage.selected, committed: index < 0 };
+    changed();
+    return;
+  }
+  if (!inside && tool !== "box") return;
+  if (tool === "brush" || tool === "eraser") {
+    if (event.button !== 0) return;
+    commit({ ...state, mask: state.mask.clone(), maskEdited: true, session: null });
+    const rect = state.mask.stamp(x, y, brushRadius(), tool === "brush" ? 1 : 0);
+    overlay.paint(state.mask, rect);
+    gesture = { kind: "brush", x, y, value: tool === "brush" ? 1 : 0 };
+    stage.requestRender();
+  } else if (tool === "box") {
+    if (event.button !== 0) return;
+    const [cx, cy] = clampToFrame([x, y]);
+    gesture = { kind: "box", x: cx, y: cy };
+    stage.draft = [cx, cy, cx, cy];
+  } else {
+    const positive = (tool === "positive") !== (event.shiftKey || event.button === 2);
+    gesture = { kind: "click", sx, sy, lastX: sx, lastY: sy, moved: 0, x, y, positive };
+  }
+}
+
+function onPointerMove(event) {
+  const [sx, sy] = local(event);
+  const [x, y] = stage.toImage(sx, sy);
+  if (tool === "brush" || tool === "eraser") {
+    stage.cursor = { x, y, radius: brushRadius(), erase: tool === "eraser" };
+    stage.requestRender();
+  }
+  if (!gesture) {
+    stage.canvas.classList.toggle("over-keypoint", tool === "keypoint" && stage.keypointAt(sx, sy) >= 0);
+    return;
+  }
+  if (gesture.kind === "click") {
+    gesture.moved = Math.max(gesture.moved, Math.hypot(sx - gesture.sx, sy - gesture.sy));
+    if (gesture.moved > 4) gesture.kind = "pan";
+  }
+  if (gesture.kind === "pan") {
+    stage.panBy(sx - gesture.lastX, sy - gesture.lastY);
+    gesture.lastX = sx;
+    gesture.lastY = sy;
+  } else if (gesture.kind === "brush") {
+    const rect = state.mask.line(gesture.x, gesture.y, x, y, brushRadius(), gesture.value);
+    overlay.paint(state.mask, rect);
+    gesture.x = x;
+    gesture.y = y;
+    stage.requestRender();
+  } else if (gesture.kind === "box") {
+    const [cx, cy] = clampToFrame([x, y]);
+    stage.draft = [Math.min(gesture.x, cx), Math.min(gesture.y, cy), Math.max(gesture.x, cx), Math.max(gesture.y, cy)];
+    stage.requestRender();
+  } else if (gesture.kind === "keypoint") {
+    if (!gesture.committed) {
+      gesture.committed = true;
+      commit({ ...state, [gesture.key]: state[gesture.key].map((p) => [...p]), kpEdited: state.kpEdited || !validation });
+    }
+    state[gesture.key][gesture.index] = clampToFrame([x, y]);
+    stage.requestRender();
+  }
+}
+
+function onPointerUp() {
+  const done = gesture;
+  gesture = null;
+  if (!done) return;
+  if (done.kind === "click") {
+    addClick(done.x, done.y, done.positive);
+  } else if (done.kind === "box") {
+    const box = stage.draft;
+    stage.draft = null;
+    if (box && box[2] - box[0] >= 2 && box[3] - box[1] >= 2) setBox(box);
+    else stage.requestRender();
+  } else if (done.kind === "brush" || done.kind === "keypoint") {
+    changed();
+  }
+}
+
+// --- verdicts -------------------------------------------------------------------------------
+
+async function verdictBody(kind, baseRevision) {
+  if (kind === "reject") return { status: "rejected", base_revision: baseRevision };
+  if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision };
+  const body = { status: "corrected", base_revision: baseRevision, mask_png: await state.mask.toPng() };
+  const stale = state.maskEdited && !state.kpEdited;
+  if (!stale && state.keypoints.length) body.keypoints = state.keypoints;
+  return body;
+}
+
+async function saveLabel(kind, baseRevision = revision) {
+  if (validation) toggleValidation();
+  await Promise.allSettled([...inflight]);
+  const body = await verdictBody(kind, baseRevision);
+  let label;
+  try {
+    label = await api(`/frames/${FRAME_ID}/label`, { method: "PUT", json: body });
+  } catch (error) {
+    if (error instanceof ApiError && error.status === 409) return showConflict(kind, error);
+    toast(error.message, "error");
+    return;
+  }
+  revision = label.revision;
+  labelStatus = label.status;
+  frame.status = label.status;
+  const keypoints = label.keypoints ?? state.keypoints;
+  state = { ...state, keypoints, maskEdited: false, kpEdited: false, session: null };
+  labelClean = state;
+  changed();
+  renderFrameInfo();
+  loadHistory();
+  toast(`Saved as ${label.status} (revision ${label.revision}).`, "ok");
+  if ($("advance").checked) await goNext({ afterSave: true });
+}
+
+function showConflict(kind, error) {
+  const current = error.body?.revision ?? 0;
+  $("conflict-text").textContent = `Someone else saved this frame's label while you were working on it (it is now at revision ${current}). Reload to see theirs (your changes are dropped), or overwrite it with yours.`;
+  const dialog = $("conflict");
+  $("conflict-overwrite").onclick = () => { dialog.close(); saveLabel(kind, current); };
+  $("conflict-reload").onclick = () => { dialog.close(); leaving = true; location.reload(); };
+  $("conflict-cancel").onclick = () => dialog.close();
+  dialog.showModal();
+}
+
+async function saveValidation() {
+  try {
+    const saved = await api(`/frames/${FRAME_ID}/validation-keypoints`, { method: "PUT", json: { keypoints: state.manual } });
+    manualClean = state.manual;
+    frame.split = "validation";
+    renderFrameInfo();
+    $("validation-state").textContent = `Saved ${saved.keypoints.length} keypoints by hand (${formatDate(saved.updated_at)}); this frame is in the validation split.`;
+    toast("Validation keypoints saved.", "ok");
+    changed();
+  } catch (error) {
+    toast(error.message, "error");
+  }
+}
+
+function toggleValidation() {
+  validation = !validation;
+  document.body.classList.toggle("validating", validation);
+  $("validation-toggle").setAttribute("aria-pressed", String(validation));
+  $("validation-toggle").classList.toggle("active", validation);
+  $("validation-panel").hidden = !validation;
+  for (const button of document.querySelectorAll("#tools .tool")) button.disabled = validation && button.dataset.tool !== "keypoint";
+  stage.selected = -1;
+  if (validation) {
+    toolBeforeValidation = tool;
+    maskBeforeValidation = $("show-mask").checked;
+    setMaskVisible(false);
+    setTool("keypoint");
+  } else {
+    setMaskVisible(maskBeforeValidation);
+    setTool(toolBeforeValidation);
+  }
+  changed();
+}
+
+// --- the queue ------------------------------------------------------------------------------
+
+const SKIPPED_KEY = "weldpool.skipped";
+const skipped = () => new Set(JSON.parse(sessionStorage.getItem(SKIPPED_KEY) ?? "[]"));
+
+async function queueIds() {
+  const params = new URLSearchParams(CONTEXT);
+  params.set("limit", "500");
+  params.delete("offset");
+  const page = await api(`/frames?${params}`);
+  return { ids: page.items.map((f) => f.id), total: page.total };
+}
+
+async function goNext({ afterSave = false } = {}) {
+  if (!afterSave && (labelDirty() || manualDirty())
+      && !window.confirm("This frame has unsaved changes. Leave it without saving?")) return;
+  let ids;
+  try {
+    ({ ids } = await queueIds());
+  } catch (error) {
+    toast(error.message, "error");
+    return;
+  }
+  if (!afterSave) sessionStorage.setItem(SKIPPED_KEY, JSON.stringify([...skipped(), FRAME_ID].slice(-500)));
+  const here = ids.indexOf(FRAME_ID);
+  const seen = skipped();
+  const next = here >= 0
+    ? ids[here + 1]
+    : ids.find((id) => id !== FRAME_ID && !seen.has(id)) ?? ids.find((id) => id !== FRAME_ID);
+  if (next === undefined) {
+    toast("That was the last frame of this queue.", "info");
+    $("queue-position").textContent = "End of the queue — back to the frame list to pick another.";
+    return;
+  }
+  leaving = true;
+  location.href = `/frames/${next}?${CONTEXT}`;
+}
+
+async function showQueuePosition() {
+  try {
+    const { ids, total } = await queueIds();
+    const here = ids.indexOf(FRAME_ID);
+    const order = CONTEXT.get("order") === "uncertainty" ? "most uncertain first" : `order ${CONTEXT.get("order")}`;
+    $("queue-position").textContent = here >= 0 ? `${here + 1} of ${total} in this queue (${order})` : `not in this queue (${order})`;
+    const next = here >= 0 ? ids[here + 1] : ids[0];
+    if (next !== undefined && next !== FRAME_ID) {
+      document.head.append(h("link", { rel: "prefetch", as: "image", href: `/api/v1/frames/${next}/image?variant=display` }));
+    }
+  } catch { /* the position is a convenience */ }
+}
+
+// --- overlays -------------------------------------------------------------------------------
+
+function setMaskVisible(on) {
+  $("show-mask").checked = on;
+  stage.showMask = on;
+  stage.requestRender();
+}
+
+async function setHeatmapVisible(on) {
+  $("show-heatmap").checked = on;
+  stage.showHeatmap = on;
+  if (on && !stage.heatmap && proposal) {
+    const image = new Image();
+    image.src = `/api/v1/frames/${FRAME_ID}/proposal/heatmap.png`;
+    try { await image.decode(); stage.heatmap = image; stage.canvas.dataset.heatmap = "loaded"; } catch { toast("The heatmap could not be loaded.", "error"); }
+  }
+  stage.requestRender();
+}
+
+// --- keyboard -------------------------------------------------------------------------------
+
+const TOOL_KEYS = { 1: "positive", 2: "negative", 3: "box", 4: "brush", 5: "eraser", 6: "keypoint" };
+
+function onKey(event) {
+  const target = event.target;
+  if (target instanceof HTMLElement && target.matches("input[type=text], input[type=number], textarea, select")) return;
+  if ($("conflict").open) return;
+  const key = event.key.toLowerCase();
+  const ctrl = event.ctrlKey || event.metaKey;
+  if (ctrl && key === "z") { event.preventDefault(); event.shiftKey ? redo() : undo(); return; }
+  if (ctrl && key === "y") { event.preventDefault(); redo(); return; }
+  if (ctrl && key === "s") { event.preventDefault(); saveLabel("correct"); return; }
+  if (ctrl || event.altKey) return;
+  if (key === " ") {
+    if (target instanceof HTMLInputElement || target instanceof HTMLButtonElement) return;
+    spaceHeld = true;
+    stage.canvas.classList.add("panning");
+    event.preventDefault();
+    return;
+  }
+  if (TOOL_KEYS[key]) { setTool(TOOL_KEYS[key]); return; }
+  const actions = {
+    "[": () => setBrushSize(Number($("brush-size").value) - 4),
+    "]": () => setBrushSize(Number($("brush-size").value) + 4),
+    a: () => !$("accept").disabled && saveLabel("accept"),
+    r: () => !$("reject").disabled && saveLabel("reject"),
+    s: () => saveLabel("correct"),
+    n: () => goNext(),
+    m: () => setMaskVisible(!stage.showMask),
+    h: () => setHeatmapVisible(!stage.showHeatmap),
+    f: () => stage.fit(),
+    v: () => toggleValidation(),
+    escape: () => { stage.draft = null; gesture = null; endSession(); },
+    delete: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
+    backspace: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
+  };
+  if (actions[key]) { event.preventDefault(); actions[key](); }
+}
+
+// --- loading --------------------------------------------------------------------------------
+
+async function optional(path) {
+  try { return await api(path); } catch (error) {
+    if (error instanceof ApiError && error.status === 404) return null;
+    throw error;
+  }
+}
+
+function loadImage(url) {
+  const image = new Image();
+  image.src = url;
+  return image.decode().then(() => image);
+}
+
+function fail(message) {
+  $("stage-message").textContent = message;
+  $("stage-message").classList.add("error");
+  for (const button of document.querySelectorAll(".verdict button, .toolbar button")) button.disabled = true;
+}
+
+function bindControls() {
+  const canvas = stage.canvas;
+  canvas.addEventListener("pointerdown", onPointerDown);
+  canvas.addEventListener("pointermove", onPointerMove);
+  canvas.addEventListener("pointerup", onPointerUp);
+  canvas.addEventListener("pointercancel", onPointerUp);
+  canvas.addEventListener("pointerleave", () => { if (stage.cursor) { stage.cursor = null; stage.requestRender(); } });
+  canvas.addEventListener("contextmenu", (event) => event.preventDefault());
+  canvas.addEventListener("wheel", (event) => {
+    event.preventDefault();
+    const [sx, sy] = local(event);
+    stage.zoomAt(Math.exp(-event.deltaY * 0.0015), sx, sy);
+  }, { passive: false });
+  stage.onViewChange = () => {
+    $("zoom-level").textContent = `${Math.round(stage.scale * 100)} %`;
+    stage.canvas.dataset.view = JSON.stringify({ scale: stage.scale, tx: stage.tx, ty: stage.ty });
+  };
+  stage.onViewChange();
+  // Tool buttons hand the keyboard back to the canvas (Space pans there, it must not click).
+  for (const button of document.querySelectorAll("#tools .tool")) {
+    button.addEventListener("click", () => { setTool(button.dataset.tool); stage.canvas.focus(); });
+  }
+  $("brush-size").addEventListener("input", (event) => setBrushSize(Number(event.target.value)));
+  $("undo").addEventListener("click", undo);
+  $("redo").addEventListener("click", redo);
+  $("fit").addEventListener("click", () => stage.fit());
+  $("show-mask").addEventListener("change", (event) => setMaskVisible(event.target.checked));
+  $("show-heatmap").addEventListener("change", (event) => setHeatmapVisible(event.target.checked));
+  $("accept").addEventListener("click", () => saveLabel("accept"));
+  $("reject").addEventListener("click", () => saveLabel("reject"));
+  $("save").addEventListener("click", () => saveLabel("correct"));
+  $("next").addEventListener("click", () => goNext());
+  $("validation-toggle").addEventListener("click", toggleValidation);
+  $("save-validation").addEventListener("click", saveValidation);
+  $("clear-validation").addEventListener("click", () => state.manual.length && commit({ ...state, manual: [] }));
+  $("run-teacher").addEventListener("click", runTeacher);
+  $("advance").checked = localStorage.getItem("weldpool.advance") !== "0";
+  $("advance").addEventListener("change", (event) => localStorage.setItem("weldpool.advance", event.target.checked ? "1" : "0"));
+  document.addEventListener("keydown", onKey);
+  document.addEventListener("keyup", (event) => {
+    if (event.key === " ") { spaceHeld = false; stage.canvas.classList.remove("panning"); }
+  });
+  window.addEventListener("beforeunload", (event) => {
+    if (!leaving && (labelDirty() || manualDirty())) { event.preventDefault(); event.returnValue = ""; }
+  });
+  if (!isReviewer()) {
+    for (const id of ["accept", "reject"]) {
+      $(id).disabled = true;
+      $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
+    }
+  }
+}
+
+async function runTeacher() {
+  $("run-teacher").disabled = true;
+  try {
+    const { job_id: jobId } = await api("/teacher/runs", { method: "POST", json: { frame_ids: [FRAME_ID] } });
+    const job = await waitForJob(jobId, (j) => { $("run-teacher").textContent = `Teacher: ${Math.round(j.progress * 100)} %`; });
+    if (job.status !== "succeeded") throw new Error(`The teacher job ${job.status}: ${job.error ?? ""}`);
+    if (labelDirty() || manualDirty()) toast("The proposal is ready; save or undo your changes, then reload.", "info");
+    else { leaving = true; location.reload(); }
+  } catch (error) {
+    toast(error.message, "error");
+    $("run-teacher").disabled = false;
+    $("run-teacher").textContent = "Run teacher on this frame";
+  }
+}
+
+async function start() {
+  const imageUrl = `/api/v1/frames/${FRAME_ID}/image?variant=display`;
+  const image = loadImage(imageUrl);
+  image.catch(() => {});
+  let detail, proposalBody, label, manual;
+  try {
+    [detail, proposalBody, label, manual] = await Promise.all([
+      api(`/frames/${FRAME_ID}`),
+      optional(`/frames/${FRAME_ID}/proposal`),
+      optional(`/frames/${FRAME_ID}/label`),
+      optional(`/frames/${FRAME_ID}/validation-keypoints`),
+    ]);
+  } catch (error) {
+    fail(error.message);
+    return;
+  }
+  frame = detail;
+  const { width, height } = frame;
+  const [picture, proposalMask, labelMask] = await Promise.all([
+    image.catch(() => null),
+    proposalBody ? Mask.fromPng(proposalBody.mask_png, width, height) : null,
+    label?.mask_png ? Mask.fromPng(label.mask_png, width, height) : null,
+  ]);
+  if (!picture) { fail(`The image of frame ${FRAME_ID} could not be loaded.`); return; }
+  if (proposalBody) proposal = { ...proposalBody, mask: proposalMask };
+  revision = label?.revision ?? 0;
+  labelStatus = label?.status ?? null;
+
+  stage = new Stage($("frame-canvas"), width, height);
+  stage.image = picture;
+  overlay = new MaskOverlay(width, height);
+  stage.overlay = overlay;
+  const keypoints = (labelMask ? label.keypoints : proposal?.keypoints) ?? [];
+  state = {
+    mask: labelMask ?? proposal?.mask ?? new Mask(width, height),
+    keypoints: keypoints.map((p) => [...p]),
+    manual: (manual?.keypoints ?? []).map((p) => [...p]),
+    session: null,
+    maskEdited: false,
+    kpEdited: false,
+  };
+  labelClean = state;
+  manualClean = state.manual;
+  if (manual) $("validation-state").textContent = `${manual.keypoints.length} keypoints placed by hand (${formatDate(manual.updated_at)}).`;
+  $("no-proposal").hidden = proposal !== null;
+  $("show-heatmap").disabled = proposal === null;
+  $("stage-message").hidden = true;
+  bindControls();
+  setTool("positive");
+  renderFrameInfo();
+  changed();
+  stage.render();
+  stage.canvas.dataset.ready = "1";
+  document.body.dataset.ready = "1";
+  performance.mark("weldpool:interactive");
+  showQueuePosition();
+  loadHistory();
+}
+
+start();

@@ -1,0 +1,211 @@
+// The review canvas: the frame under a zoom / pan transform, the mask and heatmap overlays,
+// click prompts, the box being drawn, numbered keypoints and the brush cursor.
+
+const KEYPOINT_RADIUS = 9;
+const COLOURS = {
+  keypoint: "#ffb000",
+  manual: "#ff3d9a",
+  positive: "#2fb344",
+  negative: "#e03131",
+  box: "#00b8ff",
+};
+
+export class Stage {
+  constructor(canvas, width, height) {
+    this.canvas = canvas;
+    this.ctx = canvas.getContext("2d");
+    this.width = width;
+    this.height = height;
+    this.scale = 1;
+    this.tx = 0;
+    this.ty = 0;
+    this.fitted = true;
+    this.image = null;
+    this.overlay = null;
+    this.heatmap = null;
+    this.showMask = true;
+    this.showHeatmap = false;
+    this.keypoints = [];
+    this.keypointStyle = "keypoint";
+    this.dimKeypoints = false;
+    this.selected = -1;
+    this.points = [];
+    this.box = null;
+    this.draft = null;
+    this.cursor = null;
+    this.pending = false;
+    this.onViewChange = () => {};
+    new ResizeObserver(() => this.resize()).observe(canvas.parentElement);
+    this.resize();
+  }
+
+  resize() {
+    const box = this.canvas.parentElement.getBoundingClientRect();
+    const dpr = window.devicePixelRatio || 1;
+    this.cssWidth = Math.max(1, box.width);
+    this.cssHeight = Math.max(1, box.height);
+    this.canvas.width = Math.round(this.cssWidth * dpr);
+    this.canvas.height = Math.round(this.cssHeight * dpr);
+    this.canvas.style.width = `${this.cssWidth}px`;
+    this.canvas.style.height = `${this.cssHeight}px`;
+    if (this.fitted) this.fit();
+    this.render();
+  }
+
+  // --- the view transform -------------------------------------------------------------------
+
+  fit() {
+    const margin = 16;
+    this.scale = Math.min((this.cssWidth - margin) / this.width, (this.cssHeight - margin) / this.height);
+    this.tx = (this.cssWidth - this.width * this.scale) / 2;
+    this.ty = (this.cssHeight - this.height * this.scale) / 2;
+    this.fitted = true;
+    this.onViewChange();
+    this.requestRender();
+  }
+
+  /** Zoom by `factor` keeping the frame point under the screen point (sx, sy) in place. */
+  zoomAt(factor, sx, sy) {
+    const fitScale = Math.min(this.cssWidth / this.width, this.cssHeight / this.height);
+    const scale = Math.min(40, Math.max(fitScale * 0.25, this.scale * factor));
+    const [ix, iy] = this.toImage(sx, sy);
+    this.scale = scale;
+    this.tx = sx - ix * scale;
+    this.ty = sy - iy * scale;
+    this.fitted = false;
+    this.onViewChange();
+    this.requestRender();
+  }
+
+  panBy(dx, dy) {
+    this.tx += dx;
+    this.ty += dy;
+    this.fitted = false;
+    this.onViewChange();
+    this.requestRender();
+  }
+
+  /** Screen (CSS pixels, relative to the canvas) to frame pixels. */
+  toImage(sx, sy) {
+    return [(sx - this.tx) / this.scale, (sy - this.ty) / this.scale];
+  }
+
+  toScreen(x, y) {
+    return [x * this.scale + this.tx, y * this.scale + this.ty];
+  }
+
+  /** The index of the keypoint under the screen point, or -1. */
+  keypointAt(sx, sy) {
+    for (let i = this.keypoints.length - 1; i >= 0; i--) {
+      const [px, py] = this.toScreen(...this.keypoints[i]);
+      if (Math.hypot(px - sx, py - sy) <= KEYPOINT_RADIUS + 3) return i;
+    }
+    return -1;
+  }
+
+  // --- drawing ------------------------------------------------------------------------------
+
+  requestRender() {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => { this.pending = false; this.render(); });
+  }
+
+  render() {
+    const { ctx } = this;
+    const dpr = window.devicePixelRatio || 1;
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.fillStyle = "#11151a";
+    ctx.fillRect(0, 0, this.canvas.width, this.canvas.height);
+    ctx.setTransform(dpr * this.scale, 0, 0, dpr * this.scale, dpr * this.tx, dpr * this.ty);
+    ctx.imageSmoothingEnabled = this.scale < 2;
+    if (this.image) ctx.drawImage(this.image, 0, 0, this.width, this.height);
+    if (this.showHeatmap && this.heatmap) {
+      ctx.globalAlpha = 0.7;
+      ctx.drawImage(this.heatmap, 0, 0, this.width, this.height);
+      ctx.globalAlpha = 1;
+    }
+    if (this.showMask && this.overlay) ctx.drawImage(this.overlay.canvas, 0, 0);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    this.drawBox(this.box, false);
+    this.drawBox(this.draft, true);
+    this.points.forEach((p) => this.drawPrompt(p));
+    this.drawKeypoints();
+    this.drawCursor();
+  }
+
+  drawBox(box, draft) {
+    if (!box) return;
+    const { ctx } = this;
+    const [x0, y0] = this.toScreen(box[0], box[1]);
+    const [x1, y1] = this.toScreen(box[2], box[3]);
+    ctx.save();
+    ctx.strokeStyle = COLOURS.box;
+    ctx.lineWidth = 2;
+    if (draft) ctx.setLineDash([6, 4]);
+    ctx.strokeRect(x0, y0, x1 - x0, y1 - y0);
+    ctx.restore();
+  }
+
+  drawPrompt(point) {
+    const { ctx } = this;
+    const [x, y] = this.toScreen(point.x, point.y);
+    ctx.beginPath();
+    ctx.arc(x, y, 7, 0, Math.PI * 2);
+    ctx.fillStyle = point.positive ? COLOURS.positive : COLOURS.negative;
+    ctx.fill();
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = "#fff";
+    ctx.stroke();
+    ctx.beginPath();
+    ctx.moveTo(x - 3.5, y);
+    ctx.lineTo(x + 3.5, y);
+    if (point.positive) { ctx.moveTo(x, y - 3.5); ctx.lineTo(x, y + 3.5); }
+    ctx.stroke();
+  }
+
+  drawKeypoints() {
+    const { ctx } = this;
+    const colour = COLOURS[this.keypointStyle];
+    ctx.save();
+    ctx.globalAlpha = this.dimKeypoints ? 0.45 : 1;
+    ctx.font = "bold 11px system-ui, sans-serif";
+    ctx.textAlign = "center";
+    ctx.textBaseline = "middle";
+    this.keypoints.forEach(([kx, ky], i) => {
+      const [x, y] = this.toScreen(kx, ky);
+      ctx.beginPath();
+      if (this.keypointStyle === "manual") {
+        ctx.moveTo(x, y - KEYPOINT_RADIUS - 1);
+        ctx.lineTo(x + KEYPOINT_RADIUS + 1, y);
+        ctx.lineTo(x, y + KEYPOINT_RADIUS + 1);
+        ctx.lineTo(x - KEYPOINT_RADIUS - 1, y);
+        ctx.closePath();
+      } else {
+        ctx.arc(x, y, KEYPOINT_RADIUS, 0, Math.PI * 2);
+      }
+      ctx.fillStyle = colour;
+      ctx.fill();
+      ctx.lineWidth = i === this.selected ? 3 : 1.5;
+      ctx.strokeStyle = i === this.selected ? "#fff" : "#1d232b";
+      ctx.stroke();
+      ctx.fillStyle = "#1d232b";
+      ctx.fillText(String(i + 1), x, y + 0.5);
+    });
+    ctx.restore();
+  }
+
+  drawCursor() {
+    if (!this.cursor) return;
+    const { ctx } = this;
+    const [x, y] = this.toScreen(this.cursor.x, this.cursor.y);
+    ctx.save();
+    ctx.beginPath();
+    ctx.arc(x, y, Math.max(1, this.cursor.radius * this.scale), 0, Math.PI * 2);
+    ctx.lineWidth = 1.5;
+    ctx.strokeStyle = this.cursor.erase ? COLOURS.negative : "#fff";
+    ctx.setLineDash([4, 3]);
+    ctx.stroke();
+    ctx.restore();
+  }
+}

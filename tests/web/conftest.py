@@ -1,0 +1,64 @@
+"""Browser tests: a live `weldpool serve` (tiny random-weight teacher, SQLite) driven through
+Debian's Chromium by Playwright. Missing Chromium or Playwright fails these tests (never skips)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import pytest
+
+from tests.helpers import REPO
+from tests.web.server import LiveServer, launch_chromium, missing_browser
+from weldpool_core.synth import SynthParams, synth_frame
+
+SCREENSHOTS = REPO / "test-artifacts" / "screenshots"
+VIEWPORT = {"width": 1280, "height": 800}
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    live = LiveServer(tmp_path_factory.mktemp("live-server") / "home").start()
+    yield live
+    live.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    reason = missing_browser()
+    if reason:
+        pytest.fail(f"The browser tests cannot run: {reason}", pytrace=False)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        chromium = launch_chromium(playwright)
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    """A fresh browser context at 1280×800; a JavaScript error on the page fails the test."""
+    context = browser.new_context(viewport=VIEWPORT)
+    context.set_default_timeout(20_000)
+    tab = context.new_page()
+    errors: list[str] = []
+    tab.on("pageerror", lambda error: errors.append(str(error)))
+    yield tab
+    context.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture(scope="session")
+def screenshots() -> Path:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS
+
+
+def synthetic_png(seed: int, width: int = 1280, height: int = 800) -> bytes:
+    """A realistic weld-pool frame, PNG-encoded."""
+    ok, data = cv2.imencode(".png", synth_frame(seed=seed, params=SynthParams(width, height)).image)
+    assert ok
+    return data.tobytes()
