@@ -18,6 +18,7 @@ from app.db import create_db_engine, create_session_factory
 from app.errors import AuthenticationError, WeldpoolError, http_status_of
 from app.frames.routes import router as frames_router
 from app.insights.routes import router as insights_router
+from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
 from app.queue import EmbeddedWorker, JobQueue
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     """Build the service; with ``embedded_worker`` it also runs jobs in this process."""
     settings = settings or get_settings()
     settings.ensure_home()
+    load_job_handlers()
     engine = create_db_engine(settings.resolved_database_url)
     session_factory = create_session_factory(engine)
     queue = JobQueue(settings, session_factory)

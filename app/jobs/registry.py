@@ -60,13 +60,19 @@ def job_handler(
     return register
 
 
-def job_spec(kind: str) -> JobSpec | None:
-    """The registered spec of a job kind, importing every domain's handlers on first use."""
+def load_job_handlers() -> None:
+    """Import every domain's handlers (once per process; the app does it at start-up, so that
+    no request pays for the imports)."""
     global _loaded
     if not _loaded:
         for module in HANDLER_MODULES:
             importlib.import_module(module)
         _loaded = True
+
+
+def job_spec(kind: str) -> JobSpec | None:
+    """The registered spec of a job kind."""
+    load_job_handlers()
     return _HANDLERS.get(kind)
 
 
