@@ -135,3 +135,10 @@ def jobs(request: Request, _user: LoggedIn) -> Response:
 def models(request: Request, _user: LoggedIn) -> Response:
     """Student model versions: metrics, training curves, promotion, training."""
     return render(request, "models.html", page="models")
+
+
+@router.get("/metrics")
+def metrics(request: Request, _user: LoggedIn) -> Response:
+    """The loop's quality: the student's learning curve, the teacher against reviewed masks,
+    the reviewers' acceptance of teacher proposals."""
+    return render(request, "metrics.html", page="metrics")

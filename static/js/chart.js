@@ -29,7 +29,7 @@ function format(value) {
  * A line chart of `series` ([{name, colour, points: [[x, y], …]}]) as an <svg> element.
  * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data.
  */
-export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "" }) {
+export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "", xLabel = "epoch" }) {
   const pad = { left: 44, right: 12, top: 22, bottom: 26 };
   const all = series.flatMap((s) => s.points).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
   const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, width, height, class: "chart", role: "img", "aria-label": title });
@@ -53,7 +53,7 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   for (const t of ticks(x0, x1, 5).filter((v) => Number.isInteger(v) || x1 - x0 < 5)) {
     grid.append(svg("text", { x: sx(t), y: height - pad.bottom + 16, "text-anchor": "middle" }, format(t)));
   }
-  grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, "epoch"));
+  grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, xLabel));
   root.append(grid);
   for (const s of series) {
     const points = s.points.filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));

@@ -410,3 +410,39 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     page.wait_for_function(
         "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 55'"
     )
+
+
+def test_real_model_version_on_the_models_and_metrics_pages(
+    page: Any, server: LiveServer, screenshots: Path
+) -> None:
+    """A student trained for real on the live server shows on /models and /metrics."""
+    params = SynthParams(width=320, height=200)
+    for seed in (901, 902, 903):
+        truth = synth_frame(seed=seed, params=params)
+        data = cv2.imencode(".png", truth.image)[1].tobytes()
+        frame = server.api(
+            "POST", "/frames", files=[("files", (f"m{seed}.png", data, "image/png"))]
+        ).json()["stored"][0]
+        mask = base64.b64encode(encode_mask_png(truth.mask)).decode()
+        label = server.api(
+            "PUT",
+            f"/frames/{frame['id']}/label",
+            json={"status": "corrected", "base_revision": 0, "mask_png": mask},
+        )
+        assert label.status_code == 200, label.text
+    job = server.api("POST", "/student/train", json={"epochs": 1, "size": "light"})
+    assert job.status_code == 202, job.text
+    assert server.wait_for_job(job.json()["job_id"], timeout=300)["status"] == "succeeded"
+    name = server.api("GET", "/models").json()[0]["name"]
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/models")
+    card = page.locator(f"[data-testid=model-card]:has-text('{name}')")
+    card.wait_for()
+    assert card.locator("svg.chart").count() >= 2
+    page.goto(f"{server.url}/metrics")
+    page.wait_for_selector("[data-testid=student-table]")
+    assert name in page.inner_text("[data-testid=student-table]")
+    assert "corrected" in page.inner_text("[data-testid=acceptance]")
+    assert page.locator("svg.chart").count() == 2  # the learning curve: mIoU and mED
+    page.screenshot(path=str(screenshots / "metrics.png"), full_page=True)

@@ -137,6 +137,14 @@ function renderVerdictNote() {
   }
 }
 
+/** Why a frame ranks high in the queue, in words (see weldpool_core.active). */
+const REASONS = {
+  teacher_iou: "SAM2's own doubt about its mask",
+  instability: "the mask changing when the prompts move slightly",
+  disagreement: "the student disagreeing with the teacher",
+  student_spread: "the student's spread over latent samples",
+};
+
 function renderFrameInfo() {
   $("frame-title").textContent = `Frame #${frame.id}`;
   const parts = [frame.original_name, `${frame.width}×${frame.height}`, `${frame.bit_depth}-bit`, `${frame.split} split`];
@@ -147,7 +155,11 @@ function renderFrameInfo() {
   if (proposal) {
     const iou = proposal.scores?.sam2_iou;
     pieces.push(h("br"), h("span", { class: "muted" }, `${proposal.source} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
-    if (frame.uncertainty !== null) pieces.push(h("span", { class: "muted" }, ` · uncertainty ${frame.uncertainty.toFixed(3)}`));
+    if (frame.uncertainty !== null) {
+      const reason = REASONS[frame.uncertainty_reason] ?? frame.uncertainty_reason;
+      pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
+        `uncertainty ${frame.uncertainty.toFixed(2)}`, reason ? ` — mostly ${reason}` : ""));
+    }
     if (proposal.scores?.warning) pieces.push(h("br"), h("span", { class: "warning" }, proposal.scores.warning));
   }
   $("frame-state").replaceChildren(...pieces);

@@ -1,0 +1,62 @@
+// The metrics page: GET /api/v1/metrics as charts and tables.
+
+import { api } from "./api.js";
+import { lineChart } from "./chart.js";
+import { h } from "./ui.js";
+
+const root = document.getElementById("metrics");
+const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(1)} %` : "–");
+const px = (v) => (typeof v === "number" ? `${v.toFixed(1)} px` : "–");
+
+function learningCurve(student) {
+  if (!student.length) {
+    return h("p", { class: "muted" }, "No student version yet: train one on the models page.");
+  }
+  const points = (key) => student.filter((v) => typeof v[key] === "number").map((v) => [v.train_label_count, v[key]]);
+  return h("div", { class: "charts" },
+    lineChart({ title: "Student mIoU", xLabel: "labels", domain: [0, 1], width: 420, height: 200,
+      series: [{ name: "mIoU", colour: "#1971c2", points: points("mIoU") }] }),
+    lineChart({ title: "Student mED", xLabel: "labels", unit: "px", width: 420, height: 200,
+      series: [{ name: "mED", colour: "#d9480f", points: points("mED") }] }));
+}
+
+function table(headers, rows, testid) {
+  return h("table", { class: "table", "data-testid": testid },
+    h("thead", {}, h("tr", {}, ...headers.map((text) => h("th", {}, text)))),
+    h("tbody", {}, ...rows.map((cells) => h("tr", {}, ...cells.map((c) => h("td", {}, c))))));
+}
+
+function render(data) {
+  const teacher = data.teacher;
+  const review = data.review;
+  const labels = review.labels;
+  root.replaceChildren(
+    h("h2", {}, "Student learning curve"),
+    learningCurve(data.student),
+    data.student.length ? table(["version", "labels", "mIoU", "mED", ""],
+      data.student.map((v) => [v.name, String(v.train_label_count), pct(v.mIoU), px(v.mED), v.promoted ? "promoted" : ""]),
+      "student-table") : "",
+    h("h2", {}, "Teacher against reviewed masks"),
+    teacher.overall.frames
+      ? table(["sequence", "frames", "mIoU", "Q1", "median", "Q3"],
+        [...teacher.by_sequence, { sequence: "all", ...teacher.overall }].map((r) => [
+          r.sequence ?? "(no sequence)", String(r.frames), pct(r.mIoU), pct(r.q1), pct(r.median), pct(r.q3)]),
+        "teacher-table")
+      : h("p", { class: "muted" }, "No reviewed frame has a teacher proposal yet."),
+    h("h2", {}, "Review"),
+    h("p", { "data-testid": "acceptance" },
+      `${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,
+      review.teacher_acceptance_rate === null
+        ? "No teacher proposal has been reviewed yet."
+        : `Reviewers accepted ${pct(review.teacher_acceptance_rate)} of the ${review.teacher_reviewed} teacher proposals they reviewed as they were.`),
+    review.over_time.length
+      ? table(["day", "accepted", "corrected", "rejected"],
+        review.over_time.map((d) => [d.day, String(d.accepted), String(d.corrected), String(d.rejected)]),
+        "review-table")
+      : "",
+    h("p", { class: "muted" }, `${data.queue.scored_frames} frames have an uncertainty score in the review queue.`));
+}
+
+api("/metrics").then(render).catch((error) => {
+  root.replaceChildren(h("p", { class: "error" }, error.message));
+});
