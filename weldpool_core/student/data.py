@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,10 +40,10 @@ from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
-from weldpool_core.io import load_rgb8, read_mask, to_rgb8
+from weldpool_core.io import load_rgb8, read_mask
 from weldpool_core.student.model import Aspect
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
 @dataclass(frozen=True)
@@ -418,9 +418,14 @@ def dataset_stems(folder: str | Path) -> list[str]:
             f"{root} is not a DATASET folder; it needs images/<stem>.<png|jpg|tif> and "
             "masks/<stem>.png."
         )
-    images = {p.stem for p in (root / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    images = [p.stem for p in (root / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    twice = sorted({stem for stem in images if images.count(stem) > 1})
+    if twice:
+        raise InvalidInputError(
+            f"{root / 'images'} holds several images named {twice[0]!r}; keep one per stem."
+        )
     masks = {p.stem for p in (root / "masks").glob("*.png")}
-    stems = sorted(images & masks)
+    stems = sorted(set(images) & masks)
     if not stems:
         raise InvalidInputError(
             f"{root} holds no image with a mask of the same stem (images/<stem>.png and "
@@ -438,7 +443,7 @@ def read_dataset(folder: str | Path) -> Iterator[TrainingFrame]:
     """
     root = Path(folder)
     stems = dataset_stems(root)
-    images = {p.stem: p for p in sorted((root / "images").iterdir())}
+    images = {p.stem: p for p in (root / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
     for stem in stems:
         image_path = images[stem]
         try:
@@ -449,12 +454,3 @@ def read_dataset(folder: str | Path) -> Iterator[TrainingFrame]:
         keypoints_path = root / "keypoints" / f"{stem}.json"
         keypoints = _keypoints_file(keypoints_path) if keypoints_path.is_file() else None
         yield TrainingFrame(image, mask, keypoints, stem)
-
-
-def frames_from_arrays(
-    samples: Iterable[tuple[NDArray[Any], NDArray[Any], NDArray[Any] | None]],
-) -> Iterator[TrainingFrame]:
-    """Training frames from ``(image, mask, keypoints or None)`` tuples of any image kind."""
-    for index, (image, mask, keypoints) in enumerate(samples):
-        points = None if keypoints is None else np.asarray(keypoints, np.float64)
-        yield TrainingFrame(to_rgb8(image), np.asarray(mask) != 0, points, f"#{index}")

@@ -116,7 +116,7 @@ class StudentPredictor:
     """A trained student loaded once; ``predict`` maps batches of frames to predictions.
 
     Args:
-        model: the network (in eval mode).
+        model: the network; the predictor owns it from then on (its BatchNorm is folded).
         device: where it runs.
         batch_size: frames per forward pass.
     """

@@ -160,3 +160,6 @@ def test_bad_dataset_folders_are_one_sentence(tmp_path: Path) -> None:
     (tmp_path / "data" / "keypoints" / "f1.json").write_text("[1, 2]")
     with pytest.raises(InvalidInputError, match="not a keypoints file"):
         list(read_dataset(tmp_path / "data"))
+    cv2.imwrite(str(tmp_path / "data" / "images" / "f0.jpg"), np.zeros((8, 8), np.uint8))
+    with pytest.raises(InvalidInputError, match="several images named 'f0'"):
+        list(read_dataset(tmp_path / "data"))
