@@ -147,3 +147,45 @@ def test_metrics_figures(client: TestClient, make_user) -> None:
     assert teacher["mIoU"] >= 0.5  # the accepted proposal matches its label exactly (IoU 1)
     assert figures["student"] == [] and figures["queue"]["scored_frames"] == 2
     assert figures["review"]["over_time"][0]["accepted"] == 1
+
+
+def test_a_worse_new_model_is_not_promoted(client: TestClient, session_factory, make_user):
+    from app.models import ModelVersion
+    from app.training.service import better_than
+    from tests.helpers import wait_for_job
+
+    assert better_than({"mED": 4.0, "mIoU": 0.8}, {"mED": 5.0, "mIoU": 0.9})
+    assert not better_than({"mED": 6.0, "mIoU": 0.95}, {"mED": 5.0, "mIoU": 0.9})
+    assert better_than({"mED": None, "mIoU": 0.9}, {"mED": None, "mIoU": 0.8})
+
+    _, token = make_user("promoter", Role.reviewer)
+    with session_factory() as session:
+        session.add(
+            ModelVersion(name="student-v0", metrics={"mED": 0.01, "mIoU": 0.999}, is_promoted=True)
+        )
+        session.commit()
+    ids = _frames(client, token, 3)
+    mask = np.zeros((24, 32), bool)
+    mask[4:20, 6:26] = True
+    for frame_id in ids:
+        client.put(
+            f"/api/v1/frames/{frame_id}/label",
+            headers=auth(token),
+            json={
+                "status": "corrected",
+                "base_revision": 0,
+                "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
+            },
+        )
+    job_id = client.post(
+        "/api/v1/student/train", json={"epochs": 1, "size": "light"}, headers=auth(token)
+    ).json()["job_id"]
+    job = wait_for_job(client, job_id, token, timeout=300)
+    assert job["status"] == "succeeded", job["error"]
+    assert job["result"]["promoted"] is False
+    models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
+    assert models["student-v0"]["is_promoted"] and not models[job["result"]["name"]]["is_promoted"]
+    assert (
+        client.get("/api/v1/jobs", params={"kind": "student"}, headers=auth(token)).json()["total"]
+        == 0
+    )  # no re-scoring by a loser

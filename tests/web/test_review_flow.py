@@ -88,8 +88,17 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
         timeout=120_000,
     )
 
+    # The proposals gave the frames uncertainty scores: the queue is now ordered by them.
+    page.reload()
+    page.wait_for_function("document.querySelectorAll('[data-testid=frame-row]').length === 2")
+    rows = page.locator("[data-testid=frame-row]")
+    queue = [int(rows.nth(i).get_attribute("data-frame-id")) for i in range(2)]
+    assert sorted(queue) == frame_ids
+    scores = [server.api("GET", f"/frames/{i}").json()["uncertainty"] for i in queue]
+    assert None not in scores and scores == sorted(scores, reverse=True)
+
     # Open the review page of the first frame of the queue.
-    first, second = frame_ids
+    first, second = queue
     page.click(f"[data-frame-id='{first}'] .frame-link")
     page.wait_for_url(re.compile(rf"/frames/{first}\?"))
     open_review(page)
