@@ -6,7 +6,9 @@ precision on CUDA via ``device.inference_dtype``). ``predict`` takes a batch of 
 size, fits each to the input (``FrameGeometry``), runs them together, and maps the outputs back.
 
 Keypoints are the modes of the predicted heatmap (``keypoints_from_heatmap``) found at model
-resolution and mapped to frame pixels, so they keep the sub-pixel refinement of the small map.
+resolution and mapped to frame pixels, so they keep the sub-pixel refinement of the small map;
+of modes closer than half Algorithm 1's keypoint separation, only the strongest counts: the
+others are lobes of the same keypoint (``mode_distance``).
 
 Uncertainty (``samples`` > 0): the frame is encoded once, the decoder runs on ``samples`` latent
 draws z = μ + σ·ε, and the score is twice the mean, over the frame's pixels, of the per-pixel
@@ -23,12 +25,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 from numpy.typing import NDArray
 
 from weldpool_core.device import inference_dtype, resolve_device
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.io import to_rgb8
 from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
 from weldpool_core.student.checkpoint import load_student
@@ -36,6 +40,7 @@ from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last, fuse_batchnorm
 
 UNCERTAINTY_SEED = 0
+MIN_MODE_DISTANCE = 5.0
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,23 @@ def frames_to_batch(
     return batch, geometries
 
 
+def mode_distance(mask_probability: NDArray[np.float32], k: int) -> float:
+    """Radius within which two heatmap modes are lobes of one keypoint, in model pixels.
+
+    Algorithm 1 keeps keypoints at least ``HeatmapParams(k).separation`` of the outline apart,
+    and its heatmap is the Gaussians times the smoothed mask, so a keypoint at a concave notch
+    (the wire's) shows as two lobes on either side of it. Modes closer than half that separation
+    (as a straight distance along the predicted outline) are one keypoint, and the strongest
+    lobe is the nearer to it (the keypoint lies on the outline); 5 px at least.
+    """
+    mask = (mask_probability >= 0.5).astype(np.uint8)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return MIN_MODE_DISTANCE
+    perimeter = cv2.arcLength(max(contours, key=cv2.contourArea), closed=True)
+    return max(MIN_MODE_DISTANCE, 0.5 * HeatmapParams(k=k).separation * perimeter)
+
+
 def to_frame(
     mask_probability: NDArray[np.float32],
     heatmap: NDArray[np.float32],
@@ -81,8 +103,8 @@ def to_frame(
     """Map one frame's S×S outputs (mask probability, heatmap) back to its full resolution."""
     rows, columns = geometry.inner_rows, geometry.inner_columns
     inner = np.stack([heatmap[rows, columns], mask_probability[rows, columns]], axis=2)
-    separation = max(5.0, geometry.size / 32)  # keypoints lie ≥ 10 % of the outline apart
-    modes = keypoints_from_heatmap(inner, k=k, params=ModeParams(min_distance=separation))
+    params = ModeParams(min_distance=mode_distance(inner[:, :, 1], k))
+    modes = keypoints_from_heatmap(inner, k=k, params=params)
     offset = np.array([geometry.offset_x, geometry.offset_y], np.float64)
     keypoints = geometry.to_frame(modes + offset) if len(modes) else modes
     full = np.asarray(geometry.map_to_frame(np.stack([heatmap, mask_probability], axis=2)))
