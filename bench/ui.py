@@ -22,7 +22,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.web.server import LiveServer, launch_chromium, login
+from tests.web.server import LiveServer, launch_chromium, login, missing_browser
 from weldpool_core.synth import SynthParams, synth_frame
 
 TIMINGS_JS = """() => {
@@ -66,6 +66,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5)
     args = parser.parse_args()
+    problem = missing_browser()
+    if problem:
+        sys.exit(f"bench/ui.py: {problem}")
     from playwright.sync_api import sync_playwright
 
     with tempfile.TemporaryDirectory(prefix="weldpool-bench-ui-") as tmp:

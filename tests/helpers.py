@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Callable
@@ -19,6 +21,22 @@ POSTGRES_URL = os.environ.get(
 REDIS_URL = os.environ.get("WELDPOOL_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def run_cli(
+    *args: str | Path, env: dict[str, str] | None = None, stdin: str = "", timeout: float = 300
+) -> subprocess.CompletedProcess[str]:
+    """``weldpool ARGS`` in a child process (offline: never the hub), with ``env`` added."""
+    environment = {**os.environ, "HF_HUB_OFFLINE": "1", **(env or {})}
+    return subprocess.run(
+        [sys.executable, "-m", "app", *map(str, args)],
+        input=stdin,
+        env=environment,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def make_settings(home: Path, **overrides: Any) -> Settings:

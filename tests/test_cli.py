@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,25 +13,15 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.db import MIGRATIONS_DIR
 from app.main import create_app
-from tests.helpers import REPO, auth, make_settings
+from tests.helpers import auth, make_settings, run_cli
 
 
-def run(settings: Settings, *args: str, stdin: str = "", **env: str) -> subprocess.CompletedProcess:
-    environment = dict(
-        os.environ,
-        WELDPOOL_HOME=str(settings.home),
-        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
-        **env,
-    )
-    return subprocess.run(
-        [sys.executable, "-m", "app", *args],
-        input=stdin,
-        text=True,
-        capture_output=True,
-        env=environment,
-        cwd=REPO,
-        timeout=120,
-    )
+def run(
+    settings: Settings, *args: str, stdin: str = "", **env: str
+) -> subprocess.CompletedProcess[str]:
+    home = {"WELDPOOL_HOME": str(settings.home)}
+    database = {"WELDPOOL_DATABASE_URL": settings.resolved_database_url}
+    return run_cli(*args, env={**home, **database, **env}, stdin=stdin)
 
 
 @pytest.fixture

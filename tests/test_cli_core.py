@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import run_cli
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.io import encode_mask_png, read_mask
 from weldpool_core.synth import SynthParams, synth_frame
@@ -20,15 +18,7 @@ SMALL = SynthParams(width=160, height=100)
 
 
 def run(tmp_path: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
-    environment = dict(os.environ, WELDPOOL_HOME=str(tmp_path / "home"))
-    return subprocess.run(
-        [sys.executable, "-m", "app", *map(str, args)],
-        capture_output=True,
-        text=True,
-        env=environment,
-        cwd=REPO,
-        timeout=120,
-    )
+    return run_cli(*args, env={"WELDPOOL_HOME": str(tmp_path / "home")})
 
 
 def _one_line_error(result: subprocess.CompletedProcess[str], text: str) -> None:

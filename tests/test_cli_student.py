@@ -3,30 +3,20 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import run_cli
 from weldpool_core.io import encode_mask_png, read_mask
 from weldpool_core.synth import SynthParams, synth_frame
 
 
 def run(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    environment = dict(os.environ, WELDPOOL_HOME=str(tmp_path / "home"), HF_HUB_OFFLINE="1")
-    return subprocess.run(
-        [sys.executable, "-m", "app", *args],
-        env=environment,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return run_cli(*args, env={"WELDPOOL_HOME": str(tmp_path / "home")})
 
 
 def _dataset(folder: Path, count: int = 6) -> Path:

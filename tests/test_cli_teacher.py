@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import run_cli
 from tests.models import tiny_dino, tiny_sam2
 from weldpool_core.io import encode_mask_png, read_mask
 from weldpool_core.synth import SynthParams, synth_frame
@@ -30,16 +28,8 @@ def weights(tmp_path_factory) -> dict[str, str]:
     }
 
 
-def run(tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
-    environment = dict(os.environ, WELDPOOL_HOME=str(tmp_path / "home"), HF_HUB_OFFLINE="1", **env)
-    return subprocess.run(
-        [sys.executable, "-m", "app", *args],
-        env=environment,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+def run(tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess[str]:
+    return run_cli(*args, env={"WELDPOOL_HOME": str(tmp_path / "home"), **env})
 
 
 def _dataset(folder: Path, count: int = 2) -> Path:

@@ -459,6 +459,38 @@ def _select_keypoints(
     return keypoints, covariances, rules
 
 
+def gaussian_window(
+    centre: tuple[float, float],
+    covariance: NDArray[np.float64],
+    limits: tuple[int, int, int, int],
+    window_sigmas: float,
+) -> tuple[slice, slice, NDArray[np.float32]] | None:
+    """A peak-1 Gaussian at ``centre`` (``(x, y)``) within ``window_sigmas`` standard deviations.
+
+    ``limits`` ``(x0, y0, x1, y1)`` bound the window (the image, or a crop of it). Returns the
+    window's rows and columns and the Gaussian's values there (float32), or None when the window
+    lies outside the limits.
+    """
+    mx, my = centre
+    half_x = window_sigmas * math.sqrt(covariance[0, 0])
+    half_y = window_sigmas * math.sqrt(covariance[1, 1])
+    x0 = max(math.floor(mx - half_x), limits[0])
+    y0 = max(math.floor(my - half_y), limits[1])
+    x1 = min(math.ceil(mx + half_x) + 1, limits[2])
+    y1 = min(math.ceil(my + half_y) + 1, limits[3])
+    if x0 >= x1 or y0 >= y1:
+        return None
+    inverse = np.linalg.inv(covariance)
+    dx = np.arange(x0, x1, dtype=np.float32)[None, :] - np.float32(mx)
+    dy = np.arange(y0, y1, dtype=np.float32)[:, None] - np.float32(my)
+    quadratic = (
+        np.float32(inverse[0, 0]) * dx * dx
+        + np.float32(2 * inverse[0, 1]) * dx * dy
+        + np.float32(inverse[1, 1]) * dy * dy
+    )
+    return slice(y0, y1), slice(x0, x1), np.exp(np.float32(-0.5) * quadratic)
+
+
 def _render(
     heatmap: NDArray[np.float32],
     smoothed: _Smoothed,
@@ -470,30 +502,15 @@ def _render(
     height, width = heatmap.shape
     ox, oy = smoothed.origin
     crop_h, crop_w = smoothed.values.shape
+    limits = (max(0, ox), max(0, oy), min(width, ox + crop_w), min(height, oy + crop_h))
     for (mx, my), covariance in zip(keypoints, covariances, strict=True):
-        half_x = window_sigmas * math.sqrt(covariance[0, 0])
-        half_y = window_sigmas * math.sqrt(covariance[1, 1])
-        x0, x1 = (
-            max(math.floor(mx - half_x), 0, ox),
-            min(math.ceil(mx + half_x) + 1, width, ox + crop_w),
-        )
-        y0, y1 = (
-            max(math.floor(my - half_y), 0, oy),
-            min(math.ceil(my + half_y) + 1, height, oy + crop_h),
-        )
-        if x0 >= x1 or y0 >= y1:
+        window = gaussian_window((mx, my), covariance, limits, window_sigmas)
+        if window is None:
             continue
-        inverse = np.linalg.inv(covariance)
-        dx = np.arange(x0, x1, dtype=np.float32)[None, :] - np.float32(mx)
-        dy = np.arange(y0, y1, dtype=np.float32)[:, None] - np.float32(my)
-        quadratic = (
-            np.float32(inverse[0, 0]) * dx * dx
-            + np.float32(2 * inverse[0, 1]) * dx * dy
-            + np.float32(inverse[1, 1]) * dy * dy
-        )
-        gaussian = np.exp(np.float32(-0.5) * quadratic)
-        pool = smoothed.values[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
-        heatmap[y0:y1, x0:x1] += gaussian * np.minimum(pool + pool, np.float32(1))
+        rows, columns, gaussian = window
+        crop_rows = slice(rows.start - oy, rows.stop - oy)
+        pool = smoothed.values[crop_rows, columns.start - ox : columns.stop - ox]
+        heatmap[rows, columns] += gaussian * np.minimum(pool + pool, np.float32(1))
 
 
 def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:

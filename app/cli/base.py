@@ -72,22 +72,36 @@ def main() -> None:
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 
 
-def image_files(arguments: tuple[str, ...]) -> list[Path]:
-    """Image files named on the command line, folders expanded to their images (sorted)."""
+def named_files(
+    arguments: tuple[str, ...],
+    suffixes: set[str],
+    kind: str,
+    stem: Callable[[Path], str] = lambda path: path.stem,
+) -> list[Path]:
+    """Files named on the command line, folders expanded to those with ``suffixes`` (sorted).
+
+    ``kind`` names them in errors ("image", "PNG mask"); outputs are named by ``stem``, so two
+    files with one stem are refused.
+    """
     files: list[Path] = []
     for text in arguments:
         path = Path(text)
         if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in suffixes)
             if not found:
-                fail(f"The folder {path} holds no image (PNG, JPEG, TIFF or BMP).")
+                fail(f"The folder {path} holds no {kind} ({', '.join(sorted(suffixes))}).")
             files.extend(found)
         elif path.is_file():
             files.append(path)
         else:
-            fail(f"{path} does not exist; give image files or folders of them.")
-    stems = [p.stem for p in files]
+            fail(f"{path} does not exist; give {kind} files or folders of them.")
+    stems = [stem(p) for p in files]
     twice = sorted({s for s in stems if stems.count(s) > 1})
     if twice:
-        fail(f"Several images are named {twice[0]!r}; outputs are named by stem.")
+        fail(f"Several {kind} files would write outputs named {twice[0]!r}; rename one.")
     return files
+
+
+def image_files(arguments: tuple[str, ...]) -> list[Path]:
+    """Image files named on the command line, folders expanded to their images (sorted)."""
+    return named_files(arguments, IMAGE_SUFFIXES, "image")

@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from app.cli.base import fail, friendly_errors, image_files, load_settings, main
+from app.cli.base import fail, friendly_errors, image_files, load_settings, main, named_files
 
 # Masks are PNG files (0 / 255). A file `<stem>_mask.png` (what `teacher` and `predict` write)
 # counts as the mask of `<stem>`, so outputs and ground truth line up by stem. A folder holding a
@@ -22,23 +22,7 @@ def _stem(path: Path) -> str:
 
 def _input_masks(inputs: tuple[str, ...]) -> list[Path]:
     """The PNG masks named on the command line, folders expanded (sorted by name)."""
-    paths: list[Path] = []
-    for text in inputs:
-        path = Path(text)
-        if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() == ".png")
-            if not found:
-                fail(f"The folder {path} holds no PNG mask.")
-            paths.extend(found)
-        elif path.is_file():
-            paths.append(path)
-        else:
-            fail(f"{path} does not exist; give PNG mask files or folders of them.")
-    stems = [_stem(p) for p in paths]
-    twice = sorted({s for s in stems if stems.count(s) > 1})
-    if twice:
-        fail(f"Several masks would write outputs named {twice[0]!r}; give each mask its own stem.")
-    return paths
+    return named_files(inputs, {".png"}, "PNG mask", _stem)
 
 
 def _part(folder: Path, part: str) -> Path:

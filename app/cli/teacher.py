@@ -47,6 +47,24 @@ def weights_fetch() -> None:
         click.echo(f"{ref}: {status.detail} ({status.path})", err=True)
 
 
+@weights.command("convert-dino")
+@click.argument("checkpoint", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@friendly_errors
+def weights_convert_dino(checkpoint: Path, out_dir: Path) -> None:
+    """Convert Meta's DINO checkpoint (e.g. dino_deitsmall8_pretrain.pth) for WELDPOOL_DINO."""
+    from weldpool_core.teacher.convert import convert_meta_dino
+
+    if out_dir.exists() and any(out_dir.iterdir()):
+        fail(f"{out_dir} is not empty; give a new folder for the converted model.")
+    config = convert_meta_dino(checkpoint, out_dir)
+    click.echo(
+        f"wrote ViT ({config.num_hidden_layers} blocks, width {config.hidden_size}, patch "
+        f"{config.patch_size}) to {out_dir}; set WELDPOOL_DINO={out_dir.resolve()}",
+        err=True,
+    )
+
+
 def load_teacher(settings: Settings, prompts: str) -> Any:
     """The teacher as the settings name it, with the embedding cache under WELDPOOL_HOME."""
     from weldpool_core.teacher.teacher import Teacher, TeacherConfig

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -14,7 +11,7 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.models import Role
-from tests.helpers import REPO, SHARED_DATA, auth, image_bytes, wait_for_job
+from tests.helpers import SHARED_DATA, auth, image_bytes, run_cli, wait_for_job
 
 
 def synthetic_avi(path: Path, frames: int = 30, fps: float = 10.0) -> Path:
@@ -123,47 +120,15 @@ def test_command_line_import(tmp_path: Path, settings: Settings, session_factory
     (folder / "readme.txt").write_text("not a frame")  # ignored: not an image name
     (folder / "bad.png").write_bytes(b"broken")
     video = synthetic_avi(tmp_path / "clip.avi", frames=12)
-    env = dict(
-        os.environ,
-        WELDPOOL_HOME=str(settings.home),
-        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
-    )
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "app",
-            "import",
-            str(folder),
-            str(video),
-            "--sequence",
-            "bulk",
-            "--every-nth",
-            "4",
-        ],
-        env=env,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    env = {
+        "WELDPOOL_HOME": str(settings.home),
+        "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
+    }
+    result = run_cli("import", folder, video, "--sequence", "bulk", "--every-nth", "4", env=env)
     assert result.returncode == 0, result.stderr
     assert "refused bad.png: The file is not a readable image" in result.stderr
     assert "sequence 'bulk': 6 frames stored, 0 duplicates, 1 refused" in result.stderr
-    again = subprocess.run(
-        [sys.executable, "-m", "app", "import", str(folder), "--sequence", "bulk"],
-        env=env,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    again = run_cli("import", folder, "--sequence", "bulk", env=env)
     assert "0 frames stored, 3 duplicates" in again.stderr
-    missing = subprocess.run(
-        [sys.executable, "-m", "app", "import", str(tmp_path / "nope"), "--sequence", "x"],
-        env=env,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-    )
+    missing = run_cli("import", tmp_path / "nope", "--sequence", "x", env=env)
     assert missing.returncode == 2 and missing.stderr.strip().endswith("does not exist.")

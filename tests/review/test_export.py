@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -16,7 +13,7 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.demo import fill_demo
 from app.models import Role
-from tests.helpers import REPO, auth
+from tests.helpers import auth, run_cli
 from weldpool_core.io import decode_mask_png
 
 
@@ -80,37 +77,13 @@ def test_nothing_to_export_is_a_clear_400(client: TestClient, make_user) -> None
 
 def test_command_line_export(settings: Settings, session_factory, tmp_path: Path) -> None:
     _demo(settings, session_factory, frames=4)
-    env = dict(
-        os.environ,
-        WELDPOOL_HOME=str(settings.home),
-        WELDPOOL_DATABASE_URL=settings.resolved_database_url,
-    )
+    env = {
+        "WELDPOOL_HOME": str(settings.home),
+        "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
+    }
     out = tmp_path / "export" / "labels.zip"
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "app",
-            "export",
-            "--out",
-            str(out),
-            "--sequence",
-            "demo weld run (synthetic)",
-        ],
-        env=env,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    result = run_cli("export", "--out", out, "--sequence", "demo weld run (synthetic)", env=env)
     assert result.returncode == 0, result.stderr
     assert len([n for n in zipfile.ZipFile(out).namelist() if n.startswith("masks/")]) == 2
-    missing = subprocess.run(
-        [sys.executable, "-m", "app", "export", "--out", str(out), "--sequence", "nope"],
-        env=env,
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    missing = run_cli("export", "--out", out, "--sequence", "nope", env=env)
     assert missing.returncode == 2 and "There is no sequence named 'nope'." in missing.stderr

@@ -27,7 +27,6 @@ a resumed run identical to an uninterrupted one.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +38,7 @@ import torch
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+from weldpool_core.heatmap import HeatmapParams, gaussian_window, heatmap_from_mask
 from weldpool_core.io import load_rgb8, read_mask
 from weldpool_core.student.model import Aspect
 
@@ -246,23 +245,12 @@ def render_heatmap(
     """
     size_y, size_x = mask.shape
     heat = np.zeros(mask.shape, np.float32)
-    for (mx, my), covariance in zip(keypoints, covariances, strict=True):
+    for centre, covariance in zip(keypoints, covariances, strict=True):
         spread = covariance + sigma_floor**2 * np.eye(2)
-        half_x = window_sigmas * math.sqrt(spread[0, 0])
-        half_y = window_sigmas * math.sqrt(spread[1, 1])
-        x0, x1 = max(math.floor(mx - half_x), 0), min(math.ceil(mx + half_x) + 1, size_x)
-        y0, y1 = max(math.floor(my - half_y), 0), min(math.ceil(my + half_y) + 1, size_y)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        inverse = np.linalg.inv(spread)
-        dx = np.arange(x0, x1, dtype=np.float32)[None, :] - np.float32(mx)
-        dy = np.arange(y0, y1, dtype=np.float32)[:, None] - np.float32(my)
-        quadratic = (
-            np.float32(inverse[0, 0]) * dx * dx
-            + np.float32(2 * inverse[0, 1]) * dx * dy
-            + np.float32(inverse[1, 1]) * dy * dy
-        )
-        heat[y0:y1, x0:x1] += np.exp(np.float32(-0.5) * quadratic)
+        window = gaussian_window(centre, spread, (0, 0, size_x, size_y), window_sigmas)
+        if window is not None:
+            rows, columns, gaussian = window
+            heat[rows, columns] += gaussian
     pool = cv2.blur(mask, (3, 3))
     return np.asarray(np.clip(heat * np.minimum(pool + pool, np.float32(1)), 0, 1), np.float32)
 
