@@ -117,7 +117,8 @@ def test_mask_codec_round_trip() -> None:
     mask[5:15, 10:25] = True
     data = encode_mask_png(mask)
     image = read_image(data)
-    assert image.info.channels == 1 and set(np.unique(image.pixels)) == {0, 255}
+    assert image.info.channels == 1 and image.info.bit_depth == 8
+    assert set(np.unique(image.pixels)) == {0, 255}
     assert np.array_equal(decode_mask_png(data), mask)
     assert np.array_equal(decode_mask_png(encode_png(mask.astype(np.uint8))), mask)  # 0/1
     with pytest.raises(InvalidInputError, match="must be a PNG"):
