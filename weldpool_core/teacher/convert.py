@@ -152,7 +152,8 @@ def convert_meta_dino(checkpoint_file: str | Path, out_dir: str | Path) -> ViTCo
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:
         raise InvalidInputError(
-            f"{path} is not a PyTorch checkpoint ({type(exc).__name__})."
+            f"{path} is not a plain PyTorch state dict ({type(exc).__name__}); give DINO's "
+            "released backbone file (e.g. dino_deitsmall8_pretrain.pth)."
         ) from None
     if not isinstance(checkpoint, Mapping):
         raise InvalidInputError(f"{path} holds no state dict.")

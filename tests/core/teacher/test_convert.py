@@ -175,6 +175,7 @@ def test_convert_writes_a_directory_the_teacher_loads(tmp_path) -> None:  # type
     junk = run_cli("weights", "convert-dino", tmp_path / "junk.pth", "--out", tmp_path / "x")
     lines = junk.stderr.strip().splitlines()
     assert junk.returncode == 2 and len(lines) == 1
-    assert lines[0].startswith(f"weldpool: {tmp_path / 'junk.pth'} is not a PyTorch checkpoint (")
+    junk_file = tmp_path / "junk.pth"
+    assert lines[0].startswith(f"weldpool: {junk_file} is not a plain PyTorch state dict (")
     with pytest.raises(InvalidInputError, match="does not exist"):
         convert_meta_dino(tmp_path / "nope.pth", tmp_path / "y")
