@@ -39,6 +39,20 @@ def run_cli(
     )
 
 
+def mask_b64(mask: Any) -> str:
+    """A mask as the API carries it: a 0/255 PNG, base64."""
+    import base64
+
+    from weldpool_core.io import encode_mask_png
+
+    return base64.b64encode(encode_mask_png(mask)).decode()
+
+
+def corrected_label(mask: Any, base_revision: int = 0) -> dict[str, Any]:
+    """The body of ``PUT /frames/{id}/label`` that saves ``mask`` as a correction."""
+    return {"status": "corrected", "base_revision": base_revision, "mask_png": mask_b64(mask)}
+
+
 def make_settings(home: Path, **overrides: Any) -> Settings:
     """Settings for a test: its own home and queue name, fast heartbeats, no .env file."""
     values: dict[str, Any] = {

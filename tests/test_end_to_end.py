@@ -5,7 +5,6 @@ during training: the job fails, no version is half-written, the next training su
 
 from __future__ import annotations
 
-import base64
 import io
 import os
 import signal
@@ -24,9 +23,8 @@ from app.main import create_app
 from app.models import Job, JobStatus, ModelVersion, Role, User
 from app.queue import JobQueue
 from app.security import issue_token
-from tests.helpers import REPO, auth, make_settings, wait_for, wait_for_job
+from tests.helpers import REPO, auth, corrected_label, make_settings, wait_for, wait_for_job
 from tests.models import save_tiny_teacher
-from weldpool_core.io import encode_mask_png
 from weldpool_core.synth import SynthParams, synth_sequence
 
 pytestmark = pytest.mark.slow
@@ -36,10 +34,6 @@ SIZE = SynthParams(width=192, height=120)
 @pytest.fixture(scope="module")
 def teacher_weights(tmp_path_factory) -> dict[str, object]:
     return save_tiny_teacher(tmp_path_factory.mktemp("weights"))
-
-
-def _b64(data: bytes) -> str:
-    return base64.b64encode(data).decode()
 
 
 def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> None:
@@ -90,11 +84,7 @@ def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> N
         )
         assert accepted.status_code == 200
         for frame_id, truth in zip(ids[1:12], frames[1:12], strict=True):
-            body = {
-                "status": "corrected",
-                "base_revision": 0,
-                "mask_png": _b64(encode_mask_png(truth.mask)),
-            }
+            body = corrected_label(truth.mask)
             assert (
                 client.put(
                     f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token)
@@ -189,11 +179,7 @@ def test_killed_worker_during_training(tmp_path: Path, database_url: str) -> Non
             client.put(
                 f"/api/v1/frames/{frame_id}/label",
                 headers=auth(token),
-                json={
-                    "status": "corrected",
-                    "base_revision": 0,
-                    "mask_png": _b64(encode_mask_png(truth.mask)),
-                },
+                json=corrected_label(truth.mask),
             )
         long_job = client.post(
             "/api/v1/student/train", json={"epochs": 200, "size": "light"}, headers=auth(token)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import base64
-
 import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
@@ -11,9 +9,8 @@ from fastapi.testclient import TestClient
 from app.main import create_app
 from app.models import Frame, Job, JobStatus, Proposal, Role
 from app.review.queue import rescore_frame
-from tests.helpers import auth, image_bytes
+from tests.helpers import auth, corrected_label, image_bytes
 from tests.review.test_review import _teacher, _upload_synthetic
-from weldpool_core.io import encode_mask_png
 
 
 def _frames(client: TestClient, token: str, count: int) -> list[int]:
@@ -89,11 +86,7 @@ def test_retraining_starts_once_per_threshold_and_never_twice(
         ids = _frames(client, token, 5)
         mask = np.zeros((24, 32), bool)
         mask[4:20, 6:26] = True
-        body = {
-            "status": "corrected",
-            "base_revision": 0,
-            "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
-        }
+        body = corrected_label(mask)
 
         def trainings() -> list[Job]:
             with session_factory() as session:
@@ -133,11 +126,7 @@ def test_metrics_figures(client: TestClient, make_user) -> None:
     client.put(
         f"/api/v1/frames/{ids[1]}/label",
         headers=auth(token),
-        json={
-            "status": "corrected",
-            "base_revision": 0,
-            "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
-        },
+        json=corrected_label(mask),
     )
     figures = client.get("/api/v1/metrics", headers=auth(token)).json()
     assert figures["review"]["labels"] == {"accepted": 1, "corrected": 1, "rejected": 0}
@@ -171,11 +160,7 @@ def test_a_worse_new_model_is_not_promoted(client: TestClient, session_factory, 
         client.put(
             f"/api/v1/frames/{frame_id}/label",
             headers=auth(token),
-            json={
-                "status": "corrected",
-                "base_revision": 0,
-                "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
-            },
+            json=corrected_label(mask),
         )
     job_id = client.post(
         "/api/v1/student/train", json={"epochs": 1, "size": "light"}, headers=auth(token)

@@ -12,8 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.models import Role
-from tests.helpers import auth, wait_for_job
-from weldpool_core.io import decode_mask_png, encode_mask_png
+from tests.helpers import auth, corrected_label, mask_b64, wait_for_job
+from weldpool_core.io import decode_mask_png
 from weldpool_core.synth import SynthParams, synth_frame
 
 SIZE = SynthParams(width=160, height=100)
@@ -123,11 +123,7 @@ def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> N
     # Both reviewers saw revision 1; Rita corrects first, Otto's stale write is refused.
     mask = np.zeros((100, 160), bool)
     mask[20:80, 30:130] = True
-    corrected = {
-        "status": "corrected",
-        "base_revision": 1,
-        "mask_png": base64.b64encode(encode_mask_png(mask)).decode(),
-    }
+    corrected = corrected_label(mask, base_revision=1)
     first = client.put(url, json=corrected, headers=auth(rita))
     assert first.status_code == 200 and first.json()["revision"] == 2
     assert len(first.json()["keypoints"]) == 4  # recomputed by Algorithm 1
@@ -171,7 +167,7 @@ def test_bad_label_input(client: TestClient, people) -> None:
     token = people["reviewer"]
     frame_id = _upload_synthetic(client, token, 1)[0]
     url = f"/api/v1/frames/{frame_id}/label"
-    small = base64.b64encode(encode_mask_png(np.ones((10, 10), bool))).decode()
+    small = mask_b64(np.ones((10, 10), bool))
     wrong_size = client.put(
         url,
         json={"status": "corrected", "base_revision": 0, "mask_png": small},

@@ -13,11 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import image_bytes
+from tests.helpers import corrected_label, image_bytes
 from tests.web.conftest import synthetic_png
 from tests.web.server import LiveServer, login
 from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
-from weldpool_core.io import encode_mask_png
 from weldpool_core.synth import SynthParams, synth_frame
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -60,12 +59,7 @@ def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screens
     seed = 7
     frame_id = add_frame(server, seed)
     truth = synth_frame(seed=seed, params=SynthParams(1280, 800))
-    mask_png = base64.b64encode(encode_mask_png(truth.mask)).decode()
-    saved = server.api(
-        "PUT",
-        f"/frames/{frame_id}/label",
-        json={"status": "corrected", "base_revision": 0, "mask_png": mask_png},
-    )
+    saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
     assert saved.status_code == 200, saved.text
 
     login(page, server, "rita")
@@ -423,12 +417,7 @@ def test_real_model_version_on_the_models_and_metrics_pages(
         frame = server.api(
             "POST", "/frames", files=[("files", (f"m{seed}.png", data, "image/png"))]
         ).json()["stored"][0]
-        mask = base64.b64encode(encode_mask_png(truth.mask)).decode()
-        label = server.api(
-            "PUT",
-            f"/frames/{frame['id']}/label",
-            json={"status": "corrected", "base_revision": 0, "mask_png": mask},
-        )
+        label = server.api("PUT", f"/frames/{frame['id']}/label", json=corrected_label(truth.mask))
         assert label.status_code == 200, label.text
     job = server.api("POST", "/student/train", json={"epochs": 1, "size": "light"})
     assert job.status_code == 202, job.text
