@@ -192,13 +192,17 @@ def test_killed_worker_during_training(tmp_path: Path, database_url: str) -> Non
         WELDPOOL_QUEUE_NAME=settings.queue_name,
         WELDPOOL_JOB_HEARTBEAT_S="0.5",
     )
-    worker = subprocess.Popen(
-        [sys.executable, "-m", "app", "worker"],
-        env=env,
-        cwd=REPO,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+
+    def start_worker() -> subprocess.Popen[bytes]:
+        return subprocess.Popen(
+            [sys.executable, "-m", "app", "worker"],
+            env=env,
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+
+    worker = start_worker()
 
     def job(job_id: int) -> Job:
         with factory() as session:
@@ -211,13 +215,7 @@ def test_killed_worker_during_training(tmp_path: Path, database_url: str) -> Non
         work = settings.home / "models" / f".work-job{long_job}"
         assert job(long_job).status == JobStatus.running and work.exists()
 
-        worker = subprocess.Popen(
-            [sys.executable, "-m", "app", "worker"],
-            env=env,
-            cwd=REPO,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
+        worker = start_worker()
         wait_for(lambda: job(long_job).status == JobStatus.failed, timeout=60)
         assert "stopped without finishing" in (job(long_job).error or "")
         with factory() as session:
