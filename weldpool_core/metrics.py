@@ -165,3 +165,47 @@ def keypoint_scores(
         extra=extra,
         matching=matching,
     )
+
+
+IOU_FLOOR = 0.5
+"""Below this IoU a frame's keypoints do not count as found: a model that draws the wrong pool is
+not rescued by a lucky keypoint (``proposal_quality``)."""
+
+
+def proposal_quality(
+    frames: Mapping[str, tuple[NDArray[Any], Any, NDArray[Any], Any]],
+    iou_floor: float = IOU_FLOOR,
+) -> dict[str, Any]:
+    """How good a source's masks and keypoints are on reviewed frames: the one rule that
+    training's epoch choice and the promotion gate both use.
+
+    ``frames`` maps a name to ``(predicted mask, predicted keypoints, true mask, true
+    keypoints)``. Returns ``mIoU``, ``mED`` / ``mED_k`` / ``std`` / ``missed`` (matched
+    keypoints only, as ``keypoint_scores``), ``mED_penalised`` (every true keypoint counts; one
+    without a partner, or on a frame whose IoU is below ``iou_floor``, counts as the frame's
+    diagonal; None when no frame has true keypoints), ``per_image`` IoU and ``frames``.
+    """
+    if not frames:
+        raise InvalidInputError("There are no frames to score.")
+    per_image: dict[str, float] = {}
+    pairs: dict[str, tuple[Any, Any]] = {}
+    penalised: list[float] = []
+    for name, (predicted, points, truth, true_points) in frames.items():
+        per_image[name] = iou(predicted, truth)
+        pairs[name] = (points, true_points)
+        diagonal = float(np.hypot(*np.asarray(truth).shape))
+        distances = match_keypoints(points, true_points)
+        if per_image[name] < iou_floor:
+            distances = np.full(len(distances), np.nan)
+        penalised.extend(np.where(np.isnan(distances), diagonal, distances).tolist())
+    keypoints = keypoint_scores(pairs)
+    return {
+        "mIoU": float(np.mean(list(per_image.values()))),
+        "mED": keypoints.med,
+        "mED_k": keypoints.med_k,
+        "std": keypoints.std,
+        "missed": keypoints.missed,
+        "mED_penalised": float(np.mean(penalised)) if penalised else None,
+        "per_image": per_image,
+        "frames": len(frames),
+    }

@@ -38,7 +38,7 @@ from weldpool_core.device import resolve_device
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.io import to_rgb8
-from weldpool_core.metrics import iou, keypoint_scores
+from weldpool_core.metrics import proposal_quality
 from weldpool_core.student import checkpoint
 from weldpool_core.student.data import (
     Augmentation,
@@ -282,11 +282,10 @@ def student_loss(
 def validate(
     model: ResNetVAE, frames: Sequence[PreparedFrame], device: torch.device, batch_size: int
 ) -> dict[str, Any]:
-    """mIoU and mED (full-resolution pixels) of the model's mean-latent outputs on ``frames``."""
+    """``metrics.proposal_quality`` of the model's mean-latent outputs on ``frames``, at full
+    resolution (``per_image`` left out)."""
     model.eval()
-    per_image: dict[str, float] = {}
-    pairs: dict[str, tuple[NDArray[Any], NDArray[Any]]] = {}
-    penalised: list[float] = []
+    scored: dict[str, tuple[NDArray[Any], Any, NDArray[Any], Any]] = {}
     with torch.inference_mode():
         for start in range(0, len(frames), batch_size):
             chunk = frames[start : start + batch_size]
@@ -297,31 +296,23 @@ def validate(
             masks = torch.sigmoid(output.mask_logits).cpu().numpy()
             heatmaps = torch.sigmoid(output.heatmap_logits).cpu().numpy()
             for offset, frame in enumerate(chunk):
-                name = f"{start + offset}:{frame.name}"
                 found = to_frame(masks[offset], heatmaps[offset], frame.geometry, model.config.k)
-                per_image[name] = iou(found.mask, frame.truth_mask())
-                pairs[name] = (found.keypoints, frame.frame_keypoints)
-                diagonal = math.hypot(frame.geometry.width, frame.geometry.height)
-                if len(frame.frame_keypoints):
-                    distances = keypoint_scores({name: pairs[name]}).per_image[name]
-                    if per_image[name] < 0.5:
-                        distances = [None] * len(distances)
-                    penalised.extend(diagonal if d is None else d for d in distances)
-    keypoints = keypoint_scores(pairs)
-    return {
-        "mIoU": float(np.mean(list(per_image.values()))),
-        "mED": keypoints.med,
-        "mED_k": keypoints.med_k,
-        "std": keypoints.std,
-        "missed": keypoints.missed,
-        "mED_penalised": float(np.mean(penalised)) if penalised else 0.0,
-        "frames": len(frames),
-    }
+                scored[f"{start + offset}:{frame.name}"] = (
+                    found.mask,
+                    found.keypoints,
+                    frame.truth_mask(),
+                    frame.frame_keypoints,
+                )
+    metrics = proposal_quality(scored)
+    metrics.pop("per_image")
+    return metrics
 
 
 def _score(metrics: dict[str, Any], selection: Selection) -> float:
     """Lower is better."""
-    return -float(metrics["mIoU"]) if selection == "mIoU" else float(metrics["mED_penalised"])
+    if selection == "mIoU" or metrics["mED_penalised"] is None:
+        return -float(metrics["mIoU"])
+    return float(metrics["mED_penalised"])
 
 
 def _epoch_seed(seed: int, epoch: int) -> int:
