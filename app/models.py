@@ -225,15 +225,17 @@ class Frame(Base):
 
 
 class Proposal(Base):
-    """A teacher's or student's proposed mask, heatmap and keypoints for one frame."""
+    """A teacher's or student's proposed mask, heatmap and keypoints for one frame. Every
+    proposal is kept; ``app.review.policy`` picks the one a reviewer sees."""
 
     __tablename__ = "proposals"
+    __table_args__ = (sa.Index("ix_proposals_frame_source", "frame_id", "source"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     frame_id: Mapped[int] = mapped_column(
         sa.ForeignKey("frames.id", ondelete="CASCADE"), index=True
     )
-    source: Mapped[str] = mapped_column(sa.String(16))  # "teacher" or "student"
+    source: Mapped[str] = mapped_column(sa.String(16))  # "teacher", "student" or "propagated"
     model_id: Mapped[str] = mapped_column(sa.String(255))
     model_version_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("model_versions.id", ondelete="SET NULL")
@@ -264,6 +266,7 @@ class Label(Base):
     proposal_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("proposals.id", ondelete="SET NULL")
     )
+    mask_changed: Mapped[bool | None]  # did the reviewer change the proposal's mask?
     updated_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
@@ -287,6 +290,7 @@ class LabelRevision(Base):
     proposal_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("proposals.id", ondelete="SET NULL")
     )
+    mask_changed: Mapped[bool | None]
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
@@ -370,6 +374,9 @@ class ModelVersion(Base):
     metrics: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
     curve: Mapped[list[Any]] = mapped_column(JSONType, default=list)
     train_label_count: Mapped[int] = mapped_column(default=0)
+    train_frame_ids: Mapped[list[int] | None] = mapped_column(JSONType, default=list)
+    held_out_frame_ids: Mapped[list[int] | None] = mapped_column(JSONType, default=list)
+    gate: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # app.training.gate's verdict
     is_promoted: Mapped[bool] = mapped_column(default=False, index=True)
     job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -19,7 +19,7 @@ from weldpool_core.metrics import iou
 
 
 @lru_cache(maxsize=65536)
-def _iou(first: Path, second: Path) -> float:
+def stored_iou(first: Path, second: Path) -> float:
     """IoU of two stored masks; paths are content-addressed, so the answer never changes."""
     return iou(read_mask(first), read_mask(second))
 
@@ -74,7 +74,7 @@ def teacher_quality(session: Session, storage: Storage) -> dict[str, Any]:
     for sequence_id, name, teacher_mask, label_mask in rows:
         if label_mask:
             per_sequence[(sequence_id, name)].append(
-                _iou(storage.absolute(teacher_mask), storage.absolute(label_mask))
+                stored_iou(storage.absolute(teacher_mask), storage.absolute(label_mask))
             )
     everything = [v for values in per_sequence.values() for v in values]
     return {
@@ -89,28 +89,50 @@ def teacher_quality(session: Session, storage: Storage) -> dict[str, Any]:
 
 
 def review_figures(session: Session) -> dict[str, Any]:
-    """Label counts, the acceptance rate of teacher proposals, and reviews per day."""
+    """Label counts, how reviewers received each source's proposals, and reviews per day.
+
+    ``by_source``: per source key (``teacher``, ``student:<version>``, …) the current labels
+    that started from its proposals: accepted, corrected, rejected, and ``unchanged`` (saved
+    with the proposal's mask as it was); ``acceptance_rate`` is unchanged / all its labels.
+    """
+    from app.review.policy import source_key
+
     counts = dict.fromkeys(("accepted", "corrected", "rejected"), 0)
-    on_teacher = dict.fromkeys(("accepted", "corrected", "rejected"), 0)
+    by_source: dict[str, dict[str, int]] = {}
     rows = session.execute(
-        sa.select(Label.status, Proposal.source).outerjoin(
+        sa.select(Label.status, Label.mask_changed, Proposal).outerjoin(
             Proposal, Proposal.id == Label.proposal_id
         )
     )
-    for status, source in rows:
+    for status, changed, proposal in rows:
         counts[status.value] += 1
-        if source == "teacher":
-            on_teacher[status.value] += 1
-    reviewed = sum(on_teacher.values())
+        if proposal is None:
+            continue
+        figures = by_source.setdefault(
+            source_key(proposal), dict.fromkeys((*counts, "unchanged"), 0)
+        )
+        figures[status.value] += 1
+        figures["unchanged"] += int(status != LabelStatus.rejected and changed is False)
+    sources = [
+        {"source": key, "reviewed": sum(f[s] for s in counts)}
+        | f
+        | {"acceptance_rate": f["unchanged"] / max(1, sum(f[s] for s in counts))}
+        for key, f in sorted(by_source.items())
+    ]
+    teacher = by_source.get("teacher")
     per_day: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(counts, 0))
     for status, created in session.execute(
         sa.select(LabelRevision.status, LabelRevision.created_at)
     ):
         per_day[created.date().isoformat()][status.value] += 1
+    teacher_reviewed = sum(teacher[s] for s in counts) if teacher else 0
     return {
         "labels": counts,
-        "teacher_acceptance_rate": on_teacher["accepted"] / reviewed if reviewed else None,
-        "teacher_reviewed": reviewed,
+        "by_source": sources,
+        "teacher_acceptance_rate": (
+            teacher["unchanged"] / teacher_reviewed if teacher and teacher_reviewed else None
+        ),
+        "teacher_reviewed": teacher_reviewed,
         "over_time": [{"day": day} | values for day, values in sorted(per_day.items())],
     }
 
@@ -118,7 +140,10 @@ def review_figures(session: Session) -> dict[str, Any]:
 def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
     """Everything `GET /api/v1/metrics` and the metrics page show."""
     scored = session.scalar(sa.select(sa.func.count()).where(Frame.uncertainty.is_not(None)))
+    from app.review.policy import current
+
     return {
+        "policy": current(session, storage).as_dict(),
         "student": student_curve(session),
         "teacher": teacher_quality(session, storage),
         "review": review_figures(session),

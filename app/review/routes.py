@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Query, Response, status
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
@@ -17,7 +17,7 @@ from app.frames.service import get_frame
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.models import Split, User
-from app.review import service
+from app.review import policy, service
 from app.review.export import build_export
 from app.review.schemas import (
     KeypointsIn,
@@ -25,7 +25,9 @@ from app.review.schemas import (
     LabelIn,
     LabelOut,
     LabelRevisionOut,
+    ProposalList,
     ProposalOut,
+    ProposalSummary,
     SegmentIn,
     SegmentOut,
     TeacherRunIn,
@@ -58,31 +60,83 @@ def start_teacher_run(
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
 
 
-def _proposal(session: SessionDep, frame_id: int):  # type: ignore[no-untyped-def]
+def _proposal(  # type: ignore[no-untyped-def]
+    session: SessionDep,
+    storage: StorageDep,
+    frame_id: int,
+    source: str | None = None,
+    proposal_id: int | None = None,
+):
     get_frame(session, frame_id)
-    proposal = service.latest_proposal(session, frame_id)
+    proposal = policy.pick(session, storage, frame_id, source, proposal_id)
     if proposal is None:
         raise NotFoundError(f"Frame {frame_id} has no proposal yet; run the teacher on it.")
     return proposal
 
 
+SourceQuery = Annotated[
+    str | None,
+    Query(
+        max_length=300,
+        description="A source key (`teacher`, `student:<version>`) instead of the policy's.",
+    ),
+]
+ProposalQuery = Annotated[
+    int | None, Query(ge=1, le=2**31 - 1, description="One proposal of the frame, by id.")
+]
+
+
+def _summary(proposal, chosen: int | None) -> ProposalSummary:  # type: ignore[no-untyped-def]
+    return ProposalSummary(
+        id=proposal.id,
+        frame_id=proposal.frame_id,
+        source=proposal.source,
+        source_key=policy.source_key(proposal),
+        model_id=proposal.model_id,
+        model_version_id=proposal.model_version_id,
+        job_id=proposal.job_id,
+        keypoints=proposal.keypoints,
+        scores=proposal.scores,
+        created_at=proposal.created_at,
+        chosen=proposal.id == chosen,
+    )
+
+
 @router.get("/frames/{frame_id}/proposal", response_model=ProposalOut)
 def get_proposal(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    source: SourceQuery = None,
+    proposal_id: ProposalQuery = None,
 ) -> ProposalOut:
-    """The newest proposal: mask (base64 PNG), keypoints, prompts, scores."""
-    proposal = _proposal(session, frame_id)
+    """The proposal the policy picks for review (or the one asked for): mask (base64 PNG),
+    keypoints, prompts, scores and where it came from."""
+    proposal = _proposal(session, storage, frame_id, source, proposal_id)
+    chosen = policy.pick(session, storage, frame_id)
     return ProposalOut(
-        id=proposal.id,
-        frame_id=frame_id,
-        source=proposal.source,
-        model_id=proposal.model_id,
+        **_summary(proposal, chosen.id if chosen else None).model_dump(),
         mask_png=_b64(storage.absolute(proposal.mask_path).read_bytes()),
-        keypoints=proposal.keypoints,
         prompts=proposal.prompts,
-        scores=proposal.scores,
         timings=proposal.timings,
-        created_at=proposal.created_at,
+    )
+
+
+@router.get("/frames/{frame_id}/proposals", response_model=ProposalList)
+def list_proposals(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> ProposalList:
+    """Every proposal the frame has, newest first, with its source and scores; `chosen` marks
+    the one the policy shows, and `policy` says why that source."""
+    get_frame(session, frame_id)
+    chosen = policy.pick(session, storage, frame_id)
+    return ProposalList(
+        items=[
+            _summary(p, chosen.id if chosen else None)
+            for p in policy.frame_proposals(session, frame_id)
+        ],
+        policy=policy.current(session, storage).as_dict(),
     )
 
 
@@ -92,10 +146,15 @@ def get_proposal(
     responses={200: {"content": {"image/png": {}}}},
 )
 def get_proposal_mask(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    source: SourceQuery = None,
+    proposal_id: ProposalQuery = None,
 ) -> Response:
-    """The newest proposal's mask as a PNG (0 / 255)."""
-    proposal = _proposal(session, frame_id)
+    """The shown proposal's mask as a PNG (0 / 255)."""
+    proposal = _proposal(session, storage, frame_id, source, proposal_id)
     return Response(storage.absolute(proposal.mask_path).read_bytes(), media_type="image/png")
 
 
@@ -105,12 +164,18 @@ def get_proposal_mask(
     responses={200: {"content": {"image/png": {}}}},
 )
 def get_proposal_heatmap_png(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    source: SourceQuery = None,
+    proposal_id: ProposalQuery = None,
 ) -> Response:
     """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
     import cv2
 
-    heat = service.load_heatmap(storage, _proposal(session, frame_id))[:, :, 0]
+    proposal = _proposal(session, storage, frame_id, source, proposal_id)
+    heat = service.load_heatmap(storage, proposal)[:, :, 0]
     scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
     colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
     rgba = np.dstack([colours[:, :, ::-1], (scaled * 255).astype(np.uint8)])
@@ -123,13 +188,19 @@ def get_proposal_heatmap_png(
     responses={200: {"content": {"application/octet-stream": {}}}},
 )
 def get_proposal_heatmap_npy(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    _user: CurrentUser,
+    source: SourceQuery = None,
+    proposal_id: ProposalQuery = None,
 ) -> Response:
     """The raw H×W×2 float32 array (heatmap, mask) as a .npy file."""
     import io
 
     buffer = io.BytesIO()
-    np.save(buffer, service.load_heatmap(storage, _proposal(session, frame_id)))
+    proposal = _proposal(session, storage, frame_id, source, proposal_id)
+    np.save(buffer, service.load_heatmap(storage, proposal))
     return Response(buffer.getvalue(), media_type="application/octet-stream")
 
 
@@ -170,6 +241,8 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
         frame_id=label.frame_id,
         revision=label.revision,
         status=label.status,
+        proposal_id=label.proposal_id,
+        mask_changed=label.mask_changed,
         mask_png=mask,
         keypoints=label.keypoints,
         updated_by=user.username if user else None,
@@ -216,6 +289,7 @@ def put_label(
         base_revision=body.base_revision,
         mask_png=mask_png,
         keypoints=body.keypoints,
+        proposal_id=body.proposal_id,
     )
     maybe_retrain(session, queue, settings.retrain_every, user)
     return _label_out(storage, label, user)

@@ -19,19 +19,37 @@ class TeacherRunIn(BaseModel):
     force: bool = Field(default=False, description="Propose again for frames already seen.")
 
 
-class ProposalOut(BaseModel):
-    """The newest teacher or student proposal of a frame."""
+class ProposalSummary(BaseModel):
+    """One proposal of a frame and where it came from."""
 
     id: int
     frame_id: int
-    source: str
-    model_id: str
-    mask_png: str = Field(description="Single-channel PNG (0 / 255), base64.")
+    source: str = Field(description="`teacher`, `student` or `propagated`.")
+    source_key: str = Field(description="`teacher` or `<source>:<model id>`; pass as ?source=.")
+    model_id: str = Field(description="The teacher's models and prompts, or the student version.")
+    model_version_id: int | None
+    job_id: int | None
     keypoints: list[list[float]]
-    prompts: dict[str, Any]
     scores: dict[str, Any]
-    timings: dict[str, Any]
     created_at: dt.datetime
+    chosen: bool = Field(description="Whether the policy shows this proposal for review.")
+
+
+class ProposalOut(ProposalSummary):
+    """A frame's proposal with its mask: the policy's pick unless one was asked for."""
+
+    mask_png: str = Field(description="Single-channel PNG (0 / 255), base64.")
+    prompts: dict[str, Any]
+    timings: dict[str, Any]
+
+
+class ProposalList(BaseModel):
+    """Every proposal of a frame, newest first, and the policy that picks the shown one."""
+
+    items: list[ProposalSummary]
+    policy: dict[str, Any] = Field(
+        description="`chosen` source key, `reason`, and each source's agreement with labels."
+    )
 
 
 class Point(BaseModel):
@@ -67,6 +85,12 @@ class LabelIn(BaseModel):
     base_revision: int = Field(ge=0)
     mask_png: str | None = Field(default=None, description="A corrected mask (base64 PNG).")
     keypoints: list[list[float]] | None = None
+    proposal_id: int | None = Field(
+        default=None,
+        ge=1,
+        le=2**31 - 1,
+        description="The proposal the label started from (default: the one the policy shows).",
+    )
 
     @model_validator(mode="after")
     def _corrected_needs_a_change(self) -> LabelIn:
@@ -79,6 +103,8 @@ class LabelOut(BaseModel):
     frame_id: int
     revision: int
     status: LabelStatus
+    proposal_id: int | None = None
+    mask_changed: bool | None = None
     mask_png: str | None
     keypoints: list[list[float]] | None
     updated_by: str | None

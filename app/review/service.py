@@ -270,13 +270,18 @@ def save_label(
     base_revision: int,
     mask_png: bytes | None,
     keypoints: list[list[float]] | None,
+    proposal_id: int | None = None,
 ) -> Label:
     """Accept, correct or reject a frame's proposal, guarded by the label's revision.
 
     ``base_revision`` is the revision the client saw (0 when there was no label); a stale one
     raises ConflictError with the current revision. Every change is kept in the history.
-    Keypoints of a corrected mask are recomputed by Algorithm 1 unless given.
+    Keypoints of a corrected mask are recomputed by Algorithm 1 unless given. The label records
+    the proposal it started from (``proposal_id``, default the one the policy shows) and whether
+    its mask differs from that proposal's.
     """
+    from app.review.policy import pick
+
     if (
         status in (LabelStatus.accepted, LabelStatus.rejected)
         and user.role.rank < Role.reviewer.rank
@@ -284,7 +289,7 @@ def save_label(
         raise PermissionDeniedError(
             f"Only reviewers may mark a label {status.value}; save it as corrected instead."
         )
-    proposal = latest_proposal(session, frame.id)
+    proposal = pick(session, storage, frame.id, proposal_id=proposal_id)
     mask_path: str | None = None
     if status == LabelStatus.rejected:
         keypoints = None
@@ -307,6 +312,14 @@ def save_label(
             "The frame has no proposal to accept; send a mask_png or run the teacher first."
         )
 
+    mask_changed: bool | None = None
+    if mask_path is not None:
+        mask_changed = proposal is None or (
+            mask_path != proposal.mask_path
+            and not np.array_equal(
+                load_mask(storage, mask_path), load_mask(storage, proposal.mask_path)
+            )
+        )
     label = current_label(session, frame.id)
     current = label.revision if label else 0
     if base_revision != current:
@@ -316,6 +329,7 @@ def save_label(
         "mask_path": mask_path,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
+        "mask_changed": mask_changed,
         "updated_by_id": user.id,
         "updated_at": utcnow(),
     }
@@ -340,6 +354,7 @@ def save_label(
                 mask_path=mask_path,
                 keypoints=keypoints,
                 proposal_id=values["proposal_id"],
+                mask_changed=mask_changed,
                 user_id=user.id,
             )
         )

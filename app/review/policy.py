@@ -1,0 +1,251 @@
+"""Which proposal a reviewer sees. Every proposal a frame gets is kept (each teacher run, each
+student version); the policy picks one source for the whole project, measured on reviewed frames:
+
+- Each source — the teacher (its newest proposal per frame, whatever its model) and each student
+  version — is scored by the IoU of its proposals against the reviewed masks (accepted or
+  corrected). A student version is never scored on frames it trained on.
+- A student version is shown instead of the teacher only when, on the frames where both have a
+  proposal and a reviewed mask (at least ``MIN_FRAMES``), its mIoU beats the teacher's, and its
+  promotion gate has not found it unusable. Among several such versions, the largest margin
+  wins. Without that evidence the teacher's proposal is the one shown: a model never makes the
+  review worse unmeasured.
+- A frame without a proposal from the chosen source shows the teacher's, else its newest.
+
+Labels that started from a source's proposal favour that source (an unchanged accept scores
+IoU 1), so a student enters the review only through the promotion gate's held-out measurement
+or frames reviewed from the teacher's proposal; the bias can keep a shown student in place, never
+bring an unmeasured one in.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInputError, NotFoundError
+from app.insights.service import stored_iou
+from app.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
+from app.storage import Storage
+
+TEACHER = "teacher"
+MIN_FRAMES = 3
+"""Reviewed frames a student needs in common with the teacher before it can be shown."""
+
+
+@dataclass(frozen=True)
+class SourceScore:
+    """One source's agreement with the reviewed masks.
+
+    Attributes:
+        key: ``teacher`` or ``student:<version name>``.
+        source: the proposals' ``source`` column.
+        model_id: the student's version name (None for the teacher).
+        frames: reviewed frames it was scored on.
+        mIoU: its mean IoU there (None without frames).
+        common_frames: frames scored for both it and the teacher.
+        mIoU_common / teacher_mIoU_common: both mIoUs on those frames.
+        usable: False when its promotion gate found it worse than the teacher.
+    """
+
+    key: str
+    source: str
+    model_id: str | None
+    frames: int
+    mIoU: float | None
+    common_frames: int
+    mIoU_common: float | None
+    teacher_mIoU_common: float | None
+    usable: bool
+
+    @property
+    def margin(self) -> float:
+        if self.mIoU_common is None or self.teacher_mIoU_common is None:
+            return float("-inf")
+        return self.mIoU_common - self.teacher_mIoU_common
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Policy:
+    """The chosen source and every source's score (``GET /frames/{id}/proposals`` shows both)."""
+
+    chosen: str
+    reason: str
+    sources: list[SourceScore]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "chosen": self.chosen,
+            "reason": self.reason,
+            "sources": [s.as_dict() for s in self.sources],
+        }
+
+
+def source_key(proposal: Proposal) -> str:
+    """``teacher`` for any teacher proposal, ``<source>:<model id>`` for the others."""
+    return TEACHER if proposal.source == TEACHER else f"{proposal.source}:{proposal.model_id}"
+
+
+def _mean(values: list[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def measure(session: Session, storage: Storage) -> Policy:
+    """Score every source on the reviewed frames and pick the one to show (module doc)."""
+    labels = dict(
+        session.execute(
+            sa.select(Label.frame_id, Label.mask_path).where(
+                Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]),
+                Label.mask_path.is_not(None),
+            )
+        ).all()
+    )
+    newest = (
+        sa.select(sa.func.max(Proposal.id))
+        .where(Proposal.frame_id.in_(list(labels)))
+        .group_by(Proposal.frame_id, Proposal.source, Proposal.model_id)
+    )
+    proposals = session.scalars(sa.select(Proposal).where(Proposal.id.in_(newest))).all()
+    versions = {v.name: v for v in session.scalars(sa.select(ModelVersion))}
+    # key → frame → (proposal id, IoU); the teacher keeps its newest proposal per frame
+    scores: dict[str, dict[int, tuple[int, float]]] = {}
+    for proposal in proposals:
+        key = source_key(proposal)
+        version = versions.get(proposal.model_id) if proposal.source == "student" else None
+        if version is not None and proposal.frame_id in set(version.train_frame_ids or []):
+            continue
+        seen = scores.setdefault(key, {}).get(proposal.frame_id)
+        if seen is not None and seen[0] > proposal.id:
+            continue
+        value = stored_iou(
+            storage.absolute(proposal.mask_path), storage.absolute(labels[proposal.frame_id])
+        )
+        scores[key][proposal.frame_id] = (proposal.id, value)
+    teacher = {frame: value for frame, (_, value) in scores.get(TEACHER, {}).items()}
+    sources = [
+        SourceScore(
+            TEACHER, TEACHER, None, len(teacher), _mean(list(teacher.values())), 0, None, None, True
+        )
+    ]
+    for key, per_frame in sorted(scores.items()):
+        if key == TEACHER:
+            continue
+        source, _, model_id = key.partition(":")
+        values = {frame: value for frame, (_, value) in per_frame.items()}
+        common = sorted(set(values) & set(teacher))
+        version = versions.get(model_id) if source == "student" else None
+        gate = (version.gate or {}) if version is not None else {}
+        sources.append(
+            SourceScore(
+                key,
+                source,
+                model_id,
+                len(values),
+                _mean(list(values.values())),
+                len(common),
+                _mean([values[f] for f in common]),
+                _mean([teacher[f] for f in common]),
+                gate.get("usable", True) is not False,
+            )
+        )
+    better = [s for s in sources[1:] if s.usable and s.common_frames >= MIN_FRAMES and s.margin > 0]
+    if not better:
+        return Policy(TEACHER, _teacher_reason(sources), sources)
+    best = max(better, key=lambda s: s.margin)
+    return Policy(
+        best.key,
+        f"{best.model_id} agrees better with the reviewed masks than the teacher on "
+        f"{best.common_frames} frames (mIoU {best.mIoU_common:.3f} vs "
+        f"{best.teacher_mIoU_common:.3f}).",
+        sources,
+    )
+
+
+def _teacher_reason(sources: list[SourceScore]) -> str:
+    others = [s for s in sources[1:] if s.common_frames]
+    if not others:
+        return "The teacher: no other source has been measured on reviewed frames yet."
+    best = max(others, key=lambda s: s.margin)
+    if not best.usable:
+        return f"The teacher: {best.model_id} did not pass its promotion gate."
+    if best.common_frames < MIN_FRAMES:
+        return (
+            f"The teacher: {best.model_id} has been measured on {best.common_frames} reviewed "
+            f"frames; it needs {MIN_FRAMES}."
+        )
+    return (
+        f"The teacher: it agrees better with the reviewed masks than {best.model_id} "
+        f"(mIoU {best.teacher_mIoU_common:.3f} vs {best.mIoU_common:.3f} on "
+        f"{best.common_frames} frames)."
+    )
+
+
+_cache_lock = threading.Lock()
+_cache: dict[tuple[Any, ...], Policy] = {}
+
+
+def current(session: Session, storage: Storage) -> Policy:
+    """``measure``, computed again only when labels, proposals or model versions changed."""
+    stamp = (
+        str(storage.home),
+        session.scalar(sa.select(sa.func.max(LabelRevision.id))),
+        session.scalar(sa.select(sa.func.max(Proposal.id))),
+        session.scalar(sa.select(sa.func.count(ModelVersion.id))),
+        session.scalar(sa.select(sa.func.max(ModelVersion.promoted_at))),
+    )
+    with _cache_lock:
+        policy = _cache.get(stamp)
+    if policy is None:
+        policy = measure(session, storage)
+        with _cache_lock:
+            _cache.clear()
+            _cache[stamp] = policy
+    return policy
+
+
+def frame_proposals(session: Session, frame_id: int) -> list[Proposal]:
+    """Every proposal of a frame, newest first."""
+    return list(
+        session.scalars(
+            sa.select(Proposal).where(Proposal.frame_id == frame_id).order_by(Proposal.id.desc())
+        )
+    )
+
+
+def pick(
+    session: Session,
+    storage: Storage,
+    frame_id: int,
+    source: str | None = None,
+    proposal_id: int | None = None,
+) -> Proposal | None:
+    """The proposal to show for a frame: a given one, the newest of a given source key, or the
+    policy's (module doc). None when the frame has no proposal."""
+    proposals = frame_proposals(session, frame_id)
+    if proposal_id is not None:
+        for proposal in proposals:
+            if proposal.id == proposal_id:
+                return proposal
+        raise NotFoundError(f"Frame {frame_id} has no proposal {proposal_id}.")
+    if source is not None:
+        for proposal in proposals:
+            if source_key(proposal) == source:
+                return proposal
+        keys = ", ".join(dict.fromkeys(source_key(p) for p in proposals)) or "none"
+        raise InvalidInputError(
+            f"Frame {frame_id} has no proposal from {source!r}; its sources: {keys}."
+        )
+    if not proposals:
+        return None
+    chosen = current(session, storage).chosen
+    for wanted in (chosen, TEACHER):
+        for proposal in proposals:
+            if source_key(proposal) == wanted:
+                return proposal
+    return proposals[0]
