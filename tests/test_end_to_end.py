@@ -110,14 +110,26 @@ def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> N
         version = models[0]
         assert version["train_label_count"] == 10 and version["metrics"]["validation_frames"] == 2
         assert "mIoU" in version["metrics"] and len(version["curve"]) == 2
-        assert version["is_promoted"]  # the first version is promoted automatically
+        verdict = job["result"]["gate"]
+        assert version["is_promoted"] == verdict["promote"] and verdict["reason"]
+        if not verdict["promote"]:  # two epochs rarely beat the teacher: promote by hand
+            refused = client.post(f"/api/v1/models/{version['id']}/promote", headers=auth(token))
+            assert refused.status_code == 409, refused.text
+            forced = client.post(
+                f"/api/v1/models/{version['id']}/promote",
+                params={"force": "true"},
+                headers=auth(token),
+            )
+            assert forced.status_code == 200 and forced.json()["is_promoted"]
         student_jobs = client.get(
             "/api/v1/jobs", params={"kind": "student"}, headers=auth(token)
         ).json()["items"]
         assert len(student_jobs) == 1
         assert wait_for_job(client, student_jobs[0]["id"], token, 120)["status"] == "succeeded"
         unreviewed = client.get(f"/api/v1/frames/{ids[13]}", headers=auth(token)).json()
-        assert unreviewed["proposal"]["source"] == "student"
+        assert unreviewed["proposal"]["source"] == "teacher"  # never measured better: not shown
+        listed = client.get(f"/api/v1/frames/{ids[13]}/proposals", headers=auth(token)).json()
+        assert {p["source"] for p in listed["items"]} == {"teacher", "student"}
         assert unreviewed["uncertainty"] is not None
         assert set(unreviewed["uncertainty_components"]) >= {"student_spread", "disagreement"}
         figures = client.get("/api/v1/metrics", headers=auth(token)).json()

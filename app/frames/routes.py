@@ -197,11 +197,13 @@ def list_frames(
 
 
 @router.get("/frames/{frame_id}", response_model=FrameDetail)
-def get_frame(frame_id: int, session: SessionDep, _user: CurrentUser) -> FrameDetail:
-    """A frame's metadata with its label and proposal state."""
+def get_frame(
+    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+) -> FrameDetail:
+    """A frame's metadata with its label and the state of the proposal the policy shows."""
     frame = service.get_frame(session, frame_id)
     return FrameDetail.model_validate(
-        FrameOut.model_validate(frame).model_dump() | service.frame_state(session, frame)
+        FrameOut.model_validate(frame).model_dump() | service.frame_state(session, storage, frame)
     )
 
 

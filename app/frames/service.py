@@ -22,7 +22,6 @@ from app.models import (
     Frame,
     FrameStatus,
     Label,
-    Proposal,
     Sequence,
     Split,
     User,
@@ -340,12 +339,12 @@ def get_frame(session: Session, frame_id: int) -> Frame:
     return frame
 
 
-def frame_state(session: Session, frame: Frame) -> dict[str, Any]:
-    """The frame's label, latest proposal and whether it has manual keypoints."""
+def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, Any]:
+    """The frame's label, the proposal the policy shows and whether it has manual keypoints."""
+    from app.review.policy import pick
+
     label = session.scalar(sa.select(Label).where(Label.frame_id == frame.id))
-    proposal = session.scalar(
-        sa.select(Proposal).where(Proposal.frame_id == frame.id).order_by(Proposal.id.desc())
-    )
+    proposal = pick(session, storage, frame.id)
     manual = session.scalar(
         sa.select(ValidationKeypoints.id).where(ValidationKeypoints.frame_id == frame.id)
     )

@@ -98,8 +98,8 @@ def _mean(values: list[float]) -> float | None:
 
 def measure(session: Session, storage: Storage) -> Policy:
     """Score every source on the reviewed frames and pick the one to show (module doc)."""
-    labels = dict(
-        session.execute(
+    labels: dict[int, str] = dict(
+        session.execute(  # type: ignore[arg-type]
             sa.select(Label.frame_id, Label.mask_path).where(
                 Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]),
                 Label.mask_path.is_not(None),

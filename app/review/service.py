@@ -75,12 +75,6 @@ def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
 # --- proposals ---------------------------------------------------------------------------------
 
 
-def latest_proposal(session: Session, frame_id: int) -> Proposal | None:
-    return session.scalar(
-        sa.select(Proposal).where(Proposal.frame_id == frame_id).order_by(Proposal.id.desc())
-    )
-
-
 def has_proposal(session: Session, frame_id: int, model_id: str) -> bool:
     return (
         session.scalar(

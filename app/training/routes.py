@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.deps import QueueDep, SessionDep
-from app.errors import InvalidInputError
+from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.errors import ConflictError, InvalidInputError
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.review.service import frames_for_run
 from app.security import CurrentUser, ReviewerUser
-from app.training import service
+from app.training import gate, service
 from app.training.schemas import ModelVersionOut, StudentRunIn, TrainIn
 
 router = APIRouter(tags=["training"])
@@ -53,13 +53,39 @@ def get_model(model_id: int, session: SessionDep, _user: CurrentUser) -> ModelVe
     return ModelVersionOut.model_validate(service.get_model(session, model_id))
 
 
-@router.post("/models/{model_id}/promote", response_model=ModelVersionOut)
+@router.post(
+    "/models/{model_id}/promote",
+    response_model=ModelVersionOut,
+    responses={
+        409: {"description": "The promotion gate found the version worse than the teacher."}
+    },
+)
 def promote(
-    model_id: int, session: SessionDep, queue: QueueDep, user: ReviewerUser
+    model_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: ReviewerUser,
+    force: bool = False,
 ) -> ModelVersionOut:
-    """Make this version the student that proposes for frames; queues a student run on the
-    frames that have no reviewed label yet."""
-    model = service.promote(session, service.get_model(session, model_id))
+    """Make this version the student that proposes for frames and scores the queue. The gate
+    measures it first, now, against the promoted version and the teacher; a version it finds
+    unusable is refused (409) unless `force=true`. Queues a student run on the unreviewed frames.
+    """
+    model = service.get_model(session, model_id)
+    verdict = gate.measure(
+        session, storage, model, service.promoted_model(session), settings.device
+    )
+    model.gate = verdict
+    session.commit()
+    if not verdict["usable"] and not force:
+        raise ConflictError(
+            f"{model.name} was not promoted: {verdict['reason'].removeprefix('Not promoted: ')} "
+            "Promote with force=true to use it anyway; the review keeps showing the teacher's "
+            "proposals while they agree better with the labels."
+        )
+    model = service.promote(session, model)
     unlabelled = service.unreviewed_frame_ids(session)
     if unlabelled:
         create_job(

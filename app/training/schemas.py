@@ -38,3 +38,7 @@ class ModelVersionOut(BaseModel):
     curve: list[Any]
     config: dict[str, Any]
     job_id: int | None
+    gate: dict[str, Any] | None = Field(
+        default=None,
+        description="The promotion gate's last verdict: `usable`, `promote`, `reason`, scores.",
+    )

@@ -84,9 +84,9 @@ def validation_frame_ids(session: Session) -> list[int]:
 
 
 def labelled_samples(
-    session: Session, storage: Storage, frame_ids: list[int]
-) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.bool_] | None, Any]]:
-    """(frame id, RGB image, reviewed mask or None, keypoints or None) for each frame.
+    session: Session, storage: Storage, frame_ids: list[int], with_images: bool = True
+) -> Iterator[tuple[int, NDArray[np.uint8] | None, NDArray[np.bool_] | None, Any]]:
+    """(frame id, RGB image or None, reviewed mask or None, keypoints or None) for each frame.
 
     Keypoints: the manual validation keypoints when there are some, else the label's.
     """
@@ -100,7 +100,7 @@ def labelled_samples(
         if label is not None and label.status in TRAINABLE and label.mask_path:
             mask = load_mask(storage, label.mask_path)
         keypoints = manual.keypoints if manual else (label.keypoints if label else None)
-        yield frame_id, frame_rgb(storage, frame), mask, keypoints
+        yield frame_id, frame_rgb(storage, frame) if with_images else None, mask, keypoints
 
 
 def unreviewed_frame_ids(session: Session) -> list[int]:
@@ -140,9 +140,17 @@ def maybe_retrain(session: Session, queue: Any, every: int, user: Any) -> Job | 
         return None
 
 
-def better_than(candidate: dict[str, Any], incumbent: dict[str, Any]) -> bool:
-    """Whether validation metrics beat another version's: lower mED when both have one,
-    else higher mIoU."""
-    if candidate.get("mED") is not None and incumbent.get("mED") is not None:
-        return float(candidate["mED"]) < float(incumbent["mED"])
-    return float(candidate.get("mIoU") or 0.0) > float(incumbent.get("mIoU") or 0.0)
+HELD_OUT_FRACTION = 0.2
+MIN_TO_HOLD_OUT = 3
+
+
+def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
+    """Training frames kept out of training to measure the version when the validation split is
+    empty: a fifth of them (at least one, from ``MIN_TO_HOLD_OUT`` frames on), chosen by content
+    hash so the same frames stay out as labels are added."""
+    if len(frame_ids) < MIN_TO_HOLD_OUT:
+        return []
+    count = max(1, round(HELD_OUT_FRACTION * len(frame_ids)))
+    rows = session.execute(sa.select(Frame.id, Frame.sha256).where(Frame.id.in_(frame_ids)))
+    ranked = sorted(rows, key=lambda row: row.sha256)
+    return sorted(row.id for row in ranked[:count])

@@ -7,6 +7,7 @@ import shutil
 from dataclasses import replace
 from typing import Any
 
+import sqlalchemy as sa
 import structlog
 
 from app.jobs.registry import JobContext, job_handler
@@ -34,7 +35,9 @@ def _remove_stale_work(models_dir: Any, session: Any) -> None:
 
 @job_handler("train_student")
 def train_student_version(ctx: JobContext) -> dict[str, Any]:
-    """Train a student on the accepted and corrected labels; validate on the validation split.
+    """Train a student on the accepted and corrected labels; validate on the validation split
+    (or, without one, on training frames held out by ``service.held_out_ids``); then the
+    promotion gate measures it against the promoted version and the teacher.
 
     The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
     only when training finished: a killed or cancelled job leaves no half-written version.
@@ -50,6 +53,8 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         _remove_stale_work(models_dir, session)
         train_ids = service.training_frame_ids(session)
         validation_ids = service.validation_frame_ids(session)
+        held_out = [] if validation_ids else service.held_out_ids(session, train_ids)
+    train_ids = [f for f in train_ids if f not in held_out]
     if not train_ids:
         raise InvalidInputError("There are no accepted or corrected labels to train on.")
     shutil.rmtree(work, ignore_errors=True)
@@ -59,29 +64,31 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         config = replace(config, epochs=int(ctx.params["epochs"]))
     student = student_config(str(ctx.params.get("size") or "resnet18"))
     with ctx.session_factory() as session:
-        training = (
-            (image, mask, keypoints)
-            for _, image, mask, keypoints in service.labelled_samples(session, storage, train_ids)
-            if mask is not None
-        )
+        training = [
+            (frame_id, (image, mask, keypoints))
+            for frame_id, image, mask, keypoints in service.labelled_samples(
+                session, storage, train_ids
+            )
+            if mask is not None and image is not None
+        ]
         validation = [
             (image, mask, keypoints)
             for _, image, mask, keypoints in service.labelled_samples(
-                session, storage, validation_ids
+                session, storage, validation_ids or held_out
             )
-            if mask is not None
+            if mask is not None and image is not None
         ]
         result = train_student(
-            training,
+            (sample for _, sample in training),
             work,
             student,
             config,
-            progress=lambda fraction, message: ctx.progress(0.98 * fraction, message),
+            progress=lambda fraction, message: ctx.progress(0.95 * fraction, message),
             validation=validation or None,
         )
 
     with ctx.session_factory() as session:
-        name = service.next_name(session)
+        name = _free_name(session, models_dir)
         final = models_dir / name
         work.rename(final)
         try:
@@ -98,6 +105,8 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
                 },
                 curve=[record.as_dict() for record in result.curve],
                 train_label_count=result.train_frames,
+                train_frame_ids=[frame_id for frame_id, _ in training],
+                held_out_frame_ids=held_out,
             )
             session.add(version)
             session.commit()
@@ -105,27 +114,44 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             session.rollback()
             shutil.rmtree(final, ignore_errors=True)
             raise
-    promoted = _maybe_promote(ctx, version.id)
+    ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
+    verdict = _gate_and_promote(ctx, version.id)
     return {
         "model_version_id": version.id,
         "name": name,
         "metrics": version.metrics,
-        "promoted": promoted,
+        "promoted": verdict["promote"] and ctx.settings.auto_promote,
+        "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
     }
 
 
-def _maybe_promote(ctx: JobContext, version_id: int) -> bool:
-    """Promote the new version when it beats the promoted one (WELDPOOL_AUTO_PROMOTE), then
-    re-score the review queue with it."""
-    from app.jobs.service import create_job
+def _free_name(session: Any, models_dir: Any) -> str:
+    """The next ``student-vN`` whose folder is free (a crash may leave one behind)."""
+    name = service.next_name(session)
+    number = int(name.removeprefix("student-v"))
+    while (models_dir / name).exists() or session.scalar(
+        sa.select(ModelVersion.id).where(ModelVersion.name == name)
+    ):
+        number += 1
+        name = f"student-v{number}"
+    return name
 
-    if not ctx.settings.auto_promote:
-        return False
+
+def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
+    """Measure the new version (``app.training.gate``), store the verdict, and promote it when
+    the gate says so and WELDPOOL_AUTO_PROMOTE is on; then re-score the review queue."""
+    from app.jobs.service import create_job
+    from app.training import gate
+
+    storage = Storage(ctx.settings.home)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
         incumbent = service.promoted_model(session)
-        if incumbent is not None and not service.better_than(version.metrics, incumbent.metrics):
-            return False
+        verdict = gate.measure(session, storage, version, incumbent, ctx.settings.device)
+        version.gate = verdict
+        session.commit()
+        if not (verdict["promote"] and ctx.settings.auto_promote):
+            return verdict
         service.promote(session, version)
         unreviewed = service.unreviewed_frame_ids(session)
         if unreviewed and ctx.queue is not None:
@@ -136,7 +162,7 @@ def _maybe_promote(ctx: JobContext, version_id: int) -> bool:
                 {"frame_ids": unreviewed, "model_version_id": version_id},
                 None,
             )
-    return True
+    return verdict
 
 
 @job_handler("student", max_attempts=2)

@@ -138,14 +138,11 @@ def test_metrics_figures(client: TestClient, make_user) -> None:
     assert figures["review"]["over_time"][0]["accepted"] == 1
 
 
-def test_a_worse_new_model_is_not_promoted(client: TestClient, session_factory, make_user):
+def test_an_untrained_new_model_is_not_promoted(client: TestClient, session_factory, make_user):
+    """One epoch on three frames: the gate measures it on the held-out frame and refuses it
+    (tests/review/test_gate_and_policy.py covers each rule of the gate)."""
     from app.models import ModelVersion
-    from app.training.service import better_than
     from tests.helpers import wait_for_job
-
-    assert better_than({"mED": 4.0, "mIoU": 0.8}, {"mED": 5.0, "mIoU": 0.9})
-    assert not better_than({"mED": 6.0, "mIoU": 0.95}, {"mED": 5.0, "mIoU": 0.9})
-    assert better_than({"mED": None, "mIoU": 0.9}, {"mED": None, "mIoU": 0.8})
 
     _, token = make_user("promoter", Role.reviewer)
     with session_factory() as session:
@@ -168,8 +165,13 @@ def test_a_worse_new_model_is_not_promoted(client: TestClient, session_factory, 
     job = wait_for_job(client, job_id, token, timeout=300)
     assert job["status"] == "succeeded", job["error"]
     assert job["result"]["promoted"] is False
+    assert job["result"]["gate"]["usable"] is False, job["result"]["gate"]
+    assert "below the minimum quality" in job["result"]["gate"]["reason"]
     models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
     assert models["student-v0"]["is_promoted"] and not models[job["result"]["name"]]["is_promoted"]
+    new = models[job["result"]["name"]]
+    assert new["train_label_count"] == 2 and len(new["gate"]["frames"]) == 1
+    assert new["gate"]["frames"][0] in ids
     assert (
         client.get("/api/v1/jobs", params={"kind": "student"}, headers=auth(token)).json()["total"]
         == 0

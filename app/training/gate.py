@@ -1,0 +1,192 @@
+"""The promotion gate: a student version is promoted only when measured better, at promotion
+time, on frames none of the compared models trained on.
+
+The frames: the validation split's reviewed masks, else the frames the candidate's training
+held out; minus every frame the candidate or the incumbent trained on. On them the candidate,
+the promoted incumbent (re-scored now, not read from its old metrics) and the teacher's newest
+proposals are scored with one rule, ``weldpool_core.metrics.proposal_quality``: mIoU and the
+penalised keypoint distance (a keypoint missed, or on a frame whose IoU is under 0.5, counts as
+the frame's diagonal).
+
+- usable: the candidate is no worse than the teacher on the frames the teacher proposed for
+  (mIoU at least the teacher's, penalised mED at most the teacher's); where the teacher
+  proposed for none of them, it meets ``MIN_MIOU`` and misses no keypoint.
+- promoted: usable, and with an incumbent, a lower penalised mED (a higher mIoU when there are
+  no true keypoints, or on a tie) and an mIoU no lower than the incumbent's minus
+  ``MIOU_TOLERANCE``.
+No frames to measure on: not usable, with the reason.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.db import utcnow
+from app.errors import InvalidInputError
+from app.models import ModelVersion, Proposal
+from app.review.service import frame_rgb, load_mask
+from app.storage import Storage
+from app.training import service
+from weldpool_core.metrics import proposal_quality
+
+MIN_MIOU = 0.7
+"""The least mIoU a first student needs where the teacher has no proposal to compare with."""
+MIOU_TOLERANCE = 0.005
+"""How much mIoU a candidate may lose to the incumbent while its keypoints improve."""
+
+Truth = dict[int, tuple[np.ndarray, Any]]
+
+
+def gate_frames(
+    session: Session, candidate: ModelVersion, incumbent: ModelVersion | None
+) -> list[int]:
+    """The frames to measure on (module doc), in id order."""
+    trained = set(candidate.train_frame_ids or [])
+    if incumbent is not None:
+        trained |= set(incumbent.train_frame_ids or [])
+    validation = service.validation_frame_ids(session)
+    pool = validation if validation else list(candidate.held_out_frame_ids or [])
+    return [f for f in pool if f not in trained]
+
+
+def _truth(session: Session, storage: Storage, frame_ids: list[int]) -> Truth:
+    truth: Truth = {}
+    for frame_id, _, mask, keypoints in service.labelled_samples(
+        session, storage, frame_ids, with_images=False
+    ):
+        if mask is not None:
+            truth[frame_id] = (mask, keypoints or [])
+    return truth
+
+
+Outputs = dict[int, tuple[np.ndarray, Any]]
+
+
+def _student_outputs(
+    session: Session, storage: Storage, version: ModelVersion, frame_ids: list[int], device: str
+) -> Outputs:
+    """The version's mask and keypoints on each frame, predicted now."""
+    from app.models import Frame
+    from weldpool_core.student.predict import StudentPredictor
+
+    if version.checkpoint_path is None:
+        raise InvalidInputError(f"{version.name} has no checkpoint to measure.")
+    predictor = StudentPredictor.load(storage.absolute(version.checkpoint_path), device)
+    images = [frame_rgb(storage, session.get_one(Frame, f)) for f in frame_ids]
+    predictions = predictor.predict(images)
+    return {f: (p.mask, p.keypoints) for f, p in zip(frame_ids, predictions, strict=True)}
+
+
+def _teacher_outputs(session: Session, storage: Storage, frame_ids: list[int]) -> Outputs:
+    """The teacher's newest proposal on each frame that has one."""
+    newest = (
+        sa.select(sa.func.max(Proposal.id))
+        .where(Proposal.source == "teacher", Proposal.frame_id.in_(frame_ids))
+        .group_by(Proposal.frame_id)
+    )
+    proposals = session.scalars(sa.select(Proposal).where(Proposal.id.in_(newest)))
+    return {p.frame_id: (load_mask(storage, p.mask_path), p.keypoints) for p in proposals}
+
+
+def _score(outputs: Outputs, truth: Truth, frame_ids: list[int]) -> dict[str, Any]:
+    scores = proposal_quality({str(f): (*outputs[f], *truth[f]) for f in frame_ids})
+    scores.pop("per_image")
+    return scores
+
+
+def _no_worse(first: dict[str, Any], second: dict[str, Any]) -> bool:
+    """``first`` is at least as good as ``second`` in mIoU and penalised keypoint distance."""
+    if first["mIoU"] < second["mIoU"]:
+        return False
+    a, b = first["mED_penalised"], second["mED_penalised"]
+    return a is None or b is None or a <= b
+
+
+def _fmt(scores: dict[str, Any]) -> str:
+    med = scores["mED_penalised"]
+    return f"mIoU {scores['mIoU']:.3f}" + ("" if med is None else f", penalised mED {med:.1f} px")
+
+
+def measure(
+    session: Session,
+    storage: Storage,
+    candidate: ModelVersion,
+    incumbent: ModelVersion | None,
+    device: str = "auto",
+) -> dict[str, Any]:
+    """The gate's verdict on ``candidate`` against ``incumbent`` and the teacher (module doc):
+    ``usable``, ``promote``, ``reason`` and the scores behind them (JSON-ready)."""
+    if incumbent is not None and incumbent.id == candidate.id:
+        incumbent = None
+    frame_ids = gate_frames(session, candidate, incumbent)
+    truth = _truth(session, storage, frame_ids)
+    verdict: dict[str, Any] = {
+        "measured_at": utcnow().isoformat(),
+        "frames": sorted(truth),
+        "incumbent": incumbent.name if incumbent else None,
+    }
+    if not truth:
+        return verdict | {
+            "usable": False,
+            "promote": False,
+            "reason": "No reviewed frame is held out from its training to measure it on; label "
+            "more frames or put some in the validation split.",
+        }
+    ids = sorted(truth)
+    mine = _student_outputs(session, storage, candidate, ids, device)
+    verdict["candidate"] = _score(mine, truth, ids)
+    teacher = _teacher_outputs(session, storage, ids)
+    usable, reasons = True, []
+    if teacher:
+        common = sorted(teacher)
+        mine_common, theirs = _score(mine, truth, common), _score(teacher, truth, common)
+        verdict["teacher"] = theirs | {"candidate_on_these": mine_common}
+        if not _no_worse(mine_common, theirs):
+            usable = False
+            reasons.append(
+                f"worse than the teacher on {len(common)} held-out frames "
+                f"({_fmt(mine_common)} vs {_fmt(theirs)})"
+            )
+    else:
+        verdict["teacher"] = None
+        own = verdict["candidate"]
+        if own["mIoU"] < MIN_MIOU or own["missed"]:
+            usable = False
+            reasons.append(
+                f"below the minimum quality with no teacher proposal to compare with "
+                f"({_fmt(own)}, {own['missed']} keypoints missed; needs mIoU "
+                f"≥ {MIN_MIOU} and none missed)"
+            )
+    better = usable
+    if usable and incumbent is not None:
+        theirs = _score(_student_outputs(session, storage, incumbent, ids, device), truth, ids)
+        verdict["incumbent_scores"] = theirs
+        better = _better(verdict["candidate"], theirs)
+        if not better:
+            reasons.append(
+                f"not better than {incumbent.name} on {len(ids)} held-out frames "
+                f"({_fmt(verdict['candidate'])} vs {_fmt(theirs)})"
+            )
+    if usable and better:
+        against = f"{incumbent.name} and the teacher" if incumbent else "the teacher"
+        reason = (
+            f"Better than {against} on {len(ids)} held-out frames ({_fmt(verdict['candidate'])})."
+        )
+    else:
+        reason = "Not promoted: " + "; ".join(reasons) + "."
+    return verdict | {"usable": usable, "promote": usable and better, "reason": reason}
+
+
+def _better(candidate: dict[str, Any], incumbent: dict[str, Any]) -> bool:
+    """Lower penalised mED (higher mIoU without true keypoints or on a tie), mIoU not lower
+    beyond the tolerance."""
+    if candidate["mIoU"] < incumbent["mIoU"] - MIOU_TOLERANCE:
+        return False
+    a, b = candidate["mED_penalised"], incumbent["mED_penalised"]
+    if a is None or b is None or a == b:
+        return bool(candidate["mIoU"] > incumbent["mIoU"])
+    return bool(a < b)

@@ -1,0 +1,315 @@
+"""The promotion gate and the proposal policy: a worse student is never promoted nor shown.
+
+Student versions here are real checkpoints (a light student trained briefly on synthetic
+frames) whose output heads are then biased on purpose: mask bias −30 draws no pool (mIoU 0),
++30 draws the whole frame; heatmap bias −30 finds no keypoint. The reviewed masks and the
+teacher's proposals are set so each case has one known answer.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from safetensors.torch import load_file, save_file
+
+from app.models import Frame, ModelVersion, Proposal, Role
+from app.review.service import store_mask
+from app.storage import Storage
+from app.training import gate
+from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
+from tests.helpers import auth, corrected_label, image_bytes
+from weldpool_core.student.train import train_student
+
+W, H = 96, 64
+KEYPOINTS = [[20.0, 20.0], [76.0, 20.0], [76.0, 44.0], [20.0, 44.0]]
+
+
+@pytest.fixture(scope="module")
+def base_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("gate") / "model"
+    train_student(synthetic_frames(4), out, TINY_STUDENT, tiny_config(epochs=1))
+    return out
+
+
+def _version(
+    settings,
+    session_factory,
+    base: Path,
+    name: str,
+    mask_bias: float,
+    heat_bias: float,
+    held_out: list[int],
+    promoted: bool = False,
+) -> int:
+    folder = Path(settings.home) / "models" / name
+    shutil.copytree(base, folder)
+    weights = load_file(str(folder / "model.safetensors"))
+    weights["decoder.head.bias"][0] = mask_bias
+    weights["decoder.head.bias"][1] = heat_bias
+    save_file(weights, str(folder / "model.safetensors"))
+    with session_factory() as session:
+        version = ModelVersion(
+            name=name,
+            checkpoint_path=f"models/{name}",
+            train_frame_ids=[],
+            held_out_frame_ids=held_out,
+            is_promoted=promoted,
+        )
+        session.add(version)
+        session.commit()
+        return version.id
+
+
+def _truth() -> np.ndarray:
+    mask = np.ones((H, W), bool)
+    mask[:2], mask[-2:], mask[:, :2], mask[:, -2:] = False, False, False, False
+    return mask  # what a whole-frame mask gets IoU 0.90 on
+
+
+def _shrunk() -> np.ndarray:
+    mask = np.zeros((H, W), bool)
+    mask[8:56, 10:86] = True  # IoU 0.66 with the truth
+    return mask
+
+
+def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
+    files = [
+        ("files", (f"{i}.png", image_bytes(W, H, seed=300 + i), "image/png")) for i in range(3)
+    ]
+    ids = [
+        f["id"]
+        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    ]
+    storage = Storage(settings.home)
+    with session_factory() as session:
+        for frame_id in ids:
+            session.add(
+                Proposal(
+                    frame_id=frame_id,
+                    source="teacher",
+                    model_id="teacher-under-test",
+                    mask_path=store_mask(storage, _shrunk()),
+                    keypoints=teacher_keypoints,
+                )
+            )
+        session.commit()
+    for frame_id in ids:
+        body = corrected_label(_truth()) | {"keypoints": KEYPOINTS}
+        response = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+        assert response.status_code == 200, response.text
+    return ids
+
+
+def _measure(settings, session_factory, candidate: int, incumbent: int | None = None) -> dict:
+    with session_factory() as session:
+        return gate.measure(
+            session,
+            Storage(settings.home),
+            session.get_one(ModelVersion, candidate),
+            session.get(ModelVersion, incumbent) if incumbent else None,
+            "cpu",
+        )
+
+
+def test_a_student_with_no_pool_or_no_keypoints_is_not_promoted_and_the_teacher_stays(
+    client: TestClient, settings, session_factory, make_user, base_model: Path
+) -> None:
+    _, token = make_user("gatekeeper", Role.reviewer)
+    shifted = [[x + 6.0, y] for x, y in KEYPOINTS]  # the teacher: mIoU 0.66, keypoints 6 px off
+    ids = _frames_with_labels(client, token, settings, session_factory, shifted)
+
+    empty = _version(settings, session_factory, base_model, "empty", -30.0, 0.0, ids)
+    verdict = _measure(settings, session_factory, empty)
+    assert verdict["candidate"]["mIoU"] == 0.0 and verdict["frames"] == ids
+    assert verdict["teacher"]["mIoU"] == pytest.approx(48 * 76 / (60 * 92))
+    assert not verdict["usable"] and not verdict["promote"]
+    assert "worse than the teacher" in verdict["reason"]
+
+    blind = _version(settings, session_factory, base_model, "blind", 30.0, -30.0, ids)
+    verdict = _measure(settings, session_factory, blind)
+    assert verdict["candidate"]["mIoU"] > verdict["teacher"]["mIoU"]  # a better mask …
+    assert verdict["candidate"]["missed"] == 12  # … but no keypoint at all
+    assert verdict["candidate"]["mED_penalised"] == pytest.approx(np.hypot(W, H))
+    assert verdict["teacher"]["mED_penalised"] == pytest.approx(6.0)
+    assert not verdict["usable"]
+
+    refused = client.post(f"/api/v1/models/{empty}/promote", headers=auth(token))
+    assert refused.status_code == 409 and "teacher" in refused.json()["detail"]
+    models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
+    assert not models["empty"]["is_promoted"] and models["empty"]["gate"]["usable"] is False
+    proposal = client.get(f"/api/v1/frames/{ids[0]}/proposal", headers=auth(token)).json()
+    assert proposal["source"] == "teacher" and proposal["chosen"]
+
+    forced = client.post(f"/api/v1/models/{empty}/promote?force=true", headers=auth(token))
+    assert forced.status_code == 200 and forced.json()["is_promoted"]
+
+
+def test_a_usable_first_version_is_promoted_and_an_equal_one_is_not(
+    client: TestClient, settings, session_factory, make_user, base_model: Path
+) -> None:
+    _, token = make_user("gatekeeper2", Role.reviewer)
+    ids = _frames_with_labels(client, token, settings, session_factory, [])  # teacher: no keypoints
+    whole = _version(settings, session_factory, base_model, "whole", 30.0, -30.0, ids)
+    verdict = _measure(settings, session_factory, whole)
+    assert verdict["usable"] and verdict["promote"], verdict["reason"]  # better mask, same misses
+
+    twin = _version(settings, session_factory, base_model, "twin", 30.0, -30.0, ids)
+    verdict = _measure(settings, session_factory, twin, incumbent=whole)
+    assert verdict["usable"] and not verdict["promote"]
+    assert "not better than whole" in verdict["reason"]
+    assert verdict["incumbent_scores"]["mIoU"] == verdict["candidate"]["mIoU"]
+
+    empty = _version(settings, session_factory, base_model, "empty2", -30.0, 0.0, ids)
+    assert not _measure(settings, session_factory, empty, incumbent=whole)["promote"]
+
+    trained_on = _version(settings, session_factory, base_model, "trained-on", 30.0, -30.0, ids)
+    with session_factory() as session:
+        session.get_one(ModelVersion, trained_on).train_frame_ids = ids
+        session.commit()
+    verdict = _measure(settings, session_factory, trained_on)
+    assert verdict["frames"] == [] and not verdict["usable"]  # never judged on its own training
+
+
+def _propose(
+    session_factory, storage: Storage, frame_id: int, source: str, model_id: str, mask: np.ndarray
+) -> int:
+    with session_factory() as session:
+        proposal = Proposal(
+            frame_id=frame_id,
+            source=source,
+            model_id=model_id,
+            mask_path=store_mask(storage, mask),
+            keypoints=[],
+        )
+        session.add(proposal)
+        session.commit()
+        return proposal.id
+
+
+def _box(x0: int, x1: int) -> np.ndarray:
+    mask = np.zeros((H, W), bool)
+    mask[10:50, x0:x1] = True
+    return mask
+
+
+def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    _, token = make_user("policy", Role.reviewer)
+    storage = Storage(settings.home)
+    files = [
+        ("files", (f"{i}.png", image_bytes(W, H, seed=400 + i), "image/png")) for i in range(5)
+    ]
+    ids = [
+        f["id"]
+        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    ]
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
+        session.commit()
+    truth = _box(20, 60)
+    for frame_id in ids:
+        _propose(session_factory, storage, frame_id, "teacher", "t", _box(30, 70))  # IoU 0.6
+        _propose(session_factory, storage, frame_id, "student", "student-v1", _box(22, 62))
+
+    def shown(frame_id: int) -> str:
+        body = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
+        return body["source_key"]
+
+    assert shown(ids[4]) == "teacher"  # nothing measured yet: the teacher
+    for count, frame_id in enumerate(ids[:3], start=1):
+        response = client.put(
+            f"/api/v1/frames/{frame_id}/label", json=corrected_label(truth), headers=auth(token)
+        )
+        assert response.status_code == 200, response.text
+        assert response.json()["mask_changed"] is True
+        expected = "student:student-v1" if count >= 3 else "teacher"
+        assert shown(ids[4]) == expected, count  # two frames are not enough evidence
+
+    listing = client.get(f"/api/v1/frames/{ids[4]}/proposals", headers=auth(token)).json()
+    assert [p["source"] for p in listing["items"]] == ["student", "teacher"]
+    assert [p["chosen"] for p in listing["items"]] == [True, False]
+    scores = {s["key"]: s for s in listing["policy"]["sources"]}
+    assert scores["teacher"]["mIoU"] == pytest.approx(0.6)
+    assert scores["student:student-v1"]["mIoU_common"] == pytest.approx(38 / 42)
+    assert listing["policy"]["chosen"] == "student:student-v1"
+    other = client.get(
+        f"/api/v1/frames/{ids[4]}/proposal", params={"source": "teacher"}, headers=auth(token)
+    ).json()
+    assert other["source"] == "teacher" and not other["chosen"]
+    assert (
+        client.get(
+            f"/api/v1/frames/{ids[4]}/proposal",
+            params={"source": "student:nope"},
+            headers=auth(token),
+        ).status_code
+        == 400
+    )
+
+    # a gate that found the version worse than the teacher keeps it out of the review
+    with session_factory() as session:
+        version = session.query(ModelVersion).filter_by(name="student-v1").one()
+        version.gate = {"usable": False}
+        version.promoted_at = None
+        session.commit()
+    # a new label revision changes the policy's fingerprint
+    client.put(f"/api/v1/frames/{ids[3]}/label", json=corrected_label(truth), headers=auth(token))
+    assert shown(ids[4]) == "teacher"
+    with session_factory() as session:
+        version = session.query(ModelVersion).filter_by(name="student-v1").one()
+        version.gate = None
+        version.train_frame_ids = ids[:3]  # frames it trained on do not count
+        session.commit()
+    label = client.get(f"/api/v1/frames/{ids[3]}/label", headers=auth(token)).json()
+    client.put(
+        f"/api/v1/frames/{ids[3]}/label",
+        json=corrected_label(truth, base_revision=label["revision"]),
+        headers=auth(token),
+    )
+    assert shown(ids[4]) == "teacher"
+
+
+def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    _, token = make_user("provenance", Role.reviewer)
+    storage = Storage(settings.home)
+    files = [
+        ("files", (f"{i}.png", image_bytes(W, H, seed=500 + i), "image/png")) for i in range(2)
+    ]
+    ids = [
+        f["id"]
+        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    ]
+    teacher = _propose(session_factory, storage, ids[0], "teacher", "t", _box(30, 70))
+    student = _propose(session_factory, storage, ids[0], "student", "student-v9", _box(22, 62))
+    second = _propose(session_factory, storage, ids[1], "teacher", "t", _box(30, 70))
+    accepted = client.put(
+        f"/api/v1/frames/{ids[0]}/label",
+        json={"status": "accepted", "base_revision": 0, "proposal_id": student},
+        headers=auth(token),
+    ).json()
+    assert accepted["proposal_id"] == student and accepted["mask_changed"] is False
+    same = client.put(  # the teacher's mask, sent back as it was: unchanged
+        f"/api/v1/frames/{ids[1]}/label",
+        json=corrected_label(_box(30, 70)),
+        headers=auth(token),
+    ).json()
+    assert same["mask_changed"] is False and same["proposal_id"] == second
+    wrong = client.put(
+        f"/api/v1/frames/{ids[1]}/label",
+        json={"status": "accepted", "base_revision": 1, "proposal_id": teacher},
+        headers=auth(token),
+    )
+    assert wrong.status_code == 404 and "no proposal" in wrong.json()["detail"]
+    review = client.get("/api/v1/metrics", headers=auth(token)).json()["review"]
+    by_source = {s["source"]: s for s in review["by_source"]}
+    assert by_source["student:student-v9"]["accepted"] == 1
+    assert by_source["student:student-v9"]["acceptance_rate"] == 1.0
+    assert by_source["teacher"]["corrected"] == 1 and by_source["teacher"]["unchanged"] == 1
+    with session_factory() as session:
+        assert session.get_one(Frame, ids[0]).status.value == "accepted"
