@@ -173,7 +173,7 @@ document.getElementById("teacher-selection").addEventListener("click", () => {
 async function runTeacher(body, what) {
   let created;
   try {
-    created = await api("/teacher/runs", { method: "POST", json: body });
+    created = await api("/teacher/runs", { method: "POST", json: { ...body, force: document.getElementById("teacher-force").checked } });
   } catch (error) {
     toast(error.message, "error");
     return;

@@ -49,6 +49,12 @@ function render(data) {
       review.teacher_acceptance_rate === null
         ? "No teacher proposal has been reviewed yet."
         : `Reviewers accepted ${pct(review.teacher_acceptance_rate)} of the ${review.teacher_reviewed} teacher proposals they reviewed as they were.`),
+    data.policy ? h("p", { "data-testid": "policy" }, "Shown for review: ", h("strong", {}, data.policy.chosen), ` — ${data.policy.reason}`) : "",
+    review.by_source?.length
+      ? table(["source", "reviewed", "accepted", "corrected", "rejected", "unchanged", "acceptance"],
+        review.by_source.map((s) => [s.source, String(s.reviewed), String(s.accepted), String(s.corrected), String(s.rejected), String(s.unchanged), pct(s.acceptance_rate)]),
+        "source-table")
+      : "",
     review.over_time.length
       ? table(["day", "accepted", "corrected", "rejected"],
         review.over_time.map((d) => [d.day, String(d.accepted), String(d.corrected), String(d.rejected)]),

@@ -38,13 +38,32 @@ export function curveCharts(curve) {
 }
 
 async function promote(model) {
+  if (!confirm(`Promote ${model.name}? It is measured against the promoted version and the teacher first.`)) return;
   try {
     await api(`/models/${model.id}/promote`, { method: "POST" });
-    toast(`${model.name} now makes the proposals.`, "ok");
+    toast(`${model.name} is promoted: it scores the review queue; the review shows it where it beats the teacher.`, "ok");
   } catch (error) {
-    toast(error.message, "error");
+    if (error instanceof ApiError && error.status === 409) {
+      if (confirm(`${error.message}\n\nPromote it anyway?`)) {
+        try {
+          await api(`/models/${model.id}/promote?force=true`, { method: "POST" });
+          toast(`${model.name} is promoted by hand; the review keeps the teacher's proposals where they agree better.`, "info");
+        } catch (again) { toast(again.message, "error"); }
+      }
+    } else {
+      toast(error.message, "error");
+    }
   }
   load();
+}
+
+/** The promotion gate's verdict: measured against the teacher and the promoted version. */
+function gateLine(gate) {
+  if (!gate) return h("p", { class: "muted small-text", "data-testid": "gate" }, "not measured by the promotion gate");
+  const frames = gate.frames?.length ?? 0;
+  return h("p", { class: `gate ${gate.usable ? "ok" : "warning"}`, "data-testid": "gate" },
+    badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "",
+    h("span", { class: "muted" }, ` (${frames} held-out frame${frames === 1 ? "" : "s"})`));
 }
 
 export function modelCard(model) {
@@ -58,6 +77,7 @@ export function modelCard(model) {
       isReviewer() && !model.is_promoted
         ? h("button", { type: "button", class: "secondary", "data-testid": "promote", onclick: () => promote(model) }, "Promote")
         : ""),
+    gateLine(model.gate),
     h("p", { class: "muted" },
       `trained on ${model.train_label_count ?? "?"} labels · ${formatDate(model.created_at)}`,
       model.job_id ? [" · ", h("a", { href: `/jobs?job=${model.job_id}` }, `job #${model.job_id}`)] : ""),

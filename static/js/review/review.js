@@ -21,7 +21,9 @@ const CONTEXT = new URLSearchParams(location.search);
 if (!CONTEXT.has("order")) CONTEXT.set("order", "uncertainty");
 
 let frame = null;
-let proposal = null; // {mask, keypoints, scores, source, model_id}
+let proposal = null; // the proposal shown: {id, mask, keypoints, scores, source, source_key, model_id, chosen}
+let proposals = []; // every proposal of the frame, newest first (GET /proposals items)
+let policyReason = "";
 let revision = 0;
 let labelStatus = null;
 let stage = null;
@@ -154,7 +156,7 @@ function renderFrameInfo() {
   if (revision) pieces.push(h("span", { class: "muted" }, ` revision ${revision}`));
   if (proposal) {
     const iou = proposal.scores?.sam2_iou;
-    pieces.push(h("br"), h("span", { class: "muted" }, `${proposal.source} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
+    pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
     if (frame.uncertainty !== null) {
       const reason = REASONS[frame.uncertainty_reason] ?? frame.uncertainty_reason;
       pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
@@ -375,9 +377,10 @@ function onPointerUp() {
 // --- verdicts -------------------------------------------------------------------------------
 
 async function verdictBody(kind, baseRevision) {
-  if (kind === "reject") return { status: "rejected", base_revision: baseRevision };
-  if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision };
-  const body = { status: "corrected", base_revision: baseRevision, mask_png: await state.mask.toPng() };
+  const from = proposal ? { proposal_id: proposal.id } : {};
+  if (kind === "reject") return { status: "rejected", base_revision: baseRevision, ...from };
+  if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision, ...from };
+  const body = { status: "corrected", base_revision: baseRevision, mask_png: await state.mask.toPng(), ...from };
   const stale = state.maskEdited && !state.kpEdited;
   if (!stale && state.keypoints.length) body.keypoints = state.keypoints;
   return body;
@@ -516,10 +519,63 @@ async function setHeatmapVisible(on) {
   stage.showHeatmap = on;
   if (on && !stage.heatmap && proposal) {
     const image = new Image();
-    image.src = `/api/v1/frames/${FRAME_ID}/proposal/heatmap.png`;
+    image.src = `/api/v1/frames/${FRAME_ID}/proposal/heatmap.png?proposal_id=${proposal.id}`;
     try { await image.decode(); stage.heatmap = image; stage.canvas.dataset.heatmap = "loaded"; } catch { toast("The heatmap could not be loaded.", "error"); }
   }
   stage.requestRender();
+}
+
+// --- proposals ------------------------------------------------------------------------------
+
+/** "teacher" or the student version's name. */
+function sourceName(item) {
+  return item.source === "teacher" ? "teacher" : `${item.source} ${item.model_id}`;
+}
+
+/** One button per proposal (newest first): the shown one pressed, the policy's pick marked. */
+function renderProposals() {
+  const list = $("proposal-sources");
+  list.replaceChildren(...proposals.map((item) => {
+    const iou = item.scores?.sam2_iou;
+    const detail = iou !== undefined && iou !== null ? ` · IoU ${Number(iou).toFixed(2)}` : "";
+    return h("button", {
+      type: "button",
+      class: `source${proposal && item.id === proposal.id ? " shown" : ""}`,
+      "aria-pressed": String(Boolean(proposal && item.id === proposal.id)),
+      "data-testid": "proposal-option",
+      "data-proposal-id": String(item.id),
+      title: `${sourceName(item)}, ${formatDate(item.created_at)}`,
+      onclick: () => switchProposal(item.id),
+    }, sourceName(item), h("span", { class: "muted" }, detail), item.chosen ? h("span", { class: "chosen" }, " ★ chosen") : "");
+  }));
+  $("proposals-section").hidden = proposals.length === 0;
+  $("policy-reason").textContent = proposals.length > 1 ? policyReason : "";
+  $("rerun-teacher").hidden = proposals.length === 0;
+}
+
+/** Show another proposal of the frame: it replaces the working mask (undoable once edited). */
+async function switchProposal(id) {
+  if (proposal && proposal.id === id) return;
+  let body;
+  try {
+    body = await api(`/frames/${FRAME_ID}/proposal?proposal_id=${id}`);
+  } catch (error) { toast(error.message, "error"); return; }
+  const mask = await Mask.fromPng(body.mask_png, frame.width, frame.height);
+  proposal = { ...body, mask };
+  stage.heatmap = null;
+  if (stage.showHeatmap) setHeatmapVisible(true);
+  const next = { ...state, mask, keypoints: (body.keypoints ?? []).map((p) => [...p]), maskEdited: false, kpEdited: false, session: null };
+  if (revision === 0 && !labelDirty()) { state = next; labelClean = next; changed(); }
+  else commit(next);
+  renderProposals();
+  renderFrameInfo();
+  stage.requestRender();
+}
+
+function cycleProposal() {
+  if (proposals.length < 2) return;
+  const index = proposals.findIndex((item) => proposal && item.id === proposal.id);
+  switchProposal(proposals[(index + 1) % proposals.length].id);
 }
 
 // --- keyboard -------------------------------------------------------------------------------
@@ -555,6 +611,7 @@ function onKey(event) {
     h: () => setHeatmapVisible(!stage.showHeatmap),
     f: () => stage.fit(),
     v: () => toggleValidation(),
+    p: () => cycleProposal(),
     escape: () => { stage.draft = null; gesture = null; endSession(); },
     delete: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
     backspace: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
@@ -618,7 +675,8 @@ function bindControls() {
   $("validation-toggle").addEventListener("click", toggleValidation);
   $("save-validation").addEventListener("click", saveValidation);
   $("clear-validation").addEventListener("click", () => state.manual.length && commit({ ...state, manual: [] }));
-  $("run-teacher").addEventListener("click", runTeacher);
+  $("run-teacher").addEventListener("click", () => runTeacher(false));
+  $("rerun-teacher").addEventListener("click", () => runTeacher(true));
   $("advance").checked = localStorage.getItem("weldpool.advance") !== "0";
   $("advance").addEventListener("change", (event) => localStorage.setItem("weldpool.advance", event.target.checked ? "1" : "0"));
   document.addEventListener("keydown", onKey);
@@ -636,18 +694,20 @@ function bindControls() {
   }
 }
 
-async function runTeacher() {
-  $("run-teacher").disabled = true;
+async function runTeacher(force) {
+  const button = $(force ? "rerun-teacher" : "run-teacher");
+  const text = button.textContent;
+  button.disabled = true;
   try {
-    const { job_id: jobId } = await api("/teacher/runs", { method: "POST", json: { frame_ids: [FRAME_ID] } });
-    const job = await waitForJob(jobId, (j) => { $("run-teacher").textContent = `Teacher: ${Math.round(j.progress * 100)} %`; });
+    const { job_id: jobId } = await api("/teacher/runs", { method: "POST", json: { frame_ids: [FRAME_ID], force } });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Teacher: ${Math.round(j.progress * 100)} %`; });
     if (job.status !== "succeeded") throw new Error(`The teacher job ${job.status}: ${job.error ?? ""}`);
     if (labelDirty() || manualDirty()) toast("The proposal is ready; save or undo your changes, then reload.", "info");
     else { leaving = true; location.reload(); }
   } catch (error) {
     toast(error.message, "error");
-    $("run-teacher").disabled = false;
-    $("run-teacher").textContent = "Run teacher on this frame";
+    button.disabled = false;
+    button.textContent = text;
   }
 }
 
@@ -655,13 +715,14 @@ async function start() {
   const imageUrl = `/api/v1/frames/${FRAME_ID}/image?variant=display`;
   const image = loadImage(imageUrl);
   image.catch(() => {});
-  let detail, proposalBody, label, manual;
+  let detail, proposalBody, label, manual, listing;
   try {
-    [detail, proposalBody, label, manual] = await Promise.all([
+    [detail, proposalBody, label, manual, listing] = await Promise.all([
       api(`/frames/${FRAME_ID}`),
       optional(`/frames/${FRAME_ID}/proposal`),
       optional(`/frames/${FRAME_ID}/label`),
       optional(`/frames/${FRAME_ID}/validation-keypoints`),
+      optional(`/frames/${FRAME_ID}/proposals`),
     ]);
   } catch (error) {
     fail(error.message);
@@ -676,6 +737,8 @@ async function start() {
   ]);
   if (!picture) { fail(`The image of frame ${FRAME_ID} could not be loaded.`); return; }
   if (proposalBody) proposal = { ...proposalBody, mask: proposalMask };
+  proposals = listing?.items ?? [];
+  policyReason = listing?.policy?.reason ?? "";
   revision = label?.revision ?? 0;
   labelStatus = label?.status ?? null;
 
@@ -699,6 +762,7 @@ async function start() {
   $("show-heatmap").disabled = proposal === null;
   $("stage-message").hidden = true;
   bindControls();
+  renderProposals();
   setTool("positive");
   renderFrameInfo();
   changed();
