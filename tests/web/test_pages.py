@@ -93,6 +93,12 @@ SAMPLE_MODELS = [
         "is_promoted": False,
         "train_label_count": 60,
         "metrics": {"mIoU": 0.874, "mED": 6.2},
+        "gate": {
+            "usable": False,
+            "promote": False,
+            "reason": "Not promoted: worse than the teacher on 3 held-out frames.",
+            "frames": [4, 5, 6],
+        },
         "curve": [
             {
                 "epoch": e,
@@ -147,7 +153,10 @@ def test_models_page_draws_versions_from_the_contract(
     assert first.locator("path.line[data-series=val_mIoU]").count() == 1
     assert cards.nth(1).locator(".badge.promoted").count() == 1
     assert cards.nth(1).locator("[data-testid=promote]").count() == 0
+    gate = first.locator("[data-testid=gate]").inner_text()
+    assert "not usable" in gate and "worse than the teacher" in gate and "3 held-out" in gate
     page.screenshot(path=str(screenshots / "models-preview.png"), full_page=True)
+    page.once("dialog", lambda dialog: dialog.accept())  # "Promote student-v2?"
     first.locator("[data-testid=promote]").click()
     page.wait_for_selector("[data-testid=toast-ok]")
     assert promoted and promoted[0].endswith("/api/v1/models/2/promote")
@@ -435,3 +444,34 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     assert "corrected" in page.inner_text("[data-testid=acceptance]")
     assert page.locator("svg.chart").count() == 2  # the learning curve: mIoU and mED
     page.screenshot(path=str(screenshots / "metrics.png"), full_page=True)
+
+
+def test_review_switches_between_proposals_and_records_the_one_accepted(
+    page: Any, server: LiveServer, screenshots: Path
+) -> None:
+    """Two teacher runs on one frame: both proposals are listed, P shows the other one, and
+    the accepted label records the proposal it started from, unchanged."""
+    frame_id = add_frame(server, 11)
+    again = server.api("POST", "/teacher/runs", json={"frame_ids": [frame_id], "force": True})
+    assert server.wait_for_job(again.json()["job_id"])["status"] == "succeeded"
+    listed = server.api("GET", f"/frames/{frame_id}/proposals").json()["items"]
+    newest, oldest = (item["id"] for item in listed)
+    assert listed[0]["chosen"] and not listed[1]["chosen"]
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    options = page.locator("[data-testid=proposal-option]")
+    assert options.count() == 2
+    assert options.nth(0).get_attribute("aria-pressed") == "true"
+    assert "chosen" in options.nth(0).inner_text()
+    page.screenshot(path=str(screenshots / "review-proposals.png"))
+    page.locator(CANVAS).focus()
+    page.keyboard.press("p")
+    page.wait_for_selector(f"[data-proposal-id='{oldest}'][aria-pressed=true]")
+    assert page.is_hidden("[data-testid=dirty]")  # no label yet: showing another is no edit
+    page.click("[data-testid=accept]")
+    page.wait_for_selector("[data-testid=toast-ok]")
+    label = server.api("GET", f"/frames/{frame_id}/label").json()
+    assert label["status"] == "accepted" and label["proposal_id"] == oldest
+    assert label["mask_changed"] is False and newest != oldest
