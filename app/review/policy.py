@@ -98,17 +98,14 @@ def _mean(values: list[float]) -> float | None:
 
 def measure(session: Session, storage: Storage) -> Policy:
     """Score every source on the reviewed frames and pick the one to show (module doc)."""
-    labels: dict[int, str] = dict(
-        session.execute(  # type: ignore[arg-type]
-            sa.select(Label.frame_id, Label.mask_path).where(
-                Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]),
-                Label.mask_path.is_not(None),
-            )
-        ).all()
+    reviewed = sa.select(Label.frame_id, Label.mask_path).where(
+        Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]),
+        Label.mask_path.is_not(None),
     )
+    labels: dict[int, str] = dict(session.execute(reviewed).all())  # type: ignore[arg-type]
     newest = (
         sa.select(sa.func.max(Proposal.id))
-        .where(Proposal.frame_id.in_(list(labels)))
+        .where(Proposal.frame_id.in_(reviewed.with_only_columns(Label.frame_id)))
         .group_by(Proposal.frame_id, Proposal.source, Proposal.model_id)
     )
     proposals = session.scalars(sa.select(Proposal).where(Proposal.id.in_(newest))).all()

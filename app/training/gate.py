@@ -120,7 +120,11 @@ def measure(
 ) -> dict[str, Any]:
     """The gate's verdict on ``candidate`` against ``incumbent`` and the teacher (module doc):
     ``usable``, ``promote``, ``reason`` and the scores behind them (JSON-ready)."""
-    if incumbent is not None and incumbent.id == candidate.id:
+    if incumbent is not None and (
+        incumbent.id == candidate.id
+        or incumbent.checkpoint_path is None
+        or not storage.absolute(incumbent.checkpoint_path).is_dir()
+    ):  # the candidate itself, or an incumbent whose files are gone: nothing to compare with
         incumbent = None
     frame_ids = gate_frames(session, candidate, incumbent)
     truth = _truth(session, storage, frame_ids)

@@ -15,7 +15,20 @@ class TrainIn(BaseModel):
     size: Literal["resnet18", "resnet34", "light"] | None = Field(
         default=None, description="Model size (default resnet18; light runs fastest on a CPU)."
     )
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    pseudo_labels: bool = Field(
+        default=False,
+        description="Also learn from the teacher's proposals on frames nobody has labelled "
+        "(the paper's distillation), when the teacher is confident of them; each weighs "
+        "`pseudo_weight` × its confidence against 1 for a reviewed label.",
+    )
+    pseudo_min_confidence: float = Field(
+        default=0.8,
+        ge=0.0,
+        le=1.0,
+        description="Least teacher confidence (SAM2's predicted IoU × prompt stability).",
+    )
+    pseudo_weight: float = Field(default=0.5, gt=0.0, le=1.0)
 
 
 class StudentRunIn(BaseModel):

@@ -19,6 +19,7 @@ from app.models import (
     LabelRevision,
     LabelStatus,
     ModelVersion,
+    Proposal,
     Split,
     ValidationKeypoints,
 )
@@ -101,6 +102,38 @@ def labelled_samples(
             mask = load_mask(storage, label.mask_path)
         keypoints = manual.keypoints if manual else (label.keypoints if label else None)
         yield frame_id, frame_rgb(storage, frame) if with_images else None, mask, keypoints
+
+
+def teacher_confidence(scores: dict[str, Any]) -> float | None:
+    """How sure the teacher is of a proposal: SAM2's predicted IoU times its prompt stability
+    (the present ones; None when neither is)."""
+    parts = [scores.get("sam2_iou"), scores.get("prompt_stability")]
+    present = [float(p) for p in parts if p is not None]
+    return float(np.prod(present)) if present else None
+
+
+def pseudo_label_proposals(session: Session, min_confidence: float) -> list[tuple[Proposal, float]]:
+    """The teacher's newest proposal on each frame nobody has labelled (outside the validation
+    split) whose confidence (``teacher_confidence``) is at least ``min_confidence``, with that
+    confidence. Only the teacher's: a student's unverified output is never a training target."""
+    newest = (
+        sa.select(sa.func.max(Proposal.id))
+        .join(Frame, Frame.id == Proposal.frame_id)
+        .where(
+            Proposal.source == "teacher",
+            Frame.split != Split.validation,
+            Proposal.frame_id.not_in(sa.select(Label.frame_id)),
+        )
+        .group_by(Proposal.frame_id)
+    )
+    chosen = []
+    for proposal in session.scalars(
+        sa.select(Proposal).where(Proposal.id.in_(newest)).order_by(Proposal.frame_id)
+    ):
+        confidence = teacher_confidence(proposal.scores)
+        if confidence is not None and confidence >= min_confidence:
+            chosen.append((proposal, confidence))
+    return chosen
 
 
 def unreviewed_frame_ids(session: Session) -> list[int]:

@@ -121,7 +121,9 @@ trainForm?.addEventListener("submit", async (event) => {
   const stateLine = document.getElementById("train-state");
   button.disabled = true;
   try {
-    const { job_id: jobId } = await api("/student/train", { method: "POST", json: epochs > 0 ? { epochs } : {} });
+    const body = epochs > 0 ? { epochs } : {};
+    if (trainForm.elements.pseudo_labels?.checked) body.pseudo_labels = true;
+    const { job_id: jobId } = await api("/student/train", { method: "POST", json: body });
     stateLine.replaceChildren("Training job ", h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), " started.");
     const job = await waitForJob(jobId, (j) => {
       stateLine.replaceChildren(`Training job `, h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);

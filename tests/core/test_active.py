@@ -41,10 +41,14 @@ def test_disagreement_between_student_and_teacher() -> None:
     mask[20:80, 40:160] = True
     points = [[40, 20], [160, 20], [160, 80], [40, 80]]
     assert disagreement(mask, mask, points, points) == 0.0
-    shifted = np.roll(mask, 30, axis=1)
-    moved = [[x + 30, y] for x, y in points]
-    partial = disagreement(shifted, mask, moved, points)
-    assert 0.2 < partial < 1.0
+    shifted = np.roll(mask, 5, axis=1)
+    moved = [[x + 5, y] for x, y in points]
+    # masks: IoU 115/125, so 0.08; keypoints: 5 px / diagonal × KEYPOINT_SCALE; their mean
+    expected = (0.08 + 5 / np.hypot(100, 200) * 10) / 2
+    assert disagreement(shifted, mask, moved, points) == pytest.approx(expected, abs=1e-9)
+    assert disagreement(mask, mask, moved, points) == pytest.approx(expected - 0.04, abs=1e-9)
+    far = [[x + 300, y] for x, y in points]  # the keypoint part saturates at 1
+    assert disagreement(mask, mask, far, points) == pytest.approx(0.5)
     assert disagreement(~mask, mask, [], points) == 1.0  # nothing overlaps, no keypoints
 
 

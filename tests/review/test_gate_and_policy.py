@@ -313,3 +313,21 @@ def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
     assert by_source["teacher"]["corrected"] == 1 and by_source["teacher"]["unchanged"] == 1
     with session_factory() as session:
         assert session.get_one(Frame, ids[0]).status.value == "accepted"
+
+
+def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    from tests.review.test_review import _teacher, _upload_synthetic
+
+    _, token = make_user("skipper", Role.reviewer)
+    storage = Storage(settings.home)
+    first, second = _upload_synthetic(client, token, 2)
+    _propose(session_factory, storage, first, "student", "student-v3", _box(20, 60))
+    result = _teacher(client, token, [first, second])["result"]
+    assert result["proposed"] == 2 and result["skipped"] == 0  # a student's proposal is no reason
+    again = _teacher(client, token, [first, second])["result"]
+    assert again["proposed"] == 0 and again["skipped"] == 2
+    listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
+    assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
+    assert listing["items"][0]["chosen"]  # nothing measured: the teacher's is shown
