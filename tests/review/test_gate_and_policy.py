@@ -331,3 +331,58 @@ def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
     listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
     assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
     assert listing["items"][0]["chosen"]  # nothing measured: the teacher's is shown
+
+
+def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    from app.models import Split
+    from app.training.service import pseudo_label_proposals, teacher_confidence
+
+    _, token = make_user("distiller", Role.reviewer)
+    storage = Storage(settings.home)
+    files = [
+        ("files", (f"{i}.png", image_bytes(W, H, seed=600 + i), "image/png")) for i in range(5)
+    ]
+    ids = [
+        f["id"]
+        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    ]
+    sure, unsure, student_only, labelled, validation = ids
+    with session_factory() as session:
+        for frame_id, iou, stability in [
+            (sure, 0.95, 0.95),
+            (unsure, 0.95, 0.5),
+            (labelled, 0.99, 0.99),
+            (validation, 0.99, 0.99),
+        ]:
+            session.add(
+                Proposal(
+                    frame_id=frame_id,
+                    source="teacher",
+                    model_id="t",
+                    mask_path=store_mask(storage, _box(20, 60)),
+                    scores={"sam2_iou": iou, "prompt_stability": stability},
+                )
+            )
+        session.add(
+            Proposal(
+                frame_id=student_only,
+                source="student",
+                model_id="student-v1",
+                mask_path=store_mask(storage, _box(20, 60)),
+                scores={"sam2_iou": 1.0, "prompt_stability": 1.0},
+            )
+        )
+        session.get_one(Frame, validation).split = Split.validation
+        session.commit()
+    client.put(
+        f"/api/v1/frames/{labelled}/label", json=corrected_label(_box(20, 60)), headers=auth(token)
+    )
+    with session_factory() as session:
+        chosen = pseudo_label_proposals(session, 0.8)
+        assert [(p.frame_id, round(c, 4)) for p, c in chosen] == [(sure, 0.9025)]
+        assert [p.frame_id for p, _ in pseudo_label_proposals(session, 0.4)] == [sure, unsure]
+    assert teacher_confidence({"sam2_iou": 0.5}) == 0.5
+    assert teacher_confidence({"sam2_iou": 0.5, "prompt_stability": 0.5}) == 0.25
+    assert teacher_confidence({}) is None
