@@ -106,6 +106,10 @@ def _no_worse(first: dict[str, Any], second: dict[str, Any]) -> bool:
     return a is None or b is None or a <= b
 
 
+def _count(frames: int) -> str:
+    return f"{frames} held-out frame{'' if frames == 1 else 's'}"
+
+
 def _fmt(scores: dict[str, Any]) -> str:
     med = scores["mED_penalised"]
     return f"mIoU {scores['mIoU']:.3f}" + ("" if med is None else f", penalised mED {med:.1f} px")
@@ -152,7 +156,7 @@ def measure(
         if not _no_worse(mine_common, theirs):
             usable = False
             reasons.append(
-                f"worse than the teacher on {len(common)} held-out frames "
+                f"worse than the teacher on {_count(len(common))} "
                 f"({_fmt(mine_common)} vs {_fmt(theirs)})"
             )
     else:
@@ -172,14 +176,12 @@ def measure(
         better = _better(verdict["candidate"], theirs)
         if not better:
             reasons.append(
-                f"not better than {incumbent.name} on {len(ids)} held-out frames "
+                f"not better than {incumbent.name} on {_count(len(ids))} "
                 f"({_fmt(verdict['candidate'])} vs {_fmt(theirs)})"
             )
     if usable and better:
         against = f"{incumbent.name} and the teacher" if incumbent else "the teacher"
-        reason = (
-            f"Better than {against} on {len(ids)} held-out frames ({_fmt(verdict['candidate'])})."
-        )
+        reason = f"Better than {against} on {_count(len(ids))} ({_fmt(verdict['candidate'])})."
     else:
         reason = "Not promoted: " + "; ".join(reasons) + "."
     return verdict | {"usable": usable, "promote": usable and better, "reason": reason}
