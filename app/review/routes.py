@@ -7,7 +7,7 @@ import binascii
 from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
@@ -16,7 +16,7 @@ from app.errors import InvalidInputError, NotFoundError
 from app.frames.service import get_frame
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import Split, User
+from app.models import Proposal, Split, User
 from app.review import policy, service
 from app.review.export import build_export
 from app.review.schemas import (
@@ -60,20 +60,6 @@ def start_teacher_run(
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
 
 
-def _proposal(  # type: ignore[no-untyped-def]
-    session: SessionDep,
-    storage: StorageDep,
-    frame_id: int,
-    source: str | None = None,
-    proposal_id: int | None = None,
-):
-    get_frame(session, frame_id)
-    proposal = policy.pick(session, storage, frame_id, source, proposal_id)
-    if proposal is None:
-        raise NotFoundError(f"Frame {frame_id} has no proposal yet; run the teacher on it.")
-    return proposal
-
-
 SourceQuery = Annotated[
     str | None,
     Query(
@@ -84,6 +70,25 @@ SourceQuery = Annotated[
 ProposalQuery = Annotated[
     int | None, Query(ge=1, le=2**31 - 1, description="One proposal of the frame, by id.")
 ]
+
+
+def _shown_proposal(
+    frame_id: int,
+    session: SessionDep,
+    storage: StorageDep,
+    source: SourceQuery = None,
+    proposal_id: ProposalQuery = None,
+) -> Proposal:
+    """The proposal a request means: ``proposal_id``, else the newest of ``source``, else the
+    policy's pick; 404 when the frame has none."""
+    get_frame(session, frame_id)
+    proposal = policy.pick(session, storage, frame_id, source, proposal_id)
+    if proposal is None:
+        raise NotFoundError(f"Frame {frame_id} has no proposal yet; run the teacher on it.")
+    return proposal
+
+
+ShownProposal = Annotated[Proposal, Depends(_shown_proposal)]
 
 
 def _summary(proposal, chosen: int | None) -> ProposalSummary:  # type: ignore[no-untyped-def]
@@ -108,12 +113,10 @@ def get_proposal(
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
-    source: SourceQuery = None,
-    proposal_id: ProposalQuery = None,
+    proposal: ShownProposal,
 ) -> ProposalOut:
     """The proposal the policy picks for review (or the one asked for): mask (base64 PNG),
     keypoints, prompts, scores and where it came from."""
-    proposal = _proposal(session, storage, frame_id, source, proposal_id)
     chosen = policy.pick(session, storage, frame_id)
     return ProposalOut(
         **_summary(proposal, chosen.id if chosen else None).model_dump(),
@@ -145,16 +148,8 @@ def list_proposals(
     response_class=Response,
     responses={200: {"content": {"image/png": {}}}},
 )
-def get_proposal_mask(
-    frame_id: int,
-    session: SessionDep,
-    storage: StorageDep,
-    _user: CurrentUser,
-    source: SourceQuery = None,
-    proposal_id: ProposalQuery = None,
-) -> Response:
+def get_proposal_mask(storage: StorageDep, _user: CurrentUser, proposal: ShownProposal) -> Response:
     """The shown proposal's mask as a PNG (0 / 255)."""
-    proposal = _proposal(session, storage, frame_id, source, proposal_id)
     return Response(storage.absolute(proposal.mask_path).read_bytes(), media_type="image/png")
 
 
@@ -164,17 +159,11 @@ def get_proposal_mask(
     responses={200: {"content": {"image/png": {}}}},
 )
 def get_proposal_heatmap_png(
-    frame_id: int,
-    session: SessionDep,
-    storage: StorageDep,
-    _user: CurrentUser,
-    source: SourceQuery = None,
-    proposal_id: ProposalQuery = None,
+    storage: StorageDep, _user: CurrentUser, proposal: ShownProposal
 ) -> Response:
     """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
     import cv2
 
-    proposal = _proposal(session, storage, frame_id, source, proposal_id)
     heat = service.load_heatmap(storage, proposal)[:, :, 0]
     scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
     colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
@@ -188,18 +177,12 @@ def get_proposal_heatmap_png(
     responses={200: {"content": {"application/octet-stream": {}}}},
 )
 def get_proposal_heatmap_npy(
-    frame_id: int,
-    session: SessionDep,
-    storage: StorageDep,
-    _user: CurrentUser,
-    source: SourceQuery = None,
-    proposal_id: ProposalQuery = None,
+    storage: StorageDep, _user: CurrentUser, proposal: ShownProposal
 ) -> Response:
     """The raw H×W×2 float32 array (heatmap, mask) as a .npy file."""
     import io
 
     buffer = io.BytesIO()
-    proposal = _proposal(session, storage, frame_id, source, proposal_id)
     np.save(buffer, service.load_heatmap(storage, proposal))
     return Response(buffer.getvalue(), media_type="application/octet-stream")
 

@@ -76,14 +76,17 @@ def _shrunk() -> np.ndarray:
     return mask
 
 
-def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
+def _upload(client: TestClient, token: str, first_seed: int, count: int) -> list[int]:
     files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=300 + i), "image/png")) for i in range(3)
+        ("files", (f"{i}.png", image_bytes(W, H, seed=first_seed + i), "image/png"))
+        for i in range(count)
     ]
-    ids = [
-        f["id"]
-        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ]
+    stored = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+    return [f["id"] for f in stored]
+
+
+def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
+    ids = _upload(client, token, 300, 3)
     storage = Storage(settings.home)
     with session_factory() as session:
         for frame_id in ids:
@@ -201,13 +204,7 @@ def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
 ) -> None:
     _, token = make_user("policy", Role.reviewer)
     storage = Storage(settings.home)
-    files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=400 + i), "image/png")) for i in range(5)
-    ]
-    ids = [
-        f["id"]
-        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ]
+    ids = _upload(client, token, 400, 5)
     with session_factory() as session:
         session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
         session.commit()
@@ -278,13 +275,7 @@ def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
 ) -> None:
     _, token = make_user("provenance", Role.reviewer)
     storage = Storage(settings.home)
-    files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=500 + i), "image/png")) for i in range(2)
-    ]
-    ids = [
-        f["id"]
-        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ]
+    ids = _upload(client, token, 500, 2)
     teacher = _propose(session_factory, storage, ids[0], "teacher", "t", _box(30, 70))
     student = _propose(session_factory, storage, ids[0], "student", "student-v9", _box(22, 62))
     second = _propose(session_factory, storage, ids[1], "teacher", "t", _box(30, 70))
@@ -341,13 +332,7 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
 
     _, token = make_user("distiller", Role.reviewer)
     storage = Storage(settings.home)
-    files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=600 + i), "image/png")) for i in range(5)
-    ]
-    ids = [
-        f["id"]
-        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ]
+    ids = _upload(client, token, 600, 5)
     sure, unsure, student_only, labelled, validation = ids
     with session_factory() as session:
         for frame_id, iou, stability in [
