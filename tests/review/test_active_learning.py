@@ -138,9 +138,12 @@ def test_metrics_figures(client: TestClient, make_user) -> None:
     assert figures["review"]["over_time"][0]["accepted"] == 1
 
 
-def test_an_untrained_new_model_is_not_promoted(client: TestClient, session_factory, make_user):
+def test_an_untrained_new_model_is_not_promoted(
+    client: TestClient, settings, session_factory, make_user
+):
     """One epoch on three frames: the gate measures it on the held-out frame and refuses it
-    (tests/review/test_gate_and_policy.py covers each rule of the gate)."""
+    (tests/review/test_gate_and_policy.py covers each rule of the gate). A model folder left by
+    a crash does not block the new version's name."""
     from app.models import ModelVersion
     from tests.helpers import wait_for_job
 
@@ -159,12 +162,15 @@ def test_an_untrained_new_model_is_not_promoted(client: TestClient, session_fact
             headers=auth(token),
             json=corrected_label(mask),
         )
+    leftover = settings.home / "models" / "student-v2"  # the name the new version would take
+    leftover.mkdir(parents=True)
+    (leftover / "model.safetensors").write_bytes(b"left by a crash")
     job_id = client.post(
         "/api/v1/student/train", json={"epochs": 1, "size": "light"}, headers=auth(token)
     ).json()["job_id"]
     job = wait_for_job(client, job_id, token, timeout=300)
     assert job["status"] == "succeeded", job["error"]
-    assert job["result"]["promoted"] is False
+    assert job["result"]["promoted"] is False and job["result"]["name"] == "student-v3"
     assert job["result"]["gate"]["usable"] is False, job["result"]["gate"]
     assert "below the minimum quality" in job["result"]["gate"]["reason"]
     models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
