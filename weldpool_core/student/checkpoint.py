@@ -8,6 +8,8 @@ Layout (every file written atomically: a temporary file, then a rename):
 - ``metrics.json``: the best epoch's validation metrics, the last epoch's, and facts of the run
   (frames, whether the encoder started from ImageNet weights).
 - ``curve.json``: one record per epoch (losses, β, learning rate, mIoU, mED, seconds).
+- ``latents.safetensors``: the kept weights' latent codes of the training frames (``latents``,
+  M×D), for the predictor's novelty score; absent in folders of older or unfinished runs.
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
   from which ``resume`` continues; not needed for inference.
 - after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
@@ -35,6 +37,7 @@ WEIGHTS_FILE = "model.safetensors"
 METRICS_FILE = "metrics.json"
 CURVE_FILE = "curve.json"
 STATE_FILE = "training_state.pt"
+LATENTS_FILE = "latents.safetensors"
 
 
 def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
@@ -117,6 +120,24 @@ def load_student(model_dir: str | Path, device: torch.device | None = None) -> R
     except (OSError, RuntimeError) as exc:
         raise InvalidInputError(f"{weights} does not fit its config.json ({exc}).") from None
     return model.to(device or torch.device("cpu")).eval()
+
+
+def save_latents(model_dir: Path, codes: torch.Tensor) -> None:
+    """The training frames' latent codes (M×D) as ``latents.safetensors``."""
+    state = {"latents": codes.detach().float().cpu().contiguous()}
+    write_atomic(model_dir / LATENTS_FILE, lambda p: save_file(state, str(p)))
+
+
+def load_latents(model_dir: str | Path) -> torch.Tensor | None:
+    """The training frames' latent codes, or None when the folder has none (or unreadable)."""
+    path = Path(model_dir) / LATENTS_FILE
+    if not path.is_file():
+        return None
+    try:
+        codes = load_file(str(path))["latents"]
+    except (OSError, RuntimeError, KeyError):
+        return None
+    return codes if codes.ndim == 2 and len(codes) else None
 
 
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:

@@ -1,0 +1,228 @@
+"""The student on the real WAAM labels: leave-one-clip-out and within-clip, plus ablations.
+
+Reads the 9 hand-drawn pool masks of ../shared/data/waam/labels (or $WELDPOOL_SHARED_DATA) and
+their frames. Folds:
+
+- LOCO (leave one clip out): train on the 6 frames of two clips, test on the 3 of the third.
+- within-clip: train on f0050 and f0450 of one clip, test on its f0250.
+
+Each fold trains a fresh student with the default settings (``StudentConfig()``,
+``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, then scores the
+held-out frames: mIoU, mED against Algorithm 1's keypoints on the true masks (px, full
+resolution), the training seconds, and the uncertainty. ρ is Spearman's rank correlation
+between the uncertainty and 1 − IoU, pooled over the held-out frames of the LOCO folds.
+``--ablation`` also runs variants (each on the LOCO and within-clip folds) and prints one row
+each; ``--repeats`` seeds per variant (medians printed).
+
+    PYTHONPATH=. .venv/bin/python bench/real_student.py [--quick] [--ablation] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.stats import spearmanr
+
+from weldpool_core.student.data import Augmentation, TrainingFrame
+from weldpool_core.student.evaluate import FoldResult, labelled_frames, train_and_score
+from weldpool_core.student.model import StudentConfig
+from weldpool_core.student.train import LossWeights, TrainConfig
+
+CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data() -> Path:
+    """The shared data folder: $WELDPOOL_SHARED_DATA, else ../shared/data next to the repo."""
+    return Path(os.environ.get("WELDPOOL_SHARED_DATA") or REPO.parent / "shared" / "data")
+
+
+def folds(frames: list[TrainingFrame], kind: str) -> list[tuple[str, list[int], list[int]]]:
+    """``(name, train indices, test indices)`` of the LOCO or within-clip folds."""
+    clip = [
+        next(c for c in sorted(CLIPS, key=len, reverse=True) if f.name.startswith(c))
+        for f in frames
+    ]
+    out = []
+    for held in CLIPS:
+        short = held.removeprefix("compressed_")
+        if kind == "loco":
+            train = [i for i, c in enumerate(clip) if c != held]
+            test = [i for i, c in enumerate(clip) if c == held]
+        else:
+            mine = [i for i, c in enumerate(clip) if c == held]
+            test = [i for i in mine if frames[i].name.endswith("f0250")]
+            train = [i for i in mine if i not in test]
+        out.append((f"{kind}:{short}", train, test))
+    return out
+
+
+def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
+    """The settings of a named variant (``default``: the library's defaults)."""
+    student, config = StudentConfig(), TrainConfig(device="cpu")
+    off = Augmentation(enabled=False)
+    old_aug = Augmentation(gamma=0.0, rotation_deg=8.0, scale=0.1, shift=0.05)
+    changes: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+        "default": ({}, {}),
+        "old default (30 epochs, 256² letterbox resnet18)": (
+            {"encoder": "resnet18", "width": 1.0, "input_size": 256, "aspect": "letterbox"},
+            {"epochs": 30, "learning_rate": 3e-3, "augmentation": old_aug, "beta": 1e-3},
+        ),
+        "steps halved": ({}, {"steps": config.steps // 2}),
+        "augmentation off": ({}, {"augmentation": off}),
+        "no gamma / old geometry": ({}, {"augmentation": old_aug}),
+        "β 1e-3": ({}, {"beta": 1e-3}),
+        "Dice only": ({}, {"losses": LossWeights(mask_bce=0.0)}),
+    }
+    if name not in changes:
+        raise SystemExit(f"unknown variant {name!r}; use one of: {', '.join(changes)}")
+    student_changes, train_changes = changes[name]
+    return replace(student, **student_changes), replace(config, **train_changes)
+
+
+def run_folds(
+    frames: list[TrainingFrame],
+    kinds: tuple[str, ...],
+    student: StudentConfig,
+    config: TrainConfig,
+    samples: int,
+    limit: int | None,
+) -> dict[str, list[tuple[str, FoldResult]]]:
+    """Every fold of ``kinds`` trained and scored (at most ``limit`` per kind)."""
+    results: dict[str, list[tuple[str, FoldResult]]] = {}
+    with tempfile.TemporaryDirectory() as root:
+        for kind in kinds:
+            for name, train, test in folds(frames, kind)[:limit]:
+                folder = Path(root) / name.replace(":", "-")
+                fold = train_and_score(
+                    [frames[i] for i in train],
+                    [frames[i] for i in test],
+                    folder,
+                    student,
+                    config,
+                    samples,
+                )
+                results.setdefault(kind, []).append((name, fold))
+                med = fold.scores.med
+                print(
+                    f"  {name:<12} mIoU {fold.scores.miou:.3f} mED "
+                    f"{'-' if med is None else f'{med:.1f}'} px {fold.seconds:.0f} s "
+                    f"best round {fold.result.best_epoch}",
+                    flush=True,
+                )
+    return results
+
+
+def rho(folds_done: list[tuple[str, FoldResult]]) -> float:
+    """Spearman ρ of uncertainty against 1 − IoU over the folds' held-out frames."""
+    errors = [1 - v for _, f in folds_done for v in f.scores.ious]
+    scores = [u for _, f in folds_done for u in f.scores.uncertainties]
+    if len(errors) < 3 or any(s is None for s in scores):
+        return float("nan")
+    return float(spearmanr(scores, errors)[0])
+
+
+def summary(results: dict[str, list[tuple[str, FoldResult]]]) -> dict[str, float]:
+    """Mean mIoU / mED / seconds per kind and the LOCO ρ."""
+    out: dict[str, float] = {}
+    for kind, done in results.items():
+        out[f"{kind} mIoU"] = float(np.mean([f.scores.miou for _, f in done]))
+        meds = [f.scores.med for _, f in done if f.scores.med is not None]
+        out[f"{kind} mED"] = float(np.mean(meds)) if meds else float("nan")
+        out[f"{kind} s"] = float(np.mean([f.seconds for _, f in done]))
+    if "loco" in results:
+        out["ρ"] = rho(results["loco"])
+    return out
+
+
+def print_folds(results: dict[str, list[tuple[str, FoldResult]]]) -> None:
+    """The per-fold table and each kind's mean."""
+    print(
+        f"\n{'fold':<13}{'train':>6}{'test':>5}{'mIoU':>8}{'mED px':>8}{'missed':>7}{'train s':>9}"
+    )
+    for kind, done in results.items():
+        for name, fold in done:
+            med = fold.scores.med
+            print(
+                f"{name:<13}{len(fold.train):>6}{len(fold.scores.ious):>5}"
+                f"{fold.scores.miou:>8.3f}{'-' if med is None else f'{med:.1f}':>8}"
+                f"{fold.scores.missed:>7}{fold.seconds:>9.0f}"
+            )
+        means = summary({kind: done})
+        print(
+            f"{kind + ' mean':<24}{means[f'{kind} mIoU']:>8.3f}{means[f'{kind} mED']:>8.1f}"
+            f"{'':>7}{means[f'{kind} s']:>9.0f}"
+        )
+    if "loco" in results:
+        print(
+            f"uncertainty ~ 1 − IoU, Spearman ρ over the LOCO held-out frames: {rho(results['loco']):.2f}"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="one fold of each kind, no ablation")
+    parser.add_argument("--ablation", action="store_true", help="also run the variants")
+    parser.add_argument("--variants", nargs="*", help="variant names (default: all)")
+    parser.add_argument("--repeats", type=int, default=1, help="seeds per variant (medians)")
+    parser.add_argument("--samples", type=int, default=8, help="passes for the uncertainty")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    data = shared_data() / "waam"
+    if not (data / "labels").is_dir():
+        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
+    frames = labelled_frames(data / "frames", data / "labels")
+    limit = 1 if args.quick else None
+    started = time.perf_counter()
+    student, config = variant("default")
+    print(f"default: {student}\n{config}\n", flush=True)
+    results = run_folds(frames, ("loco", "within"), student, config, args.samples, limit)
+    print_folds(results)
+    if args.ablation and not args.quick:
+        names = args.variants or [
+            "default",
+            "old default (30 epochs, 256² letterbox resnet18)",
+            "steps halved",
+            "augmentation off",
+            "no gamma / old geometry",
+            "β 1e-3",
+            "Dice only",
+        ]
+        rows = []
+        for name in names:
+            runs = []
+            for repeat in range(args.repeats):
+                student, config = variant(name)
+                config = replace(config, seed=repeat)
+                print(f"{name} seed {repeat}", flush=True)
+                runs.append(
+                    summary(
+                        run_folds(frames, ("loco", "within"), student, config, args.samples, None)
+                    )
+                )
+            rows.append((name, {key: statistics.median(r[key] for r in runs) for key in runs[0]}))
+        print(f"\nablation (median of {args.repeats} seed(s))")
+        print(
+            f"{'variant':<52}{'LOCO mIoU':>10}{'mED':>7}{'within mIoU':>12}{'mED':>7}{'train s':>9}{'ρ':>7}"
+        )
+        for name, row in rows:
+            print(
+                f"{name:<52}{row['loco mIoU']:>10.3f}{row['loco mED']:>7.1f}"
+                f"{row['within mIoU']:>12.3f}{row['within mED']:>7.1f}"
+                f"{(row['loco s'] + row['within s']) / 2:>9.0f}{row['ρ']:>7.2f}"
+            )
+    print(f"\n{time.perf_counter() - started:.0f} s in all")
+
+
+if __name__ == "__main__":
+    main()
