@@ -8,8 +8,9 @@ Layout (every file written atomically: a temporary file, then a rename):
 - ``metrics.json``: the best epoch's validation metrics, the last epoch's, and facts of the run
   (frames, whether the encoder started from ImageNet weights).
 - ``curve.json``: one record per epoch (losses, β, learning rate, mIoU, mED, seconds).
-- ``latents.safetensors``: the kept weights' latent codes of the training frames (``latents``,
-  M×D), for the predictor's novelty score; absent in folders of older or unfinished runs.
+- ``frame_codes.safetensors``: the kept weights' encoder descriptors of the training frames
+  (``codes``, M×D; ``predict.frame_codes``), for the predictor's novelty score; absent in
+  folders of older or unfinished runs (the uncertainty then has no novelty part).
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
   from which ``resume`` continues; not needed for inference.
 - after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
@@ -37,7 +38,7 @@ WEIGHTS_FILE = "model.safetensors"
 METRICS_FILE = "metrics.json"
 CURVE_FILE = "curve.json"
 STATE_FILE = "training_state.pt"
-LATENTS_FILE = "latents.safetensors"
+CODES_FILE = "frame_codes.safetensors"
 
 
 def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
@@ -122,19 +123,19 @@ def load_student(model_dir: str | Path, device: torch.device | None = None) -> R
     return model.to(device or torch.device("cpu")).eval()
 
 
-def save_latents(model_dir: Path, codes: torch.Tensor) -> None:
-    """The training frames' latent codes (M×D) as ``latents.safetensors``."""
-    state = {"latents": codes.detach().float().cpu().contiguous()}
-    write_atomic(model_dir / LATENTS_FILE, lambda p: save_file(state, str(p)))
+def save_codes(model_dir: Path, codes: torch.Tensor) -> None:
+    """The training frames' descriptors (M×D) as ``frame_codes.safetensors``."""
+    state = {"codes": codes.detach().float().cpu().contiguous()}
+    write_atomic(model_dir / CODES_FILE, lambda p: save_file(state, str(p)))
 
 
-def load_latents(model_dir: str | Path) -> torch.Tensor | None:
-    """The training frames' latent codes, or None when the folder has none (or unreadable)."""
-    path = Path(model_dir) / LATENTS_FILE
+def load_codes(model_dir: str | Path) -> torch.Tensor | None:
+    """The training frames' descriptors, or None when the folder has none (or unreadable)."""
+    path = Path(model_dir) / CODES_FILE
     if not path.is_file():
         return None
     try:
-        codes = load_file(str(path))["latents"]
+        codes = load_file(str(path))["codes"]
     except (OSError, RuntimeError, KeyError):
         return None
     return codes if codes.ndim == 2 and len(codes) else None

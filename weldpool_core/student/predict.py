@@ -19,11 +19,13 @@ epistemic signals (``uncertainty_parts`` holds both):
   1 − the mean soft IoU between the plain mask probability and the mapped-back ones over the
   frame's pixels: 0 when every pass agrees, higher where the student's mask depends on details
   it should not depend on (the frames it gets wrong).
-- ``novelty``: how far the frame's latent code lies from the training frames' codes
-  (``latents.safetensors``, saved by training): the distance d to the nearest training code,
-  relative to the training codes' own spread s, as d / (d + s). Frames unlike anything trained
-  on (another camera, a blank or noise frame) score near 1 even where the student answers
-  confidently. None for a model folder without saved codes.
+- ``novelty``: how unlike the training frames the frame looks to the encoder. Each frame's
+  descriptor is the mean and standard deviation of every channel of the encoder's last feature
+  map (``frame_codes``); training stores the training frames' descriptors
+  (``frame_codes.safetensors``). Standardised per dimension by the training set's spread
+  (``TrainingCodes``), r is the RMS distance to the nearest training frame and the novelty is
+  r / (1 + r). Frames unlike anything trained on (another camera, a blank or noise frame) score
+  high even where the student answers confidently. None for a model folder without codes.
 
 ``uncertainty`` = 1 − (1 − disagreement)·(1 − novelty) (a noisy-or: either signal alone can
 raise it). The passes and draws are seeded, so the same frame gets the same score, and they
@@ -49,7 +51,7 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.io import to_rgb8
 from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
-from weldpool_core.student.checkpoint import load_latents, load_student
+from weldpool_core.student.checkpoint import load_codes, load_student
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last, fuse_batchnorm
 
@@ -193,27 +195,41 @@ def tta_disagreement(
     return [float(1.0 - v / samples) for v in overlaps.cpu()]
 
 
-def latent_codes(mean: torch.Tensor) -> torch.Tensor:
-    """One vector per frame from the latent mean (N×C×h×w → N×D, float32)."""
-    return mean.float().flatten(1)
+def frame_codes(features: torch.Tensor) -> torch.Tensor:
+    """One descriptor per frame from encoder features (N×F×h×w → N×2F, float32): each
+    channel's mean and standard deviation over the map."""
+    flat = features.float().flatten(2)
+    return torch.cat([flat.mean(2), flat.std(2, unbiased=False)], dim=1)
 
 
-def novelty_scale(codes: torch.Tensor) -> float:
-    """The spread of training codes (M×D): their RMS distance to their centre per dimension;
-    for one code, its own size (its distance to the prior's centre)."""
-    dims = codes.shape[1]
-    if len(codes) < 2:
-        return max(float(codes.norm()) / math.sqrt(dims), 1e-6)
-    spread = (codes - codes.mean(0, keepdim=True)).pow(2).sum(1).mean().sqrt()
-    return max(float(spread) / math.sqrt(dims), 1e-6)
+@dataclass(frozen=True)
+class TrainingCodes:
+    """The training frames' descriptors, standardised: each dimension by its training mean and
+    standard deviation (floored at half the mean standard deviation, so that a dimension that
+    hardly varied over a few frames does not dominate)."""
 
+    codes: torch.Tensor
+    centre: torch.Tensor
+    scale: torch.Tensor
 
-def novelty(codes: torch.Tensor, training: torch.Tensor, scale: float) -> list[float]:
-    """d / (d + scale) per frame, d the RMS distance (per dimension) to the nearest training
-    code (see the module doc)."""
-    distance = torch.cdist(codes.float(), training.to(codes.device).float()).min(1).values
-    distance = distance / math.sqrt(codes.shape[1])
-    return [float(d / (d + scale)) for d in distance.cpu()]
+    @classmethod
+    def from_codes(cls, codes: torch.Tensor) -> TrainingCodes:
+        """Standardise ``codes`` (M×D)."""
+        codes = codes.float()
+        centre = codes.mean(0)
+        spread = codes.std(0, unbiased=False) if len(codes) > 1 else torch.zeros_like(centre)
+        size = float(codes.pow(2).mean().sqrt())
+        floor = max(0.5 * float(spread.mean()), 1e-3 * size, 1e-6)
+        scale = spread.clamp(min=floor)
+        return cls((codes - centre) / scale, centre, scale)
+
+    def novelty(self, codes: torch.Tensor) -> list[float]:
+        """r / (1 + r) per frame, r the RMS standardised distance to the nearest training
+        frame (see the module doc)."""
+        standard = (codes.float().cpu() - self.centre) / self.scale
+        distance = torch.cdist(standard, self.codes).min(1).values
+        ratio = distance / math.sqrt(self.codes.shape[1])
+        return [float(r / (1 + r)) for r in ratio]
 
 
 def combine(disagreement: float, novel: float | None) -> float:
@@ -235,15 +251,14 @@ class StudentPredictor:
         model: ResNetVAE,
         device: torch.device,
         batch_size: int = 16,
-        latents: torch.Tensor | None = None,
+        codes: torch.Tensor | None = None,
     ) -> None:
         self.config = model.config
         self.device = device
         self.dtype = inference_dtype(device)
         self.batch_size = batch_size
         self.model = channels_last(fuse_batchnorm(model.eval().to(device)))
-        self.latents = latents
-        self.novelty_scale = None if latents is None else novelty_scale(latents)
+        self.training_codes = None if codes is None else TrainingCodes.from_codes(codes)
 
     @classmethod
     def load(
@@ -251,8 +266,8 @@ class StudentPredictor:
     ) -> StudentPredictor:
         """Read MODEL_DIR's best weights (and training codes) onto ``device``."""
         resolved = device if isinstance(device, torch.device) else resolve_device(device)
-        latents = load_latents(model_dir)
-        return cls(load_student(model_dir, resolved), resolved, batch_size, latents)
+        codes = load_codes(model_dir)
+        return cls(load_student(model_dir, resolved), resolved, batch_size, codes)
 
     def predict(self, images: Sequence[NDArray[Any]], samples: int = 0) -> list[StudentPrediction]:
         """Predictions for frames (any size; gray, RGB or 16-bit), in the same order.
@@ -274,17 +289,18 @@ class StudentPredictor:
         batch = batch.to(self.device).contiguous(memory_format=torch.channels_last)
         autocast = torch.autocast(self.device.type, self.dtype, enabled=self.dtype != torch.float32)
         with torch.inference_mode(), autocast:
-            mean, _ = self.model.encode(batch)
+            features = self.model.features(batch)
+            mean, _ = self.model.posterior(features)
             mask_logits, heatmap_logits = self.model.decode(mean)
             masks_t = torch.sigmoid(mask_logits.float())
             parts: list[dict[str, float | None] | None] = [None] * len(geometries)
             if samples:
                 spread = tta_disagreement(self.model, batch, masks_t, samples, geometries)
                 novel: list[float | None] = [None] * len(geometries)
-                if self.latents is not None and self.novelty_scale is not None:
-                    codes = latent_codes(mean)
-                    if codes.shape[1] == self.latents.shape[1]:
-                        novel = list(novelty(codes, self.latents, self.novelty_scale))
+                known = self.training_codes
+                codes = frame_codes(features)
+                if known is not None and codes.shape[1] == known.codes.shape[1]:
+                    novel = list(known.novelty(codes))
                 parts = [
                     {"disagreement": d, "novelty": n} for d, n in zip(spread, novel, strict=True)
                 ]

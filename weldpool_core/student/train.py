@@ -72,7 +72,7 @@ from weldpool_core.student.model import (
     channels_last,
     kl_divergence,
 )
-from weldpool_core.student.predict import latent_codes, to_frame
+from weldpool_core.student.predict import frame_codes, to_frame
 
 ProgressCallback = Callable[[float, str], None]
 """``(fraction done in [0, 1], message) -> None``; raising from it cancels the training."""
@@ -376,14 +376,14 @@ def validate(
 
 
 MAX_CODES = 512
-"""Most training frames whose latent codes are kept for the novelty score (evenly spaced)."""
+"""Most training frames whose descriptors are kept for the novelty score (evenly spaced)."""
 
 
 def save_training_codes(
     root: Path, frames: Sequence[PreparedFrame], device: torch.device, batch_size: int
 ) -> None:
-    """The kept weights' latent codes of (up to ``MAX_CODES``) training frames, unaugmented
-    (``checkpoint.save_latents``; the predictor's novelty score)."""
+    """The kept weights' descriptors (``predict.frame_codes``) of up to ``MAX_CODES`` training
+    frames, unaugmented (``checkpoint.save_codes``; the predictor's novelty score)."""
     model = checkpoint.load_student(root, device)
     chosen = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_CODES)).round())
     picked = [frames[int(i)] for i in chosen]
@@ -392,9 +392,9 @@ def save_training_codes(
         for start in range(0, len(picked), batch_size):
             images = np.stack([f.image for f in picked[start : start + batch_size]])
             batch = torch.from_numpy(images.transpose(0, 3, 1, 2)).to(device).float().div_(255.0)
-            mean, _ = model.encode(batch.contiguous(memory_format=torch.channels_last))
-            codes.append(latent_codes(mean).cpu())
-    checkpoint.save_latents(root, torch.cat(codes))
+            features = model.features(batch.contiguous(memory_format=torch.channels_last))
+            codes.append(frame_codes(features).cpu())
+    checkpoint.save_codes(root, torch.cat(codes))
 
 
 def _score(metrics: dict[str, Any], selection: Selection) -> float:
