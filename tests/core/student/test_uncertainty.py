@@ -3,6 +3,8 @@ frames, and what they add up to on frames unlike the training ones."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -48,7 +50,7 @@ def test_novelty_grows_with_the_distance_to_the_nearest_training_frame() -> None
     steps = [0.0, 0.1, 0.5, 2.0, 10.0]
     scores = known.novelty(torch.stack([codes[2] + step * direction for step in steps]))
     assert scores[0] == pytest.approx(0.0, abs=1e-6)
-    assert all(a < b for a, b in zip(scores, scores[1:], strict=False))
+    assert all(a < b for a, b in itertools.pairwise(scores))
     assert scores[-1] > 0.8 and all(0 <= s < 1 for s in scores)
     single = TrainingCodes.from_codes(codes[:1])  # one training frame still has a scale
     near, far = single.novelty(torch.stack([codes[0] * 1.01, codes[0] * 3]))
