@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,12 +47,14 @@ class HeldOutScores:
         ious: IoU per frame.
         distances: per frame, each true keypoint's distance to its match (NaN: missed).
         uncertainties: the predictor's uncertainty per frame (None without samples).
+        parts: its parts per frame (``StudentPrediction.uncertainty_parts``).
     """
 
     names: list[str]
     ious: list[float]
     distances: list[list[float]]
     uncertainties: list[float | None]
+    parts: list[dict[str, float | None] | None] = field(default_factory=list)
 
     @property
     def miou(self) -> float:
@@ -84,7 +86,11 @@ def score_predictions(
             truth = heatmap_from_mask(frame.mask, HeatmapParams(k=k)).keypoints
         distances.append([float(d) for d in match_keypoints(prediction.keypoints, truth)])
     return HeldOutScores(
-        [f.name for f in frames], ious, distances, [p.uncertainty for p in predictions]
+        [f.name for f in frames],
+        ious,
+        distances,
+        [p.uncertainty for p in predictions],
+        [p.uncertainty_parts for p in predictions],
     )
 
 
