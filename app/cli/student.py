@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -120,12 +121,13 @@ def train_cmd(
         student = student_config(size, **changes)
     config = TrainConfig(
         epochs=epochs,
-        **({"steps": steps} if steps is not None else {}),
         batch_size=batch_size,
         learning_rate=learning_rate,
         seed=seed,
         device=device or settings.device,
     )
+    if steps is not None:
+        config = replace(config, steps=steps)
     bar = _ProgressBar()
     try:
         result = train_from_folder(dataset, out_dir, student, config, bar, resume=resume)

@@ -162,7 +162,8 @@ def _warp(images: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
 
 def _inverse(theta: torch.Tensor) -> torch.Tensor:
     full = torch.cat([theta, torch.tensor([[0.0, 0.0, 1.0]])])
-    return torch.linalg.inv(full)[:2]
+    inverse: torch.Tensor = torch.linalg.inv(full)
+    return inverse[:2]
 
 
 def tta_disagreement(
