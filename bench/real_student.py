@@ -7,7 +7,9 @@ their frames. Folds:
 - within-clip: train on f0050 and f0450 of one clip, test on its f0250.
 
 Each fold trains a fresh student with the default settings (``StudentConfig()``,
-``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, then scores the
+``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, on all of the
+fold's training frames (the best round chosen on them, unaugmented: what ``weldpool train``
+does with fewer than 3 frames; ``evaluate.train_and_score``), then scores the
 held-out frames: mIoU, mED against Algorithm 1's keypoints on the true masks (px, full
 resolution), the training seconds, and the uncertainty. ρ is Spearman's rank correlation
 between the uncertainty and 1 − IoU, pooled over the held-out frames of the LOCO folds.
@@ -83,7 +85,7 @@ def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
         "default": ({}, {}),
         VARIANTS[0]: (
             {"width": 1.0, "latent_channels": 64},
-            {"epochs": 30, "min_split_frames": 2, "augmentation": no_gamma},
+            {"epochs": 30, "augmentation": no_gamma},
         ),
         VARIANTS[1]: ({}, {"epochs": 30}),
         VARIANTS[2]: ({}, {"steps": config.steps // 2}),

@@ -112,9 +112,11 @@ def train_and_score(
     config: TrainConfig | None = None,
     samples: int = 8,
 ) -> FoldResult:
-    """Train a student on ``train`` (default split rules) into ``folder``; score ``test``."""
+    """Train a student on all of ``train`` into ``folder`` (the best round chosen on the
+    training frames themselves, unaugmented: no frame of a small fold is given up for
+    validation); score ``test``."""
     started = time.perf_counter()
-    result = train_student(list(train), folder, student, config)
+    result = train_student(list(train), folder, student, config, validation=list(train))
     seconds = time.perf_counter() - started
     predictor = StudentPredictor.load(folder, "cpu")
     predictions = predictor.predict([f.image for f in test], samples=samples)

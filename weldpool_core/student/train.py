@@ -125,8 +125,9 @@ class TrainConfig:
         validation_fraction: share of the frames held out for validation when no validation
             frames are given (at least 1), once there are ``min_split_frames`` frames; with
             fewer, every frame trains and validation runs on the training frames themselves
-            (unaugmented): one held-out frame of five says little and costs a fifth of the data.
-        min_split_frames: fewest frames for which a validation split is held out.
+            (unaugmented): training on one frame of two and validating on the other wastes
+            half the labels.
+        min_split_frames: fewest frames for which a validation split is held out (default 3).
         selection: which validation score picks the best round: ``mED`` (default) or ``mIoU``.
             For the choice, a keypoint without a predicted partner, or on a frame whose predicted
             mask has IoU < 0.5, counts as the frame's diagonal (a model that draws the wrong
@@ -150,7 +151,7 @@ class TrainConfig:
     heatmap_sigma: float = 3.0
     augmentation: Augmentation = field(default_factory=Augmentation)
     validation_fraction: float = 0.1
-    min_split_frames: int = 8
+    min_split_frames: int = 3
     selection: Selection = "mED"
     seed: int = 0
     device: str = "auto"

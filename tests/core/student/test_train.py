@@ -196,8 +196,10 @@ def test_a_run_counted_in_steps_resumes_to_the_same_end(
 
 
 def test_fewer_frames_than_the_split_minimum_all_train() -> None:
-    prepared = [f"frame{i}" for i in range(5)]
+    prepared = [f"frame{i}" for i in range(6)]
+    train, held = _split(prepared[:2], TrainConfig())  # type: ignore[arg-type]
+    assert train == held == prepared[:2]
     train, held = _split(prepared, TrainConfig())  # type: ignore[arg-type]
-    assert train == held == prepared
-    train, held = _split(prepared * 2, TrainConfig())  # type: ignore[arg-type]
-    assert len(train) == 9 and len(held) == 1
+    assert len(train) == 5 and len(held) == 1 and set(train + held) == set(prepared)
+    train, held = _split(prepared[:2], TrainConfig(min_split_frames=2))  # type: ignore[arg-type]
+    assert len(train) == len(held) == 1
