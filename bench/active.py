@@ -116,6 +116,10 @@ def _queue_pick(
         [combined_score({"student_spread": p.uncertainty}) or 0.0 for p in predictions]
     )
     errors = [1 - iou(p.mask, frames[i].mask) for p, i in zip(predictions, unlabelled, strict=True)]
+    for part in ("disagreement", "novelty"):
+        values = [(p.uncertainty_parts or {}).get(part) for p in predictions]
+        if all(v is not None for v in values):
+            print(f"  ρ of {part} alone: {spearmanr(values, errors)[0]:.2f}", flush=True)
     head = np.argsort(-scores, kind="stable")[:DIVERSITY_POOL]
     descriptors = np.array([_thumbnail(frames[unlabelled[i]].image) for i in head])
     order = diverse_order(scores[head], descriptors, DIVERSITY)

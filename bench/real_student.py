@@ -37,7 +37,7 @@ from scipy.stats import spearmanr
 from weldpool_core.student.data import Augmentation, TrainingFrame
 from weldpool_core.student.evaluate import FoldResult, labelled_frames, train_and_score
 from weldpool_core.student.model import StudentConfig
-from weldpool_core.student.train import TrainConfig
+from weldpool_core.student.train import TrainConfig, train_student
 
 CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
 REPO = Path(__file__).resolve().parents[1]
@@ -192,6 +192,15 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=8, help="passes for the uncertainty")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="seed of the default run")
+    parser.add_argument(
+        "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
+    )
+    parser.add_argument(
+        "--no-default", action="store_true", help="skip the default run (ablation only)"
+    )
+    parser.add_argument(
+        "--time-all", action="store_true", help="also time a default training on all 9 frames"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     data = shared_data() / "waam"
@@ -203,33 +212,46 @@ def main() -> None:
     student, config = variant("default")
     print(f"default: {student}\n{config}\n", flush=True)
     config = replace(config, seed=args.seed)
-    results = run_folds(frames, ("loco", "within"), student, config, args.samples, limit)
-    print_folds(results)
+    results: dict[str, list[tuple[str, FoldResult]]] = {}
+    if not args.no_default:
+        results = run_folds(frames, tuple(args.kinds), student, config, args.samples, limit)
+        print_folds(results)
+    if args.time_all:
+        with tempfile.TemporaryDirectory() as root:
+            begun = time.perf_counter()
+            trained = train_student(frames, Path(root) / "all", student, config)
+            print(
+                f"\nall {len(frames)} frames, default split ({trained.train_frames} train, "
+                f"{trained.validation_frames} validation): {time.perf_counter() - begun:.0f} s, "
+                f"validation mIoU {trained.metrics['mIoU']:.3f}"
+            )
     if args.ablation:
         # One fold of each kind per variant (the first), to keep the run affordable on a CPU.
         first = {kind: dict(done[:1]) for kind, done in results.items()}
-        rows = [("default", summary({k: list(v.items()) for k, v in first.items()}))]
+        rows = [("default", summary({k: list(v.items()) for k, v in first.items()}))] * bool(first)
         for name in args.variants or VARIANTS:
             runs = []
             for repeat in range(args.repeats):
                 student, config = variant(name)
                 print(f"{name} seed {repeat}", flush=True)
                 config = replace(config, seed=repeat)
-                done = run_folds(frames, ("loco", "within"), student, config, args.samples, 1)
+                done = run_folds(frames, tuple(args.kinds), student, config, args.samples, 1)
                 runs.append(summary(done))
             rows.append((name, {key: statistics.median(r[key] for r in runs) for key in runs[0]}))
         print(
-            f"\nablation on {', '.join(n for d in first.values() for n in d)} (median of "
-            f"{args.repeats} seed(s); default: the run above)"
+            f"\nablation on the first fold of {' and '.join(args.kinds)} (median of "
+            f"{args.repeats} seed(s); default: the run above, when run)"
         )
         print(
             f"{'variant':<46}{'LOCO mIoU':>10}{'mED':>7}{'within mIoU':>12}{'mED':>7}{'train s':>9}"
         )
+        nan = float("nan")
         for name, row in rows:
+            seconds = [row[f"{kind} s"] for kind in args.kinds if f"{kind} s" in row]
             print(
-                f"{name:<46}{row['loco mIoU']:>10.3f}{row['loco mED']:>7.1f}"
-                f"{row['within mIoU']:>12.3f}{row['within mED']:>7.1f}"
-                f"{(row['loco s'] + row['within s']) / 2:>9.0f}"
+                f"{name:<46}{row.get('loco mIoU', nan):>10.3f}{row.get('loco mED', nan):>7.1f}"
+                f"{row.get('within mIoU', nan):>12.3f}{row.get('within mED', nan):>7.1f}"
+                f"{float(np.mean(seconds)):>9.0f}"
             )
     print(f"\n{time.perf_counter() - started:.0f} s in all")
 
