@@ -4,9 +4,10 @@ A pool of frames from many synthetic runs (consecutive frames of a run look alik
 video), a fixed validation set (best-epoch choice, as the validation split does in the service)
 and a test set, both from other runs. Both strategies start from the same random labels; each
 round the oracle labels ``--step`` more frames — (a) the head of the review queue as the service
-builds it (``combined_score`` of the student's spread over latent samples, then the diversity
-pick over its top 50, on small thumbnails since no DINO weights are here; no teacher components,
-as a random-weight teacher would score noise) or (b) random ones — and a fresh student is
+builds it (``combined_score`` of the student's uncertainty: test-time-pass disagreement and
+novelty against its training frames, ``student.predict``; then the diversity pick over its top
+50, on small thumbnails since no DINO weights are here; no teacher components, as a
+random-weight teacher would score noise) or (b) random ones — and a fresh student is
 trained for a fixed number of optimiser steps. Prints the test mIoU and mED per round (mean over
 ``--repeats`` start sets), the rank correlation of the queue's score with the student's real
 error on the frames it ranks (whether the score finds the frames the student gets wrong), and
@@ -20,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -86,8 +86,9 @@ def _train(frames, indices, validation, steps: int, seed: int, folder: Path) -> 
     samples = [(_rgb(frames[i].image), frames[i].mask, frames[i].keypoints) for i in indices]
     held_out = [(_rgb(f.image), f.mask, f.keypoints) for f in validation]
     student = student_config("light", input_size=128)
-    epochs = max(1, math.ceil(steps * BATCH / len(samples)))
-    config = TrainConfig(epochs=epochs, batch_size=BATCH, seed=seed, device="cpu")
+    config = TrainConfig(
+        steps=steps, min_epochs=0, rounds=5, batch_size=BATCH, seed=seed, device="cpu"
+    )
     train_student(samples, folder, student, config, validation=held_out)
     return StudentPredictor.load(folder, "cpu")
 
@@ -115,6 +116,10 @@ def _queue_pick(
         [combined_score({"student_spread": p.uncertainty}) or 0.0 for p in predictions]
     )
     errors = [1 - iou(p.mask, frames[i].mask) for p, i in zip(predictions, unlabelled, strict=True)]
+    for part in ("disagreement", "novelty"):
+        values = [(p.uncertainty_parts or {}).get(part) for p in predictions]
+        if all(v is not None for v in values):
+            print(f"  ρ of {part} alone: {spearmanr(values, errors)[0]:.2f}", flush=True)
     head = np.argsort(-scores, kind="stable")[:DIVERSITY_POOL]
     descriptors = np.array([_thumbnail(frames[unlabelled[i]].image) for i in head])
     order = diverse_order(scores[head], descriptors, DIVERSITY)
@@ -167,7 +172,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="start sets averaged over")
     parser.add_argument("--pool-runs", type=int, default=20)
     parser.add_argument("--run-length", type=int, default=12)
-    parser.add_argument("--samples", type=int, default=8, help="latent draws for the spread")
+    parser.add_argument("--samples", type=int, default=8, help="test-time passes per frame")
     parser.add_argument(
         "--diverse",
         action="store_true",

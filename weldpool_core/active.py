@@ -8,7 +8,9 @@ Uncertainty components, each in [0, 1] (1 = most unsure), None when it cannot be
 - ``disagreement``: how far the promoted student is from the teacher: the mean of
   1 − IoU(student mask, teacher mask) and the mean distance between matched keypoints divided
   by the frame diagonal × ``KEYPOINT_SCALE`` (capped at 1).
-- ``student_spread``: the student's epistemic spread over latent samples.
+- ``student_spread``: the promoted student's uncertainty (``StudentPrediction.uncertainty``):
+  how much its mask changes under test-time passes (shift, scale, rotation, exposure), combined
+  with how unlike its training frames the frame looks to its encoder (``student.predict``).
 
 The combined score is the weighted mean of the components that are present (weights from the
 settings); a frame with none has no score and goes to the end of the queue.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,21 +47,31 @@ def _given(ctx: click.Context, *names: str) -> bool:
 @main.command("train")
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--epochs", default=30, show_default=True, type=click.IntRange(min=1))
+@click.option(
+    "--steps",
+    type=click.IntRange(min=1),
+    help="Optimiser steps (default 800, at least 10 passes over large sets).",
+)
+@click.option(
+    "--epochs",
+    type=click.IntRange(min=1),
+    help="Count the run in passes over the frames instead of steps.",
+)
 @click.option(
     "--model",
     "size",
     type=click.Choice(MODEL_SIZES),
-    default="resnet18",
+    default="light",
     show_default=True,
-    help="Model size: ResNet18 or ResNet34 encoder, or the light one for a CPU next to the robot.",
+    help="Model size: light (quarter-width ResNet18, the default: best from a few labels on a "
+    "CPU), or the full ResNet18 / ResNet34 (ImageNet weights when present; for a GPU).",
 )
 @click.option("--input-size", type=click.IntRange(min=32), help="Square input side (×32).")
 @click.option("--aspect", type=click.Choice(["letterbox", "resize"]), help="Frame → square input.")
 @click.option("--batch-size", default=8, show_default=True, type=click.IntRange(min=1))
 @click.option("--learning-rate", default=3e-3, show_default=True, type=click.FloatRange(min=0))
 @click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--resume", is_flag=True, help="Continue the run in --out after its last epoch.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out after its last round.")
 @click.option("--device", help="cpu, cuda, cuda:N, mps or auto (default: WELDPOOL_DEVICE).")
 @click.option(
     "--encoder-weights",
@@ -73,7 +84,8 @@ def train_cmd(
     ctx: click.Context,
     dataset: Path,
     out_dir: Path,
-    epochs: int,
+    steps: int | None,
+    epochs: int | None,
     size: str,
     input_size: int | None,
     aspect: str | None,
@@ -114,6 +126,8 @@ def train_cmd(
         seed=seed,
         device=device or settings.device,
     )
+    if steps is not None:
+        config = replace(config, steps=steps)
     bar = _ProgressBar()
     try:
         result = train_from_folder(dataset, out_dir, student, config, bar, resume=resume)
@@ -123,6 +137,7 @@ def train_cmd(
         "model_dir": str(result.model_dir),
         "best_epoch": result.best_epoch,
         "epochs": len(result.curve),
+        "steps": result.curve[-1].step if result.curve else 0,
         "train_frames": result.train_frames,
         "validation_frames": result.validation_frames,
         "pretrained_encoder": result.pretrained_encoder,

@@ -8,6 +8,9 @@ Layout (every file written atomically: a temporary file, then a rename):
 - ``metrics.json``: the best epoch's validation metrics, the last epoch's, and facts of the run
   (frames, whether the encoder started from ImageNet weights).
 - ``curve.json``: one record per epoch (losses, β, learning rate, mIoU, mED, seconds).
+- ``frame_codes.safetensors``: the kept weights' encoder descriptors of the training frames
+  (``codes``, M×D; ``predict.frame_codes``), for the predictor's novelty score; absent in
+  folders of older or unfinished runs (the uncertainty then has no novelty part).
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
   from which ``resume`` continues; not needed for inference.
 - after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
@@ -35,6 +38,7 @@ WEIGHTS_FILE = "model.safetensors"
 METRICS_FILE = "metrics.json"
 CURVE_FILE = "curve.json"
 STATE_FILE = "training_state.pt"
+CODES_FILE = "frame_codes.safetensors"
 
 
 def write_atomic(path: Path, write: Callable[[Path], None]) -> None:
@@ -117,6 +121,24 @@ def load_student(model_dir: str | Path, device: torch.device | None = None) -> R
     except (OSError, RuntimeError) as exc:
         raise InvalidInputError(f"{weights} does not fit its config.json ({exc}).") from None
     return model.to(device or torch.device("cpu")).eval()
+
+
+def save_codes(model_dir: Path, codes: torch.Tensor) -> None:
+    """The training frames' descriptors (M×D) as ``frame_codes.safetensors``."""
+    state = {"codes": codes.detach().float().cpu().contiguous()}
+    write_atomic(model_dir / CODES_FILE, lambda p: save_file(state, str(p)))
+
+
+def load_codes(model_dir: str | Path) -> torch.Tensor | None:
+    """The training frames' descriptors, or None when the folder has none (or unreadable)."""
+    path = Path(model_dir) / CODES_FILE
+    if not path.is_file():
+        return None
+    try:
+        codes = load_file(str(path))["codes"]
+    except (OSError, RuntimeError, KeyError):
+        return None
+    return codes if codes.ndim == 2 and len(codes) else None
 
 
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:

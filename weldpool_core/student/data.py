@@ -261,6 +261,8 @@ class Augmentation:
 
     Attributes:
         enabled: False trains on the frames as they are.
+        gamma: exposure curve: grey levels g become 255·(g/255)^γ, with log γ drawn from
+            [−log(1 + gamma), log(1 + gamma)] (0: off).
         gain: exposure gain is drawn from [1 − gain, 1 + gain].
         offset: grey-level offset drawn from [−offset, offset].
         glare_probability: chance of an added arc glare blob.
@@ -274,6 +276,7 @@ class Augmentation:
     """
 
     enabled: bool = True
+    gamma: float = 0.5
     gain: float = 0.3
     offset: float = 20.0
     glare_probability: float = 0.4
@@ -299,6 +302,10 @@ def _photometric(
     image: NDArray[np.float32], rng: np.random.Generator, params: Augmentation
 ) -> NDArray[np.float32]:
     size = image.shape[0]
+    if params.gamma > 0:
+        spread = np.log1p(params.gamma)
+        exponent = np.float32(np.exp(rng.uniform(-spread, spread)))
+        image = np.float32(255) * (np.clip(image, 0, 255) / np.float32(255)) ** exponent
     image = image * np.float32(rng.uniform(1 - params.gain, 1 + params.gain))
     image += np.float32(rng.uniform(-params.offset, params.offset))
     if rng.random() < params.glare_probability:
@@ -368,7 +375,11 @@ class FrameSet(torch.utils.data.Dataset[TrainingTargets]):
         return len(self.frames)
 
     def __getitem__(self, index: int) -> TrainingTargets:
-        rng = np.random.default_rng([self.seed, self.epoch, index])
+        return self.draw(index, self.epoch)
+
+    def draw(self, index: int, epoch: int) -> TrainingTargets:
+        """Frame ``index`` with the augmentation draw of pass ``epoch``."""
+        rng = np.random.default_rng([self.seed, epoch, index])
         return make_targets(self.frames[index], self.sigma_floor, self.augmentation, rng)
 
 

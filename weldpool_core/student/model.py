@@ -61,13 +61,17 @@ class StudentConfig:
 
     Attributes:
         encoder: a name in ``ENCODERS`` (``resnet18`` default, ``resnet34``).
-        width: channel multiplier of the encoder and decoder; 1.0 is the standard ResNet, whose
-            ImageNet weights can load; narrower encoders start from random weights.
+        width: channel multiplier of the encoder and decoder (default 0.25: the ``light``
+            layout). 1.0 is the standard ResNet, whose ImageNet weights can load (the
+            ``resnet18`` and ``resnet34`` sizes); narrower encoders start from random weights.
+            The default is narrow because, from a random start on a CPU, the quarter-width
+            network trained for 800 steps learns the real pool better in the same minutes
+            than the full-width one can be trained (``bench/real_student.py``).
         input_size: side of the square model input, a multiple of 32 (default 256).
         aspect: ``letterbox`` (default: scale the frame to fit, pad the rest with black, so
             shapes keep their proportions) or ``resize`` (stretch to the square). Either way the
             outputs are mapped back to full-resolution pixels (see ``student.data.FrameGeometry``).
-        latent_channels: depth of the latent per stride-32 cell.
+        latent_channels: depth of the latent per stride-32 cell (default 32).
         decoder_channels: channels after each of the four decoder upsamplings (before
             ``width``).
         k: keypoints read from the predicted heatmap.
@@ -78,10 +82,10 @@ class StudentConfig:
     """
 
     encoder: str = "resnet18"
-    width: float = 1.0
+    width: float = 0.25
     input_size: int = 256
     aspect: Aspect = "letterbox"
-    latent_channels: int = 64
+    latent_channels: int = 32
     decoder_channels: tuple[int, int, int, int] = (256, 128, 64, 32)
     k: int = 4
     pretrained: bool = True
@@ -129,14 +133,15 @@ class StudentConfig:
 
 
 STUDENT_SIZES: dict[str, StudentConfig] = {
-    "resnet18": StudentConfig(),
-    "resnet34": StudentConfig(encoder="resnet34"),
-    "light": StudentConfig(width=0.25, latent_channels=32, pretrained=False),
+    "resnet18": StudentConfig(width=1.0, latent_channels=64),
+    "resnet34": StudentConfig(encoder="resnet34", width=1.0, latent_channels=64),
+    "light": StudentConfig(),
 }
-"""Named model sizes: the default ResNet18 at 256², ResNet34, and ``light`` for the robot cell's
-CPU: the ResNet18 layout at a quarter of the channels, still at 256² so that keypoints keep the
-default's pixel precision (about 1/14 of the default's FLOPs; random start, as no ImageNet
-weights exist at that width)."""
+"""Named model sizes: the full ResNet18 at 256² (ImageNet weights when present), ResNet34, and
+``light``, the default (``StudentConfig()``): the ResNet18 layout at a quarter of the channels,
+still at 256² so that keypoints keep the pixel precision (about 1/14 of ResNet18's FLOPs;
+random start, as no ImageNet weights exist at that width). Light is what learns the real pool
+best from a few labels in minutes on a CPU; ResNet18 is for a GPU, with ImageNet weights."""
 
 
 def student_config(size: str, **changes: Any) -> StudentConfig:
@@ -234,12 +239,20 @@ class ResNetVAE(nn.Module):
             # the heatmap is mostly 0: start it low (as CenterNet does)
             cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
 
-    def encode(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Latent mean and log-variance (N×C×S/32×S/32) of RGB images in [0, 1]."""
+    def features(self, images: torch.Tensor) -> torch.Tensor:
+        """The encoder's last feature map (N×F×S/32×S/32) of RGB images in [0, 1]."""
         pixels = (images - self.pixel_mean) / self.pixel_std
-        features = self.stages(self.stem(pixels), return_dict=False)[0]
+        features: torch.Tensor = self.stages(self.stem(pixels), return_dict=False)[0]
+        return features
+
+    def posterior(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent mean and log-variance of encoder features."""
         mean, logvar = self.to_latent(features).chunk(2, dim=1)
         return mean, logvar.clamp(-12.0, 6.0)
+
+    def encode(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent mean and log-variance (N×C×S/32×S/32) of RGB images in [0, 1]."""
+        return self.posterior(self.features(images))
 
     def decode(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mask logits and heatmap logits (N×S×S each) of a latent."""
@@ -292,7 +305,8 @@ def build_student(config: StudentConfig, *, load_pretrained: bool = True) -> Bui
     """A new ResNet-VAE; its encoder from ImageNet weights when asked for and present."""
     encoder = _pretrained_encoder(config) if load_pretrained else None
     notes = []
-    if load_pretrained and config.pretrained and encoder is None:
+    weights_fit = math.isclose(config.width, 1.0)  # narrower encoders have no ImageNet weights
+    if load_pretrained and config.pretrained and weights_fit and encoder is None:
         notes.append("ImageNet encoder weights not found on this machine; random start")
     return BuiltStudent(ResNetVAE(config, encoder), encoder is not None, notes)
 

@@ -3,7 +3,15 @@
 ``train_student`` is the one entry point: the CLI feeds it a DATASET folder (``read_dataset``),
 the app's worker feeds it reviewed labels from memory. It prepares each frame once (targets at
 model resolution), then trains with AdamW under a warm-up + cosine learning-rate schedule and
-validates after every epoch on held-out frames, at full resolution, with mIoU and mED.
+validates at regular intervals ("evaluation rounds") on held-out frames, at full resolution,
+with ``metrics.proposal_quality``; the round with the best score is kept.
+
+Schedule: counted in optimiser steps by default (``TrainConfig.steps``, and at least
+``min_epochs`` passes over a large set), because a few labelled frames need many more steps
+than epochs: 6 frames at batch 8 make one step per epoch. Batches are drawn from a stream of
+shuffled passes over the frames, so every step sees a full batch of differently augmented
+frames; the run is cut into ``rounds`` evaluation rounds. With ``epochs`` set, the run counts
+epochs instead (one round per epoch, the last batch of an epoch may be partial).
 
 Loss = ``mask_bce``·BCE + ``mask_dice``·Dice on the mask logits + ``heatmap``·focal on the
 heatmap logits + β·KL. The heatmap term is a quality focal loss (|y − p|²·BCE(p, y), summed and
@@ -12,12 +20,19 @@ unweighted loss would settle on an empty heatmap first. β ramps linearly from 0
 the first ``beta_warmup`` of the steps (KL annealing), so the decoder learns to use the latent
 before the prior pulls on it.
 
+Round choice (``_score``): with ``selection="mED"`` the score is ``mED_penalised`` (a keypoint
+on a frame with IoU < 0.5 counts as the diagonal) plus ``IOU_TIE_BREAK_PX`` × (1 − mIoU), so
+that while no validation frame clears the IoU floor (every round's ``mED_penalised`` the same)
+the rounds are still ranked by mIoU and an untrained first round is never kept over a better
+later one.
+
 Reproducible: the same frames, configuration and seed give the same weights on the same
-machine (initial weights, shuffling, augmentation and latent noise all derive from the seed and
-the epoch). Resumable: each epoch ends by saving the full state; ``resume=True`` continues after
-the last saved epoch, and a run stopped and resumed ends with the weights of an uninterrupted
-one. Cancellable: ``progress`` may raise; the exception propagates, and the folder keeps the
-last finished epoch.
+machine (initial weights, shuffling, augmentation and latent noise all derive from the seed,
+the pass and the round). Resumable: each round ends by saving the full state; ``resume=True``
+continues after the last saved round, and a run stopped and resumed ends with the weights of an
+uninterrupted one. Cancellable: ``progress`` may raise; the exception propagates, and the
+folder keeps the last finished round. After the last round, the kept weights' latent codes of
+the training frames are saved for the predictor's novelty score (``uncertainty``).
 """
 
 from __future__ import annotations
@@ -57,7 +72,7 @@ from weldpool_core.student.model import (
     channels_last,
     kl_divergence,
 )
-from weldpool_core.student.predict import to_frame
+from weldpool_core.student.predict import frame_codes, to_frame
 
 ProgressCallback = Callable[[float, str], None]
 """``(fraction done in [0, 1], message) -> None``; raising from it cancels the training."""
@@ -77,12 +92,25 @@ class LossWeights:
     heatmap: float = 1.0
 
 
+IOU_TIE_BREAK_PX = 10.0
+"""Pixels of ``mED_penalised`` that one unit of 1 − mIoU is worth in the round choice (0.01 of
+mIoU ≈ 0.1 px): enough to rank rounds whose keypoint score ties, too little to override a
+real keypoint improvement."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """How the student is trained (the student's architecture is ``StudentConfig``).
 
     Attributes:
-        epochs: passes over the training frames (the paper: 100 on a V100).
+        epochs: None (default) counts the run in optimiser steps (``steps``); a number trains
+            that many passes over the frames instead, validating after each (the paper: 100 on
+            a V100).
+        steps: optimiser steps of a run counted in steps (default 800: what 5–50 frames need
+            on a CPU in a few minutes with the default student).
+        min_epochs: a run counted in steps makes at least this many passes over the frames
+            (large sets train longer than ``steps``).
+        rounds: evaluation rounds of a run counted in steps (validation after each).
         batch_size: frames per optimiser step.
         learning_rate: AdamW's peak learning rate.
         weight_decay: AdamW's decoupled weight decay.
@@ -95,16 +123,23 @@ class TrainConfig:
         heatmap_sigma: smallest Gaussian spread of the heatmap target, in input pixels.
         augmentation: the random changes applied to training frames.
         validation_fraction: share of the frames held out for validation when no validation
-            frames are given (at least 1; with a single frame it validates on that frame).
-        selection: which validation score picks the best epoch: ``mED`` (default) or ``mIoU``.
+            frames are given (at least 1), once there are ``min_split_frames`` frames; with
+            fewer, every frame trains and validation runs on the training frames themselves
+            (unaugmented): training on one frame of two and validating on the other wastes
+            half the labels.
+        min_split_frames: fewest frames for which a validation split is held out (default 3).
+        selection: which validation score picks the best round: ``mED`` (default) or ``mIoU``.
             For the choice, a keypoint without a predicted partner, or on a frame whose predicted
             mask has IoU < 0.5, counts as the frame's diagonal (a model that draws the wrong
-            pool is not rescued by a lucky keypoint).
+            pool is not rescued by a lucky keypoint), and mIoU breaks ties (see the module doc).
         seed: seeds initial weights, data split, shuffling, augmentation and latent noise.
         device: ``cpu``, ``cuda``, ``cuda:N``, ``mps`` or ``auto`` (``device.resolve_device``).
     """
 
-    epochs: int = 30
+    epochs: int | None = None
+    steps: int = 800
+    min_epochs: int = 10
+    rounds: int = 20
     batch_size: int = 8
     learning_rate: float = 3e-3
     weight_decay: float = 1e-4
@@ -116,14 +151,20 @@ class TrainConfig:
     heatmap_sigma: float = 3.0
     augmentation: Augmentation = field(default_factory=Augmentation)
     validation_fraction: float = 0.1
+    min_split_frames: int = 3
     selection: Selection = "mED"
     seed: int = 0
     device: str = "auto"
 
     def __post_init__(self) -> None:
         problems = []
-        if self.epochs < 1 or self.batch_size < 1:
-            problems.append("epochs and batch_size must be at least 1")
+        if (self.epochs is not None and self.epochs < 1) or self.batch_size < 1:
+            problems.append("epochs (when given) and batch_size must be at least 1")
+        if self.steps < 1 or self.rounds < 1 or self.min_epochs < 0 or self.min_split_frames < 2:
+            problems.append(
+                "steps and rounds must be at least 1, min_epochs at least 0, "
+                "min_split_frames at least 2"
+            )
         if self.learning_rate <= 0 or self.weight_decay < 0 or self.beta < 0:
             problems.append("learning_rate must be > 0, weight_decay and beta ≥ 0")
         if not 0 <= self.warmup < 1 or not 0 <= self.beta_warmup <= 1 or not 0 < self.final_lr <= 1:
@@ -135,14 +176,40 @@ class TrainConfig:
         if problems:
             raise InvalidInputError(f"Bad training configuration: {'; '.join(problems)}.")
 
+    def plan(self, frames: int) -> Plan:
+        """The run's steps and evaluation rounds for ``frames`` training frames."""
+        per_epoch = math.ceil(frames / self.batch_size)
+        if self.epochs is not None:
+            ends = tuple(per_epoch * (epoch + 1) for epoch in range(self.epochs))
+            return Plan(per_epoch * self.epochs, ends, per_epoch)
+        total = max(self.steps, self.min_epochs * per_epoch)
+        rounds = min(self.rounds, total)
+        return Plan(total, tuple(round(total * (r + 1) / rounds) for r in range(rounds)), None)
+
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (stored in the MODEL_DIR's ``config.json``)."""
         return asdict(self)
 
 
 @dataclass(frozen=True)
+class Plan:
+    """A run's schedule: optimiser steps, the step count at the end of each evaluation round,
+    and steps per epoch when the run counts epochs (None: a stream of full batches)."""
+
+    total_steps: int
+    round_ends: tuple[int, ...]
+    steps_per_epoch: int | None
+
+    @property
+    def rounds(self) -> int:
+        """Evaluation rounds (epochs when the run counts epochs)."""
+        return len(self.round_ends)
+
+
+@dataclass(frozen=True)
 class EpochRecord:
-    """One point of the training curve (losses are means over the epoch's batches)."""
+    """One point of the training curve: an evaluation round (an epoch when the run counts
+    epochs); losses are means over the round's batches, ``step`` the optimiser steps done."""
 
     epoch: int
     loss: float
@@ -157,6 +224,7 @@ class EpochRecord:
     missed: int
     score: float
     seconds: float
+    step: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """The record as JSON-ready values."""
@@ -169,9 +237,9 @@ class TrainResult:
 
     Attributes:
         model_dir: the MODEL_DIR (``checkpoint`` describes its files).
-        best_epoch: the epoch whose weights were kept (1-based).
-        metrics: the best epoch's validation metrics (``mIoU``, ``mED``, ``mED_k``, ...).
-        curve: one record per epoch, resumed epochs included.
+        best_epoch: the evaluation round (epoch) whose weights were kept (1-based).
+        metrics: the best round's validation metrics (``mIoU``, ``mED``, ``mED_k``, ...).
+        curve: one record per round, resumed rounds included.
         train_frames: frames trained on.
         validation_frames: frames validated on.
         pretrained_encoder: whether the encoder started from ImageNet weights.
@@ -211,12 +279,12 @@ def _prepare(
 
 
 def _split(
-    frames: list[PreparedFrame], fraction: float, seed: int
+    frames: list[PreparedFrame], config: TrainConfig
 ) -> tuple[list[PreparedFrame], list[PreparedFrame]]:
-    if len(frames) == 1:
+    if len(frames) < config.min_split_frames:
         return frames, frames
-    count = min(max(1, round(len(frames) * fraction)), len(frames) - 1)
-    order = np.random.default_rng([seed, 7]).permutation(len(frames))
+    count = min(max(1, round(len(frames) * config.validation_fraction)), len(frames) - 1)
+    order = np.random.default_rng([config.seed, 7]).permutation(len(frames))
     held = set(order[:count].tolist())
     train = [f for i, f in enumerate(frames) if i not in held]
     return train, [frames[i] for i in sorted(held)]
@@ -308,15 +376,62 @@ def validate(
     return metrics
 
 
+MAX_CODES = 512
+"""Most training frames whose descriptors are kept for the novelty score (evenly spaced)."""
+
+
+def save_training_codes(
+    root: Path, frames: Sequence[PreparedFrame], device: torch.device, batch_size: int
+) -> None:
+    """The kept weights' descriptors (``predict.frame_codes``) of up to ``MAX_CODES`` training
+    frames, unaugmented (``checkpoint.save_codes``; the predictor's novelty score)."""
+    model = checkpoint.load_student(root, device)
+    chosen = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_CODES)).round())
+    picked = [frames[int(i)] for i in chosen]
+    codes = []
+    with torch.inference_mode():
+        for start in range(0, len(picked), batch_size):
+            images = np.stack([f.image for f in picked[start : start + batch_size]])
+            batch = torch.from_numpy(images.transpose(0, 3, 1, 2)).to(device).float().div_(255.0)
+            features = model.features(batch.contiguous(memory_format=torch.channels_last))
+            codes.append(frame_codes(features).cpu())
+    checkpoint.save_codes(root, torch.cat(codes))
+
+
 def _score(metrics: dict[str, Any], selection: Selection) -> float:
-    """Lower is better."""
+    """The round-choice score of validation metrics (lower is better; see the module doc)."""
     if selection == "mIoU" or metrics["mED_penalised"] is None:
         return -float(metrics["mIoU"])
-    return float(metrics["mED_penalised"])
+    return float(metrics["mED_penalised"]) + IOU_TIE_BREAK_PX * (1.0 - float(metrics["mIoU"]))
 
 
-def _epoch_seed(seed: int, epoch: int) -> int:
-    return int(np.random.default_rng([seed, epoch, 3]).integers(2**62))
+def _round_seed(seed: int, round_index: int) -> int:
+    return int(np.random.default_rng([seed, round_index, 3]).integers(2**62))
+
+
+def batch_draws(
+    plan: Plan, frames: int, batch_size: int, seed: int, step: int
+) -> list[tuple[int, int]]:
+    """The ``(pass, frame index)`` pairs of optimiser step ``step`` (0-based).
+
+    Counting epochs, step s is a slice of epoch s // steps_per_epoch's shuffled order (the
+    last one may be short); counting steps, it is the next ``batch_size`` places of a stream
+    of shuffled passes, so that every batch is full even with fewer frames than a batch. The
+    pass seeds the frame's augmentation draw.
+    """
+
+    def order(index: int) -> NDArray[np.int64]:
+        return np.random.default_rng([seed, index, 1]).permutation(frames)
+
+    if plan.steps_per_epoch is not None:
+        epoch, index = divmod(step, plan.steps_per_epoch)
+        chosen = order(epoch)[index * batch_size : (index + 1) * batch_size]
+        return [(epoch, int(i)) for i in chosen]
+    draws = []
+    for place in range(step * batch_size, (step + 1) * batch_size):
+        pass_index, offset = divmod(place, frames)
+        draws.append((pass_index, int(order(pass_index)[offset])))
+    return draws
 
 
 def _start(
@@ -338,7 +453,7 @@ def _start(
             f"{out_dir} was trained with another student configuration; resume it without "
             "changing the model options."
         )
-    if int(state["epoch"]) >= config.epochs:
+    if config.epochs is not None and int(state["epoch"]) >= config.epochs:
         raise InvalidInputError(
             f"{out_dir} has already trained {state['epoch']} epochs; ask for more than that."
         )
@@ -385,7 +500,13 @@ def train_student(
         if not held_out:
             raise InvalidInputError("The validation set is empty.")
     else:
-        train_frames, held_out = _split(prepared, config.validation_fraction, config.seed)
+        train_frames, held_out = _split(prepared, config)
+    plan = config.plan(len(train_frames))
+    if state is not None and int(state["epoch"]) >= plan.rounds:
+        raise InvalidInputError(
+            f"{root} has already finished its {plan.rounds} rounds ({plan.total_steps} steps); "
+            "ask for more steps than that."
+        )
 
     torch.manual_seed(config.seed)
     built = build_student(student)
@@ -394,41 +515,41 @@ def train_student(
     optimizer = torch.optim.AdamW(
         model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
-    steps_per_epoch = math.ceil(len(train_frames) / config.batch_size)
-    total_steps = steps_per_epoch * config.epochs
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _schedule(config, total_steps))
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _schedule(config, plan.total_steps))
     curve: list[EpochRecord] = []
-    best_score, best_epoch, best_metrics = math.inf, 0, {}
-    first_epoch = 0
+    best_score, best_round, best_metrics = math.inf, 0, {}
+    first_round = 0
     if state is not None:
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
         curve = [EpochRecord(**record) for record in state["curve"]]
-        best_score, best_epoch = float(state["best_score"]), int(state["best_epoch"])
+        best_score, best_round = float(state["best_score"]), int(state["best_epoch"])
         best_metrics, pretrained = dict(state["best_metrics"]), bool(state["pretrained"])
-        first_epoch = int(state["epoch"])
+        first_round = int(state["epoch"])
     checkpoint.save_config(root, student, config.as_dict())
 
+    unit = "epoch" if config.epochs is not None else "round"
     dataset = FrameSet(train_frames, config.heatmap_sigma, config.augmentation, config.seed)
-    for epoch in range(first_epoch, config.epochs):
+    for round_index in range(first_round, plan.rounds):
         started = time.perf_counter()
         model.train()
-        dataset.epoch = epoch
-        generator = torch.Generator(device=device).manual_seed(_epoch_seed(config.seed, epoch))
-        order = np.random.default_rng([config.seed, epoch, 1]).permutation(len(dataset))
+        generator = torch.Generator(device=device).manual_seed(
+            _round_seed(config.seed, round_index)
+        )
+        first_step = plan.round_ends[round_index - 1] if round_index else 0
+        last_step = plan.round_ends[round_index]
         sums = np.zeros(4)
         beta = 0.0
-        for index in range(steps_per_epoch):
-            chosen = order[index * config.batch_size : (index + 1) * config.batch_size]
-            batch = collate([dataset[int(i)] for i in chosen])
+        for step in range(first_step, last_step):
+            draws = batch_draws(plan, len(dataset), config.batch_size, config.seed, step)
+            batch = collate([dataset.draw(index, pass_index) for pass_index, index in draws])
             batch = TrainingTargets(
                 batch.image.to(device).contiguous(memory_format=torch.channels_last),
                 batch.mask.to(device),
                 batch.heatmap.to(device),
             )
-            step = epoch * steps_per_epoch + index
-            beta = _beta(config, step, total_steps)
+            beta = _beta(config, step, plan.total_steps)
             losses = student_loss(model, batch, config.losses, beta, generator)
             optimizer.zero_grad(set_to_none=True)
             losses.total.backward()  # type: ignore[no-untyped-call]
@@ -437,14 +558,15 @@ def train_student(
             parts = (losses.total, losses.mask, losses.heatmap, losses.kl)
             sums += [float(part.detach()) for part in parts]
             report(
-                (epoch + (index + 1) / steps_per_epoch) / config.epochs,
-                f"epoch {epoch + 1}/{config.epochs} loss {sums[0] / (index + 1):.4f}",
+                (step + 1) / plan.total_steps,
+                f"{unit} {round_index + 1}/{plan.rounds} loss "
+                f"{sums[0] / (step - first_step + 1):.4f}",
             )
         metrics = validate(model, held_out, device, config.batch_size)
         score = _score(metrics, config.selection)
-        means = sums / steps_per_epoch
+        means = sums / max(1, last_step - first_step)
         record = EpochRecord(
-            epoch=epoch + 1,
+            epoch=round_index + 1,
             loss=float(means[0]),
             mask_loss=float(means[1]),
             heatmap_loss=float(means[2]),
@@ -457,18 +579,22 @@ def train_student(
             missed=metrics["missed"],
             score=score,
             seconds=time.perf_counter() - started,
+            step=last_step,
         )
         curve.append(record)
         if score < best_score:
-            best_score, best_epoch, best_metrics = score, epoch + 1, metrics
+            best_score, best_round, best_metrics = score, round_index + 1, metrics
             checkpoint.save_weights(root, model)
         summary = {
-            "best_epoch": best_epoch,
+            "best_epoch": best_round,
             "best": best_metrics,
-            "last": metrics | {"epoch": epoch + 1},
+            "last": metrics | {"epoch": round_index + 1, "step": last_step},
             "selection": config.selection,
+            "steps": plan.total_steps,
+            "rounds": plan.rounds,
             "train_frames": len(train_frames),
             "validation_frames": len(held_out),
+            "validated_on_training_frames": held_out is train_frames,
             "pretrained_encoder": pretrained,
             "notes": built.notes,
         }
@@ -477,25 +603,26 @@ def train_student(
         checkpoint.save_state(
             root,
             {
-                "epoch": epoch + 1,
+                "epoch": round_index + 1,
                 "model": model.state_dict(),
                 "optimizer": optimizer.state_dict(),
                 "scheduler": scheduler.state_dict(),
                 "curve": [r.as_dict() for r in curve],
                 "best_score": best_score,
-                "best_epoch": best_epoch,
+                "best_epoch": best_round,
                 "best_metrics": best_metrics,
                 "pretrained": pretrained,
             },
         )
         med = "-" if metrics["mED"] is None else f"{metrics['mED']:.2f} px"
         report(
-            (epoch + 1) / config.epochs,
-            f"epoch {epoch + 1}/{config.epochs} mIoU {metrics['mIoU']:.3f} mED {med}",
+            last_step / plan.total_steps,
+            f"{unit} {round_index + 1}/{plan.rounds} mIoU {metrics['mIoU']:.3f} mED {med}",
         )
+    save_training_codes(root, train_frames, device, config.batch_size)
     return TrainResult(
         model_dir=root,
-        best_epoch=best_epoch,
+        best_epoch=best_round,
         metrics=best_metrics,
         curve=curve,
         train_frames=len(train_frames),

@@ -4,6 +4,7 @@ and the DATASET folder."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,7 @@ from weldpool_core.student.data import (
     FrameSet,
     TrainingFrame,
     _affine,
+    _photometric,
     make_targets,
     prepare_frame,
     read_dataset,
@@ -104,7 +106,7 @@ def test_the_heatmap_peaks_at_the_keypoints_on_the_pool() -> None:
 def test_augmentation_moves_image_mask_and_keypoints_together() -> None:
     prepared = prepare_frame(synthetic_frames(1)[0], 96, "letterbox", HeatmapParams())
     geometric = Augmentation(
-        gain=0, offset=0, glare_probability=0, noise_sigma=0, blur_probability=0
+        gamma=0, gain=0, offset=0, glare_probability=0, noise_sigma=0, blur_probability=0
     )
     rng = np.random.default_rng(5)
     targets = make_targets(prepared, 2.0, geometric, rng)
@@ -116,6 +118,23 @@ def test_augmentation_moves_image_mask_and_keypoints_together() -> None:
     warped = cv2.warpAffine(prepared.image.astype(np.float32), matrix, (96, 96)) / 255
     assert np.allclose(targets.image.numpy().transpose(1, 2, 0), warped, atol=1e-5)
     assert not np.allclose(targets.mask.numpy(), prepared.mask / 255.0)
+
+
+def test_gamma_bends_mid_greys_both_ways_and_keeps_black_and_white() -> None:
+    only_gamma = Augmentation(
+        gain=0, offset=0, glare_probability=0, noise_sigma=0, blur_probability=0
+    )
+    image = np.zeros((8, 8, 3), np.float32)
+    image[:, 2:4], image[:, 4:] = 128.0, 255.0
+    draws = [
+        _photometric(image.copy(), np.random.default_rng(seed), only_gamma) for seed in range(20)
+    ]
+    middle = np.array([d[0, 2, 0] for d in draws])
+    assert (middle > 140).any() and (middle < 116).any()  # brighter and darker exposures
+    assert all(np.allclose(d[:, :2], 0) and np.allclose(d[:, 4:], 255, atol=1e-3) for d in draws)
+    assert np.abs(np.log(middle / 255) / np.log(128 / 255)).max() <= 1.5 + 1e-4  # within 1 + γ
+    off = replace(only_gamma, gamma=0.0)
+    assert np.allclose(_photometric(image.copy(), np.random.default_rng(0), off), image)
 
 
 def test_augmentation_depends_only_on_seed_epoch_and_index() -> None:

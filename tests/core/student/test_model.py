@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -39,6 +40,7 @@ def test_resnet34_is_deeper_and_light_is_narrower_than_the_default() -> None:
     assert parameters(student_config("resnet34", pretrained=False)) > 1.5 * default
     assert parameters(student_config("light")) < default / 10
     assert STUDENT_SIZES["resnet18"].input_size == 256
+    assert STUDENT_SIZES["light"] == StudentConfig()  # the default is the light layout
 
 
 def test_samples_differ_and_the_mean_is_deterministic() -> None:
@@ -62,12 +64,14 @@ def test_imagenet_weights_load_from_a_local_folder(tmp_path: Path) -> None:
     config = student_config("resnet18", input_size=64)
     reference = ResNetModel(_resnet_config(config))
     reference.save_pretrained(tmp_path / "resnet")
-    built = build_student(StudentConfig(input_size=64, encoder_weights=str(tmp_path / "resnet")))
+    built = build_student(replace(config, encoder_weights=str(tmp_path / "resnet")))
     assert built.pretrained and not built.notes
     stem = built.model.stem.embedder.convolution.weight
     assert torch.equal(stem, reference.embedder.embedder.convolution.weight)
-    missing = build_student(StudentConfig(input_size=64, encoder_weights=str(tmp_path / "none")))
+    missing = build_student(replace(config, encoder_weights=str(tmp_path / "none")))
     assert not missing.pretrained and "random" in missing.notes[0]
+    narrow = build_student(StudentConfig(input_size=64, encoder_weights=str(tmp_path / "resnet")))
+    assert not narrow.pretrained and not narrow.notes  # the default width has no such weights
 
 
 def test_folding_batchnorm_keeps_the_outputs() -> None:

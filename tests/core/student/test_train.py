@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,14 @@ from safetensors.numpy import load_file
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.student.data import TrainingFrame
-from weldpool_core.student.train import TrainResult, train_student
+from weldpool_core.student.train import (
+    TrainConfig,
+    TrainResult,
+    _score,
+    _split,
+    batch_draws,
+    train_student,
+)
 
 
 class Cancelled(Exception):
@@ -119,3 +127,79 @@ def test_unusable_requests_are_one_sentence(tmp_path: Path, trained: TrainResult
         train_student(synthetic_frames(2), trained.model_dir, None, tiny_config(), resume=True)
     with pytest.raises(InvalidInputError, match="image must be H×W×3 RGB uint8"):
         TrainingFrame(np.zeros((4, 4), np.uint8), np.zeros((4, 4), bool))
+
+
+def _metrics(miou: float, penalised: float | None = 943.4, med: float | None = None) -> dict:
+    return {"mIoU": miou, "mED_penalised": penalised, "mED": med, "mED_k": [], "missed": 0}
+
+
+def test_rounds_below_the_iou_floor_are_ranked_by_miou() -> None:
+    # Every frame below IoU 0.5: mED_penalised is the diagonal whatever the round.
+    assert _score(_metrics(0.40), "mED") < _score(_metrics(0.10), "mED")
+    # A real keypoint improvement still outweighs a small mIoU change.
+    assert _score(_metrics(0.80, 12.0), "mED") < _score(_metrics(0.82, 14.0), "mED")
+    assert _score(_metrics(0.80, 12.0), "mIoU") > _score(_metrics(0.82, 14.0), "mIoU")
+
+
+def test_an_untrained_first_round_is_not_kept_over_a_better_later_one(
+    tmp_path: Path, tiny_frames: list[TrainingFrame], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rounds = iter([0.05, 0.20, 0.45, 0.30])  # all below the floor, the third the best
+
+    def validate(*args: object) -> dict:
+        return _metrics(next(rounds))
+
+    monkeypatch.setattr("weldpool_core.student.train.validate", validate)
+    result = train_student(tiny_frames[:4], tmp_path / "m", TINY_STUDENT, tiny_config(epochs=4))
+    assert result.best_epoch == 3 and result.metrics["mIoU"] == 0.45
+
+
+def test_a_few_frames_train_for_the_step_floor_in_full_batches() -> None:
+    config = TrainConfig()
+    plan = config.plan(6)
+    assert config.epochs is None and plan.total_steps >= 300 and plan.steps_per_epoch is None
+    assert plan.round_ends[-1] == plan.total_steps and plan.rounds == config.rounds
+    assert list(plan.round_ends) == sorted(set(plan.round_ends))
+    draws = [batch_draws(plan, 6, 8, 0, step) for step in range(3)]
+    assert all(len(d) == 8 for d in draws)  # full batches with fewer frames than a batch
+    stream = [d for step in draws for d in step]
+    for pass_index in range(4):  # each pass shows every frame once
+        assert sorted(i for p, i in stream if p == pass_index) == list(range(6))
+    big = config.plan(4000)  # a large set trains min_epochs passes, more than the floor
+    assert big.total_steps == config.min_epochs * 500 > config.steps
+    by_epoch = replace(config, epochs=3).plan(6)
+    assert by_epoch.total_steps == 3 and by_epoch.round_ends == (1, 2, 3)
+    assert [i for _, i in batch_draws(by_epoch, 6, 8, 0, 0)] != list(range(6))  # shuffled
+    assert len(batch_draws(by_epoch, 6, 8, 0, 0)) == 6  # an epoch's last batch is short
+
+
+def test_a_run_counted_in_steps_resumes_to_the_same_end(
+    tmp_path: Path, tiny_frames: list[TrainingFrame]
+) -> None:
+    config = tiny_config(epochs=None, steps=6, rounds=3, min_epochs=0)
+    straight = train_student(tiny_frames, tmp_path / "straight", TINY_STUDENT, config)
+    assert [r.step for r in straight.curve] == [2, 4, 6]
+
+    def cancel_after_round_2(fraction: float, message: str) -> None:
+        if message.startswith("round 2/3 mIoU"):
+            raise Cancelled
+
+    with pytest.raises(Cancelled):
+        train_student(tiny_frames, tmp_path / "run", TINY_STUDENT, config, cancel_after_round_2)
+    resumed = train_student(tiny_frames, tmp_path / "run", None, config, resume=True)
+    assert [r.loss for r in resumed.curve] == [r.loss for r in straight.curve]
+    expected, found = _state_weights(tmp_path / "straight"), _state_weights(tmp_path / "run")
+    assert all(np.array_equal(expected[name], found[name]) for name in expected)
+    assert (tmp_path / "run" / "frame_codes.safetensors").is_file()
+    with pytest.raises(InvalidInputError, match="already finished its 3 rounds"):
+        train_student(tiny_frames, tmp_path / "run", None, config, resume=True)
+
+
+def test_fewer_frames_than_the_split_minimum_all_train() -> None:
+    prepared = [f"frame{i}" for i in range(6)]
+    train, held = _split(prepared[:2], TrainConfig())  # type: ignore[arg-type]
+    assert train == held == prepared[:2]
+    train, held = _split(prepared, TrainConfig())  # type: ignore[arg-type]
+    assert len(train) == 5 and len(held) == 1 and set(train + held) == set(prepared)
+    train, held = _split(prepared[:2], TrainConfig(min_split_frames=2))  # type: ignore[arg-type]
+    assert len(train) == len(held) == 1

@@ -1,0 +1,260 @@
+"""The student on the real WAAM labels: leave-one-clip-out and within-clip, plus ablations.
+
+Reads the 9 hand-drawn pool masks of ../shared/data/waam/labels (or $WELDPOOL_SHARED_DATA) and
+their frames. Folds:
+
+- LOCO (leave one clip out): train on the 6 frames of two clips, test on the 3 of the third.
+- within-clip: train on f0050 and f0450 of one clip, test on its f0250.
+
+Each fold trains a fresh student with the default settings (``StudentConfig()``,
+``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, on all of the
+fold's training frames (the best round chosen on them, unaugmented: what ``weldpool train``
+does with fewer than 3 frames; ``evaluate.train_and_score``), then scores the
+held-out frames: mIoU, mED against Algorithm 1's keypoints on the true masks (px, full
+resolution), the training seconds, and the uncertainty. ρ is Spearman's rank correlation
+between the uncertainty and 1 − IoU, pooled over the held-out frames of the LOCO folds.
+``--ablation`` also runs variants, each on the first LOCO and the first within-clip fold (to
+stay affordable on a CPU), and prints one row each; ``--repeats`` seeds per variant (medians).
+
+    PYTHONPATH=. .venv/bin/python bench/real_student.py [--quick] [--ablation] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.stats import spearmanr
+
+from weldpool_core.student.data import Augmentation, TrainingFrame
+from weldpool_core.student.evaluate import FoldResult, labelled_frames, train_and_score
+from weldpool_core.student.model import StudentConfig
+from weldpool_core.student.train import TrainConfig, train_student
+
+CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data() -> Path:
+    """The shared data folder: $WELDPOOL_SHARED_DATA, else ../shared/data next to the repo."""
+    return Path(os.environ.get("WELDPOOL_SHARED_DATA") or REPO.parent / "shared" / "data")
+
+
+def folds(frames: list[TrainingFrame], kind: str) -> list[tuple[str, list[int], list[int]]]:
+    """``(name, train indices, test indices)`` of the LOCO or within-clip folds."""
+    clip = [
+        next(c for c in sorted(CLIPS, key=len, reverse=True) if f.name.startswith(c))
+        for f in frames
+    ]
+    out = []
+    for held in CLIPS:
+        short = held.removeprefix("compressed_")
+        if kind == "loco":
+            train = [i for i, c in enumerate(clip) if c != held]
+            test = [i for i, c in enumerate(clip) if c == held]
+        else:
+            mine = [i for i, c in enumerate(clip) if c == held]
+            test = [i for i in mine if frames[i].name.endswith("f0250")]
+            train = [i for i in mine if i not in test]
+        out.append((f"{kind}:{short}", train, test))
+    return out
+
+
+VARIANTS = (
+    "old default (ResNet18, 30 epochs, no gamma)",
+    "light, 30 epochs",
+    "steps halved (400)",
+    "augmentation off",
+    "no gamma",
+)
+
+
+def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
+    """The settings of a named variant (``default``: the library's defaults)."""
+    student, config = StudentConfig(), TrainConfig(device="cpu")
+    no_gamma = replace(config.augmentation, gamma=0.0)
+    changes: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+        "default": ({}, {}),
+        VARIANTS[0]: (
+            {"width": 1.0, "latent_channels": 64},
+            {"epochs": 30, "augmentation": no_gamma},
+        ),
+        VARIANTS[1]: ({}, {"epochs": 30}),
+        VARIANTS[2]: ({}, {"steps": config.steps // 2}),
+        VARIANTS[3]: ({}, {"augmentation": Augmentation(enabled=False)}),
+        VARIANTS[4]: ({}, {"augmentation": no_gamma}),
+    }
+    if name not in changes:
+        raise SystemExit(f"unknown variant {name!r}; use one of: {', '.join(changes)}")
+    student_changes, train_changes = changes[name]
+    return replace(student, **student_changes), replace(config, **train_changes)
+
+
+def run_folds(
+    frames: list[TrainingFrame],
+    kinds: tuple[str, ...],
+    student: StudentConfig,
+    config: TrainConfig,
+    samples: int,
+    limit: int | None,
+) -> dict[str, list[tuple[str, FoldResult]]]:
+    """Every fold of ``kinds`` trained and scored (at most ``limit`` per kind)."""
+    results: dict[str, list[tuple[str, FoldResult]]] = {}
+    with tempfile.TemporaryDirectory() as root:
+        for kind in kinds:
+            for name, train, test in folds(frames, kind)[:limit]:
+                folder = Path(root) / name.replace(":", "-")
+                fold = train_and_score(
+                    [frames[i] for i in train],
+                    [frames[i] for i in test],
+                    folder,
+                    student,
+                    config,
+                    samples,
+                )
+                results.setdefault(kind, []).append((name, fold))
+                med = fold.scores.med
+                print(
+                    f"  {name:<12} mIoU {fold.scores.miou:.3f} mED "
+                    f"{'-' if med is None else f'{med:.1f}'} px {fold.seconds:.0f} s "
+                    f"best round {fold.result.best_epoch}",
+                    flush=True,
+                )
+    return results
+
+
+def rho(folds_done: list[tuple[str, FoldResult]], part: str | None = None) -> float:
+    """Spearman ρ of the uncertainty (or one of its ``part``s) against 1 − IoU over the folds'
+    held-out frames."""
+    errors = [1 - v for _, f in folds_done for v in f.scores.ious]
+    if part is None:
+        scores = [u for _, f in folds_done for u in f.scores.uncertainties]
+    else:
+        scores = [(p or {}).get(part) for _, f in folds_done for p in f.scores.parts]
+    if len(errors) < 3 or any(s is None for s in scores):
+        return float("nan")
+    return float(spearmanr(scores, errors)[0])
+
+
+def summary(results: dict[str, list[tuple[str, FoldResult]]]) -> dict[str, float]:
+    """Mean mIoU / mED / seconds per kind and the LOCO ρ."""
+    out: dict[str, float] = {}
+    for kind, done in results.items():
+        out[f"{kind} mIoU"] = float(np.mean([f.scores.miou for _, f in done]))
+        meds = [f.scores.med for _, f in done if f.scores.med is not None]
+        out[f"{kind} mED"] = float(np.mean(meds)) if meds else float("nan")
+        out[f"{kind} s"] = float(np.mean([f.seconds for _, f in done]))
+    if "loco" in results:
+        out["ρ"] = rho(results["loco"])
+    return out
+
+
+def print_folds(results: dict[str, list[tuple[str, FoldResult]]]) -> None:
+    """The per-fold table and each kind's mean."""
+    print(
+        f"\n{'fold':<13}{'train':>6}{'test':>5}{'mIoU':>8}{'mED px':>8}{'missed':>7}{'train s':>9}"
+    )
+    for kind, done in results.items():
+        for name, fold in done:
+            med = fold.scores.med
+            print(
+                f"{name:<13}{len(fold.train):>6}{len(fold.scores.ious):>5}"
+                f"{fold.scores.miou:>8.3f}{'-' if med is None else f'{med:.1f}':>8}"
+                f"{fold.scores.missed:>7}{fold.seconds:>9.0f}"
+            )
+        means = summary({kind: done})
+        print(
+            f"{kind + ' mean':<24}{means[f'{kind} mIoU']:>8.3f}{means[f'{kind} mED']:>8.1f}"
+            f"{'':>7}{means[f'{kind} s']:>9.0f}"
+        )
+    for kind, done in results.items():
+        print(
+            f"uncertainty ~ 1 − IoU, Spearman ρ over the {kind} held-out frames: "
+            f"{rho(done):.2f} (disagreement alone {rho(done, 'disagreement'):.2f}, novelty "
+            f"alone {rho(done, 'novelty'):.2f})"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="one fold of each kind")
+    parser.add_argument("--ablation", action="store_true", help="also run the variants")
+    parser.add_argument("--variants", nargs="*", help=f"variants (default: {'; '.join(VARIANTS)})")
+    parser.add_argument("--repeats", type=int, default=1, help="seeds per variant (medians)")
+    parser.add_argument("--samples", type=int, default=8, help="passes for the uncertainty")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the default run")
+    parser.add_argument(
+        "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
+    )
+    parser.add_argument(
+        "--no-default", action="store_true", help="skip the default run (ablation only)"
+    )
+    parser.add_argument(
+        "--time-all", action="store_true", help="also time a default training on all 9 frames"
+    )
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    data = shared_data() / "waam"
+    if not (data / "labels").is_dir():
+        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
+    frames = labelled_frames(data / "frames", data / "labels")
+    limit = 1 if args.quick else None
+    started = time.perf_counter()
+    student, config = variant("default")
+    print(f"default: {student}\n{config}\n", flush=True)
+    config = replace(config, seed=args.seed)
+    results: dict[str, list[tuple[str, FoldResult]]] = {}
+    if not args.no_default:
+        results = run_folds(frames, tuple(args.kinds), student, config, args.samples, limit)
+        print_folds(results)
+    if args.time_all:
+        with tempfile.TemporaryDirectory() as root:
+            begun = time.perf_counter()
+            trained = train_student(frames, Path(root) / "all", student, config)
+            print(
+                f"\nall {len(frames)} frames, default split ({trained.train_frames} train, "
+                f"{trained.validation_frames} validation): {time.perf_counter() - begun:.0f} s, "
+                f"validation mIoU {trained.metrics['mIoU']:.3f}"
+            )
+    if args.ablation:
+        # One fold of each kind per variant (the first), to keep the run affordable on a CPU.
+        first = {kind: dict(done[:1]) for kind, done in results.items()}
+        rows = [("default", summary({k: list(v.items()) for k, v in first.items()}))] * bool(first)
+        for name in args.variants or VARIANTS:
+            runs = []
+            for repeat in range(args.repeats):
+                student, config = variant(name)
+                print(f"{name} seed {repeat}", flush=True)
+                config = replace(config, seed=repeat)
+                done = run_folds(frames, tuple(args.kinds), student, config, args.samples, 1)
+                runs.append(summary(done))
+            rows.append((name, {key: statistics.median(r[key] for r in runs) for key in runs[0]}))
+        print(
+            f"\nablation on the first fold of {' and '.join(args.kinds)} (median of "
+            f"{args.repeats} seed(s); default: the run above, when run)"
+        )
+        print(
+            f"{'variant':<46}{'LOCO mIoU':>10}{'mED':>7}{'within mIoU':>12}{'mED':>7}{'train s':>9}"
+        )
+        nan = float("nan")
+        for name, row in rows:
+            seconds = [row[f"{kind} s"] for kind in args.kinds if f"{kind} s" in row]
+            print(
+                f"{name:<46}{row.get('loco mIoU', nan):>10.3f}{row.get('loco mED', nan):>7.1f}"
+                f"{row.get('within mIoU', nan):>12.3f}{row.get('within mED', nan):>7.1f}"
+                f"{float(np.mean(seconds)):>9.0f}"
+            )
+    print(f"\n{time.perf_counter() - started:.0f} s in all")
+
+
+if __name__ == "__main__":
+    main()
