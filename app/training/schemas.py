@@ -13,7 +13,10 @@ class TrainIn(BaseModel):
 
     epochs: int | None = Field(default=None, ge=1, le=1000)
     size: Literal["resnet18", "resnet34", "light"] | None = Field(
-        default=None, description="Model size (default resnet18; light runs fastest on a CPU)."
+        default=None,
+        description="Model size (default: the light student, which learns the real pool best "
+        "from few labels and runs fastest; resnet18 / resnet34 start from ImageNet weights "
+        "when they are on the machine).",
     )
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     pseudo_labels: bool = Field(

@@ -7,6 +7,7 @@ import shutil
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 import sqlalchemy as sa
 import structlog
 
@@ -42,7 +43,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
     only when training finished: a killed or cancelled job leaves no half-written version.
     """
-    from weldpool_core.student.model import student_config
+    from weldpool_core.student.model import StudentConfig, student_config
     from weldpool_core.student.train import TrainConfig, train_student
 
     settings, storage = ctx.settings, Storage(ctx.settings.home)
@@ -62,7 +63,8 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     config = TrainConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
     if ctx.params.get("epochs"):
         config = replace(config, epochs=int(ctx.params["epochs"]))
-    student = student_config(str(ctx.params.get("size") or "resnet18"))
+    size = ctx.params.get("size")
+    student = student_config(str(size)) if size else StudentConfig()
     with ctx.session_factory() as session:
         training = [
             (frame_id, (image, mask, keypoints))
@@ -78,8 +80,9 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             )
             if mask is not None and image is not None
         ]
+        pseudo = _pseudo_labels(ctx, session, storage, len(training))
         result = train_student(
-            (sample for _, sample in training),
+            [sample for _, sample in training] + [frame for _, frame in pseudo],
             work,
             student,
             config,
@@ -102,10 +105,11 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
                     "best_epoch": result.best_epoch,
                     "validation_frames": result.validation_frames,
                     "pretrained_encoder": result.pretrained_encoder,
+                    "pseudo_labels": len(pseudo),
                 },
                 curve=[record.as_dict() for record in result.curve],
-                train_label_count=result.train_frames,
-                train_frame_ids=[frame_id for frame_id, _ in training],
+                train_label_count=len(training),
+                train_frame_ids=[frame_id for frame_id, _ in training + pseudo],
                 held_out_frame_ids=held_out,
             )
             session.add(version)
@@ -123,6 +127,44 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         "promoted": verdict["promote"] and ctx.settings.auto_promote,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
     }
+
+
+PSEUDO_PER_LABEL = 3
+"""At most this many teacher pseudo-labels per reviewed label, the most confident first."""
+
+
+def _pseudo_labels(ctx: JobContext, session: Any, storage: Storage, labels: int) -> list[Any]:
+    """(frame id, TrainingFrame) of the teacher's confident proposals on unlabelled frames when
+    the job asks for them (``service.pseudo_label_proposals``), each weighing
+    ``pseudo_weight`` × the teacher's confidence; none otherwise."""
+    from weldpool_core.student.data import TrainingFrame
+
+    if not ctx.params.get("pseudo_labels"):
+        return []
+    threshold = float(ctx.params.get("pseudo_min_confidence", 0.8))
+    weight = float(ctx.params.get("pseudo_weight", 0.5))
+    chosen = sorted(service.pseudo_label_proposals(session, threshold), key=lambda pair: -pair[1])[
+        : PSEUDO_PER_LABEL * labels
+    ]
+    frames = []
+    for proposal, confidence in chosen:
+        if weight * confidence <= 0:
+            continue
+        frame = session.get_one(Frame, proposal.frame_id)
+        keypoints = np.asarray(proposal.keypoints, np.float64) if proposal.keypoints else None
+        frames.append(
+            (
+                frame.id,
+                TrainingFrame(
+                    frame_rgb(storage, frame),
+                    load_mask(storage, proposal.mask_path),
+                    keypoints,
+                    f"pseudo:{frame.id}",
+                    min(1.0, weight * confidence),
+                ),
+            )
+        )
+    return frames
 
 
 def _free_name(session: Any, models_dir: Any) -> str:

@@ -21,7 +21,7 @@ from app.review.service import store_mask
 from app.storage import Storage
 from app.training import gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
-from tests.helpers import auth, corrected_label, image_bytes
+from tests.helpers import auth, corrected_label, image_bytes, wait_for_job
 from weldpool_core.student.train import train_student
 
 W, H = 96, 64
@@ -368,6 +368,17 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
         chosen = pseudo_label_proposals(session, 0.8)
         assert [(p.frame_id, round(c, 4)) for p, c in chosen] == [(sure, 0.9025)]
         assert [p.frame_id for p, _ in pseudo_label_proposals(session, 0.4)] == [sure, unsure]
+    job = client.post(
+        "/api/v1/student/train",
+        json={"epochs": 1, "size": "light", "pseudo_labels": True},
+        headers=auth(token),
+    ).json()
+    done = wait_for_job(client, job["job_id"], token, timeout=300)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["metrics"]["pseudo_labels"] == 1
+    with session_factory() as session:
+        version = session.get_one(ModelVersion, done["result"]["model_version_id"])
+        assert version.train_frame_ids == [labelled, sure] and version.train_label_count == 1
     assert teacher_confidence({"sam2_iou": 0.5}) == 0.5
     assert teacher_confidence({"sam2_iou": 0.5, "prompt_stability": 0.5}) == 0.25
     assert teacher_confidence({}) is None

@@ -152,12 +152,15 @@ class TrainingFrame:
         mask: H×W bool, the molten pool.
         keypoints: k×2 ``(x, y)`` keypoints, or None to take them from Algorithm 1 on the mask.
         name: a label for messages (a file stem or a frame id).
+        weight: how much the frame counts in the loss against 1 for a reviewed label (a
+            teacher pseudo-label counts less; 0 < weight ≤ 1).
     """
 
     image: NDArray[np.uint8]
     mask: NDArray[np.bool_]
     keypoints: NDArray[np.float64] | None = None
     name: str = ""
+    weight: float = 1.0
 
     def __post_init__(self) -> None:
         image, mask = np.asarray(self.image), np.asarray(self.mask)
@@ -165,6 +168,10 @@ class TrainingFrame:
             raise InvalidInputError(
                 f"Frame {self.name or '?'}: the image must be H×W×3 RGB uint8, not "
                 f"{image.dtype} of shape {image.shape}."
+            )
+        if not 0 < self.weight <= 1:
+            raise InvalidInputError(
+                f"Frame {self.name or '?'}: the weight must lie in (0, 1], not {self.weight}."
             )
         if mask.shape != image.shape[:2]:
             raise InvalidInputError(
@@ -196,6 +203,7 @@ class PreparedFrame:
     frame_keypoints: NDArray[np.float64]
     frame_mask: NDArray[np.uint8]
     name: str = ""
+    weight: float = 1.0
 
     def truth_mask(self) -> NDArray[np.bool_]:
         """The full-resolution ground-truth mask."""
@@ -229,6 +237,7 @@ def prepare_frame(
         frame_keypoints=points,
         frame_mask=np.packbits(frame.mask.astype(np.uint8), axis=None),
         name=frame.name,
+        weight=frame.weight,
     )
 
 
@@ -326,11 +335,13 @@ def _photometric(
 
 @dataclass(frozen=True)
 class TrainingTargets:
-    """One augmented example: input image in [0, 1] (3×S×S) and its mask and heatmap (S×S)."""
+    """One augmented example: input image in [0, 1] (3×S×S), its mask and heatmap (S×S), and
+    its loss weight (a batch: N×… tensors and N weights)."""
 
     image: torch.Tensor
     mask: torch.Tensor
     heatmap: torch.Tensor
+    weight: torch.Tensor | None = None
 
 
 def make_targets(
@@ -358,6 +369,7 @@ def make_targets(
         image=torch.from_numpy(np.ascontiguousarray(pixels.transpose(2, 0, 1))),
         mask=torch.from_numpy(np.ascontiguousarray(mask)),
         heatmap=torch.from_numpy(heatmap),
+        weight=torch.tensor(frame.weight, dtype=torch.float32),
     )
 
 
@@ -389,6 +401,9 @@ def collate(batch: Sequence[TrainingTargets]) -> TrainingTargets:
         image=torch.stack([b.image for b in batch]),
         mask=torch.stack([b.mask for b in batch]),
         heatmap=torch.stack([b.heatmap for b in batch]),
+        weight=torch.stack(
+            [b.weight if b.weight is not None else torch.tensor(1.0) for b in batch]
+        ),
     )
 
 

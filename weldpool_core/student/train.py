@@ -307,19 +307,36 @@ def _beta(config: TrainConfig, step: int, total_steps: int) -> float:
     return config.beta if ramp <= 0 else config.beta * min(1.0, step / ramp)
 
 
-def dice_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """1 − soft Dice per frame, averaged over the batch (N×H×W logits and targets in [0, 1])."""
+def _weighted_mean(values: torch.Tensor, weight: torch.Tensor | None) -> torch.Tensor:
+    """Σ wᵢ·vᵢ / Σ wᵢ over the batch (the plain mean without weights)."""
+    if weight is None:
+        return values.mean()
+    return (values * weight).sum() / weight.sum().clamp(min=1e-12)
+
+
+def dice_loss(
+    logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+) -> torch.Tensor:
+    """1 − soft Dice per frame, averaged over the batch (N×H×W logits and targets in [0, 1]),
+    each frame by its weight when given."""
     probability = torch.sigmoid(logits).flatten(1)
     truth = target.flatten(1)
     overlap = (probability * truth).sum(1)
-    return torch.mean(1 - (2 * overlap + 1) / (probability.sum(1) + truth.sum(1) + 1))
+    return _weighted_mean(1 - (2 * overlap + 1) / (probability.sum(1) + truth.sum(1) + 1), weight)
 
 
-def heatmap_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Quality focal loss |y − p|²·BCE(p, y), summed and divided by the target's mass."""
+def heatmap_loss(
+    logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Quality focal loss |y − p|²·BCE(p, y), summed and divided by the target's mass (each
+    frame's sum and mass by its weight when given)."""
     probability = torch.sigmoid(logits)
     bce = F.binary_cross_entropy_with_logits(logits, target, reduction="none")
-    return (bce * (probability - target).abs().pow(2)).sum() / target.sum().clamp(min=1.0)
+    per_frame = (bce * (probability - target).abs().pow(2)).flatten(1).sum(1)
+    mass = target.flatten(1).sum(1)
+    if weight is not None:
+        per_frame, mass = per_frame * weight, mass * weight
+    return per_frame.sum() / mass.sum().clamp(min=1.0)
 
 
 @dataclass
@@ -339,10 +356,11 @@ def student_loss(
 ) -> _Losses:
     """The training loss of one batch (see the module doc), with its parts."""
     output = model(batch.image, sample=True, generator=generator)
-    mask = weights.mask_bce * F.binary_cross_entropy_with_logits(
-        output.mask_logits, batch.mask
-    ) + weights.mask_dice * dice_loss(output.mask_logits, batch.mask)
-    heat = weights.heatmap * heatmap_loss(output.heatmap_logits, batch.heatmap)
+    bce = F.binary_cross_entropy_with_logits(output.mask_logits, batch.mask, reduction="none")
+    mask = weights.mask_bce * _weighted_mean(
+        bce.flatten(1).mean(1), batch.weight
+    ) + weights.mask_dice * dice_loss(output.mask_logits, batch.mask, batch.weight)
+    heat = weights.heatmap * heatmap_loss(output.heatmap_logits, batch.heatmap, batch.weight)
     kl = kl_divergence(output.mean, output.logvar)
     return _Losses(mask + heat + beta * kl, mask, heat, kl)
 
@@ -544,10 +562,12 @@ def train_student(
         for step in range(first_step, last_step):
             draws = batch_draws(plan, len(dataset), config.batch_size, config.seed, step)
             batch = collate([dataset.draw(index, pass_index) for pass_index, index in draws])
+            weighted = batch.weight is not None and bool((batch.weight != 1).any())
             batch = TrainingTargets(
                 batch.image.to(device).contiguous(memory_format=torch.channels_last),
                 batch.mask.to(device),
                 batch.heatmap.to(device),
+                batch.weight.to(device) if weighted and batch.weight is not None else None,
             )
             beta = _beta(config, step, plan.total_steps)
             losses = student_loss(model, batch, config.losses, beta, generator)
