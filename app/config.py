@@ -52,7 +52,7 @@ class Settings(BaseSettings):
             "teacher_iou": 1.0,
             "instability": 1.0,
             "disagreement": 1.0,
-            "student_spread": 1.0,
+            "student_uncertainty": 1.0,
         },
         description="Weights of the uncertainty components in the review queue's score (JSON).",
     )

@@ -113,7 +113,7 @@ def _queue_pick(
     wrong."""
     predictions = predictor.predict([_rgb(frames[i].image) for i in unlabelled], samples=samples)
     scores = np.array(
-        [combined_score({"student_spread": p.uncertainty}) or 0.0 for p in predictions]
+        [combined_score({"student_uncertainty": p.uncertainty}) or 0.0 for p in predictions]
     )
     errors = [1 - iou(p.mask, frames[i].mask) for p, i in zip(predictions, unlabelled, strict=True)]
     for part in ("disagreement", "novelty"):

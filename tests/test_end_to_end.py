@@ -131,7 +131,7 @@ def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> N
         listed = client.get(f"/api/v1/frames/{ids[13]}/proposals", headers=auth(token)).json()
         assert {p["source"] for p in listed["items"]} == {"teacher", "student"}
         assert unreviewed["uncertainty"] is not None
-        assert set(unreviewed["uncertainty_components"]) >= {"student_spread", "disagreement"}
+        assert set(unreviewed["uncertainty_components"]) >= {"student_uncertainty", "disagreement"}
         figures = client.get("/api/v1/metrics", headers=auth(token)).json()
         assert figures["student"][0]["train_label_count"] == 10
 

@@ -8,7 +8,7 @@ Uncertainty components, each in [0, 1] (1 = most unsure), None when it cannot be
 - ``disagreement``: how far the promoted student is from the teacher: the mean of
   1 − IoU(student mask, teacher mask) and the mean distance between matched keypoints divided
   by the frame diagonal × ``KEYPOINT_SCALE`` (capped at 1).
-- ``student_spread``: the promoted student's uncertainty (``StudentPrediction.uncertainty``):
+- ``student_uncertainty``: the promoted student's uncertainty (``StudentPrediction.uncertainty``):
   how much its mask changes under test-time passes (shift, scale, rotation, exposure), combined
   with how unlike its training frames the frame looks to its encoder (``student.predict``).
 
@@ -26,13 +26,13 @@ from numpy.typing import NDArray
 
 from weldpool_core.metrics import iou, match_keypoints
 
-COMPONENTS = ("teacher_iou", "instability", "disagreement", "student_spread")
+COMPONENTS = ("teacher_iou", "instability", "disagreement", "student_uncertainty")
 KEYPOINT_SCALE = 10.0  # a mean error of a tenth of the diagonal counts as full disagreement
 DEFAULT_WEIGHTS = {
     "teacher_iou": 1.0,
     "instability": 1.0,
     "disagreement": 1.0,
-    "student_spread": 1.0,
+    "student_uncertainty": 1.0,
 }
 
 

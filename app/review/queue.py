@@ -36,7 +36,7 @@ def rescore_frame(session: Session, frame: Frame, weights: Mapping[str, float]) 
         )
     student = _latest(session, frame.id, "student")
     if student is not None:
-        components["student_spread"] = student.scores.get("uncertainty")
+        components["student_uncertainty"] = student.scores.get("uncertainty")
         components["disagreement"] = student.scores.get("disagreement")
     frame.uncertainty_components = components or None
     frame.uncertainty = combined_score(components, weights)

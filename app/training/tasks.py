@@ -210,7 +210,8 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
 @job_handler("student", max_attempts=2)
 def student_proposals(ctx: JobContext) -> dict[str, Any]:
     """The promoted student's mask, heatmap and keypoints for frames, with its uncertainty
-    (spread over latent samples) stored on the frame for the review queue."""
+    (test-time passes and novelty, ``weldpool_core.student.predict``) stored on the frame for
+    the review queue."""
     from weldpool_core.student.predict import StudentPredictor
 
     storage = Storage(ctx.settings.home)
@@ -254,6 +255,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
                         timings={},
                         scores={
                             "uncertainty": prediction.uncertainty,
+                            "uncertainty_parts": prediction.uncertainty_parts,
                             "disagreement": disagreement,
                             "mask_fraction": float(prediction.mask.mean()),
                         },

@@ -28,12 +28,17 @@ def test_an_unstable_proposal_ranks_above_a_stable_one() -> None:
 
 
 def test_combined_score_weights_and_missing_parts() -> None:
-    parts = {"teacher_iou": 0.2, "instability": None, "disagreement": 0.8, "student_spread": None}
+    parts = {
+        "teacher_iou": 0.2,
+        "instability": None,
+        "disagreement": 0.8,
+        "student_uncertainty": None,
+    }
     assert combined_score(parts) == pytest.approx(0.5)
     weights = {"teacher_iou": 3.0, "disagreement": 1.0}
     assert combined_score(parts, weights) == pytest.approx((3 * 0.2 + 0.8) / 4)
     assert combined_score({"teacher_iou": None}) is None
-    assert combined_score(parts, {"student_spread": 1.0}) is None
+    assert combined_score(parts, {"student_uncertainty": 1.0}) is None
 
 
 def test_disagreement_between_student_and_teacher() -> None:

@@ -144,7 +144,7 @@ const REASONS = {
   teacher_iou: "SAM2's own doubt about its mask",
   instability: "the mask changing when the prompts move slightly",
   disagreement: "the student disagreeing with the teacher",
-  student_spread: "the student's spread over latent samples",
+  student_uncertainty: "the student's own doubt (unstable under small changes, or unlike what it learnt from)",
 };
 
 function renderFrameInfo() {
