@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import corrected_label, image_bytes, wait_for
+from tests.helpers import corrected_label, image_bytes
 from tests.web.conftest import synthetic_png
 from tests.web.server import LiveServer, login
 from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
@@ -470,11 +470,9 @@ def test_review_switches_between_proposals_and_records_the_one_accepted(
     page.keyboard.press("p")
     page.wait_for_selector(f"[data-proposal-id='{oldest}'][aria-pressed=true]")
     assert page.is_hidden("[data-testid=dirty]")  # no label yet: showing another is no edit
-    page.click("[data-testid=accept]")  # the page may move on to the next frame at once
-    label = wait_for(
-        lambda: (
-            (r := server.api("GET", f"/frames/{frame_id}/label")).status_code == 200 and r.json()
-        )
-    )
+    page.uncheck("#advance")  # stay on this frame after saving
+    page.click("[data-testid=accept]")
+    page.wait_for_selector("[data-testid=toast-ok]")
+    label = server.api("GET", f"/frames/{frame_id}/label").json()
     assert label["status"] == "accepted" and label["proposal_id"] == oldest
     assert label["mask_changed"] is False and newest != oldest
