@@ -9,7 +9,6 @@ from pathlib import Path
 import structlog
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 
@@ -17,6 +16,7 @@ from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
 from app.errors import AuthenticationError, WeldpoolError, http_status_of
 from app.frames.routes import router as frames_router
+from app.headers import SecurityHeaders
 from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
@@ -108,6 +108,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.queue = queue
     app.state.storage = Storage(settings.home)
     app.add_middleware(BodySizeLimit, max_bytes=int(settings.max_request_mb * 2**20))
+    app.add_middleware(SecurityHeaders)
     _install_error_handlers(app)
 
     api = APIRouter(prefix="/api/v1")
@@ -128,7 +129,8 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
 
     @app.get("/docs", include_in_schema=False, dependencies=protected)
     def docs() -> HTMLResponse:
-        return get_swagger_ui_html(openapi_url="/api/v1/openapi.json", title="weldpool API")
+        """Swagger UI from the vendored copy under static/ (works offline)."""
+        return HTMLResponse((ROOT / "templates" / "docs.html").read_text(encoding="utf-8"))
 
     app.mount("/static", StaticFiles(directory=ROOT / "static"), name="static")
     return app

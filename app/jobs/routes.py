@@ -34,9 +34,9 @@ def get_job(job_id: int, session: SessionDep, _user: CurrentUser) -> JobOut:
 
 
 @router.post("/{job_id}/cancel", response_model=JobOut)
-def cancel_job(job_id: int, session: SessionDep, _user: CurrentUser) -> JobOut:
-    """Cancel a queued job, or ask a running one to stop."""
-    return JobOut.model_validate(service.cancel_job(session, job_id))
+def cancel_job(job_id: int, session: SessionDep, user: CurrentUser) -> JobOut:
+    """Cancel a queued job, or ask a running one to stop (its starter, a reviewer or an admin)."""
+    return JobOut.model_validate(service.cancel_job(session, job_id, user))
 
 
 @router.post("/diagnostic", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)

@@ -8,9 +8,15 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import ConfigurationError, ConflictError, InvalidInputError, NotFoundError
+from app.errors import (
+    ConfigurationError,
+    ConflictError,
+    InvalidInputError,
+    NotFoundError,
+    PermissionDeniedError,
+)
 from app.jobs.registry import job_spec
-from app.models import Job, JobStatus, User
+from app.models import Job, JobStatus, Role, User
 from app.queue import JobQueue
 
 
@@ -63,9 +69,17 @@ def list_jobs(
     return list(rows), total
 
 
-def cancel_job(session: Session, job_id: int) -> Job:
-    """Cancel a queued job at once; ask a running one to stop at its next progress report."""
+def cancel_job(session: Session, job_id: int, user: User) -> Job:
+    """Cancel a queued job at once; ask a running one to stop at its next progress report.
+
+    Annotators may cancel only the jobs they started; reviewers and admins any job.
+    """
     job = get_job(session, job_id)
+    if user.role.rank < Role.reviewer.rank and job.created_by_id != user.id:
+        raise PermissionDeniedError(
+            f"Job {job_id} was started by someone else; only they, a reviewer or an admin may "
+            "cancel it."
+        )
     if job.status == JobStatus.queued:
         session.execute(
             sa.update(Job)

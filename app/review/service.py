@@ -31,7 +31,7 @@ from app.models import (
     ValidationKeypoints,
 )
 from app.review.queue import rescore_frame
-from app.storage import Storage
+from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
@@ -39,10 +39,26 @@ EmbeddingSource = Literal["memory", "disk", "computed"]
 # --- artefacts ---------------------------------------------------------------------------------
 
 
+def store_mask_file(storage: Storage, mask: NDArray[np.bool_]) -> StoredFile:
+    """A mask as a content-addressed PNG under artefacts/ (and whether this call wrote it)."""
+    data = encode_mask_png(mask)
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".png", area="artefacts")
+
+
 def store_mask(storage: Storage, mask: NDArray[np.bool_]) -> str:
     """A mask as a content-addressed PNG under artefacts/; returns its relative path."""
-    data = encode_mask_png(mask)
-    return storage.put(data, hashlib.sha256(data).hexdigest(), ".png", area="artefacts").path
+    return store_mask_file(storage, mask).path
+
+
+def _masks_in_use(session: Session, paths: list[str]) -> set[str]:
+    """Which of ``paths`` a committed label revision or proposal names."""
+    used = set(
+        session.scalars(
+            sa.select(LabelRevision.mask_path).where(LabelRevision.mask_path.in_(paths))
+        )
+    )
+    used |= set(session.scalars(sa.select(Proposal.mask_path).where(Proposal.mask_path.in_(paths))))
+    return {p for p in used if p}
 
 
 def store_heatmap(storage: Storage, heatmap: NDArray[np.float32]) -> str:
@@ -284,6 +300,7 @@ def save_label(
             f"Only reviewers may mark a label {status.value}; save it as corrected instead."
         )
     proposal = pick(session, storage, frame.id, proposal_id=proposal_id)
+    mask: NDArray[np.bool_] | None = None
     mask_path: str | None = None
     if status == LabelStatus.rejected:
         keypoints = None
@@ -296,7 +313,6 @@ def save_label(
             )
         if not mask.any():
             raise InvalidInputError("The mask is empty; reject the frame instead.")
-        mask_path = store_mask(storage, mask)
         keypoints = check_keypoints(frame, keypoints) if keypoints else _keypoints_for(mask)
     elif proposal is not None:
         mask_path = proposal.mask_path
@@ -307,17 +323,20 @@ def save_label(
         )
 
     mask_changed: bool | None = None
-    if mask_path is not None:
-        mask_changed = proposal is None or (
-            mask_path != proposal.mask_path
-            and not np.array_equal(
-                load_mask(storage, mask_path), load_mask(storage, proposal.mask_path)
-            )
+    if mask is not None:
+        mask_changed = proposal is None or not np.array_equal(
+            mask, load_mask(storage, proposal.mask_path)
         )
+    elif mask_path is not None:
+        mask_changed = False
     label = current_label(session, frame.id)
     current = label.revision if label else 0
-    if base_revision != current:
+    if base_revision != current:  # refused before anything is written
         raise StaleRevision(current)
+    stored: StoredFile | None = None
+    if mask is not None:
+        stored = store_mask_file(storage, mask)
+        mask_path = stored.path
     values = {
         "status": status,
         "mask_path": mask_path,
@@ -354,9 +373,13 @@ def save_label(
         )
         frame.status = FrameStatus(status.value)
         session.commit()
-    except sa.exc.IntegrityError:  # two first labels at once: the second is stale
+    except BaseException as exc:
         session.rollback()
-        raise StaleRevision(current_revision(session, frame.id)) from None
+        if stored is not None:
+            storage.discard([stored], in_use=_masks_in_use(session, [stored.path]))
+        if isinstance(exc, sa.exc.IntegrityError):  # two first labels at once: this one is stale
+            raise StaleRevision(current_revision(session, frame.id)) from None
+        raise
     session.refresh(label)
     return label
 

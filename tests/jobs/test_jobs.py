@@ -105,6 +105,36 @@ def test_cancel_running_and_queued_jobs(client: TestClient, make_user, session_f
     assert client.get(f"/api/v1/jobs/{queued.id}", headers=auth(token)).json()["attempts"] == 0
 
 
+def test_an_annotator_cancels_only_their_own_jobs(
+    client: TestClient, make_user, session_factory
+) -> None:
+    mine, mine_token = make_user("ann-one")
+    other, other_token = make_user("ann-two")
+    _, reviewer_token = make_user("rev", Role.reviewer)
+    queue = client.app.state.queue
+    release.clear()
+    try:
+        with session_factory() as session:
+            first = create_job(session, queue, "test-wait", {}, mine)
+            second = create_job(session, queue, "test-wait", {}, mine)
+        refused = client.post(f"/api/v1/jobs/{first.id}/cancel", headers=auth(other_token))
+        assert refused.status_code == 403
+        assert "started by someone else" in refused.json()["detail"]
+        assert (
+            client.get(f"/api/v1/jobs/{first.id}", headers=auth(other_token)).json()[
+                "cancel_requested"
+            ]
+            is False
+        )
+        own = client.post(f"/api/v1/jobs/{first.id}/cancel", headers=auth(mine_token))
+        assert own.status_code == 200 and own.json()["cancel_requested"] is True
+        by_reviewer = client.post(f"/api/v1/jobs/{second.id}/cancel", headers=auth(reviewer_token))
+        assert by_reviewer.status_code == 200 and by_reviewer.json()["cancel_requested"] is True
+        assert other.id != mine.id
+    finally:
+        release.set()
+
+
 def test_unknown_job_is_404(client: TestClient, make_user) -> None:
     _, token = make_user("someone")
     response = client.get("/api/v1/jobs/12345", headers=auth(token))

@@ -107,6 +107,41 @@ def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
     assert empty.status_code == 400
 
 
+def _artefact_masks(client: TestClient) -> set[str]:
+    home = client.app.state.storage.home
+    return {p.name for p in (home / "artefacts").rglob("*.png")}
+
+
+def test_a_refused_label_save_writes_no_mask_file(client: TestClient, people, monkeypatch) -> None:
+    """A stale save (409) is refused before its mask is written; a save that loses the race
+    after writing (two first labels at once) removes the file it wrote."""
+    import app.review.service as review_service
+
+    rita = people["reviewer"]
+    frame_id = _upload_synthetic(client, rita, 1)[0]
+    url = f"/api/v1/frames/{frame_id}/label"
+    first_mask = np.zeros((100, 160), bool)
+    first_mask[20:80, 30:130] = True
+    assert client.put(url, json=corrected_label(first_mask), headers=auth(rita)).status_code == 200
+    before = _artefact_masks(client)
+
+    other = np.zeros((100, 160), bool)
+    other[10:50, 10:60] = True
+    stale = client.put(url, json=corrected_label(other, base_revision=0), headers=auth(rita))
+    assert stale.status_code == 409
+    assert _artefact_masks(client) == before
+
+    # The race: the revision check saw no label, the insert then finds one.
+    monkeypatch.setattr(review_service, "current_label", lambda session, frame_id: None)
+    lost = client.put(url, json=corrected_label(other, base_revision=0), headers=auth(rita))
+    assert lost.status_code == 409 and lost.json()["revision"] == 1
+    assert _artefact_masks(client) == before
+    monkeypatch.undo()
+    # The same content saved for real is stored and kept.
+    kept = client.put(url, json=corrected_label(other, base_revision=1), headers=auth(rita))
+    assert kept.status_code == 200 and len(_artefact_masks(client)) == len(before) + 1
+
+
 def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> None:
     rita, otto, anna = people["reviewer"], people["other"], people["annotator"]
     frame_id = _upload_synthetic(client, rita, 1)[0]

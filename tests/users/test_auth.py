@@ -216,3 +216,22 @@ def test_login_never_redirects_off_site(client: TestClient, make_user, target: s
     response = _login(client, "erin", "right-password", target)
     assert response.status_code == 303
     assert response.headers["location"] == "/"
+
+
+def test_every_response_carries_the_security_headers(client: TestClient, make_user) -> None:
+    """nosniff, no framing and the CSP: on a page, the API, an error, a static file."""
+    _, token = make_user("headers")
+    answers = [
+        client.get("/login"),
+        client.get("/api/v1/health"),
+        client.get("/api/v1/frames/999999", headers=auth(token)),
+        client.get("/api/v1/jobs", headers=auth(token)),
+        client.get("/static/css/app.css"),
+    ]
+    assert [a.status_code for a in answers] == [200, 200, 404, 200, 200]
+    for answer in answers:
+        assert answer.headers["x-content-type-options"] == "nosniff"
+        assert answer.headers["x-frame-options"] == "DENY"
+        policy = answer.headers["content-security-policy"]
+        assert "frame-ancestors 'none'" in policy and "script-src 'self'" in policy
+        assert "unsafe-inline" not in policy

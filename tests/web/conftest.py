@@ -40,12 +40,19 @@ def browser() -> Iterator[Any]:
 
 @pytest.fixture
 def page(browser: Any) -> Iterator[Any]:
-    """A fresh browser context at 1280×800; a JavaScript error on the page fails the test."""
+    """A fresh browser context at 1280×800; a JavaScript error on the page, or anything the
+    Content-Security-Policy blocked, fails the test."""
     context = browser.new_context(viewport=VIEWPORT)
     context.set_default_timeout(20_000)
     tab = context.new_page()
     errors: list[str] = []
     tab.on("pageerror", lambda error: errors.append(str(error)))
+    tab.on(
+        "console",
+        lambda message: (
+            errors.append(message.text) if "Content Security Policy" in message.text else None
+        ),
+    )
     yield tab
     context.close()
     assert not errors, f"JavaScript errors on the page: {errors}"

@@ -158,3 +158,19 @@ def login(page: Any, server: LiveServer, user: str = "rita") -> None:
     page.fill("input[name=password]", PASSWORD)
     page.click("[data-testid=login-submit]")
     page.wait_for_url(f"{server.url}/")
+
+
+def wait_for_js(page: Any, predicate: str, arg: Any = None, timeout: float = 20_000) -> None:
+    """Poll a JavaScript predicate until it is true (``timeout`` in ms).
+
+    Playwright's ``wait_for_function`` re-evaluates its predicate with ``eval``, which the
+    pages' Content-Security-Policy forbids; ``page.evaluate`` runs through the DevTools
+    protocol, which the policy does not cover.
+    """
+    import time
+
+    deadline = time.monotonic() + timeout / 1000
+    while not page.evaluate(predicate, arg):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"Timed out after {timeout:.0f} ms waiting for: {predicate}")
+        page.wait_for_timeout(50)

@@ -15,7 +15,7 @@ import pytest
 
 from tests.helpers import corrected_label, image_bytes
 from tests.web.conftest import synthetic_png
-from tests.web.server import LiveServer, login
+from tests.web.server import LiveServer, login, wait_for_js
 from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
 from weldpool_core.synth import SynthParams, synth_frame
 
@@ -51,6 +51,29 @@ def test_pages_redirect_to_login(browser: Any, server: LiveServer) -> None:
             assert page.is_visible("input[name=username]")
     finally:
         context.close()
+
+
+def test_the_api_page_works_offline_under_the_content_security_policy(
+    page: Any, server: LiveServer
+) -> None:
+    """Swagger UI comes from static/, not a CDN: with every other host unreachable it renders
+    the schema; the page fixture fails on anything the CSP blocks."""
+    elsewhere: list[str] = []
+
+    def only_this_server(route: Any) -> None:
+        if route.request.url.startswith(server.url):
+            route.continue_()
+        else:
+            elsewhere.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", only_this_server)
+    login(page, server, "rita")
+    response = page.goto(f"{server.url}/docs")
+    assert "frame-ancestors 'none'" in response.headers["content-security-policy"]
+    page.wait_for_selector(".swagger-ui .opblock-tag", timeout=20_000)
+    assert page.locator(".swagger-ui .title").first.inner_text().startswith("weldpool")
+    assert elsewhere == []
 
 
 def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screenshots: Path) -> None:
@@ -232,9 +255,7 @@ def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> 
     page.click("[data-testid=save]")
     dialog.wait_for()
     page.click("[data-testid=conflict-reload]")
-    page.wait_for_function(
-        "(sel) => document.querySelector(sel)?.dataset.revision === '3'", arg=CANVAS
-    )
+    wait_for_js(page, "(sel) => document.querySelector(sel)?.dataset.revision === '3'", arg=CANVAS)
     open_review(page)
     assert page.is_hidden("[data-testid=dirty]")
     assert page.locator("#frame-state .badge").inner_text() == "accepted"
@@ -271,7 +292,8 @@ def test_teacher_button_undo_redo_zoom_and_unsaved_warning(page: Any, server: Li
     fitted = canvas_data(page, "view")["scale"]
     page.mouse.move(*to_page(page, 640, 400))
     page.mouse.wheel(0, -400)
-    page.wait_for_function(
+    wait_for_js(
+        page,
         "([sel, s]) => JSON.parse(document.querySelector(sel).dataset.view).scale > s * 1.5",
         arg=[CANVAS, fitted],
     )
@@ -303,7 +325,8 @@ def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> No
     page.goto(f"{server.url}/jobs")
     row = page.locator(f"[data-testid=job-row][data-job-id='{job['job_id']}']")
     row.locator(".badge.running").wait_for(timeout=20_000)
-    page.wait_for_function(
+    wait_for_js(
+        page,
         "(id) => Number(document.querySelector(`[data-job-id='${id}'] [role=progressbar]`)"
         ".getAttribute('aria-valuenow')) > 0",
         arg=job["job_id"],
@@ -323,7 +346,8 @@ def test_box_negative_click_and_keypoint_removal(page: Any, server: LiveServer) 
     area = canvas_data(page, "mask-area")
     page.click("[data-testid=tool-box]")
     stroke(page, (300, 250), (1000, 700))
-    page.wait_for_function(
+    wait_for_js(
+        page,
         "([sel, before]) => { const c = document.querySelector(sel);"
         " return c.dataset.pending === '0' && Number(c.dataset.maskArea) !== before; }",
         arg=[CANVAS, area],
@@ -336,9 +360,7 @@ def test_box_negative_click_and_keypoint_removal(page: Any, server: LiveServer) 
     page.mouse.click(*to_page(page, 650, 450))
     page.keyboard.up("Shift")
     assert canvas_data(page, "clicks") == 1
-    page.wait_for_function(
-        "(sel) => document.querySelector(sel).dataset.pending === '0'", arg=CANVAS
-    )
+    wait_for_js(page, "(sel) => document.querySelector(sel).dataset.pending === '0'", arg=CANVAS)
     assert "SAM2 IoU" in page.inner_text("[data-testid=last-click]")
     page.keyboard.press("Escape")  # end the click session, keep the mask
     assert canvas_data(page, "clicks") == 0
@@ -381,17 +403,17 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     assert page.inner_text("[data-testid=page-info]") == "1–50 of 53"
     assert page.locator("[data-testid=frame-row]").count() == 50
     page.click("#next-page")
-    page.wait_for_function(
-        "document.querySelector('[data-testid=page-info]').textContent === '51–53 of 53'"
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '51–53 of 53'"
     )
     assert "offset=50" in page.url
     page.select_option("select[name=status]", "accepted")
-    page.wait_for_function(
-        "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
     )
     page.select_option("select[name=status]", "")
-    page.wait_for_function(
-        "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 53'"
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 53'"
     )
 
     # Dropping files on the drop zone uploads them, each with its own progress bar.
@@ -410,8 +432,8 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
         page.wait_for_selector(
             f"[data-testid=upload-item][data-name='dropped-{i}.png'][data-state=ok]"
         )
-    page.wait_for_function(
-        "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 55'"
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 55'"
     )
 
 

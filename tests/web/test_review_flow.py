@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from tests.web.conftest import synthetic_png
-from tests.web.server import LiveServer, login
+from tests.web.server import LiveServer, login, wait_for_js
 from weldpool_core.io import decode_mask_png
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -33,7 +33,8 @@ def to_page(page: Any, x: float, y: float) -> tuple[float, float]:
 
 
 def wait_for_mask_change(page: Any, before: int) -> int:
-    page.wait_for_function(
+    wait_for_js(
+        page,
         "([sel, before]) => { const c = document.querySelector(sel);"
         " return c.dataset.pending === '0' && Number(c.dataset.maskArea) !== before; }",
         arg=[CANVAS, before],
@@ -73,7 +74,7 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     refused = page.locator("[data-testid=upload-item][data-name='notes.txt'][data-state=refused]")
     refused.wait_for()
     assert "refused:" in refused.inner_text()
-    page.wait_for_function("document.querySelectorAll('[data-testid=frame-row]').length === 2")
+    wait_for_js(page, "document.querySelectorAll('[data-testid=frame-row]').length === 2")
     rows = page.locator("[data-testid=frame-row]")
     frame_ids = [int(rows.nth(i).get_attribute("data-frame-id")) for i in range(2)]
     # No uncertainty yet: the queue falls back to upload order.
@@ -83,14 +84,15 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     # The teacher proposes masks for the selection (a real job with the tiny teacher).
     page.check("#select-all")
     page.click("[data-testid=teacher-selection]")
-    page.wait_for_function(
+    wait_for_js(
+        page,
         "document.querySelectorAll('[data-testid=frame-row] .badge.proposed').length === 2",
         timeout=120_000,
     )
 
     # The proposals gave the frames uncertainty scores: the queue is now ordered by them.
     page.reload()
-    page.wait_for_function("document.querySelectorAll('[data-testid=frame-row]').length === 2")
+    wait_for_js(page, "document.querySelectorAll('[data-testid=frame-row]').length === 2")
     rows = page.locator("[data-testid=frame-row]")
     queue = [int(rows.nth(i).get_attribute("data-frame-id")) for i in range(2)]
     assert sorted(queue) == frame_ids
