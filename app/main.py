@@ -6,6 +6,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+import sqlalchemy as sa
 import structlog
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -62,6 +63,18 @@ def _install_error_handlers(app: FastAPI) -> None:
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]
         return JSONResponse(
             {"detail": _validation_sentence(exc), "errors": errors}, status_code=422
+        )
+
+    @app.exception_handler(sa.exc.DataError)
+    async def data_error(request: Request, exc: sa.exc.DataError) -> Response:
+        # A value the schemas let through but the database cannot hold: the client's mistake.
+        log.warning("request.data_error", path=request.url.path, error=str(exc.orig)[:200])
+        return JSONResponse(
+            {
+                "detail": "A value in the request is out of range or not storable (e.g. a NUL "
+                "character); check the numbers and text you sent."
+            },
+            status_code=400,
         )
 
     @app.exception_handler(Exception)

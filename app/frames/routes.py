@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
+import email.message
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
 from starlette.datastructures import FormData, UploadFile
 
+from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames import service
@@ -52,13 +54,33 @@ async def _form(request: Request, max_files: int) -> FormData:
     return await request.form(max_files=max_files, max_fields=64)
 
 
+def _client_name(upload: UploadFile) -> str:
+    """The file name exactly as the client sent it.
+
+    The multipart parser keeps only what follows the last backslash of a name that looks like
+    a Windows path (``C:\\Windows\\x.png`` becomes ``x.png``), which would slip past the rule
+    that names with path parts are refused; so the part's own header is read again here.
+    """
+    raw = upload.headers.get("content-disposition")
+    if raw:
+        header = email.message.Message()
+        header["content-disposition"] = raw
+        name = header.get_filename()
+        if name is not None:
+            return str(name)
+    return upload.filename or ""
+
+
 def _optional_int(form: FormData, name: str, default: int | None = None) -> int | None:
     value = form.get(name)
     if value is None or value == "":
         return default
     if not isinstance(value, str) or not value.strip().lstrip("-").isdigit():
         raise InvalidInputError(f"{name} must be an integer.")
-    return int(value)
+    number = int(value)
+    if abs(number) > MAX_ID:
+        raise InvalidInputError(f"{name} must be at most {MAX_ID}.")
+    return number
 
 
 # --- sequences ---------------------------------------------------------------------------------
@@ -83,14 +105,14 @@ def list_sequences(session: SessionDep, _user: CurrentUser) -> list[SequenceOut]
 
 
 @router.get("/sequences/{sequence_id}", response_model=SequenceOut)
-def get_sequence(sequence_id: int, session: SessionDep, _user: CurrentUser) -> SequenceOut:
+def get_sequence(sequence_id: IdPath, session: SessionDep, _user: CurrentUser) -> SequenceOut:
     sequence = service.get_sequence(session, sequence_id)
     return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
 
 
 @router.patch("/sequences/{sequence_id}", response_model=SequenceOut)
 def update_sequence(
-    sequence_id: int, body: SequencePatch, session: SessionDep, _user: CurrentUser
+    sequence_id: IdPath, body: SequencePatch, session: SessionDep, _user: CurrentUser
 ) -> SequenceOut:
     """Change a weld run's name, process parameters or notes."""
     sequence = service.update_sequence(
@@ -132,7 +154,7 @@ async def upload_frames(
     uploads = [u for u in form.getlist("files") if isinstance(u, UploadFile)]
     if not uploads:
         raise InvalidInputError("The request has no `files` part; attach one or more frames.")
-    files = [service.IncomingFile(u.filename or "", await u.read()) for u in uploads]
+    files = [service.IncomingFile(_client_name(u), await u.read()) for u in uploads]
     await form.close()
     result = await run_in_threadpool(
         service.ingest_frames,
@@ -168,7 +190,7 @@ def list_frames(
     session: SessionDep,
     settings: SettingsDep,
     _user: CurrentUser,
-    sequence_id: int | None = None,
+    sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: FrameStatus | None = None,
     split: Split | None = None,
     order: str = Query(
@@ -177,7 +199,7 @@ def list_frames(
         description="`uncertainty`: the active-learning queue, most unsure first.",
     ),
     limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0),
+    offset: OffsetQuery = 0,
 ) -> FramePage:
     """Frames, filtered and paginated."""
     rows, total = service.list_frames(
@@ -198,7 +220,7 @@ def list_frames(
 
 @router.get("/frames/{frame_id}", response_model=FrameDetail)
 def get_frame(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> FrameDetail:
     """A frame's metadata with its label and the state of the proposal the policy shows."""
     frame = service.get_frame(session, frame_id)
@@ -215,7 +237,7 @@ def get_frame(
     },
 )
 def get_frame_image(
-    frame_id: int,
+    frame_id: IdPath,
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
@@ -275,7 +297,7 @@ async def upload_video(
             session,
             storage,
             upload.file,
-            name=upload.filename or "",
+            name=_client_name(upload),
             every_nth=every_nth,
             sequence_id=sequence_id,
             user=user,

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import datetime as dt
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from app.bounds import InputModel
 from app.models import FrameStatus, LabelStatus, Split
 
 
-class SequenceIn(BaseModel):
+class SequenceIn(InputModel):
     """A weld run and its process parameters (the paper's Table I)."""
 
     name: str = Field(min_length=1, max_length=200)
@@ -27,7 +28,7 @@ class SequenceIn(BaseModel):
     notes: str = Field(default="", max_length=10_000)
 
 
-class SequencePatch(BaseModel):
+class SequencePatch(InputModel):
     name: str | None = Field(default=None, min_length=1, max_length=200)
     wire_feed_m_min: float | None = Field(default=None, ge=0)
     voltage_v: float | None = Field(default=None, ge=0)
@@ -37,6 +38,13 @@ class SequencePatch(BaseModel):
     synergic_law: str | None = Field(default=None, max_length=200)
     joint_type: str | None = Field(default=None, max_length=64)
     notes: str | None = Field(default=None, max_length=10_000)
+
+    @model_validator(mode="after")
+    def _name_and_notes_are_never_null(self) -> SequencePatch:
+        for field in ("name", "notes"):
+            if field in self.model_fields_set and getattr(self, field) is None:
+                raise ValueError(f"{field} cannot be null; leave it out to keep it")
+        return self
 
 
 class SequenceOut(SequenceIn):

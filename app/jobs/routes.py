@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Query, status
 
+from app.bounds import IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep
 from app.jobs import service
 from app.jobs.schemas import DiagnosticJobIn, JobCreated, JobOut, JobPage
@@ -20,7 +21,7 @@ def list_jobs(
     kind: str | None = None,
     status: JobStatus | None = None,
     limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0),
+    offset: OffsetQuery = 0,
 ) -> JobPage:
     """Recent jobs, newest first."""
     rows, total = service.list_jobs(session, kind, status, limit, offset)
@@ -28,13 +29,13 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=JobOut)
-def get_job(job_id: int, session: SessionDep, _user: CurrentUser) -> JobOut:
+def get_job(job_id: IdPath, session: SessionDep, _user: CurrentUser) -> JobOut:
     """One job's status, progress, result or error."""
     return JobOut.model_validate(service.get_job(session, job_id))
 
 
 @router.post("/{job_id}/cancel", response_model=JobOut)
-def cancel_job(job_id: int, session: SessionDep, user: CurrentUser) -> JobOut:
+def cancel_job(job_id: IdPath, session: SessionDep, user: CurrentUser) -> JobOut:
     """Cancel a queued job, or ask a running one to stop (its starter, a reviewer or an admin)."""
     return JobOut.model_validate(service.cancel_job(session, job_id, user))
 

@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.bounds import InputModel
 from app.models import JobStatus
 
 
@@ -40,7 +41,7 @@ class JobCreated(BaseModel):
     job_id: int
 
 
-class DiagnosticJobIn(BaseModel):
+class DiagnosticJobIn(InputModel):
     """A job that waits and reports progress, to prove that workers run jobs."""
 
     seconds: float = Field(default=1.0, ge=0, le=3600)

@@ -11,6 +11,7 @@ from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
+from app.bounds import MAX_ID, IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError, NotFoundError
 from app.frames.service import get_frame
@@ -73,7 +74,7 @@ ProposalQuery = Annotated[
 
 
 def _shown_proposal(
-    frame_id: int,
+    frame_id: IdPath,
     session: SessionDep,
     storage: StorageDep,
     source: SourceQuery = None,
@@ -109,7 +110,7 @@ def _summary(proposal, chosen: int | None) -> ProposalSummary:  # type: ignore[n
 
 @router.get("/frames/{frame_id}/proposal", response_model=ProposalOut)
 def get_proposal(
-    frame_id: int,
+    frame_id: IdPath,
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
@@ -128,7 +129,7 @@ def get_proposal(
 
 @router.get("/frames/{frame_id}/proposals", response_model=ProposalList)
 def list_proposals(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> ProposalList:
     """Every proposal the frame has, newest first, with its source and scores; `chosen` marks
     the one the policy shows, and `policy` says why that source."""
@@ -189,7 +190,7 @@ def get_proposal_heatmap_npy(
 
 @router.post("/frames/{frame_id}/segment", response_model=SegmentOut)
 def segment(
-    frame_id: int,
+    frame_id: IdPath,
     body: SegmentIn,
     session: SessionDep,
     storage: StorageDep,
@@ -235,7 +236,7 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
 
 @router.get("/frames/{frame_id}/label", response_model=LabelOut)
 def get_label(
-    frame_id: int, session: SessionDep, storage: StorageDep, _user: CurrentUser
+    frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> LabelOut:
     """The frame's current label."""
     get_frame(session, frame_id)
@@ -252,7 +253,7 @@ def get_label(
     responses={409: {"description": "base_revision is stale; the body has `revision`."}},
 )
 def put_label(
-    frame_id: int,
+    frame_id: IdPath,
     body: LabelIn,
     session: SessionDep,
     storage: StorageDep,
@@ -280,7 +281,7 @@ def put_label(
 
 @router.get("/frames/{frame_id}/label/history", response_model=list[LabelRevisionOut])
 def get_label_history(
-    frame_id: int, session: SessionDep, _user: CurrentUser
+    frame_id: IdPath, session: SessionDep, _user: CurrentUser
 ) -> list[LabelRevisionOut]:
     """Every change of the frame's label: who, when, what."""
     get_frame(session, frame_id)
@@ -299,7 +300,7 @@ def get_label_history(
 
 @router.put("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
 def put_validation_keypoints(
-    frame_id: int, body: KeypointsIn, session: SessionDep, user: CurrentUser
+    frame_id: IdPath, body: KeypointsIn, session: SessionDep, user: CurrentUser
 ) -> KeypointsOut:
     """Keypoints placed by hand; the frame joins the validation split."""
     row = service.save_validation_keypoints(
@@ -310,7 +311,7 @@ def put_validation_keypoints(
 
 @router.get("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
 def get_validation_keypoints(
-    frame_id: int, session: SessionDep, _user: CurrentUser
+    frame_id: IdPath, session: SessionDep, _user: CurrentUser
 ) -> KeypointsOut:
     get_frame(session, frame_id)
     row = service.get_validation_keypoints(session, frame_id)
@@ -325,7 +326,7 @@ def export(
     storage: StorageDep,
     _user: CurrentUser,
     format: Literal["coco", "masks"] = "masks",
-    sequence_id: int | None = None,
+    sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     split: Split | None = None,
 ) -> FileResponse:
     """A zip of the accepted and corrected labels: COCO, or the DATASET layout of

@@ -3,18 +3,23 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, model_validator
 
+from app.bounds import MAX_ID, Id, InputModel
 from app.models import LabelStatus
 
+MAX_KEYPOINTS = 64
+"""Most keypoints a label or a validation set of one frame may hold."""
+XY = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y] in pixels")]
 
-class TeacherRunIn(BaseModel):
+
+class TeacherRunIn(InputModel):
     """Which frames the teacher should propose masks for."""
 
-    frame_ids: list[int] | None = Field(default=None, max_length=100_000)
-    sequence_id: int | None = None
+    frame_ids: list[Id] | None = Field(default=None, max_length=100_000)
+    sequence_id: Id | None = None
     prompts: Literal["none", "center", "heuristic"] = "heuristic"
     force: bool = Field(default=False, description="Propose again for frames already seen.")
 
@@ -52,13 +57,13 @@ class ProposalList(BaseModel):
     )
 
 
-class Point(BaseModel):
+class Point(InputModel):
     x: float
     y: float
     positive: bool = True
 
 
-class SegmentIn(BaseModel):
+class SegmentIn(InputModel):
     """Clicks and/or a box in frame pixels, optionally refining a previous mask."""
 
     points: list[Point] = Field(default_factory=list, max_length=64)
@@ -78,17 +83,15 @@ class SegmentOut(BaseModel):
     embedding: Literal["memory", "disk", "computed"]
 
 
-class LabelIn(BaseModel):
+class LabelIn(InputModel):
     """A reviewer's verdict; ``base_revision`` is the revision you saw (0: no label yet)."""
 
     status: LabelStatus
-    base_revision: int = Field(ge=0)
+    base_revision: int = Field(ge=0, le=MAX_ID)
     mask_png: str | None = Field(default=None, description="A corrected mask (base64 PNG).")
-    keypoints: list[list[float]] | None = None
-    proposal_id: int | None = Field(
+    keypoints: list[XY] | None = Field(default=None, max_length=MAX_KEYPOINTS)
+    proposal_id: Id | None = Field(
         default=None,
-        ge=1,
-        le=2**31 - 1,
         description="The proposal the label started from (default: the one the policy shows).",
     )
 
@@ -120,8 +123,8 @@ class LabelRevisionOut(BaseModel):
     created_at: dt.datetime
 
 
-class KeypointsIn(BaseModel):
-    keypoints: list[list[float]] = Field(min_length=1, max_length=64)
+class KeypointsIn(InputModel):
+    keypoints: list[XY] = Field(min_length=1, max_length=MAX_KEYPOINTS)
 
 
 class KeypointsOut(BaseModel):

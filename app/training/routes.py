@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
+from app.bounds import IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError
 from app.jobs.schemas import JobCreated
@@ -49,7 +50,7 @@ def list_models(session: SessionDep, _user: CurrentUser) -> list[ModelVersionOut
 
 
 @router.get("/models/{model_id}", response_model=ModelVersionOut)
-def get_model(model_id: int, session: SessionDep, _user: CurrentUser) -> ModelVersionOut:
+def get_model(model_id: IdPath, session: SessionDep, _user: CurrentUser) -> ModelVersionOut:
     return ModelVersionOut.model_validate(service.get_model(session, model_id))
 
 
@@ -61,7 +62,7 @@ def get_model(model_id: int, session: SessionDep, _user: CurrentUser) -> ModelVe
     },
 )
 def promote(
-    model_id: int,
+    model_id: IdPath,
     session: SessionDep,
     storage: StorageDep,
     settings: SettingsDep,

@@ -7,8 +7,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.bounds import Id, InputModel
 
-class TrainIn(BaseModel):
+
+class TrainIn(InputModel):
     """Options of a training job; the defaults suit a CPU worker."""
 
     epochs: int | None = Field(default=None, ge=1, le=1000)
@@ -34,11 +36,11 @@ class TrainIn(BaseModel):
     pseudo_weight: float = Field(default=0.5, gt=0.0, le=1.0)
 
 
-class StudentRunIn(BaseModel):
+class StudentRunIn(InputModel):
     """Which frames the promoted student should propose for."""
 
-    frame_ids: list[int] | None = Field(default=None, max_length=100_000)
-    sequence_id: int | None = None
+    frame_ids: list[Id] | None = Field(default=None, max_length=100_000)
+    sequence_id: Id | None = None
 
 
 class ModelVersionOut(BaseModel):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
+from app.bounds import IdPath
 from app.deps import SessionDep
 from app.security import AdminUser, CurrentUser
 from app.users import service
@@ -33,7 +34,9 @@ def create_user(body: UserIn, session: SessionDep, _admin: AdminUser) -> UserOut
 
 
 @router.patch("/users/{user_id}", response_model=UserOut)
-def update_user(user_id: int, body: UserPatch, session: SessionDep, _admin: AdminUser) -> UserOut:
+def update_user(
+    user_id: IdPath, body: UserPatch, session: SessionDep, _admin: AdminUser
+) -> UserOut:
     """Change a user's role, activity or password (admins only)."""
     user = service.get_user(session, user_id)
     return UserOut.model_validate(
@@ -57,6 +60,6 @@ def create_token(body: TokenIn, session: SessionDep, user: CurrentUser) -> Token
 
 
 @router.delete("/tokens/{token_id}", response_model=TokenOut)
-def revoke_token(token_id: int, session: SessionDep, user: CurrentUser) -> TokenOut:
+def revoke_token(token_id: IdPath, session: SessionDep, user: CurrentUser) -> TokenOut:
     """Revoke a token (one's own; admins any)."""
     return TokenOut.model_validate(service.revoke_token(session, token_id, user))

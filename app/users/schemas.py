@@ -6,6 +6,7 @@ import datetime as dt
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.bounds import InputModel
 from app.models import Role
 
 USERNAME_PATTERN = r"^[A-Za-z0-9_.@-]{1,64}$"
@@ -21,13 +22,13 @@ class UserOut(BaseModel):
     created_at: dt.datetime
 
 
-class UserIn(BaseModel):
+class UserIn(InputModel):
     username: str = Field(pattern=USERNAME_PATTERN)
     password: str = Field(min_length=8, max_length=1024)
     role: Role = Role.annotator
 
 
-class UserPatch(BaseModel):
+class UserPatch(InputModel):
     role: Role | None = None
     is_active: bool | None = None
     password: str | None = Field(default=None, min_length=8, max_length=1024)
@@ -44,7 +45,7 @@ class TokenOut(BaseModel):
     revoked_at: dt.datetime | None
 
 
-class TokenIn(BaseModel):
+class TokenIn(InputModel):
     name: str = Field(default="", max_length=64)
 
 

@@ -12,6 +12,7 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
+from app.bounds import IdPath
 from app.deps import SessionDep, SettingsDep
 from app.models import User
 from app.security import (
@@ -120,7 +121,7 @@ def home(request: Request, _user: LoggedIn) -> Response:
 
 
 @router.get("/frames/{frame_id}")
-def review(request: Request, frame_id: int, _user: LoggedIn) -> Response:
+def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
     """Review one frame: mask, keypoints, click corrections, verdict; validation keypoints."""
     return render(request, "review.html", page="review", frame_id=frame_id)
 

@@ -138,6 +138,7 @@ def test_mixed_batch_stores_the_good_and_names_each_refusal(
         ("bomb.png", _bomb()),
         ("../../etc/evil.png", image_bytes(seed=13)),
         ("dir\\evil.png", image_bytes(seed=14)),
+        ("C:\\Windows\\evil.png", image_bytes(seed=15)),  # the parser alone keeps "evil.png"
     ]
     response = _upload(client, token, good[:1] + bad + good[1:])
     assert response.status_code == 201
@@ -152,6 +153,7 @@ def test_mixed_batch_stores_the_good_and_names_each_refusal(
     assert "more than the limit" in reasons["bomb.png"]
     assert "path parts" in reasons["../../etc/evil.png"]
     assert "path parts" in reasons["dir\\evil.png"]
+    assert "path parts" in reasons["C:\\Windows\\evil.png"]
     assert len(_stored_files(settings)) == 2  # nothing of the refused files was written
     assert not list(settings.home.parent.rglob("evil.png"))
     assert client.get("/api/v1/frames", headers=auth(token)).json()["total"] == 2

@@ -107,6 +107,13 @@ def test_video_refusals(client: TestClient, token: str, tmp_path: Path, settings
     good = synthetic_avi(tmp_path / "good.avi")
     assert _upload(client, token, good, every_nth="0").status_code == 400
     assert _upload(client, token, good, sequence_id="77").status_code == 404
+    with open(good, "rb") as handle:
+        windows = client.post(
+            "/api/v1/videos",
+            files={"file": ("C:\\Users\\me\\good.avi", handle, "video/avi")},
+            headers=auth(token),
+        )
+    assert windows.status_code == 400 and "path parts" in windows.json()["detail"]
     videos = settings.home / "videos"
     assert not videos.exists() or not [p for p in videos.rglob("*") if p.is_file()]
     assert client.get("/api/v1/jobs", headers=auth(token)).json()["total"] == 0

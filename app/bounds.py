@@ -1,0 +1,43 @@
+"""Bounds shared by every input of the API: ids, offsets, numbers and text.
+
+Ids are PostgreSQL ``INTEGER`` columns (SQLite's are wider), so an id or offset above 2³¹ − 1
+is refused with a 422 by the schema rather than reaching the database. Input bodies refuse
+NaN and ±Infinity and text with a NUL character (PostgreSQL cannot store one).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import Path, Query
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+MAX_ID = 2**31 - 1
+"""Largest id or offset the API accepts (PostgreSQL INTEGER)."""
+
+Id = Annotated[int, Field(ge=1, le=MAX_ID)]
+IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
+OffsetQuery = Annotated[int, Query(ge=0, le=MAX_ID)]
+
+
+def _has_nul(value: Any) -> bool:
+    if isinstance(value, str):
+        return "\x00" in value
+    if isinstance(value, dict):
+        return any(_has_nul(k) or _has_nul(v) for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return any(_has_nul(v) for v in value)
+    return False
+
+
+class InputModel(BaseModel):
+    """Base of request bodies: finite numbers only, no NUL in any text."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_nul(cls, data: Any) -> Any:
+        if _has_nul(data):
+            raise ValueError("text must not contain NUL characters")
+        return data
