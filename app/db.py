@@ -16,7 +16,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 
-from app.errors import ConfigurationError
+from app.errors import ConfigurationError, ConflictError
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 
@@ -64,6 +64,19 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cursor.execute("PRAGMA busy_timeout=10000")
     cursor.execute("PRAGMA synchronous=NORMAL")
     cursor.close()
+
+
+def commit_or_conflict(session: Session, message: str) -> None:
+    """Commit; a unique constraint hit by a concurrent writer becomes ConflictError(message).
+
+    Checks before an insert ("is the name free?") cannot see a writer that commits between the
+    check and this commit; the database's constraint does, and this turns it into a 409.
+    """
+    try:
+        session.commit()
+    except sa.exc.IntegrityError:
+        session.rollback()
+        raise ConflictError(message) from None
 
 
 def create_db_engine(url: str) -> Engine:

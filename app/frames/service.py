@@ -17,6 +17,7 @@ from typing import Any, BinaryIO
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.db import commit_or_conflict
 from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.models import (
     Frame,
@@ -45,7 +46,7 @@ def create_sequence(session: Session, values: dict[str, Any], user: User | None)
         raise ConflictError(f"There is already a sequence named {values['name']!r}.")
     sequence = Sequence(**values, created_by_id=user.id if user else None)
     session.add(sequence)
-    session.commit()
+    commit_or_conflict(session, f"There is already a sequence named {values['name']!r}.")
     return sequence
 
 
@@ -78,7 +79,7 @@ def update_sequence(session: Session, sequence: Sequence, values: dict[str, Any]
         raise ConflictError(f"There is already a sequence named {values['name']!r}.")
     for key, value in values.items():
         setattr(sequence, key, value)
-    session.commit()
+    commit_or_conflict(session, f"There is already a sequence named {values.get('name')!r}.")
     return sequence
 
 

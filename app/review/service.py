@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.config import Settings
-from app.db import utcnow
+from app.db import commit_or_conflict, utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import (
     Frame,
@@ -431,7 +431,11 @@ def save_validation_keypoints(
     else:
         row.keypoints, row.user_id, row.updated_at = points, user.id, utcnow()
     frame.split = Split.validation
-    session.commit()
+    commit_or_conflict(
+        session,
+        f"Someone else saved validation keypoints of frame {frame.id} at the same moment; "
+        "reload them and save again.",
+    )
     return row
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
+from app.db import commit_or_conflict, utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import ApiToken, Role, User, WebSession
 from app.security import hash_password, issue_token
@@ -37,7 +37,7 @@ def create_user(session: Session, username: str, password: str, role: Role) -> U
         raise ConflictError(f"There is already a user named {username!r}.")
     user = User(username=username, password_hash=hash_password(password), role=role)
     session.add(user)
-    session.commit()
+    commit_or_conflict(session, f"There is already a user named {username!r}.")
     return user
 
 

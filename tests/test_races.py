@@ -1,0 +1,93 @@
+"""Concurrent duplicates end in one success and 409s, never a 500 (SQLite and PostgreSQL).
+
+Each race starts its requests at one barrier, several rounds, so that the check-then-insert
+window of the service is hit for real; the unique constraints decide, and the loser is told.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.models import Role
+from tests.helpers import auth, image_bytes
+
+ROUNDS, RACERS = 5, 6
+
+
+def at_once(count: int, call: Callable[[int], Any]) -> list[int]:
+    """Run ``call(i)`` in ``count`` threads released together; their HTTP statuses."""
+    barrier = threading.Barrier(count)
+    statuses: list[int] = [0] * count
+
+    def run(i: int) -> None:
+        barrier.wait()
+        statuses[i] = call(i).status_code
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(count)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    return sorted(statuses)
+
+
+@pytest.fixture
+def admin(make_user) -> str:
+    return str(make_user("boss", Role.admin)[1])
+
+
+def test_same_sequence_name_at_once(client: TestClient, admin: str) -> None:
+    for round_ in range(ROUNDS):
+        body = {"name": f"run {round_}"}
+        statuses = at_once(
+            RACERS,
+            lambda _, body=body: client.post("/api/v1/sequences", json=body, headers=auth(admin)),
+        )
+        assert statuses == [201] + [409] * (RACERS - 1), statuses
+
+
+def test_same_rename_at_once(client: TestClient, admin: str) -> None:
+    ids = [
+        client.post("/api/v1/sequences", json={"name": f"s{i}"}, headers=auth(admin)).json()["id"]
+        for i in range(RACERS * ROUNDS)
+    ]
+    for round_ in range(ROUNDS):
+        mine = ids[round_ * RACERS : (round_ + 1) * RACERS]
+        statuses = at_once(
+            RACERS,
+            lambda i, mine=mine, round_=round_: client.patch(
+                f"/api/v1/sequences/{mine[i]}",
+                json={"name": f"taken {round_}"},
+                headers=auth(admin),
+            ),
+        )
+        assert statuses == [200] + [409] * (RACERS - 1), statuses
+
+
+def test_same_user_name_at_once(client: TestClient, admin: str) -> None:
+    for round_ in range(ROUNDS):
+        body = {"username": f"twin{round_}", "password": "long enough 1"}
+        statuses = at_once(
+            RACERS,
+            lambda _, body=body: client.post("/api/v1/users", json=body, headers=auth(admin)),
+        )
+        assert statuses == [201] + [409] * (RACERS - 1), statuses
+
+
+def test_first_validation_keypoints_at_once(client: TestClient, admin: str) -> None:
+    files = [("files", (f"f{i}.png", image_bytes(seed=40 + i), "image/png")) for i in range(ROUNDS)]
+    stored = client.post("/api/v1/frames", files=files, headers=auth(admin)).json()["stored"]
+    for frame in stored:
+        url = f"/api/v1/frames/{frame['id']}/validation-keypoints"
+        statuses = at_once(
+            RACERS,
+            lambda i, url=url: client.put(
+                url, json={"keypoints": [[5.0 + i, 6.0]]}, headers=auth(admin)
+            ),
+        )
+        assert set(statuses) <= {200, 409} and 200 in statuses, statuses
