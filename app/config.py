@@ -87,6 +87,13 @@ class Settings(BaseSettings):
         default=2000, ge=1, description="Most files one upload request may carry."
     )
     session_ttl_hours: float = Field(default=12.0, gt=0, description="Browser session lifetime.")
+    login_max_failures: int = Field(
+        default=5,
+        ge=1,
+        description="Wrong passwords for one user name (×4 for one client address) within "
+        "login_lockout_minutes before further logins are refused with 429.",
+    )
+    login_lockout_minutes: float = Field(default=15.0, gt=0)
     cookie_secure: bool = Field(
         default=False, description="Send the session cookie over HTTPS only (set behind TLS)."
     )

@@ -24,7 +24,7 @@ from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
 from app.queue import EmbeddedWorker, JobQueue
 from app.review.routes import router as review_router
-from app.security import current_user
+from app.security import LoginThrottle, current_user
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.training.routes import router as training_router
@@ -120,6 +120,9 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.session_factory = session_factory
     app.state.queue = queue
     app.state.storage = Storage(settings.home)
+    app.state.login_throttle = LoginThrottle(
+        settings.login_max_failures, settings.login_lockout_minutes * 60
+    )
     app.add_middleware(BodySizeLimit, max_bytes=int(settings.max_request_mb * 2**20))
     app.add_middleware(SecurityHeaders)
     _install_error_handlers(app)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import collections
 import datetime as dt
 import hashlib
 import hmac
 import secrets
+import threading
+import time
 from typing import Annotated
 
 import sqlalchemy as sa
@@ -119,6 +122,56 @@ def authenticate(session: Session, username: str, password: str) -> User | None:
     if not user.is_active or not verify_password(user.password_hash, password):
         return None
     return user
+
+
+class LoginThrottle:
+    """Failed logins per user name and per client address in a sliding window.
+
+    After ``max_failures`` wrong passwords for one name (or 4× that from one address) within
+    ``window_s``, ``retry_after`` says how long to wait, and the login is refused before any
+    password is hashed (so guessing costs the server nothing). A success clears the name. The
+    counts live in this process: behind several web processes each counts its own.
+    """
+
+    def __init__(self, max_failures: int, window_s: float) -> None:
+        self.max_failures, self.window_s = max_failures, window_s
+        self._failures: dict[str, collections.deque[float]] = {}
+        self._lock = threading.Lock()
+
+    def _recent(self, key: str, now: float) -> collections.deque[float]:
+        times = self._failures.setdefault(key, collections.deque())
+        while times and times[0] <= now - self.window_s:
+            times.popleft()
+        return times
+
+    def _keys(self, username: str, address: str) -> tuple[tuple[str, int], tuple[str, int]]:
+        return (f"user:{username.lower()}", self.max_failures), (
+            f"addr:{address}",
+            4 * self.max_failures,
+        )
+
+    def retry_after(self, username: str, address: str) -> float:
+        """Seconds until a login for this name from this address is allowed again (0: now)."""
+        now = time.monotonic()
+        with self._lock:
+            waits = [
+                times[0] + self.window_s - now
+                for key, limit in self._keys(username, address)
+                if len(times := self._recent(key, now)) >= limit
+            ]
+        return max(waits, default=0.0)
+
+    def failed(self, username: str, address: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            for key, _ in self._keys(username, address):
+                self._recent(key, now).append(now)
+            if len(self._failures) > 100_000:  # bound memory under a spray of names
+                self._failures = {k: v for k, v in self._failures.items() if self._recent(k, now)}
+
+    def succeeded(self, username: str) -> None:
+        with self._lock:
+            self._failures.pop(f"user:{username.lower()}", None)
 
 
 # --- FastAPI dependencies --------------------------------------------------------------------

@@ -69,12 +69,22 @@ def update_user(
     is_active: bool | None = None,
     password: str | None = None,
 ) -> User:
-    """Change a user's role, activity or password; deactivation logs them out everywhere."""
+    """Change a user's role, activity or password.
+
+    A new password or deactivation logs the user out everywhere: their browser sessions end and
+    their API tokens are revoked (a reset after a leak must lock the old credentials out).
+    """
     if role is not None:
         user.role = role
     if password is not None:
         _check_password(password)
         user.password_hash = hash_password(password)
+        session.execute(sa.delete(WebSession).where(WebSession.user_id == user.id))
+        session.execute(
+            sa.update(ApiToken)
+            .where(ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None))
+            .values(revoked_at=utcnow())
+        )
     if is_active is not None:
         user.is_active = is_active
         if not is_active:

@@ -5,6 +5,7 @@ routes only check the login and render (no data is loaded here)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -18,6 +19,7 @@ from app.models import User
 from app.security import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
+    LoginThrottle,
     authenticate,
     close_web_session,
     constant_time_equal,
@@ -79,9 +81,24 @@ def login(
     expected = request.cookies.get(LOGIN_CSRF_COOKIE, "")
     if not expected or not constant_time_equal(expected, csrf_token):
         return _login_page(request, _safe_next(next), "The form expired; please log in again.", 403)
+    throttle: LoginThrottle = request.app.state.login_throttle
+    address = request.client.host if request.client else ""
+    wait = throttle.retry_after(username, address)
+    if wait > 0:
+        minutes = max(1, math.ceil(wait / 60))
+        response = _login_page(
+            request,
+            _safe_next(next),
+            f"Too many wrong passwords; try again in {minutes} minute{'s' * (minutes > 1)}.",
+            429,
+        )
+        response.headers["Retry-After"] = str(math.ceil(wait))
+        return response
     user = authenticate(session, username, password)
     if user is None:
+        throttle.failed(username, address)
         return _login_page(request, _safe_next(next), "Wrong user name or password.", 401)
+    throttle.succeeded(username)
     _, cookie = open_web_session(session, user, settings.session_ttl_hours)
     session.commit()
     response = RedirectResponse(_safe_next(next), status_code=303)

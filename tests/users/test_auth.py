@@ -210,6 +210,43 @@ def test_wrong_password_and_forged_login_form(client: TestClient, make_user) -> 
     assert "weldpool_session" not in forged.cookies
 
 
+def test_wrong_passwords_lock_the_name_out_for_a_while(client: TestClient, make_user) -> None:
+    make_user("fred", password="right-password")
+    make_user("gina", password="right-password")
+    limit = client.app.state.settings.login_max_failures  # type: ignore[attr-defined]
+    for _ in range(limit):
+        assert _login(client, "fred", "wrong-password").status_code == 401
+    locked = _login(client, "fred", "right-password")  # even the right one, until the window ends
+    assert locked.status_code == 429
+    assert "Too many wrong passwords" in locked.text
+    assert 0 < int(locked.headers["retry-after"]) <= 15 * 60
+    assert "weldpool_session" not in locked.cookies
+    # Another name from the same client still logs in, and a success clears its own count.
+    assert _login(client, "gina", "wrong-password").status_code == 401
+    assert _login(client, "gina", "right-password").status_code == 303
+    throttle = client.app.state.login_throttle  # type: ignore[attr-defined]
+    assert throttle.retry_after("gina", "testclient") == 0
+    throttle.window_s = 0.0  # the window has passed
+    client.cookies.clear()
+    assert _login(client, "fred", "right-password").status_code == 303
+
+
+def test_a_password_reset_ends_sessions_and_revokes_tokens(client: TestClient, make_user) -> None:
+    _, admin = make_user("root", Role.admin)
+    hana, hana_token = make_user("hana", password="old-password")
+    assert _login(client, "hana", "old-password").status_code == 303
+    assert client.get("/api/v1/users/me").json()["username"] == "hana"
+    assert client.get("/api/v1/users/me", headers=auth(hana_token)).status_code == 200
+    reset = client.patch(
+        f"/api/v1/users/{hana.id}", json={"password": "new-password"}, headers=auth(admin)
+    )
+    assert reset.status_code == 200
+    assert client.get("/api/v1/users/me").status_code == 401  # the browser session ended
+    assert client.get("/api/v1/users/me", headers=auth(hana_token)).status_code == 401
+    assert client.get("/api/v1/users/me", headers=auth(admin)).status_code == 200
+    assert _login(client, "hana", "new-password").status_code == 303
+
+
 @pytest.mark.parametrize("target", ["https://evil.example/", "//evil.example/", "/\\evil"])
 def test_login_never_redirects_off_site(client: TestClient, make_user, target: str) -> None:
     make_user("erin", password="right-password")
