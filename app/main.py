@@ -22,7 +22,7 @@ from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
-from app.queue import EmbeddedWorker, JobQueue
+from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
 from app.security import LoginThrottle, current_user
 from app.storage import Storage
@@ -96,14 +96,15 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        worker = EmbeddedWorker(queue, settings.workers) if embedded_worker else None
-        if worker:
-            worker.start()
+        # The embedded worker reaps lost jobs itself; without it, a reaper thread does.
+        background = (
+            EmbeddedWorker(queue, settings.workers) if embedded_worker else JobReaper(queue)
+        )
+        background.start()
         try:
             yield
         finally:
-            if worker:
-                worker.stop()
+            background.stop()
             engine.dispose()
 
     app = FastAPI(

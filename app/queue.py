@@ -128,6 +128,40 @@ class WorkerPresence:
             log.exception("worker.unregister_failed", worker=self.row.id)
 
 
+class JobReaper:
+    """Reaps jobs of dead workers from the web process of ``serve --no-worker``.
+
+    Workers reap each other's jobs, but with every worker gone nobody would: the job would stay
+    "running" and block new trainings. So the web process runs one reaping pass per heartbeat
+    period as well (a conditional update takes each job once, whoever runs the pass).
+    """
+
+    def __init__(self, queue: JobQueue) -> None:
+        self.queue = queue
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="weldpool-reaper", daemon=True)
+
+    def reap(self) -> list[int]:
+        return reap_lost_jobs(
+            self.queue.session_factory, self.queue.settings.job_stale_after_s, self.queue.enqueue
+        )
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.queue.settings.job_heartbeat_s):
+            try:
+                self.reap()
+            except Exception:  # a database hiccup must not end the reaper
+                log.exception("reaper.failed")
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+
+
 class EmbeddedWorker:
     """The worker that ``weldpool serve`` runs in its own process, in threads."""
 

@@ -230,12 +230,9 @@ def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> 
 
 
 def live_workers(session_factory: sessionmaker[Session], stale_after_s: float) -> int:
-    """How many workers reported a heartbeat within ``stale_after_s``."""
+    """How many workers reported a heartbeat within ``stale_after_s`` and, when they run on
+    this host, still have a live process (a killed one is not counted until its beat ages)."""
     cutoff = utcnow() - dt.timedelta(seconds=stale_after_s)
     with session_factory() as session:
-        return int(
-            session.scalar(
-                sa.select(sa.func.count()).select_from(Worker).where(Worker.last_seen_at >= cutoff)
-            )
-            or 0
-        )
+        ids = session.scalars(sa.select(Worker.id).where(Worker.last_seen_at >= cutoff))
+        return sum(1 for worker_id in ids if not _pid_is_dead(worker_id))

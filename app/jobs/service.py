@@ -16,6 +16,7 @@ from app.errors import (
     PermissionDeniedError,
 )
 from app.jobs.registry import job_spec
+from app.jobs.runner import reap_lost_jobs
 from app.models import Job, JobStatus, Role, User
 from app.queue import JobQueue
 
@@ -38,7 +39,14 @@ def create_job(
         session.commit()
     except sa.exc.IntegrityError:  # the one-training-job-at-a-time index
         session.rollback()
-        raise ConflictError(f"A {kind} job is already queued or running; wait for it.") from None
+        # The job in the way may belong to a worker that died: reap, then try once more.
+        if not reap_lost_jobs(
+            queue.session_factory, queue.settings.job_stale_after_s, queue.enqueue
+        ):
+            raise ConflictError(
+                f"A {kind} job is already queued or running; wait for it."
+            ) from None
+        return create_job(session, queue, kind, params, user)
     try:
         queue.enqueue(job.id)
     except ConfigurationError as exc:

@@ -44,7 +44,11 @@ def _workers(request: Request) -> dict[str, Any]:
 
 @router.get("/health")
 def health(request: Request) -> JSONResponse:
-    """Database, queue and teacher weights; 200 when the service can work, else 503."""
+    """Database, queue, workers and teacher weights; 200 when the service can work, else 503.
+
+    With no live worker the API still works (200) but ``status`` is ``degraded`` and
+    ``warnings`` says that jobs will wait.
+    """
     settings = request.app.state.settings
     database = _database(request)
     queue = describe(request.app.state.queue) | _workers(request)
@@ -53,8 +57,15 @@ def health(request: Request) -> JSONResponse:
         "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").as_dict(),
     }
     ok = database["status"] == "ok" and queue["status"] == "ok"
+    warnings = []
+    if queue.get("alive") == 0:
+        warnings.append(
+            "No worker is alive: jobs wait in the queue until `weldpool worker` (or `weldpool "
+            "serve` without --no-worker) runs."
+        )
     body = {
-        "status": "ok" if ok else "error",
+        "status": ("ok" if not warnings else "degraded") if ok else "error",
+        "warnings": warnings,
         "database": database,
         "queue": queue,
         "teacher": teacher,

@@ -134,3 +134,52 @@ def test_killed_worker_does_not_leave_its_job_running(
     assert lost.status == JobStatus.failed
     assert lost.error.startswith("The worker running this job stopped without finishing it")
     assert str(doomed.pid) in lost.error
+
+
+def test_with_no_worker_left_the_server_reaps_and_health_says_so(
+    tmp_path: Path, database_url: str, spawn_worker
+) -> None:
+    """`serve --no-worker` + one worker killed mid-training: the web process itself fails the
+    lost job (no other worker starts), a new training is accepted, and health warns."""
+    settings = make_settings(tmp_path / "home", database_url=database_url)
+    factory, admin = _setup(settings)
+    with factory() as session:
+        from app.security import issue_token
+
+        _, token = issue_token(session, session.get_one(User, admin.id), "t")
+        session.commit()
+    with TestClient(create_app(settings)) as client:  # no embedded worker
+        doomed = spawn_worker(settings)
+        wait_for(lambda: client.get("/api/v1/health").json()["queue"]["alive"] == 1, timeout=60)
+        queue = client.app.state.queue
+        with factory() as session:
+            job = create_job(session, queue, "diagnostic", {"seconds": 120}, admin)
+        running = wait_for(lambda: (j := _job(factory, job.id)).status == JobStatus.running and j)
+        doomed.kill()
+        doomed.wait()
+        # A training job of the same dead worker, as if it had been training: it blocks the
+        # next training until someone reaps it.
+        with factory() as session:
+            stuck = Job(
+                kind="train_student",
+                status=JobStatus.running,
+                worker_id=running.worker_id,
+                heartbeat_at=running.heartbeat_at,
+                attempts=1,
+                max_attempts=1,
+            )
+            session.add(stuck)
+            session.commit()
+            stuck_id = stuck.id
+        lost = wait_for(lambda: (j := _job(factory, job.id)).status.finished and j, timeout=60)
+        assert lost.status == JobStatus.failed and str(doomed.pid) in lost.error
+        wait_for(lambda: _job(factory, stuck_id).status == JobStatus.failed, timeout=60)
+        health = wait_for(
+            lambda: (h := client.get("/api/v1/health")).json()["queue"]["alive"] == 0 and h,
+            timeout=60,
+        )  # the dead worker's last heartbeat has aged past job_stale_after_s
+        assert health.status_code == 200
+        body = health.json()
+        assert body["status"] == "degraded" and body["queue"]["alive"] == 0
+        assert "No worker is alive" in body["warnings"][0]
+        assert client.get("/api/v1/jobs", headers=auth(token)).status_code == 200
