@@ -218,6 +218,8 @@ class Frame(Base):
     uncertainty_components: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
     uncertainty_reason: Mapped[str | None] = mapped_column(sa.String(32))
     descriptor: Mapped[list[float] | None] = mapped_column(JSONType)
+    teacher_error: Mapped[str | None] = mapped_column(sa.String(500))
+    """Why the teacher's last run failed on this frame; cleared by its next proposal."""
     uploaded_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )

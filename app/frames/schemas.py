@@ -76,6 +76,9 @@ class FrameOut(BaseModel):
     split: Split
     status: FrameStatus
     uncertainty: float | None
+    teacher_error: str | None = Field(
+        default=None, description="Why the teacher's last run failed on this frame, if it did."
+    )
     uncertainty_reason: str | None = Field(
         default=None, description="The component that puts the frame high in the queue."
     )

@@ -136,6 +136,7 @@ def record_teacher_proposal(
     if frame.status == FrameStatus.new:
         frame.status = FrameStatus.proposed
     frame.descriptor = [round(float(v), 5) for v in result.attention.cls]
+    frame.teacher_error = None
     session.flush()
     rescore_frame(session, frame, weights)
     session.commit()

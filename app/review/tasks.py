@@ -16,6 +16,13 @@ from weldpool_core.errors import WeldpoolError
 log = structlog.get_logger(__name__)
 
 
+def _frame_error(exc: Exception) -> str:
+    """One sentence for a frame's failure: ours as written, anything else with its type."""
+    if isinstance(exc, WeldpoolError):
+        return exc.message
+    return f"Unexpected error ({type(exc).__name__}): {exc}"
+
+
 @job_handler("teacher", max_attempts=2)
 def teacher_run(ctx: JobContext) -> dict[str, Any]:
     """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame; frames the
@@ -37,10 +44,17 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
             else:
                 try:
                     result = teacher.run(frame_rgb(storage, frame), frame.sha256)
-                except (WeldpoolError, OSError) as exc:
-                    message = getattr(exc, "message", None) or str(exc)
+                except Exception as exc:  # one bad frame must not end the run for the others
+                    message = _frame_error(exc)
                     failed.append({"frame_id": frame_id, "error": message})
-                    log.warning("teacher.frame_failed", frame_id=frame_id, error=message)
+                    frame.teacher_error = message[:500]
+                    session.commit()
+                    log.warning(
+                        "teacher.frame_failed",
+                        frame_id=frame_id,
+                        error=message,
+                        exc_info=not isinstance(exc, WeldpoolError | OSError),
+                    )
                 else:
                     record_teacher_proposal(
                         session,
@@ -53,6 +67,8 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
                     )
                     proposed += 1
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
+    if failed and not proposed and not skipped and len(failed) == len(frame_ids):
+        raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
     return {
         "proposed": proposed,
         "skipped": skipped,

@@ -107,6 +107,48 @@ def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
     assert empty.status_code == 400
 
 
+def test_one_failing_frame_does_not_end_the_teacher_run(
+    client: TestClient, people, monkeypatch
+) -> None:
+    """A RuntimeError on one frame is recorded on that frame; the other frames get proposals;
+    the next good run clears the record. A run where every frame fails is a failed job."""
+    from weldpool_core.teacher.teacher import Teacher
+
+    token = people["reviewer"]
+    frame_ids = _upload_synthetic(client, token, 3)
+    bad = client.get(f"/api/v1/frames/{frame_ids[1]}", headers=auth(token)).json()["sha256"]
+    real_run = Teacher.run
+
+    def run(self, image, key=None, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if key == bad:
+            raise RuntimeError("CUDA error: an illegal memory access was encountered")
+        return real_run(self, image, key, *args, **kwargs)
+
+    monkeypatch.setattr(Teacher, "run", run)
+    job = _teacher(client, token, frame_ids)
+    assert job["status"] == "succeeded"
+    assert job["result"]["proposed"] == 2
+    assert job["result"]["failed"] == [
+        {
+            "frame_id": frame_ids[1],
+            "error": "Unexpected error (RuntimeError): CUDA error: an illegal memory access was "
+            "encountered",
+        }
+    ]
+    frames = {f["id"]: f for f in client.get("/api/v1/frames", headers=auth(token)).json()["items"]}
+    assert frames[frame_ids[1]]["teacher_error"].startswith("Unexpected error (RuntimeError)")
+    assert frames[frame_ids[0]]["teacher_error"] is None
+    assert [frames[i]["status"] for i in frame_ids] == ["proposed", "new", "proposed"]
+
+    only_bad = _teacher(client, token, [frame_ids[1]])
+    assert only_bad["status"] == "failed" and "failed on every frame" in only_bad["error"]
+    monkeypatch.undo()
+    again = _teacher(client, token, [frame_ids[1]])
+    assert again["status"] == "succeeded" and again["result"]["proposed"] == 1
+    frame = client.get(f"/api/v1/frames/{frame_ids[1]}", headers=auth(token)).json()
+    assert frame["teacher_error"] is None
+
+
 def _artefact_masks(client: TestClient) -> set[str]:
     home = client.app.state.storage.home
     return {p.name for p in (home / "artefacts").rglob("*.png")}

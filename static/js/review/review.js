@@ -759,6 +759,8 @@ async function start() {
   manualClean = state.manual;
   if (manual) $("validation-state").textContent = `${manual.keypoints.length} keypoints placed by hand (${formatDate(manual.updated_at)}).`;
   $("no-proposal").hidden = proposal !== null;
+  $("teacher-error").hidden = !frame.teacher_error;
+  $("teacher-error").textContent = frame.teacher_error ? `The teacher's last run failed here: ${frame.teacher_error}` : "";
   $("show-heatmap").disabled = proposal === null;
   $("stage-message").hidden = true;
   bindControls();
