@@ -152,7 +152,9 @@ def name_problem(name: str) -> str | None:
     return None
 
 
-def check_frame_file(incoming: IncomingFile, max_pixels: int) -> CheckedFrame | Rejection:
+def check_frame_file(
+    incoming: IncomingFile, max_pixels: int, digest: str | None = None
+) -> CheckedFrame | Rejection:
     """Name, content and decodability of one file; decodes it exactly once."""
     problem = name_problem(incoming.name)
     if problem:
@@ -161,8 +163,41 @@ def check_frame_file(incoming: IncomingFile, max_pixels: int) -> CheckedFrame | 
         image = read_image(incoming.data, max_pixels=max_pixels)
     except InvalidInputError as exc:
         return Rejection(incoming.name, exc.message)
-    digest = hashlib.sha256(incoming.data).hexdigest()
+    digest = digest or hashlib.sha256(incoming.data).hexdigest()
     return CheckedFrame(incoming.name, incoming.data, digest, image.info)
+
+
+def _check_distinct(files: Seq[IncomingFile], max_pixels: int) -> list[CheckedFrame | Rejection]:
+    """``check_frame_file`` for every file, decoding each distinct content once.
+
+    Files are hashed first (cheap); the first well-named file of each content is decoded in
+    the pool, and its copies share its verdict (each still has its own name checked).
+    """
+    digests = list(_POOL.map(lambda f: hashlib.sha256(f.data).hexdigest(), files))
+    first: dict[str, int] = {}
+    for index, (incoming, digest) in enumerate(zip(files, digests, strict=True)):
+        if not name_problem(incoming.name):
+            first.setdefault(digest, index)
+    verdicts = dict(
+        zip(
+            first.values(),
+            _POOL.map(lambda i: check_frame_file(files[i], max_pixels, digests[i]), first.values()),
+            strict=True,
+        )
+    )
+    checked: list[CheckedFrame | Rejection] = []
+    for index, (incoming, digest) in enumerate(zip(files, digests, strict=True)):
+        problem = name_problem(incoming.name)
+        verdict = verdicts.get(first.get(digest, -1))
+        if problem or verdict is None:
+            checked.append(Rejection(incoming.name, problem or "The file could not be checked."))
+        elif index == first[digest]:
+            checked.append(verdict)
+        elif isinstance(verdict, Rejection):
+            checked.append(Rejection(incoming.name, verdict.reason))
+        else:
+            checked.append(CheckedFrame(incoming.name, incoming.data, digest, verdict.info))
+    return checked
 
 
 def _existing(session: Session, sequence_id: int | None, hashes: Seq[str]) -> dict[str, int]:
@@ -277,10 +312,11 @@ def ingest_frames(
     user: User | None,
     max_pixels: int,
 ) -> IngestResult:
-    """Check every file (in parallel), then store and record the good ones atomically."""
+    """Check every file (in parallel, each distinct content decoded once), then store and
+    record the good ones atomically."""
     if sequence_id is not None:
         get_sequence(session, sequence_id)
-    checked = list(_POOL.map(lambda f: check_frame_file(f, max_pixels), files))
+    checked = _check_distinct(files, max_pixels)
     good = [c for c in checked if isinstance(c, CheckedFrame)]
     result = record_frames(session, storage, good, sequence_id=sequence_id, user=user)
     result.rejected = [c for c in checked if isinstance(c, Rejection)]

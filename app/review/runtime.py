@@ -1,5 +1,6 @@
-"""The teacher's models in this process: loaded once, on first use, and shared by the worker's
-teacher jobs and the web process's click endpoint (one SAM2, one embedding cache)."""
+"""The teacher's models in this process: loaded once, on first use (through the one loader,
+``weldpool_core.teacher.loader``), and shared by the worker's teacher jobs and the web process's
+click endpoint (one SAM2, one embedding cache)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 from app.config import Settings
 from weldpool_core.teacher.cache import EmbeddingCache
 from weldpool_core.teacher.dino import DinoAttention
+from weldpool_core.teacher.loader import load_dino, load_sam2
 from weldpool_core.teacher.sam2 import Sam2Predictor
 from weldpool_core.teacher.teacher import Teacher, TeacherConfig
 
@@ -18,35 +20,12 @@ _lock = threading.Lock()
 
 @lru_cache(maxsize=4)
 def _sam2(ref: str, device: str) -> Sam2Predictor:
-    from transformers import Sam2Model
-
-    from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights
-
-    torch_device = resolve_device(device)
-    model = Sam2Model.from_pretrained(
-        resolve_weights(ref, "WELDPOOL_SAM2"),
-        attn_implementation="sdpa",
-        dtype=inference_dtype(torch_device),
-    )
-    return Sam2Predictor(model, torch_device)
+    return load_sam2(ref, device)
 
 
 @lru_cache(maxsize=4)
 def _dino(ref: str, device: str, input_size: int) -> DinoAttention:
-    from transformers import ViTModel
-
-    from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights
-
-    torch_device = resolve_device(device)
-    model = ViTModel.from_pretrained(
-        resolve_weights(ref, "WELDPOOL_DINO"),
-        add_pooling_layer=False,
-        attn_implementation="sdpa",
-        dtype=inference_dtype(torch_device),
-    )
-    return DinoAttention(model, input_size, torch_device)
+    return load_dino(ref, device, input_size)
 
 
 @lru_cache(maxsize=4)

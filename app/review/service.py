@@ -198,7 +198,7 @@ def segment(
     """A new mask for ``frame`` from clicks, a box and/or a previous mask, using the frame's
     cached SAM2 embedding (computed and cached on first use)."""
     from app.review import runtime
-    from weldpool_core.teacher.cache import embedding_key
+    from weldpool_core.teacher.cache import cached_embedding
     from weldpool_core.teacher.sam2 import Prompts
 
     start = time.perf_counter()
@@ -218,17 +218,13 @@ def segment(
     if prompts.empty:
         raise InvalidInputError("Give at least one point, a box or a previous mask.")
     predictor = runtime.sam2_predictor(settings)
-    cache = runtime.embedding_cache(settings)
-    key = embedding_key(frame.sha256, settings.sam2)
-    before = dict(cache.hits)
-    embedding = cache.get(key, predictor.device)
-    source: EmbeddingSource
-    if embedding is None:
-        embedding = predictor.set_image(frame_rgb(storage, frame))
-        cache.put(key, embedding)
-        source = "computed"
-    else:
-        source = "memory" if cache.hits["memory"] > before["memory"] else "disk"
+    embedding, source = cached_embedding(
+        predictor,
+        runtime.embedding_cache(settings),
+        frame.sha256,
+        lambda: frame_rgb(storage, frame),
+        (frame.height, frame.width),
+    )
     prediction = predictor.predict(embedding, prompts)
     return Segmentation(
         mask=prediction.mask,

@@ -190,6 +190,32 @@ def test_duplicates_are_reported_not_stored_twice(
     assert [r.status_code for r in loose] == [201, 200]  # also deduplicated without sequence
 
 
+def test_copies_in_one_request_are_decoded_once(
+    client: TestClient, token: str, monkeypatch
+) -> None:
+    import app.frames.service as frames_service
+
+    decoded: list[int] = []
+    real = frames_service.read_image
+
+    def counting(data, *args, **kwargs):  # type: ignore[no-untyped-def]
+        decoded.append(len(data))
+        return real(data, *args, **kwargs)
+
+    monkeypatch.setattr(frames_service, "read_image", counting)
+    content, broken = image_bytes(seed=21), image_bytes(seed=22)[:150]
+    files = [(f"copy{i}.png", content) for i in range(8)] + [("../bad-name.png", content)]
+    files += [(f"cut{i}.png", broken) for i in range(3)] + [("other.png", image_bytes(seed=23))]
+    body = _upload(client, token, files).json()
+    assert sorted(decoded) == sorted([len(content), len(broken), len(files[-1][1])])
+    assert [f["original_name"] for f in body["stored"]] == ["copy0.png", "other.png"]
+    assert [d["name"] for d in body["duplicates"]] == [f"copy{i}.png" for i in range(1, 8)]
+    reasons = {r["name"]: r["reason"] for r in body["rejected"]}
+    assert "path parts" in reasons["../bad-name.png"]
+    assert {reasons[f"cut{i}.png"] for i in range(3)} == {reasons["cut0.png"]}
+    assert "truncated" in reasons["cut0.png"]
+
+
 def test_request_over_the_size_limit_is_413(
     tmp_path: Path, settings: Settings, session_factory, make_user
 ) -> None:

@@ -1,8 +1,13 @@
 """The embedding cache: SAM2 image embeddings by frame hash and model, in memory and on disk.
 
-Memory holds the last few embeddings (LRU, full precision) for interactive clicks; disk holds
-many more in fp16 (about 8 MB a frame) as safetensors files, the least recently used ones
-removed beyond a size limit. A click on a frame the teacher has seen never re-encodes it.
+Memory holds the last few embeddings (LRU, in the model's precision) for interactive clicks;
+disk holds many more in fp16 (about 8 MB a frame) as safetensors files, the least recently
+used ones removed beyond a size limit; a disk hit comes back in the precision the caller's
+model runs in (bf16 on a GPU). A click on a frame the teacher has seen never re-encodes it.
+
+``cached_embedding`` is the one seam every user goes through (teacher runs, clicks): it keys
+by the frame's hash and the predictor's ``cache_identity`` (weights hash, precision,
+pre-processing version) and says which tier served.
 """
 
 from __future__ import annotations
@@ -12,20 +17,30 @@ import os
 import threading
 import uuid
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
+import numpy as np
 import torch
+from numpy.typing import NDArray
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from weldpool_core.teacher.sam2 import ImageEmbedding
 
+if TYPE_CHECKING:
+    from weldpool_core.teacher.sam2 import Sam2Predictor
+
 _NAMES = ("s0", "s1", "image")
+Tier = Literal["memory", "disk", "computed"]
+"""Where an embedding came from: the memory LRU, the disk cache, or the image encoder."""
 
 
-def embedding_key(image_sha256: str, model_id: str) -> str:
-    """The cache key of one frame's embedding under one SAM2 model."""
-    return hashlib.sha256(f"{model_id}\n{image_sha256}".encode()).hexdigest()[:40]
+def embedding_key(image_sha256: str, identity: str) -> str:
+    """The cache key of one frame's embedding under one model identity
+    (``Sam2Predictor.cache_identity``: weights, precision, pre-processing)."""
+    return hashlib.sha256(f"{identity}\n{image_sha256}".encode()).hexdigest()[:40]
 
 
 class EmbeddingCache:
@@ -48,6 +63,7 @@ class EmbeddingCache:
         self.disk_limit_bytes = disk_limit_bytes
         self._memory: OrderedDict[str, ImageEmbedding] = OrderedDict()
         self._lock = threading.Lock()
+        self._computing: dict[str, threading.Lock] = {}
         self.hits = {"memory": 0, "disk": 0, "miss": 0}
         if directory is not None:
             directory.mkdir(parents=True, exist_ok=True)
@@ -56,13 +72,21 @@ class EmbeddingCache:
         assert self.directory is not None
         return self.directory / key[:2] / f"{key}.safetensors"
 
-    def get(self, key: str, device: torch.device | None = None) -> ImageEmbedding | None:
-        """The embedding under ``key`` (on ``device``), or None."""
+    def get(
+        self, key: str, device: torch.device | None = None, dtype: torch.dtype | None = None
+    ) -> ImageEmbedding | None:
+        """The embedding under ``key`` (on ``device``, in ``dtype``; default fp32), or None."""
+        found = self._lookup(key, device, dtype)
+        return found[0] if found else None
+
+    def _lookup(
+        self, key: str, device: torch.device | None, dtype: torch.dtype | None
+    ) -> tuple[ImageEmbedding, Tier] | None:
         with self._lock:
             if key in self._memory:
                 self._memory.move_to_end(key)
                 self.hits["memory"] += 1
-                return self._memory[key]
+                return self._memory[key], "memory"
         if self.directory is not None and (path := self._path(key)).exists():
             try:
                 tensors = load_file(str(path), device=str(device or "cpu"))
@@ -71,13 +95,39 @@ class EmbeddingCache:
             else:
                 os.utime(path)  # mark as recently used for the size limit
                 size = tuple(int(v) for v in tensors.pop("image_size").tolist())
-                features = tuple(tensors[name].float() for name in _NAMES)
+                features = tuple(tensors[name].to(dtype or torch.float32) for name in _NAMES)
                 embedding = ImageEmbedding(features, (size[0], size[1]))  # type: ignore[arg-type]
                 self._remember(key, embedding)
-                self.hits["disk"] += 1
-                return embedding
-        self.hits["miss"] += 1
+                with self._lock:
+                    self.hits["disk"] += 1
+                return embedding, "disk"
+        with self._lock:
+            self.hits["miss"] += 1
         return None
+
+    def fetch(
+        self,
+        key: str,
+        compute: Callable[[], ImageEmbedding],
+        *,
+        device: torch.device | None = None,
+        dtype: torch.dtype | None = None,
+        image_size: tuple[int, int] | None = None,
+    ) -> tuple[ImageEmbedding, Tier]:
+        """The embedding under ``key`` and the tier that served it; computed and stored on a
+        miss. Concurrent fetches of one key compute it once (the others wait, then hit
+        memory). An entry of another ``image_size`` is treated as a miss."""
+        with self._lock:
+            key_lock = self._computing.setdefault(key, threading.Lock())
+        with key_lock:
+            found = self._lookup(key, device, dtype)
+            if found is not None and (image_size is None or found[0].image_size == image_size):
+                return found
+            embedding = compute()
+            self.put(key, embedding)
+        with self._lock:
+            self._computing.pop(key, None)
+        return embedding, "computed"
 
     def put(self, key: str, embedding: ImageEmbedding) -> None:
         """Keep ``embedding`` in memory and (if a directory is set) on disk in fp16."""
@@ -114,3 +164,27 @@ class EmbeddingCache:
                 break
             path.unlink(missing_ok=True)
             total -= size
+
+
+def cached_embedding(
+    predictor: Sam2Predictor,
+    cache: EmbeddingCache | None,
+    image_sha256: str | None,
+    image: Callable[[], NDArray[np.uint8]],
+    image_size: tuple[int, int] | None = None,
+) -> tuple[ImageEmbedding, Tier]:
+    """SAM2's embedding of a frame through the cache: the one seam for teacher runs and clicks.
+
+    ``image`` is called only on a miss (a click on a cached frame never reads the file). The
+    key is the frame's hash under ``predictor.cache_identity``; a hit comes back on the
+    predictor's device and in its precision.
+    """
+    if cache is None or image_sha256 is None:
+        return predictor.set_image(image()), "computed"
+    return cache.fetch(
+        embedding_key(image_sha256, predictor.cache_identity),
+        lambda: predictor.set_image(image()),
+        device=predictor.device,
+        dtype=predictor.dtype,
+        image_size=image_size,
+    )

@@ -14,6 +14,7 @@ layout, their sum with the positional encoding, and the first block's image-side
 
 from __future__ import annotations
 
+import uuid
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -27,6 +28,19 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.teacher.dino import IMAGENET_MEAN, IMAGENET_STD
 
 SAM2_INPUT_SIZE = 1024
+PREPROCESSING_VERSION = 1
+"""Bump when ``Sam2Predictor.preprocess`` changes: embeddings cached by older code are unused."""
+
+
+def input_coordinates(points: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+    """Frame pixels ``(..., 2)`` as ``(x, y)`` → SAM2's 1024² input space (the one place).
+
+    SAM2 resizes the frame to 1024×1024 without keeping its aspect ratio, so x scales by
+    1024 / width and y by 1024 / height.
+    """
+    height, width = image_size
+    scale = torch.tensor([SAM2_INPUT_SIZE / width, SAM2_INPUT_SIZE / height], dtype=points.dtype)
+    return points * scale
 
 
 @dataclass(frozen=True)
@@ -118,9 +132,15 @@ class Sam2Predictor:
     Args:
         model: a ``Sam2Model`` (default weights: ``facebook/sam2.1-hiera-tiny``).
         device: where the model runs.
+        weights_id: names the weights (the loader passes the reference and a hash of the
+            files); unnamed models get a name of their own, so they never share cached
+            embeddings with another model.
     """
 
-    def __init__(self, model: Sam2Model, device: torch.device | None = None) -> None:
+    def __init__(
+        self, model: Sam2Model, device: torch.device | None = None, weights_id: str | None = None
+    ) -> None:
+        self.weights_id = weights_id or f"unnamed-{uuid.uuid4().hex}"
         self.device = device or torch.device("cpu")
         self.model: Any = cast(Any, model)
         self.model.to(self.device).eval()
@@ -136,6 +156,13 @@ class Sam2Predictor:
         """A SAM2 with random weights (tests, benchmarks)."""
         config._attn_implementation = "sdpa"
         return cls(Sam2Model(config), device)
+
+    @property
+    def cache_identity(self) -> str:
+        """What an image embedding depends on besides the frame: weights, precision and
+        pre-processing. Cache keys include it."""
+        dtype = str(self.dtype).removeprefix("torch.")
+        return f"{self.weights_id}|{dtype}|pre{PREPROCESSING_VERSION}@{SAM2_INPUT_SIZE}"
 
     # --- image ---------------------------------------------------------------------------------
 
@@ -161,15 +188,14 @@ class Sam2Predictor:
 
     def _sparse(self, prompts: Prompts, image_size: tuple[int, int]) -> torch.Tensor | None:
         """Points and box scaled to the 1024² input, through SAM2's prompt encoder."""
-        height, width = image_size
-        scale = torch.tensor([SAM2_INPUT_SIZE / width, SAM2_INPUT_SIZE / height])
         points = labels = boxes = None
         if prompts.points:
-            points = (torch.tensor(prompts.points, dtype=torch.float32) * scale)[None, None]
+            xy = torch.tensor(prompts.points, dtype=torch.float32)
+            points = input_coordinates(xy, image_size)[None, None]
             labels = torch.tensor(prompts.labels, dtype=torch.int64)[None, None]
         if prompts.box is not None:
-            corners = torch.tensor(prompts.box, dtype=torch.float32).view(2, 2) * scale
-            boxes = corners.view(1, 1, 4)
+            corners = torch.tensor(prompts.box, dtype=torch.float32).view(2, 2)
+            boxes = input_coordinates(corners, image_size).view(1, 1, 4)
         if points is None and boxes is None:
             if prompts.mask_logits is None:
                 return None
@@ -213,6 +239,27 @@ class Sam2Predictor:
             self.model, embedding, self._image_pe, sparse, dense, multimask
         )
         return self._postprocess(low_res[0], iou[0], float(object_score[0]), embedding.image_size)
+
+    @torch.inference_mode()
+    def predict_points(
+        self, embedding: ImageEmbedding, points: NDArray[np.float32] | list[tuple[float, float]]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One positive click per prompt set, B clicks decoded together (SAM2's automatic mode).
+
+        ``points``: B × 2 ``(x, y)`` in frame pixels. Returns the three multimask candidates:
+        low-res logits B × 3 × 256 × 256, predicted IoU B × 3 and object-score logits B, in
+        float32. Same coordinate transform and decoder as ``predict``.
+        """
+        xy = torch.as_tensor(np.asarray(points, np.float32)).view(-1, 2)
+        scaled = input_coordinates(xy, embedding.image_size)[None, :, None, :]  # 1 × B × 1 × 2
+        labels = torch.ones(scaled.shape[:3], dtype=torch.int64)
+        sparse = self.model.prompt_encoder._embed_points(
+            scaled.to(self.device), labels.to(self.device), pad=True
+        )
+        low_res, iou, objects = decode_masks(
+            self.model, embedding, self._image_pe, sparse.to(self.dtype), None, True
+        )
+        return low_res.float(), iou.float(), objects.float()
 
     def _postprocess(
         self,

@@ -13,7 +13,7 @@ import torch
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.teacher.cache import EmbeddingCache, embedding_key
+from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding
 from weldpool_core.teacher.dino import AttentionMaps, DinoAttention
 from weldpool_core.teacher.prompts import PROMPT_STRATEGIES, HeuristicParams
 from weldpool_core.teacher.sam2 import (
@@ -21,7 +21,6 @@ from weldpool_core.teacher.sam2 import (
     MaskPrediction,
     Prompts,
     Sam2Predictor,
-    decode_masks,
 )
 
 
@@ -124,22 +123,16 @@ class Teacher:
 
         Raises WeightsUnavailableError naming WELDPOOL_DINO / WELDPOOL_SAM2 when missing.
         """
-        from transformers import Sam2Model, ViTModel
-
-        from weldpool_core.device import inference_dtype, resolve_device
+        from weldpool_core.teacher.loader import load_dino, load_sam2
         from weldpool_core.teacher.weights import resolve_weights
 
-        torch_device = resolve_device(device)
-        dtype = inference_dtype(torch_device)
-        dino_path = resolve_weights(dino_ref, "WELDPOOL_DINO")
-        sam2_path = resolve_weights(sam2_ref, "WELDPOOL_SAM2")
-        vit = ViTModel.from_pretrained(
-            dino_path, add_pooling_layer=False, attn_implementation="sdpa", dtype=dtype
-        )
-        sam = Sam2Model.from_pretrained(sam2_path, attn_implementation="sdpa", dtype=dtype)
+        resolve_weights(dino_ref, "WELDPOOL_DINO")  # both are checked before either loads
+        resolve_weights(sam2_ref, "WELDPOOL_SAM2")
+        dino = load_dino(dino_ref, device, dino_input_size)
+        sam2 = load_sam2(sam2_ref, device)
         return cls(
-            DinoAttention(vit, dino_input_size, torch_device),
-            Sam2Predictor(sam, torch_device),
+            dino,
+            sam2,
             sam2_ref,
             EmbeddingCache(cache_dir) if cache_dir else EmbeddingCache(None),
             config,
@@ -155,14 +148,9 @@ class Teacher:
         self, image: NDArray[np.uint8], image_sha256: str | None = None
     ) -> ImageEmbedding:
         """SAM2's embedding of ``image``, from the cache when ``image_sha256`` is known."""
-        if image_sha256 is None or self.cache is None:
-            return self.sam2.set_image(image)
-        key = embedding_key(image_sha256, self.sam2_id)
-        cached = self.cache.get(key, self.sam2.device)
-        if cached is not None and cached.image_size == image.shape[:2]:
-            return cached
-        embedding = self.sam2.set_image(image)
-        self.cache.put(key, embedding)
+        embedding, _ = cached_embedding(
+            self.sam2, self.cache, image_sha256, lambda: image, (image.shape[0], image.shape[1])
+        )
         return embedding
 
     def run(self, image: NDArray[np.uint8], image_sha256: str | None = None) -> TeacherResult:
@@ -275,25 +263,12 @@ class Teacher:
         n = self.config.grid_points
         xs = (np.arange(n) + 0.5) * width / n
         ys = (np.arange(n) + 0.5) * height / n
-        grid = torch.tensor([[x, y] for y in ys for x in xs], dtype=torch.float32)
-        scale = torch.tensor([1024 / width, 1024 / height])
-        encoder = self.sam2.model.prompt_encoder
+        grid = np.array([[x, y] for y in ys for x in xs], np.float32)  # frame pixels
         best: tuple[float, float, Any, Any, float] | None = None
         for start in range(0, len(grid), self.config.grid_batch):
-            points = (grid[start : start + self.config.grid_batch] * scale)[None, :, None, :]
-            labels = torch.ones(points.shape[:3], dtype=torch.int64)
-            sparse = encoder._embed_points(
-                points.to(self.sam2.device), labels.to(self.sam2.device), pad=True
+            low_res, iou, objects = self.sam2.predict_points(
+                embedding, grid[start : start + self.config.grid_batch]
             )
-            low_res, iou, objects = decode_masks(
-                self.sam2.model,
-                embedding,
-                self.sam2._image_pe,
-                sparse.to(self.sam2.dtype),
-                None,
-                True,
-            )
-            low_res, iou = low_res.float(), iou.float()
             stability = _stability(low_res)
             for b in range(low_res.shape[0]):
                 for c in range(low_res.shape[1]):

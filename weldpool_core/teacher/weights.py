@@ -105,3 +105,33 @@ def resolve_weights(ref: str, setting: str) -> Path:
     if not status.available or status.path is None:
         raise WeightsUnavailableError(status.detail)
     return Path(status.path)
+
+
+_FINGERPRINTS: dict[tuple[str, tuple[tuple[str, int, int], ...]], str] = {}
+
+
+def weights_fingerprint(directory: Path) -> str:
+    """A short hash of the model files in ``directory`` (config and weights, by content).
+
+    Cache keys of derived data (SAM2 image embeddings) include it, so re-filling a weights
+    folder with other weights never serves results of the old ones. Hashed once per process
+    for each (name, size, mtime) listing of the folder.
+    """
+    import hashlib
+
+    files = sorted(
+        p
+        for p in directory.iterdir()
+        if p.is_file() and p.suffix in (".json", ".safetensors", ".bin")
+    )
+    listing = tuple((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in files)
+    key = (str(directory.resolve()), listing)
+    if key not in _FINGERPRINTS:
+        digest = hashlib.sha256()
+        for path in files:
+            digest.update(path.name.encode() + b"\0")
+            with open(path, "rb") as handle:
+                while chunk := handle.read(2**20):
+                    digest.update(chunk)
+        _FINGERPRINTS[key] = digest.hexdigest()[:16]
+    return _FINGERPRINTS[key]

@@ -95,15 +95,67 @@ def test_masks_come_back_at_frame_size_best_first(predictor, embedding) -> None:
 
 
 def test_coordinates_scale_with_the_frame(predictor) -> None:
-    """The same relative click on a frame and on its 2× copy gives the same low-res mask."""
-    small = FRAME
+    """x scales by 1024 / width and y by 1024 / height (SAM2 squeezes the frame to 1024²):
+    on a 160 wide × 120 high frame a click at (40, 90) is at (256, 768); swapped scales or
+    swapped axes give other numbers."""
+    from weldpool_core.teacher.sam2 import input_coordinates
+
+    points = torch.tensor([[40.0, 90.0], [160.0, 0.0]])
+    expected = torch.tensor([[256.0, 768.0], [1024.0, 0.0]])
+    torch.testing.assert_close(input_coordinates(points, (120, 160)), expected)
+    sparse = predictor._sparse(Prompts(((40.0, 90.0),), (1,)), (120, 160))
+    direct = predictor.model.prompt_encoder._embed_points(
+        expected[:1][None, None], torch.ones(1, 1, 1, dtype=torch.int64), pad=True
+    )
+    torch.testing.assert_close(sparse, direct)
     large = np.repeat(np.repeat(FRAME, 2, axis=0), 2, axis=1)
-    a = predictor.predict(predictor.set_image(small), Prompts(((40.0, 30.0),), (1,)))
-    b = predictor.predict(predictor.set_image(large), Prompts(((80.0, 60.0),), (1,)))
-    sparse_a = predictor._sparse(Prompts(((40.0, 30.0),), (1,)), (120, 160))
-    sparse_b = predictor._sparse(Prompts(((80.0, 60.0),), (1,)), (240, 320))
-    torch.testing.assert_close(sparse_a, sparse_b)
-    assert a.mask.shape == (120, 160) and b.mask.shape == (240, 320)
+    b = predictor.predict(predictor.set_image(large), Prompts(((80.0, 180.0),), (1,)))
+    assert b.mask.shape == (240, 320)
+
+
+def test_batched_grid_clicks_equal_sam2model_one_by_one(predictor, embedding) -> None:
+    """The automatic mode's batched clicks (``predict_points``): each equals Sam2Model's own
+    forward on that click alone, on a non-square frame (so x/y mix-ups show)."""
+    grid = np.array([[10.0, 100.0], [150.0, 20.0], [80.0, 60.0], [120.0, 110.0]], np.float32)
+    low_res, iou, objects = predictor.predict_points(embedding, grid)
+    assert low_res.shape == (4, 3, 256, 256) and iou.shape == (4, 3) and objects.shape == (4,)
+    for index, (x, y) in enumerate(grid):
+        logits, scores = _reference(
+            predictor, embedding, Prompts(((float(x), float(y)),), (1,)), True
+        )
+        order = torch.argsort(iou[index], descending=True)
+        np.testing.assert_allclose(low_res[index][order].numpy(), logits, atol=1e-4, rtol=1e-4)
+        np.testing.assert_allclose(iou[index][order].numpy(), scores, atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+def test_half_precision_decoder_follows_the_fp32_reference(predictor, dtype) -> None:
+    """On a GPU the models run in bf16 (fp16 on older cards): the fast decoder in that
+    precision stays close to Sam2Model's fp32 forward, for single and batched prompts."""
+    import copy
+
+    from weldpool_core.teacher.sam2 import Sam2Predictor
+
+    half = Sam2Predictor(copy.deepcopy(predictor.model).to(dtype))
+    embedding = half.set_image(FRAME)
+    assert embedding.features[2].dtype == dtype
+    full = Sam2Predictor(copy.deepcopy(predictor.model))
+    reference = full.set_image(FRAME)
+    for prompts in (
+        Prompts(((80.0, 60.0),), (1,)),
+        Prompts(((80.0, 60.0), (10.0, 100.0)), (1, 0), box=(20.0, 15.0, 140.0, 110.0)),
+    ):
+        ours = half.predict(embedding, prompts)
+        logits, iou = _reference(full, reference, prompts, len(prompts.points) == 1)
+        scale = float(np.abs(logits).max())
+        np.testing.assert_allclose(ours.low_res_logits, logits, atol=0.05 * scale)
+        np.testing.assert_allclose(ours.scores, iou, atol=0.05)
+    low_res, _, _ = half.predict_points(embedding, np.array([[80.0, 60.0], [10.0, 100.0]]))
+    logits, _ = _reference(full, reference, Prompts(((10.0, 100.0),), (1,)), True)
+    ours_batched = low_res[1].numpy()
+    for candidate in logits:  # each reference candidate has its match among ours
+        closest = min(float(np.abs(o - candidate).max()) for o in ours_batched)
+        assert closest < 0.05 * float(np.abs(logits).max())
 
 
 def test_bad_prompts_are_clear_errors(predictor, embedding) -> None:

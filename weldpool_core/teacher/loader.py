@@ -1,0 +1,46 @@
+"""The one loader of the teacher's models: DINO and SAM2 from a hub id or a local directory.
+
+``Teacher.load`` (command line, library) and the service's runtime (worker jobs, clicks) both
+load through here, so the device, the precision, the attention kernel and the weights' identity
+(which names cached embeddings) are chosen in one place.
+"""
+
+from __future__ import annotations
+
+from weldpool_core.teacher.dino import DinoAttention
+from weldpool_core.teacher.sam2 import Sam2Predictor
+
+
+def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
+    """SAM2 named by ``ref`` (WELDPOOL_SAM2), in the device's inference precision.
+
+    Raises WeightsUnavailableError when the weights are not on this machine.
+    """
+    from transformers import Sam2Model
+
+    from weldpool_core.device import inference_dtype, resolve_device
+    from weldpool_core.teacher.weights import resolve_weights, weights_fingerprint
+
+    torch_device = resolve_device(device)
+    path = resolve_weights(ref, "WELDPOOL_SAM2")
+    model = Sam2Model.from_pretrained(
+        path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
+    )
+    return Sam2Predictor(model, torch_device, weights_id=f"{ref}#{weights_fingerprint(path)}")
+
+
+def load_dino(ref: str, device: str = "auto", input_size: int = 480) -> DinoAttention:
+    """DINO named by ``ref`` (WELDPOOL_DINO), in the device's inference precision."""
+    from transformers import ViTModel
+
+    from weldpool_core.device import inference_dtype, resolve_device
+    from weldpool_core.teacher.weights import resolve_weights
+
+    torch_device = resolve_device(device)
+    model = ViTModel.from_pretrained(
+        resolve_weights(ref, "WELDPOOL_DINO"),
+        add_pooling_layer=False,
+        attn_implementation="sdpa",
+        dtype=inference_dtype(torch_device),
+    )
+    return DinoAttention(model, input_size, torch_device)
