@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import Path, Query
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 MAX_ID = 2**31 - 1
 """Largest id or offset the API accepts (PostgreSQL INTEGER)."""
@@ -30,14 +30,19 @@ def _has_nul(value: Any) -> bool:
     return False
 
 
+NO_NUL_PATTERN = "^[^\\x00]*$"
+"""The schema's pattern for text (``app.openapi`` adds it to every string it documents)."""
+
+
 class InputModel(BaseModel):
-    """Base of request bodies: finite numbers only, no NUL in any text."""
+    """Base of request bodies: finite numbers only, no NUL in the text of any field
+    (unknown fields are ignored, as before)."""
 
     model_config = ConfigDict(allow_inf_nan=False)
 
-    @model_validator(mode="before")
+    @field_validator("*", mode="before")
     @classmethod
-    def _no_nul(cls, data: Any) -> Any:
-        if _has_nul(data):
+    def _no_nul(cls, value: Any) -> Any:
+        if _has_nul(value):
             raise ValueError("text must not contain NUL characters")
-        return data
+        return value

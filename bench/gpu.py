@@ -147,12 +147,13 @@ def main() -> int:
             return f"{ms:.1f} ms/click, score {prediction.score:.2f}"
 
         def train() -> str:
+            from weldpool_core.io import to_rgb8
             from weldpool_core.student.data import TrainingFrame
             from weldpool_core.student.train import TrainConfig, train_student
             from weldpool_core.synth import SynthParams, synth_frame
 
             frames = [
-                TrainingFrame(f.image, f.mask, None, f"s{i}")
+                TrainingFrame(to_rgb8(f.image), f.mask, None, f"s{i}")
                 for i, f in enumerate(
                     synth_frame(seed=s, params=SynthParams(320, 200)) for s in range(6)
                 )
