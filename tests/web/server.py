@@ -174,3 +174,18 @@ def wait_for_js(page: Any, predicate: str, arg: Any = None, timeout: float = 20_
         if time.monotonic() > deadline:
             raise AssertionError(f"Timed out after {timeout:.0f} ms waiting for: {predicate}")
         page.wait_for_timeout(50)
+
+
+def wait_until(page: Any, condition: Any, timeout: float = 10_000) -> None:
+    """Let the page run (events, dialogs) until a Python ``condition()`` holds (``timeout`` ms).
+
+    Playwright delivers events such as dialogs only while the test calls into it, so a test
+    that waits for a dialog polls here rather than sleeping a fixed time.
+    """
+    import time
+
+    deadline = time.monotonic() + timeout / 1000
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"Timed out after {timeout:.0f} ms waiting for {condition}")
+        page.wait_for_timeout(25)

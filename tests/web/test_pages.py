@@ -15,7 +15,7 @@ import pytest
 
 from tests.helpers import corrected_label, image_bytes
 from tests.web.conftest import synthetic_png
-from tests.web.server import LiveServer, login, wait_for_js
+from tests.web.server import LiveServer, login, wait_for_js, wait_until
 from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
 from weldpool_core.synth import SynthParams, synth_frame
 
@@ -108,81 +108,58 @@ def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screens
     page.screenshot(path=str(screenshots / "models.png"))
 
 
-SAMPLE_MODELS = [
-    {
-        "id": 2,
-        "name": "student-v2",
-        "created_at": "2025-03-02T10:00:00",
-        "is_promoted": False,
-        "train_label_count": 60,
-        "metrics": {"mIoU": 0.874, "mED": 6.2},
-        "gate": {
-            "usable": False,
-            "promote": False,
-            "reason": "Not promoted: worse than the teacher on 3 held-out frames.",
-            "frames": [4, 5, 6],
-        },
-        "curve": [
-            {
-                "epoch": e,
-                "train_loss": 1.2 * 0.8**e,
-                "val_mIoU": 0.9 - 0.5 * 0.7**e,
-                "val_mED": 4 + 20 * 0.7**e,
-            }
-            for e in range(1, 21)
-        ],
-        "job_id": 9,
-    },
-    {
-        "id": 1,
-        "name": "student-v1",
-        "created_at": "2025-03-01T10:00:00",
-        "is_promoted": True,
-        "train_label_count": 20,
-        "metrics": {"mIoU": 0.781, "mED": 11.4},
-        "curve": [
-            {"epoch": e, "train_loss": 1.3 * 0.85**e, "val_mIoU": 0.8 - 0.5 * 0.75**e}
-            for e in range(1, 11)
-        ],
-        "job_id": 4,
-    },
-]
-
-
-def test_models_page_draws_versions_from_the_contract(
+def test_models_page_shows_a_trained_version_and_promotes_it(
     page: Any, server: LiveServer, screenshots: Path
 ) -> None:
-    """The models API is not on this branch yet: the browser is answered (client side) with
-    a list shaped as the contract says, to check the cards, charts and promote button."""
+    """A real student version (4 reviewed frames, 2 epochs on the live server) as the API
+    returns it: its card, metrics, curves and the gate's verdict; then Promote through the
+    real endpoint, forcing it when the gate refuses (both dialogs accepted)."""
+    for seed in range(410, 414):
+        frame_id = add_frame(server, seed)
+        truth = synth_frame(seed=seed, params=SynthParams(1280, 800))
+        saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
+        assert saved.status_code == 200, saved.text
+    job = server.api("POST", "/student/train", json={"epochs": 2}).json()
+    assert server.wait_for_job(job["job_id"], timeout=300)["status"] == "succeeded"
+    models = server.api("GET", "/models").json()
+    newest = models[0]
+
     login(page, server, "rita")
-    promoted: list[str] = []
+    dialogs: list[str] = []
 
-    def models(route: Any) -> None:
-        route.fulfill(json=SAMPLE_MODELS)
+    def accept(dialog: Any) -> None:
+        dialogs.append(dialog.message)
+        dialog.accept()
 
-    def promote(route: Any) -> None:
-        promoted.append(route.request.url)
-        route.fulfill(json=SAMPLE_MODELS[0] | {"is_promoted": True})
-
-    page.route("**/api/v1/models", models)
-    page.route("**/api/v1/models/*/promote", promote)
+    page.on("dialog", accept)
     page.goto(f"{server.url}/models")
     page.wait_for_selector("[data-testid=model-card]")
     cards = page.locator("[data-testid=model-card]")
-    assert cards.count() == 2
-    first = cards.nth(0)
-    assert "0.874" in first.inner_text() and "6.2 px" in first.inner_text()
-    assert first.locator("svg.chart").count() == 3  # loss, mIoU, mED
-    assert first.locator("path.line[data-series=val_mIoU]").count() == 1
-    assert cards.nth(1).locator(".badge.promoted").count() == 1
-    assert cards.nth(1).locator("[data-testid=promote]").count() == 0
-    gate = first.locator("[data-testid=gate]").inner_text()
-    assert "not usable" in gate and "worse than the teacher" in gate and "3 held-out" in gate
-    page.screenshot(path=str(screenshots / "models-preview.png"), full_page=True)
-    page.once("dialog", lambda dialog: dialog.accept())  # "Promote student-v2?"
-    first.locator("[data-testid=promote]").click()
-    page.wait_for_selector("[data-testid=toast-ok]")
-    assert promoted and promoted[0].endswith("/api/v1/models/2/promote")
+    assert cards.count() == len(models)
+    card = page.locator(f"[data-testid=model-card][data-model-id='{newest['id']}']")
+    text = card.inner_text()
+    assert newest["name"] in text and f"trained on {newest['train_label_count']} labels" in text
+    assert f"{newest['metrics']['mIoU']:.3f}" in text
+    assert card.locator("svg.chart").count() >= 2  # loss and mIoU curves at least
+    gate = card.locator("[data-testid=gate]").inner_text()
+    assert newest["gate"]["reason"] in gate
+    assert ("not usable" in gate) != newest["gate"]["usable"]
+    page.screenshot(path=str(screenshots / "models-trained.png"), full_page=True)
+    if newest["is_promoted"]:
+        assert card.locator("[data-testid=promote]").count() == 0
+        assert card.locator(".badge.promoted").count() == 1
+        return
+    card.locator("[data-testid=promote]").click()
+    wait_until(
+        page,
+        lambda: server.api("GET", f"/models/{newest['id']}").json()["is_promoted"],
+        timeout=60_000,
+    )
+    assert dialogs[0].startswith(f"Promote {newest['name']}?")
+    assert len(dialogs) == (1 if newest["gate"]["usable"] else 2)  # a refusal asks to force
+    page.wait_for_selector(
+        f"[data-testid=model-card][data-model-id='{newest['id']}'] .badge.promoted"
+    )
 
 
 def test_annotator_saves_corrections_and_uploads_a_video(
@@ -309,14 +286,13 @@ def test_teacher_button_undo_redo_zoom_and_unsaved_warning(page: Any, server: Li
 
     page.on("dialog", answer)
     page.click("nav >> text=Frames")
-    page.wait_for_timeout(500)
-    assert "beforeunload" in dialogs
+    wait_until(page, lambda: "beforeunload" in dialogs)
     assert re.search(rf"/frames/{frame_id}$", page.url)
     assert canvas_data(page, "mask-area") == painted
     # Next asks too (a confirm); dismissing it stays.
     page.click("[data-testid=next]")
-    page.wait_for_timeout(300)
-    assert "confirm" in dialogs and re.search(rf"/frames/{frame_id}$", page.url)
+    wait_until(page, lambda: "confirm" in dialogs)
+    assert re.search(rf"/frames/{frame_id}$", page.url)
 
 
 def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> None:

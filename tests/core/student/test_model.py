@@ -54,6 +54,23 @@ def test_samples_differ_and_the_mean_is_deterministic() -> None:
     assert not torch.allclose(first.mask_logits, drawn.mask_logits)
 
 
+def test_samples_have_the_posterior_mean_and_standard_deviation(monkeypatch) -> None:
+    """latent = mean + ε·exp(½·logvar): over many draws the latent's mean and standard
+    deviation are the posterior's (exp(logvar) instead would give σ² here, 4 instead of 2)."""
+    model = build_student(student_config("light", input_size=64)).model.eval()
+    mean = torch.full((4000, 2, 1, 1), 3.0)
+    logvar = torch.full((4000, 2, 1, 1), float(2 * torch.log(torch.tensor(2.0))))  # σ = 2
+    seen: list[torch.Tensor] = []
+    monkeypatch.setattr(model, "encode", lambda images: (mean, logvar))
+    monkeypatch.setattr(model, "decode", lambda latent: (seen.append(latent) or latent, latent))
+    model(torch.zeros(1), sample=True, generator=torch.Generator().manual_seed(0))
+    latent = seen[0]
+    assert float(latent.mean()) == pytest.approx(3.0, abs=0.1)
+    assert float(latent.std()) == pytest.approx(2.0, rel=0.05)
+    model(torch.zeros(1), sample=False)
+    assert torch.equal(seen[1], mean)
+
+
 def test_kl_is_zero_at_the_prior_and_positive_elsewhere() -> None:
     zeros = torch.zeros(2, 4, 3, 3)
     assert float(kl_divergence(zeros, zeros)) == 0.0

@@ -131,7 +131,37 @@ def test_prompt_stability_is_reproducible_and_bounded(models, frame) -> None:
     assert first.prompt_stability == second.prompt_stability
     still = Teacher(dino, sam2, "s", config=TeacherConfig(stability_jitter=0.0)).run(frame)
     assert still.prompt_stability == 1.0  # no jitter: the same prompts give the same mask
+    shaky = Teacher(dino, sam2, "s", config=TeacherConfig(stability_jitter=0.3)).run(frame)
+    assert shaky.prompt_stability is not None and shaky.prompt_stability < 0.99  # it moved
     off = Teacher(dino, sam2, "s", config=TeacherConfig(stability_samples=0)).run(frame)
     assert off.prompt_stability is None
     automatic = Teacher(dino, sam2, "s", config=TeacherConfig(prompts="none", grid_points=2))
     assert automatic.run(frame).prompt_stability is None  # no prompts to jitter
+
+
+def test_automatic_mode_clicks_a_grid_in_frame_pixels(models) -> None:
+    """The ``none`` prompts click an n×n grid over the frame: x across the width, y down the
+    height (a 160 wide × 120 high frame tells them apart), and keep the best stable candidate."""
+    dino, sam2 = models
+    teacher = Teacher(dino, sam2, "s", config=TeacherConfig(prompts="none", grid_points=3))
+    embedding = sam2.set_image(np.random.default_rng(2).integers(0, 256, (120, 160, 3), np.uint8))
+    clicked: list[np.ndarray] = []
+    decoded: list[tuple] = []
+    real = sam2.predict_points
+
+    def recording(embedding, points):  # type: ignore[no-untyped-def]
+        clicked.append(np.asarray(points))
+        out = real(embedding, points)
+        decoded.append(out)
+        return out
+
+    sam2.predict_points = recording  # type: ignore[method-assign]
+    try:
+        best = teacher._automatic(embedding)
+    finally:
+        del sam2.predict_points
+    grid = np.concatenate(clicked)
+    expected = [[(i + 0.5) * 160 / 3, (j + 0.5) * 120 / 3] for j in range(3) for i in range(3)]
+    np.testing.assert_allclose(grid, expected, rtol=1e-6)
+    ious = np.concatenate([iou.numpy() for _, iou, _ in decoded])
+    assert np.isclose(ious, best.score).any()  # the kept mask is one of the grid's candidates
