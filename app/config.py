@@ -9,6 +9,8 @@ from typing import Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from weldpool_core.io import DEFAULT_MAX_PIXELS
+
 
 class Settings(BaseSettings):
     """Everything the service can be configured with; see the README's configuration table."""
@@ -78,7 +80,10 @@ class Settings(BaseSettings):
         description="A running job whose worker is silent this long is failed or retried.",
     )
     max_image_pixels: int = Field(
-        default=50_000_000, gt=0, description="Largest frame accepted (a decompression-bomb guard)."
+        default=DEFAULT_MAX_PIXELS,
+        gt=0,
+        description="Largest frame accepted, in pixels (a decompression-bomb guard; each frame "
+        "in flight costs about 5 bytes per pixel while it is checked).",
     )
     max_request_mb: float = Field(
         default=2048.0, gt=0, description="Largest request body accepted, in MiB (413 above)."

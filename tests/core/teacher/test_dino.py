@@ -40,6 +40,27 @@ def test_last_block_attention_equals_all_attentions_path() -> None:
     assert heads.std() > 1e-3  # the comparison is not between two flat maps
 
 
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+def test_half_precision_attention_follows_the_fp32_path(dtype: torch.dtype) -> None:
+    """On a GPU DINO runs in bf16 (fp16 on older cards): its last-block path in that precision
+    stays close to the fp32 eager path, and the attended region barely changes."""
+    import copy
+
+    from weldpool_core.teacher.dino import DinoAttention
+
+    dino = tiny_dino(input_size=64)
+    half = DinoAttention(copy.deepcopy(dino.model).to(dtype), 64)
+    image = _frame()
+    maps = half(image)
+    expected, cls = _straightforward(dino, image)
+    heads = maps.heads.reshape(len(maps.heads), -1)
+    assert heads.dtype == np.float32  # maps come back in fp32 whatever the model runs in
+    np.testing.assert_allclose(heads, expected, atol=0.02 * float(np.abs(expected).max()))
+    np.testing.assert_allclose(maps.cls, cls, atol=0.05 * float(np.abs(cls).max()))
+    full = dino(image)
+    assert (maps.attended != full.attended).mean() < 0.1
+
+
 def test_maps_threshold_and_upsampling() -> None:
     dino = tiny_dino(input_size=64)
     maps = dino(_frame(90, 120))
