@@ -113,3 +113,31 @@ def test_weights_status_names_the_variable_to_set(tmp_path: Path) -> None:
     assert fetched.returncode == 2
     assert fetched.stderr.count("\n") == 1 and "WELDPOOL_DINO" in fetched.stderr
     assert "Traceback" not in fetched.stderr
+
+
+def test_demo_on_a_fresh_home_needs_no_migrate_and_says_how_to_log_in(
+    cli_settings: Settings,
+) -> None:
+    """`weldpool demo` first, on a home that has never been served: it migrates, creates the
+    admin, fills a run, and prints where the password is; that password logs in."""
+    import re
+
+    result = run(cli_settings, "demo", "--frames", "4")
+    assert result.returncode == 0, result.stderr
+    hint = re.search(r"log in at \S+ as admin with the password in (\S+)", result.stderr)
+    assert hint, result.stderr
+    password = Path(hint.group(1)).read_text().strip()
+    assert "weldpool serve" in result.stderr
+    with TestClient(create_app(cli_settings)) as client:
+        page = client.get("/login")
+        csrf = re.search(r'name="csrf_token" value="([^"]+)"', page.text).group(1)  # type: ignore[union-attr]
+        login = client.post(
+            "/login",
+            data={"username": "admin", "password": password, "csrf_token": csrf, "next": "/"},
+            follow_redirects=False,
+        )
+        assert login.status_code == 303
+        sequences = client.get("/api/v1/sequences").json()
+        assert sequences[0]["name"].startswith("demo weld run") and sequences[0]["frame_count"] == 4
+    again = run(cli_settings, "demo", "--frames", "4")  # a second demo: users exist already
+    assert again.returncode == 0 and "with your account" in again.stderr

@@ -67,14 +67,19 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
 def demo_cmd(frames: int, seed: int) -> None:
     """Fill this instance with a synthetic weld run, so the whole loop shows at once.
 
+    Works on a fresh home: the database is migrated and, when there is no user yet, ``admin`` is
+    created with its password in WELDPOOL_HOME/initial-admin-password (printed at the end).
+
     Frames come from weldpool_core.synth; half of them get labels from the generator's ground
     truth (user `demo`, status accepted) and a few get manual validation keypoints, so the
     student can be trained at once; the rest wait in the review queue. When the teacher's
     weights are present, a teacher job is queued for the unlabelled frames.
     """
+    from app.cli.service import login_hint, prepare_instance
     from app.demo import fill_demo
 
     settings = load_settings()
+    password_file = prepare_instance(settings)  # a fresh home needs no `weldpool migrate`
     with open_sessions(settings)() as session:
         summary = fill_demo(
             session,
@@ -84,4 +89,6 @@ def demo_cmd(frames: int, seed: int) -> None:
             progress=lambda text: click.echo(text, err=True),
         )
     click.echo(summary, err=True)
+    click.echo("Start it with `weldpool serve`, then:", err=True)
+    click.echo(login_hint(password_file), err=True)
     sys.exit(0)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
+from app.config import Settings
 from app.db import create_db_engine, create_session_factory, migrate
 
 
@@ -16,6 +19,33 @@ def migrate_cmd() -> None:
     settings.ensure_home()
     migrate(create_db_engine(settings.resolved_database_url))
     click.echo("database is at the newest revision", err=True)
+
+
+def prepare_instance(settings: Settings) -> Path | None:
+    """Migrate the database and, on a fresh instance, create ``admin`` (serve and demo).
+
+    Returns the file holding the new admin's password, or None when users already existed.
+    """
+    from app.users.service import ensure_initial_admin
+
+    settings.ensure_home()
+    engine = create_db_engine(settings.resolved_database_url)
+    try:
+        migrate(engine)
+        with create_session_factory(engine)() as session:
+            return ensure_initial_admin(session, settings.home)
+    finally:
+        engine.dispose()
+
+
+def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 8000) -> str:
+    """How to log in, in one sentence, for the messages of serve and demo."""
+    where = f"http://{host}:{port}"
+    if password_file:
+        return (
+            f"created user 'admin'; log in at {where} as admin with the password in {password_file}"
+        )
+    return f"log in at {where} with your account (`weldpool user add NAME` adds one)"
 
 
 @main.command()
@@ -30,14 +60,11 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     from app.housekeeping import sweep_orphan_files
     from app.main import create_app
     from app.storage import Storage
-    from app.users.service import ensure_initial_admin
 
     settings = load_settings()
-    settings.ensure_home()
+    password_file = prepare_instance(settings)
     engine = create_db_engine(settings.resolved_database_url)
-    migrate(engine)
     with create_session_factory(engine)() as session:
-        password_file = ensure_initial_admin(session, settings.home)
         swept = sweep_orphan_files(session, Storage(settings.home))
     engine.dispose()
     if swept:
@@ -45,7 +72,7 @@ def serve(host: str, port: int, no_worker: bool) -> None:
             f"removed {swept} stored files that no row named (an interrupted upload)", err=True
         )
     if password_file:
-        click.echo(f"created user 'admin'; its password is in {password_file}", err=True)
+        click.echo(login_hint(password_file, host, port), err=True)
     app = create_app(settings, embedded_worker=not no_worker)
     click.echo(f"weldpool serving on http://{host}:{port}", err=True)
     uvicorn.run(app, host=host, port=port, log_config=None, access_log=True)
