@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import email.message
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
@@ -191,7 +191,13 @@ def list_frames(
     settings: SettingsDep,
     _user: CurrentUser,
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
-    status: FrameStatus | None = None,
+    status: Annotated[
+        FrameStatus | Literal["unreviewed", "all"] | None,
+        Query(
+            description="One status; `unreviewed`: new or proposed (still to review, the "
+            "queue's default in the UI); `all` or none: every frame."
+        ),
+    ] = None,
     split: Split | None = None,
     order: str = Query(
         "id",
@@ -205,7 +211,7 @@ def list_frames(
     rows, total = service.list_frames(
         session,
         sequence_id=sequence_id,
-        status=status,
+        status=None if status == "all" else status,
         split=split,
         order=order,
         limit=limit,

@@ -12,7 +12,7 @@ from collections.abc import Sequence as Seq
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Literal
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
@@ -325,6 +325,9 @@ def ingest_frames(
 
 # --- reading frames ----------------------------------------------------------------------------
 
+UNREVIEWED = (FrameStatus.new, FrameStatus.proposed)
+"""Frames still to review: what the queue shows by default (``status=unreviewed``)."""
+
 _ORDERINGS: dict[str, tuple[Any, ...]] = {
     "id": (Frame.id,),
     "-id": (Frame.id.desc(),),
@@ -337,7 +340,7 @@ def list_frames(
     session: Session,
     *,
     sequence_id: int | None = None,
-    status: FrameStatus | None = None,
+    status: FrameStatus | Literal["unreviewed"] | None = None,
     split: Split | None = None,
     order: str = "id",
     limit: int = 50,
@@ -351,7 +354,9 @@ def list_frames(
     query = sa.select(Frame)
     if sequence_id is not None:
         query = query.where(Frame.sequence_id == sequence_id)
-    if status is not None:
+    if status == "unreviewed":
+        query = query.where(Frame.status.in_(UNREVIEWED))
+    elif status is not None:
         query = query.where(Frame.status == status)
     if split is not None:
         query = query.where(Frame.split == split)

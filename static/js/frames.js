@@ -132,7 +132,10 @@ async function loadFrames() {
   }
   rows.replaceChildren(...(lastPage.items.length
     ? lastPage.items.map(frameRow)
-    : [h("tr", {}, h("td", { colspan: "7", class: "empty" }, "No frames match. Drop frames above to start."))]));
+    : [h("tr", {}, h("td", { colspan: "7", class: "empty", "data-testid": "frames-empty" },
+        filters().status === "unreviewed"
+          ? "Nothing left to review here. Status “all” shows the frames already reviewed; drop frames above to add more."
+          : "No frames match. Drop frames above to start."))]));
   const last = Math.min(offset + PAGE_SIZE, lastPage.total);
   document.getElementById("page-info").textContent = lastPage.total ? `${offset + 1}–${last} of ${lastPage.total}` : "0 frames";
   document.getElementById("prev-page").disabled = offset === 0;

@@ -334,3 +334,28 @@ def test_listing_filters_pagination_and_queue_order(
     }
     listed = client.get("/api/v1/sequences", headers=auth(token)).json()
     assert listed[0]["frame_count"] == 5
+
+
+def test_the_unreviewed_filter_is_new_and_proposed_frames(
+    client: TestClient, token: str, session_factory
+) -> None:
+    from app.models import Frame, FrameStatus
+
+    stored = _upload(client, token, [(f"u{i}.png", image_bytes(seed=60 + i)) for i in range(5)])
+    ids = [f["id"] for f in stored.json()["stored"]]
+    statuses = [FrameStatus.new, FrameStatus.proposed, FrameStatus.accepted, FrameStatus.corrected]
+    with session_factory() as session:
+        for frame_id, status in zip(ids, [*statuses, FrameStatus.rejected], strict=True):
+            session.get_one(Frame, frame_id).status = status
+        session.commit()
+
+    def listed(status: str) -> list[int]:
+        page = client.get("/api/v1/frames", params={"status": status}, headers=auth(token))
+        assert page.status_code == 200, page.text
+        return [f["id"] for f in page.json()["items"]]
+
+    assert listed("unreviewed") == ids[:2]
+    assert listed("all") == ids
+    assert listed("accepted") == [ids[2]]
+    bad = client.get("/api/v1/frames", params={"status": "done"}, headers=auth(token))
+    assert bad.status_code == 422

@@ -387,7 +387,7 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
     )
-    page.select_option("select[name=status]", "")
+    page.select_option("select[name=status]", "all")
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 53'"
     )
@@ -411,6 +411,47 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '1–50 of 55'"
     )
+
+
+def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServer) -> None:
+    """The frames page and "Review queue" start on frames still to review (new, proposed);
+    the status filter brings back the reviewed ones."""
+    sequence = server.api("POST", "/sequences", json={"name": "Queue run"}).json()
+    files = [("files", (f"q{i}.png", synthetic_png(500 + i), "image/png")) for i in range(3)]
+    stored = server.api("POST", "/frames", files=files, data={"sequence_id": sequence["id"]})
+    ids = [f["id"] for f in stored.json()["stored"]]
+    truth = synth_frame(seed=500, params=SynthParams(1280, 800))
+    done = server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask))
+    assert done.status_code == 200
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    assert page.input_value("[data-testid=filter-status]") == "unreviewed"
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '1–2 of 2'"
+    )
+    shown = {
+        int(r.get_attribute("data-frame-id")) for r in page.locator("[data-testid=frame-row]").all()
+    }
+    assert shown == set(ids[1:])
+    page.click("[data-testid=start-review]")
+    page.wait_for_url(re.compile(r"/frames/\d+"))
+    assert int(re.search(r"/frames/(\d+)", page.url).group(1)) in ids[1:]  # type: ignore[union-attr]
+    assert "status=unreviewed" in page.url
+
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    page.select_option("[data-testid=filter-status]", "all")
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '1–3 of 3'"
+    )
+    for frame_id in ids[1:]:
+        saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
+        assert saved.status_code == 200
+    page.select_option("[data-testid=filter-status]", "unreviewed")
+    page.wait_for_selector("[data-testid=frames-empty]")
+    assert "Nothing left to review" in page.inner_text("[data-testid=frames-empty]")
 
 
 def test_real_model_version_on_the_models_and_metrics_pages(

@@ -19,6 +19,7 @@ const $ = (id) => document.getElementById(id);
 /** The list's filters this frame was opened from: the queue that "next" walks. */
 const CONTEXT = new URLSearchParams(location.search);
 if (!CONTEXT.has("order")) CONTEXT.set("order", "uncertainty");
+if (!CONTEXT.has("status")) CONTEXT.set("status", "unreviewed"); // the queue: what is still to review
 
 let frame = null;
 let proposal = null; // the proposal shown: {id, mask, keypoints, scores, source, source_key, model_id, chosen}
