@@ -365,6 +365,27 @@ def test_missing_frame_says_so(page: Any, server: LiveServer) -> None:
     assert page.is_disabled("[data-testid=accept]")
 
 
+def test_review_pages_ask_for_nothing_that_is_absent(page: Any, server: LiveServer) -> None:
+    """A frame without label, proposal or validation keypoints, and one with a proposal: no
+    request of the page answers 4xx (no 404 for an absent label, no missing favicon)."""
+    bare = add_frame(server, 620, teacher=False)
+    proposed = add_frame(server, 621)
+    failures: list[str] = []
+    page.on(
+        "response",
+        lambda response: (
+            failures.append(f"{response.status} {response.url}") if response.status >= 400 else None
+        ),
+    )
+    login(page, server, "rita")
+    for frame_id in (bare, proposed):
+        page.goto(f"{server.url}/frames/{frame_id}")
+        open_review(page)
+        page.wait_for_load_state("networkidle")
+    assert page.locator("link[rel=icon]").count() == 1
+    assert failures == []
+
+
 def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer) -> None:
     sequence = server.api("POST", "/sequences", json={"name": "Pagination run"}).json()
     files = [

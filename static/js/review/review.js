@@ -718,12 +718,13 @@ async function start() {
   image.catch(() => {});
   let detail, proposalBody, label, manual, listing;
   try {
-    [detail, proposalBody, label, manual, listing] = await Promise.all([
-      api(`/frames/${FRAME_ID}`),
-      optional(`/frames/${FRAME_ID}/proposal`),
-      optional(`/frames/${FRAME_ID}/label`),
-      optional(`/frames/${FRAME_ID}/validation-keypoints`),
-      optional(`/frames/${FRAME_ID}/proposals`),
+    // The frame says what it has, so nothing absent is asked for (no 404s in the log).
+    detail = await api(`/frames/${FRAME_ID}`);
+    [proposalBody, label, manual, listing] = await Promise.all([
+      detail.proposal ? optional(`/frames/${FRAME_ID}/proposal`) : null,
+      detail.label ? optional(`/frames/${FRAME_ID}/label`) : null,
+      detail.has_validation_keypoints ? optional(`/frames/${FRAME_ID}/validation-keypoints`) : null,
+      detail.proposal ? optional(`/frames/${FRAME_ID}/proposals`) : null,
     ]);
   } catch (error) {
     fail(error.message);
