@@ -11,6 +11,7 @@ __all__ = [
     "InvalidInputError",
     "NotFoundError",
     "PermissionDeniedError",
+    "TooManyAttemptsError",
     "WeightsUnavailableError",
     "WeldpoolError",
     "http_status_of",
@@ -37,12 +38,21 @@ class PermissionDeniedError(WeldpoolError):
     """The user is known but their role does not allow this."""
 
 
+class TooManyAttemptsError(WeldpoolError):
+    """Too many wrong passwords for a name or from an address; ``retry_after`` in seconds."""
+
+    def __init__(self, message: str, retry_after: float) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
+
+
 _STATUS: dict[type[WeldpoolError], int] = {
     InvalidInputError: 400,
     AuthenticationError: 401,
     PermissionDeniedError: 403,
     NotFoundError: 404,
     ConflictError: 409,
+    TooManyAttemptsError: 429,
     WeightsUnavailableError: 503,
     ConfigurationError: 503,
 }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -15,7 +16,7 @@ from fastapi.staticfiles import StaticFiles
 
 from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
-from app.errors import AuthenticationError, WeldpoolError, http_status_of
+from app.errors import AuthenticationError, TooManyAttemptsError, WeldpoolError, http_status_of
 from app.frames.routes import router as frames_router
 from app.headers import SecurityHeaders
 from app.insights.routes import router as insights_router
@@ -30,6 +31,7 @@ from app.storage import Storage
 from app.system.routes import router as system_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
+from app.users.routes import tokens_router
 from app.web.routes import router as web_router
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,6 +58,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         ):
             return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+        if isinstance(exc, TooManyAttemptsError):
+            headers = {"Retry-After": str(math.ceil(exc.retry_after))}
         body = {"detail": exc.message} | getattr(exc, "extra", {})
         return JSONResponse(body, status_code=status, headers=headers)
 
@@ -133,6 +137,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(system_router)
     protected = [Depends(current_user)]
     api.include_router(users_router, dependencies=protected)
+    api.include_router(tokens_router)  # a token by password, or for the caller
     api.include_router(jobs_router, dependencies=protected)
     api.include_router(frames_router, dependencies=protected)
     api.include_router(review_router, dependencies=protected)

@@ -102,6 +102,9 @@ def openapi_schema(app: FastAPI) -> dict[str, Any]:
                 if path in PUBLIC and code != "503":
                     continue
                 responses.setdefault(code, _error(description, "Error"))
+    token = schema.get("paths", {}).get("/api/v1/tokens", {}).get("post")
+    if token is not None:  # a token by password counts towards the login lockout
+        token["responses"]["429"] = _error("Too many wrong passwords; see Retry-After.", "Error")
     _no_nul_strings(schema.get("paths", {}))
     for name, component in components.items():
         if name not in ("Error", "HTTPValidationError") and not name.endswith("Out"):

@@ -6,6 +6,7 @@ import collections
 import datetime as dt
 import hashlib
 import hmac
+import math
 import secrets
 import threading
 import time
@@ -19,7 +20,7 @@ from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.deps import SessionDep
-from app.errors import AuthenticationError, PermissionDeniedError
+from app.errors import AuthenticationError, PermissionDeniedError, TooManyAttemptsError
 from app.models import ApiToken, Role, User, WebSession
 
 SESSION_COOKIE = "weldpool_session"
@@ -172,6 +173,27 @@ class LoginThrottle:
     def succeeded(self, username: str) -> None:
         with self._lock:
             self._failures.pop(f"user:{username.lower()}", None)
+
+
+def authenticate_throttled(
+    request: Request, session: Session, username: str, password: str
+) -> User:
+    """Check a name and password under the login throttle (the one rule for the login page and
+    ``POST /tokens``): TooManyAttemptsError while locked out, AuthenticationError when wrong."""
+    throttle: LoginThrottle = request.app.state.login_throttle
+    address = request.client.host if request.client else ""
+    wait = throttle.retry_after(username, address)
+    if wait > 0:
+        minutes = max(1, math.ceil(wait / 60))
+        raise TooManyAttemptsError(
+            f"Too many wrong passwords; try again in {minutes} minute{'s' * (minutes > 1)}.", wait
+        )
+    user = authenticate(session, username, password)
+    if user is None:
+        throttle.failed(username, address)
+        raise AuthenticationError("Wrong user name or password.")
+    throttle.succeeded(username)
+    return user
 
 
 # --- FastAPI dependencies --------------------------------------------------------------------

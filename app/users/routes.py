@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Request, status
 
 from app.bounds import IdPath
 from app.deps import SessionDep
-from app.security import AdminUser, CurrentUser
+from app.errors import AuthenticationError
+from app.models import User
+from app.security import AdminUser, CurrentUser, authenticate_throttled, optional_user
 from app.users import service
 from app.users.schemas import TokenCreated, TokenIn, TokenOut, UserIn, UserOut, UserPatch
 
@@ -52,10 +56,30 @@ def list_tokens(session: SessionDep, user: CurrentUser) -> list[TokenOut]:
     return [TokenOut.model_validate(t) for t in service.list_tokens(session, user)]
 
 
-@router.post("/tokens", response_model=TokenCreated, status_code=status.HTTP_201_CREATED)
-def create_token(body: TokenIn, session: SessionDep, user: CurrentUser) -> TokenCreated:
-    """A new API token for the caller; the answer is the only place the token appears."""
-    row, text = service.create_token(session, user, body.name)
+tokens_router = APIRouter(tags=["users"])
+
+
+@tokens_router.post("/tokens", response_model=TokenCreated, status_code=status.HTTP_201_CREATED)
+def create_token(
+    request: Request,
+    session: SessionDep,
+    caller: Annotated[User | None, Depends(optional_user)],
+    body: TokenIn | None = None,
+) -> TokenCreated:
+    """A new API token; the answer is the only place the token appears.
+
+    For the user whose ``username`` and ``password`` are in the body (a script with no token
+    yet; wrong passwords count towards the login lockout: 401, then 429), else for the caller
+    (bearer token, or a logged-in browser with its CSRF token).
+    """
+    body = body or TokenIn()
+    if body.username is not None or body.password is not None:  # the credentials decide
+        caller = authenticate_throttled(request, session, body.username or "", body.password or "")
+    if caller is None:
+        raise AuthenticationError(
+            "Send 'Authorization: Bearer <token>', log in, or give username and password."
+        )
+    row, text = service.create_token(session, caller, body.name)
     return TokenCreated(token=text, **TokenOut.model_validate(row).model_dump())
 
 

@@ -47,6 +47,10 @@ class TokenOut(BaseModel):
 
 class TokenIn(InputModel):
     name: str = Field(default="", max_length=64)
+    username: str | None = Field(
+        default=None, max_length=64, description="With password: a token for a script."
+    )
+    password: str | None = Field(default=None, max_length=1024)
 
 
 class TokenCreated(TokenOut):

@@ -15,12 +15,12 @@ from fastapi.templating import Jinja2Templates
 
 from app.bounds import IdPath
 from app.deps import SessionDep, SettingsDep
+from app.errors import AuthenticationError, TooManyAttemptsError
 from app.models import User
 from app.security import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
-    LoginThrottle,
-    authenticate,
+    authenticate_throttled,
     close_web_session,
     constant_time_equal,
     current_user,
@@ -81,24 +81,14 @@ def login(
     expected = request.cookies.get(LOGIN_CSRF_COOKIE, "")
     if not expected or not constant_time_equal(expected, csrf_token):
         return _login_page(request, _safe_next(next), "The form expired; please log in again.", 403)
-    throttle: LoginThrottle = request.app.state.login_throttle
-    address = request.client.host if request.client else ""
-    wait = throttle.retry_after(username, address)
-    if wait > 0:
-        minutes = max(1, math.ceil(wait / 60))
-        response = _login_page(
-            request,
-            _safe_next(next),
-            f"Too many wrong passwords; try again in {minutes} minute{'s' * (minutes > 1)}.",
-            429,
-        )
-        response.headers["Retry-After"] = str(math.ceil(wait))
+    try:
+        user = authenticate_throttled(request, session, username, password)
+    except TooManyAttemptsError as exc:
+        response = _login_page(request, _safe_next(next), exc.message, 429)
+        response.headers["Retry-After"] = str(math.ceil(exc.retry_after))
         return response
-    user = authenticate(session, username, password)
-    if user is None:
-        throttle.failed(username, address)
-        return _login_page(request, _safe_next(next), "Wrong user name or password.", 401)
-    throttle.succeeded(username)
+    except AuthenticationError as exc:
+        return _login_page(request, _safe_next(next), exc.message, 401)
     _, cookie = open_web_session(session, user, settings.session_ttl_hours)
     session.commit()
     response = RedirectResponse(_safe_next(next), status_code=303)
@@ -147,6 +137,12 @@ def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
 def jobs(request: Request, _user: LoggedIn) -> Response:
     """Background jobs with live progress."""
     return render(request, "jobs.html", page="jobs")
+
+
+@router.get("/tokens")
+def tokens(request: Request, _user: LoggedIn) -> Response:
+    """The caller's API tokens: create (shown once), list, revoke."""
+    return render(request, "tokens.html", page="tokens")
 
 
 @router.get("/models")

@@ -272,3 +272,28 @@ def test_every_response_carries_the_security_headers(client: TestClient, make_us
         policy = answer.headers["content-security-policy"]
         assert "frame-ancestors 'none'" in policy and "script-src 'self'" in policy
         assert "unsafe-inline" not in policy
+
+
+def test_a_script_gets_a_token_with_its_password(client: TestClient, make_user) -> None:
+    """POST /tokens with username and password (no token yet): 201 with a working token; a
+    wrong password is 401 and counts towards the lockout (429 with Retry-After)."""
+    make_user("ivan", password="right-password")
+    made = client.post(
+        "/api/v1/tokens",
+        json={"username": "ivan", "password": "right-password", "name": "robot cell 3"},
+    )
+    assert made.status_code == 201, made.text
+    token = made.json()["token"]
+    assert made.json()["name"] == "robot cell 3"
+    assert client.get("/api/v1/users/me", headers=auth(token)).json()["username"] == "ivan"
+    limit = client.app.state.settings.login_max_failures  # type: ignore[attr-defined]
+    for _ in range(limit):
+        wrong = client.post("/api/v1/tokens", json={"username": "ivan", "password": "nope-nope"})
+        assert wrong.status_code == 401 and wrong.json()["detail"] == "Wrong user name or password."
+    locked = client.post("/api/v1/tokens", json={"username": "ivan", "password": "right-password"})
+    assert locked.status_code == 429 and int(locked.headers["retry-after"]) > 0
+    assert client.post("/api/v1/tokens", json={}).status_code == 401
+    # With a token and no credentials the caller gets one for themself.
+    mine = client.post("/api/v1/tokens", json={"name": "second"}, headers=auth(token))
+    assert mine.status_code == 201
+    assert client.get("/api/v1/users/me", headers=auth(mine.json()["token"])).status_code == 200

@@ -536,3 +536,30 @@ def test_review_switches_between_proposals_and_records_the_one_accepted(
     label = server.api("GET", f"/frames/{frame_id}/label").json()
     assert label["status"] == "accepted" and label["proposal_id"] == oldest
     assert label["mask_changed"] is False and newest != oldest
+
+
+def test_token_page_creates_shows_once_and_revokes(page: Any, server: LiveServer) -> None:
+    """From the user name in the header: create a token (shown once, and it works), see it
+    listed, revoke it after confirming (then it no longer works)."""
+    import httpx
+
+    login(page, server, "anna")
+    page.click("[data-testid=current-user]")
+    page.wait_for_url(f"{server.url}/tokens")
+    page.wait_for_selector("body[data-ready]")
+    page.fill("[data-testid=token-name]", "robot cell 3")
+    page.click("[data-testid=create-token]")
+    page.wait_for_selector("[data-testid=created-token]:not([hidden])")
+    token = page.inner_text("[data-testid=created-token-text]").strip()
+    me = httpx.get(f"{server.url}/api/v1/users/me", headers={"Authorization": f"Bearer {token}"})
+    assert me.status_code == 200 and me.json()["username"] == "anna"
+    row = page.locator("[data-testid=token-row]", has_text="robot cell 3")
+    row.wait_for()
+    assert token[:10] in row.inner_text()
+    dialogs: list[str] = []
+    page.once("dialog", lambda dialog: (dialogs.append(dialog.message), dialog.accept()))
+    row.locator("[data-testid=revoke-token]").click()
+    page.wait_for_selector("[data-testid=token-row]:has-text('robot cell 3') .badge.revoked")
+    assert dialogs and "Revoke the token" in dialogs[0]
+    gone = httpx.get(f"{server.url}/api/v1/users/me", headers={"Authorization": f"Bearer {token}"})
+    assert gone.status_code == 401
