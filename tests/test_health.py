@@ -14,7 +14,13 @@ def test_health_reports_database_queue_and_teacher(client: TestClient) -> None:
     response = client.get("/api/v1/health")
     assert response.status_code == 200
     body = response.json()
-    assert body["status"] == "ok"
+    # The test settings name no teacher weights: usable, but degraded, and it says how to fix it.
+    assert body["status"] == "degraded"
+    assert body["warnings"] == [
+        "The teacher cannot run: its weights are missing (WELDPOOL_DINO and WELDPOOL_SAM2). Run "
+        "`weldpool weights fetch` on a machine with internet access, or point WELDPOOL_DINO and "
+        "WELDPOOL_SAM2 at a local folder, then restart."
+    ]
     assert body["database"]["status"] == "ok" and body["database"]["revision"]
     assert body["queue"] == body["queue"] | {"status": "ok", "backend": "sqlite", "pending": 0}
     assert body["queue"]["alive"] == 1  # the embedded worker
@@ -35,3 +41,15 @@ def test_health_is_503_when_the_schema_is_not_migrated(tmp_path: Path) -> None:
     with TestClient(create_app(make_settings(tmp_path))) as client:
         body = client.get("/api/v1/health").json()
     assert body["database"]["status"] == "error" and body["database"]["revision"] is None
+
+
+def test_health_is_ok_with_the_teacher_weights_and_a_worker(tmp_path: Path) -> None:
+    from app.db import create_db_engine, migrate
+    from tests.models import save_tiny_teacher
+
+    weights = save_tiny_teacher(tmp_path / "weights")
+    settings = make_settings(tmp_path / "home", dino=weights["dino"], sam2=weights["sam2"])
+    migrate(create_db_engine(settings.resolved_database_url))
+    with TestClient(create_app(settings, embedded_worker=True)) as client:
+        body = client.get("/api/v1/health").json()
+    assert body["status"] == "ok" and body["warnings"] == []

@@ -10,6 +10,7 @@ from fastapi.responses import JSONResponse
 
 from app.db import schema_revision
 from app.queue import describe
+from app.system.status import teacher_problem
 from weldpool_core.teacher.weights import weights_status
 
 router = APIRouter(tags=["system"])
@@ -46,8 +47,8 @@ def _workers(request: Request) -> dict[str, Any]:
 def health(request: Request) -> JSONResponse:
     """Database, queue, workers and teacher weights; 200 when the service can work, else 503.
 
-    With no live worker the API still works (200) but ``status`` is ``degraded`` and
-    ``warnings`` says that jobs will wait.
+    With no live worker, or without the teacher's weights, the API still works (200) but
+    ``status`` is ``degraded`` and ``warnings`` says what will not work and how to fix it.
     """
     settings = request.app.state.settings
     database = _database(request)
@@ -58,6 +59,9 @@ def health(request: Request) -> JSONResponse:
     }
     ok = database["status"] == "ok" and queue["status"] == "ok"
     warnings = []
+    problem = teacher_problem(settings)
+    if problem:
+        warnings.append(problem)
     if queue.get("alive") == 0:
         warnings.append(
             "No worker is alive: jobs wait in the queue until `weldpool worker` (or `weldpool "

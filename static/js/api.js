@@ -3,6 +3,8 @@
 
 const CSRF = document.querySelector('meta[name="csrf-token"]')?.content ?? "";
 export const ROLE = document.querySelector('meta[name="user-role"]')?.content ?? "annotator";
+/** Why the teacher cannot run here (missing weights), or "" when it can (set by the server). */
+export const TEACHER_PROBLEM = document.querySelector('meta[name="teacher-problem"]')?.content ?? "";
 const RANK = { annotator: 1, reviewer: 2, admin: 3 };
 
 /** Whether the logged-in user is a reviewer or admin. */

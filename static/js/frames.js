@@ -1,7 +1,7 @@
 // The frames page: sequences, the filtered frame list (the review queue by default), uploads
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
-import { api, query, upload, waitForJob } from "./api.js";
+import { api, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 
 const PAGE_SIZE = 50;
@@ -59,8 +59,10 @@ async function loadSequences() {
         h("button", { type: "button", class: "link", onclick: () => pickSequence(sequence.id) }, sequence.name),
         h("span", { class: "muted count" }, `${sequence.frame_count} frames`),
         h("button", {
-          type: "button", class: "secondary small", title: "Propose masks for every frame of this sequence",
-          disabled: sequence.frame_count === 0, onclick: () => runTeacher({ sequence_id: sequence.id }, sequence.name),
+          type: "button", class: "secondary small", "data-testid": "teacher-sequence",
+          title: TEACHER_PROBLEM || "Propose masks for every frame of this sequence",
+          disabled: sequence.frame_count === 0 || Boolean(TEACHER_PROBLEM),
+          onclick: () => runTeacher({ sequence_id: sequence.id }, sequence.name),
         }, "Run teacher"),
       ),
     );
@@ -146,7 +148,9 @@ async function loadFrames() {
 
 function updateSelection() {
   document.getElementById("selection-count").textContent = `${selected.size} selected`;
-  document.getElementById("teacher-selection").disabled = selected.size === 0;
+  const teacherButton = document.getElementById("teacher-selection");
+  teacherButton.disabled = selected.size === 0 || Boolean(TEACHER_PROBLEM);
+  if (TEACHER_PROBLEM) teacherButton.title = TEACHER_PROBLEM;
 }
 
 async function refresh() {

@@ -59,6 +59,7 @@ class LiveServer:
     """`weldpool serve` in a subprocess, on SQLite in its own home, with an embedded worker."""
 
     home: Path
+    with_weights: bool = True  # False: the teacher's weights point nowhere (a new install)
     port: int = field(default_factory=free_port)
     process: subprocess.Popen[bytes] | None = None
     tokens: dict[str, str] = field(default_factory=dict)
@@ -74,8 +75,8 @@ class LiveServer:
         env.update(
             HF_HUB_OFFLINE="1",
             WELDPOOL_HOME=str(self.home),
-            WELDPOOL_DINO=str(teacher["dino"]),
-            WELDPOOL_SAM2=str(teacher["sam2"]),
+            WELDPOOL_DINO=str(teacher["dino"] if self.with_weights else self.home / "no-dino"),
+            WELDPOOL_SAM2=str(teacher["sam2"] if self.with_weights else self.home / "no-sam2"),
             WELDPOOL_DINO_INPUT_SIZE=str(teacher["dino_input_size"]),
             WELDPOOL_DEVICE=str(teacher["device"]),
             WELDPOOL_RETRAIN_EVERY="0",

@@ -563,3 +563,38 @@ def test_token_page_creates_shows_once_and_revokes(page: Any, server: LiveServer
     assert dialogs and "Revoke the token" in dialogs[0]
     gone = httpx.get(f"{server.url}/api/v1/users/me", headers={"Authorization": f"Bearer {token}"})
     assert gone.status_code == 401
+
+
+def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
+    browser: Any, tmp_path: Path
+) -> None:
+    """A new install without the teacher's weights: every page says so and how to fix it;
+    the teacher buttons are disabled with that reason instead of failing on click."""
+    bare = LiveServer(tmp_path / "home", with_weights=False).start()
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    try:
+        assert bare.api("GET", "/health").json()["status"] == "degraded"
+        frame = bare.api(
+            "POST", "/frames", files=[("files", ("w.png", synthetic_png(630), "image/png"))]
+        ).json()["stored"][0]["id"]
+        page = context.new_page()
+        login(page, bare, "rita")
+        page.wait_for_selector("body[data-ready]")
+        banner = page.inner_text("[data-testid=teacher-banner]")
+        assert "weights are missing" in banner and "weldpool weights fetch" in banner
+        sequence_button = page.locator("[data-testid=teacher-sequence]")
+        assert sequence_button.count() == 0 or sequence_button.first.is_disabled()
+        page.check("[data-testid=frame-row] input[type=checkbox]")
+        assert page.is_disabled("[data-testid=teacher-selection]")
+        assert "weights are missing" in page.get_attribute(
+            "[data-testid=teacher-selection]", "title"
+        )
+        page.goto(f"{bare.url}/frames/{frame}")
+        page.wait_for_selector("body[data-ready]")
+        assert page.is_visible("[data-testid=teacher-banner]")
+        assert page.is_disabled("[data-testid=run-teacher]")
+        assert "weights are missing" in page.get_attribute("[data-testid=run-teacher]", "title")
+        page.screenshot(path=str(tmp_path / "no-weights.png"))
+    finally:
+        context.close()
+        bare.stop()

@@ -6,7 +6,7 @@
 // kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
 // are not the ones last loaded or saved.
 
-import { api, ApiError, isReviewer, ROLE, waitForJob } from "../api.js";
+import { api, ApiError, isReviewer, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { Stage } from "./stage.js";
@@ -678,6 +678,9 @@ function bindControls() {
   $("clear-validation").addEventListener("click", () => state.manual.length && commit({ ...state, manual: [] }));
   $("run-teacher").addEventListener("click", () => runTeacher(false));
   $("rerun-teacher").addEventListener("click", () => runTeacher(true));
+  for (const id of ["run-teacher", "rerun-teacher"]) { // they cannot work: say why instead
+    if (TEACHER_PROBLEM) Object.assign($(id), { disabled: true, title: TEACHER_PROBLEM });
+  }
   $("advance").checked = localStorage.getItem("weldpool.advance") !== "0";
   $("advance").addEventListener("change", (event) => localStorage.setItem("weldpool.advance", event.target.checked ? "1" : "0"));
   document.addEventListener("keydown", onKey);
