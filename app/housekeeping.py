@@ -1,11 +1,14 @@
-"""Housekeeping at start-up: files that a crash left without a row."""
+"""Housekeeping at start-up: files that a crash left without a row, and training state that
+recorded versions no longer need."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.models import Frame, Label, LabelRevision, Proposal, Video
+from app.models import Frame, Label, LabelRevision, ModelVersion, Proposal, Video
 from app.storage import Storage
 
 SWEPT_AREAS = ("frames", "videos", "artefacts")
@@ -25,3 +28,18 @@ def sweep_orphan_files(session: Session, storage: Storage, older_than_s: float =
     for column in columns:
         known.update(p for p in session.scalars(sa.select(column).distinct()) if p)
     return len(storage.sweep_orphans(SWEPT_AREAS, known, older_than_s))
+
+
+def prune_training_state(session: Session, home: Path) -> int:
+    """Remove the resumable training state of every recorded student version (versions made
+    before the training job pruned it itself); returns the bytes freed."""
+    from weldpool_core.student.checkpoint import prune_state
+
+    freed = 0
+    for relative in session.scalars(sa.select(ModelVersion.checkpoint_path)):
+        if not relative:
+            continue
+        folder = (home / relative).resolve()
+        if folder.is_relative_to(home.resolve()) and folder.is_dir():
+            freed += prune_state(folder)
+    return freed

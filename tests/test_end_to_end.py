@@ -110,6 +110,9 @@ def test_the_whole_loop(tmp_path: Path, database_url: str, teacher_weights) -> N
         version = models[0]
         assert version["train_label_count"] == 10 and version["metrics"]["validation_frames"] == 2
         assert "mIoU" in version["metrics"] and len(version["curve"]) == 2
+        folder = settings.home / "models" / version["name"]  # pruned: weights, metrics, curve
+        assert (folder / "model.safetensors").is_file() and (folder / "curve.json").is_file()
+        assert not (folder / "training_state.pt").exists()
         verdict = job["result"]["gate"]
         assert version["is_promoted"] == verdict["promote"] and verdict["reason"]
         if not verdict["promote"]:  # two epochs rarely beat the teacher: promote by hand

@@ -57,7 +57,7 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
     import uvicorn
 
-    from app.housekeeping import sweep_orphan_files
+    from app.housekeeping import prune_training_state, sweep_orphan_files
     from app.main import create_app
     from app.storage import Storage
 
@@ -66,7 +66,14 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     engine = create_db_engine(settings.resolved_database_url)
     with create_session_factory(engine)() as session:
         swept = sweep_orphan_files(session, Storage(settings.home))
+        freed = prune_training_state(session, settings.home)
     engine.dispose()
+    if freed:
+        click.echo(
+            f"removed {freed / 2**20:.0f} MB of training state that recorded versions no longer "
+            "need",
+            err=True,
+        )
     if swept:
         click.echo(
             f"removed {swept} stored files that no row named (an interrupted upload)", err=True

@@ -19,6 +19,7 @@ from app.storage import Storage
 from app.training import service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.student import checkpoint
 
 log = structlog.get_logger(__name__)
 
@@ -118,6 +119,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             session.rollback()
             shutil.rmtree(final, ignore_errors=True)
             raise
+    checkpoint.prune_state(final)  # a recorded version is never resumed
     ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
     verdict = _gate_and_promote(ctx, version.id)
     return {

@@ -359,3 +359,27 @@ def test_the_unreviewed_filter_is_new_and_proposed_frames(
     assert listed("accepted") == [ids[2]]
     bad = client.get("/api/v1/frames", params={"status": "done"}, headers=auth(token))
     assert bad.status_code == 422
+
+
+def test_start_up_prunes_training_state_of_recorded_versions(
+    settings: Settings, session_factory
+) -> None:
+    """Versions made before the training job pruned its state lose it at the next start-up;
+    the weights stay, and folders without a version (a run to resume) are left alone."""
+    from app.housekeeping import prune_training_state
+    from app.models import ModelVersion
+
+    recorded, unrecorded = settings.home / "models" / "student-v1", settings.home / "work" / "run"
+    for folder in (recorded, unrecorded):
+        folder.mkdir(parents=True)
+        (folder / "model.safetensors").write_bytes(b"w" * 10)
+        (folder / "training_state.pt").write_bytes(b"s" * 1000)
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v1", checkpoint_path="models/student-v1"))
+        session.add(ModelVersion(name="student-v0", checkpoint_path=None))
+        session.commit()
+        assert prune_training_state(session, settings.home) == 1000
+        assert prune_training_state(session, settings.home) == 0
+    assert (recorded / "model.safetensors").exists()
+    assert not (recorded / "training_state.pt").exists()
+    assert (unrecorded / "training_state.pt").exists()

@@ -12,7 +12,8 @@ Layout (every file written atomically: a temporary file, then a rename):
   (``codes``, M×D; ``predict.frame_codes``), for the predictor's novelty score; absent in
   folders of older or unfinished runs (the uncertainty then has no novelty part).
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
-  from which ``resume`` continues; not needed for inference.
+  from which ``resume`` continues; not needed for inference. The service removes it once a
+  version is recorded (``prune_state``): an interrupted run keeps it to resume.
 - after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
 """
 
@@ -144,6 +145,17 @@ def load_codes(model_dir: str | Path) -> torch.Tensor | None:
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:
     """The resumable training state (``training_state.pt``)."""
     write_atomic(model_dir / STATE_FILE, lambda p: torch.save(state, p))
+
+
+def prune_state(model_dir: Path) -> int:
+    """Remove the resumable training state of a finished run (inference never needs it; it is
+    most of a version's size); returns the bytes freed. Weights, metrics and curve stay."""
+    path = Path(model_dir) / STATE_FILE
+    if not path.is_file():
+        return 0
+    size = path.stat().st_size
+    path.unlink()
+    return size
 
 
 def load_state(model_dir: Path) -> dict[str, Any] | None:
