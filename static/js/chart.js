@@ -50,7 +50,8 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
     grid.append(svg("line", { x1: pad.left, x2: width - pad.right, y1: sy(t), y2: sy(t) }));
     grid.append(svg("text", { x: pad.left - 6, y: sy(t) + 4, "text-anchor": "end" }, format(t)));
   }
-  for (const t of ticks(x0, x1, 5).filter((v) => Number.isInteger(v) || x1 - x0 < 5)) {
+  // x counts epochs or labels: whole numbers only, never "1.2 epochs".
+  for (const t of ticks(x0, x1, Math.min(5, Math.max(1, x1 - x0))).filter(Number.isInteger)) {
     grid.append(svg("text", { x: sx(t), y: height - pad.bottom + 16, "text-anchor": "middle" }, format(t)));
   }
   grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, xLabel));

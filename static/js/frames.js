@@ -2,6 +2,7 @@
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
 import { api, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
+import { everyNth } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 
 const PAGE_SIZE = 50;
@@ -239,7 +240,7 @@ async function uploadFrame(file, item) {
 async function uploadVideo(file, item) {
   const form = new FormData();
   form.append("file", file, file.name);
-  form.append("every_nth", String(Math.max(1, Number(document.getElementById("every-nth").value) || 1)));
+  form.append("every_nth", String(nthValue()));
   const sequence = targetSequence();
   if (sequence) form.append("sequence_id", sequence);
   const { status, body } = await upload("/videos", form, item.progress);
@@ -288,3 +289,23 @@ await loadSequences().catch((error) => toast(error.message, "error"));
 restoreFilters();
 await refresh();
 document.body.dataset.ready = "1";
+
+// --- the video sampling step: remembered across uploads and visits --------------------------
+
+const NTH_KEY = "weldpool.everyNth";
+const nthInput = document.getElementById("every-nth");
+
+function nthValue() {
+  return Math.max(1, Math.round(Number(nthInput.value) || 1));
+}
+
+function showNth() {
+  document.getElementById("every-nth-text").textContent = everyNth(nthValue());
+}
+
+nthInput.value = localStorage.getItem(NTH_KEY) ?? nthInput.value;
+nthInput.addEventListener("input", () => {
+  localStorage.setItem(NTH_KEY, String(nthValue()));
+  showNth();
+});
+showNth();

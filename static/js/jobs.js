@@ -2,6 +2,7 @@
 // is queued or running, every five seconds otherwise), their errors, and cancellation.
 
 import { api, query } from "./api.js";
+import { count } from "./format.js";
 import { badge, formatDate, h, progressBar, toast } from "./ui.js";
 
 const ACTIVE = new Set(["queued", "running"]);
@@ -67,7 +68,7 @@ async function load() {
     : [h("tr", {}, h("td", { colspan: "8", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here."))]));
   const active = page.items.some((j) => ACTIVE.has(j.status));
   document.getElementById("poll-state").textContent =
-    `${page.total} jobs · updated ${new Date().toLocaleTimeString()} · ${active ? "live" : "idle"}`;
+    `${count(page.total, "job")} · updated ${new Date().toLocaleTimeString()} · ${active ? "live" : "idle"}`;
   document.body.dataset.ready = "1";
   timer = setTimeout(load, active ? 1000 : 5000);
 }

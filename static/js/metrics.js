@@ -2,11 +2,10 @@
 
 import { api } from "./api.js";
 import { lineChart } from "./chart.js";
+import { iou, pct, px } from "./format.js";
 import { h } from "./ui.js";
 
 const root = document.getElementById("metrics");
-const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(1)} %` : "–");
-const px = (v) => (typeof v === "number" ? `${v.toFixed(1)} px` : "–");
 
 function learningCurve(student) {
   if (!student.length) {
@@ -34,13 +33,13 @@ function render(data) {
     h("h2", {}, "Student learning curve"),
     learningCurve(data.student),
     data.student.length ? table(["version", "labels", "mIoU", "mED", ""],
-      data.student.map((v) => [v.name, String(v.train_label_count), pct(v.mIoU), px(v.mED), v.promoted ? "promoted" : ""]),
+      data.student.map((v) => [v.name, String(v.train_label_count), iou(v.mIoU), px(v.mED), v.promoted ? "promoted" : ""]),
       "student-table") : "",
     h("h2", {}, "Teacher against reviewed masks"),
     teacher.overall.frames
       ? table(["sequence", "frames", "mIoU", "Q1", "median", "Q3"],
         [...teacher.by_sequence, { sequence: "all", ...teacher.overall }].map((r) => [
-          r.sequence ?? "(no sequence)", String(r.frames), pct(r.mIoU), pct(r.q1), pct(r.median), pct(r.q3)]),
+          r.sequence ?? "(no sequence)", String(r.frames), iou(r.mIoU), iou(r.q1), iou(r.median), iou(r.q3)]),
         "teacher-table")
       : h("p", { class: "muted" }, "No reviewed frame has a teacher proposal yet."),
     h("h2", {}, "Review"),

@@ -2,18 +2,13 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
+import { count, metric } from "./format.js";
 import { lineChart } from "./chart.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
 const list = document.getElementById("models");
 const PALETTE = ["#d9480f", "#1971c2", "#2f9e44", "#9c36b5", "#e8590c"];
 
-function formatMetric(name, value) {
-  if (typeof value !== "number") return String(value);
-  if (/iou|acc|f1|dice/i.test(name)) return value.toFixed(3);
-  if (/ed\b|med|px/i.test(name)) return `${value.toFixed(1)} px`;
-  return Number(value.toPrecision(4)).toString();
-}
 
 /** The curve's quantities grouped into small charts: losses, mIoU, mED, then anything else. */
 export function curveCharts(curve) {
@@ -63,7 +58,7 @@ function gateLine(gate) {
   const frames = gate.frames?.length ?? 0;
   return h("p", { class: `gate ${gate.usable ? "ok" : "warning"}`, "data-testid": "gate" },
     badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "",
-    h("span", { class: "muted" }, ` (${frames} held-out frame${frames === 1 ? "" : "s"})`));
+    h("span", { class: "muted" }, ` (${count(frames, "held-out frame")})`));
 }
 
 export function modelCard(model) {
@@ -79,12 +74,12 @@ export function modelCard(model) {
         : ""),
     gateLine(model.gate),
     h("p", { class: "muted" },
-      `trained on ${model.train_label_count ?? "?"} labels · ${formatDate(model.created_at)}`,
+      `trained on ${count(model.train_label_count ?? 0, "label")} · ${formatDate(model.created_at)}`,
       model.job_id ? [" · ", h("a", { href: `/jobs?job=${model.job_id}` }, `job #${model.job_id}`)] : ""),
     h("div", { class: "model-body" },
       h("table", { class: "metrics" },
         h("tbody", {}, metrics.length
-          ? metrics.map(([name, value]) => h("tr", {}, h("th", {}, name), h("td", { class: "num" }, formatMetric(name, value))))
+          ? metrics.map(([name, value]) => h("tr", {}, h("th", {}, name), h("td", { class: "num" }, metric(name, value))))
           : h("tr", {}, h("td", { class: "muted" }, "no metrics recorded")))),
       h("div", { class: "charts" }, charts.length ? charts : h("p", { class: "muted" }, "no training curve recorded"))),
   );

@@ -141,6 +141,18 @@ def test_models_page_shows_a_trained_version_and_promotes_it(
     assert newest["name"] in text and f"trained on {newest['train_label_count']} labels" in text
     assert f"{newest['metrics']['mIoU']:.3f}" in text
     assert card.locator("svg.chart").count() >= 2  # loss and mIoU curves at least
+    # One way to write numbers: no long decimals, counts as integers, mED_k in px, whole epochs.
+    assert not re.search(r"\d\.\d{4,}", text), text
+    assert re.search(r"missed\s+\d+\n", text) and re.search(r"mED_k\s+[\d.]+ px ·", text)
+    ticks = card.locator("svg.chart .grid text[text-anchor=middle]").evaluate_all(
+        "nodes => nodes.map((n) => n.textContent)"
+    )
+    assert ticks and all(t.isdigit() for t in ticks), ticks
+    page.goto(f"{server.url}/metrics")
+    student_row = page.locator("[data-testid=student-table] tr", has_text=newest["name"])
+    assert f"{newest['metrics']['mIoU']:.3f}" in student_row.inner_text()
+    page.goto(f"{server.url}/models")
+    page.wait_for_selector(f"[data-testid=model-card][data-model-id='{newest['id']}']")
     gate = card.locator("[data-testid=gate]").inner_text()
     assert newest["gate"]["reason"] in gate
     assert ("not usable" in gate) != newest["gate"]["usable"]
@@ -195,11 +207,17 @@ def test_annotator_saves_corrections_and_uploads_a_video(
     writer.release()
     page.goto(f"{server.url}/")
     page.wait_for_selector("body[data-ready]")
+    assert page.input_value("[data-testid=every-nth]") == "10"  # not every frame by default
+    assert page.inner_text("[data-testid=every-nth-text]") == "every 10th frame"
     page.fill("#every-nth", "2")
+    assert page.inner_text("[data-testid=every-nth-text]") == "every 2nd frame"
     page.set_input_files("[data-testid=upload-input]", str(video))
     item = page.locator("[data-testid=upload-item][data-name='run.avi'][data-state=ok]")
     item.wait_for(timeout=60_000)
     assert "extracted 3 frames" in item.inner_text()
+    page.reload()  # the step is remembered for the next upload
+    page.wait_for_selector("body[data-ready]")
+    assert page.input_value("[data-testid=every-nth]") == "2"
 
 
 def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> None:

@@ -1,0 +1,30 @@
+// The one place that turns numbers into text on every page: same units, same rounding.
+
+/** mIoU and other fractions of overlap: three decimals ("0.874"). */
+export const iou = (v) => (typeof v === "number" ? v.toFixed(3) : "–");
+/** Distances in pixels: one decimal ("11.4 px"). */
+export const px = (v) => (typeof v === "number" ? `${v.toFixed(1)} px` : "–");
+/** Rates: a whole percent below 10 % shows one decimal ("87 %", "4.5 %"). */
+export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
+/** "1 job", "3 jobs", "1 frame". */
+export const count = (n, word, plural = `${word}s`) => `${n} ${n === 1 ? word : plural}`;
+/** "every frame", "every 2nd frame", "every 25th frame". */
+export function everyNth(n) {
+  if (n <= 1) return "every frame";
+  const tens = n % 100;
+  const suffix = tens >= 11 && tens <= 13 ? "th" : { 1: "st", 2: "nd", 3: "rd" }[n % 10] ?? "th";
+  return `every ${n}${suffix} frame`;
+}
+
+const COUNTS = /^(frames|validation_frames|pseudo_labels|best_epoch|missed|epochs|steps|labels)$/;
+
+/** A metric of a student version or a run, by its name: mIoU, distances, counts, flags. */
+export function metric(name, value) {
+  if (Array.isArray(value)) return value.map((v) => metric(name, v)).join(" · ");
+  if (typeof value === "boolean") return value ? "yes" : "no";
+  if (typeof value !== "number") return value === null || value === undefined ? "–" : String(value);
+  if (COUNTS.test(name)) return String(Math.round(value));
+  if (/iou|acc|f1|dice/i.test(name)) return iou(value);
+  if (/^m?ed|_k$|std|px/i.test(name)) return px(value);
+  return String(Number(value.toPrecision(4)));
+}
