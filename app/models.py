@@ -349,6 +349,12 @@ class Job(Base):
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
     started_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
     finished_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+    created_by: Mapped[User | None] = relationship(lazy="joined", viewonly=True)
+
+    @property
+    def created_by_name(self) -> str | None:
+        """Who started the job (None: the system, or a deleted user)."""
+        return self.created_by.username if self.created_by else None
 
 
 class Worker(Base):

@@ -27,6 +27,11 @@ class JobOut(BaseModel):
     attempts: int
     cancel_requested: bool
     worker_id: str | None
+    created_by: str | None = Field(
+        default=None,
+        validation_alias="created_by_name",
+        description="The user who started the job (none: the system).",
+    )
     created_at: dt.datetime
     started_at: dt.datetime | None
     finished_at: dt.datetime | None

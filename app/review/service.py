@@ -329,7 +329,7 @@ def save_label(
     label = current_label(session, frame.id)
     current = label.revision if label else 0
     if base_revision != current:  # refused before anything is written
-        raise StaleRevision(current)
+        raise stale_revision(session, frame.id)
     stored: StoredFile | None = None
     if mask is not None:
         stored = store_mask_file(storage, mask)
@@ -355,7 +355,7 @@ def save_label(
                 .values(revision=base_revision + 1, **values)
             )
             if updated.rowcount != 1:  # type: ignore[attr-defined]
-                raise StaleRevision(current_revision(session, frame.id))
+                raise stale_revision(session, frame.id)
         session.add(
             LabelRevision(
                 frame_id=frame.id,
@@ -375,23 +375,34 @@ def save_label(
         if stored is not None:
             storage.discard([stored], in_use=_masks_in_use(session, [stored.path]))
         if isinstance(exc, sa.exc.IntegrityError):  # two first labels at once: this one is stale
-            raise StaleRevision(current_revision(session, frame.id)) from None
+            raise stale_revision(session, frame.id) from None
         raise
     session.refresh(label)
     return label
 
 
 class StaleRevision(ConflictError):
-    """The label changed since the client read it."""
+    """The label changed since the client read it: who changed it, and its revision now."""
 
-    def __init__(self, current: int) -> None:
+    def __init__(self, current: int, by: str | None = None) -> None:
+        who = f"by {by}" if by else "by someone else"
         super().__init__(
-            f"The label was changed by someone else (now at revision {current}); reload it "
+            f"The label was changed {who} (now at revision {current}); reload it "
             "and apply your change again, or overwrite with base_revision "
             f"{current}."
         )
         self.current = current
-        self.extra = {"revision": current}
+        self.extra = {"revision": current, "updated_by": by}
+
+
+def stale_revision(session: Session, frame_id: int) -> StaleRevision:
+    """The conflict for a stale save, naming the label's current revision and its author."""
+    row = session.execute(
+        sa.select(Label.revision, User.username)
+        .outerjoin(User, User.id == Label.updated_by_id)
+        .where(Label.frame_id == frame_id)
+    ).first()
+    return StaleRevision(row[0], row[1]) if row else StaleRevision(0)
 
 
 def current_revision(session: Session, frame_id: int) -> int:

@@ -25,6 +25,7 @@ function describe(job) {
 }
 
 async function cancel(job) {
+  if (!confirm(`Cancel job #${job.id} (${job.kind}, ${scope(job)})? A running job stops at its next step; what it finished stays.`)) return;
   try {
     await api(`/jobs/${job.id}/cancel`, { method: "POST" });
     toast(`Job #${job.id}: cancel requested.`, "info");
@@ -34,15 +35,37 @@ async function cancel(job) {
   load();
 }
 
+/** What a job works on, in words, from its parameters. */
+function scope(job) {
+  const p = job.params ?? {};
+  if (Array.isArray(p.frame_ids)) return count(p.frame_ids.length, "frame");
+  if (p.sequence_id) return `sequence #${p.sequence_id}`;
+  if (p.video_id) return `video #${p.video_id}`;
+  if (job.kind === "train_student") return p.epochs ? count(p.epochs, "epoch") : "all reviewed labels";
+  return "—";
+}
+
+/** How long the job ran (or has been running). */
+function duration(job) {
+  if (!job.started_at) return "";
+  const when = (text) => new Date(text.endsWith("Z") || text.includes("+") ? text : `${text}Z`).getTime();
+  const end = job.finished_at ? when(job.finished_at) : Date.now();
+  const seconds = Math.max(0, Math.round((end - when(job.started_at)) / 1000));
+  if (seconds < 60) return `${seconds} s`;
+  if (seconds < 3600) return `${Math.floor(seconds / 60)} min ${seconds % 60} s`;
+  return `${Math.floor(seconds / 3600)} h ${Math.floor((seconds % 3600) / 60)} min`;
+}
+
 function jobRow(job) {
   return h("tr", { "data-job-id": String(job.id), "data-status": job.status, "data-testid": "job-row", class: job.id === highlight ? "highlight" : "" },
     h("td", { class: "num" }, String(job.id)),
-    h("td", {}, job.kind),
+    h("td", {}, job.kind, h("div", { class: "muted small-text", "data-testid": "job-scope" }, scope(job))),
+    h("td", { "data-testid": "job-owner" }, job.created_by ?? h("span", { class: "muted" }, "system")),
     h("td", {}, badge(job.status), job.attempts > 1 ? h("span", { class: "muted" }, ` try ${job.attempts}`) : ""),
     h("td", { class: "progress-col" }, progressBar(job.progress), h("span", { class: "muted small-text" }, `${Math.round(job.progress * 100)} %`)),
     h("td", { class: "message" }, describe(job)),
     h("td", { class: "muted" }, formatDate(job.created_at)),
-    h("td", { class: "muted" }, formatDate(job.finished_at)),
+    h("td", { class: "muted", "data-testid": "job-duration" }, duration(job)),
     h("td", {}, ACTIVE.has(job.status) && !job.cancel_requested
       ? h("button", { type: "button", class: "secondary small", "data-testid": "cancel-job", onclick: () => cancel(job) }, "Cancel")
       : ""),
@@ -65,7 +88,7 @@ async function load() {
   }
   rows.replaceChildren(...(page.items.length
     ? page.items.map(jobRow)
-    : [h("tr", {}, h("td", { colspan: "8", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here."))]));
+    : [h("tr", {}, h("td", { colspan: "9", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here."))]));
   const active = page.items.some((j) => ACTIVE.has(j.status));
   document.getElementById("poll-state").textContent =
     `${count(page.total, "job")} · updated ${new Date().toLocaleTimeString()} · ${active ? "live" : "idle"}`;

@@ -128,6 +128,7 @@ def test_an_annotator_cancels_only_their_own_jobs(
         )
         own = client.post(f"/api/v1/jobs/{first.id}/cancel", headers=auth(mine_token))
         assert own.status_code == 200 and own.json()["cancel_requested"] is True
+        assert own.json()["created_by"] == "ann-one"  # the jobs page shows who started it
         by_reviewer = client.post(f"/api/v1/jobs/{second.id}/cancel", headers=auth(reviewer_token))
         assert by_reviewer.status_code == 200 and by_reviewer.json()["cancel_requested"] is True
         assert other.id != mine.id

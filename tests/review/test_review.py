@@ -206,7 +206,8 @@ def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> N
     assert len(first.json()["keypoints"]) == 4  # recomputed by Algorithm 1
     stale = client.put(url, json={"status": "rejected", "base_revision": 1}, headers=auth(otto))
     assert stale.status_code == 409
-    assert stale.json()["revision"] == 2 and "changed by someone else" in stale.json()["detail"]
+    assert stale.json()["revision"] == 2 and stale.json()["updated_by"] == "rita"
+    assert stale.json()["detail"].startswith("The label was changed by rita (now at revision 2)")
     overwrite = client.put(url, json={"status": "rejected", "base_revision": 2}, headers=auth(otto))
     assert overwrite.json() == overwrite.json() | {
         "revision": 3,

@@ -326,6 +326,15 @@ def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> No
         arg=job["job_id"],
     )
     assert "live" in page.inner_text("[data-testid=poll-state]")
+    assert row.locator("[data-testid=job-owner]").inner_text() == "ada"
+    assert re.fullmatch(r"\d+ s", row.locator("[data-testid=job-duration]").inner_text())
+    asked: list[str] = []
+    page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.dismiss()))
+    row.locator("[data-testid=cancel-job]").click()  # asks first; dismissed: nothing happens
+    wait_until(page, lambda: bool(asked))
+    assert asked[0].startswith(f"Cancel job #{job['job_id']} (diagnostic")
+    assert server.api("GET", f"/jobs/{job['job_id']}").json()["cancel_requested"] is False
+    page.once("dialog", lambda dialog: dialog.accept())
     row.locator("[data-testid=cancel-job]").click()
     page.locator(f"[data-job-id='{job['job_id']}'][data-status=cancelled]").wait_for(timeout=20_000)
     assert server.api("GET", f"/jobs/{job['job_id']}").json()["status"] == "cancelled"
