@@ -3,9 +3,10 @@
 ``masks``: the DATASET layout that ``weldpool train`` reads — ``images/<stem>.<ext>`` (the
 original files), ``masks/<stem>.png`` (0 / 255), ``keypoints/<stem>.json``; manual validation
 keypoints go to ``validation_keypoints/<stem>.json``; ``manifest.json`` lists every frame with
-its id, sequence, split and label. ``coco``: ``annotations.json`` in COCO format (polygons,
-bounding boxes, keypoints; each image record carries its weld run's process parameters) with
-the images beside it. Stems are the frame ids, zero-padded.
+its id, sequence, split and label. ``coco``: ``annotations.json`` in COCO format (masks as
+compressed RLE with ``iscrowd`` 0, so holes survive; bounding boxes, areas, keypoints; each image
+record carries its weld run's process parameters) with the images beside it. Stems are the
+frame ids, zero-padded.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import zipfile
 from pathlib import Path
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 import sqlalchemy as sa
 from numpy.typing import NDArray
@@ -49,11 +49,15 @@ def _extension(frame: Frame) -> str:
     return Path(frame.path).suffix
 
 
-def _polygons(mask: NDArray[np.bool_]) -> list[list[float]]:
-    contours, _ = cv2.findContours(
-        mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
-    )
-    return [c.reshape(-1).astype(float).tolist() for c in contours if len(c) >= 3]
+def _rle(mask: NDArray[np.bool_]) -> tuple[dict[str, Any], int, list[int]]:
+    """COCO's compressed RLE of a mask (holes survive, unlike outer polygons), its area and
+    bounding box, all from pycocotools (the reference implementation every COCO reader uses)."""
+    from pycocotools import mask as coco_mask
+
+    rle = coco_mask.encode(np.asfortranarray(mask.astype(np.uint8)))
+    area = int(coco_mask.area(rle))
+    box = [round(v) for v in coco_mask.toBbox(rle).tolist()]
+    return {"size": rle["size"], "counts": rle["counts"].decode("ascii")}, area, box
 
 
 def _rows(
@@ -151,8 +155,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
                 "bit_depth": frame.bit_depth,
             }
         )
-        mask = load_mask(storage, label.mask_path)
-        ys, xs = np.nonzero(mask)
+        segmentation, area, box = _rle(load_mask(storage, label.mask_path))
         keypoints = label.keypoints or []
         flat: list[float] = []
         for x, y in keypoints:
@@ -163,14 +166,9 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
             "image_id": frame.id,
             "category_id": 1,
             "iscrowd": 0,
-            "segmentation": _polygons(mask),
-            "area": int(mask.sum()),
-            "bbox": [
-                int(xs.min()),
-                int(ys.min()),
-                int(xs.max() - xs.min() + 1),
-                int(ys.max() - ys.min() + 1),
-            ],
+            "segmentation": segmentation,
+            "area": area,
+            "bbox": box,
             "keypoints": flat,
             "num_keypoints": len(keypoints),
             "label": label.status.value,

@@ -176,6 +176,35 @@ document.getElementById("teacher-selection").addEventListener("click", () => {
   runTeacher({ frame_ids: [...selected] }, `${selected.size} frames`);
 });
 
+// --- export -----------------------------------------------------------------------------------
+
+document.getElementById("export").addEventListener("click", async (event) => {
+  const button = event.currentTarget;
+  const { sequence_id: sequenceId, split } = filters();
+  const format = document.getElementById("export-format").value;
+  const params = query({ format, sequence_id: sequenceId, split });
+  button.disabled = true;
+  button.textContent = "Exporting…";
+  try {
+    const response = await fetch(`/api/v1/export${params}`, { credentials: "same-origin" });
+    if (!response.ok) {
+      const body = await response.json().catch(() => ({}));
+      throw new Error(body.detail ?? `The export failed (${response.status}).`);
+    }
+    const name = /filename="?([^";]+)"?/.exec(response.headers.get("content-disposition") ?? "")?.[1] ?? `weldpool-${format}.zip`;
+    const link = h("a", { href: URL.createObjectURL(await response.blob()), download: name, "data-testid": "export-link" });
+    document.body.append(link);
+    link.click();
+    setTimeout(() => { URL.revokeObjectURL(link.href); link.remove(); }, 1000);
+    toast(`Exported ${name}.`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = false;
+    button.textContent = "Export";
+  }
+});
+
 // --- teacher runs -----------------------------------------------------------------------------
 
 async function runTeacher(body, what) {

@@ -625,3 +625,48 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
     finally:
         context.close()
         bare.stop()
+
+
+def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer) -> None:
+    """The frames page's Export: COCO of the chosen sequence as a download (RLE masks that
+    read back exactly); a sequence with nothing reviewed says so instead of downloading."""
+    import io
+    import json
+    import zipfile
+
+    from pycocotools import mask as coco_mask
+
+    sequence = server.api("POST", "/sequences", json={"name": "Export run"}).json()
+    empty = server.api("POST", "/sequences", json={"name": "Nothing reviewed"}).json()
+    files = [("files", ("e.png", synthetic_png(640), "image/png"))]
+    frame_id = server.api(
+        "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
+    ).json()["stored"][0]["id"]
+    truth = synth_frame(seed=640, params=SynthParams(1280, 800))
+    assert (
+        server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask)).status_code
+        == 200
+    )
+
+    login(page, server, "anna")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
+    page.wait_for_selector("body[data-ready]")
+    page.select_option("[data-testid=export-format]", "coco")
+    with page.expect_download() as download:
+        page.click("[data-testid=export]")
+    archive = zipfile.ZipFile(io.BytesIO(Path(download.value.path()).read_bytes()))
+    coco = json.loads(archive.read("annotations.json"))
+    assert [a["image_id"] for a in coco["annotations"]] == [frame_id]
+    back = coco_mask.decode(
+        {
+            **coco["annotations"][0]["segmentation"],
+            "counts": coco["annotations"][0]["segmentation"]["counts"].encode(),
+        }
+    ).astype(bool)
+    assert np.array_equal(back, truth.mask)
+
+    page.goto(f"{server.url}/?sequence_id={empty['id']}&status=all")
+    page.wait_for_selector("body[data-ready]")
+    page.click("[data-testid=export]")
+    page.wait_for_selector("[data-testid=toast-error]")
+    assert "no accepted or corrected labels" in page.inner_text("[data-testid=toast-error]")
