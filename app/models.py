@@ -389,3 +389,15 @@ class ModelVersion(Base):
     job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
     promoted_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+
+
+STORED_PATH_COLUMNS = (
+    Frame.path,
+    Video.path,
+    Proposal.mask_path,
+    Proposal.heatmap_path,
+    Label.mask_path,
+    LabelRevision.mask_path,
+)
+"""Every column that names a stored file under WELDPOOL_HOME (the store is content-addressed,
+so one file may be named by several rows): what start-up sweeping and deletions consult."""

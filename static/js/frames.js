@@ -1,8 +1,8 @@
 // The frames page: sequences, the filtered frame list (the review queue by default), uploads
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
-import { api, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
-import { everyNth } from "./format.js";
+import { api, ApiError, isReviewer, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
+import { count, everyNth } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 
 const PAGE_SIZE = 50;
@@ -65,6 +65,12 @@ async function loadSequences() {
           disabled: sequence.frame_count === 0 || Boolean(TEACHER_PROBLEM),
           onclick: () => runTeacher({ sequence_id: sequence.id }, sequence.name),
         }, "Run teacher"),
+        isReviewer() ? h("button", {
+          type: "button", class: "danger small", "data-testid": "delete-sequence",
+          title: "Delete this weld run with its frames, videos and labels",
+          onclick: () => deleteWork(`/sequences/${sequence.id}`, { method: "DELETE" },
+            `Delete the weld run “${sequence.name}” with its ${count(sequence.frame_count, "frame")}, their proposals and labels? This cannot be undone.`),
+        }, "Delete") : "",
       ),
     );
   }
@@ -149,6 +155,7 @@ async function loadFrames() {
 
 function updateSelection() {
   document.getElementById("selection-count").textContent = `${selected.size} selected`;
+  document.getElementById("delete-selection").disabled = selected.size === 0;
   const teacherButton = document.getElementById("teacher-selection");
   teacherButton.disabled = selected.size === 0 || Boolean(TEACHER_PROBLEM);
   if (TEACHER_PROBLEM) teacherButton.title = TEACHER_PROBLEM;
@@ -203,6 +210,41 @@ document.getElementById("export").addEventListener("click", async (event) => {
     button.disabled = false;
     button.textContent = "Export";
   }
+});
+
+// --- deleting ---------------------------------------------------------------------------------
+
+/** Delete after asking; when reviewed work would be lost the server says how much, and the
+ *  user is asked once more before it goes too (force). */
+async function deleteWork(path, options, question) {
+  if (!confirm(question)) return;
+  const force = (url) => `${url}${url.includes("?") ? "&" : "?"}force=true`;
+  try {
+    let result;
+    try {
+      result = await api(path, options);
+    } catch (error) {
+      if (!(error instanceof ApiError && error.status === 409)) throw error;
+      if (!confirm(`${error.message}\n\nDelete them anyway, with their reviewed labels?`)) return;
+      result = options.json
+        ? await api(path, { ...options, json: { ...options.json, force: true } })
+        : await api(force(path), options);
+    }
+    toast(`Deleted ${count(result.deleted_frames, "frame")}.`, "ok");
+    selected.clear();
+    await loadSequences();
+    await loadFrames();
+  } catch (error) {
+    toast(error.message, "error");
+  }
+}
+
+const deleteButton = document.getElementById("delete-selection");
+deleteButton.hidden = !isReviewer();
+deleteButton.addEventListener("click", () => {
+  const ids = [...selected];
+  deleteWork("/frames/delete", { method: "POST", json: { frame_ids: ids } },
+    `Delete ${count(ids.length, "selected frame")} with their proposals and labels? This cannot be undone.`);
 });
 
 // --- teacher runs -----------------------------------------------------------------------------

@@ -670,3 +670,52 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
     page.click("[data-testid=export]")
     page.wait_for_selector("[data-testid=toast-error]")
     assert "no accepted or corrected labels" in page.inner_text("[data-testid=toast-error]")
+
+
+def test_delete_selected_frames_and_a_weld_run_after_confirming(
+    page: Any, server: LiveServer
+) -> None:
+    """A wrong upload is not permanent: a reviewer deletes selected frames (asked twice when a
+    reviewed label would go too), then the weld run; annotators see no delete buttons."""
+    sequence = server.api("POST", "/sequences", json={"name": "Oops run"}).json()
+    files = [("files", (f"x{i}.png", synthetic_png(650 + i), "image/png")) for i in range(3)]
+    ids = [
+        f["id"]
+        for f in server.api(
+            "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
+        ).json()["stored"]
+    ]
+    truth = synth_frame(seed=650, params=SynthParams(1280, 800))
+    assert (
+        server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask)).status_code
+        == 200
+    )
+
+    login(page, server, "anna")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
+    page.wait_for_selector("body[data-ready]")
+    assert page.is_hidden("[data-testid=delete-selection]")
+    assert page.locator("[data-testid=delete-sequence]").count() == 0
+
+    context = page.context
+    context.clear_cookies()
+    login(page, server, "rita")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
+    page.wait_for_selector("body[data-ready]")
+    asked: list[str] = []
+    page.on("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
+    for frame_id in ids[:2]:
+        page.check(f"[data-testid=frame-row][data-frame-id='{frame_id}'] input[type=checkbox]")
+    page.click("[data-testid=delete-selection]")
+    page.wait_for_selector("[data-testid=toast-ok]")
+    assert asked[0].startswith("Delete 2 selected frames")
+    assert "1 frame of the selection has reviewed labels" in asked[1]
+    for frame_id in ids[:2]:
+        assert server.api("GET", f"/frames/{frame_id}").status_code == 404
+    wait_for_js(
+        page, "document.querySelector('[data-testid=page-info]').textContent === '1–1 of 1'"
+    )
+    page.click(f"li[data-sequence-id='{sequence['id']}'] [data-testid=delete-sequence]")
+    wait_until(page, lambda: server.api("GET", f"/sequences/{sequence['id']}").status_code == 404)
+    assert asked[2].startswith("Delete the weld run “Oops run” with its 1 frame,")
+    assert server.api("GET", f"/frames/{ids[2]}").status_code == 404

@@ -1,0 +1,78 @@
+"""Deleting frames and weld runs: reviewed work is guarded, rows and files go together, files
+still named by another row (content is shared by hash) stay."""
+
+from __future__ import annotations
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.models import Role
+from tests.helpers import auth, corrected_label, image_bytes
+
+
+def _upload(client: TestClient, token: str, names: list[tuple[str, int]], sequence: int) -> list:
+    files = [("files", (n, image_bytes(seed=s), "image/png")) for n, s in names]
+    response = client.post(
+        "/api/v1/frames", files=files, data={"sequence_id": str(sequence)}, headers=auth(token)
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["stored"]
+
+
+def _files(settings) -> set[str]:  # type: ignore[no-untyped-def]
+    return {
+        p.relative_to(settings.home).as_posix()
+        for area in ("frames", "artefacts")
+        for p in (settings.home / area).rglob("*")
+        if p.is_file()
+    }
+
+
+def test_deleting_frames_and_a_sequence(client: TestClient, make_user, settings) -> None:
+    _, token = make_user("rev", Role.reviewer)
+    _, annotator = make_user("ann")
+    run = client.post("/api/v1/sequences", json={"name": "wrong upload"}, headers=auth(token))
+    other = client.post("/api/v1/sequences", json={"name": "keeper"}, headers=auth(token))
+    run_id, other_id = run.json()["id"], other.json()["id"]
+    a, b, c = _upload(client, token, [("a.png", 1), ("b.png", 2), ("c.png", 3)], run_id)
+    shared = _upload(client, token, [("a-again.png", 1)], other_id)[0]  # a's content, shared
+    mask = np.zeros((48, 64), bool)
+    mask[10:30, 10:40] = True
+    labelled = client.put(
+        f"/api/v1/frames/{b['id']}/label", json=corrected_label(mask), headers=auth(token)
+    )
+    assert labelled.status_code == 200
+    before = _files(settings)
+
+    assert client.delete(f"/api/v1/frames/{a['id']}", headers=auth(annotator)).status_code == 403
+    guarded = client.delete(f"/api/v1/frames/{b['id']}", headers=auth(token))
+    assert guarded.status_code == 409
+    assert "1 frame of the selection has reviewed labels" in guarded.json()["detail"]
+    assert client.get(f"/api/v1/frames/{b['id']}", headers=auth(token)).status_code == 200
+    assert _files(settings) == before
+
+    gone = client.delete(f"/api/v1/frames/{a['id']}", headers=auth(token))
+    assert gone.json() == {"deleted_frames": 1, "deleted_reviewed": 0, "removed_files": 0}
+    assert _files(settings) == before  # the keeper's frame still names a's content
+    assert client.get(f"/api/v1/frames/{a['id']}", headers=auth(token)).status_code == 404
+
+    missing = client.post(
+        "/api/v1/frames/delete", json={"frame_ids": [c["id"], 999999]}, headers=auth(token)
+    )
+    assert missing.status_code == 404
+    assert client.get(f"/api/v1/frames/{c['id']}", headers=auth(token)).status_code == 200
+
+    refused = client.delete(f"/api/v1/sequences/{run_id}", headers=auth(token))
+    assert refused.status_code == 409 and "'wrong upload'" in refused.json()["detail"]
+    whole = client.delete(
+        f"/api/v1/sequences/{run_id}", params={"force": "true"}, headers=auth(token)
+    )
+    assert whole.status_code == 200, whole.text
+    assert whole.json() == {"deleted_frames": 2, "deleted_reviewed": 1, "removed_files": 3}
+    assert client.get(f"/api/v1/sequences/{run_id}", headers=auth(token)).status_code == 404
+    for frame in (b, c):
+        assert client.get(f"/api/v1/frames/{frame['id']}", headers=auth(token)).status_code == 404
+    left = _files(settings)
+    assert len(left) == 1 and left <= before  # only the keeper's image remains
+    kept = client.get(f"/api/v1/frames/{shared['id']}/image", headers=auth(token))
+    assert kept.status_code == 200
