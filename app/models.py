@@ -139,6 +139,8 @@ class Sequence(Base):
     robot_speed_cm_min: Mapped[float | None] = mapped_column(sa.Float)
     synergic_law: Mapped[str | None] = mapped_column(sa.String(200))
     joint_type: Mapped[str | None] = mapped_column(sa.String(64))
+    mm_per_px: Mapped[float | None] = mapped_column(sa.Float)
+    """The camera's scale at the pool (mm per pixel), for geometry in millimetres."""
     notes: Mapped[str] = mapped_column(sa.Text, default="")
     created_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")

@@ -25,6 +25,9 @@ class SequenceIn(InputModel):
         default=None, max_length=200, description="Synergic law used instead of fixed V / A."
     )
     joint_type: str | None = Field(default=None, max_length=64, description="e.g. fillet (Tee).")
+    mm_per_px: float | None = Field(
+        default=None, gt=0, le=100, description="Image scale at the pool, mm per pixel."
+    )
     notes: str = Field(default="", max_length=10_000)
 
 
@@ -37,6 +40,7 @@ class SequencePatch(InputModel):
     robot_speed_cm_min: float | None = Field(default=None, ge=0)
     synergic_law: str | None = Field(default=None, max_length=200)
     joint_type: str | None = Field(default=None, max_length=64)
+    mm_per_px: float | None = Field(default=None, gt=0, le=100)
     notes: str | None = Field(default=None, max_length=10_000)
 
     @model_validator(mode="after")

@@ -37,6 +37,7 @@ PROCESS_FIELDS = (
     "robot_speed_cm_min",
     "synergic_law",
     "joint_type",
+    "mm_per_px",
     "notes",
 )
 

@@ -58,7 +58,13 @@ async function loadSequences() {
     list.append(
       h("li", { class: active ? "active" : "", "data-sequence-id": String(sequence.id) },
         h("button", { type: "button", class: "link", onclick: () => pickSequence(sequence.id) }, sequence.name),
-        h("span", { class: "muted count" }, `${sequence.frame_count} frames`),
+        h("span", { class: "muted count" }, count(sequence.frame_count, "frame")),
+        processLine(sequence),
+        h("div", { class: "seq-actions" },
+        h("button", {
+          type: "button", class: "secondary small", "data-testid": "edit-sequence",
+          title: "Name, process parameters, scale and notes", onclick: () => editSequence(sequence),
+        }, "Edit"),
         h("button", {
           type: "button", class: "secondary small", "data-testid": "teacher-sequence",
           title: TEACHER_PROBLEM || "Propose masks for every frame of this sequence",
@@ -70,7 +76,7 @@ async function loadSequences() {
           title: "Delete this weld run with its frames, videos and labels",
           onclick: () => deleteWork(`/sequences/${sequence.id}`, { method: "DELETE" },
             `Delete the weld run “${sequence.name}” with its ${count(sequence.frame_count, "frame")}, their proposals and labels? This cannot be undone.`),
-        }, "Delete") : "",
+        }, "Delete") : ""),
       ),
     );
   }
@@ -209,6 +215,56 @@ document.getElementById("export").addEventListener("click", async (event) => {
   } finally {
     button.disabled = false;
     button.textContent = "Export";
+  }
+});
+
+// --- a weld run's name, process parameters (the paper's Table I), scale and notes ---------------
+
+const NUMBERS = ["wire_feed_m_min", "voltage_v", "current_a", "arc_length_correction_pct", "robot_speed_cm_min", "mm_per_px"];
+const TEXTS = ["name", "synergic_law", "joint_type", "notes"];
+const dialog = document.getElementById("sequence-dialog");
+const sequenceForm = document.getElementById("sequence-form");
+let editing = null;
+
+function processLine(sequence) {
+  const parts = [
+    sequence.wire_feed_m_min != null && `${sequence.wire_feed_m_min} m/min`,
+    sequence.voltage_v != null && `${sequence.voltage_v} V`,
+    sequence.current_a != null && `${sequence.current_a} A`,
+    sequence.robot_speed_cm_min != null && `${sequence.robot_speed_cm_min} cm/min`,
+    sequence.mm_per_px != null && `${sequence.mm_per_px} mm/px`,
+  ].filter(Boolean);
+  return parts.length ? h("span", { class: "muted small-text process", "data-testid": "process-line" }, parts.join(" · ")) : "";
+}
+
+function editSequence(sequence) {
+  editing = sequence;
+  for (const name of [...NUMBERS, ...TEXTS]) sequenceForm.elements[name].value = sequence[name] ?? "";
+  document.getElementById("sequence-error").hidden = true;
+  dialog.showModal();
+}
+
+document.getElementById("sequence-cancel").addEventListener("click", () => dialog.close());
+sequenceForm.addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const body = {};
+  for (const name of NUMBERS) {
+    const text = sequenceForm.elements[name].value.trim();
+    body[name] = text === "" ? null : Number(text);
+  }
+  for (const name of TEXTS) {
+    const text = sequenceForm.elements[name].value.trim();
+    body[name] = text === "" && name !== "notes" && name !== "name" ? null : text;
+  }
+  try {
+    await api(`/sequences/${editing.id}`, { method: "PATCH", json: body });
+    dialog.close();
+    toast(`Saved “${body.name}”.`, "ok");
+    await loadSequences();
+  } catch (error) {
+    const box = document.getElementById("sequence-error");
+    box.textContent = error.message;
+    box.hidden = false;
   }
 });
 

@@ -719,3 +719,39 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
     wait_until(page, lambda: server.api("GET", f"/sequences/{sequence['id']}").status_code == 404)
     assert asked[2].startswith("Delete the weld run “Oops run” with its 1 frame,")
     assert server.api("GET", f"/frames/{ids[2]}").status_code == 404
+
+
+def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: LiveServer) -> None:
+    sequence = server.api("POST", "/sequences", json={"name": "Run to edit"}).json()
+    server.api("POST", "/sequences", json={"name": "Taken name"})
+    login(page, server, "anna")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    item = page.locator(f"li[data-sequence-id='{sequence['id']}']")
+    item.locator("[data-testid=edit-sequence]").click()
+    page.fill("[data-testid=seq-name]", "Taken name")
+    page.click("[data-testid=seq-save]")
+    error = page.locator("[data-testid=sequence-error]")
+    error.wait_for()
+    assert "already a sequence named 'Taken name'" in error.inner_text()
+    page.fill("[data-testid=seq-name]", "Fillet T-joint, 6.5 m/min")
+    page.fill("[data-testid=seq-wire]", "6.5")
+    page.fill("[data-testid=seq-voltage]", "22.5")
+    page.fill("[data-testid=seq-current]", "180")
+    page.fill("[data-testid=seq-speed]", "40")
+    page.fill("[data-testid=seq-scale]", "0.05")
+    page.click("[data-testid=seq-save]")
+    page.wait_for_selector("[data-testid=toast-ok]")
+    stored = server.api("GET", f"/sequences/{sequence['id']}").json()
+    assert stored["name"] == "Fillet T-joint, 6.5 m/min"
+    assert (stored["wire_feed_m_min"], stored["voltage_v"], stored["current_a"]) == (6.5, 22.5, 180)
+    assert (stored["robot_speed_cm_min"], stored["mm_per_px"]) == (40, 0.05)
+    line = item.locator("[data-testid=process-line]").inner_text()
+    assert line == "6.5 m/min · 22.5 V · 180 A · 40 cm/min · 0.05 mm/px"
+    item.locator("[data-testid=edit-sequence]").click()  # the dialog shows what is stored
+    assert page.input_value("[data-testid=seq-voltage]") == "22.5"
+    page.fill("[data-testid=seq-voltage]", "")  # cleared: no longer known
+    page.click("[data-testid=seq-save]")
+    wait_until(
+        page, lambda: server.api("GET", f"/sequences/{sequence['id']}").json()["voltage_v"] is None
+    )
