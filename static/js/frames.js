@@ -103,9 +103,10 @@ document.getElementById("new-sequence").addEventListener("submit", async (event)
   try {
     const sequence = await api("/sequences", { method: "POST", json: { name: form.elements.name.value.trim() } });
     form.reset();
-    toast(`Sequence “${sequence.name}” added.`, "ok");
+    toast(`Sequence “${sequence.name}” added: fill in its process parameters.`, "ok");
     await loadSequences();
     pickSequence(sequence.id);
+    editSequence(sequence); // the weld run's Table I parameters and scale, right away
   } catch (error) {
     toast(error.message, "error");
   }

@@ -721,6 +721,24 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
     assert server.api("GET", f"/frames/{ids[2]}").status_code == 404
 
 
+def test_a_new_weld_run_asks_for_its_process_parameters(page: Any, server: LiveServer) -> None:
+    login(page, server, "anna")
+    page.wait_for_selector("body[data-ready]")
+    page.fill("#new-sequence input[name=name]", "Fresh run")
+    page.click("#new-sequence button[type=submit]")
+    page.wait_for_selector("[data-testid=sequence-dialog][open]")
+    assert page.input_value("[data-testid=seq-name]") == "Fresh run"
+    page.fill("[data-testid=seq-wire]", "8")
+    page.click("[data-testid=seq-save]")
+    wait_until(
+        page,
+        lambda: any(
+            s["name"] == "Fresh run" and s["wire_feed_m_min"] == 8
+            for s in server.api("GET", "/sequences").json()
+        ),
+    )
+
+
 def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: LiveServer) -> None:
     sequence = server.api("POST", "/sequences", json={"name": "Run to edit"}).json()
     server.api("POST", "/sequences", json={"name": "Taken name"})
