@@ -61,6 +61,8 @@ def test_review_scenario(page: Any, server: LiveServer) -> None:
     page.wait_for_selector(
         "#sequence-list li.active, #upload-target:has-text('Browser scenario run')"
     )
+    page.wait_for_selector("[data-testid=sequence-dialog][open]")  # its parameters: later
+    page.click("#sequence-cancel")
     page.set_input_files(
         "[data-testid=upload-input]",
         files=[
