@@ -773,3 +773,44 @@ def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: Li
     wait_until(
         page, lambda: server.api("GET", f"/sequences/{sequence['id']}").json()["voltage_v"] is None
     )
+
+
+def test_display_controls_change_only_the_view_and_are_remembered(
+    page: Any, server: LiveServer
+) -> None:
+    """Brightness, contrast, gamma, mask opacity and keypoints change what the canvas shows,
+    not the label; they, the tool and the brush size stay for the next frame."""
+    first, second = add_frame(server, 660), add_frame(server, 661)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{first}")
+    open_review(page)
+    centre = (
+        "() => { const c = document.querySelector('canvas[data-ready]');"
+        " const x = Math.floor(c.width / 2), y = Math.floor(c.height / 3);"
+        " const d = c.getContext('2d').getImageData(x, y, 1, 1).data;"
+        " return d[0] + d[1] + d[2]; }"
+    )
+    page.uncheck("#show-mask")
+    page.wait_for_timeout(100)
+    before = page.evaluate(centre)
+    area = canvas_data(page, "mask-area")
+    page.fill("[data-testid=display-brightness]", "2")
+    page.dispatch_event("[data-testid=display-brightness]", "input")
+    wait_for_js(page, f"({centre})() > {before}")
+    page.fill("[data-testid=display-gamma]", "0.5")
+    page.dispatch_event("[data-testid=display-gamma]", "input")
+    page.uncheck("[data-testid=display-keypoints]")
+    display = canvas_data(page, "display")
+    assert display == display | {"brightness": 2, "gamma": 0.5, "keypoints": False}
+    assert canvas_data(page, "mask-area") == area  # the label is untouched
+    page.keyboard.press("4")  # brush
+    page.fill("[data-testid=brush-size]", "40")
+    page.dispatch_event("[data-testid=brush-size]", "input")
+
+    page.goto(f"{server.url}/frames/{second}")
+    open_review(page)
+    assert canvas_data(page, "display") == display
+    assert page.get_attribute("[data-testid=tool-brush]", "aria-pressed") == "true"
+    assert page.input_value("[data-testid=brush-size]") == "40"
+    page.click("[data-testid=display-reset]")
+    assert canvas_data(page, "display")["brightness"] == 1

@@ -184,6 +184,7 @@ async function loadHistory() {
 function setTool(name) {
   if (validation && name !== "keypoint") return;
   tool = name;
+  if (!validation) remember({ tool: name });
   for (const button of document.querySelectorAll("#tools .tool")) {
     button.classList.toggle("active", button.dataset.tool === name);
     button.setAttribute("aria-pressed", String(button.dataset.tool === name));
@@ -199,7 +200,43 @@ function setBrushSize(value) {
   const input = $("brush-size");
   input.value = String(Math.min(Number(input.max), Math.max(Number(input.min), value)));
   $("brush-size-value").textContent = input.value;
+  remember({ brush: Number(input.value) });
   if (stage.cursor) { stage.cursor.radius = brushRadius(); stage.requestRender(); }
+}
+
+// --- what the reviewer set up stays from frame to frame (this browser) -------------------------
+
+const PREFS_KEY = "weldpool.review";
+const prefs = () => { try { return JSON.parse(localStorage.getItem(PREFS_KEY)) ?? {}; } catch { return {}; } };
+function remember(values) {
+  localStorage.setItem(PREFS_KEY, JSON.stringify({ ...prefs(), ...values }));
+}
+
+const DISPLAY = { brightness: "display-brightness", contrast: "display-contrast", gamma: "display-gamma", maskOpacity: "display-opacity" };
+const DEFAULT_DISPLAY = { brightness: 1, contrast: 1, gamma: 1, maskOpacity: 1, keypoints: true };
+
+function applyDisplay(values) {
+  stage.display = { ...DEFAULT_DISPLAY, ...values };
+  for (const [key, id] of Object.entries(DISPLAY)) {
+    $(id).value = String(stage.display[key]);
+    $(`${id}-value`).textContent = Number(stage.display[key]).toFixed(2);
+  }
+  $("display-keypoints").checked = stage.display.keypoints;
+  for (const channel of document.querySelectorAll("#gamma-filter feComponentTransfer > *")) {
+    channel.setAttribute("exponent", String(1 / stage.display.gamma)); // gamma > 1 brightens the mid-tones
+  }
+  stage.canvas.dataset.display = JSON.stringify(stage.display);
+  remember({ display: stage.display });
+  stage.requestRender();
+}
+
+function bindDisplay() {
+  for (const [key, id] of Object.entries(DISPLAY)) {
+    $(id).addEventListener("input", (event) => applyDisplay({ ...stage.display, [key]: Number(event.target.value) }));
+  }
+  $("display-keypoints").addEventListener("change", (event) => applyDisplay({ ...stage.display, keypoints: event.target.checked }));
+  $("display-reset").addEventListener("click", () => applyDisplay(DEFAULT_DISPLAY));
+  applyDisplay(prefs().display ?? DEFAULT_DISPLAY);
 }
 
 /** End the click session: the next click starts from the mask shown now. */
@@ -770,7 +807,10 @@ async function start() {
   $("stage-message").hidden = true;
   bindControls();
   renderProposals();
-  setTool("positive");
+  bindDisplay();
+  const saved = prefs();
+  if (saved.brush) setBrushSize(saved.brush);
+  setTool(["positive", "negative", "box", "brush", "eraser", "keypoint"].includes(saved.tool) ? saved.tool : "positive");
   renderFrameInfo();
   changed();
   stage.render();

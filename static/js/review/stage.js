@@ -28,6 +28,8 @@ export class Stage {
     this.keypoints = [];
     this.keypointStyle = "keypoint";
     this.dimKeypoints = false;
+    /** How the frame is shown (never what is saved): brightness, contrast, gamma, overlays. */
+    this.display = { brightness: 1, contrast: 1, gamma: 1, maskOpacity: 1, keypoints: true };
     this.selected = -1;
     this.points = [];
     this.box = null;
@@ -119,18 +121,31 @@ export class Stage {
     ctx.fillRect(0, 0, this.canvas.width, this.canvas.height);
     ctx.setTransform(dpr * this.scale, 0, 0, dpr * this.scale, dpr * this.tx, dpr * this.ty);
     ctx.imageSmoothingEnabled = this.scale < 2;
-    if (this.image) ctx.drawImage(this.image, 0, 0, this.width, this.height);
+    if (this.image) {
+      const { brightness, contrast, gamma } = this.display;
+      const filters = [];
+      if (brightness !== 1) filters.push(`brightness(${brightness})`);
+      if (contrast !== 1) filters.push(`contrast(${contrast})`);
+      if (gamma !== 1) filters.push("url(#gamma-filter)"); // exponent 1/gamma, set by the page
+      ctx.filter = filters.join(" ") || "none";
+      ctx.drawImage(this.image, 0, 0, this.width, this.height);
+      ctx.filter = "none";
+    }
     if (this.showHeatmap && this.heatmap) {
       ctx.globalAlpha = 0.7;
       ctx.drawImage(this.heatmap, 0, 0, this.width, this.height);
       ctx.globalAlpha = 1;
     }
-    if (this.showMask && this.overlay) ctx.drawImage(this.overlay.canvas, 0, 0);
+    if (this.showMask && this.overlay && this.display.maskOpacity > 0) {
+      ctx.globalAlpha = this.display.maskOpacity;
+      ctx.drawImage(this.overlay.canvas, 0, 0);
+      ctx.globalAlpha = 1;
+    }
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawBox(this.box, false);
     this.drawBox(this.draft, true);
     this.points.forEach((p) => this.drawPrompt(p));
-    this.drawKeypoints();
+    if (this.display.keypoints) this.drawKeypoints();
     this.drawCursor();
   }
 
