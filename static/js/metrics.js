@@ -44,7 +44,7 @@ function render(data) {
       : h("p", { class: "muted" }, "No reviewed frame has a teacher proposal yet."),
     h("h2", {}, "Review"),
     h("p", { "data-testid": "acceptance" },
-      `${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,
+      `Current labels: ${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,
       review.teacher_acceptance_rate === null
         ? "No teacher proposal has been reviewed yet."
         : `Reviewers accepted ${pct(review.teacher_acceptance_rate)} of the ${review.teacher_reviewed} teacher proposals they reviewed as they were.`),
@@ -55,9 +55,12 @@ function render(data) {
         "source-table")
       : "",
     review.over_time.length
-      ? table(["day", "accepted", "corrected", "rejected"],
-        review.over_time.map((d) => [d.day, String(d.accepted), String(d.corrected), String(d.rejected)]),
-        "review-table")
+      ? h("section", { "data-testid": "saves-per-day" }, h("h3", {}, "Saves per day"),
+        h("p", { class: "muted small-text", "data-testid": "review-table-note" },
+          "Every save counts here, so a frame corrected twice counts twice; the totals above count each frame's current label once."),
+        table(["day", "accepted", "corrected", "rejected"],
+          review.over_time.map((d) => [d.day, String(d.accepted), String(d.corrected), String(d.rejected)]),
+          "review-table"))
       : "",
     h("p", { class: "muted" }, `${data.queue.scored_frames} frames have an uncertainty score in the review queue.`));
 }

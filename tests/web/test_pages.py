@@ -529,6 +529,9 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     page.wait_for_selector("[data-testid=student-table]")
     assert name in page.inner_text("[data-testid=student-table]")
     assert "corrected" in page.inner_text("[data-testid=acceptance]")
+    # Two different counts, each said for what it is: current labels vs saves per day.
+    assert page.inner_text("[data-testid=acceptance]").startswith("Current labels:")
+    assert "counts twice" in page.inner_text("[data-testid=review-table-note]")
     assert page.locator("svg.chart").count() == 2  # the learning curve: mIoU and mED
     page.screenshot(path=str(screenshots / "metrics.png"), full_page=True)
 
