@@ -188,11 +188,14 @@ _cache: dict[tuple[Any, ...], Policy] = {}
 
 
 def current(session: Session, storage: Storage) -> Policy:
-    """``measure``, computed again only when labels, proposals or model versions changed."""
+    """``measure``, computed again only when labels, proposals or model versions changed
+    (added ones move the newest id, deleted frames take rows away: both are in the stamp)."""
     stamp = (
         str(storage.home),
-        session.scalar(sa.select(sa.func.max(LabelRevision.id))),
-        session.scalar(sa.select(sa.func.max(Proposal.id))),
+        *session.execute(
+            sa.select(sa.func.max(LabelRevision.id), sa.func.count(LabelRevision.id))
+        ).one(),
+        *session.execute(sa.select(sa.func.max(Proposal.id), sa.func.count(Proposal.id))).one(),
         session.scalar(sa.select(sa.func.count(ModelVersion.id))),
         session.scalar(sa.select(sa.func.max(ModelVersion.promoted_at))),
     )

@@ -238,6 +238,14 @@ def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
         f"/api/v1/frames/{ids[4]}/proposal", params={"source": "teacher"}, headers=auth(token)
     ).json()
     assert other["source"] == "teacher" and not other["chosen"]
+
+    # Deleting an older reviewed frame leaves two frames of evidence: the teacher again (the
+    # policy is measured anew, not served from a cache keyed by the newest label only).
+    deleted = client.delete(
+        f"/api/v1/frames/{ids[0]}", params={"force": "true"}, headers=auth(token)
+    )
+    assert deleted.status_code == 200 and deleted.json()["deleted_reviewed"] == 1
+    assert shown(ids[4]) == "teacher"
     assert (
         client.get(
             f"/api/v1/frames/{ids[4]}/proposal",
