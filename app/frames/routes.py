@@ -5,22 +5,22 @@ from __future__ import annotations
 import email.message
 from typing import Annotated, Any, Literal
 
-import sqlalchemy as sa
 from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
-from pydantic import BaseModel, Field
 from starlette.datastructures import FormData, UploadFile
 
-from app.bounds import MAX_ID, Id, IdPath, InputModel, OffsetQuery
+from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import InvalidInputError, NotFoundError
+from app.errors import InvalidInputError
 from app.frames import service
 from app.frames.schemas import (
+    DeletionOut,
     Duplicate,
     FrameDetail,
     FrameOut,
     FramePage,
+    FramesDeleteIn,
     IngestOut,
     Rejected,
     SequenceIn,
@@ -30,7 +30,7 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
-from app.models import Frame, FrameStatus, Split
+from app.models import FrameStatus, Split
 from app.security import CurrentUser, ReviewerUser
 
 router = APIRouter(tags=["frames"])
@@ -123,12 +123,6 @@ def update_sequence(
     return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
 
 
-class DeletionOut(BaseModel):
-    deleted_frames: int
-    deleted_reviewed: int = Field(description="Of them, frames with reviewed labels.")
-    removed_files: int = Field(description="Stored files no other row named.")
-
-
 def _deletion_out(deletion: service.Deletion) -> DeletionOut:
     return DeletionOut(
         deleted_frames=deletion.frames,
@@ -158,20 +152,11 @@ def delete_sequence(
 # --- frames ------------------------------------------------------------------------------------
 
 
-class FramesDeleteIn(InputModel):
-    frame_ids: list[Id] = Field(min_length=1, max_length=10_000)
-    force: bool = Field(default=False, description="Also delete frames with reviewed labels.")
-
-
 @router.post("/frames/delete", response_model=DeletionOut)
 def delete_frames(
     body: FramesDeleteIn, session: SessionDep, storage: StorageDep, _user: ReviewerUser
 ) -> DeletionOut:
     """Delete several frames at once, in one transaction (reviewers)."""
-    found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(body.frame_ids))))
-    missing = sorted(set(body.frame_ids) - found)
-    if missing:
-        raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
     return _deletion_out(service.delete_frames(session, storage, body.frame_ids, force=body.force))
 
 
@@ -184,7 +169,6 @@ def delete_frame(
     force: ForceQuery = False,
 ) -> DeletionOut:
     """Delete one frame with its proposals and labels (reviewers)."""
-    service.get_frame(session, frame_id)
     return _deletion_out(service.delete_frames(session, storage, [frame_id], force=force))
 
 

@@ -6,7 +6,7 @@ import datetime as dt
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.bounds import InputModel
+from app.bounds import Id, InputModel
 from app.models import FrameStatus, LabelStatus, Split
 
 
@@ -158,3 +158,14 @@ class VideoOut(BaseModel):
 class VideoAccepted(BaseModel):
     job_id: int
     video: VideoOut
+
+
+class DeletionOut(BaseModel):
+    deleted_frames: int
+    deleted_reviewed: int = Field(description="Of them, frames with reviewed labels.")
+    removed_files: int = Field(description="Stored files no other row named.")
+
+
+class FramesDeleteIn(InputModel):
+    frame_ids: list[Id] = Field(min_length=1, max_length=10_000)
+    force: bool = Field(default=False, description="Also delete frames with reviewed labels.")

@@ -613,6 +613,12 @@ def delete_frames(
     in between leaves orphans that start-up sweeps.
     """
     frame_ids = sorted(set(frame_ids))
+    found: set[int] = set()
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
+    if missing := [i for i in frame_ids if i not in found]:
+        raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
     reviewed = 0
     for start in range(0, len(frame_ids), 500):
         chunk = frame_ids[start : start + 500]
