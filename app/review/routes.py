@@ -26,6 +26,11 @@ from app.review.schemas import (
     LabelIn,
     LabelOut,
     LabelRevisionOut,
+    OutlineIn,
+    OutlineMaskIn,
+    OutlineMaskOut,
+    OutlineOut,
+    PolygonIO,
     ProposalList,
     ProposalOut,
     ProposalSummary,
@@ -36,6 +41,7 @@ from app.review.schemas import (
 from app.security import CurrentUser
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
+from weldpool_core.outline import Polygon, fill_polygons, mask_polygons
 
 router = APIRouter(tags=["review"])
 
@@ -217,6 +223,34 @@ def segment(
         elapsed_ms=result.elapsed_ms,
         embedding=result.embedding,
     )
+
+
+@router.post("/frames/{frame_id}/outline", response_model=OutlineOut)
+def outline(
+    frame_id: IdPath, body: OutlineIn, session: SessionDep, _user: CurrentUser
+) -> OutlineOut:
+    """A mask of this frame traced as polygons (outer boundaries and holes), to edit by vertex."""
+    frame = get_frame(session, frame_id)
+    mask = decode_mask_png(_png_bytes(body.mask_png, "mask_png"))
+    if mask.shape != (frame.height, frame.width):
+        raise InvalidInputError("The mask must have the frame's size.")
+    polygons = mask_polygons(mask, body.tolerance)
+    return OutlineOut(
+        polygons=[
+            PolygonIO(points=[list(p) for p in poly.points], hole=poly.hole) for poly in polygons
+        ]
+    )
+
+
+@router.post("/frames/{frame_id}/outline/mask", response_model=OutlineMaskOut)
+def outline_mask(
+    frame_id: IdPath, body: OutlineMaskIn, session: SessionDep, _user: CurrentUser
+) -> OutlineMaskOut:
+    """An edited outline of this frame rasterised: regions filled, holes emptied."""
+    frame = get_frame(session, frame_id)
+    polygons = [Polygon([(p[0], p[1]) for p in poly.points], poly.hole) for poly in body.polygons]
+    mask = fill_polygons(polygons, frame.height, frame.width)
+    return OutlineMaskOut(mask_png=_b64(encode_mask_png(mask)), area=int(mask.sum()))
 
 
 def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # type: ignore[no-untyped-def]

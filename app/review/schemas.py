@@ -83,6 +83,37 @@ class SegmentOut(BaseModel):
     embedding: Literal["memory", "disk", "computed"]
 
 
+class OutlineIn(InputModel):
+    """A mask to trace as polygons (the outline the reviewer edits vertex by vertex)."""
+
+    mask_png: str = Field(description="The mask (base64 PNG, the frame's size).")
+    tolerance: float = Field(
+        default=1.0, ge=0, le=20, description="Simplification in pixels (0: every pixel)."
+    )
+
+
+class PolygonIO(InputModel):
+    """One closed boundary in frame pixels; ``hole`` when it bounds a hole in its region."""
+
+    points: list[XY] = Field(min_length=3, max_length=20_000)
+    hole: bool = False
+
+
+class OutlineOut(BaseModel):
+    polygons: list[PolygonIO] = Field(description="Outer boundaries, each followed by its holes.")
+
+
+class OutlineMaskIn(InputModel):
+    """An edited outline to turn back into a mask."""
+
+    polygons: list[PolygonIO] = Field(max_length=256)
+
+
+class OutlineMaskOut(BaseModel):
+    mask_png: str = Field(description="Single-channel PNG (0 / 255), base64.")
+    area: int = Field(description="Pixels inside the outline.")
+
+
 class LabelIn(InputModel):
     """A reviewer's verdict; ``base_revision`` is the revision you saw (0: no label yet)."""
 

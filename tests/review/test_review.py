@@ -295,3 +295,54 @@ def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_us
             client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).status_code
             == 404
         )
+
+
+def test_outline_round_trip_through_the_api(client: TestClient, people) -> None:
+    """The polygon tool's two calls: trace a mask of the frame, fill an edited outline back."""
+    token = people["annotator"]
+    (frame_id,) = _upload_synthetic(client, token, 1)
+    mask = np.zeros((100, 160), np.uint8)
+    mask[20:61, 30:91] = 1
+    mask[35:45, 50:70] = 0  # a hole
+
+    def trace(tolerance: float) -> list[dict]:
+        body = {"mask_png": mask_b64(mask), "tolerance": tolerance}
+        traced = client.post(f"/api/v1/frames/{frame_id}/outline", json=body, headers=auth(token))
+        assert traced.status_code == 200, traced.text
+        return traced.json()["polygons"]
+
+    exact = trace(0)
+    assert [p["hole"] for p in exact] == [False, True]
+    filled = client.post(
+        f"/api/v1/frames/{frame_id}/outline/mask", json={"polygons": exact}, headers=auth(token)
+    )
+    assert filled.status_code == 200, filled.text
+    assert np.array_equal(_mask(filled.json()["mask_png"]), mask.astype(bool))
+    assert filled.json()["area"] == int(mask.sum())
+    polygons = trace(1.0)  # the tool's default: a rectangle is its four corners
+    assert sorted(map(tuple, polygons[0]["points"])) == [(30, 20), (30, 60), (90, 20), (90, 60)]
+    before = client.post(
+        f"/api/v1/frames/{frame_id}/outline/mask", json={"polygons": polygons}, headers=auth(token)
+    ).json()["area"]
+    # Drag the bottom-right corner 20 px right: the area grows by the swept triangle (40·20/2).
+    polygons[0]["points"] = [[110, 60] if p == [90, 60] else p for p in polygons[0]["points"]]
+    moved = client.post(
+        f"/api/v1/frames/{frame_id}/outline/mask", json={"polygons": polygons}, headers=auth(token)
+    )
+    assert moved.json()["area"] - before == pytest.approx(400, abs=25)
+    # Bad input: a mask of another size, a polygon of two vertices; each a one-sentence 4xx.
+    wrong = client.post(
+        f"/api/v1/frames/{frame_id}/outline",
+        json={"mask_png": mask_b64(np.zeros((10, 10), np.uint8))},
+        headers=auth(token),
+    )
+    assert (
+        wrong.status_code == 400
+        and wrong.json()["detail"] == "The mask must have the frame's size."
+    )
+    short = client.post(
+        f"/api/v1/frames/{frame_id}/outline/mask",
+        json={"polygons": [{"points": [[0, 0], [5, 5]]}]},
+        headers=auth(token),
+    )
+    assert short.status_code == 422
