@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
 
-MAX_POLYGONS = 256
-MAX_VERTICES = 20_000
+MAX_POLYGONS = 10_000
+MAX_VERTICES = 200_000
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from pydantic import BaseModel, Field, model_validator
 
 from app.bounds import MAX_ID, Id, InputModel
 from app.models import LabelStatus
+from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
 
 MAX_KEYPOINTS = 64
 """Most keypoints a label or a validation set of one frame may hold."""
@@ -95,7 +96,7 @@ class OutlineIn(InputModel):
 class PolygonIO(InputModel):
     """One closed boundary in frame pixels; ``hole`` when it bounds a hole in its region."""
 
-    points: list[XY] = Field(min_length=3, max_length=20_000)
+    points: list[XY] = Field(min_length=3, max_length=MAX_VERTICES)
     hole: bool = False
 
 
@@ -106,7 +107,7 @@ class OutlineOut(BaseModel):
 class OutlineMaskIn(InputModel):
     """An edited outline to turn back into a mask."""
 
-    polygons: list[PolygonIO] = Field(max_length=256)
+    polygons: list[PolygonIO] = Field(max_length=MAX_POLYGONS)
 
 
 class OutlineMaskOut(BaseModel):

@@ -16,7 +16,13 @@ import pytest
 from tests.helpers import corrected_label, image_bytes
 from tests.web.conftest import synthetic_png
 from tests.web.server import LiveServer, login, wait_for_js, wait_until
-from tests.web.test_review_flow import CANVAS, canvas_data, open_review, to_page
+from tests.web.test_review_flow import (
+    CANVAS,
+    canvas_data,
+    open_review,
+    to_page,
+    wait_for_mask_change,
+)
 from weldpool_core.synth import SynthParams, synth_frame
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -817,3 +823,85 @@ def test_display_controls_change_only_the_view_and_are_remembered(
     assert page.input_value("[data-testid=brush-size]") == "40"
     page.click("[data-testid=display-reset]")
     assert canvas_data(page, "display")["brightness"] == 1
+
+
+def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
+    page: Any, server: LiveServer
+) -> None:
+    """The outline as polygons: a corner dragged sweeps the triangle it should, undo and redo
+    restore mask and outline together, a vertex added on an edge and removed again, and what is
+    saved is what the canvas shows. Outline-only shows the frame under the mask."""
+    frame_id = add_frame(server, 670, teacher=False)
+    mask = np.zeros((800, 1280), np.uint8)
+    mask[300:501, 400:801] = 255
+    saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(mask))
+    assert saved.status_code == 200, saved.text
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.keyboard.press("7")
+    assert page.get_attribute("[data-testid=tool-polygon]", "aria-pressed") == "true"
+    wait_for_js(
+        page, f"JSON.parse(document.querySelector('{CANVAS}').dataset.outline).length === 1"
+    )
+    (outline,) = canvas_data(page, "outline")
+    assert sorted(map(tuple, outline["points"])) == [(400, 300), (400, 500), (800, 300), (800, 500)]
+    area = canvas_data(page, "mask-area")
+    assert area == 201 * 401
+
+    def outline_points() -> list[tuple[float, float]]:
+        return sorted(tuple(p) for p in canvas_data(page, "outline")[0]["points"])
+
+    # Drag the bottom-right corner 40 px right: a triangle of 200 × 40 / 2 px² is added.
+    stroke(page, (800, 500), (840, 500))
+    dragged = wait_for_mask_change(page, area)
+    assert dragged - area == pytest.approx(4000, abs=250)
+    assert (840, 500) in outline_points()
+    page.keyboard.press("Control+z")
+    wait_for_js(page, f"document.querySelector('{CANVAS}').dataset.maskArea === '{area}'")
+    assert (800, 500) in outline_points()
+    page.keyboard.press("Control+y")
+    wait_for_js(page, f"document.querySelector('{CANVAS}').dataset.maskArea === '{dragged}'")
+
+    # A new vertex in the middle of the top edge, pulled 40 px up: 400 × 40 / 2 more.
+    stroke(page, (600, 300), (600, 260))
+    pulled = wait_for_mask_change(page, dragged)
+    assert pulled - dragged == pytest.approx(8000, abs=450)
+    assert len(outline_points()) == 5
+    # Right-click removes it again: the same polygon as before, the same pixels.
+    page.mouse.click(*to_page(page, 600, 260), button="right")
+    wait_for_js(page, f"document.querySelector('{CANVAS}').dataset.maskArea === '{dragged}'")
+    assert len(outline_points()) == 4
+    # Select the bottom-left corner with a click, remove it with Delete: a triangle is left.
+    page.mouse.click(*to_page(page, 400, 500))
+    page.keyboard.press("Delete")
+    triangle = wait_for_mask_change(page, dragged)
+    assert outline_points() == [(400, 300), (800, 300), (840, 500)]
+    assert triangle == pytest.approx(dragged - 200 * 400 / 2 - 4000, abs=450)
+
+    # Outline only: the inside shows the frame as if the mask were hidden; the label is unchanged.
+    pixel = (
+        "() => { const c = document.querySelector('canvas[data-ready]'); const r = c.width / "
+        "c.getBoundingClientRect().width; const v = JSON.parse(c.dataset.view);"
+        " const d = c.getContext('2d').getImageData(Math.round((v.tx + 700 * v.scale) * r),"
+        " Math.round((v.ty + 350 * v.scale) * r), 1, 1).data; return [d[0], d[1], d[2]]; }"
+    )
+    page.keyboard.press("1")  # no outline handles in the way
+    page.wait_for_timeout(150)
+    filled = page.evaluate(pixel)
+    page.check("[data-testid=display-outline]")
+    page.wait_for_timeout(150)
+    outlined = page.evaluate(pixel)
+    page.uncheck("#show-mask")
+    page.wait_for_timeout(150)
+    assert outlined == page.evaluate(pixel) != filled
+    page.uncheck("[data-testid=display-outline]")
+    page.check("#show-mask")
+    assert canvas_data(page, "mask-area") == triangle
+
+    page.uncheck("#advance")
+    page.keyboard.press("s")
+    wait_for_js(page, f"document.querySelector('{CANVAS}').dataset.revision === '2'")
+    label = server.api("GET", f"/frames/{frame_id}/label").json()
+    stored = cv2.imdecode(np.frombuffer(base64.b64decode(label["mask_png"]), np.uint8), 0)
+    assert int((stored > 0).sum()) == triangle

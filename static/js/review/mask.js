@@ -105,13 +105,22 @@ export function union(a, b) {
 const FILL = [0, 184, 255, 96];
 const EDGE = [0, 230, 255, 255];
 
-/** The mask drawn as a translucent fill with an opaque outline, on a canvas of the frame's size. */
+/** The mask drawn as a translucent fill (or none: outline only) with an opaque outline, on a
+ * canvas of the frame's size. */
 export class MaskOverlay {
   constructor(width, height) {
     this.canvas = new OffscreenCanvas(width, height);
     this.ctx = this.canvas.getContext("2d");
     this.image = this.ctx.createImageData(width, height);
     this.mask = null;
+    this.filled = true;
+  }
+
+  /** Fill the inside, or draw the outline only (what lies under the mask stays readable). */
+  setFilled(on) {
+    if (on === this.filled) return;
+    this.filled = on;
+    if (this.mask) this.paint(this.mask);
   }
 
   /** Redraw everything (a new mask) or only `rect` (a brush stroke on the same mask). */
@@ -132,6 +141,7 @@ export class MaskOverlay {
         if (!m[i]) { out[j + 3] = 0; continue; }
         const edge = x === 0 || y === 0 || x === width - 1 || y === height - 1
           || !m[i - 1] || !m[i + 1] || !m[i - width] || !m[i + width];
+        if (!edge && !this.filled) { out[j + 3] = 0; continue; }
         const c = edge ? EDGE : FILL;
         out[j] = c[0]; out[j + 1] = c[1]; out[j + 2] = c[2]; out[j + 3] = c[3];
       }

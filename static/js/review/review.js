@@ -2,8 +2,8 @@
 // endpoint, brush and eraser, keypoint editing, undo / redo, the verdict with revision checks,
 // the queue's next frame, and the validation mode for keypoints placed by hand.
 //
-// Every edit makes a new immutable `state` ({mask, keypoints, manual, session, maskEdited,
-// kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
+// Every edit makes a new immutable `state` ({mask, keypoints, manual, session, outline,
+// maskEdited, kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
 // are not the ones last loaded or saved.
 
 import { api, ApiError, isReviewer, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
@@ -14,6 +14,7 @@ import { Stage } from "./stage.js";
 const FRAME_ID = Number(document.getElementById("review").dataset.frameId);
 const K = 4;
 const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
+const OUTLINE_TOLERANCE = 1; // pixels: a vertex where the boundary turns, not on every pixel
 const $ = (id) => document.getElementById(id);
 
 /** The list's filters this frame was opened from: the queue that "next" walks. */
@@ -83,6 +84,7 @@ function isProposal() {
 /** Refresh the canvas and the side panel after any change of `state`. */
 function changed() {
   if (overlay.mask !== state.mask) overlay.paint(state.mask);
+  showOutline();
   exposeState();
   stage.keypoints = validation ? state.manual : state.keypoints;
   stage.keypointStyle = validation ? "manual" : "keypoint";
@@ -108,6 +110,7 @@ function exposeState() {
   data.clicks = String(state.session?.points.length ?? 0);
   data.revision = String(revision);
   data.pending = String(inflight.size);
+  data.outline = JSON.stringify(stage.polygons ?? []);
 }
 
 // --- side panel -----------------------------------------------------------------------------
@@ -191,6 +194,8 @@ function setTool(name) {
   }
   stage.canvas.dataset.tool = name;
   if (name !== "brush" && name !== "eraser") stage.cursor = null;
+  stage.selectedVertex = null;
+  showOutline();
   stage.requestRender();
 }
 
@@ -213,7 +218,7 @@ function remember(values) {
 }
 
 const DISPLAY = { brightness: "display-brightness", contrast: "display-contrast", gamma: "display-gamma", maskOpacity: "display-opacity" };
-const DEFAULT_DISPLAY = { brightness: 1, contrast: 1, gamma: 1, maskOpacity: 1, keypoints: true };
+const DEFAULT_DISPLAY = { brightness: 1, contrast: 1, gamma: 1, maskOpacity: 1, keypoints: true, outlineOnly: false };
 
 function applyDisplay(values) {
   stage.display = { ...DEFAULT_DISPLAY, ...values };
@@ -222,6 +227,8 @@ function applyDisplay(values) {
     $(`${id}-value`).textContent = Number(stage.display[key]).toFixed(2);
   }
   $("display-keypoints").checked = stage.display.keypoints;
+  $("display-outline").checked = stage.display.outlineOnly;
+  fillMask();
   for (const channel of document.querySelectorAll("#gamma-filter feComponentTransfer > *")) {
     channel.setAttribute("exponent", String(1 / stage.display.gamma)); // gamma > 1 brightens the mid-tones
   }
@@ -235,6 +242,7 @@ function bindDisplay() {
     $(id).addEventListener("input", (event) => applyDisplay({ ...stage.display, [key]: Number(event.target.value) }));
   }
   $("display-keypoints").addEventListener("change", (event) => applyDisplay({ ...stage.display, keypoints: event.target.checked }));
+  $("display-outline").addEventListener("change", (event) => applyDisplay({ ...stage.display, outlineOnly: event.target.checked }));
   $("display-reset").addEventListener("click", () => applyDisplay(DEFAULT_DISPLAY));
   applyDisplay(prefs().display ?? DEFAULT_DISPLAY);
 }
@@ -276,14 +284,82 @@ function segment(target) {
     $("last-click").textContent = `mask in ${Math.round(answer.elapsed_ms)} ms · SAM2 IoU ${answer.score.toFixed(2)}`;
     if (target === state) changed();
   })();
+  track(run);
+}
+
+/** Count `run` as pending (saving waits for it; the page shows "segmenting…"), toast its error. */
+function track(run, onError = () => {}) {
   inflight.add(run);
   $("busy").hidden = false;
   exposeState();
-  run.catch((error) => toast(error.message, "error")).finally(() => {
+  run.catch((error) => { toast(error.message, "error"); onError(); }).finally(() => {
     inflight.delete(run);
     $("busy").hidden = inflight.size === 0;
     exposeState();
   });
+}
+
+// --- the outline as polygons (tool 7): drag, add and remove vertices -------------------------
+//
+// The mask shown is traced once into polygons (outer boundaries and holes, by the server with
+// OpenCV); an edit makes a new state whose outline is the edited polygons, and the server fills
+// them back into the mask. Undo and redo restore mask and outline together.
+
+/** Show the outline of the current mask while the polygon tool is on (tracing it if needed). */
+function showOutline() {
+  const outline = state?.outline;
+  // Current: traced from this mask, or being traced or filled from it (pending).
+  const current = outline && (outline.mask === state.mask || (outline.mask === null && outline.base === state.mask));
+  stage.polygons = tool === "polygon" && !validation && current ? outline.polygons : null;
+  if (tool === "polygon" && !validation && !current && state) traceOutline(state);
+  if (stage.selectedVertex && !stage.polygons?.[stage.selectedVertex.polygon]?.points[stage.selectedVertex.index]) {
+    stage.selectedVertex = null;
+  }
+}
+
+function traceOutline(target) {
+  const mask = target.mask;
+  target.outline = { mask: null, base: mask, polygons: [] }; // pending: traced once
+  const run = (async () => {
+    const answer = mask.any()
+      ? await api(`/frames/${FRAME_ID}/outline`, { method: "POST", json: { mask_png: await pngOf(mask), tolerance: OUTLINE_TOLERANCE } })
+      : { polygons: [] };
+    target.outline = { mask, polygons: answer.polygons };
+    if (target === state) { showOutline(); exposeState(); stage.requestRender(); }
+  })();
+  track(run, () => { target.outline = null; });
+}
+
+/** A new state whose outline is `change`d (a deep copy); its mask follows from the server. */
+function editOutline(change) {
+  const polygons = state.outline.polygons.map((p) => ({ hole: p.hole, points: p.points.map((q) => [...q]) }));
+  change(polygons);
+  commit({ ...state, outline: { mask: null, base: state.mask, polygons }, maskEdited: true, session: null });
+  return state;
+}
+
+function fillOutline(target) {
+  const run = (async () => {
+    const answer = await api(`/frames/${FRAME_ID}/outline/mask`, { method: "POST", json: { polygons: target.outline.polygons } });
+    const mask = await Mask.fromPng(answer.mask_png, frame.width, frame.height);
+    target.mask = mask;
+    target.outline = { mask, polygons: target.outline.polygons };
+    if (target === state) changed();
+  })();
+  track(run, () => { if (target === state) undo(); });
+}
+
+/** Remove a vertex; a polygon left with fewer than 3 goes (an outer one with its holes). */
+function removeVertex({ polygon, index }) {
+  const target = editOutline((polygons) => {
+    polygons[polygon].points.splice(index, 1);
+    if (polygons[polygon].points.length >= 3) return;
+    let end = polygon + 1;
+    if (!polygons[polygon].hole) while (end < polygons.length && polygons[end].hole) end++;
+    polygons.splice(polygon, end - polygon);
+  });
+  stage.selectedVertex = null;
+  fillOutline(target);
 }
 
 function deleteKeypoint(index) {
@@ -338,6 +414,26 @@ function onPointerDown(event) {
     changed();
     return;
   }
+  if (tool === "polygon" && stage.polygons && state.outline?.mask) {
+    const vertex = stage.vertexAt(sx, sy);
+    if (vertex && event.button === 2) { gesture = null; removeVertex(vertex); return; }
+    if (vertex && event.button === 0) {
+      stage.selectedVertex = vertex;
+      gesture = { kind: "vertex", ...vertex, committed: false };
+      stage.requestRender();
+      return;
+    }
+    const edge = event.button === 0 ? stage.edgeAt(sx, sy) : null;
+    if (edge) { // a new vertex on the edge, dragged from here
+      editOutline((polygons) => polygons[edge.polygon].points.splice(edge.index, 0, [edge.x, edge.y]));
+      stage.selectedVertex = { polygon: edge.polygon, index: edge.index };
+      gesture = { kind: "vertex", polygon: edge.polygon, index: edge.index, committed: true };
+      showOutline();
+      stage.requestRender();
+      return;
+    }
+    return; // elsewhere: a drag pans
+  }
   if (!inside && tool !== "box") return;
   if (tool === "brush" || tool === "eraser") {
     if (event.button !== 0) return;
@@ -366,6 +462,8 @@ function onPointerMove(event) {
   }
   if (!gesture) {
     stage.canvas.classList.toggle("over-keypoint", tool === "keypoint" && stage.keypointAt(sx, sy) >= 0);
+    stage.canvas.classList.toggle("over-vertex", tool === "polygon" && stage.vertexAt(sx, sy) !== null);
+    stage.canvas.classList.toggle("over-edge", tool === "polygon" && !stage.vertexAt(sx, sy) && stage.edgeAt(sx, sy) !== null);
     return;
   }
   if (gesture.kind === "click") {
@@ -385,6 +483,14 @@ function onPointerMove(event) {
   } else if (gesture.kind === "box") {
     const [cx, cy] = clampToFrame([x, y]);
     stage.draft = [Math.min(gesture.x, cx), Math.min(gesture.y, cy), Math.max(gesture.x, cx), Math.max(gesture.y, cy)];
+    stage.requestRender();
+  } else if (gesture.kind === "vertex") {
+    if (!gesture.committed) {
+      gesture.committed = true;
+      editOutline(() => {});
+      showOutline();
+    }
+    state.outline.polygons[gesture.polygon].points[gesture.index] = clampToFrame([x, y]);
     stage.requestRender();
   } else if (gesture.kind === "keypoint") {
     if (!gesture.committed) {
@@ -407,6 +513,8 @@ function onPointerUp() {
     stage.draft = null;
     if (box && box[2] - box[0] >= 2 && box[3] - box[1] >= 2) setBox(box);
     else stage.requestRender();
+  } else if (done.kind === "vertex") {
+    if (done.committed) fillOutline(state);
   } else if (done.kind === "brush" || done.kind === "keypoint") {
     changed();
   }
@@ -546,6 +654,13 @@ async function showQueuePosition() {
 
 // --- overlays -------------------------------------------------------------------------------
 
+/** The mask is drawn as its outline only when asked, and always over the heatmap (readable). */
+function fillMask() {
+  overlay.setFilled(!stage.display.outlineOnly && !stage.showHeatmap);
+  stage.canvas.dataset.maskFill = String(overlay.filled);
+  stage.requestRender();
+}
+
 function setMaskVisible(on) {
   $("show-mask").checked = on;
   stage.showMask = on;
@@ -555,6 +670,7 @@ function setMaskVisible(on) {
 async function setHeatmapVisible(on) {
   $("show-heatmap").checked = on;
   stage.showHeatmap = on;
+  fillMask();
   if (on && !stage.heatmap && proposal) {
     const image = new Image();
     image.src = `/api/v1/frames/${FRAME_ID}/proposal/heatmap.png?proposal_id=${proposal.id}`;
@@ -616,9 +732,14 @@ function cycleProposal() {
   switchProposal(proposals[(index + 1) % proposals.length].id);
 }
 
+function deleteSelected() {
+  if (tool === "polygon" && stage.selectedVertex && state.outline?.mask) removeVertex(stage.selectedVertex);
+  else if (stage.selected >= 0) deleteKeypoint(stage.selected);
+}
+
 // --- keyboard -------------------------------------------------------------------------------
 
-const TOOL_KEYS = { 1: "positive", 2: "negative", 3: "box", 4: "brush", 5: "eraser", 6: "keypoint" };
+const TOOL_KEYS = { 1: "positive", 2: "negative", 3: "box", 4: "brush", 5: "eraser", 6: "keypoint", 7: "polygon" };
 
 function onKey(event) {
   const target = event.target;
@@ -651,8 +772,8 @@ function onKey(event) {
     v: () => toggleValidation(),
     p: () => cycleProposal(),
     escape: () => { stage.draft = null; gesture = null; endSession(); },
-    delete: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
-    backspace: () => stage.selected >= 0 && deleteKeypoint(stage.selected),
+    delete: () => deleteSelected(),
+    backspace: () => deleteSelected(),
   };
   if (actions[key]) { event.preventDefault(); actions[key](); }
 }
@@ -794,6 +915,7 @@ async function start() {
     keypoints: keypoints.map((p) => [...p]),
     manual: (manual?.keypoints ?? []).map((p) => [...p]),
     session: null,
+    outline: null,
     maskEdited: false,
     kpEdited: false,
   };
@@ -810,7 +932,7 @@ async function start() {
   bindDisplay();
   const saved = prefs();
   if (saved.brush) setBrushSize(saved.brush);
-  setTool(["positive", "negative", "box", "brush", "eraser", "keypoint"].includes(saved.tool) ? saved.tool : "positive");
+  setTool(Object.values(TOOL_KEYS).includes(saved.tool) ? saved.tool : "positive");
   renderFrameInfo();
   changed();
   stage.render();

@@ -8,7 +8,11 @@ const COLOURS = {
   positive: "#2fb344",
   negative: "#e03131",
   box: "#00b8ff",
+  outline: "#00e6ff",
+  hole: "#ffd43b",
 };
+const VERTEX_HIT = 7; // screen pixels around a vertex or an edge that pick it
+const HANDLES_FROM = 16; // screen pixels: smaller polygons (specks) are drawn without handles
 
 export class Stage {
   constructor(canvas, width, height) {
@@ -34,6 +38,9 @@ export class Stage {
     this.points = [];
     this.box = null;
     this.draft = null;
+    /** The outline being edited (polygon tool): [{points: [[x, y]…], hole}], or null. */
+    this.polygons = null;
+    this.selectedVertex = null; // {polygon, index}
     this.cursor = null;
     this.pending = false;
     this.onViewChange = () => {};
@@ -105,6 +112,44 @@ export class Stage {
     return -1;
   }
 
+  /** Whether a polygon is big enough on screen to show (and pick) its vertices. */
+  editable(polygon) {
+    const xs = polygon.points.map((q) => q[0]);
+    const ys = polygon.points.map((q) => q[1]);
+    const extent = Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys));
+    return extent * this.scale >= HANDLES_FROM;
+  }
+
+  /** The outline vertex under the screen point, {polygon, index}, or null. */
+  vertexAt(sx, sy) {
+    if (!this.polygons) return null;
+    let best = null;
+    this.polygons.forEach((polygon, p) => this.editable(polygon) && polygon.points.forEach(([x, y], i) => {
+      const [px, py] = this.toScreen(x, y);
+      const d = Math.hypot(px - sx, py - sy);
+      if (d <= VERTEX_HIT && (!best || d < best.d)) best = { polygon: p, index: i, d };
+    }));
+    return best && { polygon: best.polygon, index: best.index };
+  }
+
+  /** The outline edge under the screen point: {polygon, index (insert before), x, y}, or null. */
+  edgeAt(sx, sy) {
+    if (!this.polygons) return null;
+    let best = null;
+    this.polygons.forEach((polygon, p) => this.editable(polygon) && polygon.points.forEach((a, i) => {
+      const b = polygon.points[(i + 1) % polygon.points.length];
+      const [ax, ay] = this.toScreen(...a);
+      const [bx, by] = this.toScreen(...b);
+      const length2 = (bx - ax) ** 2 + (by - ay) ** 2 || 1;
+      const t = Math.min(1, Math.max(0, ((sx - ax) * (bx - ax) + (sy - ay) * (by - ay)) / length2));
+      const d = Math.hypot(ax + t * (bx - ax) - sx, ay + t * (by - ay) - sy);
+      if (d <= VERTEX_HIT && (!best || d < best.d)) {
+        best = { polygon: p, index: i + 1, x: a[0] + t * (b[0] - a[0]), y: a[1] + t * (b[1] - a[1]), d };
+      }
+    }));
+    return best && { polygon: best.polygon, index: best.index, x: best.x, y: best.y };
+  }
+
   // --- drawing ------------------------------------------------------------------------------
 
   requestRender() {
@@ -145,6 +190,7 @@ export class Stage {
     this.drawBox(this.box, false);
     this.drawBox(this.draft, true);
     this.points.forEach((p) => this.drawPrompt(p));
+    this.drawPolygons();
     if (this.display.keypoints) this.drawKeypoints();
     this.drawCursor();
   }
@@ -159,6 +205,36 @@ export class Stage {
     ctx.lineWidth = 2;
     if (draft) ctx.setLineDash([6, 4]);
     ctx.strokeRect(x0, y0, x1 - x0, y1 - y0);
+    ctx.restore();
+  }
+
+  drawPolygons() {
+    if (!this.polygons) return;
+    const { ctx } = this;
+    ctx.save();
+    for (const [p, polygon] of this.polygons.entries()) {
+      const colour = polygon.hole ? COLOURS.hole : COLOURS.outline;
+      ctx.beginPath();
+      polygon.points.forEach(([x, y], i) => {
+        const [px, py] = this.toScreen(x, y);
+        if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
+      });
+      ctx.closePath();
+      ctx.lineWidth = 1.5;
+      ctx.strokeStyle = colour;
+      ctx.stroke();
+      if (!this.editable(polygon)) continue;
+      polygon.points.forEach(([x, y], i) => {
+        const [px, py] = this.toScreen(x, y);
+        const selected = this.selectedVertex?.polygon === p && this.selectedVertex.index === i;
+        const r = selected ? 5 : 3.5;
+        ctx.fillStyle = selected ? "#fff" : colour;
+        ctx.fillRect(px - r, py - r, 2 * r, 2 * r);
+        ctx.lineWidth = 1;
+        ctx.strokeStyle = "#11151a";
+        ctx.strokeRect(px - r, py - r, 2 * r, 2 * r);
+      });
+    }
     ctx.restore();
   }
 
