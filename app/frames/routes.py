@@ -268,7 +268,13 @@ def list_frames(
         diversity_pool=settings.queue_diversity_pool,
     )
     return FramePage(
-        items=[FrameOut.model_validate(r) for r in rows], total=total, limit=limit, offset=offset
+        items=[FrameOut.model_validate(r) for r in rows],
+        total=total,
+        limit=limit,
+        offset=offset,
+        ordering=service.ordering_note(
+            order, settings.queue_diversity, settings.queue_diversity_pool
+        ),
     )
 
 

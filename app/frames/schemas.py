@@ -116,6 +116,9 @@ class FramePage(BaseModel):
     total: int
     limit: int
     offset: int
+    ordering: str | None = Field(
+        default=None, description="How the list is ordered, where the scores do not show it."
+    )
 
 
 class Rejected(BaseModel):

@@ -377,6 +377,19 @@ def list_frames(
     return list(rows), total
 
 
+def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:
+    """How a list is ordered, in words, where the order is not evident from the scores shown."""
+    if order != "uncertainty":
+        return None
+    if diversity > 0:
+        return (
+            f"Most uncertain first; among the top {diversity_pool}, frames that look alike are "
+            "spread apart so you do not review near-copies in a row, so a score can be lower "
+            "than the next one's."
+        )
+    return "Most uncertain first; frames without a score last."
+
+
 def get_frame(session: Session, frame_id: int) -> Frame:
     frame = session.get(Frame, frame_id)
     if frame is None:

@@ -152,6 +152,9 @@ async function loadFrames() {
         filters().status === "unreviewed"
           ? "Nothing left to review here. Status “all” shows the frames already reviewed; drop frames above to add more."
           : "No frames match. Drop frames above to start."))]));
+  const note = document.getElementById("order-note");
+  note.textContent = lastPage.ordering ?? "";
+  note.hidden = !lastPage.ordering || !lastPage.items.length;
   const last = Math.min(offset + PAGE_SIZE, lastPage.total);
   document.getElementById("page-info").textContent = lastPage.total ? `${offset + 1}–${last} of ${lastPage.total}` : "0 frames";
   document.getElementById("prev-page").disabled = offset === 0;

@@ -489,6 +489,12 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
         int(r.get_attribute("data-frame-id")) for r in page.locator("[data-testid=frame-row]").all()
     }
     assert shown == set(ids[1:])
+    # The queue says why its scores need not decrease (look-alikes are spread apart).
+    assert "frames that look alike are spread apart" in page.inner_text("[data-testid=order-note]")
+    page.select_option("select[name=order]", "id")
+    page.wait_for_selector("[data-testid=order-note]", state="hidden")
+    page.select_option("select[name=order]", "uncertainty")
+    page.wait_for_selector("[data-testid=order-note]")
     page.click("[data-testid=start-review]")
     page.wait_for_url(re.compile(r"/frames/\d+"))
     assert int(re.search(r"/frames/(\d+)", page.url).group(1)) in ids[1:]  # type: ignore[union-attr]

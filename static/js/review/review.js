@@ -611,7 +611,7 @@ async function queueIds() {
   params.set("limit", "500");
   params.delete("offset");
   const page = await api(`/frames?${params}`);
-  return { ids: page.items.map((f) => f.id), total: page.total };
+  return { ids: page.items.map((f) => f.id), total: page.total, ordering: page.ordering };
 }
 
 async function goNext({ afterSave = false } = {}) {
@@ -641,8 +641,9 @@ async function goNext({ afterSave = false } = {}) {
 
 async function showQueuePosition() {
   try {
-    const { ids, total } = await queueIds();
+    const { ids, total, ordering } = await queueIds();
     const here = ids.indexOf(FRAME_ID);
+    $("queue-position").title = ordering ?? "";
     const order = CONTEXT.get("order") === "uncertainty" ? "most uncertain first" : `order ${CONTEXT.get("order")}`;
     $("queue-position").textContent = here >= 0 ? `${here + 1} of ${total} in this queue (${order})` : `not in this queue (${order})`;
     const next = here >= 0 ? ids[here + 1] : ids[0];
