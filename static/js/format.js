@@ -28,3 +28,5 @@ export function metric(name, value) {
   if (/^m?ed|_k$|std|px/i.test(name)) return px(value);
   return String(Number(value.toPrecision(4)));
 }
+/** A plain quantity with a fixed number of decimals ("15.0", "33.1"). */
+export const decimal = (v, digits = 1) => (typeof v === "number" && Number.isFinite(v) ? v.toFixed(digits) : "–");

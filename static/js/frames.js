@@ -2,8 +2,9 @@
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
 import { api, ApiError, isReviewer, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
-import { count, everyNth } from "./format.js";
+import { count, decimal, everyNth } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
+import { probeVideo } from "./video.js";
 
 const PAGE_SIZE = 50;
 const VIDEO = /\.(mp4|avi)$/i;
@@ -342,6 +343,7 @@ function uploadItem(file) {
   uploadList.prepend(item);
   return {
     progress: (fraction) => { setProgress(bar, fraction); result.textContent = `${Math.round(fraction * 100)} %`; },
+    offer: (node) => { result.replaceChildren(...(node ? [node] : [])); item.dataset.state = node ? "offered" : "sending"; },
     done: (text, kind) => {
       setProgress(bar, 1);
       item.classList.add(kind);
@@ -356,22 +358,65 @@ function targetSequence() {
   return filterForm.elements.sequence_id.value;
 }
 
-async function uploadFrame(file, item) {
+const BATCH_FILES = 8;
+const BATCH_BYTES = 64 * 1024 * 1024;
+const byName = (a, b) => a.name.localeCompare(b.name, undefined, { numeric: true });
+
+/** Frames in one request, in order (so their ids follow the file order); each item its result. */
+async function uploadFrames(batch) {
   const form = new FormData();
-  form.append("files", file, file.name);
+  for (const { file } of batch) form.append("files", file, file.name);
   const sequence = targetSequence();
   if (sequence) form.append("sequence_id", sequence);
-  const { status, body } = await upload("/frames", form, item.progress);
-  if (body?.stored?.length) return item.done(`stored as frame #${body.stored[0].id}`, "ok");
-  if (body?.duplicates?.length) return item.done(`already stored as frame #${body.duplicates[0].frame_id}`, "duplicate");
-  if (body?.rejected?.length) return item.done(`refused: ${body.rejected[0].reason}`, "refused");
-  item.done(`refused: ${body?.detail ?? `the server answered ${status}`}`, "refused");
+  const { status, body } = await upload("/frames", form, (fraction) => batch.forEach(({ item }) => item.progress(fraction)));
+  const stored = new Map((body?.stored ?? []).map((f) => [f.original_name, f]));
+  const duplicates = new Map((body?.duplicates ?? []).map((d) => [d.name, d]));
+  const rejected = new Map((body?.rejected ?? []).map((r) => [r.name, r]));
+  for (const { file, item } of batch) {
+    if (stored.has(file.name)) item.done(`stored as frame #${stored.get(file.name).id}`, "ok");
+    else if (duplicates.has(file.name)) item.done(`already stored as frame #${duplicates.get(file.name).frame_id}`, "duplicate");
+    else if (rejected.has(file.name)) item.done(`refused: ${rejected.get(file.name).reason}`, "refused");
+    else item.done(`refused: ${body?.detail ?? `the server answered ${status}`}`, "refused");
+  }
 }
 
-async function uploadVideo(file, item) {
+/** A video waits for "Import": its frame count (read from its header) and the sampling step
+ * show how many frames it will add before anything is uploaded. */
+async function offerVideo(file) {
+  const item = uploadItem(file);
+  const probe = await probeVideo(file);
+  const step = h("input", { type: "number", min: "1", value: String(nthValue()), class: "tiny", "data-testid": "video-every-nth", "aria-label": "keep one frame in" });
+  const estimate = h("span", { "data-testid": "video-estimate" });
+  const show = () => {
+    const n = Math.max(1, Math.round(Number(step.value) || 1));
+    estimate.textContent = probe
+      ? `${count(probe.frames, "frame")} at ${decimal(probe.fps, 1)} fps (${decimal(probe.duration_s, 1)} s) → ${count(Math.ceil(probe.frames / n), "frame")} kept`
+      : "frame count unknown until imported";
+  };
+  step.addEventListener("input", show);
+  show();
+  const importButton = h("button", { type: "button", class: "primary small", "data-testid": "video-import" }, "Import");
+  const skip = h("button", { type: "button", class: "quiet small" }, "Skip");
+  item.offer(h("span", { class: "video-offer" }, "keep one frame in ", step, " · ", estimate, " ", importButton, skip));
+  await new Promise((resolve) => {
+    importButton.addEventListener("click", () => resolve(true), { once: true });
+    skip.addEventListener("click", () => { item.done("skipped", "duplicate"); resolve(false); }, { once: true });
+  }).then(async (go) => {
+    if (!go) return;
+    item.offer(null);
+    try {
+      await uploadVideo(file, item, Math.max(1, Math.round(Number(step.value) || 1)));
+    } catch (error) {
+      item.done(`failed: ${error.message}`, "refused");
+    }
+    await Promise.all([loadSequences(), loadFrames()]);
+  });
+}
+
+async function uploadVideo(file, item, everyNthFrame) {
   const form = new FormData();
   form.append("file", file, file.name);
-  form.append("every_nth", String(nthValue()));
+  form.append("every_nth", String(everyNthFrame));
   const sequence = targetSequence();
   if (sequence) form.append("sequence_id", sequence);
   const { status, body } = await upload("/videos", form, item.progress);
@@ -379,26 +424,35 @@ async function uploadVideo(file, item) {
   item.progress(0);
   const job = await waitForJob(body.job_id, (state) => item.progress(state.progress), 1000);
   if (job.status === "succeeded") {
-    const count = job.result?.stored ?? job.result?.frames ?? "";
-    item.done(`extracted ${count} frames (job #${job.id})`.replace("  ", " "), "ok");
+    const extracted = job.result?.stored ?? job.result?.frames ?? "";
+    item.done(`extracted ${extracted} frames (job #${job.id})`.replace("  ", " "), "ok");
   } else {
     item.done(`video job #${job.id} ${job.status}: ${job.error ?? ""}`, "refused");
   }
 }
 
 async function uploadAll(files) {
-  const queue = [...files].map((file) => ({ file, item: uploadItem(file) }));
-  const worker = async () => {
-    for (let next = queue.shift(); next; next = queue.shift()) {
-      try {
-        await (VIDEO.test(next.file.name) ? uploadVideo : uploadFrame)(next.file, next.item);
-      } catch (error) {
-        next.item.done(`failed: ${error.message}`, "refused");
-      }
-    }
+  const all = [...files];
+  const images = all.filter((file) => !VIDEO.test(file.name)).sort(byName);
+  all.filter((file) => VIDEO.test(file.name)).sort(byName).reverse().forEach(offerVideo);
+  // Listed first file on top; sent in name order, a few per request.
+  const queue = images.map((file) => ({ file }));
+  for (const entry of [...queue].reverse()) entry.item = uploadItem(entry.file);
+  let batch = [];
+  let bytes = 0;
+  const flush = async () => {
+    if (!batch.length) return;
+    try { await uploadFrames(batch); } catch (error) { batch.forEach(({ item }) => item.done(`failed: ${error.message}`, "refused")); }
+    batch = [];
+    bytes = 0;
   };
-  await Promise.all([worker(), worker(), worker()]);
-  await Promise.all([loadSequences(), loadFrames()]);
+  for (const entry of queue) {
+    if (batch.length && (batch.length >= BATCH_FILES || bytes + entry.file.size > BATCH_BYTES)) await flush();
+    batch.push(entry);
+    bytes += entry.file.size;
+  }
+  await flush();
+  if (images.length) await Promise.all([loadSequences(), loadFrames()]);
 }
 
 const dropzone = document.getElementById("dropzone");

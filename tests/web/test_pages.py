@@ -218,9 +218,17 @@ def test_annotator_saves_corrections_and_uploads_a_video(
     page.fill("#every-nth", "2")
     assert page.inner_text("[data-testid=every-nth-text]") == "every 2nd frame"
     page.set_input_files("[data-testid=upload-input]", str(video))
+    # Nothing is sent before "Import": the header's frame count gives the estimate first.
+    offer = page.locator("[data-testid=upload-item][data-name='run.avi'][data-state=offered]")
+    estimate = offer.locator("[data-testid=video-estimate]")
+    wait_until(page, lambda: "→ 3 frames kept" in estimate.inner_text())
+    assert estimate.inner_text() == "6 frames at 10.0 fps (0.6 s) → 3 frames kept"
+    offer.locator("[data-testid=video-every-nth]").fill("4")
+    assert estimate.inner_text().endswith("→ 2 frames kept")
+    offer.locator("[data-testid=video-import]").click()
     item = page.locator("[data-testid=upload-item][data-name='run.avi'][data-state=ok]")
     item.wait_for(timeout=60_000)
-    assert "extracted 3 frames" in item.inner_text()
+    assert "extracted 2 frames" in item.inner_text()  # as estimated
     page.reload()  # the step is remembered for the next upload
     page.wait_for_selector("body[data-ready]")
     assert page.input_value("[data-testid=every-nth]") == "2"
@@ -911,3 +919,28 @@ def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
     label = server.api("GET", f"/frames/{frame_id}/label").json()
     stored = cv2.imdecode(np.frombuffer(base64.b64decode(label["mask_png"]), np.uint8), 0)
     assert int((stored > 0).sum()) == triangle
+
+
+def test_dropped_frames_get_ids_in_file_name_order(page: Any, server: LiveServer) -> None:
+    """Several frames dropped at once are stored in natural name order (f2 before f10), so
+    frame ids follow the camera's numbering, not which upload finished first."""
+    sequence = server.api("POST", "/sequences", json={"name": "Order run"}).json()
+    login(page, server, "rita")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    names = ["f10.png", "f2.png", "f1.png", "f9.png"]
+    page.set_input_files(
+        "[data-testid=upload-input]",
+        files=[
+            {"name": n, "mimeType": "image/png", "buffer": synthetic_png(700 + i, 320, 200)}
+            for i, n in enumerate(names)
+        ],
+    )
+    for name in names:
+        page.wait_for_selector(f"[data-testid=upload-item][data-name='{name}'][data-state=ok]")
+    listed = page.locator("[data-testid=upload-item] .name").all_inner_texts()[:4]
+    assert listed == ["f1.png", "f2.png", "f9.png", "f10.png"]  # shown in the order sent
+    frames = server.api(
+        "GET", "/frames", params={"sequence_id": sequence["id"], "order": "id", "status": "all"}
+    ).json()["items"]
+    assert [f["original_name"] for f in frames] == ["f1.png", "f2.png", "f9.png", "f10.png"]
