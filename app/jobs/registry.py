@@ -89,6 +89,8 @@ class JobContext:
     queue: Any = field(default=None, repr=False)  # the JobQueue, for jobs that start jobs
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
+    summary: str | None = None
+    """What the job did, in one line: its message once it succeeded (else the last progress)."""
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Record progress (0..1); raises JobCancelled when a user asked to cancel, and
@@ -113,7 +115,10 @@ class JobContext:
         self.check_cancelled()
 
     def check_cancelled(self) -> None:
-        """Raise JobCancelled when a user asked to cancel this job."""
+        """Raise JobCancelled when a user asked to cancel this job, JobInterrupted when the
+        worker is shutting down."""
+        if self.stopping.is_set():
+            raise JobInterrupted()
         with self.session_factory() as session:
             row = session.execute(
                 sa.select(Job.cancel_requested, Job.status).where(Job.id == self.job_id)

@@ -129,6 +129,7 @@ def execute_job(
             status=JobStatus.succeeded,
             progress=1.0,
             result=result or {},
+            **({"message": context.summary[:500]} if context.summary else {}),
         )
         log.info("job.succeeded", job_id=job_id)
 

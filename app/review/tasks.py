@@ -6,7 +6,7 @@ from typing import Any
 
 import structlog
 
-from app.jobs.registry import JobContext, job_handler
+from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_handler
 from app.models import Frame
 from app.review import runtime
 from app.review.service import frame_rgb, has_proposal, record_teacher_proposal
@@ -32,6 +32,7 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     force = bool(ctx.params.get("force", False))
     ctx.progress(0.0, "loading the teacher")
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
+    ctx.check_cancelled()
     storage = Storage(ctx.settings.home)
     proposed, skipped, failed = 0, 0, []
     for done, frame_id in enumerate(frame_ids):
@@ -43,7 +44,11 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
                 skipped += 1
             else:
                 try:
-                    result = teacher.run(frame_rgb(storage, frame), frame.sha256)
+                    result = teacher.run(
+                        frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled
+                    )
+                except (JobCancelled, JobInterrupted):
+                    raise
                 except Exception as exc:  # one bad frame must not end the run for the others
                     message = _frame_error(exc)
                     failed.append({"frame_id": frame_id, "error": message})

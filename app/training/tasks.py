@@ -122,13 +122,38 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     checkpoint.prune_state(final)  # a recorded version is never resumed
     ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
     verdict = _gate_and_promote(ctx, version.id)
+    promoted = verdict["promote"] and ctx.settings.auto_promote
+    ctx.summary = _summary(
+        name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
+    )
     return {
         "model_version_id": version.id,
         "name": name,
         "metrics": version.metrics,
-        "promoted": verdict["promote"] and ctx.settings.auto_promote,
+        "promoted": promoted,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
     }
+
+
+def _summary(
+    name: str,
+    kept: int,
+    rounds: int,
+    metrics: dict[str, Any],
+    verdict: dict[str, Any],
+    promoted: bool,
+) -> str:
+    """The job's last word: which round the version keeps (not the last one trained) and the
+    gate's verdict; numbers rounded as every page shows them (mIoU 3 decimals, px 1)."""
+    med = metrics.get("mED")
+    scores = f"mIoU {metrics.get('mIoU', 0.0):.3f}" + (f", mED {med:.1f} px" if med else "")
+    if not verdict["promote"]:
+        verdict_text = f"not promoted: {verdict['reason']}"
+    elif promoted:
+        verdict_text = "promoted"
+    else:
+        verdict_text = "passes the gate; promote it on the models page (auto-promotion is off)"
+    return f"{name} keeps round {kept} of {rounds} ({scores}); {verdict_text}"
 
 
 PSEUDO_PER_LABEL = 3

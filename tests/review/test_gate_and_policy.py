@@ -8,6 +8,7 @@ teacher's proposals are set so each case has one known answer.
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -384,9 +385,28 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
     done = wait_for_job(client, job["job_id"], token, timeout=300)
     assert done["status"] == "succeeded", done["error"]
     assert done["result"]["metrics"]["pseudo_labels"] == 1
+    # The job's last word is the version it kept and the gate's verdict, not the last epoch.
+    name = done["result"]["name"]
+    assert re.fullmatch(rf"{name} keeps round 1 of 1 \(mIoU \d\.\d{{3}}.*\); .+", done["message"])
     with session_factory() as session:
         version = session.get_one(ModelVersion, done["result"]["model_version_id"])
         assert version.train_frame_ids == [labelled, sure] and version.train_label_count == 1
     assert teacher_confidence({"sam2_iou": 0.5}) == 0.5
     assert teacher_confidence({"sam2_iou": 0.5, "prompt_stability": 0.5}) == 0.25
     assert teacher_confidence({}) is None
+
+
+def test_the_train_job_says_which_round_it_kept_and_the_verdict() -> None:
+    from app.training.tasks import _summary
+
+    metrics = {"mIoU": 0.87444444, "mED": 11.4444}
+    no = {"promote": False, "reason": "Worse than the teacher on 4 frames."}
+    assert (
+        _summary("student-v3", 3, 5, metrics, no, False) == "student-v3 keeps round 3 of 5 "
+        "(mIoU 0.874, mED 11.4 px); not promoted: Worse than the teacher on 4 frames."
+    )
+    yes = {"promote": True, "reason": ""}
+    assert _summary("v", 5, 5, {"mIoU": 0.5, "mED": None}, yes, True).endswith(
+        "(mIoU 0.500); promoted"
+    )
+    assert "promote it on the models page" in _summary("v", 1, 1, metrics, yes, False)

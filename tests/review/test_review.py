@@ -149,6 +149,37 @@ def test_one_failing_frame_does_not_end_the_teacher_run(
     assert frame["teacher_error"] is None
 
 
+def test_cancel_stops_the_teacher_inside_a_frame(
+    client: TestClient, people, monkeypatch, session_factory
+) -> None:
+    """A cancel asked for while a frame is being proposed ends the job after the stage that
+    is running (not after the frame, nor the run), as cancelled: no proposal, no frame error."""
+    import sqlalchemy as sa
+
+    from app.models import Job
+    from weldpool_core.teacher.teacher import Teacher
+
+    token = people["reviewer"]
+    frame_ids = _upload_synthetic(client, token, 2)
+    real_run = Teacher.run
+    seen = []
+
+    def run(self, image, key=None, between=None):  # type: ignore[no-untyped-def]
+        seen.append(key)
+        with session_factory() as session:  # the user presses Cancel during the first frame
+            session.execute(sa.update(Job).values(cancel_requested=True))
+            session.commit()
+        return real_run(self, image, key, between=between)
+
+    monkeypatch.setattr(Teacher, "run", run)
+    job = _teacher(client, token, frame_ids)
+    assert job["status"] == "cancelled"
+    assert len(seen) == 1  # the second frame never started
+    frames = client.get("/api/v1/frames", headers=auth(token)).json()["items"]
+    assert {f["status"] for f in frames if f["id"] in frame_ids} == {"new"}
+    assert all(f["teacher_error"] is None for f in frames)
+
+
 def _artefact_masks(client: TestClient) -> set[str]:
     home = client.app.state.storage.home
     return {p.name for p in (home / "artefacts").rglob("*.png")}

@@ -249,7 +249,13 @@ def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> 
     page.click("[data-testid=reject]")
     dialog = page.locator("[data-testid=conflict-dialog]")
     dialog.wait_for()
+    assert "ada saved this frame's label" in dialog.inner_text()
     assert "revision 1" in dialog.inner_text()
+    # Their version beside mine: its status and author.
+    wait_until(
+        page, lambda: "Theirs: accepted by ada" in page.inner_text("[data-testid=conflict-theirs]")
+    )
+    assert page.inner_text("[data-testid=conflict-mine]") == "Yours: rejected (no pool)"
     page.click("[data-testid=conflict-overwrite]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('rejected')")
     label = server.api("GET", f"/frames/{frame_id}/label").json()
@@ -263,6 +269,12 @@ def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> 
     stroke(page, (100, 100), (300, 120))
     page.click("[data-testid=save]")
     dialog.wait_for()
+    # Theirs is the proposal as accepted; mine has the stroke: the difference is counted.
+    wait_until(
+        page, lambda: "differs from yours in" in page.inner_text("[data-testid=conflict-theirs]")
+    )
+    theirs = page.inner_text("[data-testid=conflict-theirs]")
+    assert int(re.search(r"differs from yours in (\d+) px", theirs).group(1)) > 500  # type: ignore[union-attr]
     page.click("[data-testid=conflict-reload]")
     wait_for_js(page, "(sel) => document.querySelector(sel)?.dataset.revision === '3'", arg=CANVAS)
     open_review(page)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -153,14 +153,26 @@ class Teacher:
         )
         return embedding
 
-    def run(self, image: NDArray[np.uint8], image_sha256: str | None = None) -> TeacherResult:
-        """Propose a mask, heatmap and keypoints for one RGB uint8 frame."""
+    def run(
+        self,
+        image: NDArray[np.uint8],
+        image_sha256: str | None = None,
+        between: Callable[[], None] | None = None,
+    ) -> TeacherResult:
+        """Propose a mask, heatmap and keypoints for one RGB uint8 frame.
+
+        ``between`` is called after each heavy stage (DINO, SAM2's encoder); raise from it to
+        stop a run early (a cancelled job waits for one stage, not for the whole frame)."""
         start = time.perf_counter()
         attention = self.dino(image)
         dino_s = time.perf_counter() - start
+        if between is not None:
+            between()
         mark = time.perf_counter()
         embedding = self.embedding(image, image_sha256)
         encode_s = time.perf_counter() - mark
+        if between is not None:
+            between()
         return self.propose(
             attention, embedding, self.config.prompts, {"dino_s": dino_s, "sam2_encode_s": encode_s}
         )

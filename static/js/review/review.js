@@ -557,14 +557,51 @@ async function saveLabel(kind, baseRevision = revision) {
   if ($("advance").checked) await goNext({ afterSave: true });
 }
 
-function showConflict(kind, error) {
+/** Someone saved first: say who and when, show their label beside mine, let the reviewer pick. */
+async function showConflict(kind, error) {
   const current = error.body?.revision ?? 0;
-  $("conflict-text").textContent = `Someone else saved this frame's label while you were working on it (it is now at revision ${current}). Reload to see theirs (your changes are dropped), or overwrite it with yours.`;
+  const by = error.body?.updated_by ?? "someone else";
+  $("conflict-text").textContent = `${by} saved this frame's label while you were working on it (it is now at revision ${current}). Reload to take theirs (your changes are dropped), or overwrite it with yours.`;
   const dialog = $("conflict");
   $("conflict-overwrite").onclick = () => { dialog.close(); saveLabel(kind, current); };
   $("conflict-reload").onclick = () => { dialog.close(); leaving = true; location.reload(); };
   $("conflict-cancel").onclick = () => dialog.close();
+  const mine = kind === "reject" ? null : state.mask;
+  drawPreview($("conflict-mine"), mine, "#00e6ff");
+  $("conflict-mine-text").textContent = kind === "reject" ? "Yours: rejected (no pool)" : `Yours: ${kind === "accept" && isProposal() ? "accepted" : "corrected"} · ${mine.area()} px`;
+  $("conflict-theirs-text").textContent = "Theirs: loading…";
   dialog.showModal();
+  try {
+    const theirs = await api(`/frames/${FRAME_ID}/label`);
+    const mask = theirs.mask_png ? await Mask.fromPng(theirs.mask_png, frame.width, frame.height) : null;
+    drawPreview($("conflict-theirs"), mask, "#ff922b");
+    let differs = "";
+    if (mask && mine) {
+      let n = 0;
+      for (let i = 0; i < mask.data.length; i++) n += mask.data[i] !== mine.data[i];
+      differs = ` · differs from yours in ${n} px`;
+    }
+    $("conflict-theirs-text").textContent = `Theirs: ${theirs.status} by ${theirs.updated_by ?? "?"}, ${formatDate(theirs.updated_at)}${mask ? ` · ${mask.area()} px` : ""}${differs}`;
+  } catch (problem) {
+    $("conflict-theirs-text").textContent = `Theirs could not be loaded: ${problem.message}`;
+  }
+}
+
+/** The frame with a mask's outline and a light fill, scaled into a small canvas. */
+function drawPreview(canvas, mask, colour) {
+  const scale = Math.min(canvas.width / frame.width, canvas.height / frame.height);
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.drawImage(stage.image, 0, 0, frame.width * scale, frame.height * scale);
+  if (!mask) return;
+  const layer = new MaskOverlay(frame.width, frame.height);
+  layer.paint(mask);
+  ctx.globalAlpha = 0.9;
+  ctx.drawImage(layer.canvas, 0, 0, frame.width * scale, frame.height * scale);
+  ctx.globalAlpha = 1;
+  ctx.strokeStyle = colour;
+  ctx.lineWidth = 3;
+  ctx.strokeRect(1.5, 1.5, frame.width * scale - 3, frame.height * scale - 3);
 }
 
 async function saveValidation() {

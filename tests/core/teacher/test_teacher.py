@@ -77,6 +77,39 @@ def test_second_run_reuses_the_cached_embedding(models, frame, tmp_path: Path) -
     assert fresh.embedding(frame, "f" * 64) is not None and fresh.cache.hits["disk"] == 1
 
 
+def test_a_run_stops_after_the_stage_where_it_is_asked_to(models, frame) -> None:
+    """`between` runs after DINO and after SAM2's encoder; raising there skips what follows
+    (a cancelled job waits for one stage, not for the whole frame)."""
+    dino, sam2 = models
+    teacher = Teacher(dino, sam2, "tiny-sam2")
+    encoded = []
+    hook = sam2.model.vision_encoder.register_forward_hook(lambda *a: encoded.append(1))
+
+    class Stop(Exception):
+        pass
+
+    def stop_after(n: int):
+        calls = []
+
+        def between() -> None:
+            calls.append(1)
+            if len(calls) == n:
+                raise Stop
+
+        return between, calls
+
+    try:
+        between, calls = stop_after(1)
+        with pytest.raises(Stop):
+            teacher.run(frame, between=between)
+        assert encoded == [] and len(calls) == 1  # stopped after DINO, before SAM2's encoder
+        between, calls = stop_after(3)
+        teacher.run(frame, between=between)
+        assert len(encoded) == 1 and len(calls) == 2  # both stages, then the cheap rest
+    finally:
+        hook.remove()
+
+
 def test_unknown_prompt_configuration_is_refused() -> None:
     with pytest.raises(InvalidInputError, match="none, center or heuristic"):
         TeacherConfig(prompts="magic")
