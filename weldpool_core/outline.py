@@ -12,6 +12,7 @@ belong to the region around it).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -71,7 +72,7 @@ def mask_polygons(
     return polygons
 
 
-def _simplified(contour: NDArray[np.int32], tolerance: float, *, hole: bool = False) -> Polygon:
+def _simplified(contour: NDArray[Any], tolerance: float, *, hole: bool = False) -> Polygon:
     if tolerance > 0 and len(contour) > 3:
         contour = cv2.approxPolyDP(contour, tolerance, closed=True)
     return Polygon([(float(x), float(y)) for x, y in contour.reshape(-1, 2)], hole=hole)
