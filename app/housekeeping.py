@@ -35,3 +35,17 @@ def prune_training_state(session: Session, home: Path) -> int:
         if folder.is_relative_to(home.resolve()) and folder.is_dir():
             freed += prune_state(folder)
     return freed
+
+
+def prune_exports(home: Path, older_than_s: float = 86_400.0) -> int:
+    """Remove export zips older than a day (an export job's download is kept that long)."""
+    import time
+
+    from app.review.export import EXPORTS_DIR
+
+    removed = 0
+    for path in (home / EXPORTS_DIR).glob("*.zip"):
+        if time.time() - path.stat().st_mtime > older_than_s:
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed

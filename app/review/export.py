@@ -5,8 +5,14 @@ original files), ``masks/<stem>.png`` (0 / 255), ``keypoints/<stem>.json``; manu
 keypoints go to ``validation_keypoints/<stem>.json``; ``manifest.json`` lists every frame with
 its id, sequence, split and label. ``coco``: ``annotations.json`` in COCO format (masks as
 compressed RLE with ``iscrowd`` 0, so holes survive; bounding boxes, areas, keypoints; each image
-record carries its weld run's process parameters) with the images beside it. Stems are the
-frame ids, zero-padded.
+record carries its weld run's process parameters) with the images beside it. ``yolo``: the
+Ultralytics YOLO segmentation layout — ``data.yaml``, ``images/<split>/`` and ``labels/<split>/``
+(``train``, ``val``, ``test``), one line ``0 x1 y1 x2 y2 …`` per region of the mask (polygons
+from ``weldpool_core.outline``, coordinates 0–1 of the frame). YOLO polygons cannot hold holes:
+a region's holes are left out there (COCO keeps them). Stems are the frame ids, zero-padded.
+
+Large sets run as an ``export`` job (``POST /exports``) with progress and a download; ``GET
+/export`` builds the zip in the request.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import json
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,7 +35,11 @@ from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKey
 from app.review.service import load_mask
 from app.storage import Storage
 
-ExportFormat = Literal["coco", "masks"]
+EXPORTS_DIR = "exports"
+"""Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
+ExportFormat = Literal["coco", "masks", "yolo"]
+YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}
+Progress = Callable[[float, str], None]
 PROCESS_FIELDS = (
     "wire_feed_m_min",
     "voltage_v",
@@ -40,6 +51,10 @@ PROCESS_FIELDS = (
     "mm_per_px",
     "notes",
 )
+
+
+def export_path(home: Path, job_id: int) -> Path:
+    return home / EXPORTS_DIR / f"{job_id}.zip"
 
 
 def _stem(frame: Frame) -> str:
@@ -61,9 +76,7 @@ def _rle(mask: NDArray[np.bool_]) -> tuple[dict[str, Any], int, list[int]]:
     return {"size": rle["size"], "counts": rle["counts"].decode("ascii")}, area, box
 
 
-def _rows(
-    session: Session, sequence_id: int | None, split: Split | None
-) -> list[tuple[Frame, Label, Sequence | None, ValidationKeypoints | None]]:
+def _query(sequence_id: int | None, split: Split | None) -> sa.Select[Any]:
     query = (
         sa.select(Frame, Label, Sequence, ValidationKeypoints)
         .join(Label, Label.frame_id == Frame.id)
@@ -76,7 +89,19 @@ def _rows(
         query = query.where(Frame.sequence_id == sequence_id)
     if split is not None:
         query = query.where(Frame.split == split)
-    return [tuple(row) for row in session.execute(query)]  # type: ignore[misc]
+    return query
+
+
+def export_size(session: Session, sequence_id: int | None, split: Split | None) -> int:
+    """How many labels an export of this sequence and split holds."""
+    subquery = _query(sequence_id, split).subquery()
+    return session.scalar(sa.select(sa.func.count()).select_from(subquery)) or 0
+
+
+def _rows(
+    session: Session, sequence_id: int | None, split: Split | None
+) -> list[tuple[Frame, Label, Sequence | None, ValidationKeypoints | None]]:
+    return [tuple(row) for row in session.execute(_query(sequence_id, split))]  # type: ignore[misc]
 
 
 def build_export(
@@ -86,8 +111,10 @@ def build_export(
     *,
     sequence_id: int | None = None,
     split: Split | None = None,
+    progress: Progress | None = None,
 ) -> Path:
-    """Write the export to a temporary zip file and return its path (the caller removes it)."""
+    """Write the export to a temporary zip file and return its path (the caller removes it).
+    ``progress(fraction, message)`` is called after every frame; raise from it to stop."""
     rows = _rows(session, sequence_id, split)
     if not rows:
         raise InvalidInputError("There are no accepted or corrected labels to export.")
@@ -97,19 +124,25 @@ def build_export(
     target = Path(name)
     try:
         with zipfile.ZipFile(target, "w", zipfile.ZIP_STORED) as archive:
-            if fmt == "masks":
-                _write_masks(archive, storage, rows)
-            else:
-                _write_coco(archive, storage, rows)
+            report = progress or (lambda fraction, message: None)
+            WRITERS[fmt](
+                archive,
+                storage,
+                rows,
+                lambda done: report(done / len(rows), f"{done} of {len(rows)} labels"),
+            )
     except BaseException:
         target.unlink(missing_ok=True)
         raise
     return target
 
 
-def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> None:
+Tick = Callable[[int], None]
+
+
+def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
     manifest = []
-    for frame, label, sequence, manual in rows:
+    for done, (frame, label, sequence, manual) in enumerate(rows, 1):
         stem = _stem(frame)
         archive.write(storage.absolute(frame.path), f"images/{stem}{_extension(frame)}")
         archive.write(storage.absolute(label.mask_path), f"masks/{stem}.png")
@@ -131,13 +164,14 @@ def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) ->
                 "timestamp_s": frame.timestamp_s,
             }
         )
+        tick(done)
     archive.writestr("manifest.json", json.dumps({"frames": manifest}, indent=1))
 
 
-def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> None:
+def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
     images, annotations = [], []
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
-    for frame, label, sequence, manual in rows:
+    for done, (frame, label, sequence, manual) in enumerate(rows, 1):
         file_name = f"images/{_stem(frame)}{_extension(frame)}"
         archive.write(storage.absolute(frame.path), file_name)
         process = {f: getattr(sequence, f) for f in PROCESS_FIELDS} if sequence else {}
@@ -177,6 +211,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
         if manual is not None:
             annotation["validation_keypoints"] = manual.keypoints
         annotations.append(annotation)
+        tick(done)
     coco = {
         "info": {"description": "weldpool reviewed labels", "version": "1.0"},
         "images": images,
@@ -192,3 +227,30 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
         ],
     }
     archive.writestr("annotations.json", json.dumps(coco))
+
+
+def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
+    """Ultralytics YOLO segmentation: one polygon line per region (holes cannot be written)."""
+    from weldpool_core.outline import mask_polygons, normalised
+
+    used = set()
+    for done, (frame, label, _, _) in enumerate(rows, 1):
+        split = YOLO_SPLITS[frame.split.value]
+        used.add(split)
+        stem = _stem(frame)
+        archive.write(storage.absolute(frame.path), f"images/{split}/{stem}{_extension(frame)}")
+        mask = load_mask(storage, label.mask_path)
+        lines = [
+            "0 " + " ".join(f"{v:.6f}" for v in normalised(polygon, frame.height, frame.width))
+            for polygon in mask_polygons(mask, tolerance=1.0, min_area=4)
+            if not polygon.hole
+        ]
+        archive.writestr(f"labels/{split}/{stem}.txt", "\n".join(lines) + ("\n" if lines else ""))
+        tick(done)
+    splits = "".join(
+        f"{name}: images/{name}\n" for name in ("train", "val", "test") if name in used
+    )
+    archive.writestr("data.yaml", f"path: .\n{splits}names:\n  0: weld_pool\n")
+
+
+WRITERS = {"masks": _write_masks, "coco": _write_coco, "yolo": _write_yolo}

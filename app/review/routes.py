@@ -13,14 +13,16 @@ from starlette.background import BackgroundTask
 
 from app.bounds import MAX_ID, IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import InvalidInputError, NotFoundError
+from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.frames.service import get_frame
+from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import Proposal, Split, User
+from app.models import Job, JobStatus, Proposal, Split, User
 from app.review import policy, service
-from app.review.export import build_export
+from app.review.export import build_export, export_path, export_size
 from app.review.schemas import (
+    ExportIn,
     KeypointsIn,
     KeypointsOut,
     LabelIn,
@@ -359,12 +361,13 @@ def export(
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
-    format: Literal["coco", "masks"] = "masks",
+    format: Literal["coco", "masks", "yolo"] = "masks",
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     split: Split | None = None,
 ) -> FileResponse:
-    """A zip of the accepted and corrected labels: COCO, or the DATASET layout of
-    `weldpool train` (images/, masks/, keypoints/, manifest.json)."""
+    """A zip of the accepted and corrected labels: COCO, the DATASET layout of
+    `weldpool train` (images/, masks/, keypoints/, manifest.json), or Ultralytics YOLO
+    segmentation; built in the request (`POST /exports` runs it as a job)."""
     path = build_export(session, storage, format, sequence_id=sequence_id, split=split)
     name = f"weldpool-{format}.zip"
     return FileResponse(
@@ -372,4 +375,44 @@ def export(
         media_type="application/zip",
         filename=name,
         background=BackgroundTask(path.unlink, missing_ok=True),
+    )
+
+
+@router.post("/exports", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
+def start_export(
+    body: ExportIn,
+    session: SessionDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: CurrentUser,
+) -> JobCreated:
+    """Export as a job with progress (big sets); download the zip from `GET /exports/{job_id}`."""
+    if export_size(session, body.sequence_id, body.split) == 0:
+        raise InvalidInputError("There are no accepted or corrected labels to export.")
+    prune_exports(settings.home)
+    job = create_job(session, queue, "export", body.model_dump(mode="json"), user)
+    return JobCreated(job_id=job.id)
+
+
+@router.get(
+    "/exports/{job_id}",
+    response_class=FileResponse,
+    responses={200: {"content": {"application/zip": {}}}},
+)
+def download_export(
+    job_id: IdPath, session: SessionDep, settings: SettingsDep, _user: CurrentUser
+) -> FileResponse:
+    """The zip an export job wrote (kept for a day)."""
+    job = session.get(Job, job_id)
+    if job is None or job.kind != "export":
+        raise NotFoundError(f"There is no export job {job_id}.")
+    if job.status != JobStatus.succeeded:
+        raise ConflictError(
+            f"Export job {job_id} is {job.status.value}; download it once it has succeeded."
+        )
+    path = export_path(settings.home, job_id)
+    if not path.is_file():
+        raise NotFoundError(f"The export of job {job_id} is no longer kept; export again.")
+    return FileResponse(
+        path, media_type="application/zip", filename=f"weldpool-{job.params['format']}-{job_id}.zip"
     )

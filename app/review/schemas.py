@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, model_validator
 
 from app.bounds import MAX_ID, Id, InputModel
-from app.models import LabelStatus
+from app.models import LabelStatus, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
 
 MAX_KEYPOINTS = 64
@@ -82,6 +82,14 @@ class SegmentOut(BaseModel):
     scores: list[float]
     elapsed_ms: float = Field(description="Server time for this click.")
     embedding: Literal["memory", "disk", "computed"]
+
+
+class ExportIn(InputModel):
+    """Which labels to export and how; run as a job for big sets."""
+
+    format: Literal["coco", "masks", "yolo"] = "coco"
+    sequence_id: Id | None = None
+    split: Split | None = None
 
 
 class OutlineIn(InputModel):

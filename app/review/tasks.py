@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import structlog
@@ -9,6 +10,7 @@ import structlog
 from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_handler
 from app.models import Frame
 from app.review import runtime
+from app.review.export import build_export, export_path
 from app.review.service import frame_rgb, has_proposal, record_teacher_proposal
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
@@ -80,3 +82,23 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
         "failed": failed,
         "model_id": teacher.model_id,
     }
+
+
+@job_handler("export", max_attempts=1)
+def export_run(ctx: JobContext) -> dict[str, Any]:
+    """Write an export zip with progress per label; ``GET /exports/{job id}`` downloads it."""
+    storage = Storage(ctx.settings.home)
+    with ctx.session_factory() as session:
+        written = build_export(
+            session,
+            storage,
+            ctx.params["format"],
+            sequence_id=ctx.params.get("sequence_id"),
+            split=ctx.params.get("split"),
+            progress=ctx.progress,
+        )
+    target = export_path(ctx.settings.home, ctx.job_id)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(written, target)
+    ctx.summary = f"{ctx.params['format']} export ready: {target.stat().st_size / 1e6:.1f} MB"
+    return {"format": ctx.params["format"], "size_bytes": target.stat().st_size}

@@ -200,21 +200,21 @@ document.getElementById("export").addEventListener("click", async (event) => {
   const button = event.currentTarget;
   const { sequence_id: sequenceId, split } = filters();
   const format = document.getElementById("export-format").value;
-  const params = query({ format, sequence_id: sequenceId, split });
+  const body = { format };
+  if (sequenceId) body.sequence_id = Number(sequenceId);
+  if (split) body.split = split;
   button.disabled = true;
   button.textContent = "Exporting…";
   try {
-    const response = await fetch(`/api/v1/export${params}`, { credentials: "same-origin" });
-    if (!response.ok) {
-      const body = await response.json().catch(() => ({}));
-      throw new Error(body.detail ?? `The export failed (${response.status}).`);
-    }
-    const name = /filename="?([^";]+)"?/.exec(response.headers.get("content-disposition") ?? "")?.[1] ?? `weldpool-${format}.zip`;
-    const link = h("a", { href: URL.createObjectURL(await response.blob()), download: name, "data-testid": "export-link" });
+    // A job with progress (big sets take a while); its zip is then downloaded from the server.
+    const { job_id: jobId } = await api("/exports", { method: "POST", json: body });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Exporting ${Math.round(j.progress * 100)} %`; });
+    if (job.status !== "succeeded") throw new Error(`The export job ${job.status}: ${job.error ?? ""}`);
+    const link = h("a", { href: `/api/v1/exports/${jobId}`, download: "", "data-testid": "export-link" });
     document.body.append(link);
     link.click();
-    setTimeout(() => { URL.revokeObjectURL(link.href); link.remove(); }, 1000);
-    toast(`Exported ${name}.`, "ok");
+    link.remove();
+    toast(`Export ready (${job.message}).`, "ok");
   } catch (error) {
     toast(error.message, "error");
   } finally {

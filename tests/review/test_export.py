@@ -101,7 +101,7 @@ def test_nothing_to_export_is_a_clear_400(client: TestClient, make_user) -> None
     response = client.get("/api/v1/export", headers=auth(token))
     assert response.status_code == 400
     assert response.json()["detail"] == "There are no accepted or corrected labels to export."
-    bad = client.get("/api/v1/export", params={"format": "yolo"}, headers=auth(token))
+    bad = client.get("/api/v1/export", params={"format": "cvat"}, headers=auth(token))
     assert bad.status_code == 422
 
 
@@ -117,3 +117,74 @@ def test_command_line_export(settings: Settings, session_factory, tmp_path: Path
     assert len([n for n in zipfile.ZipFile(out).namelist() if n.startswith("masks/")]) == 2
     missing = run_cli("export", "--out", out, "--sequence", "nope", env=env)
     assert missing.returncode == 2 and "There is no sequence named 'nope'." in missing.stderr
+
+
+def test_yolo_export_as_a_job_reads_back_as_the_masks(
+    client, settings, session_factory, make_user
+) -> None:
+    """`POST /exports` runs the export as a job with progress; its zip is the Ultralytics YOLO
+    segmentation layout: one polygon line per region, x over the width and y over the height,
+    frames in the folder of their split; filled back, the polygons are the reviewed masks."""
+    import cv2
+
+    from tests.helpers import corrected_label, image_bytes, wait_for_job
+
+    _, token = make_user("yolo", Role.reviewer)
+    masks = {}
+    for seed in range(2):
+        upload = [("files", (f"y{seed}.png", image_bytes(160, 100, seed=20 + seed), "image/png"))]
+        response = client.post("/api/v1/frames", files=upload, headers=auth(token))
+        frame_id = response.json()["stored"][0]["id"]
+        mask = np.zeros((100, 160), bool)
+        mask[20:80, 30:130] = True  # wider than high: a swapped x / y shows
+        if seed == 1:
+            mask[5:15, 140:155] = True  # a second region: a second line
+        masks[frame_id] = mask
+        saved = client.put(
+            f"/api/v1/frames/{frame_id}/label", json=corrected_label(mask), headers=auth(token)
+        )
+        assert saved.status_code == 200
+    first, second = masks
+    moved = client.put(
+        f"/api/v1/frames/{second}/validation-keypoints",
+        json={"keypoints": [[40, 30], [120, 30], [120, 70], [40, 70]]},
+        headers=auth(token),
+    )
+    assert moved.status_code == 200
+
+    started = client.post("/api/v1/exports", json={"format": "yolo"}, headers=auth(token))
+    assert started.status_code == 202, started.text
+    job = wait_for_job(client, started.json()["job_id"], token)
+    assert job["status"] == "succeeded" and job["progress"] == 1.0
+    assert job["message"].startswith("yolo export ready")
+    response = client.get(f"/api/v1/exports/{job['id']}", headers=auth(token))
+    assert response.status_code == 200
+    archive = zipfile.ZipFile(io.BytesIO(response.content))
+    data = archive.read("data.yaml").decode()
+    assert "train: images/train" in data and "val: images/val" in data and "0: weld_pool" in data
+    assert "test:" not in data
+    for frame_id, split in ((first, "train"), (second, "val")):
+        stem = f"{frame_id:07d}"
+        assert f"images/{split}/{stem}.png" in archive.namelist()
+        lines = archive.read(f"labels/{split}/{stem}.txt").decode().splitlines()
+        assert len(lines) == (1 if frame_id == first else 2)
+        back = np.zeros((100, 160), np.uint8)
+        for line in lines:
+            cls, *values = line.split()
+            assert cls == "0" and all(0.0 <= float(v) <= 1.0 for v in values)
+            xy = np.array(values, float).reshape(-1, 2) * [160, 100] - 0.5
+            cv2.fillPoly(back, [np.rint(xy).astype(np.int32)], 1)
+        mask = masks[frame_id]
+        assert (back.astype(bool) & mask).sum() / (back.astype(bool) | mask).sum() > 0.97
+
+    assert client.get("/api/v1/exports/999999", headers=auth(token)).status_code == 404
+    other = client.post(
+        "/api/v1/teacher/runs", json={"frame_ids": [first]}, headers=auth(token)
+    ).json()
+    wrong_kind = client.get(f"/api/v1/exports/{other['job_id']}", headers=auth(token))
+    assert wrong_kind.status_code == 404 and "no export job" in wrong_kind.json()["detail"]
+    empty = client.post(
+        "/api/v1/exports", json={"format": "coco", "split": "test"}, headers=auth(token)
+    )
+    assert empty.status_code == 400
+    wait_for_job(client, other["job_id"], token)

@@ -663,8 +663,9 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
 
 
 def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer) -> None:
-    """The frames page's Export: COCO of the chosen sequence as a download (RLE masks that
-    read back exactly); a sequence with nothing reviewed says so instead of downloading."""
+    """The frames page's Export (a job, then a download): COCO of the chosen sequence (RLE
+    masks that read back exactly) and YOLO segmentation; a sequence with nothing reviewed says
+    so instead of downloading."""
     import io
     import json
     import zipfile
@@ -699,6 +700,14 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
         }
     ).astype(bool)
     assert np.array_equal(back, truth.mask)
+    # The same menu, YOLO segmentation: the frame's region as one polygon line.
+    page.select_option("[data-testid=export-format]", "yolo")
+    with page.expect_download() as download:
+        page.click("[data-testid=export]")
+    archive = zipfile.ZipFile(io.BytesIO(Path(download.value.path()).read_bytes()))
+    assert archive.read("data.yaml").startswith(b"path: .")
+    (line,) = archive.read(f"labels/train/{frame_id:07d}.txt").decode().splitlines()
+    assert line.startswith("0 ") and len(line.split()) > 7
 
     page.goto(f"{server.url}/?sequence_id={empty['id']}&status=all")
     page.wait_for_selector("body[data-ready]")
