@@ -384,8 +384,7 @@ def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | No
     if diversity > 0:
         return (
             f"Most uncertain first; among the top {diversity_pool}, frames that look alike are "
-            "spread apart so you do not review near-copies in a row, so a score can be lower "
-            "than the next one's."
+            "spread apart (no near-copies in a row), so a score can be lower than the next one's."
         )
     return "Most uncertain first; frames without a score last."
 

@@ -397,7 +397,7 @@ async function offerVideo(file) {
   show();
   const importButton = h("button", { type: "button", class: "primary small", "data-testid": "video-import" }, "Import");
   const skip = h("button", { type: "button", class: "quiet small" }, "Skip");
-  item.offer(h("span", { class: "video-offer" }, "keep one frame in ", step, " · ", estimate, " ", importButton, skip));
+  item.offer(h("span", { class: "video-offer" }, "keep one frame in ", step, estimate, importButton, skip));
   await new Promise((resolve) => {
     importButton.addEventListener("click", () => resolve(true), { once: true });
     skip.addEventListener("click", () => { item.done("skipped", "duplicate"); resolve(false); }, { once: true });
