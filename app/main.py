@@ -29,6 +29,7 @@ from app.review.routes import router as review_router
 from app.security import LoginThrottle, current_user
 from app.storage import Storage
 from app.system.routes import router as system_router
+from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
 from app.users.routes import tokens_router
@@ -143,6 +144,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(review_router, dependencies=protected)
     api.include_router(training_router, dependencies=protected)
     api.include_router(insights_router, dependencies=protected)
+    api.include_router(timeline_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

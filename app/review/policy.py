@@ -241,11 +241,32 @@ def pick(
         raise InvalidInputError(
             f"Frame {frame_id} has no proposal from {source!r}; its sources: {keys}."
         )
+    return _choose(proposals, current(session, storage).chosen)
+
+
+def _choose(proposals: list[Proposal], chosen: str) -> Proposal | None:
+    """The policy's rule on one frame's proposals (newest first): the chosen source's newest,
+    else the teacher's, else the newest."""
     if not proposals:
         return None
-    chosen = current(session, storage).chosen
     for wanted in (chosen, TEACHER):
         for proposal in proposals:
             if source_key(proposal) == wanted:
                 return proposal
     return proposals[0]
+
+
+def pick_many(session: Session, storage: Storage, frame_ids: list[int]) -> dict[int, Proposal]:
+    """``pick`` for many frames in one query (a weld run's timeline)."""
+    by_frame: dict[int, list[Proposal]] = {}
+    for start in range(0, len(frame_ids), 5000):
+        rows = session.scalars(
+            sa.select(Proposal)
+            .where(Proposal.frame_id.in_(frame_ids[start : start + 5000]))
+            .order_by(Proposal.id.desc())
+        )
+        for proposal in rows:
+            by_frame.setdefault(proposal.frame_id, []).append(proposal)
+    chosen = current(session, storage).chosen
+    picked = {frame_id: _choose(items, chosen) for frame_id, items in by_frame.items()}
+    return {frame_id: proposal for frame_id, proposal in picked.items() if proposal is not None}

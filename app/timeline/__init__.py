@@ -1,0 +1,1 @@
+"""A weld run over time: the pool geometry of each frame, from its label or its proposal."""

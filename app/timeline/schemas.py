@@ -1,0 +1,36 @@
+"""Payloads of the timeline: one weld run's pool geometry per frame."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, Field
+
+
+class FrameGeometry(BaseModel):
+    frame_id: int
+    frame_index: int | None
+    timestamp_s: float | None
+    status: str
+    source: str | None = Field(
+        description="`label` (reviewed), the proposal's source key, or null (nothing yet)."
+    )
+    confidence: float | None = Field(description="The proposal's confidence; null for labels.")
+    area_px: int | None
+    length_px: float | None = Field(description="Extent along the run's travel axis.")
+    width_px: float | None = Field(description="Extent across it.")
+    centroid: list[float] | None
+    keypoints: list[list[float]]
+    area_mm2: float | None
+    length_mm: float | None
+    width_mm: float | None
+
+
+class Timeline(BaseModel):
+    sequence_id: int
+    name: str
+    mm_per_px: float | None
+    travel_deg: float | None = Field(
+        description="The travel axis in the image (0° right, 90° down)."
+    )
+    travel_source: str | None
+    process: dict[str, float | str | None]
+    frames: list[FrameGeometry]

@@ -1,0 +1,190 @@
+"""The timeline of a weld run: per frame, the pool's geometry from its reviewed label, else from
+the proposal the policy shows (``weldpool_core.geometry`` computes it), with the frame's status
+and the proposal's confidence.
+
+Length and width are measured along one travel axis for the whole run, so that they compare
+from frame to frame: the run's median of its masks' major axes (pools are longest along the
+weld). Geometry per mask file is cached in the process (mask files never change).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import threading
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.frames.service import get_sequence
+from app.models import Frame, Label, LabelStatus, Proposal
+from app.review import policy
+from app.review.service import load_mask
+from app.storage import Storage
+from weldpool_core.geometry import PoolGeometry, pool_geometry
+
+_CACHE_SIZE = 20_000
+_cache_lock = threading.Lock()
+_cache: OrderedDict[tuple[str, float | None], PoolGeometry] = OrderedDict()
+
+
+def _geometry(storage: Storage, mask_path: str, travel_deg: float | None) -> PoolGeometry:
+    key = (str(storage.absolute(mask_path)), None if travel_deg is None else round(travel_deg, 3))
+    with _cache_lock:
+        if key in _cache:
+            _cache.move_to_end(key)
+            return _cache[key]
+    geometry = pool_geometry(load_mask(storage, mask_path), travel_deg)
+    with _cache_lock:
+        _cache[key] = geometry
+        while len(_cache) > _CACHE_SIZE:
+            _cache.popitem(last=False)
+    return geometry
+
+
+def _confidence(proposal: Proposal) -> float | None:
+    """The proposal's own confidence: SAM2's predicted IoU (propagation: its per-frame score)."""
+    scores = proposal.scores or {}
+    value = scores.get("confidence", scores.get("sam2_iou"))
+    return None if value is None else float(value)
+
+
+def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> dict[str, Any]:
+    """Every frame of the run in frame order, with its geometry, source and confidence."""
+    sequence = get_sequence(session, sequence_id)
+    frames = list(
+        session.scalars(
+            sa.select(Frame)
+            .where(Frame.sequence_id == sequence_id)
+            .order_by(Frame.frame_index.is_(None), Frame.frame_index, Frame.id)
+        )
+    )
+    ids = [f.id for f in frames]
+    labels: dict[int, Label] = {}
+    for start in range(0, len(ids), 5000):
+        chunk = ids[start : start + 5000]
+        labels.update(
+            (label.frame_id, label)
+            for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(chunk)))
+        )
+    proposals = policy.pick_many(session, storage, ids)
+
+    sources: list[tuple[Frame, str | None, str | None, Proposal | None]] = []
+    for frame in frames:
+        label = labels.get(frame.id)
+        proposal = proposals.get(frame.id)
+        if label is not None and label.status == LabelStatus.rejected:
+            sources.append((frame, "label", None, None))  # reviewed: no usable pool
+        elif label is not None and label.mask_path:
+            sources.append((frame, "label", label.mask_path, None))
+        elif proposal is not None:
+            sources.append((frame, policy.source_key(proposal), proposal.mask_path, proposal))
+        else:
+            sources.append((frame, None, None, None))
+
+    axes = [
+        _geometry(storage, path, None).travel_deg for _, _, path, _ in sources if path is not None
+    ]
+    travel = _median_axis([a for a in axes if a is not None])
+    rows = []
+    for frame, source, path, proposal in sources:
+        geometry = _geometry(storage, path, travel) if path is not None else None
+        label = labels.get(frame.id)
+        keypoints = (
+            label.keypoints
+            if source == "label" and label
+            else proposal.keypoints
+            if proposal
+            else []
+        )
+        row: dict[str, Any] = {
+            "frame_id": frame.id,
+            "frame_index": frame.frame_index,
+            "timestamp_s": frame.timestamp_s,
+            "status": frame.status.value,
+            "source": source,
+            "confidence": _confidence(proposal) if proposal is not None else None,
+            "area_px": geometry.area_px if geometry else None,
+            "length_px": geometry.length_px if geometry else None,
+            "width_px": geometry.width_px if geometry else None,
+            "centroid": list(geometry.centroid) if geometry and geometry.centroid else None,
+            "keypoints": keypoints or [],
+        }
+        row |= (
+            geometry.in_mm(sequence.mm_per_px)
+            if geometry
+            else {"area_mm2": None, "length_mm": None, "width_mm": None}
+        )
+        rows.append(row)
+    return {
+        "sequence_id": sequence.id,
+        "name": sequence.name,
+        "mm_per_px": sequence.mm_per_px,
+        "travel_deg": travel,
+        "travel_source": "the run's median major axis of its masks" if travel is not None else None,
+        "process": {
+            "wire_feed_m_min": sequence.wire_feed_m_min,
+            "voltage_v": sequence.voltage_v,
+            "current_a": sequence.current_a,
+            "arc_length_correction_pct": sequence.arc_length_correction_pct,
+            "robot_speed_cm_min": sequence.robot_speed_cm_min,
+            "synergic_law": sequence.synergic_law,
+            "joint_type": sequence.joint_type,
+        },
+        "frames": rows,
+    }
+
+
+def _median_axis(degrees: list[float]) -> float | None:
+    """The median of undirected axes (mod 180°), taken around their circular mean."""
+    if not degrees:
+        return None
+    doubled = np.radians(np.asarray(degrees) * 2.0)
+    centre = math.degrees(math.atan2(np.sin(doubled).mean(), np.cos(doubled).mean())) / 2.0
+    offsets = (np.asarray(degrees) - centre + 90.0) % 180.0 - 90.0
+    return float((centre + float(np.median(offsets))) % 180.0)
+
+
+CSV_COLUMNS = (
+    "frame_id",
+    "frame_index",
+    "timestamp_s",
+    "status",
+    "source",
+    "confidence",
+    "area_px",
+    "length_px",
+    "width_px",
+    "centroid_x",
+    "centroid_y",
+    "area_mm2",
+    "length_mm",
+    "width_mm",
+)
+
+
+def geometry_csv(timeline: dict[str, Any]) -> str:
+    """The timeline as CSV: one row per frame, keypoints as k1_x, k1_y, … at the end."""
+    k = max((len(row["keypoints"]) for row in timeline["frames"]), default=0)
+    out = io.StringIO()
+    writer = csv.writer(out)
+    writer.writerow([*CSV_COLUMNS, *(f"k{i + 1}_{axis}" for i in range(k) for axis in "xy")])
+    for row in timeline["frames"]:
+        centroid = row["centroid"] or [None, None]
+        flat = {**row, "centroid_x": centroid[0], "centroid_y": centroid[1]}
+        points = [v for point in row["keypoints"] for v in point]
+        points += [None] * (2 * k - len(points))
+        writer.writerow([_cell(flat[c]) for c in CSV_COLUMNS] + [_cell(v) for v in points])
+    return out.getvalue()
+
+
+def _cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.4f}".rstrip("0").rstrip(".")
+    return value

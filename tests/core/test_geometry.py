@@ -1,0 +1,70 @@
+"""Pool geometry on shapes with known area, length and width, and on the real labelled frames."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from weldpool_core.geometry import pool_geometry
+from weldpool_core.io import read_mask
+
+REAL_LABELS = Path(__file__).resolve().parents[3] / "shared" / "data" / "waam" / "labels"
+
+
+def test_a_rectangle_along_x_is_as_long_and_wide_as_drawn() -> None:
+    mask = np.zeros((100, 200), bool)
+    mask[40:50, 20:80] = True  # 60 long in x, 10 high
+    along_x = pool_geometry(mask, travel_deg=0)
+    assert (along_x.area_px, along_x.length_px, along_x.width_px) == (600, 60.0, 10.0)
+    assert along_x.centroid == pytest.approx((49.5, 44.5))
+    # Travel downwards (90°): length and width swap — a swapped axis shows here.
+    down = pool_geometry(mask, travel_deg=90)
+    assert (down.length_px, down.width_px) == pytest.approx((10.0, 60.0))
+    # Without a travel direction: the mask's major axis (x), so the long side is the length.
+    free = pool_geometry(mask)
+    assert free.travel_deg == pytest.approx(0.0) and free.length_px == pytest.approx(60.0)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 75.0, 120.0])
+def test_a_rotated_ellipse_has_its_axes_as_length_and_width(angle: float) -> None:
+    mask = np.zeros((400, 400), np.uint8)
+    cv2.ellipse(mask, (200, 200), (120, 40), angle, 0, 360, 1, -1)
+    mask = mask.astype(bool)
+    geometry = pool_geometry(mask)
+    assert (geometry.travel_deg - angle + 90) % 180 - 90 == pytest.approx(0, abs=1.0)
+    assert geometry.length_px == pytest.approx(241, abs=2.5)
+    assert geometry.width_px == pytest.approx(81, abs=2.5)
+    assert geometry.area_px == pytest.approx(math.pi * 120 * 40, rel=0.02)
+    assert geometry.centroid == pytest.approx((200, 200), abs=0.5)
+    # Measured across the pool instead, the numbers swap.
+    across = pool_geometry(mask, travel_deg=angle + 90)
+    assert across.length_px == pytest.approx(81, abs=2.5)
+
+
+def test_millimetres_follow_the_scale_and_an_empty_mask_has_no_pool() -> None:
+    mask = np.zeros((50, 50), bool)
+    mask[10:20, 10:30] = True
+    geometry = pool_geometry(mask, travel_deg=0)
+    assert geometry.in_mm(0.05) == pytest.approx(
+        {"area_mm2": 200 * 0.0025, "length_mm": 1.0, "width_mm": 0.5}
+    )
+    assert geometry.in_mm(None) == {"area_mm2": None, "length_mm": None, "width_mm": None}
+    empty = pool_geometry(np.zeros((5, 5), bool))
+    assert (empty.area_px, empty.length_px, empty.centroid) == (0, None, None)
+
+
+def test_real_pools_are_longer_than_wide_and_match_their_pixels() -> None:
+    files = sorted(REAL_LABELS.glob("*.png"))
+    if not files:
+        pytest.skip("../shared/data/waam/labels is absent (a fresh checkout has no ../shared)")
+    for path in files:
+        mask = read_mask(path)
+        geometry = pool_geometry(mask)
+        assert geometry.area_px == int(mask.sum())
+        assert geometry.length_px >= geometry.width_px > 0
+        ys, xs = np.nonzero(mask)
+        assert geometry.centroid == pytest.approx((xs.mean(), ys.mean()))

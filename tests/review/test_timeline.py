@@ -1,0 +1,101 @@
+"""A weld run's timeline: geometry per frame from its label or the proposal shown, in pixels
+and millimetres, JSON and CSV."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.models import Proposal, Role
+from app.review.service import store_mask
+from app.storage import Storage
+from tests.helpers import auth, corrected_label, image_bytes
+
+
+def _rect(x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+    mask = np.zeros((100, 160), bool)
+    mask[y0:y1, x0:x1] = True
+    return mask
+
+
+def test_a_runs_geometry_comes_from_labels_else_the_proposal_shown(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    _, token = make_user("timeline", Role.reviewer)
+    sequence = client.post("/api/v1/sequences", json={"name": "Run"}, headers=auth(token)).json()
+    patched = client.patch(
+        f"/api/v1/sequences/{sequence['id']}", json={"mm_per_px": 0.1}, headers=auth(token)
+    )
+    assert patched.status_code == 200
+    files = [
+        ("files", (f"t{i}.png", image_bytes(160, 100, seed=40 + i), "image/png")) for i in range(4)
+    ]
+    stored = client.post(
+        "/api/v1/frames", files=files, data={"sequence_id": sequence["id"]}, headers=auth(token)
+    ).json()["stored"]
+    labelled, proposed, rejected, untouched = (f["id"] for f in stored)
+    # A label: 60 px long along x, 10 px across; a proposal: 40 × 20, SAM2 IoU 0.8.
+    client.put(
+        f"/api/v1/frames/{labelled}/label",
+        json=corrected_label(_rect(20, 80, 40, 50)) | {"keypoints": [[20, 45], [79, 45]]},
+        headers=auth(token),
+    )
+    with session_factory() as session:
+        session.add(
+            Proposal(
+                frame_id=proposed,
+                source="teacher",
+                model_id="t",
+                mask_path=store_mask(Storage(settings.home), _rect(50, 90, 30, 50)),
+                keypoints=[[50, 40]],
+                scores={"sam2_iou": 0.8},
+            )
+        )
+        session.commit()
+    client.put(
+        f"/api/v1/frames/{rejected}/label",
+        json={"status": "rejected", "base_revision": 0},
+        headers=auth(token),
+    )
+
+    response = client.get(f"/api/v1/sequences/{sequence['id']}/geometry", headers=auth(token))
+    assert response.status_code == 200, response.text
+    timeline = response.json()
+    assert timeline["travel_deg"] == pytest.approx(0.0, abs=0.01)  # both masks lie along x
+    rows = {row["frame_id"]: row for row in timeline["frames"]}
+    assert [row["frame_id"] for row in timeline["frames"]] == [
+        labelled,
+        proposed,
+        rejected,
+        untouched,
+    ]
+    label_row = rows[labelled]
+    assert (label_row["source"], label_row["confidence"]) == ("label", None)
+    assert (label_row["area_px"], label_row["length_px"], label_row["width_px"]) == (600, 60, 10)
+    assert label_row["centroid"] == pytest.approx([49.5, 44.5])
+    assert label_row["keypoints"] == [[20, 45], [79, 45]]
+    assert (label_row["length_mm"], label_row["width_mm"]) == pytest.approx((6.0, 1.0))
+    assert label_row["area_mm2"] == pytest.approx(6.0)
+    proposal_row = rows[proposed]
+    assert (proposal_row["source"], proposal_row["confidence"]) == ("teacher", 0.8)
+    assert (proposal_row["length_px"], proposal_row["width_px"]) == (40, 20)
+    assert rows[rejected]["source"] == "label" and rows[rejected]["area_px"] is None
+    assert rows[untouched]["source"] is None and rows[untouched]["status"] == "new"
+
+    text = client.get(
+        f"/api/v1/sequences/{sequence['id']}/geometry",
+        params={"format": "csv"},
+        headers=auth(token),
+    )
+    assert text.headers["content-type"].startswith("text/csv")
+    table = list(csv.DictReader(io.StringIO(text.text)))
+    assert [int(r["frame_id"]) for r in table] == [labelled, proposed, rejected, untouched]
+    assert (table[0]["length_px"], table[0]["width_mm"], table[0]["k2_x"]) == ("60", "1", "79")
+    assert table[1]["k2_x"] == "" and table[3]["area_px"] == ""
+
+    missing = client.get("/api/v1/sequences/999999/geometry", headers=auth(token))
+    assert missing.status_code == 404
