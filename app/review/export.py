@@ -76,7 +76,9 @@ def _rle(mask: NDArray[np.bool_]) -> tuple[dict[str, Any], int, list[int]]:
     return {"size": rle["size"], "counts": rle["counts"].decode("ascii")}, area, box
 
 
-def _query(sequence_id: int | None, split: Split | None) -> sa.Select[Any]:
+def _query(
+    sequence_id: int | None, split: Split | None
+) -> sa.Select[Frame, Label, Sequence, ValidationKeypoints]:
     query = (
         sa.select(Frame, Label, Sequence, ValidationKeypoints)
         .join(Label, Label.frame_id == Frame.id)
@@ -101,7 +103,10 @@ def export_size(session: Session, sequence_id: int | None, split: Split | None) 
 def _rows(
     session: Session, sequence_id: int | None, split: Split | None
 ) -> list[tuple[Frame, Label, Sequence | None, ValidationKeypoints | None]]:
-    return [tuple(row) for row in session.execute(_query(sequence_id, split))]  # type: ignore[misc]
+    return [
+        (frame, label, sequence, manual)
+        for frame, label, sequence, manual in session.execute(_query(sequence_id, split))
+    ]
 
 
 def build_export(
