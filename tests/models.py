@@ -8,8 +8,10 @@ paths cannot pass on zeros.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
-from transformers import Sam2Config, ViTConfig
+from transformers import Sam2Config, Sam2Model, ViTConfig
 from transformers.models.sam2.configuration_sam2 import Sam2HieraDetConfig, Sam2VisionConfig
 
 from weldpool_core.teacher.dino import DinoAttention, dino_vits8_config
@@ -29,7 +31,7 @@ def tiny_vit_config() -> ViTConfig:
     )
 
 
-def tiny_sam2_config() -> Sam2Config:
+def tiny_sam2_config(hidden: int = 64) -> Sam2Config:
     backbone = Sam2HieraDetConfig(
         hidden_size=8,
         num_attention_heads=1,
@@ -39,13 +41,13 @@ def tiny_sam2_config() -> Sam2Config:
         global_attention_blocks=[4],
     )
     vision = Sam2VisionConfig(
-        backbone_config=backbone, backbone_channel_list=[64, 32, 16, 8], fpn_hidden_size=64
+        backbone_config=backbone, backbone_channel_list=[64, 32, 16, 8], fpn_hidden_size=hidden
     )
     return Sam2Config(
         vision_config=vision,
-        prompt_encoder_config={"hidden_size": 64},
+        prompt_encoder_config={"hidden_size": hidden},
         mask_decoder_config={
-            "hidden_size": 64,
+            "hidden_size": hidden,
             "mlp_dim": 128,
             "iou_head_hidden_dim": 64,
             "num_attention_heads": 2,
@@ -99,3 +101,44 @@ def save_tiny_teacher(directory) -> dict[str, object]:  # type: ignore[no-untype
         "dino_input_size": 64,
         "device": "cpu",
     }
+
+
+def tiny_sam2_video_config() -> Any:
+    """The tiny SAM2 above as a video model (same image parts, plus memory attention). Its
+    width is 128: SAM2's memory is 64 channels wide, and object pointers are split into
+    memory-sized tokens, so the model must be wider than its memory (SAM2 is 256)."""
+    from transformers import Sam2VideoConfig
+
+    image = tiny_sam2_config(128)
+    return Sam2VideoConfig(
+        vision_config=image.vision_config,
+        prompt_encoder_config=image.prompt_encoder_config.to_dict(),
+        mask_decoder_config=image.mask_decoder_config.to_dict(),
+        num_maskmem=3,  # SAM2: 7 memory frames, 16 object pointers; fewer keep tests quick
+        max_object_pointers_in_encoder=4,
+        memory_attention_hidden_size=128,
+        memory_attention_num_layers=1,
+        memory_attention_feed_forward_hidden_size=128,
+        memory_encoder_hidden_size=128,
+        memory_encoder_output_channels=64,
+        mask_downsampler_embed_dim=128,
+        memory_fuser_embed_dim=128,
+        memory_fuser_intermediate_dim=128,
+    )
+
+
+def tiny_sam2_pair(seed: int = 0) -> tuple[Sam2Predictor, Any]:
+    """A tiny random SAM2 video model and the image predictor sharing its weights (as one
+    checkpoint directory gives both)."""
+    from transformers import Sam2VideoModel
+
+    from weldpool_core.teacher.propagate import Sam2Propagator
+
+    torch.manual_seed(seed)
+    config = tiny_sam2_video_config()
+    config._attn_implementation = "sdpa"
+    video = randomize(Sam2VideoModel(config), seed)
+    image = Sam2Model(tiny_sam2_config(128))
+    missing, _ = image.load_state_dict(video.state_dict(), strict=False)
+    assert not missing, missing
+    return Sam2Predictor(image), Sam2Propagator(video)

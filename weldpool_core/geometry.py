@@ -72,4 +72,3 @@ def _major_axis_deg(dx: NDArray[np.float64], dy: NDArray[np.float64]) -> float:
     """The direction of largest spread (second moments), in [0, 180) degrees."""
     sxx, syy, sxy = float(np.mean(dx * dx)), float(np.mean(dy * dy)), float(np.mean(dx * dy))
     return math.degrees(0.5 * math.atan2(2 * sxy, sxx - syy)) % 180.0
-
