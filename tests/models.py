@@ -94,7 +94,9 @@ def save_tiny_teacher(directory) -> dict[str, object]:  # type: ignore[no-untype
     """Tiny random DINO and SAM2 saved as Hugging Face directories; returns the settings that
     point the service at them."""
     tiny_dino().model.save_pretrained(directory / "dino")
-    tiny_sam2().model.save_pretrained(directory / "sam2")
+    # One SAM2 checkpoint serves the image model (clicks, the teacher) and the video model
+    # (propagation), as the hub's do.
+    tiny_sam2_pair()[1].model.save_pretrained(directory / "sam2")
     return {
         "dino": str(directory / "dino"),
         "sam2": str(directory / "sam2"),

@@ -14,13 +14,14 @@ from starlette.background import BackgroundTask
 from app.bounds import MAX_ID, IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.frames.service import get_frame
+from app.frames.service import get_frame, get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.models import Job, JobStatus, Proposal, Split, User
 from app.review import policy, service
 from app.review.export import build_export, export_path, export_size
+from app.review.propagation import check_prompts
 from app.review.schemas import (
     ExportIn,
     KeypointsIn,
@@ -33,6 +34,7 @@ from app.review.schemas import (
     OutlineMaskOut,
     OutlineOut,
     PolygonIO,
+    PropagateIn,
     ProposalList,
     ProposalOut,
     ProposalSummary,
@@ -416,3 +418,24 @@ def download_export(
     return FileResponse(
         path, media_type="application/zip", filename=f"weldpool-{job.params['format']}-{job_id}.zip"
     )
+
+
+@router.post(
+    "/sequences/{sequence_id}/propagate",
+    response_model=JobCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+)
+def propagate(
+    sequence_id: IdPath,
+    body: PropagateIn,
+    session: SessionDep,
+    queue: QueueDep,
+    user: CurrentUser,
+) -> JobCreated:
+    """SAM2's video model carries the reviewed masks of `from_frame_ids` through the run in
+    frame order: one `propagated` proposal per frame with its confidence (a job)."""
+    get_sequence(session, sequence_id)
+    check_prompts(session, sequence_id, body.from_frame_ids)
+    params = body.model_dump(mode="json") | {"sequence_id": sequence_id}
+    job = create_job(session, queue, "propagate", params, user)
+    return JobCreated(job_id=job.id)

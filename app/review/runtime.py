@@ -11,7 +11,8 @@ from pathlib import Path
 from app.config import Settings
 from weldpool_core.teacher.cache import EmbeddingCache
 from weldpool_core.teacher.dino import DinoAttention
-from weldpool_core.teacher.loader import load_dino, load_sam2
+from weldpool_core.teacher.loader import load_dino, load_sam2, load_sam2_video
+from weldpool_core.teacher.propagate import Sam2Propagator
 from weldpool_core.teacher.sam2 import Sam2Predictor
 from weldpool_core.teacher.teacher import Teacher, TeacherConfig
 
@@ -21,6 +22,11 @@ _lock = threading.Lock()
 @lru_cache(maxsize=4)
 def _sam2(ref: str, device: str) -> Sam2Predictor:
     return load_sam2(ref, device)
+
+
+@lru_cache(maxsize=2)
+def _sam2_video(ref: str, device: str) -> Sam2Propagator:
+    return load_sam2_video(ref, device)
 
 
 @lru_cache(maxsize=4)
@@ -44,6 +50,12 @@ def sam2_predictor(settings: Settings) -> Sam2Predictor:
         return _sam2(settings.sam2, settings.device)
 
 
+def propagator(settings: Settings) -> Sam2Propagator:
+    """SAM2's video model from WELDPOOL_SAM2's weights (raises WeightsUnavailableError)."""
+    with _lock:
+        return _sam2_video(settings.sam2, settings.device)
+
+
 def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
     """The teacher as the settings name it, sharing this process's SAM2 and cache."""
     with _lock:
@@ -61,5 +73,5 @@ def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
 
 def forget_models() -> None:
     """Drop loaded models (tests that switch weights between apps in one process)."""
-    for cached in (_sam2, _dino, _cache):
+    for cached in (_sam2, _sam2_video, _dino, _cache):
         cached.cache_clear()

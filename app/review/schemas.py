@@ -84,6 +84,24 @@ class SegmentOut(BaseModel):
     embedding: Literal["memory", "disk", "computed"]
 
 
+class PropagateIn(InputModel):
+    """Carry reviewed masks through the run with SAM2's video model."""
+
+    from_frame_ids: list[Id] = Field(
+        min_length=1, max_length=64, description="Reviewed frames of the run to start from."
+    )
+    direction: Literal["forward", "backward", "both"] = "both"
+    until_frame_index: int | None = Field(
+        default=None, ge=0, le=MAX_ID, description="Stop at this frame index (one direction)."
+    )
+    threshold: float = Field(
+        default=0.5,
+        ge=0,
+        le=1,
+        description="Frames under this confidence are flagged; three in a row stop a pass.",
+    )
+
+
 class ExportIn(InputModel):
     """Which labels to export and how; run as a job for big sets."""
 

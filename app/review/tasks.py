@@ -9,7 +9,7 @@ import structlog
 
 from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_handler
 from app.models import Frame
-from app.review import runtime
+from app.review import propagation, runtime
 from app.review.export import build_export, export_path
 from app.review.service import frame_rgb, has_proposal, record_teacher_proposal
 from app.storage import Storage
@@ -102,3 +102,38 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
     os.replace(written, target)
     ctx.summary = f"{ctx.params['format']} export ready: {target.stat().st_size / 1e6:.1f} MB"
     return {"format": ctx.params["format"], "size_bytes": target.stat().st_size}
+
+
+@job_handler("propagate", max_attempts=1)
+def propagate_run(ctx: JobContext) -> dict[str, Any]:
+    """SAM2's video model carries reviewed masks through a weld run (``app.review.propagation``)."""
+    storage = Storage(ctx.settings.home)
+    ctx.progress(0.0, "loading SAM2's video model")
+    propagator = runtime.propagator(ctx.settings)  # missing weights: the job fails here
+    predictor = runtime.sam2_predictor(ctx.settings)
+    ctx.check_cancelled()
+    embed = propagation.frame_embedding(storage, predictor, runtime.embedding_cache(ctx.settings))
+    with ctx.session_factory() as session:
+        result = propagation.propagate_run(
+            session,
+            storage,
+            propagator,
+            embed,
+            sequence_id=int(ctx.params["sequence_id"]),
+            from_frame_ids=[int(i) for i in ctx.params["from_frame_ids"]],
+            direction=str(ctx.params.get("direction", "both")),
+            until_frame_index=ctx.params.get("until_frame_index"),
+            threshold=float(ctx.params.get("threshold", 0.5)),
+            model_id=propagation.model_id(ctx.settings.sam2),
+            job_id=ctx.job_id,
+            progress=ctx.progress,
+        )
+    stops = "; ".join(
+        f"stopped {s['direction']} at frame #{s['frame_id']} (confidence fell)"
+        for s in result["stopped"]
+    )
+    ctx.summary = (
+        f"{result['proposed']} frames proposed, {len(result['low_confidence_frame_ids'])} with low "
+        f"confidence" + (f"; {stops}" if stops else "")
+    )
+    return result

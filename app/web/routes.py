@@ -136,6 +136,12 @@ def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
     return render(request, "review.html", page="review", frame_id=frame_id)
 
 
+@router.get("/sequences/{sequence_id}")
+def timeline(request: Request, sequence_id: IdPath, _user: LoggedIn) -> Response:
+    """A weld run over time: its frames as a strip, the pool geometry curves, propagation."""
+    return render(request, "timeline.html", page="frames", sequence_id=sequence_id)
+
+
 @router.get("/jobs")
 def jobs(request: Request, _user: LoggedIn) -> Response:
     """Background jobs with live progress."""

@@ -29,7 +29,7 @@ function format(value) {
  * A line chart of `series` ([{name, colour, points: [[x, y], …]}]) as an <svg> element.
  * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data.
  */
-export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "", xLabel = "epoch" }) {
+export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "", xLabel = "epoch", onPick = null }) {
   const pad = { left: 44, right: 12, top: 22, bottom: 26 };
   const all = series.flatMap((s) => s.points).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
   const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, width, height, class: "chart", role: "img", "aria-label": title });
@@ -63,6 +63,14 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
     root.append(svg("path", { d, class: "line", stroke: s.colour, "data-series": s.name }));
     const [lx, ly] = points[points.length - 1];
     root.append(svg("circle", { cx: sx(lx), cy: sy(ly), r: 3, fill: s.colour }));
+  }
+  if (onPick) { // a click picks the nearest x (a frame of a run)
+    root.classList.add("pickable");
+    root.addEventListener("click", (event) => {
+      const box = root.getBoundingClientRect();
+      const vx = ((event.clientX - box.left) / box.width) * width;
+      onPick(x0 + ((vx - pad.left) / (width - pad.left - pad.right)) * (x1 - x0));
+    });
   }
   if (series.length > 1) {
     let x = width - pad.right;

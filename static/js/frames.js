@@ -62,6 +62,10 @@ async function loadSequences() {
         h("span", { class: "muted count" }, count(sequence.frame_count, "frame")),
         processLine(sequence),
         h("div", { class: "seq-actions" },
+        h("a", {
+          class: "button small", href: `/sequences/${sequence.id}`, "data-testid": "sequence-timeline",
+          title: "The run over time: pool geometry per frame, review status, propagation",
+        }, "Timeline"),
         h("button", {
           type: "button", class: "secondary small", "data-testid": "edit-sequence",
           title: "Name, process parameters, scale and notes", onclick: () => editSequence(sequence),

@@ -965,3 +965,63 @@ def test_dropped_frames_get_ids_in_file_name_order(page: Any, server: LiveServer
         "GET", "/frames", params={"sequence_id": sequence["id"], "order": "id", "status": "all"}
     ).json()["items"]
     assert [f["original_name"] for f in frames] == ["f1.png", "f2.png", "f9.png", "f10.png"]
+
+
+def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
+    page: Any, server: LiveServer
+) -> None:
+    """A reviewer corrects one frame of a run, propagates from it, reads the timeline (strip,
+    geometry curves), opens a propagated frame from the strip, fixes it, and sees it reviewed."""
+    sequence = server.api("POST", "/sequences", json={"name": "Propagation run"}).json()
+    server.api("PATCH", f"/sequences/{sequence['id']}", json={"mm_per_px": 0.05})
+    files = [
+        ("files", (f"p{i}.png", synthetic_png(900 + i, 320, 200), "image/png")) for i in range(5)
+    ]
+    ids = [
+        f["id"]
+        for f in server.api(
+            "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
+        ).json()["stored"]
+    ]
+    truth = synth_frame(seed=900, params=SynthParams(320, 200))
+    saved = server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask))
+    assert saved.status_code == 200
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{ids[0]}")
+    open_review(page)
+    page.fill("[data-testid=propagate-threshold]", "0")  # random weights: never stop early
+    page.click("[data-testid=propagate]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('Propagation done')", timeout=120_000)
+    assert "4 frames proposed" in page.inner_text("[data-testid=propagate-note]")
+    page.click("[data-testid=propagate-note] [data-testid=timeline-link]")
+    page.wait_for_url(re.compile(rf"/sequences/{sequence['id']}$"))
+    page.wait_for_selector("body[data-ready]")
+    assert page.inner_text("#run-name") == "Propagation run"
+    cells = page.locator("[data-testid=strip-cell]")
+    assert cells.count() == 5
+    assert cells.nth(0).get_attribute("data-status") == "corrected"
+    assert {cells.nth(i).get_attribute("data-status") for i in range(1, 5)} == {"proposed"}
+    assert "confidence" in cells.nth(3).get_attribute("title")
+    assert page.locator("[data-testid=geometry-charts] svg").count() == 4
+    assert "0.05 mm per pixel" in page.inner_text("[data-testid=geometry-note]")
+    with page.expect_download() as download:
+        page.click("[data-testid=geometry-csv]")
+    lines = Path(download.value.path()).read_text().splitlines()
+    assert lines[0].startswith("frame_id,frame_index") and len(lines) == 6
+
+    # Open frame 4 from the strip: it shows where its mask came from; fix it and save.
+    cells.nth(3).click()
+    page.wait_for_url(re.compile(rf"/frames/{ids[3]}\?"))
+    open_review(page)
+    assert f"propagated from #{ids[0]}" in page.inner_text("[data-testid=proposal-source]")
+    page.uncheck("#advance")
+    page.click("[data-testid=tool-brush]")
+    stroke(page, (100, 100), (200, 120))
+    page.click("[data-testid=save]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('corrected')")
+    page.goto(f"{server.url}/sequences/{sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    assert (
+        page.locator("[data-testid=strip-cell]").nth(3).get_attribute("data-status") == "corrected"
+    )

@@ -1,4 +1,5 @@
-"""The one loader of the teacher's models: DINO and SAM2 from a hub id or a local directory.
+"""The one loader of the teacher's models: DINO and SAM2 (image and video) from a hub id or a
+local directory.
 
 ``Teacher.load`` (command line, library) and the service's runtime (worker jobs, clicks) both
 load through here, so the device, the precision, the attention kernel and the weights' identity
@@ -8,6 +9,7 @@ load through here, so the device, the precision, the attention kernel and the we
 from __future__ import annotations
 
 from weldpool_core.teacher.dino import DinoAttention
+from weldpool_core.teacher.propagate import Sam2Propagator
 from weldpool_core.teacher.sam2 import Sam2Predictor
 
 
@@ -27,6 +29,22 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
         path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
     )
     return Sam2Predictor(model, torch_device, weights_id=f"{ref}#{weights_fingerprint(path)}")
+
+
+def load_sam2_video(ref: str, device: str = "auto") -> Sam2Propagator:
+    """SAM2's video model from the same weights as ``load_sam2`` (one checkpoint holds the image
+    parts and the memory), for propagation through a run."""
+    from transformers import Sam2VideoModel
+
+    from weldpool_core.device import inference_dtype, resolve_device
+    from weldpool_core.teacher.weights import resolve_weights
+
+    torch_device = resolve_device(device)
+    path = resolve_weights(ref, "WELDPOOL_SAM2")
+    model = Sam2VideoModel.from_pretrained(
+        path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
+    )
+    return Sam2Propagator(model, torch_device)
 
 
 def load_dino(ref: str, device: str = "auto", input_size: int = 480) -> DinoAttention:

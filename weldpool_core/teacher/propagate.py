@@ -145,6 +145,7 @@ class Sam2Propagator:
         embedding: Callable[[int], ImageEmbedding],
         direction: Direction = "both",
         until: int | None = None,
+        keep_going: Callable[[PropagatedMask, bool], bool] | None = None,
     ) -> Iterator[PropagatedMask]:
         """Masks for the frames ``0 … count-1`` of a run from prompt masks on some of them.
 
@@ -155,6 +156,8 @@ class Sam2Propagator:
             direction: forward from the first prompt, backward from it, or both.
             until: the last position to reach (forward) or the first (backward); default the
                 run's end or start.
+            keep_going: called with each mask and whether its pass runs backward; False ends
+                that pass (where confidence has dropped), and the next pass starts.
 
         Yields:
             One ``PropagatedMask`` per frame without a prompt, in the order they are computed
@@ -194,7 +197,7 @@ class Sam2Propagator:
                 behind = [p for p in prompts if (p > index if reverse else p < index)]
                 source = (min(behind) if reverse else max(behind)) if behind else first
                 logits = low_res.cpu().numpy()
-                yield PropagatedMask(
+                item = PropagatedMask(
                     index=index,
                     mask=upsample_logits(logits, image_size) > 0,
                     object_score=float(
@@ -204,6 +207,9 @@ class Sam2Propagator:
                     source_index=source,
                     low_res_logits=logits,
                 )
+                yield item
+                if keep_going is not None and not keep_going(item, reverse):
+                    break
 
     def _cache(self, session: Any, index: int, embedding: Callable[[int], ImageEmbedding]) -> None:
         session.cache.cache_vision_features(index, self.video_features(embedding(index)))

@@ -161,6 +161,7 @@ function renderFrameInfo() {
   if (proposal) {
     const iou = proposal.scores?.sam2_iou;
     pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
+    if (proposal.scores?.low_confidence) pieces.push(h("br"), h("span", { class: "warning" }, "SAM2 lost confidence here: correct this frame and propagate again from it."));
     if (frame.uncertainty !== null) {
       const reason = REASONS[frame.uncertainty_reason] ?? frame.uncertainty_reason;
       pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
@@ -552,6 +553,7 @@ async function saveLabel(kind, baseRevision = revision) {
   labelClean = state;
   changed();
   renderFrameInfo();
+  renderPropagate();
   loadHistory();
   toast(`Saved as ${label.status} (revision ${label.revision}).`, "ok");
   if ($("advance").checked) await goNext({ afterSave: true });
@@ -719,9 +721,14 @@ async function setHeatmapVisible(on) {
 
 // --- proposals ------------------------------------------------------------------------------
 
-/** "teacher" or the student version's name. */
+/** "teacher", the student version's name, or where a propagated mask came from. */
 function sourceName(item) {
-  return item.source === "teacher" ? "teacher" : `${item.source} ${item.model_id}`;
+  if (item.source === "teacher") return "teacher";
+  if (item.source === "propagated") {
+    const confidence = item.scores?.confidence;
+    return `propagated from #${item.scores?.from_frame_id}` + (confidence !== undefined ? ` (confidence ${Number(confidence).toFixed(2)})` : "");
+  }
+  return `${item.source} ${item.model_id}`;
 }
 
 /** One button per proposal (newest first): the shown one pressed, the policy's pick marked. */
@@ -873,6 +880,7 @@ function bindControls() {
   $("save-validation").addEventListener("click", saveValidation);
   $("clear-validation").addEventListener("click", () => state.manual.length && commit({ ...state, manual: [] }));
   $("run-teacher").addEventListener("click", () => runTeacher(false));
+  $("propagate").addEventListener("click", propagateFromHere);
   $("rerun-teacher").addEventListener("click", () => runTeacher(true));
   for (const id of ["run-teacher", "rerun-teacher"]) { // they cannot work: say why instead
     if (TEACHER_PROBLEM) Object.assign($(id), { disabled: true, title: TEACHER_PROBLEM });
@@ -891,6 +899,43 @@ function bindControls() {
       $(id).disabled = true;
       $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
     }
+  }
+}
+
+// --- propagation through the weld run -------------------------------------------------------
+
+function renderPropagate() {
+  const button = $("propagate");
+  const reviewed = labelStatus === "accepted" || labelStatus === "corrected";
+  button.disabled = !frame.sequence_id || !reviewed || Boolean(TEACHER_PROBLEM);
+  button.title = TEACHER_PROBLEM
+    || (!frame.sequence_id ? "This frame belongs to no weld run."
+      : reviewed ? "SAM2's video model carries this frame's reviewed mask to the run's other frames"
+        : "Accept or correct this frame first: propagation starts from a reviewed mask.");
+}
+
+function timelineNote() {
+  $("propagate-note").replaceChildren(...(frame.sequence_id
+    ? [h("a", { href: `/sequences/${frame.sequence_id}`, "data-testid": "timeline-link" }, "The run's timeline"), " — geometry and confidence per frame."]
+    : []));
+}
+
+async function propagateFromHere() {
+  const button = $("propagate");
+  button.disabled = true;
+  try {
+    const threshold = Math.min(1, Math.max(0, Number($("propagate-threshold").value) || 0));
+    const body = { from_frame_ids: [FRAME_ID], direction: $("propagate-direction").value, threshold };
+    const { job_id: jobId } = await api(`/sequences/${frame.sequence_id}/propagate`, { method: "POST", json: body });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Propagating ${Math.round(j.progress * 100)} %`; }, 1000);
+    if (job.status !== "succeeded") throw new Error(`The propagation job ${job.status}: ${job.error ?? job.message ?? ""}`);
+    $("propagate-note").replaceChildren(`${job.message}. `, h("a", { href: `/sequences/${frame.sequence_id}`, "data-testid": "timeline-link" }, "Open the run's timeline"), ".");
+    toast(`Propagation done: ${job.message}.`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.textContent = "Propagate from here";
+    renderPropagate();
   }
 }
 
@@ -967,6 +1012,8 @@ async function start() {
   $("stage-message").hidden = true;
   bindControls();
   renderProposals();
+  renderPropagate();
+  timelineNote();
   bindDisplay();
   const saved = prefs();
   if (saved.brush) setBrushSize(saved.brush);

@@ -1,0 +1,231 @@
+"""Propagation through a weld run: reviewed masks carried frame by frame by SAM2's video model
+(``weldpool_core.teacher.propagate``), one ``propagated`` proposal per frame.
+
+- Prompts are the reviewed masks (accepted or corrected labels) of the frames it starts from;
+  the run is walked in frame order (frame index, then upload order).
+- Image features come from the teacher's embedding cache, so frames the teacher has seen cost
+  memory attention and decoding only.
+- Each frame's proposal is written in its own transaction, replacing the frame's earlier
+  propagated proposals (never a label): a cancelled run leaves whole proposals only.
+- Confidence is SAM2's object probability times its predicted IoU; a frame below the threshold
+  is flagged, and a pass stops after ``STOP_AFTER`` such frames in a row, where the reviewer
+  should prompt again (the job says where).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInputError
+from app.models import Frame, FrameStatus, Label, LabelStatus, Proposal
+from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
+from app.storage import Storage
+
+SOURCE = "propagated"
+STOP_AFTER = 3
+"""Frames in a row under the confidence threshold after which a pass stops."""
+
+
+def model_id(sam2_ref: str) -> str:
+    """What propagated proposals name as their model: SAM2's video model and its weights."""
+    return f"sam2-video:{sam2_ref.rstrip('/').rsplit('/', 1)[-1]}"
+
+
+def run_frames(session: Session, sequence_id: int) -> list[Frame]:
+    """The run's frames in the order SAM2 walks them."""
+    return list(
+        session.scalars(
+            sa.select(Frame)
+            .where(Frame.sequence_id == sequence_id)
+            .order_by(Frame.frame_index.is_(None), Frame.frame_index, Frame.id)
+        )
+    )
+
+
+def check_prompts(session: Session, sequence_id: int, frame_ids: list[int]) -> None:
+    """Every frame to start from belongs to the run and has a reviewed mask."""
+    if not frame_ids:
+        raise InvalidInputError("Give at least one reviewed frame to propagate from.")
+    rows = dict(
+        session.execute(sa.select(Frame.id, Frame.sequence_id).where(Frame.id.in_(frame_ids))).all()
+    )
+    for frame_id in frame_ids:
+        if rows.get(frame_id) != sequence_id:
+            raise InvalidInputError(f"Frame {frame_id} is not a frame of weld run {sequence_id}.")
+    reviewed = set(
+        session.scalars(
+            sa.select(Label.frame_id).where(
+                Label.frame_id.in_(frame_ids),
+                Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]),
+                Label.mask_path.is_not(None),
+            )
+        )
+    )
+    for frame_id in frame_ids:
+        if frame_id not in reviewed:
+            raise InvalidInputError(
+                f"Frame {frame_id} has no reviewed mask to start from; accept or correct it first."
+            )
+
+
+def record(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    mask: NDArray[np.bool_],
+    scores: dict[str, Any],
+    model_id: str,
+    job_id: int | None,
+) -> Proposal:
+    """Store one propagated mask as the frame's proposal, replacing its earlier ones."""
+    from weldpool_core.errors import InvalidInputError as CoreInvalidInput
+    from weldpool_core.heatmap import heatmap_from_mask
+
+    keypoints: list[list[float]] = []
+    heatmap_path = None
+    try:
+        result = heatmap_from_mask(mask)
+    except CoreInvalidInput as exc:
+        scores = scores | {"warning": f"No keypoints: {exc.message}"}
+    else:
+        keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+        heatmap_path = store_heatmap(storage, result.heatmap)
+    session.execute(
+        sa.delete(Proposal).where(Proposal.frame_id == frame.id, Proposal.source == SOURCE)
+    )
+    proposal = Proposal(
+        frame_id=frame.id,
+        source=SOURCE,
+        model_id=model_id,
+        job_id=job_id,
+        mask_path=store_mask(storage, mask),
+        heatmap_path=heatmap_path,
+        keypoints=keypoints,
+        prompts={"from_frame_id": scores["from_frame_id"]},
+        scores=scores | {"mask_fraction": float(mask.mean())},
+        timings={},
+    )
+    session.add(proposal)
+    if frame.status == FrameStatus.new:
+        frame.status = FrameStatus.proposed
+    session.commit()
+    return proposal
+
+
+def propagate_run(
+    session: Session,
+    storage: Storage,
+    propagator: Any,
+    embedding: Callable[[Frame], Any],
+    *,
+    sequence_id: int,
+    from_frame_ids: list[int],
+    direction: str,
+    until_frame_index: int | None,
+    threshold: float,
+    model_id: str,
+    job_id: int | None,
+    progress: Callable[[float, str], None],
+) -> dict[str, Any]:
+    """Propagate through the run (module doc); returns what was written and where it stopped."""
+    check_prompts(session, sequence_id, from_frame_ids)
+    frames = run_frames(session, sequence_id)
+    position = {frame.id: i for i, frame in enumerate(frames)}
+    labels = {
+        label.frame_id: label
+        for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(from_frame_ids)))
+    }
+    prompts = {
+        position[i]: load_mask(storage, labels[i].mask_path)  # type: ignore[arg-type]
+        for i in from_frame_ids
+    }
+    until = None
+    if until_frame_index is not None:
+        indices = [f.frame_index if f.frame_index is not None else i for i, f in enumerate(frames)]
+        until = min(range(len(frames)), key=lambda i: abs(indices[i] - until_frame_index))
+    start = min(prompts)
+    if direction == "both" or until is None:
+        planned = len(frames) - len(prompts)
+    elif direction == "forward":
+        planned = max(1, until - start)
+    else:
+        planned = max(1, start - until)
+    low_streak = {False: 0, True: 0}
+    stopped: list[dict[str, Any]] = []
+    flagged: list[int] = []
+    written = 0
+
+    def keep_going(item: Any, reverse: bool) -> bool:
+        low_streak[reverse] = low_streak[reverse] + 1 if item.confidence < threshold else 0
+        if low_streak[reverse] >= STOP_AFTER:
+            frame = frames[item.index]
+            stopped.append(
+                {
+                    "direction": "backward" if reverse else "forward",
+                    "frame_id": frame.id,
+                    "frame_index": frame.frame_index,
+                }
+            )
+            return False
+        return True
+
+    for item in propagator.propagate(
+        len(frames),
+        prompts,
+        lambda i: embedding(frames[i]),
+        direction,
+        until,
+        keep_going=keep_going,
+    ):
+        frame = frames[item.index]
+        low = item.confidence < threshold
+        if low:
+            flagged.append(frame.id)
+        record(
+            session,
+            storage,
+            frame,
+            item.mask,
+            {
+                "confidence": item.confidence,
+                "object_score": item.object_score,
+                "sam2_iou": item.iou,
+                "from_frame_id": frames[item.source_index].id,
+                "low_confidence": low,
+            },
+            model_id,
+            job_id,
+        )
+        written += 1
+        progress(min(1.0, written / max(1, planned)), f"{written} of about {planned} frames")
+    return {
+        "proposed": written,
+        "low_confidence_frame_ids": flagged,
+        "stopped": stopped,
+        "from_frame_ids": from_frame_ids,
+        "model_id": model_id,
+    }
+
+
+def frame_embedding(storage: Storage, predictor: Any, cache: Any) -> Callable[[Frame], Any]:
+    """A frame's SAM2 image embedding through the one cache seam (computed once, then reused
+    by clicks, the teacher and later propagations)."""
+    from weldpool_core.teacher.cache import cached_embedding
+
+    def embed(frame: Frame) -> Any:
+        embedding, _ = cached_embedding(
+            predictor,
+            cache,
+            frame.sha256,
+            lambda: frame_rgb(storage, frame),
+            (frame.height, frame.width),
+        )
+        return embedding
+
+    return embed

@@ -1,0 +1,165 @@
+"""Propagation through a weld run with the tiny random SAM2 video model: a job writing one
+propagated proposal per frame, replacing earlier ones downstream, cancelled cleanly."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.models import Job, Proposal, Role
+from tests.helpers import auth, corrected_label, wait_for_job
+from weldpool_core.synth import SynthParams, synth_frame
+
+SIZE = SynthParams(width=96, height=64)
+
+
+def _run(
+    client: TestClient, token: str, count: int = 6, name: str = "Run"
+) -> tuple[int, list[int], list]:
+    sequence = client.post("/api/v1/sequences", json={"name": name}, headers=auth(token)).json()
+    frames = [synth_frame(seed=300 + i, params=SIZE) for i in range(count)]
+    files = []
+    for i, frame in enumerate(frames):
+        _, data = cv2.imencode(".png", frame.image)
+        files.append(("files", (f"f{i:03d}.png", data.tobytes(), "image/png")))
+    stored = client.post(
+        "/api/v1/frames", files=files, data={"sequence_id": sequence["id"]}, headers=auth(token)
+    ).json()["stored"]
+    return sequence["id"], [f["id"] for f in stored], frames
+
+
+def _propagated(session_factory) -> dict[int, list[Proposal]]:
+    with session_factory() as session:
+        rows = session.scalars(sa.select(Proposal).where(Proposal.source == "propagated")).all()
+        out: dict[int, list[Proposal]] = {}
+        for row in rows:
+            out.setdefault(row.frame_id, []).append(row)
+        return out
+
+
+def test_propagate_from_a_reviewed_frame_then_again_downstream(
+    client: TestClient, make_user, session_factory
+) -> None:
+    _, token = make_user("propagator", Role.reviewer)
+    sequence_id, ids, frames = _run(client, token)
+    for index in (2, 4):
+        saved = client.put(
+            f"/api/v1/frames/{ids[index]}/label",
+            json=corrected_label(frames[index].mask),
+            headers=auth(token),
+        )
+        assert saved.status_code == 200
+    started = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[2]]},
+        headers=auth(token),
+    )
+    assert started.status_code == 202, started.text
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=300)
+    assert job["status"] == "succeeded", job["error"]
+    assert job["result"]["proposed"] == 5
+    first = _propagated(session_factory)
+    assert sorted(first) == [ids[i] for i in (0, 1, 3, 4, 5)]  # every frame but the prompt
+    for (proposal,) in first.values():
+        assert proposal.scores["from_frame_id"] == ids[2]
+        assert 0.0 <= proposal.scores["confidence"] <= 1.0
+        assert proposal.model_id.startswith("sam2-video:")
+    listed = client.get(f"/api/v1/frames/{ids[5]}/proposals", headers=auth(token)).json()
+    assert [p["source"] for p in listed["items"]] == ["propagated"]
+    timeline = client.get(f"/api/v1/sequences/{sequence_id}/geometry", headers=auth(token)).json()
+    sources = [row["source"] for row in timeline["frames"]]
+    assert sources[2] == "label" and sources[5].startswith("propagated:")
+
+    # Again from frame 4, forward: frames after it are replaced, the ones before are kept.
+    again = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[4]], "direction": "forward"},
+        headers=auth(token),
+    )
+    assert wait_for_job(client, again.json()["job_id"], token, timeout=300)["status"] == "succeeded"
+    second = _propagated(session_factory)
+    assert all(len(items) == 1 for items in second.values())
+    assert second[ids[5]][0].scores["from_frame_id"] == ids[4]
+    assert second[ids[1]][0].id == first[ids[1]][0].id  # upstream: untouched
+
+    # Bad starts are refused in one sentence, before any job.
+    no_label = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[0]]},
+        headers=auth(token),
+    )
+    assert no_label.status_code == 400 and "no reviewed mask" in no_label.json()["detail"]
+    other, _, _ = _run(client, token, 1, "Another run")
+    foreign = client.post(
+        f"/api/v1/sequences/{other}/propagate",
+        json={"from_frame_ids": [ids[2]]},
+        headers=auth(token),
+    )
+    assert foreign.status_code == 400 and "not a frame of weld run" in foreign.json()["detail"]
+    missing = client.post(
+        "/api/v1/sequences/999999/propagate", json={"from_frame_ids": [ids[2]]}, headers=auth(token)
+    )
+    assert missing.status_code == 404
+
+
+def test_a_cancelled_propagation_leaves_whole_proposals_only(
+    client: TestClient, make_user, session_factory, settings, monkeypatch
+) -> None:
+    from app.review import propagation
+
+    _, token = make_user("canceller", Role.reviewer)
+    sequence_id, ids, frames = _run(client, token)
+    client.put(
+        f"/api/v1/frames/{ids[0]}/label", json=corrected_label(frames[0].mask), headers=auth(token)
+    )
+    real_record = propagation.record
+
+    def record(session, *args, **kwargs):  # type: ignore[no-untyped-def]
+        proposal = real_record(session, *args, **kwargs)
+        session.execute(sa.update(Job).values(cancel_requested=True))  # Cancel, pressed now
+        session.commit()
+        return proposal
+
+    monkeypatch.setattr(propagation, "record", record)
+    started = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[0]], "direction": "forward"},
+        headers=auth(token),
+    )
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=300)
+    assert job["status"] == "cancelled"
+    written = _propagated(session_factory)
+    assert list(written) == [ids[1]]  # the frame it was on, whole; nothing after it
+    (proposal,) = written[ids[1]]
+    assert (settings.home / proposal.mask_path).is_file()
+    assert proposal.keypoints is not None and "confidence" in proposal.scores
+
+
+@pytest.mark.parametrize("threshold", [1.0])
+def test_a_pass_stops_where_confidence_stays_low(
+    client: TestClient, make_user, session_factory, threshold: float
+) -> None:
+    """With a threshold no frame reaches, the pass stops after three flagged frames and says
+    where (the reviewer prompts again there)."""
+    _, token = make_user("stopper", Role.reviewer)
+    sequence_id, ids, frames = _run(client, token, 7)
+    client.put(
+        f"/api/v1/frames/{ids[0]}/label", json=corrected_label(frames[0].mask), headers=auth(token)
+    )
+    started = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[0]], "direction": "forward", "threshold": threshold},
+        headers=auth(token),
+    )
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=300)
+    assert job["status"] == "succeeded"
+    assert job["result"]["proposed"] == 3
+    assert job["result"]["low_confidence_frame_ids"] == ids[1:4]
+    assert job["result"]["stopped"] == [
+        {"direction": "forward", "frame_id": ids[3], "frame_index": None}
+    ]
+    assert "stopped forward at frame" in job["message"]
+    assert np.isfinite(_propagated(session_factory)[ids[1]][0].scores["sam2_iou"])
