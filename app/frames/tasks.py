@@ -1,4 +1,5 @@
-"""Background work of the frames domain: extracting frames from an uploaded video."""
+"""Background work of the frames domain: extracting frames from an uploaded video (then, when
+SAM2's weights are here, a job that embeds the run's frames ahead of review)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ from typing import Any
 from app.db import session_scope
 from app.frames.service import extract_video_frames
 from app.jobs.registry import JobContext, job_handler
+from app.jobs.service import create_job
 from app.models import User, Video
 from app.storage import Storage
+from app.system.status import teacher_problem
 from weldpool_core.errors import InvalidInputError
 
 
@@ -21,8 +24,13 @@ def extract_video(ctx: JobContext) -> dict[str, Any]:
         if video is None:
             raise InvalidInputError(f"Video {ctx.params['video_id']} no longer exists.")
         user = session.get(User, video.uploaded_by_id) if video.uploaded_by_id else None
+        video_sequence = video.sequence_id
         result = extract_video_frames(
             session, Storage(ctx.settings.home), video, user=user, progress=ctx.progress
         )
     ctx.progress(1.0, f"{result['frames']} frames stored")
+    if result["frames"] and ctx.queue is not None and teacher_problem(ctx.settings) is None:
+        # The run's embeddings next, so that the first click on any of its frames is quick.
+        with ctx.session_factory() as session:
+            create_job(session, ctx.queue, "embed", {"sequence_id": video_sequence}, None)
     return result

@@ -439,3 +439,18 @@ def propagate(
     params = body.model_dump(mode="json") | {"sequence_id": sequence_id}
     job = create_job(session, queue, "propagate", params, user)
     return JobCreated(job_id=job.id)
+
+
+@router.post(
+    "/sequences/{sequence_id}/embeddings",
+    response_model=JobCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+)
+def precompute_embeddings(
+    sequence_id: IdPath, session: SessionDep, queue: QueueDep, user: CurrentUser
+) -> JobCreated:
+    """Compute SAM2's embedding of every frame of the run ahead of review (a job): the first
+    click on any frame is then as fast as the later ones."""
+    get_sequence(session, sequence_id)
+    job = create_job(session, queue, "embed", {"sequence_id": sequence_id}, user)
+    return JobCreated(job_id=job.id)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from typing import Any
 
@@ -137,3 +138,33 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
         f"confidence" + (f"; {stops}" if stops else "")
     )
     return result
+
+
+@job_handler("embed", max_attempts=2)
+def embed_run(ctx: JobContext) -> dict[str, Any]:
+    """SAM2's image embedding of every frame of a weld run, into the embedding cache: the first
+    click on any of its frames is then as fast as the later ones, and propagation and the
+    teacher reuse them."""
+    from weldpool_core.teacher.cache import cached_embedding
+
+    storage = Storage(ctx.settings.home)
+    ctx.progress(0.0, "loading SAM2")
+    predictor = runtime.sam2_predictor(ctx.settings)
+    cache = runtime.embedding_cache(ctx.settings)
+    with ctx.session_factory() as session:
+        frames = propagation.run_frames(session, int(ctx.params["sequence_id"]))
+        tiers = {"computed": 0, "memory": 0, "disk": 0}
+        for done, frame in enumerate(frames, 1):
+            _, tier = cached_embedding(
+                predictor,
+                cache,
+                frame.sha256,
+                functools.partial(frame_rgb, storage, frame),
+                (frame.height, frame.width),
+            )
+            tiers[tier] += 1
+            ctx.progress(done / len(frames), f"{done} of {len(frames)} frames")
+    ctx.summary = (
+        f"{tiers['computed']} embeddings computed, {len(frames) - tiers['computed']} already cached"
+    )
+    return {"frames": len(frames), **tiers}

@@ -115,12 +115,44 @@ $("propagate-run").addEventListener("click", async () => {
     const job = await waitForJob(jobId, (j) => { $("propagate-state").textContent = `Propagating: ${Math.round(j.progress * 100)} % — ${j.message ?? ""}`; }, 1000);
     $("propagate-state").textContent = job.status === "succeeded" ? `Propagation done: ${job.message}` : `Propagation ${job.status}: ${job.error ?? job.message ?? ""}`;
     toast($("propagate-state").textContent, job.status === "succeeded" ? "ok" : "error");
-    await load();
+    await $("embed-run").addEventListener("click", async () => {
+  const button = $("embed-run");
+  button.disabled = true;
+  try {
+    const { job_id: jobId } = await api(`/sequences/${SEQUENCE_ID}/embeddings`, { method: "POST" });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Embedding ${Math.round(j.progress * 100)} %`; }, 1000);
+    toast(job.status === "succeeded" ? `Embeddings ready: ${job.message}.` : `Embedding job ${job.status}: ${job.error ?? ""}`, job.status === "succeeded" ? "ok" : "error");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = Boolean(TEACHER_PROBLEM);
+    button.textContent = "Precompute embeddings";
+  }
+});
+if (TEACHER_PROBLEM) Object.assign($("embed-run"), { disabled: true, title: TEACHER_PROBLEM });
+
+load();
   } catch (error) {
     toast(error.message, "error");
   } finally {
     button.disabled = false;
   }
 });
+
+$("embed-run").addEventListener("click", async () => {
+  const button = $("embed-run");
+  button.disabled = true;
+  try {
+    const { job_id: jobId } = await api(`/sequences/${SEQUENCE_ID}/embeddings`, { method: "POST" });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Embedding ${Math.round(j.progress * 100)} %`; }, 1000);
+    toast(job.status === "succeeded" ? `Embeddings ready: ${job.message}.` : `Embedding job ${job.status}: ${job.error ?? ""}`, job.status === "succeeded" ? "ok" : "error");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = Boolean(TEACHER_PROBLEM);
+    button.textContent = "Precompute embeddings";
+  }
+});
+if (TEACHER_PROBLEM) Object.assign($("embed-run"), { disabled: true, title: TEACHER_PROBLEM });
 
 load();

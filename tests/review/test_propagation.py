@@ -163,3 +163,48 @@ def test_a_pass_stops_where_confidence_stays_low(
     ]
     assert "stopped forward at frame" in job["message"]
     assert np.isfinite(_propagated(session_factory)[ids[1]][0].scores["sam2_iou"])
+
+
+def test_a_runs_embeddings_are_precomputed_so_the_first_click_is_quick(
+    client: TestClient, make_user, session_factory, tmp_path
+) -> None:
+    _, token = make_user("embedder", Role.reviewer)
+    sequence_id, ids, _ = _run(client, token, 3)
+    started = client.post(f"/api/v1/sequences/{sequence_id}/embeddings", headers=auth(token))
+    assert started.status_code == 202, started.text
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=300)
+    assert job["status"] == "succeeded" and job["result"]["computed"] == 3
+    again = client.post(f"/api/v1/sequences/{sequence_id}/embeddings", headers=auth(token))
+    assert wait_for_job(client, again.json()["job_id"], token)["result"]["computed"] == 0
+    click = client.post(
+        f"/api/v1/frames/{ids[1]}/segment",
+        json={"points": [{"x": 48, "y": 32, "positive": True}]},
+        headers=auth(token),
+    )
+    assert click.status_code == 200 and click.json()["embedding"] in ("memory", "disk")
+    assert (
+        client.post("/api/v1/sequences/999999/embeddings", headers=auth(token)).status_code == 404
+    )
+
+    # A video import queues the same job for its run when SAM2's weights are here.
+    path = tmp_path / "run.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (96, 64))
+    for i in range(4):
+        writer.write(synth_frame(seed=500 + i, params=SIZE).image[:, :, None].repeat(3, 2))
+    writer.release()
+    upload = client.post(
+        "/api/v1/videos",
+        files={"file": ("run.avi", path.read_bytes(), "video/x-msvideo")},
+        data={"every_nth": "1"},
+        headers=auth(token),
+    )
+    assert upload.status_code == 202, upload.text
+    assert wait_for_job(client, upload.json()["job_id"], token)["status"] == "succeeded"
+    with session_factory() as session:
+        embed = session.scalars(
+            sa.select(Job).where(Job.kind == "embed").order_by(Job.id.desc())
+        ).first()
+        assert embed is not None and embed.params == {
+            "sequence_id": upload.json()["video"]["sequence_id"]
+        }
+    assert wait_for_job(client, embed.id, token)["result"]["computed"] == 4

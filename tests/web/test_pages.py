@@ -1009,6 +1009,8 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
         page.click("[data-testid=geometry-csv]")
     lines = Path(download.value.path()).read_text().splitlines()
     assert lines[0].startswith("frame_id,frame_index") and len(lines) == 6
+    page.click("[data-testid=embed-run]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('Embeddings ready')", timeout=60_000)
 
     # Open frame 4 from the strip: it shows where its mask came from; fix it and save.
     cells.nth(3).click()
