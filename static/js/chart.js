@@ -26,7 +26,8 @@ function format(value) {
 }
 
 /**
- * A line chart of `series` ([{name, colour, points: [[x, y], …]}]) as an <svg> element.
+ * A line chart of `series` ([{name, colour, points: [[x, y], …], dots?}]) as an <svg> element;
+ * a series with `dots` is drawn as markers only.
  * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data.
  */
 export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "", xLabel = "epoch", onPick = null }) {
@@ -59,6 +60,10 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   for (const s of series) {
     const points = s.points.filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
     if (!points.length) continue;
+    if (s.dots) { // separate observations (e.g. reviewed frames): markers, no line between them
+      for (const [x, y] of points) root.append(svg("circle", { cx: sx(x), cy: sy(y), r: 3.5, fill: s.colour, "data-series": s.name }));
+      continue;
+    }
     const d = points.map(([x, y], i) => `${i ? "L" : "M"}${sx(x).toFixed(1)},${sy(y).toFixed(1)}`).join("");
     root.append(svg("path", { d, class: "line", stroke: s.colour, "data-series": s.name }));
     const [lx, ly] = points[points.length - 1];

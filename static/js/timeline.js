@@ -55,8 +55,8 @@ function renderCharts() {
   const quantity = (title, key, unit) => lineChart({
     title, unit, xLabel, width: 420, height: 180, onPick,
     series: [
-      { name: "reviewed", colour: "#2f9e44", points: rows.map((r, i) => [x(r, i), r.source === "label" ? r[key] : NaN]) },
-      { name: "proposed", colour: "#1c7ed6", points: rows.map((r, i) => [x(r, i), r[key] ?? NaN]) },
+      { name: "every frame", colour: "#1c7ed6", points: rows.map((r, i) => [x(r, i), r[key] ?? NaN]) },
+      { name: "reviewed", colour: "#2f9e44", dots: true, points: rows.map((r, i) => [x(r, i), r.source === "label" ? r[key] ?? NaN : NaN]) },
     ],
   });
   const charts = mm

@@ -11,8 +11,8 @@ with memory attention and the mask decoder only. ``Sam2Propagator`` drives trans
 - No frame pixels are held: the session only knows how many frames the run has.
 - The memory bank is bounded: outputs of tracked frames further than SAM2 can look back (its
   memory frames, its object pointers) are dropped as the run goes on, except the few next to
-  where a pass started (the other direction's pass reads them). Memory does not grow with the
-  length of the run.
+  where a pass started (the other direction's pass reads them), and of the ones kept only what
+  later frames read (memory features, object pointer). Memory does not grow with the run.
 - Each frame's confidence is SAM2's own: the probability that the object is there (object
   score) times the predicted IoU of the mask it chose.
 """
@@ -218,6 +218,10 @@ class Sam2Propagator:
         """Drop tracked outputs SAM2 can no longer look back on (bounded memory), keeping the
         ones next to where this pass started (the other direction's pass reads them)."""
         tracked = session.output_dict_per_obj[obj_idx]["non_cond_frame_outputs"]
+        current = tracked.get(index)
+        if current is not None:  # read only in the step that made them (the caller has them)
+            current.pop("high_res_masks", None)
+            current.pop("pred_masks", None)
         for old in list(tracked):
             far_from_here = abs(old - index) > self.keep
             far_from_start = abs(old - start) > self.keep
