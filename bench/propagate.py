@@ -136,11 +136,10 @@ def main() -> None:
         next(items, None)
     flops = counter.get_total_flops()
 
-    # Memory held by the session after a short and a long run (same frames, cycled).
-    held = {
-        length: held_after(propagator, prompt, embeddings, length)
-        for length in (len(run), args.long)
-    }
+    # Memory held by the session after two runs longer than twice what SAM2 looks back on
+    # (its memory frames and object pointers): the same, however long the run.
+    lengths = (2 * propagator.keep + 8, args.long)
+    held = {length: held_after(propagator, prompt, embeddings, length) for length in lengths}
 
     floor_ms = 1000 * flops / (MATMUL_GFLOPS * 1e9)
     encode = statistics.median(encode_ms)

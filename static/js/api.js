@@ -95,3 +95,19 @@ export async function waitForJob(jobId, onUpdate = () => {}, intervalMs = 500) {
     await new Promise((resolve) => setTimeout(resolve, intervalMs));
   }
 }
+
+/**
+ * Start a job from a button and follow it there: the button is disabled and shows
+ * `${working} NN %` until the job ends, then gets its text back. Resolves with the finished job.
+ */
+export async function jobFromButton(button, start, working = "Working") {
+  const text = button.textContent;
+  button.disabled = true;
+  try {
+    const { job_id: jobId } = await start();
+    return await waitForJob(jobId, (job) => { button.textContent = `${working} ${Math.round(job.progress * 100)} %`; }, 1000);
+  } finally {
+    button.textContent = text;
+    button.disabled = false;
+  }
+}

@@ -1,7 +1,7 @@
 // The frames page: sequences, the filtered frame list (the review queue by default), uploads
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
-import { api, ApiError, isReviewer, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
+import { api, ApiError, isReviewer, jobFromButton, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
 import { count, decimal, everyNth } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 import { probeVideo } from "./video.js";
@@ -201,29 +201,21 @@ document.getElementById("teacher-selection").addEventListener("click", () => {
 // --- export -----------------------------------------------------------------------------------
 
 document.getElementById("export").addEventListener("click", async (event) => {
-  const button = event.currentTarget;
   const { sequence_id: sequenceId, split } = filters();
-  const format = document.getElementById("export-format").value;
-  const body = { format };
+  const body = { format: document.getElementById("export-format").value };
   if (sequenceId) body.sequence_id = Number(sequenceId);
   if (split) body.split = split;
-  button.disabled = true;
-  button.textContent = "Exporting…";
   try {
     // A job with progress (big sets take a while); its zip is then downloaded from the server.
-    const { job_id: jobId } = await api("/exports", { method: "POST", json: body });
-    const job = await waitForJob(jobId, (j) => { button.textContent = `Exporting ${Math.round(j.progress * 100)} %`; });
+    const job = await jobFromButton(event.currentTarget, () => api("/exports", { method: "POST", json: body }), "Exporting");
     if (job.status !== "succeeded") throw new Error(`The export job ${job.status}: ${job.error ?? ""}`);
-    const link = h("a", { href: `/api/v1/exports/${jobId}`, download: "", "data-testid": "export-link" });
+    const link = h("a", { href: `/api/v1/exports/${job.id}`, download: "", "data-testid": "export-link" });
     document.body.append(link);
     link.click();
     link.remove();
     toast(`Export ready (${job.message}).`, "ok");
   } catch (error) {
     toast(error.message, "error");
-  } finally {
-    button.disabled = false;
-    button.textContent = "Export";
   }
 });
 
@@ -254,6 +246,14 @@ function editSequence(sequence) {
 }
 
 document.getElementById("sequence-cancel").addEventListener("click", () => dialog.close());
+// Two points a known distance apart: the scale is that distance over its length in pixels.
+for (const id of ["scale-mm", "scale-px"]) {
+  document.getElementById(id).addEventListener("input", () => {
+    const mm = Number(document.getElementById("scale-mm").value);
+    const px = Number(document.getElementById("scale-px").value);
+    if (mm > 0 && px > 0) sequenceForm.elements.mm_per_px.value = String(Number((mm / px).toPrecision(6)));
+  });
+}
 sequenceForm.addEventListener("submit", async (event) => {
   event.preventDefault();
   const body = {};

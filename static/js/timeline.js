@@ -1,7 +1,7 @@
 // A weld run over time: a strip of its frames coloured by review status and confidence, the
 // pool's area, length and width over the run (a click opens that frame), and propagation.
 
-import { api, ApiError, TEACHER_PROBLEM, waitForJob } from "./api.js";
+import { api, ApiError, jobFromButton, TEACHER_PROBLEM } from "./api.js";
 import { lineChart } from "./chart.js";
 import { count, decimal } from "./format.js";
 import { h, toast } from "./ui.js";
@@ -87,6 +87,7 @@ function renderHead() {
   ].filter(Boolean);
   $("run-process").textContent = `${count(timeline.frames.length, "frame")}` + (parts.length ? ` · ${parts.join(" · ")}` : " · no process parameters yet");
   const reviewed = timeline.frames.filter((r) => r.source === "label" && r.area_px !== null);
+  Object.assign($("embed-run"), { disabled: Boolean(TEACHER_PROBLEM), title: TEACHER_PROBLEM || "Compute SAM2's embedding of every frame now, so that the first click on any frame is as quick as the later ones" });
   const button = $("propagate-run");
   button.disabled = reviewed.length === 0 || Boolean(TEACHER_PROBLEM);
   button.title = TEACHER_PROBLEM || (reviewed.length ? `Carry the ${count(reviewed.length, "reviewed mask")} of this run to its other frames (SAM2 video)` : "Accept or correct a frame of this run first: propagation starts from reviewed masks.");
@@ -106,53 +107,29 @@ async function load() {
   document.body.dataset.ready = "1";
 }
 
-$("propagate-run").addEventListener("click", async () => {
+/** A job started from one of the page's buttons; says how it ended. */
+async function runFromButton(button, start, working, done) {
+  try {
+    const job = await jobFromButton(button, start, working);
+    const ok = job.status === "succeeded";
+    $("job-state").textContent = ok ? `${done}: ${job.message}.` : `The job ${job.status}: ${job.error ?? job.message ?? ""}`;
+    toast($("job-state").textContent, ok ? "ok" : "error");
+    if (ok) await load();
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    renderHead();
+  }
+}
+
+$("propagate-run").addEventListener("click", () => {
   const from = timeline.frames.filter((r) => r.source === "label" && r.area_px !== null).map((r) => r.frame_id).slice(0, 64);
-  const button = $("propagate-run");
-  button.disabled = true;
-  try {
-    const { job_id: jobId } = await api(`/sequences/${SEQUENCE_ID}/propagate`, { method: "POST", json: { from_frame_ids: from, direction: "both" } });
-    const job = await waitForJob(jobId, (j) => { $("propagate-state").textContent = `Propagating: ${Math.round(j.progress * 100)} % — ${j.message ?? ""}`; }, 1000);
-    $("propagate-state").textContent = job.status === "succeeded" ? `Propagation done: ${job.message}` : `Propagation ${job.status}: ${job.error ?? job.message ?? ""}`;
-    toast($("propagate-state").textContent, job.status === "succeeded" ? "ok" : "error");
-    await $("embed-run").addEventListener("click", async () => {
-  const button = $("embed-run");
-  button.disabled = true;
-  try {
-    const { job_id: jobId } = await api(`/sequences/${SEQUENCE_ID}/embeddings`, { method: "POST" });
-    const job = await waitForJob(jobId, (j) => { button.textContent = `Embedding ${Math.round(j.progress * 100)} %`; }, 1000);
-    toast(job.status === "succeeded" ? `Embeddings ready: ${job.message}.` : `Embedding job ${job.status}: ${job.error ?? ""}`, job.status === "succeeded" ? "ok" : "error");
-  } catch (error) {
-    toast(error.message, "error");
-  } finally {
-    button.disabled = Boolean(TEACHER_PROBLEM);
-    button.textContent = "Precompute embeddings";
-  }
-});
-if (TEACHER_PROBLEM) Object.assign($("embed-run"), { disabled: true, title: TEACHER_PROBLEM });
-
-load();
-  } catch (error) {
-    toast(error.message, "error");
-  } finally {
-    button.disabled = false;
-  }
+  runFromButton($("propagate-run"), () => api(`/sequences/${SEQUENCE_ID}/propagate`, { method: "POST", json: { from_frame_ids: from, direction: "both" } }),
+    "Propagating", "Propagation done");
 });
 
-$("embed-run").addEventListener("click", async () => {
-  const button = $("embed-run");
-  button.disabled = true;
-  try {
-    const { job_id: jobId } = await api(`/sequences/${SEQUENCE_ID}/embeddings`, { method: "POST" });
-    const job = await waitForJob(jobId, (j) => { button.textContent = `Embedding ${Math.round(j.progress * 100)} %`; }, 1000);
-    toast(job.status === "succeeded" ? `Embeddings ready: ${job.message}.` : `Embedding job ${job.status}: ${job.error ?? ""}`, job.status === "succeeded" ? "ok" : "error");
-  } catch (error) {
-    toast(error.message, "error");
-  } finally {
-    button.disabled = Boolean(TEACHER_PROBLEM);
-    button.textContent = "Precompute embeddings";
-  }
+$("embed-run").addEventListener("click", () => {
+  runFromButton($("embed-run"), () => api(`/sequences/${SEQUENCE_ID}/embeddings`, { method: "POST" }), "Embedding", "Embeddings ready");
 });
-if (TEACHER_PROBLEM) Object.assign($("embed-run"), { disabled: true, title: TEACHER_PROBLEM });
 
 load();

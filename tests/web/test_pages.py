@@ -801,7 +801,10 @@ def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: Li
     page.fill("[data-testid=seq-voltage]", "22.5")
     page.fill("[data-testid=seq-current]", "180")
     page.fill("[data-testid=seq-speed]", "40")
-    page.fill("[data-testid=seq-scale]", "0.05")
+    # The scale from a known length: a 1.2 mm wire spans 24 px → 0.05 mm per pixel.
+    page.fill("[data-testid=scale-mm]", "1.2")
+    page.fill("[data-testid=scale-px]", "24")
+    assert page.input_value("[data-testid=seq-scale]") == "0.05"
     page.click("[data-testid=seq-save]")
     page.wait_for_selector("[data-testid=toast-ok]")
     stored = server.api("GET", f"/sequences/{sequence['id']}").json()

@@ -6,7 +6,7 @@
 // maskEdited, kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
 // are not the ones last loaded or saved.
 
-import { api, ApiError, isReviewer, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
+import { api, ApiError, isReviewer, jobFromButton, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { Stage } from "./stage.js";
@@ -921,20 +921,16 @@ function timelineNote() {
 }
 
 async function propagateFromHere() {
-  const button = $("propagate");
-  button.disabled = true;
+  const threshold = Math.min(1, Math.max(0, Number($("propagate-threshold").value) || 0));
+  const body = { from_frame_ids: [FRAME_ID], direction: $("propagate-direction").value, threshold };
   try {
-    const threshold = Math.min(1, Math.max(0, Number($("propagate-threshold").value) || 0));
-    const body = { from_frame_ids: [FRAME_ID], direction: $("propagate-direction").value, threshold };
-    const { job_id: jobId } = await api(`/sequences/${frame.sequence_id}/propagate`, { method: "POST", json: body });
-    const job = await waitForJob(jobId, (j) => { button.textContent = `Propagating ${Math.round(j.progress * 100)} %`; }, 1000);
+    const job = await jobFromButton($("propagate"), () => api(`/sequences/${frame.sequence_id}/propagate`, { method: "POST", json: body }), "Propagating");
     if (job.status !== "succeeded") throw new Error(`The propagation job ${job.status}: ${job.error ?? job.message ?? ""}`);
     $("propagate-note").replaceChildren(`${job.message}. `, h("a", { href: `/sequences/${frame.sequence_id}`, "data-testid": "timeline-link" }, "Open the run's timeline"), ".");
     toast(`Propagation done: ${job.message}.`, "ok");
   } catch (error) {
     toast(error.message, "error");
   } finally {
-    button.textContent = "Propagate from here";
     renderPropagate();
   }
 }
