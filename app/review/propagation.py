@@ -6,7 +6,8 @@
 - Image features come from the teacher's embedding cache, so frames the teacher has seen cost
   memory attention and decoding only.
 - Each frame's proposal is written in its own transaction, replacing the frame's earlier
-  propagated proposals (never a label): a cancelled run leaves whole proposals only.
+  propagated proposals (never a label, nor a proposal a label started from): a cancelled run
+  leaves whole proposals only.
 - Confidence is SAM2's object probability times its predicted IoU; a frame below the threshold
   is flagged, and a pass stops after ``STOP_AFTER`` such frames in a row, where the reviewer
   should prompt again (the job says where).
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError
-from app.models import Frame, FrameStatus, Label, LabelStatus, Proposal
+from app.models import Frame, FrameStatus, Label, LabelRevision, LabelStatus, Proposal
 from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
 from app.storage import Storage
 
@@ -96,8 +97,21 @@ def record(
     else:
         keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
         heatmap_path = store_heatmap(storage, result.heatmap)
+    # Earlier propagated proposals go, except those a label started from (its history).
+    started_from = sa.union(
+        sa.select(Label.proposal_id).where(
+            Label.frame_id == frame.id, Label.proposal_id.is_not(None)
+        ),
+        sa.select(LabelRevision.proposal_id).where(
+            LabelRevision.frame_id == frame.id, LabelRevision.proposal_id.is_not(None)
+        ),
+    )
     session.execute(
-        sa.delete(Proposal).where(Proposal.frame_id == frame.id, Proposal.source == SOURCE)
+        sa.delete(Proposal).where(
+            Proposal.frame_id == frame.id,
+            Proposal.source == SOURCE,
+            Proposal.id.not_in(started_from),
+        )
     )
     proposal = Proposal(
         frame_id=frame.id,

@@ -73,6 +73,15 @@ def test_propagate_from_a_reviewed_frame_then_again_downstream(
     sources = [row["source"] for row in timeline["frames"]]
     assert sources[2] == "label" and sources[5].startswith("propagated:")
 
+    # A reviewer accepts frame 5's propagated mask: the label records that proposal.
+    kept = first[ids[5]][0].id
+    accepted = client.put(
+        f"/api/v1/frames/{ids[5]}/label",
+        json={"status": "accepted", "base_revision": 0, "proposal_id": kept},
+        headers=auth(token),
+    )
+    assert accepted.status_code == 200 and accepted.json()["proposal_id"] == kept
+
     # Again from frame 4, forward: frames after it are replaced, the ones before are kept.
     again = client.post(
         f"/api/v1/sequences/{sequence_id}/propagate",
@@ -81,8 +90,13 @@ def test_propagate_from_a_reviewed_frame_then_again_downstream(
     )
     assert wait_for_job(client, again.json()["job_id"], token, timeout=300)["status"] == "succeeded"
     second = _propagated(session_factory)
-    assert all(len(items) == 1 for items in second.values())
-    assert second[ids[5]][0].scores["from_frame_id"] == ids[4]
+    assert all(len(items) == 1 for frame, items in second.items() if frame != ids[5])
+    newest = max(second[ids[5]], key=lambda p: p.id)
+    assert newest.scores["from_frame_id"] == ids[4]
+    # … except the proposal a label started from: kept, and the label still names it.
+    assert kept in {p.id for p in second[ids[5]]}
+    label = client.get(f"/api/v1/frames/{ids[5]}/label", headers=auth(token)).json()
+    assert label["proposal_id"] == kept
     assert second[ids[1]][0].id == first[ids[1]][0].id  # upstream: untouched
 
     # Bad starts are refused in one sentence, before any job.

@@ -99,3 +99,13 @@ def test_a_runs_geometry_comes_from_labels_else_the_proposal_shown(
 
     missing = client.get("/api/v1/sequences/999999/geometry", headers=auth(token))
     assert missing.status_code == 404
+
+
+def test_the_runs_travel_axis_is_the_median_of_undirected_axes() -> None:
+    """Axes are undirected: 178° and 2° are 4° apart, so the median of 178, 2 and 1 is near 1°,
+    not 2° (or 60°, their plain mean)."""
+    from app.timeline.service import _median_axis
+
+    assert _median_axis([178.0, 2.0, 1.0]) == pytest.approx(1.0, abs=0.01)
+    assert _median_axis([10.0, 12.0, 80.0]) == pytest.approx(12.0, abs=0.01)
+    assert _median_axis([]) is None

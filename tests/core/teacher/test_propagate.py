@@ -47,16 +47,28 @@ def _reference(propagator, predictor, frames, prompt_index, mask, reverse_too=Tr
     session.add_mask_inputs(obj_idx, prompt_index, propagator.mask_input(mask))
     session.obj_with_new_inputs = [1]
     model = propagator.model
+    ious: list[float] = []
+    hook = model.mask_decoder.register_forward_hook(
+        lambda _m, _i, outputs: ious.append(float(outputs[1].float().max()))
+    )
     out = {}
-    with torch.inference_mode():
-        model(session, frame_idx=prompt_index)
-        for step in model.propagate_in_video_iterator(session, start_frame_idx=prompt_index):
-            out[step.frame_idx] = step.pred_masks[0, 0].float().numpy()
-        if reverse_too:
-            for step in model.propagate_in_video_iterator(
-                session, start_frame_idx=prompt_index, reverse=True
-            ):
-                out[step.frame_idx] = step.pred_masks[0, 0].float().numpy()
+
+    def keep(step) -> None:  # type: ignore[no-untyped-def]
+        score = float(torch.sigmoid(step.object_score_logits.float().flatten()[0]))
+        out[step.frame_idx] = (step.pred_masks[0, 0].float().numpy(), score, ious[-1])
+
+    try:
+        with torch.inference_mode():
+            model(session, frame_idx=prompt_index)
+            for step in model.propagate_in_video_iterator(session, start_frame_idx=prompt_index):
+                keep(step)
+            if reverse_too:
+                for step in model.propagate_in_video_iterator(
+                    session, start_frame_idx=prompt_index, reverse=True
+                ):
+                    keep(step)
+    finally:
+        hook.remove()
     return out
 
 
@@ -70,8 +82,12 @@ def test_propagation_equals_transformers_video_loop(pair, run) -> None:
     assert propagator.keep == 4  # the 9 frames after the prompt run past what it keeps
     assert [m.index for m in ours] == [*range(4, 14), 2, 1, 0]  # forward first, then back
     for item in ours:
-        assert np.allclose(item.low_res_logits, reference[item.index], atol=2e-3), item.index
-        expected = reference[item.index]
+        expected, object_score, iou = reference[item.index]
+        assert np.allclose(item.low_res_logits, expected, atol=2e-3), item.index
+        # The confidence is SAM2's own, frame by frame: object probability × predicted IoU.
+        assert item.object_score == pytest.approx(object_score, abs=1e-4)
+        assert item.iou == pytest.approx(iou, abs=1e-4)
+        assert item.confidence == pytest.approx(object_score * iou, abs=1e-4)
         assert item.mask.shape == (64, 96)
         assert 0.0 <= item.object_score <= 1.0 and np.isfinite(item.iou)
         assert item.source_index == 3
