@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -43,32 +44,56 @@ class PoolGeometry:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class PoolShape:
+    """What the geometry needs from a mask, small enough to cache: its area, centroid, major
+    axis and the convex hull of its pixel centres (extents along any axis are the hull's)."""
+
+    area_px: int
+    centroid: tuple[float, float] | None
+    major_deg: float | None
+    hull: NDArray[np.float64]  # N × 2 (x, y)
+
+    def measure(self, travel_deg: float | None = None) -> PoolGeometry:
+        """The geometry along ``travel_deg`` (the major axis when None)."""
+        if self.centroid is None:
+            return PoolGeometry(0, None, None, None, travel_deg)
+        travel = self.major_deg if travel_deg is None else travel_deg
+        assert travel is not None
+        theta = math.radians(travel)
+        dx = self.hull[:, 0] - self.centroid[0]
+        dy = self.hull[:, 1] - self.centroid[1]
+        along = dx * math.cos(theta) + dy * math.sin(theta)
+        across = -dx * math.sin(theta) + dy * math.cos(theta)
+        # Pixel centres span one pixel less than the pixels do (exact along the image axes;
+        # within half a pixel at other angles).
+        return PoolGeometry(
+            area_px=self.area_px,
+            centroid=self.centroid,
+            length_px=float(along.max() - along.min() + 1.0),
+            width_px=float(across.max() - across.min() + 1.0),
+            travel_deg=float(travel),
+        )
+
+
+def pool_shape(mask: NDArray[np.bool_]) -> PoolShape:
+    """Area, centroid, major axis and hull of a mask (OpenCV's image moments and outer contours:
+    no per-pixel arrays)."""
+    binary = np.ascontiguousarray(mask, dtype=np.uint8)
+    moments = cv2.moments(binary, binaryImage=True)
+    area = round(moments["m00"])
+    if area == 0:
+        return PoolShape(0, None, None, np.zeros((0, 2)))
+    cx, cy = moments["m10"] / moments["m00"], moments["m01"] / moments["m00"]
+    # Central second moments → the direction of largest spread, in [0, 180) degrees.
+    major = math.degrees(0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"]))
+    # Extreme pixel centres lie on the outer boundaries: their hull is the mask's.
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    hull = cv2.convexHull(np.concatenate(contours)).reshape(-1, 2).astype(np.float64)
+    return PoolShape(area, (float(cx), float(cy)), major % 180.0, hull)
+
+
 def pool_geometry(mask: NDArray[np.bool_], travel_deg: float | None = None) -> PoolGeometry:
     """Area, centroid, length along ``travel_deg`` (the mask's major axis when None) and width
     across it, in pixels. An empty mask has area 0 and no other value."""
-    ys, xs = np.nonzero(mask)
-    if xs.size == 0:
-        return PoolGeometry(0, None, None, None, travel_deg)
-    x = xs.astype(np.float64)
-    y = ys.astype(np.float64)
-    cx, cy = float(x.mean()), float(y.mean())
-    if travel_deg is None:
-        travel_deg = _major_axis_deg(x - cx, y - cy)
-    theta = math.radians(travel_deg)
-    along = (x - cx) * math.cos(theta) + (y - cy) * math.sin(theta)
-    across = -(x - cx) * math.sin(theta) + (y - cy) * math.cos(theta)
-    # Pixel centres span one pixel less than the pixels do (exact along the image axes; within
-    # half a pixel at other angles).
-    return PoolGeometry(
-        area_px=int(xs.size),
-        centroid=(cx, cy),
-        length_px=float(along.max() - along.min() + 1.0),
-        width_px=float(across.max() - across.min() + 1.0),
-        travel_deg=float(travel_deg),
-    )
-
-
-def _major_axis_deg(dx: NDArray[np.float64], dy: NDArray[np.float64]) -> float:
-    """The direction of largest spread (second moments), in [0, 180) degrees."""
-    sxx, syy, sxy = float(np.mean(dx * dx)), float(np.mean(dy * dy)), float(np.mean(dx * dy))
-    return math.degrees(0.5 * math.atan2(2 * sxy, sxx - syy)) % 180.0
+    return pool_shape(mask).measure(travel_deg)

@@ -4,7 +4,8 @@ and the proposal's confidence.
 
 Length and width are measured along one travel axis for the whole run, so that they compare
 from frame to frame: the run's median of its masks' major axes (pools are longest along the
-weld). Geometry per mask file is cached in the process (mask files never change).
+weld). Each mask file is decoded once per process: its shape (area, centroid, axis, hull) is
+cached, and lengths along any axis come from the hull.
 """
 
 from __future__ import annotations
@@ -25,25 +26,26 @@ from app.models import Frame, Label, LabelStatus, Proposal
 from app.review import policy
 from app.review.service import load_mask
 from app.storage import Storage
-from weldpool_core.geometry import PoolGeometry, pool_geometry
+from weldpool_core.geometry import PoolShape, pool_shape
 
-_CACHE_SIZE = 20_000
+_CACHE_SIZE = 50_000
 _cache_lock = threading.Lock()
-_cache: OrderedDict[tuple[str, float | None], PoolGeometry] = OrderedDict()
+_cache: OrderedDict[str, PoolShape] = OrderedDict()
 
 
-def _geometry(storage: Storage, mask_path: str, travel_deg: float | None) -> PoolGeometry:
-    key = (str(storage.absolute(mask_path)), None if travel_deg is None else round(travel_deg, 3))
+def _shape(storage: Storage, mask_path: str) -> PoolShape:
+    """A mask file's shape (area, centroid, axis, hull), decoded once per process."""
+    key = str(storage.absolute(mask_path))
     with _cache_lock:
         if key in _cache:
             _cache.move_to_end(key)
             return _cache[key]
-    geometry = pool_geometry(load_mask(storage, mask_path), travel_deg)
+    shape = pool_shape(load_mask(storage, mask_path))
     with _cache_lock:
-        _cache[key] = geometry
+        _cache[key] = shape
         while len(_cache) > _CACHE_SIZE:
             _cache.popitem(last=False)
-    return geometry
+    return shape
 
 
 def _confidence(proposal: Proposal) -> float | None:
@@ -86,13 +88,11 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
         else:
             sources.append((frame, None, None, None))
 
-    axes = [
-        _geometry(storage, path, None).travel_deg for _, _, path, _ in sources if path is not None
-    ]
-    travel = _median_axis([a for a in axes if a is not None])
+    shapes = {path: _shape(storage, path) for _, _, path, _ in sources if path is not None}
+    travel = _median_axis([s.major_deg for s in shapes.values() if s.major_deg is not None])
     rows = []
     for frame, source, path, proposal in sources:
-        geometry = _geometry(storage, path, travel) if path is not None else None
+        geometry = shapes[path].measure(travel) if path is not None else None
         label = labels.get(frame.id)
         keypoints = (
             label.keypoints
