@@ -10,6 +10,8 @@ production. Steps, each timed, with a verdict:
    its embedding written to a disk cache.
 3. click from disk — a new cache on the same folder (another process's view): the embedding
    comes from disk, in the model's precision, and a click decodes from it.
+3b. propagate — SAM2's video model (from the same checkpoint) through 6 frames from the cached
+   embeddings, in the inference precision.
 4. train — a light student for a few steps on CUDA (synthetic frames).
 5. predict — the trained student on CUDA (autocast in the inference precision).
 6. export — ONNX and TorchScript of it, checked against PyTorch.
@@ -102,22 +104,25 @@ def main() -> int:
         root = Path(scratch)
         frame = _frame()
         sha = "gpu-check-" + str(frame.shape)
+        p_shape = (int(frame.shape[0]), int(frame.shape[1]))
 
         def load() -> str:
-            from transformers import Sam2Config, Sam2Model, ViTModel
+            from transformers import Sam2VideoConfig, Sam2VideoModel, ViTModel
 
             from weldpool_core.teacher.dino import dino_vits8_config
-            from weldpool_core.teacher.loader import load_dino, load_sam2
+            from weldpool_core.teacher.loader import load_dino, load_sam2, load_sam2_video
 
             torch.manual_seed(0)
             ViTModel(dino_vits8_config(), add_pooling_layer=False).save_pretrained(root / "dino")
-            Sam2Model(Sam2Config()).save_pretrained(root / "sam2")
+            # One SAM2 checkpoint for the image model and the video model, as the hub's.
+            Sam2VideoModel(Sam2VideoConfig()).save_pretrained(root / "sam2")
             state["sam2"] = load_sam2(str(root / "sam2"), str(device))
+            state["video"] = load_sam2_video(str(root / "sam2"), str(device))
             state["dino"] = load_dino(str(root / "dino"), str(device), 480)
-            got = state["sam2"].dtype
-            if got != dtype:
+            got = (state["sam2"].dtype, state["video"].dtype)
+            if got != (dtype, dtype):
                 raise AssertionError(f"SAM2 loaded in {got}, expected {dtype}")
-            return f"SAM2 {got}, identity {state['sam2'].cache_identity[-40:]}"
+            return f"SAM2 {got[0]}, identity {state['sam2'].cache_identity[-40:]}"
 
         def teacher() -> str:
             from weldpool_core.teacher.cache import EmbeddingCache
@@ -145,6 +150,39 @@ def main() -> int:
                 lambda: predictor.predict(embedding, prompts), args.runs, device
             )
             return f"{ms:.1f} ms/click, score {prediction.score:.2f}"
+
+        def propagate() -> str:
+            import numpy as np
+
+            from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding
+
+            frames = [np.roll(frame, 4 * i, axis=1) for i in range(6)]
+            cache = EmbeddingCache(root / "cache")
+            for i, picture in enumerate(frames):  # the teacher's cache, as propagation reads it
+                cached_embedding(state["sam2"], cache, f"p{i}", lambda p=picture: p, p_shape)
+            prompt = np.zeros(frame.shape[:2], bool)
+            prompt[300:500, 500:800] = True
+            times: list[float] = []
+
+            def run() -> list[Any]:
+                items, last = [], time.perf_counter()
+
+                def embed(i: int) -> Any:
+                    return cached_embedding(state["sam2"], cache, f"p{i}", None, p_shape)[0]
+
+                for item in state["video"].propagate(len(frames), {0: prompt}, embed, "forward"):
+                    _sync(device)
+                    times.append(1000 * (time.perf_counter() - last))
+                    items.append(item)
+                    last = time.perf_counter()
+                return items
+
+            run()  # warm-up
+            times.clear()
+            items = run()
+            confidence = min(item.confidence for item in items)
+            ms = statistics.median(times)
+            return f"{ms:.0f} ms/frame from cached embeddings, min confidence {confidence:.2f}"
 
         def train() -> str:
             from weldpool_core.io import to_rgb8
@@ -183,6 +221,7 @@ def main() -> int:
         step("load", load)
         step("teacher", teacher)
         step("click from disk", click_from_disk)
+        step("propagate", propagate)
         step("train", train)
         step("predict", predict)
         step("export", export)

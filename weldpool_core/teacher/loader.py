@@ -19,15 +19,23 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
     Raises WeightsUnavailableError when the weights are not on this machine.
     """
     from transformers import Sam2Model
+    from transformers.utils import logging as hf_logging
 
     from weldpool_core.device import inference_dtype, resolve_device
     from weldpool_core.teacher.weights import resolve_weights, weights_fingerprint
 
     torch_device = resolve_device(device)
     path = resolve_weights(ref, "WELDPOOL_SAM2")
-    model = Sam2Model.from_pretrained(
-        path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
-    )
+    # The image model from a video checkpoint (the hub's SAM2.1 are those) is expected: no
+    # "model of type sam2_video" warning on every load.
+    verbosity = hf_logging.get_verbosity()
+    hf_logging.set_verbosity(hf_logging.ERROR)
+    try:
+        model = Sam2Model.from_pretrained(
+            path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
+        )
+    finally:
+        hf_logging.set_verbosity(verbosity)
     return Sam2Predictor(model, torch_device, weights_id=f"{ref}#{weights_fingerprint(path)}")
 
 
