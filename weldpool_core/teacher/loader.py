@@ -8,6 +8,8 @@ load through here, so the device, the precision, the attention kernel and the we
 
 from __future__ import annotations
 
+import logging
+
 from weldpool_core.teacher.dino import DinoAttention
 from weldpool_core.teacher.propagate import Sam2Propagator
 from weldpool_core.teacher.sam2 import Sam2Predictor
@@ -29,7 +31,7 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
     # The image model from a video checkpoint (the hub's SAM2.1 are those) is expected: no
     # "model of type sam2_video" warning on every load.
     verbosity = hf_logging.get_verbosity()
-    hf_logging.set_verbosity(hf_logging.ERROR)
+    hf_logging.set_verbosity(logging.ERROR)
     try:
         model = Sam2Model.from_pretrained(
             path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
