@@ -146,3 +146,24 @@ def test_bad_prompts_are_refused(pair, run) -> None:
         list(propagator.propagate(5, {}, lambda i: predictor.set_image(frames[i])))
     with pytest.raises(InvalidInputError, match="not in the run"):
         list(propagator.propagate(5, {9: mask}, lambda i: predictor.set_image(frames[i])))
+
+
+def test_propagation_runs_in_bf16_as_on_a_gpu(run) -> None:
+    """The video model and the embeddings in bf16 (the GPU's inference precision): features,
+    prompt masks and the session follow the model's dtype; the masks agree with fp32."""
+    from tests.models import tiny_sam2_pair
+    from weldpool_core.teacher.propagate import Sam2Propagator
+    from weldpool_core.teacher.sam2 import Sam2Predictor
+
+    predictor, propagator = tiny_sam2_pair(seed=3)
+    frames, mask = run
+    reference = list(propagator.propagate(5, {0: mask}, lambda i: predictor.set_image(frames[i])))
+    half = Sam2Propagator(propagator.model.to(torch.bfloat16))
+    half_predictor = Sam2Predictor(predictor.model.to(torch.bfloat16))
+    assert half.dtype == half_predictor.dtype == torch.bfloat16
+    ours = list(half.propagate(5, {0: mask}, lambda i: half_predictor.set_image(frames[i])))
+    assert [m.index for m in ours] == [m.index for m in reference]
+    for a, b in zip(ours, reference, strict=True):
+        assert a.low_res_logits.dtype == np.float32 and np.isfinite(a.confidence)
+        agreement = np.mean((a.low_res_logits > 0) == (b.low_res_logits > 0))
+        assert agreement > 0.9, (a.index, agreement)
