@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import sqlalchemy as sa
@@ -27,6 +27,7 @@ from app.errors import InvalidInputError
 from app.models import Frame, FrameStatus, Label, LabelRevision, LabelStatus, Proposal
 from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
 from app.storage import Storage
+from weldpool_core.teacher.propagate import Direction, passes
 
 SOURCE = "propagated"
 STOP_AFTER = 3
@@ -163,13 +164,8 @@ def propagate_run(
     if until_frame_index is not None:
         indices = [f.frame_index if f.frame_index is not None else i for i, f in enumerate(frames)]
         until = min(range(len(frames)), key=lambda i: abs(indices[i] - until_frame_index))
-    start = min(prompts)
-    if direction == "both" or until is None:
-        planned = len(frames) - len(prompts)
-    elif direction == "forward":
-        planned = max(1, until - start)
-    else:
-        planned = max(1, start - until)
+    walk = passes(len(frames), prompts, cast(Direction, direction), until)
+    planned = len([i for order, _ in walk for i in order if i not in prompts])
     low_streak = {False: 0, True: 0}
     stopped: list[dict[str, Any]] = []
     flagged: list[int] = []
@@ -217,7 +213,7 @@ def propagate_run(
             job_id,
         )
         written += 1
-        progress(min(1.0, written / max(1, planned)), f"{written} of about {planned} frames")
+        progress(min(1.0, written / max(1, planned)), f"{written} of {planned} frames")
     return {
         "proposed": written,
         "low_confidence_frame_ids": flagged,

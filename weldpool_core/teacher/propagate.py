@@ -65,6 +65,24 @@ class _FrameCount(dict):  # type: ignore[type-arg]
         return self.count
 
 
+def passes(
+    count: int, prompts: dict[int, Any], direction: Direction, until: int | None = None
+) -> list[tuple[range, bool]]:
+    """The frame positions each pass walks, and whether it runs backward: forward from the
+    first prompt to ``until`` (or the end), backward from the first prompt (both directions) or
+    the last one (backward only) to ``until`` (or the start). Prompted frames are in the ranges
+    and get no mask of their own."""
+    first, last = min(prompts), max(prompts)
+    out: list[tuple[range, bool]] = []
+    if direction in ("forward", "both"):
+        end = count - 1 if until is None or direction == "both" else min(until, count - 1)
+        out.append((range(first, end + 1), False))
+    if direction in ("backward", "both"):
+        end = 0 if until is None or direction == "both" else max(until, 0)
+        out.append((range(first if direction == "both" else last, end - 1, -1), True))
+    return out
+
+
 class Sam2Propagator:
     """Owns a ``Sam2VideoModel``; ``propagate`` carries prompt masks through a run's frames."""
 
@@ -175,15 +193,8 @@ class Sam2Propagator:
             session.add_mask_inputs(obj_idx, index, self.mask_input(prompts[index]))
             session.obj_with_new_inputs = [OBJECT_ID]
             self.model(session, frame_idx=index)
-        first, last = min(prompts), max(prompts)
-        passes: list[tuple[range, bool]] = []
-        if direction in ("forward", "both"):
-            end = count - 1 if until is None or direction == "both" else min(until, count - 1)
-            passes.append((range(first, end + 1), False))
-        if direction in ("backward", "both"):
-            end = 0 if until is None or direction == "both" else max(until, 0)
-            passes.append((range(first if direction == "both" else last, end - 1, -1), True))
-        for order, reverse in passes:
+        first = min(prompts)
+        for order, reverse in passes(count, prompts, direction, until):
             start = order.start
             for index in order:
                 if index in prompts:
