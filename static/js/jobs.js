@@ -38,6 +38,8 @@ async function cancel(job) {
 /** What a job works on, in words, from its parameters. */
 function scope(job) {
   const p = job.params ?? {};
+  if (job.kind === "export") return `${p.format ?? ""} export${p.sequence_id ? ` of sequence #${p.sequence_id}` : ""}${p.split ? `, ${p.split}` : ""}`;
+  if (job.kind === "propagate") return `sequence #${p.sequence_id} from ${count(p.from_frame_ids?.length ?? 0, "frame")}, ${p.direction ?? "both"}`;
   if (Array.isArray(p.frame_ids)) return count(p.frame_ids.length, "frame");
   if (p.sequence_id) return `sequence #${p.sequence_id}`;
   if (p.video_id) return `video #${p.video_id}`;
