@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.helpers import real_label_masks
 from weldpool_core.geometry import pool_geometry
 from weldpool_core.io import read_mask
-
-REAL_LABELS = Path(__file__).resolve().parents[3] / "shared" / "data" / "waam" / "labels"
 
 
 def test_a_rectangle_along_x_is_as_long_and_wide_as_drawn() -> None:
@@ -58,10 +56,7 @@ def test_millimetres_follow_the_scale_and_an_empty_mask_has_no_pool() -> None:
 
 
 def test_real_pools_are_longer_than_wide_and_match_their_pixels() -> None:
-    files = sorted(REAL_LABELS.glob("*.png"))
-    if not files:
-        pytest.skip("../shared/data/waam/labels is absent (a fresh checkout has no ../shared)")
-    for path in files:
+    for path in real_label_masks():
         mask = read_mask(path)
         geometry = pool_geometry(mask)
         assert geometry.area_px == int(mask.sum())

@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
 from tests.core.shapes import pool_blob
+from tests.helpers import real_label_masks
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import read_mask
 from weldpool_core.outline import Polygon, fill_polygons, mask_polygons, normalised
-
-REAL_LABELS = Path(__file__).resolve().parents[3] / "shared" / "data" / "waam" / "labels"
 
 
 def ring_and_square() -> np.ndarray:
@@ -95,10 +92,7 @@ def test_bad_outlines_are_refused_in_one_sentence() -> None:
 
 
 def test_real_pool_masks_round_trip() -> None:
-    files = sorted(REAL_LABELS.glob("*.png"))
-    if not files:
-        pytest.skip("../shared/data/waam/labels is absent (a fresh checkout has no ../shared)")
-    for path in files:
+    for path in real_label_masks():
         mask = read_mask(path)
         assert np.array_equal(fill_polygons(mask_polygons(mask, 0), *mask.shape), mask), path.name
         simple = mask_polygons(mask, 1.0)

@@ -40,6 +40,17 @@ def add_frame(server: LiveServer, seed: int, *, teacher: bool = True) -> int:
     return frame_id
 
 
+def save_true_label(
+    server: LiveServer, frame_id: int, seed: int, width: int = 1280, height: int = 800
+) -> np.ndarray:
+    """Save a synthetic frame's true pool mask as its corrected label, as a reviewer would;
+    returns the mask."""
+    mask = synth_frame(seed=seed, params=SynthParams(width, height)).mask
+    saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(mask))
+    assert saved.status_code == 200, saved.text
+    return mask
+
+
 def stroke(page: Any, start: tuple[float, float], end: tuple[float, float]) -> None:
     page.mouse.move(*to_page(page, *start))
     page.mouse.down()
@@ -87,14 +98,12 @@ def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screens
     and the models page; written to test-artifacts/screenshots/."""
     seed = 7
     frame_id = add_frame(server, seed)
-    truth = synth_frame(seed=seed, params=SynthParams(1280, 800))
-    saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
-    assert saved.status_code == 200, saved.text
+    truth = save_true_label(server, frame_id, seed)
 
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{frame_id}")
     open_review(page)
-    assert canvas_data(page, "mask-area") == int(truth.mask.sum())
+    assert canvas_data(page, "mask-area") == int(truth.sum())
     assert len(canvas_data(page, "keypoints")) == 4
     page.wait_for_selector("[data-testid=label-history] .badge.corrected")
     page.screenshot(path=str(screenshots / "review.png"))
@@ -121,10 +130,7 @@ def test_models_page_shows_a_trained_version_and_promotes_it(
     returns it: its card, metrics, curves and the gate's verdict; then Promote through the
     real endpoint, forcing it when the gate refuses (both dialogs accepted)."""
     for seed in range(410, 414):
-        frame_id = add_frame(server, seed)
-        truth = synth_frame(seed=seed, params=SynthParams(1280, 800))
-        saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
-        assert saved.status_code == 200, saved.text
+        save_true_label(server, add_frame(server, seed), seed)
     job = server.api("POST", "/student/train", json={"epochs": 2}).json()
     assert server.wait_for_job(job["job_id"], timeout=300)["status"] == "succeeded"
     models = server.api("GET", "/models").json()
@@ -494,9 +500,7 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
     files = [("files", (f"q{i}.png", synthetic_png(500 + i), "image/png")) for i in range(3)]
     stored = server.api("POST", "/frames", files=files, data={"sequence_id": sequence["id"]})
     ids = [f["id"] for f in stored.json()["stored"]]
-    truth = synth_frame(seed=500, params=SynthParams(1280, 800))
-    done = server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask))
-    assert done.status_code == 200
+    truth = save_true_label(server, ids[0], 500)
 
     login(page, server, "rita")
     page.goto(f"{server.url}/?sequence_id={sequence['id']}")
@@ -527,7 +531,7 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
         page, "document.querySelector('[data-testid=page-info]').textContent === '1–3 of 3'"
     )
     for frame_id in ids[1:]:
-        saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask))
+        saved = server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth))
         assert saved.status_code == 200
     page.select_option("[data-testid=filter-status]", "unreviewed")
     page.wait_for_selector("[data-testid=frames-empty]")
@@ -678,11 +682,7 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
     frame_id = server.api(
         "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
     ).json()["stored"][0]["id"]
-    truth = synth_frame(seed=640, params=SynthParams(1280, 800))
-    assert (
-        server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(truth.mask)).status_code
-        == 200
-    )
+    truth = save_true_label(server, frame_id, 640)
 
     login(page, server, "anna")
     page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
@@ -699,7 +699,7 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
             "counts": coco["annotations"][0]["segmentation"]["counts"].encode(),
         }
     ).astype(bool)
-    assert np.array_equal(back, truth.mask)
+    assert np.array_equal(back, truth)
     # The same menu, YOLO segmentation: the frame's region as one polygon line.
     page.select_option("[data-testid=export-format]", "yolo")
     with page.expect_download() as download:
@@ -729,11 +729,7 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
             "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
         ).json()["stored"]
     ]
-    truth = synth_frame(seed=650, params=SynthParams(1280, 800))
-    assert (
-        server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask)).status_code
-        == 200
-    )
+    save_true_label(server, ids[0], 650)
 
     login(page, server, "anna")
     page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
@@ -986,9 +982,7 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
             "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
         ).json()["stored"]
     ]
-    truth = synth_frame(seed=900, params=SynthParams(320, 200))
-    saved = server.api("PUT", f"/frames/{ids[0]}/label", json=corrected_label(truth.mask))
-    assert saved.status_code == 200
+    save_true_label(server, ids[0], 900, 320, 200)
 
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{ids[0]}")
@@ -1014,6 +1008,9 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
     assert lines[0].startswith("frame_id,frame_index") and len(lines) == 6
     page.click("[data-testid=embed-run]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('Embeddings ready')", timeout=60_000)
+    page.click("[data-testid=propagate-run]")  # from every reviewed frame of the run
+    page.wait_for_selector("[data-testid=job-state]:has-text('Propagation done')", timeout=120_000)
+    assert page.locator("[data-testid=strip-cell]").count() == 5
 
     # Open frame 4 from the strip: it shows where its mask came from; fix it and save.
     cells.nth(3).click()
