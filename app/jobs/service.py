@@ -88,19 +88,24 @@ def cancel_job(session: Session, job_id: int, user: User) -> Job:
             f"Job {job_id} was started by someone else; only they, a reviewer or an admin may "
             "cancel it."
         )
-    if job.status == JobStatus.queued:
+    # Two conditional updates, not a read then a write: the worker may claim a queued job
+    # between the two, and then the request to stop must still reach the running job.
+    cancelled = session.execute(
+        sa.update(Job)
+        .where(Job.id == job_id, Job.status == JobStatus.queued)
+        .values(
+            status=JobStatus.cancelled,
+            cancel_requested=True,
+            finished_at=utcnow(),
+            message="cancelled before it started",
+        )
+    )
+    if not cancelled.rowcount:  # type: ignore[attr-defined]
         session.execute(
             sa.update(Job)
-            .where(Job.id == job_id, Job.status == JobStatus.queued)
-            .values(
-                status=JobStatus.cancelled,
-                cancel_requested=True,
-                finished_at=utcnow(),
-                message="cancelled before it started",
-            )
+            .where(Job.id == job_id, Job.status == JobStatus.running)
+            .values(cancel_requested=True)
         )
-    elif job.status == JobStatus.running:
-        job.cancel_requested = True
     session.commit()
     session.refresh(job)
     return job

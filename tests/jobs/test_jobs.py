@@ -13,8 +13,8 @@ from app.config import Settings
 from app.db import utcnow
 from app.jobs.registry import JobContext, job_handler
 from app.jobs.runner import execute_job, reap_lost_jobs
-from app.jobs.service import create_job
-from app.models import Job, JobStatus, Role
+from app.jobs.service import cancel_job, create_job
+from app.models import Job, JobStatus, Role, User
 from tests.helpers import auth, wait_for, wait_for_job
 
 release = threading.Event()
@@ -134,6 +134,26 @@ def test_an_annotator_cancels_only_their_own_jobs(
         assert other.id != mine.id
     finally:
         release.set()
+
+
+def test_cancel_reaches_a_job_the_worker_claimed_in_between(session_factory, make_user) -> None:
+    """The page read the job as queued; the worker claimed it before the cancel wrote."""
+    user, _ = make_user("ann")
+    with session_factory() as seen, session_factory() as worker:
+        job = Job(kind="test-wait", status=JobStatus.queued, created_by_id=user.id)
+        seen.add(job)
+        seen.commit()
+        assert seen.get_one(Job, job.id).status == JobStatus.queued  # cached as queued
+        worker.execute(
+            sa.update(Job)
+            .where(Job.id == job.id)
+            .values(status=JobStatus.running, worker_id="w:1:a", attempts=1)
+        )
+        worker.commit()
+        cancel_job(seen, job.id, seen.get_one(User, user.id))
+    with session_factory() as session:
+        row = session.get_one(Job, job.id)
+        assert (row.status, row.cancel_requested) == (JobStatus.running, True)
 
 
 def test_unknown_job_is_404(client: TestClient, make_user) -> None:
