@@ -53,6 +53,8 @@ class PoolShape:
     centroid: tuple[float, float] | None
     major_deg: float | None
     hull: NDArray[np.float64]  # N × 2 (x, y)
+    pixel: float = 1.0
+    """The size of one mask pixel in the coordinates of centroid and hull (1: the mask's own)."""
 
     def measure(self, travel_deg: float | None = None) -> PoolGeometry:
         """The geometry along ``travel_deg`` (the major axis when None)."""
@@ -70,27 +72,40 @@ class PoolShape:
         return PoolGeometry(
             area_px=self.area_px,
             centroid=self.centroid,
-            length_px=float(along.max() - along.min() + 1.0),
-            width_px=float(across.max() - across.min() + 1.0),
+            length_px=float(along.max() - along.min() + self.pixel),
+            width_px=float(across.max() - across.min() + self.pixel),
             travel_deg=float(travel),
         )
 
 
-def pool_shape(mask: NDArray[np.bool_]) -> PoolShape:
+def pool_shape(
+    mask: NDArray[np.bool_],
+    origin: tuple[float, float] = (0.0, 0.0),
+    pixel: tuple[float, float] = (1.0, 1.0),
+) -> PoolShape:
     """Area, centroid, major axis and hull of a mask (OpenCV's image moments and outer contours:
-    no per-pixel arrays)."""
+    no per-pixel arrays).
+
+    ``origin`` and ``pixel`` place the mask in other coordinates: mask pixel (i, j) has its centre
+    at ``origin + (j·pixel_x, i·pixel_y)`` — a model's low-resolution mask measured in frame
+    pixels. Area, centroid, axis and hull follow; lengths are then exact for a square pixel.
+    """
     binary = np.ascontiguousarray(mask, dtype=np.uint8)
     moments = cv2.moments(binary, binaryImage=True)
-    area = round(moments["m00"])
-    if area == 0:
-        return PoolShape(0, None, None, np.zeros((0, 2)))
-    cx, cy = moments["m10"] / moments["m00"], moments["m01"] / moments["m00"]
+    px, py = pixel
+    area = round(moments["m00"] * px * py)
+    if moments["m00"] == 0:
+        return PoolShape(0, None, None, np.zeros((0, 2)), pixel=0.5 * (px + py))
+    cx = origin[0] + px * moments["m10"] / moments["m00"]
+    cy = origin[1] + py * moments["m01"] / moments["m00"]
     # Central second moments → the direction of largest spread, in [0, 180) degrees.
-    major = math.degrees(0.5 * math.atan2(2 * moments["mu11"], moments["mu20"] - moments["mu02"]))
+    mu11, mu20, mu02 = moments["mu11"] * px * py, moments["mu20"] * px**2, moments["mu02"] * py**2
+    major = math.degrees(0.5 * math.atan2(2 * mu11, mu20 - mu02))
     # Extreme pixel centres lie on the outer boundaries: their hull is the mask's.
     contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     hull = cv2.convexHull(np.concatenate(contours)).reshape(-1, 2).astype(np.float64)
-    return PoolShape(area, (float(cx), float(cy)), major % 180.0, hull)
+    hull = hull * np.array([px, py]) + np.array(origin)
+    return PoolShape(area, (float(cx), float(cy)), major % 180.0, hull, pixel=0.5 * (px + py))
 
 
 def pool_geometry(mask: NDArray[np.bool_], travel_deg: float | None = None) -> PoolGeometry:

@@ -1,7 +1,17 @@
 """The ``weldpool`` command line (``app.cli:main``): one module per domain registers its
 commands on the group defined in ``base``."""
 
-from app.cli import evaluation, frames, review, service, student, teacher, users
+from app.cli import evaluation, frames, review, service, stream, student, teacher, users
 from app.cli.base import main
 
-__all__ = ["evaluation", "frames", "main", "review", "service", "student", "teacher", "users"]
+__all__ = [
+    "evaluation",
+    "frames",
+    "main",
+    "review",
+    "service",
+    "stream",
+    "student",
+    "teacher",
+    "users",
+]

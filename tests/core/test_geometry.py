@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import real_label_masks
-from weldpool_core.geometry import pool_geometry
+from weldpool_core.geometry import pool_geometry, pool_shape
 from weldpool_core.io import read_mask
 
 
@@ -41,6 +41,27 @@ def test_a_rotated_ellipse_has_its_axes_as_length_and_width(angle: float) -> Non
     # Measured across the pool instead, the numbers swap.
     across = pool_geometry(mask, travel_deg=angle + 90)
     assert across.length_px == pytest.approx(81, abs=2.5)
+
+
+@pytest.mark.parametrize("angle", [20.0, 110.0])
+def test_a_small_mask_placed_in_frame_pixels_measures_like_the_full_one(angle: float) -> None:
+    """A model's 4× smaller (and, with a resized input, non-square) mask, measured in frame
+    pixels, gives the full-resolution geometry: scale, offset and axes each matter."""
+    full = np.zeros((400, 640), np.uint8)
+    cv2.ellipse(full, (330, 190), (150, 50), angle, 0, 360, 1, -1)
+    truth = pool_geometry(full.astype(bool))
+    for sx, sy in [(0.25, 0.25), (0.25, 0.4)]:
+        small = cv2.resize(full, None, fx=sx, fy=sy, interpolation=cv2.INTER_NEAREST).astype(bool)
+        # pixel centre (j, i) of the small mask is frame point ((j + 0.5) / sx − 0.5, …)
+        origin = (0.5 / sx - 0.5, 0.5 / sy - 0.5)
+        placed = pool_shape(small, origin=origin, pixel=(1 / sx, 1 / sy)).measure()
+        assert placed.area_px == pytest.approx(truth.area_px, rel=0.03)
+        assert placed.centroid == pytest.approx(truth.centroid, abs=2.0)
+        assert (placed.travel_deg - truth.travel_deg + 90) % 180 - 90 == pytest.approx(0, abs=2)
+        assert placed.length_px == pytest.approx(truth.length_px, abs=4.0)
+        assert placed.width_px == pytest.approx(truth.width_px, abs=4.0)
+    unplaced = pool_shape(small).measure()
+    assert unplaced.length_px < 0.5 * truth.length_px  # without the placement: model pixels
 
 
 def test_millimetres_follow_the_scale_and_an_empty_mask_has_no_pool() -> None:

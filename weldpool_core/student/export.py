@@ -112,16 +112,28 @@ def export_torchscript(model: ResNetVAE, path: Path) -> None:
     checkpoint.write_atomic(path, lambda p: traced.save(str(p)))
 
 
-def run_onnx(path: Path, images: np.ndarray[Any, Any], threads: int | None = None) -> list[Any]:
-    """ONNX Runtime's (mask, heatmap) for an N×3×S×S float32 batch, on the CPU."""
+def onnx_session(path: Path, threads: int | None = None, spin: bool = True) -> Any:
+    """An ONNX Runtime session for a student file on the CPU (all graph optimisations on).
+
+    ``threads``: intra-op threads (None: ONNX Runtime's default, one per core). ``spin``: let
+    idle threads busy-wait for the next run (faster back-to-back batches; off where another
+    thread, such as a video decoder, needs the cores between runs).
+    """
     import onnxruntime as ort
 
     options = ort.SessionOptions()
+    if not spin:
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     if threads:
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def run_onnx(path: Path, images: np.ndarray[Any, Any], threads: int | None = None) -> list[Any]:
+    """ONNX Runtime's (mask, heatmap) for an N×3×S×S float32 batch, on the CPU."""
+    session = onnx_session(path, threads)
     return list(session.run(None, {"image": images.astype(np.float32)}))
 
 

@@ -114,6 +114,21 @@ def mode_distance(mask_probability: NDArray[np.float32], k: int) -> float:
     return max(MIN_MODE_DISTANCE, 0.5 * HeatmapParams(k=k).separation * perimeter)
 
 
+def frame_keypoints(
+    mask_probability: NDArray[np.float32],
+    heatmap: NDArray[np.float32],
+    geometry: FrameGeometry,
+    k: int,
+) -> NDArray[np.float64]:
+    """The heatmap's modes of one frame's S×S outputs, in full-resolution frame pixels."""
+    rows, columns = geometry.inner_rows, geometry.inner_columns
+    inner = np.stack([heatmap[rows, columns], mask_probability[rows, columns]], axis=2)
+    params = ModeParams(min_distance=mode_distance(inner[:, :, 1], k))
+    modes = keypoints_from_heatmap(inner, k=k, params=params)
+    offset = np.array([geometry.offset_x, geometry.offset_y], np.float64)
+    return geometry.to_frame(modes + offset) if len(modes) else modes
+
+
 def to_frame(
     mask_probability: NDArray[np.float32],
     heatmap: NDArray[np.float32],
@@ -122,12 +137,7 @@ def to_frame(
     uncertainty: float | None = None,
 ) -> StudentPrediction:
     """Map one frame's S×S outputs (mask probability, heatmap) back to its full resolution."""
-    rows, columns = geometry.inner_rows, geometry.inner_columns
-    inner = np.stack([heatmap[rows, columns], mask_probability[rows, columns]], axis=2)
-    params = ModeParams(min_distance=mode_distance(inner[:, :, 1], k))
-    modes = keypoints_from_heatmap(inner, k=k, params=params)
-    offset = np.array([geometry.offset_x, geometry.offset_y], np.float64)
-    keypoints = geometry.to_frame(modes + offset) if len(modes) else modes
+    keypoints = frame_keypoints(mask_probability, heatmap, geometry, k)
     full = np.asarray(geometry.map_to_frame(np.stack([heatmap, mask_probability], axis=2)))
     full = np.clip(full, 0, 1).astype(np.float32)
     return StudentPrediction(full[:, :, 1] >= 0.5, full, keypoints, uncertainty)
@@ -283,10 +293,11 @@ class StudentPredictor:
             results.extend(self._predict_batch(chunk, samples))
         return results
 
-    def _predict_batch(
-        self, images: Sequence[NDArray[Any]], samples: int
-    ) -> list[StudentPrediction]:
-        batch, geometries = frames_to_batch(images, self.config)
+    def outputs(
+        self, batch: torch.Tensor, samples: int = 0, geometries: Sequence[FrameGeometry] = ()
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], list[dict[str, float | None] | None]]:
+        """Model-resolution outputs of an N×3×S×S batch in [0, 1]: mask probability and heatmap
+        (N×S×S each), and with ``samples`` > 0 each frame's uncertainty parts (else None)."""
         batch = batch.to(self.device).contiguous(memory_format=torch.channels_last)
         autocast = torch.autocast(self.device.type, self.dtype, enabled=self.dtype != torch.float32)
         with torch.inference_mode(), autocast:
@@ -294,10 +305,10 @@ class StudentPredictor:
             mean, _ = self.model.posterior(features)
             mask_logits, heatmap_logits = self.model.decode(mean)
             masks_t = torch.sigmoid(mask_logits.float())
-            parts: list[dict[str, float | None] | None] = [None] * len(geometries)
+            parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
                 spread = tta_disagreement(self.model, batch, masks_t, samples, geometries)
-                novel: list[float | None] = [None] * len(geometries)
+                novel: list[float | None] = [None] * len(batch)
                 known = self.training_codes
                 codes = frame_codes(features)
                 if known is not None and codes.shape[1] == known.codes.shape[1]:
@@ -307,6 +318,13 @@ class StudentPredictor:
                 ]
         masks = masks_t.cpu().numpy()
         heatmaps = torch.sigmoid(heatmap_logits.float()).cpu().numpy()
+        return masks, heatmaps, parts
+
+    def _predict_batch(
+        self, images: Sequence[NDArray[Any]], samples: int
+    ) -> list[StudentPrediction]:
+        batch, geometries = frames_to_batch(images, self.config)
+        masks, heatmaps, parts = self.outputs(batch, samples, geometries)
         results = []
         for i, geometry in enumerate(geometries):
             found = to_frame(masks[i], heatmaps[i], geometry, self.config.k)

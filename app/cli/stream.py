@@ -1,0 +1,183 @@
+"""``weldpool stream``: the student on a camera, a URL or a video, one JSON line per frame."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import IO, Any
+
+import click
+
+from app.cli.base import fail, friendly_errors, load_settings, main, open_sessions
+from app.errors import WeldpoolError
+
+
+def promoted_model_dir() -> Path:
+    """The promoted student's folder in this home's database."""
+    from app.training.service import promoted_model
+
+    with open_sessions(load_settings())() as session:
+        model = promoted_model(session)
+        if model is None or not model.checkpoint_path:
+            raise WeldpoolError(
+                "No student is promoted yet; train and promote one, or give --model MODEL_DIR."
+            )
+        return Path(model.checkpoint_path)
+
+
+def ensure_onnx(model_dir: Path) -> None:
+    """Export MODEL_DIR's ONNX file if it is missing (checked against PyTorch; said on stderr)."""
+    from weldpool_core.student.export import ONNX_FILE, export_student
+
+    if not (model_dir / ONNX_FILE).is_file():
+        click.echo(f"exporting {model_dir / ONNX_FILE} for ONNX Runtime …", err=True)
+        export_student(model_dir, ["onnx"])
+
+
+@main.command("stream")
+@click.argument("source")
+@click.option(
+    "--model",
+    "model",
+    default="promoted",
+    show_default=True,
+    help="A student's MODEL_DIR, or 'promoted' for this home's promoted version.",
+)
+@click.option("--backend", type=click.Choice(["onnx", "torch"]), default="onnx", show_default=True)
+@click.option("--device", default="auto", show_default=True, help="For torch: cpu, cuda, auto.")
+@click.option("--threads", type=click.IntRange(min=1), help="Inference threads (default: all).")
+@click.option(
+    "--publish", metavar="ADDRESS", help="ZeroMQ address to publish on, e.g. tcp://127.0.0.1:5556."
+)
+@click.option(
+    "--wait-for-subscriber",
+    type=click.FloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    help="With --publish: seconds to wait for a subscriber before the first frame.",
+)
+@click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--quiet", is_flag=True, help="No JSON lines on stdout (use --publish or --record).")
+@click.option(
+    "--smooth",
+    type=click.Choice(["none", "one-euro"]),
+    default="one-euro",
+    show_default=True,
+    help="Temporal filter on keypoint tracks (keypoints_raw keeps the per-frame ones).",
+)
+@click.option("--min-cutoff", type=click.FloatRange(min=0.001), default=None, help="one-euro, Hz.")
+@click.option("--beta", type=click.FloatRange(min=0), default=None, help="one-euro speed factor.")
+@click.option("--mm-per-px", type=click.FloatRange(min=0, min_open=True), help="Scale for mm.")
+@click.option("--travel-deg", type=float, help="Travel direction (0° right, 90° down).")
+@click.option(
+    "--samples",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Test-time passes for the uncertainty (torch backend; slower).",
+)
+@click.option("--realtime", is_flag=True, help="Read a file at its frame rate, dropping stale.")
+@click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
+@friendly_errors
+def stream_cmd(
+    source: str,
+    model: str,
+    backend: str,
+    device: str,
+    threads: int | None,
+    publish: str | None,
+    wait_for_subscriber: float,
+    record_path: Path | None,
+    quiet: bool,
+    smooth: str,
+    min_cutoff: float | None,
+    beta: float | None,
+    mm_per_px: float | None,
+    travel_deg: float | None,
+    samples: int,
+    realtime: bool,
+    max_frames: int | None,
+) -> None:
+    """Run a student on SOURCE (a video file, a camera index such as 0, or an RTSP/HTTP URL) and
+    emit one JSON line per frame: keypoints, pool area / length / width, ambiguity, latency.
+
+    A live source keeps up by dropping stale frames (each record says how many were dropped
+    before it); a file is read frame by frame unless --realtime. A summary (fps, p50 / p99
+    latency) goes to stderr at the end; Ctrl-C stops cleanly.
+    """
+    from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
+    from weldpool_core.stream import FrameSource, Publisher, StreamStudent, run_stream, summary
+
+    model_dir = promoted_model_dir() if model == "promoted" else Path(model)
+    if not model_dir.is_dir():
+        fail(f"There is no student folder {str(model_dir)!r}.")
+    if samples and backend != "torch":
+        fail("--samples needs --backend torch (the uncertainty runs test-time passes in PyTorch).")
+    if backend == "onnx":
+        ensure_onnx(model_dir)
+    student = StreamStudent(model_dir, backend, device, threads)
+    smoother = None
+    if smooth == "one-euro":
+        params = SmoothingParams()
+        params = replace(params, min_cutoff=params.min_cutoff if min_cutoff is None else min_cutoff)
+        params = replace(params, beta=params.beta if beta is None else beta)
+        smoother = KeypointSmoother(student.config.k, params)
+    publisher = Publisher(publish) if publish else None
+    record_file: IO[str] | None = None
+    latencies: list[float] = []
+    frames = dropped = 0
+    started = time.perf_counter()
+    try:
+        lonely = (
+            publisher is not None
+            and wait_for_subscriber > 0
+            and not publisher.wait_for_subscriber(wait_for_subscriber)
+        )
+        if lonely:
+            click.echo(f"no subscriber after {wait_for_subscriber:g} s; publishing", err=True)
+        if record_path is not None:
+            record_file = record_path.open("w", encoding="utf-8")
+        with FrameSource(
+            source, realtime=realtime, max_frames=max_frames, prepare=student.prepare
+        ) as frames_in:
+            started = time.perf_counter()
+            for result in run_stream(
+                frames_in,
+                student,
+                smoother=smoother,
+                mm_per_px=mm_per_px,
+                travel_deg=travel_deg,
+                samples=samples,
+            ):
+                _emit(result.record, quiet, publisher, record_file)
+                frames += 1
+                dropped += result.record["dropped"]
+                latencies.append(result.record["latency_ms"])
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if publisher is not None:
+            publisher.close()
+        if record_file is not None:
+            record_file.close()
+    report: dict[str, Any] = {
+        "source": source,
+        "model": str(model_dir),
+        "backend": backend,
+        **summary(latencies, frames, dropped, time.perf_counter() - started),
+    }
+    click.echo(json.dumps(report), err=True)
+
+
+def _emit(record: dict[str, Any], quiet: bool, publisher: Any, record_file: IO[str] | None) -> None:
+    line = json.dumps(record, separators=(",", ":"))
+    if not quiet:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
+    if publisher is not None:
+        publisher.send(record)
+    if record_file is not None:
+        record_file.write(line + "\n")

@@ -1,0 +1,212 @@
+"""Live inference: sources that keep up by dropping, records in frame pixels, two backends alike."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import zmq
+
+from tests.core.student.common import TINY_STUDENT
+from tests.helpers import REPO, run_cli
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.smoothing import KeypointSmoother
+from weldpool_core.stream import (
+    CapturedFrame,
+    FrameSource,
+    StreamStudent,
+    analyse,
+    parse_source,
+    record_fields,
+    run_stream,
+)
+from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.export import export_student
+from weldpool_core.student.train import TrainResult
+from weldpool_core.synth import SynthParams, synth_frame
+
+
+def write_video(
+    path: Path, count: int, fps: float = 20.0, size: tuple[int, int] = (96, 64)
+) -> Path:
+    """An MJPEG AVI of synthetic weld frames; frame i's top-left pixels hold 6·i (its index)."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
+    for index in range(count):
+        frame = synth_frame(index % 3, SynthParams(width=size[0], height=size[1])).image
+        bgr = cv2.cvtColor(np.asarray(frame, np.uint8), cv2.COLOR_RGB2BGR)
+        bgr[:8, :8] = 6 * index
+        writer.write(bgr)
+    writer.release()
+    return path
+
+
+def _index_of(frame: CapturedFrame) -> int:
+    return round(float(frame.bgr[2:6, 2:6].mean()) / 6)
+
+
+def test_sources_are_told_apart_and_a_missing_file_is_one_sentence(tmp_path: Path) -> None:
+    assert parse_source("0") == (0, True)
+    assert parse_source("rtsp://cell-3.local/stream") == ("rtsp://cell-3.local/stream", True)
+    video = write_video(tmp_path / "run.avi", 2)
+    assert parse_source(str(video)) == (str(video), False)
+    with pytest.raises(InvalidInputError, match="no video file"):
+        parse_source(str(tmp_path / "absent.mp4"))
+    (tmp_path / "notes.txt").write_text("not a video")
+    with pytest.raises(InvalidInputError, match="cannot open"):
+        FrameSource(str(tmp_path / "notes.txt"))
+
+
+def test_a_file_gives_every_frame_in_order_with_its_recording_time(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "run.avi", 12, fps=20.0)
+    with FrameSource(str(video)) as source:
+        frames = list(source)
+    assert [f.index for f in frames] == list(range(12))
+    assert [_index_of(f) for f in frames] == list(range(12))  # the pixels are that frame's
+    assert [f.time_s for f in frames] == pytest.approx([i / 20.0 for i in range(12)])
+    assert sum(f.dropped for f in frames) == 0 and frames[0].bgr.shape == (64, 96, 3)
+
+
+def test_a_live_source_drops_stale_frames_and_says_how_many(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "run.avi", 40, fps=100.0)
+    delivered = []
+    with FrameSource(str(video), realtime=True) as source:
+        for frame in source:
+            delivered.append(frame)
+            time.sleep(0.05)  # inference five times slower than the camera
+    assert source.read_count == 40 and source.dropped > 10
+    assert len(delivered) + sum(f.dropped for f in delivered) == 40
+    for before, after in itertools.pairwise(delivered):
+        assert after.index - before.index - 1 == after.dropped  # each gap is counted
+        assert _index_of(after) == after.index  # the newest frame, not an old one
+
+
+def test_a_record_is_in_frame_pixels_and_millimetres() -> None:
+    """Known outputs on a 64² letterboxed input of a 160×100 frame: the record's numbers are the
+    frame's, so a lost offset, scale or swapped axis shows."""
+    config = TINY_STUDENT
+    geometry = FrameGeometry.fit(100, 160, 64, "letterbox")  # inner 64×40, offset y 12
+    assert (geometry.offset_x, geometry.offset_y) == (0, 12)
+    mask = np.zeros((64, 64), np.float32)
+    mask[14:38, 8:56] = 1.0  # input rows 14..37 → frame rows 5..64, cols 8..55 → 20..139
+    corners = np.array([[9, 15], [54, 15], [54, 36], [9, 36]], float)
+    heatmap = np.zeros((64, 64), np.float32)
+    yy, xx = np.mgrid[0:64, 0:64]
+    for x, y in corners:
+        heatmap += np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2.0).astype(np.float32)
+    frame = CapturedFrame(0, 0.0, 0.0, np.zeros((100, 160, 3), np.uint8))
+    record = analyse(frame, mask, heatmap, geometry, config, mm_per_px=0.05, travel_deg=0).record
+    assert set(record) == set(record_fields())
+    assert record["area_px"] == pytest.approx(120 * 60, rel=0.01)
+    assert record["length_px"] == pytest.approx(120, abs=0.5)
+    assert record["width_px"] == pytest.approx(60, abs=0.5)
+    assert record["centroid"] == pytest.approx([79.5, 34.5], abs=0.3)
+    assert record["length_mm"] == pytest.approx(6.0, abs=0.03)
+    assert record["area_mm2"] == pytest.approx(7200 * 0.0025, rel=0.01)
+    found = np.array(record["keypoints"])
+    expected = geometry.to_frame(corners)  # (x, y) · 2.5, y shifted by the letterbox
+    assert len(found) == 4
+    assert np.abs(np.sort(found, axis=0) - np.sort(expected, axis=0)).max() < 1.5
+    assert record["ambiguity"] == 0.0
+    hesitant = mask.copy()
+    hesitant[12:14, 8:40] = 0.5  # a band the student is unsure of
+    unsure = analyse(frame, hesitant, heatmap, geometry, config).record
+    assert unsure["ambiguity"] == pytest.approx(64 / (24 * 48 + 64), abs=1e-3)
+
+
+@pytest.fixture()
+def model_dir(trained: TrainResult, tmp_path: Path) -> Path:
+    copy = Path(shutil.copytree(trained.model_dir, tmp_path / "model"))
+    for name in ("model.onnx", "model.torchscript.pt", "export.json"):
+        (copy / name).unlink(missing_ok=True)
+    return copy
+
+
+def test_onnx_and_torch_streams_give_the_same_records(model_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(InvalidInputError, match="export it first"):
+        StreamStudent(model_dir, "onnx")
+    export_student(model_dir, ["onnx"])
+    video = write_video(tmp_path / "run.avi", 8)
+    records = {}
+    for backend in ("onnx", "torch"):
+        student = StreamStudent(model_dir, backend, "cpu", threads=1)
+        with FrameSource(str(video), prepare=student.prepare) as source:
+            records[backend] = [r.record for r in run_stream(source, student)]
+    assert len(records["onnx"]) == len(records["torch"]) == 8
+    for ours, theirs in zip(records["onnx"], records["torch"], strict=True):
+        assert ours["area_px"] == pytest.approx(theirs["area_px"], abs=40)
+        assert np.allclose(ours["keypoints"], theirs["keypoints"], atol=1.0)
+        assert ours["latency_ms"] > 0
+    with pytest.raises(InvalidInputError, match="torch backend"):
+        student = StreamStudent(model_dir, "onnx")
+        batch, geometry = student.prepare(np.zeros((64, 96, 3), np.uint8))
+        student(batch, geometry, samples=2)
+    torch_student = StreamStudent(model_dir, "torch", "cpu")
+    with FrameSource(str(video), max_frames=2) as source:
+        scored = [r.record for r in run_stream(source, torch_student, samples=2)]
+    assert len(scored) == 2 and all(0 <= r["uncertainty"] <= 1 for r in scored)
+
+
+def test_smoothing_keeps_the_raw_keypoints_beside_the_steady_ones(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    video = write_video(tmp_path / "run.avi", 6)
+    student = StreamStudent(model_dir, "torch", "cpu")
+    with FrameSource(str(video)) as source:
+        results = list(run_stream(source, student, smoother=KeypointSmoother(student.config.k)))
+    first = results[0].record
+    assert first["keypoints_raw"] is not None
+    assert sorted(map(tuple, first["keypoints"])) == sorted(map(tuple, first["keypoints_raw"]))
+
+
+def test_the_cli_publishes_every_frame_to_a_subscriber(model_dir: Path, tmp_path: Path) -> None:
+    """`weldpool stream VIDEO --publish`: a controller subscribed first receives every frame's
+    record, the same as stdout and the --record file; the ONNX file is exported on first use."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    video = write_video(tmp_path / "run.avi", 8)
+    recorded = tmp_path / "run.jsonl"
+    command = [sys.executable, "-m", "app", "stream", str(video), "--model", str(model_dir)]
+    command += ["--publish", f"tcp://127.0.0.1:{port}", "--wait-for-subscriber", "60"]
+    command += ["--record", str(recorded), "--mm-per-px", "0.1"]
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WELDPOOL_HOME": str(tmp_path / "home")}
+    process = subprocess.Popen(
+        command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    context = zmq.Context()
+    subscriber = context.socket(zmq.SUB)
+    subscriber.setsockopt(zmq.SUBSCRIBE, b"")
+    subscriber.connect(f"tcp://127.0.0.1:{port}")
+    received = []
+    try:
+        while len(received) < 8 and subscriber.poll(90_000):
+            received.append(json.loads(subscriber.recv()))
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        process.kill()
+        subscriber.close()
+        context.term()
+    assert process.returncode == 0, stderr
+    assert [r["frame"] for r in received] == list(range(8))
+    assert received[0]["length_mm"] == pytest.approx(received[0]["length_px"] * 0.1, abs=0.01)
+    printed = [json.loads(line) for line in stdout.splitlines()]
+    assert printed == received
+    assert [json.loads(line) for line in recorded.read_text().splitlines()] == received
+    summary = json.loads(stderr.strip().splitlines()[-1])
+    assert (summary["frames"], summary["dropped"], summary["backend"]) == (8, 0, "onnx")
+    assert summary["latency_p99_ms"] >= summary["latency_p50_ms"] > 0
+    assert (model_dir / "model.onnx").is_file()
+    missing = run_cli("stream", str(video), "--model", str(tmp_path / "nowhere"))
+    assert missing.returncode == 2
+    nowhere = tmp_path / "nowhere"
+    assert missing.stderr.strip() == f"weldpool: There is no student folder '{nowhere}'."
