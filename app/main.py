@@ -23,6 +23,8 @@ from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
+from app.live.routes import router as live_router
+from app.live.service import LiveViews
 from app.openapi import openapi_schema
 from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
@@ -111,6 +113,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
             yield
         finally:
             background.stop()
+            app.state.live_views.stop_all()
             engine.dispose()
 
     app = FastAPI(
@@ -127,6 +130,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.session_factory = session_factory
     app.state.queue = queue
     app.state.storage = Storage(settings.home)
+    app.state.live_views = LiveViews()
     app.state.login_throttle = LoginThrottle(
         settings.login_max_failures, settings.login_lockout_minutes * 60
     )
@@ -145,6 +149,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(training_router, dependencies=protected)
     api.include_router(insights_router, dependencies=protected)
     api.include_router(timeline_router, dependencies=protected)
+    api.include_router(live_router, dependencies=protected)
     app.include_router(api)
     app.include_router(web_router)
 

@@ -122,3 +122,22 @@ def image_bytes(
     ok, buffer = cv2.imencode(fmt, pixels)
     assert ok
     return buffer.tobytes()
+
+
+def write_video(
+    path: Path, count: int, fps: float = 20.0, size: tuple[int, int] = (96, 64)
+) -> Path:
+    """An MJPEG AVI of synthetic weld frames; frame i's top-left pixels hold 6·(i mod 40)."""
+    import cv2
+    import numpy as np
+
+    from weldpool_core.synth import SynthParams, synth_frame
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
+    for index in range(count):
+        frame = synth_frame(index % 3, SynthParams(width=size[0], height=size[1])).image
+        bgr = cv2.cvtColor(np.asarray(frame, np.uint8), cv2.COLOR_RGB2BGR)
+        bgr[:8, :8] = 6 * (index % 40)
+        writer.write(bgr)
+    writer.release()
+    return path

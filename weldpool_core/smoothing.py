@@ -18,10 +18,10 @@ oscillation. ``KeypointSmoother`` keeps k tracks:
 It is written here (twenty lines of arithmetic, vectorised over the k×2 coordinates) rather than
 taken from the scalar one-euro packages on PyPI, which filter one float at a time.
 
-``jitter`` and ``lag_frames`` measure the result without labels: jitter is the mean size of the
-second difference of each track (a pool moving at a steady speed has none; noise has it at
-about √6 times its standard deviation), lag the shift in frames that best aligns the smoothed
-tracks with the raw ones.
+``jitter`` and ``lag_frames`` measure the result without labels: jitter is the mean (or median)
+size of the second difference of each track (a pool moving at a steady speed has none; noise
+has it at about √6 times its standard deviation), lag the shift in frames that best aligns the
+smoothed tracks with the raw ones.
 """
 
 from __future__ import annotations
@@ -133,13 +133,19 @@ class KeypointSmoother:
         self._value[track] = previous + _alpha(cutoff, step) * (point - previous)
 
 
-def jitter(tracks: NDArray[Any]) -> float:
-    """Mean length of the second difference of T×k×2 tracks (NaN where a track is empty), px."""
+def jitter(tracks: NDArray[Any], statistic: str = "mean") -> float:
+    """Mean (or median) length of the second difference of T×k×2 tracks, px (NaN: empty).
+
+    The mean counts jumps (a keypoint moving to another part of the outline) at full size; the
+    median is the frame-to-frame noise of a keypoint that stays in place.
+    """
     values = np.asarray(tracks, np.float64)
     if values.shape[0] < 3:
         raise InvalidInputError("Jitter needs at least three frames.")
     second = values[2:] - 2 * values[1:-1] + values[:-2]
     sizes = np.linalg.norm(second, axis=-1)
+    if statistic == "median":
+        return float(np.nanmedian(sizes))
     return float(np.nanmean(sizes))
 
 

@@ -51,6 +51,8 @@ from weldpool_core.student.predict import combine, frame_keypoints
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
 AMBIGUOUS = (0.25, 0.75)
 BACKENDS = ("onnx", "torch")
+OPEN_TIMEOUT_MS = 5000
+"""How long opening (or reading) a network stream may take before it counts as unreachable."""
 _END = object()
 
 
@@ -122,7 +124,12 @@ class FrameSource:
     ) -> None:
         argument, live = parse_source(source)
         self.name = source
-        capture = cv2.VideoCapture(argument)
+        if isinstance(argument, str) and live:  # a network stream: do not hang on a dead host
+            timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
+            timeouts += [cv2.CAP_PROP_READ_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
+            capture = cv2.VideoCapture(argument, cv2.CAP_ANY, timeouts)
+        else:
+            capture = cv2.VideoCapture(argument)
         if not capture.isOpened():
             raise InvalidInputError(
                 f"OpenCV cannot open {source!r} as a video source (not a video it can decode, "

@@ -17,24 +17,17 @@ from app.errors import WeldpoolError
 
 def promoted_model_dir() -> Path:
     """The promoted student's folder in this home's database."""
+    from app.storage import Storage
     from app.training.service import promoted_model
 
-    with open_sessions(load_settings())() as session:
+    settings = load_settings()
+    with open_sessions(settings)() as session:
         model = promoted_model(session)
         if model is None or not model.checkpoint_path:
             raise WeldpoolError(
                 "No student is promoted yet; train and promote one, or give --model MODEL_DIR."
             )
-        return Path(model.checkpoint_path)
-
-
-def ensure_onnx(model_dir: Path) -> None:
-    """Export MODEL_DIR's ONNX file if it is missing (checked against PyTorch; said on stderr)."""
-    from weldpool_core.student.export import ONNX_FILE, export_student
-
-    if not (model_dir / ONNX_FILE).is_file():
-        click.echo(f"exporting {model_dir / ONNX_FILE} for ONNX Runtime …", err=True)
-        export_student(model_dir, ["onnx"])
+        return Storage(settings.home).absolute(model.checkpoint_path)
 
 
 @main.command("stream")
@@ -110,13 +103,15 @@ def stream_cmd(
     """
     from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
     from weldpool_core.stream import FrameSource, Publisher, StreamStudent, run_stream, summary
+    from weldpool_core.student.export import ONNX_FILE, ensure_onnx
 
     model_dir = promoted_model_dir() if model == "promoted" else Path(model)
     if not model_dir.is_dir():
         fail(f"There is no student folder {str(model_dir)!r}.")
     if samples and backend != "torch":
         fail("--samples needs --backend torch (the uncertainty runs test-time passes in PyTorch).")
-    if backend == "onnx":
+    if backend == "onnx" and not (model_dir / ONNX_FILE).is_file():
+        click.echo(f"exporting {model_dir / ONNX_FILE} for ONNX Runtime …", err=True)
         ensure_onnx(model_dir)
     student = StreamStudent(model_dir, backend, device, threads)
     smoother = None

@@ -160,6 +160,13 @@ def models(request: Request, _user: LoggedIn) -> Response:
     return render(request, "models.html", page="models")
 
 
+@router.get("/live")
+def live(request: Request, _user: LoggedIn) -> Response:
+    """A student live on a camera, stream or video: the frame with mask and keypoints, the
+    geometry scrolling, fps and latency."""
+    return render(request, "live.html", page="live")
+
+
 @router.get("/metrics")
 def metrics(request: Request, _user: LoggedIn) -> Response:
     """The loop's quality: the student's learning curve, the teacher against reviewed masks,

@@ -69,6 +69,9 @@ export function modelCard(model) {
       h("h2", {}, model.name ?? `version ${model.id}`),
       model.is_promoted ? badge("promoted") : "",
       h("span", { class: "spacer" }),
+      isReviewer()
+        ? h("a", { class: "button secondary", href: `/live?model_id=${model.id}`, "data-testid": "live-view", title: "Run this version on a camera, stream or video and watch its mask and keypoints live" }, "Live view")
+        : "",
       isReviewer() && !model.is_promoted
         ? h("button", { type: "button", class: "secondary", "data-testid": "promote", onclick: () => promote(model) }, "Promote")
         : ""),

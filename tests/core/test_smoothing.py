@@ -72,6 +72,8 @@ def test_a_jump_restarts_a_track_and_a_missing_keypoint_is_held_then_dropped() -
 def test_jitter_and_lag_measure_what_they_say() -> None:
     zigzag = np.array([[[0.0, 0.0]], [[1.0, 0.0]]] * 10)
     assert jitter(zigzag) == pytest.approx(2.0)  # |1 − 2·0 + 1|
+    one_jump = np.concatenate([np.zeros((10, 1, 2)), np.full((10, 1, 2), 90.0)])
+    assert jitter(one_jump, "median") == 0.0 and jitter(one_jump) > 10  # the mean sees jumps
     line = np.stack([np.arange(20.0), np.zeros(20)], axis=1)[:, None, :]
     assert jitter(line) == 0.0
     raw = np.random.default_rng(1).normal(0, 5, (60, 1, 2)).cumsum(axis=0)

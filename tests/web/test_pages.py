@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import corrected_label, image_bytes
+from tests.helpers import corrected_label, image_bytes, write_video
 from tests.web.conftest import synthetic_png
 from tests.web.server import LiveServer, login, wait_for_js, wait_until
 from tests.web.test_review_flow import (
@@ -539,9 +539,10 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
 
 
 def test_real_model_version_on_the_models_and_metrics_pages(
-    page: Any, server: LiveServer, screenshots: Path
+    page: Any, server: LiveServer, screenshots: Path, tmp_path: Path
 ) -> None:
-    """A student trained for real on the live server shows on /models and /metrics."""
+    """A student trained for real on the live server shows on /models and /metrics, and runs
+    live on a recorded weld from its card."""
     params = SynthParams(width=320, height=200)
     for seed in (901, 902, 903):
         truth = synth_frame(seed=seed, params=params)
@@ -570,6 +571,27 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     assert "counts twice" in page.inner_text("[data-testid=review-table-note]")
     assert page.locator("svg.chart").count() == 2  # the learning curve: mIoU and mED
     page.screenshot(path=str(screenshots / "metrics.png"), full_page=True)
+
+    # The version live on a recorded weld (a file on the server, played at its frame rate).
+    video = write_video(tmp_path / "weld.avi", 200, fps=20.0, size=(320, 200))
+    page.goto(f"{server.url}/models")
+    card.locator("[data-testid=live-view]").click()
+    page.wait_for_url(re.compile(r"/live\?model_id=\d+"))
+    wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
+    assert page.locator("[data-testid=live-model] option:checked").inner_text() == name
+    page.fill("[data-testid=live-source]", str(video))
+    page.click("[data-testid=live-start]")
+    live = page.locator("[data-testid=live-card][data-state=running]")
+    live.wait_for(timeout=60_000)
+    wait_for_js(page, "document.querySelector('[data-testid=live-frame]').naturalWidth === 320")
+    wait_for_js(page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)")
+    assert live.locator("[data-testid=live-keypoints]").count() == 1
+    assert live.locator("svg.chart").count() == 3  # area, length, width scrolling
+    for width, height in ((1280, 800), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.screenshot(path=str(screenshots / f"live-{width}.png"))
+    live.locator("[data-testid=live-stop]").click()
+    page.locator("[data-testid=live-card][data-state=stopped]").wait_for()
 
 
 def test_review_switches_between_proposals_and_records_the_one_accepted(

@@ -112,6 +112,14 @@ def export_torchscript(model: ResNetVAE, path: Path) -> None:
     checkpoint.write_atomic(path, lambda p: traced.save(str(p)))
 
 
+def ensure_onnx(model_dir: str | Path) -> bool:
+    """Export MODEL_DIR's ONNX file when it is missing (checked against PyTorch); True if it did."""
+    if (Path(model_dir) / ONNX_FILE).is_file():
+        return False
+    export_student(model_dir, ["onnx"])
+    return True
+
+
 def onnx_session(path: Path, threads: int | None = None, spin: bool = True) -> Any:
     """An ONNX Runtime session for a student file on the CPU (all graph optimisations on).
 

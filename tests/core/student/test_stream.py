@@ -12,13 +12,12 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import zmq
 
 from tests.core.student.common import TINY_STUDENT
-from tests.helpers import REPO, run_cli
+from tests.helpers import REPO, run_cli, write_video
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.smoothing import KeypointSmoother
 from weldpool_core.stream import (
@@ -33,21 +32,6 @@ from weldpool_core.stream import (
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import export_student
 from weldpool_core.student.train import TrainResult
-from weldpool_core.synth import SynthParams, synth_frame
-
-
-def write_video(
-    path: Path, count: int, fps: float = 20.0, size: tuple[int, int] = (96, 64)
-) -> Path:
-    """An MJPEG AVI of synthetic weld frames; frame i's top-left pixels hold 6·i (its index)."""
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
-    for index in range(count):
-        frame = synth_frame(index % 3, SynthParams(width=size[0], height=size[1])).image
-        bgr = cv2.cvtColor(np.asarray(frame, np.uint8), cv2.COLOR_RGB2BGR)
-        bgr[:8, :8] = 6 * index
-        writer.write(bgr)
-    writer.release()
-    return path
 
 
 def _index_of(frame: CapturedFrame) -> int:

@@ -1,0 +1,140 @@
+"""/api/v1/live: start, watch and stop live views of a student (see ``app.live.service``)."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import StreamingResponse
+
+from app.bounds import IdPath
+from app.deps import SessionDep, StorageDep
+from app.errors import ConflictError, NotFoundError
+from app.live.schemas import LiveIn, LiveOut, LiveRecords
+from app.live.service import ACTIVE, LiveView, LiveViews
+from app.models import ModelVersion
+from app.security import CurrentUser, ReviewerUser
+from app.training.service import promoted_model
+
+router = APIRouter(prefix="/live", tags=["live"])
+BOUNDARY = "weldpool-frame"
+
+
+def _views(request: Request) -> LiveViews:
+    views: LiveViews = request.app.state.live_views
+    return views
+
+
+def _out(view: LiveView) -> LiveOut:
+    last = view.records[-1] if view.records else None
+    return LiveOut(
+        id=view.id,
+        source=view.source,
+        model_name=view.model_name,
+        started_by=view.started_by,
+        started_at=view.started_at,
+        state=view.state,
+        message=view.message,
+        frames=view.frames,
+        dropped=view.dropped,
+        smooth=view.smooth,
+        mm_per_px=view.mm_per_px,
+        last=last,
+        **view.stats(),
+    )
+
+
+@router.post("", response_model=LiveOut, status_code=201)
+def start_live(
+    body: LiveIn, request: Request, session: SessionDep, storage: StorageDep, user: ReviewerUser
+) -> LiveOut:
+    """Run a student on a source on this server and keep its newest frame and records."""
+    if body.model_id is None:
+        model = promoted_model(session)
+        if model is None:
+            raise ConflictError("No student is promoted yet; promote one or choose a version.")
+    else:
+        model = session.get(ModelVersion, body.model_id)
+        if model is None:
+            raise NotFoundError(f"There is no model version {body.model_id}.")
+    folder = storage.absolute(model.checkpoint_path) if model.checkpoint_path else None
+    if folder is None or not folder.is_dir():
+        raise ConflictError(f"{model.name} has no weights on this server.")
+    view = _views(request).start(
+        {
+            "source": body.source,
+            "model_name": model.name,
+            "model_dir": folder,
+            "started_by": user.username,
+            "smooth": body.smooth,
+            "mm_per_px": body.mm_per_px,
+            "travel_deg": body.travel_deg,
+        }
+    )
+    return _out(view)
+
+
+@router.get("", response_model=list[LiveOut])
+def list_live(request: Request, _user: CurrentUser) -> list[LiveOut]:
+    """Live views of this server process, newest first."""
+    return [_out(view) for view in _views(request).all()]
+
+
+@router.get("/{view_id}", response_model=LiveOut)
+def get_live(view_id: IdPath, request: Request, _user: CurrentUser) -> LiveOut:
+    return _out(_views(request).get(view_id))
+
+
+@router.get("/{view_id}/records", response_model=LiveRecords)
+def live_records(
+    view_id: IdPath,
+    request: Request,
+    _user: CurrentUser,
+    after: int = Query(default=-1, ge=-1, le=2**62, description="Only frames after this index."),
+    limit: int = Query(default=300, ge=1, le=900),
+) -> LiveRecords:
+    """The kept records (the last 900 frames) after frame index ``after``, oldest first."""
+    return LiveRecords(records=_views(request).get(view_id).records_after(after, limit))
+
+
+@router.get(
+    "/{view_id}/mjpeg",
+    response_class=StreamingResponse,
+    responses={200: {"content": {f"multipart/x-mixed-replace; boundary={BOUNDARY}": {}}}},
+)
+def live_mjpeg(view_id: IdPath, request: Request, _user: CurrentUser) -> StreamingResponse:
+    """The newest frames with the mask outline and keypoints drawn, as an MJPEG stream (an
+    ``<img>`` shows it); it ends when the view ends."""
+    view = _views(request).get(view_id)
+
+    async def frames() -> AsyncIterator[bytes]:
+        seen = 0
+        while True:
+            number, jpeg = await asyncio.to_thread(view.next_jpeg, seen, 1.0)
+            if await request.is_disconnected():
+                return
+            if number > seen and jpeg:
+                seen = number
+                yield (
+                    (
+                        f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
+                        f"Content-Length: {len(jpeg)}\r\n\r\n"
+                    ).encode()
+                    + jpeg
+                    + b"\r\n"
+                )
+            elif view.state not in ACTIVE:
+                return
+
+    return StreamingResponse(
+        frames(),
+        media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
+        headers={"Cache-Control": "no-store"},
+    )
+
+
+@router.post("/{view_id}/stop", response_model=LiveOut)
+def stop_live(view_id: IdPath, request: Request, _user: ReviewerUser) -> LiveOut:
+    """Stop a view after its current frame."""
+    return _out(_views(request).stop(view_id))

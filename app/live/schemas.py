@@ -1,0 +1,45 @@
+"""Payloads of the live views."""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+
+class LiveIn(BaseModel):
+    source: str = Field(
+        min_length=1,
+        max_length=500,
+        description="A camera index on the server (0, 1, …), an RTSP/HTTP URL, or the path of a "
+        "video file on the server (played at its own frame rate).",
+    )
+    model_id: int | None = Field(
+        default=None, ge=1, le=2**31 - 1, description="A student version; null: the promoted one."
+    )
+    smooth: bool = Field(default=True, description="One-euro filter on the keypoint tracks.")
+    mm_per_px: float | None = Field(default=None, gt=0, le=1000)
+    travel_deg: float | None = Field(default=None, ge=-360, le=360)
+
+
+class LiveOut(BaseModel):
+    id: int
+    source: str
+    model_name: str
+    started_by: str
+    started_at: dt.datetime
+    state: str = Field(description="starting, running, ended, stopped or failed.")
+    message: str
+    frames: int
+    dropped: int
+    fps: float | None
+    latency_p50_ms: float | None
+    latency_p99_ms: float | None
+    smooth: bool
+    mm_per_px: float | None
+    last: dict[str, Any] | None = Field(description="The newest record (as `weldpool stream`).")
+
+
+class LiveRecords(BaseModel):
+    records: list[dict[str, Any]]

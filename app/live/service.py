@@ -1,0 +1,230 @@
+"""Live views: the promoted (or a chosen) student on a camera, URL or video, inside the web process.
+
+An engineer at the cell starts one from the models page; it runs ``weldpool_core.stream`` on a
+thread of this process (the ML stack is imported then, not before) and keeps what the page needs:
+the newest frame with the mask outline and keypoints drawn (JPEG, at most ``OVERLAY_FPS`` a second,
+so drawing never slows the student), the last ``KEEP_RECORDS`` records for the scrolling curves,
+and fps and latency over the last ``STATS_WINDOW`` frames. At most ``MAX_RUNNING`` run at once;
+a file plays at its own frame rate (as a camera would), and ends at its last frame. Views are
+kept in memory only: a restart of the server ends them.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime as dt
+import itertools
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from app.db import utcnow
+from app.errors import ConflictError, NotFoundError, WeldpoolError
+
+log = structlog.get_logger(__name__)
+
+MAX_RUNNING = 2
+KEEP_RECORDS = 900
+STATS_WINDOW = 120
+OVERLAY_FPS = 12.0
+OVERLAY_WIDTH = 960
+ACTIVE = ("starting", "running")
+
+
+@dataclass
+class LiveView:
+    """One live view and everything a page reads from it."""
+
+    id: int
+    source: str
+    model_name: str
+    model_dir: Path
+    started_by: str
+    smooth: bool
+    mm_per_px: float | None
+    travel_deg: float | None
+    started_at: dt.datetime = field(default_factory=utcnow)
+    state: str = "starting"
+    message: str = "opening the source"
+    frames: int = 0
+    dropped: int = 0
+    records: collections.deque[dict[str, Any]] = field(
+        default_factory=lambda: collections.deque(maxlen=KEEP_RECORDS)
+    )
+    latencies: collections.deque[float] = field(
+        default_factory=lambda: collections.deque(maxlen=STATS_WINDOW)
+    )
+    stamps: collections.deque[float] = field(
+        default_factory=lambda: collections.deque(maxlen=STATS_WINDOW)
+    )
+    jpeg: bytes | None = None
+    jpeg_number: int = 0
+    stop_event: threading.Event = field(default_factory=threading.Event)
+    changed: threading.Condition = field(default_factory=threading.Condition)
+    thread: threading.Thread | None = None
+
+    def stats(self) -> dict[str, float | None]:
+        """fps and p50 / p99 latency over the last frames."""
+        import numpy as np
+
+        stamps, latencies = list(self.stamps), list(self.latencies)
+        fps = None
+        if len(stamps) > 1 and stamps[-1] > stamps[0]:
+            fps = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+        p50 = p99 = None
+        if latencies:
+            p50, p99 = (float(v) for v in np.percentile(latencies, [50, 99]))
+        return {"fps": fps, "latency_p50_ms": p50, "latency_p99_ms": p99}
+
+    def records_after(self, after: int, limit: int) -> list[dict[str, Any]]:
+        """Kept records of frames after frame index ``after``, oldest first."""
+        return [r for r in list(self.records) if r["frame"] > after][:limit]
+
+    def next_jpeg(self, seen: int, timeout: float) -> tuple[int, bytes | None]:
+        """The first overlay newer than number ``seen`` (waiting up to ``timeout``)."""
+        with self.changed:
+            self.changed.wait_for(
+                lambda: self.jpeg_number > seen or self.state not in ACTIVE, timeout
+            )
+            return self.jpeg_number, self.jpeg
+
+
+class LiveViews:
+    """The live views of this process (see the module doc)."""
+
+    def __init__(self) -> None:
+        self._views: dict[int, LiveView] = {}
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+
+    def start(self, view_args: dict[str, Any]) -> LiveView:
+        """Start a view; 409 when ``MAX_RUNNING`` already run."""
+        from weldpool_core.stream import parse_source
+
+        parse_source(view_args["source"])  # a missing file is a 400 now, not a failed view
+        with self._lock:
+            running = [v for v in self._views.values() if v.state in ACTIVE]
+            if len(running) >= MAX_RUNNING:
+                raise ConflictError(
+                    f"{len(running)} live views are running; stop one before starting another."
+                )
+            view = LiveView(id=next(self._ids), **view_args)
+            self._views[view.id] = view
+        view.thread = threading.Thread(target=_run, args=(view,), name=f"live-{view.id}")
+        view.thread.daemon = True
+        view.thread.start()
+        return view
+
+    def get(self, view_id: int) -> LiveView:
+        view = self._views.get(view_id)
+        if view is None:
+            raise NotFoundError(f"There is no live view {view_id}.")
+        return view
+
+    def all(self) -> list[LiveView]:
+        return sorted(self._views.values(), key=lambda v: v.id, reverse=True)
+
+    def stop(self, view_id: int) -> LiveView:
+        """Ask a view to stop (it ends after its current frame)."""
+        view = self.get(view_id)
+        view.stop_event.set()
+        if view.thread is not None:
+            view.thread.join(timeout=10)
+        return view
+
+    def stop_all(self) -> None:
+        for view in list(self._views.values()):
+            view.stop_event.set()
+        for view in list(self._views.values()):
+            if view.thread is not None:
+                view.thread.join(timeout=10)
+
+
+def _set(view: LiveView, **changes: Any) -> None:
+    with view.changed:
+        for name, value in changes.items():
+            setattr(view, name, value)
+        view.changed.notify_all()
+
+
+def _run(view: LiveView) -> None:
+    """The view's thread: open, stream, keep the newest overlay and records."""
+    try:
+        from weldpool_core.smoothing import KeypointSmoother
+        from weldpool_core.stream import FrameSource, StreamStudent, run_stream
+        from weldpool_core.student.export import ensure_onnx
+
+        if not (view.model_dir / "model.onnx").is_file():
+            _set(view, message="exporting the student for ONNX Runtime")
+            ensure_onnx(view.model_dir)
+        student = StreamStudent(view.model_dir, "onnx")
+        smoother = KeypointSmoother(student.config.k) if view.smooth else None
+        with FrameSource(view.source, realtime=True, prepare=student.prepare) as source:
+            _set(view, state="running", message="")
+            drawn = 0.0
+            for result in run_stream(
+                source,
+                student,
+                smoother=smoother,
+                mm_per_px=view.mm_per_px,
+                travel_deg=view.travel_deg,
+                stop=view.stop_event,
+            ):
+                record = result.record
+                view.records.append(record)
+                view.latencies.append(record["latency_ms"])
+                view.stamps.append(time.perf_counter())
+                view.frames += 1
+                view.dropped += record["dropped"]
+                now = time.perf_counter()
+                if now - drawn >= 1.0 / OVERLAY_FPS:
+                    drawn = now
+                    jpeg = overlay_jpeg(result)
+                    _set(view, jpeg=jpeg, jpeg_number=view.jpeg_number + 1)
+        if view.stop_event.is_set():
+            _set(view, state="stopped", message="stopped")
+        else:
+            _set(view, state="ended", message="the source ended")
+    except WeldpoolError as exc:
+        _set(view, state="failed", message=exc.message)
+    except Exception:
+        log.exception("live.crashed", view=view.id)
+        _set(view, state="failed", message="Internal error; the server log has the details.")
+
+
+def overlay_jpeg(result: Any) -> bytes:
+    """The frame, at most ``OVERLAY_WIDTH`` wide, with the mask outline and keypoints drawn."""
+    import cv2
+    import numpy as np
+
+    bgr = result.frame.bgr
+    height, width = bgr.shape[:2]
+    factor = min(1.0, OVERLAY_WIDTH / width)
+    size = (max(1, round(width * factor)), max(1, round(height * factor)))
+    shown = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA) if factor < 1 else bgr.copy()
+    geometry = result.geometry
+    inner = result.mask_probability[geometry.inner_rows, geometry.inner_columns]
+    mask = cv2.resize((inner >= 0.5).astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(shown, contours, -1, (80, 220, 255), 2, cv2.LINE_AA)
+    for number, point in enumerate(result.keypoints, start=1):
+        if point is None:
+            continue
+        centre = (round((point[0] + 0.5) * factor - 0.5), round((point[1] + 0.5) * factor - 0.5))
+        cv2.circle(shown, centre, 6, (40, 40, 255), -1, cv2.LINE_AA)
+        cv2.putText(
+            shown,
+            str(number),
+            (centre[0] + 8, centre[1] - 8),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.6,
+            (255, 255, 255),
+            2,
+            cv2.LINE_AA,
+        )
+    ok, encoded = cv2.imencode(".jpg", shown, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return encoded.tobytes() if ok else b""

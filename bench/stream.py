@@ -1,0 +1,198 @@
+"""Benchmark ``weldpool stream`` on the three real WAAM videos (1280×800): speed and steadiness.
+
+Run: ``.venv/bin/python bench/stream.py [--model DIR] [--frames N]`` (about ten minutes here).
+
+Speed: for each student size (random weights: speed does not depend on them), backend (ONNX
+Runtime, PyTorch) and thread count (1, all cores), the stream pipeline as the command runs it —
+decoding and pre-processing on the reader thread, inference, keypoints and geometry on the
+main one — over the first N frames of each video, read as fast as possible. Frames per second
+(median over the three videos), p50 / p99 latency from a frame leaving the decoder to its
+record, and the ratio to the inference-only floor (the same model on already prepared inputs,
+nothing else running).
+
+Steadiness: a student trained on the 9 real labels (``--model``, else trained here with the
+default settings, ~90 s) streams every frame of each video twice, per frame and with the
+one-euro filter; jitter is the mean second difference of the keypoint tracks (px), the lag at
+steady speed is how many frames the filter trails a keypoint moving 3 px per frame (the real
+pool barely moves, so it is measured on a synthetic ramp at the videos' 15 fps), and the lag on
+the real tracks is the shift that best aligns filtered and raw tracks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
+from weldpool_core.stream import FrameSource, StreamStudent, run_stream, summary
+from weldpool_core.student.checkpoint import save_config, save_weights
+from weldpool_core.student.export import export_student
+from weldpool_core.student.model import STUDENT_SIZES, build_student
+
+REPO = Path(__file__).resolve().parents[1]
+CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
+
+
+def shared_data() -> Path:
+    return Path(os.environ.get("WELDPOOL_SHARED_DATA") or REPO.parent / "shared" / "data")
+
+
+def videos() -> list[Path]:
+    found = [shared_data() / "waam" / "video" / f"{clip}.mp4" for clip in CLIPS]
+    missing = [str(p) for p in found if not p.is_file()]
+    if missing:
+        raise SystemExit(f"missing real videos: {', '.join(missing)}")
+    return found
+
+
+def random_student(size: str, root: Path) -> Path:
+    """A random-weight student of ``size`` saved and exported to ONNX."""
+    folder = root / size
+    folder.mkdir(parents=True)
+    config = STUDENT_SIZES[size]
+    save_weights(folder, build_student(config, load_pretrained=False).model)
+    save_config(folder, config, {})
+    export_student(folder, ["onnx"])
+    return folder
+
+
+def floor_fps(student: StreamStudent, video: Path, runs: int = 50) -> float:
+    """Inference alone on one prepared frame, repeated: the pipeline's ceiling."""
+    with FrameSource(str(video), max_frames=1, prepare=student.prepare) as source:
+        frame = next(iter(source))
+    batch, geometry = frame.prepared
+    student(batch, geometry)
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        student(batch, geometry)
+        times.append(time.perf_counter() - start)
+    return 1.0 / statistics.median(times)
+
+
+def speed_row(model: Path, backend: str, threads: int, frames: int) -> dict[str, Any]:
+    student = StreamStudent(model, backend, "cpu", threads)
+    results = []
+    latencies: list[float] = []
+    for video in videos():
+        with FrameSource(str(video), max_frames=frames, prepare=student.prepare) as source:
+            start = time.perf_counter()
+            mine = [r.record["latency_ms"] for r in run_stream(source, student)]
+            elapsed = time.perf_counter() - start
+        results.append(summary(mine, len(mine), 0, elapsed))
+        latencies += mine
+    pooled = summary(latencies, len(latencies), 0, 1.0)
+    fps = statistics.median(r["fps"] for r in results)
+    floor = floor_fps(student, videos()[0])
+    return {
+        "fps": fps,
+        "p50": pooled["latency_p50_ms"],
+        "p99": pooled["latency_p99_ms"],
+        "floor": floor,
+    }
+
+
+def train_real(folder: Path) -> Path:
+    from weldpool_core.student.evaluate import labelled_frames
+    from weldpool_core.student.model import StudentConfig
+    from weldpool_core.student.train import TrainConfig, train_student
+
+    data = shared_data() / "waam"
+    frames = labelled_frames(data / "frames", data / "labels")
+    print(f"training the default student on {len(frames)} real labels …", flush=True)
+    train_student(frames, folder, StudentConfig(), TrainConfig(device="cpu"))
+    export_student(folder, ["onnx"])
+    return folder
+
+
+def tracks(model: Path, video: Path, params: SmoothingParams) -> np.ndarray:
+    """T×k×2 keypoint tracks of a video through the smoother (NaN where a track is empty)."""
+    student = StreamStudent(model, "onnx")
+    smoother = KeypointSmoother(student.config.k, params)
+    rows = []
+    with FrameSource(str(video), prepare=student.prepare) as source:
+        for result in run_stream(source, student, smoother=smoother):
+            rows.append([p if p is not None else [np.nan, np.nan] for p in result.keypoints])
+    return np.asarray(rows, np.float64)
+
+
+def ramp_lag(params: SmoothingParams, fps: float = 15.0, speed: float = 3.0) -> float:
+    """Frames the filter trails a keypoint moving ``speed`` px per frame, at steady state."""
+    smoother = KeypointSmoother(1, params)
+    trail = []
+    for index in range(200):
+        x = index * speed
+        out = smoother.update(np.array([[x, 0.0]]), index / fps)
+        if index >= 100 and out[0] is not None:
+            trail.append((x - out[0][0]) / speed)
+    return float(np.mean(trail))
+
+
+def steadiness(model: Path) -> None:
+    print("\nSteadiness (trained light student, ONNX Runtime, every frame of each video)\n")
+    print(
+        "| video | frames | mean jitter px: per frame → one-euro | median jitter px: per frame "
+        "→ one-euro | median down | lag on real tracks |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    tracking_only = SmoothingParams(min_cutoff=1e6, beta=0.0)  # same tracks, no filtering
+    default = SmoothingParams()
+    downs = []
+    for video in videos():
+        raw = tracks(model, video, tracking_only)
+        smooth = tracks(model, video, default)
+        before, after = jitter(raw, "median"), jitter(smooth, "median")
+        downs.append(1 - after / before)
+        print(
+            f"| {video.stem} | {len(raw)} | {jitter(raw):.2f} → {jitter(smooth):.2f} "
+            f"| {before:.2f} → {after:.2f} | {1 - after / before:.0%} "
+            f"| {lag_frames(raw, smooth)} frame(s) |",
+            flush=True,
+        )
+    print(
+        f"\nmedian jitter down {np.mean(downs):.0%} on average; lag at steady speed (3 px per "
+        f"frame, 15 fps): {ramp_lag(default):.2f} frames "
+        f"(beta 0: {ramp_lag(SmoothingParams(beta=0)):.2f})"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", type=Path, help="a student trained on the real labels")
+    parser.add_argument("--frames", type=int, default=300, help="frames per video for speed")
+    parser.add_argument("--sizes", nargs="+", default=["light", "resnet18"])
+    parser.add_argument("--skip-speed", action="store_true")
+    args = parser.parse_args()
+    cores = os.cpu_count() or 1
+    with tempfile.TemporaryDirectory() as root:
+        if not args.skip_speed:
+            head = f"{args.frames} frames of each of the 3 videos, 1280×800; {cores} cores"
+            print(f"Speed ({head})\n")
+            print("| student | backend | threads | fps | p50 ms | p99 ms | floor fps | of floor |")
+            print("|---|---|---:|---:|---:|---:|---:|---:|")
+            for size in args.sizes:
+                model = random_student(size, Path(root))
+                for backend in ("onnx", "torch"):
+                    for threads in sorted({1, cores}):
+                        row = speed_row(model, backend, threads, args.frames)
+                        print(
+                            f"| {size} | {backend} | {threads} | {row['fps']:.1f} | "
+                            f"{row['p50']:.2f} | {row['p99']:.2f} | {row['floor']:.1f} | "
+                            f"{row['fps'] / row['floor']:.0%} |",
+                            flush=True,
+                        )
+        model = args.model or train_real(Path(root) / "real")
+        if not (model / "model.onnx").is_file():
+            export_student(model, ["onnx"])
+        steadiness(model)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,158 @@
+// Live view: start a student on a camera, stream or video on the server; watch the frame with
+// its mask outline and keypoints (MJPEG), the pool's geometry as it scrolls, fps and latency.
+
+import { api, isReviewer } from "./api.js";
+import { lineChart } from "./chart.js";
+import { count, decimal } from "./format.js";
+import { badge, h, toast } from "./ui.js";
+
+const $ = (id) => document.getElementById(id);
+const SHOWN_FRAMES = 300;
+const ACTIVE = new Set(["starting", "running"]);
+const histories = new Map(); // view id → records kept for the curves
+const cards = new Map(); // view id → { card, image, stats, charts, keypoints, stop }
+
+function statsLine(view) {
+  const parts = [
+    view.fps !== null ? `${decimal(view.fps, 1)} fps` : "",
+    view.latency_p50_ms !== null ? `latency p50 ${decimal(view.latency_p50_ms, 1)} ms · p99 ${decimal(view.latency_p99_ms, 1)} ms` : "",
+    count(view.frames, "frame"),
+    view.dropped ? `${count(view.dropped, "stale frame")} dropped to keep up` : "none dropped",
+  ].filter(Boolean);
+  return parts.join(" · ") + (view.message ? ` — ${view.message}` : "");
+}
+
+function geometryCharts(view) {
+  const rows = histories.get(view.id) ?? [];
+  const mm = view.mm_per_px !== null;
+  const series = (key, colour) => [{ name: key, colour, points: rows.map((r) => [r.frame, r[key] ?? NaN]) }];
+  const chart = (title, key, unit, colour) => h("figure", { class: "chart-box" },
+    lineChart({ title, unit, xLabel: "frame", width: 360, height: 150, series: series(key, colour) }));
+  return mm
+    ? [chart("Pool area", "area_mm2", "mm²", "#1c7ed6"), chart("Length", "length_mm", "mm", "#2f9e44"), chart("Width", "width_mm", "mm", "#e8590c")]
+    : [chart("Pool area", "area_px", "px²", "#1c7ed6"), chart("Length", "length_px", "px", "#2f9e44"), chart("Width", "width_px", "px", "#e8590c")];
+}
+
+function keypointTable(view) {
+  const last = view.last;
+  if (!last) return h("p", { class: "muted" }, "No frame yet.");
+  const rows = (last.keypoints ?? []).map((p, i) => h("tr", {},
+    h("th", {}, String(i + 1)),
+    h("td", { class: "num" }, p ? decimal(p[0], 1) : "–"),
+    h("td", { class: "num" }, p ? decimal(p[1], 1) : "–")));
+  return h("table", { class: "metrics", "data-testid": "live-keypoints" },
+    h("thead", {}, h("tr", {}, h("th", {}, "keypoint"), h("th", {}, "x px"), h("th", {}, "y px"))),
+    h("tbody", {}, rows),
+    h("tfoot", {}, h("tr", {}, h("th", {}, "ambiguity"), h("td", { class: "num", colspan: "2" }, decimal(last.ambiguity, 3)))));
+}
+
+async function stop(view, button) {
+  button.disabled = true;
+  try {
+    await api(`/live/${view.id}/stop`, { method: "POST" });
+    toast(`Live view ${view.id} stopped.`, "info");
+  } catch (error) {
+    toast(error.message, "error");
+  }
+  refresh();
+}
+
+function card(view) {
+  let entry = cards.get(view.id);
+  if (!entry) {
+    const image = h("img", { class: "live-frame", alt: `Live frame of ${view.source}`, "data-testid": "live-frame" });
+    if (ACTIVE.has(view.state)) image.src = `/api/v1/live/${view.id}/mjpeg`;
+    entry = {
+      image,
+      state: h("span", {}),
+      stats: h("p", { class: "muted", "data-testid": "live-stats" }),
+      charts: h("div", { class: "charts" }),
+      keypoints: h("div", {}),
+      stop: h("button", { type: "button", class: "secondary", "data-testid": "live-stop" }, "Stop"),
+    };
+    entry.stop.addEventListener("click", () => stop(view, entry.stop));
+    entry.card = h("article", { class: "live-card", "data-testid": "live-card", "data-view-id": String(view.id) },
+      h("header", {},
+        h("h2", {}, `${view.model_name} on ${view.source}`),
+        entry.state,
+        h("span", { class: "spacer" }),
+        isReviewer() ? entry.stop : ""),
+      entry.stats,
+      h("div", { class: "live-body" },
+        h("div", { class: "live-frame-box" }, image),
+        h("div", { class: "live-side" }, entry.keypoints)),
+      entry.charts);
+    cards.set(view.id, entry);
+  }
+  entry.state.replaceChildren(badge(view.state, `state-${view.state}`));
+  entry.card.dataset.state = view.state;
+  entry.stats.textContent = statsLine(view);
+  entry.stop.hidden = !ACTIVE.has(view.state);
+  entry.keypoints.replaceChildren(keypointTable(view));
+  entry.charts.replaceChildren(...geometryCharts(view));
+  return entry.card;
+}
+
+async function pullRecords(view) {
+  const kept = histories.get(view.id) ?? [];
+  const after = kept.length ? kept[kept.length - 1].frame : -1;
+  const { records } = await api(`/live/${view.id}/records?after=${after}&limit=300`);
+  histories.set(view.id, kept.concat(records).slice(-SHOWN_FRAMES));
+}
+
+async function refresh() {
+  let views;
+  try {
+    views = await api("/live");
+  } catch (error) {
+    $("views").replaceChildren(h("p", { class: "error" }, error.message));
+    return;
+  }
+  await Promise.all(views.filter((v) => ACTIVE.has(v.state) || !histories.has(v.id)).map((v) => pullRecords(v).catch(() => {})));
+  $("views").replaceChildren(...(views.length
+    ? views.map(card)
+    : [h("p", { class: "muted", "data-testid": "live-empty" }, "No live view yet. Give a source and start one: the promoted student runs on it here, on the server.")]));
+  document.body.dataset.ready = "1";
+}
+
+async function fillModels() {
+  const select = document.querySelector('#live-form select[name="model_id"]');
+  if (!select) return;
+  const wanted = new URLSearchParams(location.search).get("model_id");
+  try {
+    const models = await api("/models");
+    select.append(...models.map((m) => h("option", { value: String(m.id) }, `${m.name}${m.is_promoted ? " (promoted)" : ""}`)));
+    if (wanted) select.value = wanted;
+  } catch (error) {
+    toast(error.message, "error");
+  }
+}
+
+$("live-form")?.addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const form = event.target;
+  const data = new FormData(form);
+  const button = form.querySelector('button[type="submit"]');
+  button.disabled = true;
+  try {
+    const view = await api("/live", {
+      method: "POST",
+      json: {
+        source: data.get("source").trim(),
+        model_id: data.get("model_id") ? Number(data.get("model_id")) : null,
+        smooth: data.get("smooth") === "on",
+        mm_per_px: data.get("mm_per_px") ? Number(data.get("mm_per_px")) : null,
+      },
+    });
+    toast(`Live view ${view.id} started.`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = false;
+  }
+  refresh();
+});
+
+fillModels();
+refresh();
+setInterval(refresh, 1000);

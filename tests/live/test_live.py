@@ -1,0 +1,149 @@
+"""Live views through the API: start on a video, read records and MJPEG frames, stop, limits."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.live.service import MAX_RUNNING, overlay_jpeg
+from app.models import ModelVersion, Role
+from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
+from tests.helpers import auth, wait_for, write_video
+from weldpool_core.stream import CapturedFrame, StreamResult
+from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.export import ensure_onnx
+from weldpool_core.student.train import train_student
+
+
+@pytest.fixture(scope="module")
+def student_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("live") / "student-v1"
+    train_student(synthetic_frames(8), folder, TINY_STUDENT, tiny_config())
+    ensure_onnx(folder)
+    return folder
+
+
+def _promote(session_factory, folder: Path, home: Path) -> None:
+    """The trained student as this home's promoted version (stored under models/, as training
+    leaves it)."""
+    shutil.copytree(folder, home / "models" / "student-v1")
+    with session_factory() as session:
+        session.add(
+            ModelVersion(name="student-v1", checkpoint_path="models/student-v1", is_promoted=True)
+        )
+        session.commit()
+
+
+def _wait_state(client: TestClient, view_id: int, token: str, states: set[str]) -> dict:
+    found = wait_for(
+        lambda: (
+            (v := client.get(f"/api/v1/live/{view_id}", headers=auth(token)).json())["state"]
+            in states
+            and v
+        ),
+        timeout=60,
+    )
+    assert found, client.get(f"/api/v1/live/{view_id}", headers=auth(token)).json()
+    return found
+
+
+def test_a_live_view_streams_a_video_to_its_end(
+    client: TestClient,
+    make_user,
+    session_factory,
+    settings: Settings,
+    student_dir: Path,
+    tmp_path: Path,
+) -> None:
+    _, token = make_user("cell", Role.reviewer)
+    _, annotator = make_user("ann")
+    video = str(write_video(tmp_path / "run.avi", 30, fps=30.0))
+    none = client.post("/api/v1/live", json={"source": video}, headers=auth(token))
+    assert none.status_code == 409 and "No student is promoted" in none.json()["detail"]
+    _promote(session_factory, student_dir, settings.home)
+    absent = {"source": str(tmp_path / "x.mp4")}
+    missing = client.post("/api/v1/live", json=absent, headers=auth(token))
+    assert missing.status_code == 400 and "no video file" in missing.json()["detail"]
+    refused = client.post("/api/v1/live", json={"source": video}, headers=auth(annotator))
+    assert refused.status_code == 403
+    started = client.post(
+        "/api/v1/live", json={"source": video, "mm_per_px": 0.1}, headers=auth(token)
+    )
+    assert started.status_code == 201, started.text
+    view = started.json()
+    assert (view["model_name"], view["started_by"]) == ("student-v1", "cell")
+    done = _wait_state(client, view["id"], token, {"ended", "failed"})
+    assert done["state"] == "ended", done["message"]
+    assert done["frames"] + done["dropped"] == 30 and done["frames"] > 0
+    assert done["fps"] > 0 and done["latency_p99_ms"] >= done["latency_p50_ms"] > 0
+    records = client.get(
+        f"/api/v1/live/{view['id']}/records?after=-1", headers=auth(annotator)
+    ).json()["records"]
+    assert len(records) == done["frames"]
+    assert [r["frame"] for r in records] == sorted({r["frame"] for r in records})
+    assert records[-1] == done["last"] and records[0]["length_mm"] is not None
+    later = client.get(
+        f"/api/v1/live/{view['id']}/records?after={records[4]['frame']}", headers=auth(token)
+    ).json()["records"]
+    assert later == records[5:]
+    # An ended view's MJPEG stream holds its last drawn frame, then ends.
+    mjpeg = client.get(f"/api/v1/live/{view['id']}/mjpeg", headers=auth(token))
+    assert mjpeg.headers["content-type"].startswith("multipart/x-mixed-replace")
+    body = mjpeg.content
+    jpeg = body[body.index(b"\xff\xd8") : body.rindex(b"\xff\xd9") + 2]
+    assert cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR).shape == (64, 96, 3)
+    listed = client.get("/api/v1/live", headers=auth(token)).json()
+    assert [v["id"] for v in listed] == [view["id"]]
+    assert client.get("/api/v1/live/999", headers=auth(token)).status_code == 404
+
+
+def test_live_views_stop_on_request_and_are_limited(
+    client: TestClient,
+    make_user,
+    session_factory,
+    settings: Settings,
+    student_dir: Path,
+    tmp_path: Path,
+) -> None:
+    _, token = make_user("cell", Role.reviewer)
+    _promote(session_factory, student_dir, settings.home)
+    long_video = str(write_video(tmp_path / "long.avi", 300, fps=20.0))  # 15 s at its rate
+    ids = []
+    for _ in range(MAX_RUNNING):
+        response = client.post("/api/v1/live", json={"source": long_video}, headers=auth(token))
+        assert response.status_code == 201
+        ids.append(response.json()["id"])
+    extra = client.post("/api/v1/live", json={"source": long_video}, headers=auth(token))
+    assert extra.status_code == 409 and "stop one" in extra.json()["detail"]
+    _wait_state(client, ids[0], token, {"running"})
+    stopped = client.post(f"/api/v1/live/{ids[0]}/stop", headers=auth(token)).json()
+    assert stopped["state"] == "stopped" and stopped["frames"] + stopped["dropped"] < 300
+    again = client.post("/api/v1/live", json={"source": long_video}, headers=auth(token))
+    assert again.status_code == 201  # a slot is free again
+    for view_id in (ids[1], again.json()["id"]):
+        assert client.post(f"/api/v1/live/{view_id}/stop", headers=auth(token)).status_code == 200
+
+
+def test_the_overlay_draws_the_mask_and_keypoints_where_they_are_in_the_frame() -> None:
+    """A 1920×1200 frame shown 960 wide: the outline and the keypoint land at half the frame's
+    coordinates (a lost scale or swapped axis misses them)."""
+    geometry = FrameGeometry.fit(1200, 1920, 64, "letterbox")  # inner 64×40, offset y 12
+    mask = np.zeros((64, 64), np.float32)
+    mask[22:42, 16:48] = 1.0  # frame x 480..1439, y 300..899
+    frame = CapturedFrame(0, 0.0, 0.0, np.zeros((1200, 1920, 3), np.uint8))
+    keypoint = [1500.0, 300.0]
+    result = StreamResult({}, frame, mask, geometry, [keypoint, None])
+    shown = cv2.imdecode(np.frombuffer(overlay_jpeg(result), np.uint8), cv2.IMREAD_COLOR)
+    assert shown.shape == (600, 960, 3)
+    bright = shown.max(axis=2) > 100
+    assert bright[450, 236:244].any() and bright[450, 716:724].any()  # left and right edges
+    assert bright[146:154, 480].any() and not bright[300, 480]  # top edge; inside stays dark
+    red = (shown[:, :, 2] > 150) & (shown[:, :, 1] < 100)
+    ys, xs = np.nonzero(red)
+    assert abs(xs.mean() - 750) < 3 and abs(ys.mean() - 150) < 3
