@@ -216,10 +216,11 @@ def overlay_jpeg(result: Any) -> bytes:
             continue
         centre = (round((point[0] + 0.5) * factor - 0.5), round((point[1] + 0.5) * factor - 0.5))
         cv2.circle(shown, centre, 6, (40, 40, 255), -1, cv2.LINE_AA)
+        right = centre[0] + 24 > size[0]  # near the right edge: the number goes to the left
         cv2.putText(
             shown,
             str(number),
-            (centre[0] + 8, centre[1] - 8),
+            (centre[0] - 22 if right else centre[0] + 8, max(14, centre[1] - 8)),
             cv2.FONT_HERSHEY_SIMPLEX,
             0.6,
             (255, 255, 255),

@@ -575,6 +575,10 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     # The version live on a recorded weld (a file on the server, played at its frame rate).
     video = write_video(tmp_path / "weld.avi", 200, fps=20.0, size=(320, 200))
     page.goto(f"{server.url}/models")
+    card.locator("[data-testid=live-view]").wait_for()
+    for width, height in ((1280, 800), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.screenshot(path=str(screenshots / f"models-version-{width}.png"))
     card.locator("[data-testid=live-view]").click()
     page.wait_for_url(re.compile(r"/live\?model_id=\d+"))
     wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
