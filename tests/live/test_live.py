@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from app.config import Settings
 from app.live.service import MAX_RUNNING, overlay_jpeg
 from app.models import ModelVersion, Role
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
-from tests.helpers import auth, wait_for, write_video
+from tests.helpers import auth, run_cli, wait_for, write_video
 from weldpool_core.stream import CapturedFrame, StreamResult
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ensure_onnx
@@ -147,3 +148,25 @@ def test_the_overlay_draws_the_mask_and_keypoints_where_they_are_in_the_frame() 
     red = (shown[:, :, 2] > 150) & (shown[:, :, 1] < 100)
     ys, xs = np.nonzero(red)
     assert abs(xs.mean() - 750) < 3 and abs(ys.mean() - 150) < 3
+
+
+def test_weldpool_stream_runs_this_homes_promoted_student(
+    client: TestClient, session_factory, settings: Settings, student_dir: Path, tmp_path: Path
+) -> None:
+    video = str(write_video(tmp_path / "run.avi", 5))
+    env = {
+        "WELDPOOL_HOME": str(settings.home),
+        "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
+    }
+    none = run_cli("stream", video, env=env)
+    assert none.returncode == 2
+    assert none.stderr.strip().splitlines()[-1] == (
+        "weldpool: No student is promoted yet; train and promote one, or give --model MODEL_DIR."
+    )
+    _promote(session_factory, student_dir, settings.home)
+    ran = run_cli("stream", video, "--max-frames", "3", "--smooth", "none", env=env)
+    assert ran.returncode == 0, ran.stderr
+    records = [json.loads(line) for line in ran.stdout.splitlines()]
+    assert [r["frame"] for r in records] == [0, 1, 2]
+    assert all(r["keypoints_raw"] is None for r in records)  # no smoothing asked for
+    assert json.loads(ran.stderr.strip().splitlines()[-1])["model"].endswith("models/student-v1")
