@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import http.server
 import itertools
 import json
 import os
 import shutil
 import socket
+import socketserver
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import zmq
@@ -194,3 +198,49 @@ def test_the_cli_publishes_every_frame_to_a_subscriber(model_dir: Path, tmp_path
     assert missing.returncode == 2
     nowhere = tmp_path / "nowhere"
     assert missing.stderr.strip() == f"weldpool: There is no student folder '{nowhere}'."
+
+
+class _MjpegCamera(http.server.BaseHTTPRequestHandler):
+    """A network camera: endless JPEG frames at 30 fps over HTTP (multipart/x-mixed-replace)."""
+
+    def do_GET(self) -> None:
+        self.send_response(200)
+        self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+        self.end_headers()
+        index = 0
+        try:
+            while True:
+                image = np.full((64, 96, 3), 6 * (index % 40), np.uint8)
+                jpeg = cv2.imencode(".jpg", image)[1].tobytes()
+                head = f"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n"
+                self.wfile.write(head.encode() + jpeg + b"\r\n")
+                index += 1
+                time.sleep(1 / 30)
+        except OSError:
+            return
+
+    def log_message(self, *args: object) -> None:
+        return
+
+
+def test_a_network_camera_is_live_and_keeps_up_by_dropping() -> None:
+    server = socketserver.ThreadingTCPServer(("127.0.0.1", 0), _MjpegCamera)
+    server.daemon_threads = True
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{server.server_address[1]}/camera.mjpg"
+    try:
+        with FrameSource(url) as source:
+            assert source.live
+            delivered = []
+            for frame in source:
+                delivered.append(frame)
+                time.sleep(0.1)  # three camera frames per frame processed
+                if len(delivered) == 8:
+                    break
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert sum(f.dropped for f in delivered[1:]) >= 8
+    for before, after in itertools.pairwise(delivered):
+        assert after.index - before.index - 1 == after.dropped
+        assert after.time_s > before.time_s
