@@ -4,8 +4,8 @@ Run: ``.venv/bin/python bench/stream.py [--model DIR] [--frames N]`` (about ten 
 
 Speed: for each student size (random weights: speed does not depend on them), backend (ONNX
 Runtime, PyTorch) and thread count (1, all cores), the stream pipeline as the command runs it —
-decoding and pre-processing on the reader thread, inference, keypoints and geometry on the
-main one — over the first N frames of each video, read as fast as possible. Frames per second
+decoding (one decoder thread, as the command's default) and pre-processing on the reader
+thread, inference, keypoints and geometry on the main one — over the first N frames of each video, read as fast as possible. Frames per second
 (median over the three videos), p50 / p99 latency from a frame leaving the decoder to its
 record, and the ratio to the inference-only floor (the same model on already prepared inputs,
 nothing else running).
@@ -82,7 +82,9 @@ def speed_row(model: Path, backend: str, threads: int, frames: int) -> dict[str,
     results = []
     latencies: list[float] = []
     for video in videos():
-        with FrameSource(str(video), max_frames=frames, prepare=student.prepare) as source:
+        with FrameSource(
+            str(video), max_frames=frames, prepare=student.prepare, decoder_threads=1
+        ) as source:
             start = time.perf_counter()
             mine = [r.record["latency_ms"] for r in run_stream(source, student)]
             elapsed = time.perf_counter() - start

@@ -113,6 +113,7 @@ class FrameSource:
         max_frames: stop after this many frames read (None: until the source ends).
         prepare: called on each BGR frame on the reader thread (the model's pre-processing,
             which then overlaps with inference); its result is the frame's ``prepared``.
+        decoder_threads: threads of the video decoder (None: OpenCV's default, one per core).
     """
 
     def __init__(
@@ -121,15 +122,17 @@ class FrameSource:
         realtime: bool = False,
         max_frames: int | None = None,
         prepare: Callable[[NDArray[np.uint8]], Any] | None = None,
+        decoder_threads: int | None = None,
     ) -> None:
         argument, live = parse_source(source)
         self.name = source
+        options: list[int] = []
         if isinstance(argument, str) and live:  # a network stream: do not hang on a dead host
-            timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
-            timeouts += [cv2.CAP_PROP_READ_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
-            capture = cv2.VideoCapture(argument, cv2.CAP_ANY, timeouts)
-        else:
-            capture = cv2.VideoCapture(argument)
+            options += [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
+            options += [cv2.CAP_PROP_READ_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
+        if decoder_threads:
+            options += [cv2.CAP_PROP_N_THREADS, decoder_threads]
+        capture = cv2.VideoCapture(argument, cv2.CAP_ANY, options)
         if not capture.isOpened():
             raise InvalidInputError(
                 f"OpenCV cannot open {source!r} as a video source (not a video it can decode, "

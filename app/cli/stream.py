@@ -74,6 +74,13 @@ def promoted_model_dir() -> Path:
 )
 @click.option("--realtime", is_flag=True, help="Read a file at its frame rate, dropping stale.")
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
+@click.option(
+    "--decoder-threads",
+    type=click.IntRange(min=0),
+    default=1,
+    show_default=True,
+    help="Video decoder threads (0: OpenCV's default, one per core); the rest go to inference.",
+)
 @friendly_errors
 def stream_cmd(
     source: str,
@@ -93,6 +100,7 @@ def stream_cmd(
     samples: int,
     realtime: bool,
     max_frames: int | None,
+    decoder_threads: int,
 ) -> None:
     """Run a student on SOURCE (a video file, a camera index such as 0, or an RTSP/HTTP URL) and
     emit one JSON line per frame: keypoints, pool area / length / width, ambiguity, latency.
@@ -136,7 +144,11 @@ def stream_cmd(
         if record_path is not None:
             record_file = record_path.open("w", encoding="utf-8")
         with FrameSource(
-            source, realtime=realtime, max_frames=max_frames, prepare=student.prepare
+            source,
+            realtime=realtime,
+            max_frames=max_frames,
+            prepare=student.prepare,
+            decoder_threads=decoder_threads or None,
         ) as frames_in:
             started = time.perf_counter()
             for result in run_stream(

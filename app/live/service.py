@@ -163,7 +163,9 @@ def _run(view: LiveView) -> None:
             ensure_onnx(view.model_dir)
         student = StreamStudent(view.model_dir, "onnx")
         smoother = KeypointSmoother(student.config.k) if view.smooth else None
-        with FrameSource(view.source, realtime=True, prepare=student.prepare) as source:
+        with FrameSource(
+            view.source, realtime=True, prepare=student.prepare, decoder_threads=1
+        ) as source:
             _set(view, state="running", message="")
             drawn = 0.0
             for result in run_stream(
