@@ -4,15 +4,16 @@ Run: ``.venv/bin/python bench/stream.py [--model DIR] [--frames N]`` (about ten 
 
 Speed: for each student size (random weights: speed does not depend on them), backend (ONNX
 Runtime, PyTorch) and thread count (1, all cores), the stream pipeline as the command runs it —
-decoding (one decoder thread, as the command's default) and pre-processing on the reader
-thread, inference, keypoints and geometry on the main one — over the first N frames of each video, read as fast as possible. Frames per second
-(median over the three videos), p50 / p99 latency from a frame leaving the decoder to its
-record, and the ratio to the inference-only floor (the same model on already prepared inputs,
-nothing else running).
+decoding (one decoder thread, the command's default) and pre-processing on the reader thread,
+inference, keypoints and geometry on the main one — over the first N frames of each video, read
+as fast as possible. Frames per second (median over the three videos), p50 / p99 latency from a
+frame leaving the decoder to its record, and the ratio to the inference-only floor (the same
+model on already prepared inputs, nothing else running).
 
 Steadiness: a student trained on the 9 real labels (``--model``, else trained here with the
 default settings, ~90 s) streams every frame of each video twice, per frame and with the
-one-euro filter; jitter is the mean second difference of the keypoint tracks (px), the lag at
+one-euro filter; jitter is the mean and the median second difference of the keypoint tracks
+(px; the mean counts jumps of a keypoint to another part of the outline), the lag at
 steady speed is how many frames the filter trails a keypoint moving 3 px per frame (the real
 pool barely moves, so it is measured on a synthetic ramp at the videos' 15 fps), and the lag on
 the real tracks is the shift that best aligns filtered and raw tracks.
