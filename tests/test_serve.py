@@ -99,3 +99,38 @@ def test_serve_binds_loopback_by_default() -> None:
 
     help_text = CliRunner().invoke(main, ["serve", "--help"]).output
     assert "default: 127.0.0.1" in help_text
+
+
+def test_a_web_process_without_worker_loads_no_ml_stack(tmp_path: Path) -> None:
+    """`serve --no-worker` answers pages and lists without torch, scikit-learn or SciPy: their
+    shared libraries are not even mapped into the process (the worker loads them on a job)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}
+    env.update(WELDPOOL_HOME=str(tmp_path / "data"), HF_HUB_OFFLINE="1")
+    port = _free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "app", "serve", "--port", str(port), "--no-worker"],
+        env=env,
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: _healthy(base), timeout=60)
+        for path in ("/login", "/api/v1/health", "/static/js/api.js"):
+            assert httpx.get(base + path, timeout=10).status_code == 200
+        assert httpx.get(f"{base}/api/v1/frames", timeout=10).status_code == 401
+        maps = Path(f"/proc/{server.pid}/maps").read_text()
+        for library in ("/torch/lib/", "/sklearn/", "/scipy/", "/onnxruntime/"):
+            assert library not in maps, f"the web process loaded {library}"
+        assert "cv2" in maps  # it does decode uploads itself
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=60)
+
+
+def _healthy(base: str) -> bool:
+    try:
+        return httpx.get(f"{base}/api/v1/health", timeout=2).status_code in (200, 503)
+    except httpx.HTTPError:
+        return False

@@ -23,7 +23,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
 
 from weldpool_core.errors import InvalidInputError
 
@@ -99,6 +98,8 @@ def match_keypoints(
         return distances
     cost = np.linalg.norm(true[:, None, :] - pred[None, :, :], axis=2)
     if matching == "hungarian":
+        from scipy.optimize import linear_sum_assignment  # scipy loads only where it is used
+
         rows, cols = linear_sum_assignment(cost)
     else:
         rows = cols = np.arange(min(len(true), len(pred)))

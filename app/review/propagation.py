@@ -27,7 +27,7 @@ from app.errors import InvalidInputError
 from app.models import Frame, FrameStatus, Label, LabelRevision, LabelStatus, Proposal
 from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
 from app.storage import Storage
-from weldpool_core.teacher.propagate import Direction, passes
+from weldpool_core.teacher.passes import Direction, passes
 
 SOURCE = "propagated"
 STOP_AFTER = 3

@@ -1,41 +1,55 @@
 """The teacher's models in this process: loaded once, on first use (through the one loader,
 ``weldpool_core.teacher.loader``), and shared by the worker's teacher jobs and the web process's
-click endpoint (one SAM2, one embedding cache)."""
+click endpoint (one SAM2, one embedding cache).
+
+The ML stack (torch, transformers) is imported on the first model asked for, not with this
+module: a web process that never runs the teacher never loads it.
+"""
 
 from __future__ import annotations
 
 import threading
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from app.config import Settings
-from weldpool_core.teacher.cache import EmbeddingCache
-from weldpool_core.teacher.dino import DinoAttention
-from weldpool_core.teacher.loader import load_dino, load_sam2, load_sam2_video
-from weldpool_core.teacher.propagate import Sam2Propagator
-from weldpool_core.teacher.sam2 import Sam2Predictor
-from weldpool_core.teacher.teacher import Teacher, TeacherConfig
+
+if TYPE_CHECKING:
+    from weldpool_core.teacher.cache import EmbeddingCache
+    from weldpool_core.teacher.dino import DinoAttention
+    from weldpool_core.teacher.propagate import Sam2Propagator
+    from weldpool_core.teacher.sam2 import Sam2Predictor
+    from weldpool_core.teacher.teacher import Teacher
 
 _lock = threading.Lock()
 
 
 @lru_cache(maxsize=4)
 def _sam2(ref: str, device: str) -> Sam2Predictor:
+    from weldpool_core.teacher.loader import load_sam2
+
     return load_sam2(ref, device)
 
 
 @lru_cache(maxsize=2)
 def _sam2_video(ref: str, device: str) -> Sam2Propagator:
+    from weldpool_core.teacher.loader import load_sam2_video
+
     return load_sam2_video(ref, device)
 
 
 @lru_cache(maxsize=4)
 def _dino(ref: str, device: str, input_size: int) -> DinoAttention:
+    from weldpool_core.teacher.loader import load_dino
+
     return load_dino(ref, device, input_size)
 
 
 @lru_cache(maxsize=4)
 def _cache(directory: Path) -> EmbeddingCache:
+    from weldpool_core.teacher.cache import EmbeddingCache
+
     return EmbeddingCache(directory)
 
 
@@ -58,6 +72,8 @@ def propagator(settings: Settings) -> Sam2Propagator:
 
 def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
     """The teacher as the settings name it, sharing this process's SAM2 and cache."""
+    from weldpool_core.teacher.teacher import Teacher, TeacherConfig
+
     with _lock:
         dino = _dino(settings.dino, settings.device, settings.dino_input_size)
         sam2 = _sam2(settings.sam2, settings.device)

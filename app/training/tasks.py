@@ -19,7 +19,6 @@ from app.storage import Storage
 from app.training import service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.student import checkpoint
 
 log = structlog.get_logger(__name__)
 
@@ -44,6 +43,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
     only when training finished: a killed or cancelled job leaves no half-written version.
     """
+    from weldpool_core.student import checkpoint
     from weldpool_core.student.model import StudentConfig, student_config
     from weldpool_core.student.train import TrainConfig, train_student
 

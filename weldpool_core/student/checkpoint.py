@@ -15,6 +15,9 @@ Layout (every file written atomically: a temporary file, then a rename):
   from which ``resume`` continues; not needed for inference. The service removes it once a
   version is recorded (``prune_state``): an interrupted run keeps it to resume.
 - after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
+
+torch and safetensors are imported by the functions that need them, so the layout (and
+``prune_state``) can be used by a process that never loads the network.
 """
 
 from __future__ import annotations
@@ -24,13 +27,14 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
-
-import torch
-from safetensors.torch import load_file, save_file
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.student.model import ResNetVAE, StudentConfig, build_student
+
+if TYPE_CHECKING:
+    import torch
+
+    from weldpool_core.student.model import ResNetVAE, StudentConfig
 
 FORMAT = "weldpool-student"
 VERSION = 1
@@ -82,6 +86,8 @@ def save_weights(model_dir: Path, model: ResNetVAE) -> None:
     state = {
         name: tensor.detach().cpu().contiguous() for name, tensor in model.state_dict().items()
     }
+    from safetensors.torch import save_file
+
     write_atomic(model_dir / WEIGHTS_FILE, lambda p: save_file(state, str(p)))
 
 
@@ -103,11 +109,18 @@ def read_student_config(model_dir: str | Path) -> StudentConfig:
             f"{model_dir} holds a student model of format version {data.get('version')}; this "
             f"weldpool reads version {VERSION}."
         )
+    from weldpool_core.student.model import StudentConfig
+
     return StudentConfig.from_dict(data["student"])
 
 
 def load_student(model_dir: str | Path, device: torch.device | None = None) -> ResNetVAE:
     """The best network of a MODEL_DIR, in eval mode on ``device`` (CPU by default)."""
+    import torch
+    from safetensors.torch import load_file
+
+    from weldpool_core.student.model import build_student
+
     root = Path(model_dir)
     config = read_student_config(root)
     model = build_student(config, load_pretrained=False).model
@@ -127,6 +140,8 @@ def load_student(model_dir: str | Path, device: torch.device | None = None) -> R
 def save_codes(model_dir: Path, codes: torch.Tensor) -> None:
     """The training frames' descriptors (M×D) as ``frame_codes.safetensors``."""
     state = {"codes": codes.detach().float().cpu().contiguous()}
+    from safetensors.torch import save_file
+
     write_atomic(model_dir / CODES_FILE, lambda p: save_file(state, str(p)))
 
 
@@ -135,6 +150,8 @@ def load_codes(model_dir: str | Path) -> torch.Tensor | None:
     path = Path(model_dir) / CODES_FILE
     if not path.is_file():
         return None
+    from safetensors.torch import load_file
+
     try:
         codes = load_file(str(path))["codes"]
     except (OSError, RuntimeError, KeyError):
@@ -144,6 +161,8 @@ def load_codes(model_dir: str | Path) -> torch.Tensor | None:
 
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:
     """The resumable training state (``training_state.pt``)."""
+    import torch
+
     write_atomic(model_dir / STATE_FILE, lambda p: torch.save(state, p))
 
 
@@ -163,6 +182,8 @@ def load_state(model_dir: Path) -> dict[str, Any] | None:
     path = model_dir / STATE_FILE
     if not path.is_file():
         return None
+    import torch
+
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError) as exc:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Literal, cast
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -29,9 +29,9 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.teacher.passes import Direction, passes
 from weldpool_core.teacher.sam2 import SAM2_INPUT_SIZE, ImageEmbedding, upsample_logits
 
-Direction = Literal["forward", "backward", "both"]
 OBJECT_ID = 1
 
 
@@ -63,24 +63,6 @@ class _FrameCount(dict):  # type: ignore[type-arg]
 
     def __len__(self) -> int:
         return self.count
-
-
-def passes(
-    count: int, prompts: dict[int, Any], direction: Direction, until: int | None = None
-) -> list[tuple[range, bool]]:
-    """The frame positions each pass walks, and whether it runs backward: forward from the
-    first prompt to ``until`` (or the end), backward from the first prompt (both directions) or
-    the last one (backward only) to ``until`` (or the start). Prompted frames are in the ranges
-    and get no mask of their own."""
-    first, last = min(prompts), max(prompts)
-    out: list[tuple[range, bool]] = []
-    if direction in ("forward", "both"):
-        end = count - 1 if until is None or direction == "both" else min(until, count - 1)
-        out.append((range(first, end + 1), False))
-    if direction in ("backward", "both"):
-        end = 0 if until is None or direction == "both" else max(until, 0)
-        out.append((range(first if direction == "both" else last, end - 1, -1), True))
-    return out
 
 
 class Sam2Propagator:

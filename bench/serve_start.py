@@ -1,0 +1,95 @@
+"""Benchmark how quickly `weldpool serve` is healthy and how much memory it holds when idle.
+
+Run: ``.venv/bin/python bench/serve_start.py [--runs 5]`` (about a minute).
+
+Each run starts `weldpool serve` (``--no-worker``, and with its embedded worker) on a fresh
+SQLite home, polls ``/api/v1/health`` every 20 ms, and reads the process's resident memory
+(VmRSS) once healthy and after a second of idling. The floor is a bare ``python -c "import
+fastapi, sqlalchemy, uvicorn"``: what any FastAPI service on this machine pays before its own
+code. Median of the runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import REPO, free_port
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def one_start(worker: bool) -> tuple[float, float]:
+    with tempfile.TemporaryDirectory() as home:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}
+        env.update(WELDPOOL_HOME=home, HF_HUB_OFFLINE="1", WELDPOOL_LOG_LEVEL="WARNING")
+        subprocess.run(
+            [sys.executable, "-m", "app", "migrate"],
+            env=env,
+            cwd=REPO,
+            check=True,
+            capture_output=True,
+        )
+        port = free_port()
+        command = [sys.executable, "-m", "app", "serve", "--port", str(port)]
+        start = time.perf_counter()
+        server = subprocess.Popen(
+            command + ([] if worker else ["--no-worker"]),
+            env=env,
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            while True:
+                try:
+                    if httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=1).status_code:
+                        break
+                except httpx.HTTPError:
+                    time.sleep(0.02)
+            healthy = time.perf_counter() - start
+            time.sleep(1.0)
+            return healthy, rss_mb(server.pid)
+        finally:
+            server.terminate()
+            server.wait(timeout=30)
+
+
+def floor() -> float:
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import fastapi, sqlalchemy, uvicorn"], check=True)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args()
+    base = statistics.median(floor() for _ in range(args.runs))
+    print("| serve | start to healthy s | idle RSS MB | start ÷ floor |")
+    print("|---|---:|---:|---:|")
+    for worker in (False, True):
+        runs = [one_start(worker) for _ in range(args.runs)]
+        start = statistics.median(r[0] for r in runs)
+        rss = statistics.median(r[1] for r in runs)
+        name = "embedded worker" if worker else "--no-worker"
+        print(f"| {name} | {start:.2f} | {rss:.0f} | {start / base:.1f}× |", flush=True)
+    print(f"\nfloor (python -c 'import fastapi, sqlalchemy, uvicorn'): {base:.2f} s")
+
+
+if __name__ == "__main__":
+    main()
