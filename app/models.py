@@ -219,7 +219,9 @@ class Frame(Base):
     uncertainty: Mapped[float | None] = mapped_column(sa.Float, index=True)
     uncertainty_components: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
     uncertainty_reason: Mapped[str | None] = mapped_column(sa.String(32))
-    descriptor: Mapped[list[float] | None] = mapped_column(JSONType)
+    descriptor: Mapped[list[float] | None] = mapped_column(JSONType, deferred=True)
+    """The frame's DINO descriptor (384 floats): loaded only where it is asked for (the
+    queue's diversity pick), never with list rows."""
     teacher_error: Mapped[str | None] = mapped_column(sa.String(500))
     """Why the teacher's last run failed on this frame; cleared by its next proposal."""
     uploaded_by_id: Mapped[int | None] = mapped_column(

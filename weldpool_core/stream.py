@@ -260,7 +260,8 @@ class StreamStudent:
         model_dir: the student's folder.
         backend: "onnx" (ONNX Runtime on the CPU; needs ``model.onnx``) or "torch".
         device: for torch: cpu, cuda, cuda:N, mps or auto.
-        threads: intra-op threads (None: the runtime's default, one per core).
+        threads: intra-op threads (None: the runtime's default, one per core). For torch this
+            is ``torch.set_num_threads``: it holds for the whole process.
     """
 
     def __init__(

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, undefer
 
 from app.db import commit_or_conflict
 from app.errors import ConflictError, InvalidInputError, NotFoundError
@@ -354,21 +354,23 @@ def list_frames(
     """Frames filtered and paginated; ``order=uncertainty`` is the review queue (most unsure
     first, frames without a score last), whose first ``diversity_pool`` frames are reordered
     for diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
-    query = sa.select(Frame)
+    conditions: list[Any] = []
     if sequence_id is not None:
-        query = query.where(Frame.sequence_id == sequence_id)
+        conditions.append(Frame.sequence_id == sequence_id)
     if status == "unreviewed":
-        query = query.where(Frame.status.in_(UNREVIEWED))
+        conditions.append(Frame.status.in_(UNREVIEWED))
     elif status is not None:
-        query = query.where(Frame.status == status)
+        conditions.append(Frame.status == status)
     if split is not None:
-        query = query.where(Frame.split == split)
-    total = session.scalar(sa.select(sa.func.count()).select_from(query.subquery())) or 0
-    ordered = query.order_by(*_ORDERINGS[order])
+        conditions.append(Frame.split == split)
+    count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
+    total = session.scalar(count) or 0
+    ordered = sa.select(Frame).where(*conditions).order_by(*_ORDERINGS[order])
     if order == "uncertainty" and diversity > 0 and offset < diversity_pool:
         from app.review.queue import diverse_head
 
-        head = diverse_head(list(session.scalars(ordered.limit(diversity_pool))), diversity)
+        pool = ordered.options(undefer(Frame.descriptor)).limit(diversity_pool)
+        head = diverse_head(list(session.scalars(pool)), diversity)
         page = head[offset : offset + limit]
         if len(page) < limit and len(head) == diversity_pool:
             page += session.scalars(ordered.offset(diversity_pool).limit(limit - len(page))).all()

@@ -182,3 +182,32 @@ def test_an_untrained_new_model_is_not_promoted(
         client.get("/api/v1/jobs", params={"kind": "student"}, headers=auth(token)).json()["total"]
         == 0
     )  # no re-scoring by a loser
+
+
+def test_lists_never_read_descriptors_but_the_diversity_pick_does(
+    client: TestClient, session_factory, make_user
+) -> None:
+    """A descriptor is 384 floats of JSON per frame: list pages leave it in the database; only
+    the queue's diversity pick (which needs it) reads it, in the same query as its frames."""
+    _, token = make_user("lists", Role.reviewer)
+    ids = _frames(client, token, 3)
+    for index, frame_id in enumerate(ids):
+        _propose(session_factory, frame_id, 0.5, 0.5, [1.0, 0.1 * index])
+    statements: list[str] = []
+
+    def record(_conn, _cursor, statement, *_args) -> None:  # type: ignore[no-untyped-def]
+        statements.append(statement)
+
+    engine = client.app.state.engine
+    sa.event.listen(engine, "before_cursor_execute", record)
+    try:
+        for order in ("id", "-id", "frame_index"):
+            page = client.get("/api/v1/frames", params={"order": order}, headers=auth(token))
+            assert len(page.json()["items"]) == 3
+        assert not [s for s in statements if "descriptor" in s]
+        queue = client.get("/api/v1/frames", params={"order": "uncertainty"}, headers=auth(token))
+        assert len(queue.json()["items"]) == 3
+        reads = [s for s in statements if "descriptor" in s]
+        assert len(reads) == 1 and "LIMIT" in reads[0].upper()  # one query, not one per frame
+    finally:
+        sa.event.remove(engine, "before_cursor_execute", record)

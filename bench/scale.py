@@ -1,0 +1,166 @@
+"""Benchmark the frame lists at scale: the first and the last page of each list order.
+
+Run: ``.venv/bin/python bench/scale.py [--frames 2000] [--database sqlite|postgresql]``
+(``--frames 50000`` for a long weld run; PostgreSQL from ``WELDPOOL_TEST_POSTGRES_URL`` or the
+local default, in a schema of its own that is dropped afterwards).
+
+It fills one weld run with N scored frames as ingest and the teacher leave them (status, split,
+uncertainty with its components, a 384-float DINO descriptor; no image files: lists never read
+them), then times ``GET /api/v1/frames`` in process (the app's whole request path, authentication
+included) for the first page and the last page of each order, and the bare SQL of the same page
+(the ids only, the floor). Median of several runs, milliseconds, and the process's RSS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import statistics
+import tempfile
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.db import create_db_engine, create_session_factory, migrate
+from app.frames.service import _ORDERINGS, UNREVIEWED
+from app.main import create_app
+from app.models import Frame, FrameStatus, Role, Sequence, Split, User
+from app.security import hash_password, issue_token
+
+PAGE = 50
+ORDERS = ("id", "frame_index", "uncertainty")
+POSTGRES = os.environ.get(
+    "WELDPOOL_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+)
+
+
+def fill(session_factory: Any, count: int) -> tuple[int, str]:
+    """One weld run of ``count`` scored frames; returns its id and an admin token."""
+    rng = random.Random(0)
+    with session_factory() as session:
+        user = User(username="bench", password_hash=hash_password("bench-bench"), role=Role.admin)
+        session.add(user)
+        run = Sequence(name="long run")
+        session.add(run)
+        session.flush()
+        _, token = issue_token(session, user, "bench")
+        rows = []
+        for index in range(count):
+            scored = rng.random() < 0.9
+            rows.append(
+                {
+                    "sequence_id": run.id,
+                    "sha256": uuid.uuid4().hex + uuid.uuid4().hex,
+                    "path": f"frames/x/{index}.png",
+                    "original_name": f"f{index:06d}.png",
+                    "media_type": "image/png",
+                    "size_bytes": 300_000,
+                    "width": 1280,
+                    "height": 800,
+                    "channels": 3,
+                    "frame_index": index,
+                    "timestamp_s": index / 15,
+                    "split": Split.validation if index % 10 == 0 else Split.train,
+                    "status": FrameStatus.proposed if rng.random() < 0.8 else FrameStatus.accepted,
+                    "uncertainty": rng.random() if scored else None,
+                    "uncertainty_components": {"sam2_doubt": rng.random(), "instability": 0.1}
+                    if scored
+                    else None,
+                    "uncertainty_reason": "sam2_doubt" if scored else None,
+                    "descriptor": [round(rng.random(), 5) for _ in range(384)],
+                }
+            )
+        for start in range(0, len(rows), 1000):
+            session.execute(sa.insert(Frame), rows[start : start + 1000])
+        session.commit()
+        return run.id, token
+
+
+def median_ms(call: Any, runs: int) -> float:
+    call()
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=2000)
+    parser.add_argument("--database", choices=["sqlite", "postgresql"], default="sqlite")
+    parser.add_argument("--runs", type=int, default=7)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as home:
+        if args.database == "sqlite":
+            url = f"sqlite:///{home}/weldpool.sqlite3"
+        else:
+            schema = f"wp_bench_{uuid.uuid4().hex[:8]}"
+            url = f"{POSTGRES}?options=-csearch_path%3D{schema}"
+            with sa.create_engine(POSTGRES).begin() as connection:
+                connection.execute(sa.text(f"CREATE SCHEMA {schema}"))
+        try:
+            settings = Settings(_env_file=None, home=Path(home), database_url=url)  # type: ignore[call-arg]
+            engine = create_db_engine(settings.resolved_database_url)
+            migrate(engine)
+            session_factory = create_session_factory(engine)
+            run_id, token = fill(session_factory, args.frames)
+            headers = {"Authorization": f"Bearer {token}"}
+            app = create_app(settings)
+            print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
+            print("| list | page | API ms | SQL floor ms | API ÷ floor |")
+            print("|---|---|---:|---:|---:|")
+            with TestClient(app) as client, engine.connect() as connection:
+                for order in ORDERS:
+                    status = "unreviewed" if order == "uncertainty" else "all"
+                    where = [Frame.sequence_id == run_id]
+                    if status == "unreviewed":
+                        where.append(Frame.status.in_(UNREVIEWED))
+                    total = connection.scalar(
+                        sa.select(sa.func.count()).select_from(Frame).where(*where)
+                    )
+                    for name, offset in (("first", 0), ("last", max(0, total - PAGE))):
+                        path = (
+                            f"/api/v1/frames?sequence_id={run_id}&order={order}&status={status}"
+                            f"&limit={PAGE}&offset={offset}"
+                        )
+                        api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
+                        floor_query = (
+                            sa.select(Frame.id)
+                            .where(*where)
+                            .order_by(*_ORDERINGS[order])
+                            .limit(PAGE)
+                            .offset(offset)
+                        )
+                        floor = median_ms(
+                            lambda q=floor_query: connection.execute(q).all(), args.runs
+                        )
+                        print(
+                            f"| {order} ({status}) | {name} (offset {offset}) | {api:.1f} | "
+                            f"{floor:.2f} | {api / floor:.1f}× |",
+                            flush=True,
+                        )
+            print(f"\nRSS of this process: {rss_mb():.0f} MB")
+            engine.dispose()
+        finally:
+            if args.database == "postgresql":
+                with sa.create_engine(POSTGRES).begin() as connection:
+                    connection.execute(sa.text(f"DROP SCHEMA {schema} CASCADE"))
+
+
+if __name__ == "__main__":
+    main()
