@@ -174,6 +174,14 @@ class Video(Base):
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+UNREVIEWED = (FrameStatus.new, FrameStatus.proposed)
+"""Frames still to review: what the queue shows by default (``status=unreviewed``)."""
+UNREVIEWED_SQL = f"status IN ({', '.join(repr(status.value) for status in UNREVIEWED)})"
+"""Frames still to review, as SQL with its values written out: the queue's partial indexes are
+defined by it, and a query must say it the same way for SQLite to use them (a bound parameter
+cannot prove that a row is in a partial index)."""
+
+
 class Frame(Base):
     """One stored camera frame; the file lives under WELDPOOL_HOME, named by its content hash.
 
@@ -191,7 +199,26 @@ class Frame(Base):
             sqlite_where=sa.text("sequence_id IS NULL"),
             postgresql_where=sa.text("sequence_id IS NULL"),
         ),
-        sa.Index("ix_frames_sequence_index", "sequence_id", "frame_index"),
+        sa.Index("ix_frames_sequence_index", "sequence_id", "frame_index", "id"),
+        # One index per list order, so that a page reads its rows in order instead of sorting
+        # the run: a run's frames by id, and the review queue (frames still to review, most
+        # uncertain first) of a run and of everything.
+        sa.Index("ix_frames_sequence_id", "sequence_id", "id"),
+        sa.Index(
+            "ix_frames_queue_sequence",
+            "sequence_id",
+            sa.text("coalesce(uncertainty, -1.0) DESC"),
+            "id",
+            sqlite_where=sa.text(UNREVIEWED_SQL),
+            postgresql_where=sa.text(UNREVIEWED_SQL),
+        ),
+        sa.Index(
+            "ix_frames_queue",
+            sa.text("coalesce(uncertainty, -1.0) DESC"),
+            "id",
+            sqlite_where=sa.text(UNREVIEWED_SQL),
+            postgresql_where=sa.text(UNREVIEWED_SQL),
+        ),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)

@@ -8,7 +8,8 @@ It fills one weld run with N scored frames as ingest and the teacher leave them 
 uncertainty with its components, a 384-float DINO descriptor; no image files: lists never read
 them), then times ``GET /api/v1/frames`` in process (the app's whole request path, authentication
 included) for the first page and the last page of each order, and the bare SQL of the same page
-(the ids only, the floor). Median of several runs, milliseconds, and the process's RSS.
+(the ids only, the floor), and the server's part without HTTP (the list and its JSON). Median
+of several runs, milliseconds, and the process's RSS.
 """
 
 from __future__ import annotations
@@ -28,9 +29,11 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory, migrate
-from app.frames.service import _ORDERINGS, UNREVIEWED
+from app.frames import service
+from app.frames.schemas import FrameOut, FramePage
+from app.frames.service import _ORDERINGS
 from app.main import create_app
-from app.models import Frame, FrameStatus, Role, Sequence, Split, User
+from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
 from app.security import hash_password, issue_token
 
 PAGE = 50
@@ -82,6 +85,26 @@ def fill(session_factory: Any, count: int) -> tuple[int, str]:
         return run.id, token
 
 
+def page_json(app: Any, run_id: int, order: str, status: str, offset: int) -> str:
+    """What the route does for a page, without HTTP: the list, its rows as JSON."""
+    settings = app.state.settings
+    with app.state.session_factory() as session:
+        rows, total = service.list_frames(
+            session,
+            sequence_id=run_id,
+            status=None if status == "all" else "unreviewed",
+            order=order,
+            limit=PAGE,
+            offset=offset,
+            diversity=settings.queue_diversity,
+            diversity_pool=settings.queue_diversity_pool,
+        )
+        page = FramePage(
+            items=[FrameOut.model_validate(r) for r in rows], total=total, limit=PAGE, offset=offset
+        )
+        return page.model_dump_json()
+
+
 def median_ms(call: Any, runs: int) -> float:
     call()
     times = []
@@ -122,14 +145,14 @@ def main() -> None:
             headers = {"Authorization": f"Bearer {token}"}
             app = create_app(settings)
             print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
-            print("| list | page | API ms | SQL floor ms | API ÷ floor |")
+            print("| list | page | API ms | server ms | SQL floor ms |")
             print("|---|---|---:|---:|---:|")
             with TestClient(app) as client, engine.connect() as connection:
                 for order in ORDERS:
                     status = "unreviewed" if order == "uncertainty" else "all"
                     where = [Frame.sequence_id == run_id]
                     if status == "unreviewed":
-                        where.append(Frame.status.in_(UNREVIEWED))
+                        where.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
                     total = connection.scalar(
                         sa.select(sa.func.count()).select_from(Frame).where(*where)
                     )
@@ -139,6 +162,10 @@ def main() -> None:
                             f"&limit={PAGE}&offset={offset}"
                         )
                         api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
+                        server = median_ms(
+                            lambda o=order, s=status, x=offset: page_json(app, run_id, o, s, x),
+                            args.runs,
+                        )
                         floor_query = (
                             sa.select(Frame.id)
                             .where(*where)
@@ -151,7 +178,7 @@ def main() -> None:
                         )
                         print(
                             f"| {order} ({status}) | {name} (offset {offset}) | {api:.1f} | "
-                            f"{floor:.2f} | {api / floor:.1f}× |",
+                            f"{server:.1f} | {floor:.2f} |",
                             flush=True,
                         )
             print(f"\nRSS of this process: {rss_mb():.0f} MB")

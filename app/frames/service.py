@@ -21,6 +21,7 @@ from app.db import commit_or_conflict
 from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.models import (
     STORED_PATH_COLUMNS,
+    UNREVIEWED_SQL,
     Frame,
     FrameStatus,
     Label,
@@ -328,15 +329,39 @@ def ingest_frames(
 
 # --- reading frames ----------------------------------------------------------------------------
 
-UNREVIEWED = (FrameStatus.new, FrameStatus.proposed)
-"""Frames still to review: what the queue shows by default (``status=unreviewed``)."""
 
 _ORDERINGS: dict[str, tuple[Any, ...]] = {
     "id": (Frame.id,),
     "-id": (Frame.id.desc(),),
     "frame_index": (Frame.sequence_id, Frame.frame_index, Frame.id),
-    "uncertainty": (Frame.uncertainty.desc().nulls_last(), Frame.id),
+    # Scores lie in [0, 1]: −1 puts frames without one last, on both databases, in the form
+    # the queue's indexes hold (ix_frames_queue, ix_frames_queue_sequence).
+    "uncertainty": (
+        sa.func.coalesce(Frame.uncertainty, sa.literal_column("-1.0")).desc(),
+        Frame.id,
+    ),
 }
+
+
+def list_query(
+    *,
+    sequence_id: int | None = None,
+    status: FrameStatus | Literal["unreviewed"] | None = None,
+    split: Split | None = None,
+    order: str = "id",
+) -> tuple[sa.Select[Any], sa.Select[Any]]:
+    """The ordered query of a frame list and the query of its count (which reads no row)."""
+    conditions: list[Any] = []
+    if sequence_id is not None:
+        conditions.append(Frame.sequence_id == sequence_id)
+    if status == "unreviewed":
+        conditions.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
+    elif status is not None:
+        conditions.append(Frame.status == status)
+    if split is not None:
+        conditions.append(Frame.split == split)
+    count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
+    return sa.select(Frame).where(*conditions).order_by(*_ORDERINGS[order]), count
 
 
 def list_frames(
@@ -354,18 +379,8 @@ def list_frames(
     """Frames filtered and paginated; ``order=uncertainty`` is the review queue (most unsure
     first, frames without a score last), whose first ``diversity_pool`` frames are reordered
     for diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
-    conditions: list[Any] = []
-    if sequence_id is not None:
-        conditions.append(Frame.sequence_id == sequence_id)
-    if status == "unreviewed":
-        conditions.append(Frame.status.in_(UNREVIEWED))
-    elif status is not None:
-        conditions.append(Frame.status == status)
-    if split is not None:
-        conditions.append(Frame.split == split)
-    count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
+    ordered, count = list_query(sequence_id=sequence_id, status=status, split=split, order=order)
     total = session.scalar(count) or 0
-    ordered = sa.select(Frame).where(*conditions).order_by(*_ORDERINGS[order])
     if order == "uncertainty" and diversity > 0 and offset < diversity_pool:
         from app.review.queue import diverse_head
 
