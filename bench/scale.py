@@ -142,6 +142,9 @@ def main() -> None:
             migrate(engine)
             session_factory = create_session_factory(engine)
             run_id, token = fill(session_factory, args.frames)
+            if args.database == "postgresql":  # the statistics autovacuum would have gathered
+                with engine.begin() as connection:
+                    connection.execute(sa.text("ANALYZE frames"))
             headers = {"Authorization": f"Bearer {token}"}
             app = create_app(settings)
             print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
