@@ -152,6 +152,7 @@ class FrameSource:
         self._latest: Any = None
         self._dropped_since = 0
         self._ended = False
+        self._error: BaseException | None = None
         self._ready = threading.Condition()
         self._started = time.perf_counter()
         self._thread = threading.Thread(target=self._read, name="frame-source", daemon=True)
@@ -190,6 +191,8 @@ class FrameSource:
                             break
                         except queue.Full:
                             continue
+        except Exception as exc:  # handed to the consumer, which raises it
+            self._error = exc
         finally:
             self._capture.release()
             with self._ready:
@@ -209,12 +212,14 @@ class FrameSource:
                     while self._latest is None and not self._ended:
                         self._ready.wait(0.1)
                     if self._latest is None:
+                        self._raise_error()
                         return
                     item, self._latest = self._latest, None
                     dropped, self._dropped_since = self._dropped_since, 0
             else:
                 item = self._queue.get()
                 if item is _END:
+                    self._raise_error()
                     return
                 dropped = 0
             index, wall, captured, bgr, prepared = item
@@ -224,6 +229,11 @@ class FrameSource:
                 wall, captured = time.time(), time.perf_counter()
                 time_s = index / self.fps if self.fps else captured - self._started
             yield CapturedFrame(index, wall, captured, bgr, prepared, dropped, time_s)
+
+    def _raise_error(self) -> None:
+        """Raise what stopped the reader thread, if anything did."""
+        if self._error is not None:
+            raise self._error
 
     def close(self) -> None:
         """Stop reading and release the source."""

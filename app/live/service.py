@@ -28,6 +28,8 @@ from app.errors import ConflictError, NotFoundError, WeldpoolError
 log = structlog.get_logger(__name__)
 
 MAX_RUNNING = 2
+KEEP_ENDED = 20
+"""Ended views kept for their page (the oldest beyond this are forgotten)."""
 KEEP_RECORDS = 900
 STATS_WINDOW = 120
 OVERLAY_FPS = 12.0
@@ -114,6 +116,9 @@ class LiveViews:
                 )
             view = LiveView(id=next(self._ids), **view_args)
             self._views[view.id] = view
+            ended = [v.id for v in self._views.values() if v.state not in ACTIVE]
+            for old in sorted(ended)[: max(0, len(ended) - KEEP_ENDED)]:
+                del self._views[old]
         view.thread = threading.Thread(target=_run, args=(view,), name=f"live-{view.id}")
         view.thread.daemon = True
         view.thread.start()

@@ -245,3 +245,16 @@ def test_a_network_camera_is_live_and_keeps_up_by_dropping() -> None:
     for before, after in itertools.pairwise(delivered):
         assert after.index - before.index - 1 == after.dropped
         assert after.time_s > before.time_s
+
+
+def test_a_failure_on_the_reader_thread_reaches_the_consumer(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "run.avi", 5)
+
+    def broken(_frame: object) -> None:
+        raise InvalidInputError("This frame cannot be prepared.")
+
+    with (
+        FrameSource(str(video), prepare=broken) as source,
+        pytest.raises(InvalidInputError, match="cannot be prepared"),
+    ):
+        list(source)
