@@ -133,9 +133,11 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
         f"stopped {s['direction']} at frame #{s['frame_id']} (confidence fell)"
         for s in result["stopped"]
     )
+    proposed = int(result["proposed"])
     ctx.summary = (
-        f"{result['proposed']} frames proposed, {len(result['low_confidence_frame_ids'])} with low "
-        f"confidence" + (f"; {stops}" if stops else "")
+        f"{proposed} frame{'' if proposed == 1 else 's'} proposed, "
+        f"{len(result['low_confidence_frame_ids'])} with low confidence"
+        + (f"; {stops}" if stops else "")
     )
     return result
 

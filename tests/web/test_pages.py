@@ -993,7 +993,7 @@ def test_dropped_frames_get_ids_in_file_name_order(page: Any, server: LiveServer
 
 
 def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
-    page: Any, server: LiveServer
+    page: Any, server: LiveServer, screenshots: Path
 ) -> None:
     """A reviewer corrects one frame of a run, propagates from it, reads the timeline (strip,
     geometry curves), opens a propagated frame from the strip, fixes it, and sees it reviewed."""
@@ -1053,3 +1053,17 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
     assert (
         page.locator("[data-testid=strip-cell]").nth(3).get_attribute("data-status") == "corrected"
     )
+
+    # From the first frame again, forward only and only as far as frame index 2 (of 0–4).
+    page.goto(f"{server.url}/frames/{ids[0]}")
+    open_review(page)
+    assert page.locator("[data-testid=propagate-until]").is_disabled()  # "both ways": no end
+    page.select_option("[data-testid=propagate-direction]", "forward")
+    page.fill("[data-testid=propagate-until]", "2")
+    for width, height in ((1280, 800), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.screenshot(path=str(screenshots / f"review-propagate-{width}.png"))
+    page.fill("[data-testid=propagate-threshold]", "0")
+    page.click("[data-testid=propagate]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('Propagation done')", timeout=120_000)
+    assert "2 frames proposed" in page.inner_text("[data-testid=propagate-note]")

@@ -881,6 +881,9 @@ function bindControls() {
   $("clear-validation").addEventListener("click", () => state.manual.length && commit({ ...state, manual: [] }));
   $("run-teacher").addEventListener("click", () => runTeacher(false));
   $("propagate").addEventListener("click", propagateFromHere);
+  $("propagate-direction").addEventListener("change", () => {
+    $("propagate-until").disabled = $("propagate-direction").value === "both";
+  });
   $("rerun-teacher").addEventListener("click", () => runTeacher(true));
   for (const id of ["run-teacher", "rerun-teacher"]) { // they cannot work: say why instead
     if (TEACHER_PROBLEM) Object.assign($(id), { disabled: true, title: TEACHER_PROBLEM });
@@ -922,7 +925,10 @@ function timelineNote() {
 
 async function propagateFromHere() {
   const threshold = Math.min(1, Math.max(0, Number($("propagate-threshold").value) || 0));
-  const body = { from_frame_ids: [FRAME_ID], direction: $("propagate-direction").value, threshold };
+  const direction = $("propagate-direction").value;
+  const body = { from_frame_ids: [FRAME_ID], direction, threshold };
+  const until = $("propagate-until").value.trim();
+  if (direction !== "both" && until !== "") body.until_frame_index = Math.max(0, Math.round(Number(until)));
   try {
     const job = await jobFromButton($("propagate"), () => api(`/sequences/${frame.sequence_id}/propagate`, { method: "POST", json: body }), "Propagating");
     if (job.status !== "succeeded") throw new Error(`The propagation job ${job.status}: ${job.error ?? job.message ?? ""}`);
