@@ -52,7 +52,12 @@ def promoted_model_dir() -> Path:
     show_default=True,
     help="With --publish: seconds to wait for a subscriber before the first frame.",
 )
-@click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--record",
+    "record_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Also write every record to this JSON-lines file.",
+)
 @click.option("--quiet", is_flag=True, help="No JSON lines on stdout (use --publish or --record).")
 @click.option(
     "--smooth",
