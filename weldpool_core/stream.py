@@ -125,7 +125,6 @@ class FrameSource:
         decoder_threads: int | None = None,
     ) -> None:
         argument, live = parse_source(source)
-        self.name = source
         options: list[int] = []
         if isinstance(argument, str) and live:  # a network stream: do not hang on a dead host
             options += [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS]
@@ -305,7 +304,6 @@ class StreamStudent:
             if threads:
                 torch.set_num_threads(threads)
             self._predictor = StudentPredictor.load(self.model_dir, device, batch_size=1)
-        self.device = "cpu" if self._predictor is None else str(self._predictor.device)
 
     def prepare(self, bgr: NDArray[np.uint8]) -> tuple[NDArray[np.float32], FrameGeometry]:
         """A BGR frame → the 1×3×S×S RGB input in [0, 1], and its geometry (resized first,

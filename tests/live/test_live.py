@@ -170,3 +170,30 @@ def test_weldpool_stream_runs_this_homes_promoted_student(
     assert [r["frame"] for r in records] == [0, 1, 2]
     assert all(r["keypoints_raw"] is None for r in records)  # no smoothing asked for
     assert json.loads(ran.stderr.strip().splitlines()[-1])["model"].endswith("models/student-v1")
+
+
+def test_only_the_newest_ended_views_are_kept(tmp_path: Path) -> None:
+    """A long-running server does not keep every view it ever ran: the 20 newest ended ones."""
+    from app.live.service import KEEP_ENDED, LiveView, LiveViews
+
+    views = LiveViews()
+    args = {
+        "source": str(write_video(tmp_path / "run.avi", 2)),
+        "model_name": "gone",
+        "model_dir": tmp_path / "no-such-model",
+        "started_by": "cell",
+        "smooth": False,
+        "mm_per_px": None,
+        "travel_deg": None,
+    }
+    for view_id in range(1, 26):
+        views._views[view_id] = LiveView(id=view_id, state="ended", **args)
+    views._ids = iter(range(26, 100))
+    started = views.start(args)
+    kept = [view.id for view in views.all()]
+    assert started.id in kept and len(kept) == KEEP_ENDED + 1
+    assert min(kept) == 26 - KEEP_ENDED  # the oldest went first
+    assert wait_for(lambda: started.state == "failed", timeout=60)  # no such model folder
+    assert started.message.endswith(
+        "is not a student model folder (config.json is missing); train one with `weldpool train`."
+    )
