@@ -7,21 +7,30 @@ explicit in ``HeatmapParams``:
    largest region of ``S ≥ 0.5`` (``cv2.findContours``, every pixel kept, holes ignored).
 2. Sobel x and y on ``S`` give the normal angle θᵢ = atan2(gy, gx) at each contour point.
 3. The turn Δθᵢ = wrap(θᵢ₊ₛ − θᵢ₋ₛ): a central difference, so it does not depend on where the
-   contour starts or which way it runs; s is ``turn_step`` of the contour's points, so that a
-   bend is judged alike at any resolution. Points with |Δθᵢ| > λ (``turn_threshold``) are the
-   high-curvature points.
-4. K-means groups them into at most k groups. It starts from the means of the k strongest
-   bends (runs of consecutive high-curvature points, by summed |Δθ|) rather than from random
-   seeds, which would depend on the order of the points and so break mirror symmetry. A group's
-   keypoint is the contour point nearest its mean; its Gaussian has the group's covariance plus
-   ``covariance_floor``·I (never singular).
-5. Distinct parts: groups closer than ``min_separation``·perimeter along the contour merge (on
-   real pools the sharpest bends crowd in the wire's notch). Completion then adds keypoints
-   until there are k, spread over the gaps between the chosen ones so that the smallest spacing
-   is as large as possible: each goes to the gap whose pieces are now longest, and a gap with n
-   new keypoints is cut into n + 1 equal arcs. Without any bend, the first keypoint is the
-   contour point farthest from the centroid (the middle of a flat run of such points).
-   Completion keypoints get an isotropic Gaussian of ``completion_sigma``.
+   contour starts or which way it runs; s is ``turn_step`` of the contour's points (5 %: bends
+   are judged at the scale of the pool, so a hand-drawn wiggle is not a corner, and alike at
+   any resolution). Points with |Δθᵢ| > λ (``turn_threshold``) are the high-curvature points,
+   each weighing its excess |Δθᵢ| − λ.
+4. Groups with an identity. The paper's K-means on the high-curvature points gives groups that
+   change when a weak bend appears or a strong one splits: on the 9 real WAAM labels a
+   keypoint moved 130 px on average when the outline moved by 4–8 px (``bench/keypoints.py``).
+   Here group j is anchored at the contour point seen from the centroid in direction
+   ``order_start_deg`` + (j + ½)·360°/k (for k = 4 and the default start: the pool's back-top,
+   front-top, front-bottom and back-bottom "corners", where a weld pool's bends are); every
+   high-curvature point belongs to the two nearest groups with weights that fall linearly with
+   its angle from their directions (a partition of unity), and group j's keypoint is the
+   anchor moved along the contour by the weighted mean arc offset of its points, with the
+   anchor itself weighing ``anchor_weight``·(contour points). A strong bend pulls its keypoint
+   onto it; weak or absent bends leave it at the anchor (the completion rule). Every step is a
+   continuous function of the outline, so small changes of the mask move keypoints a little
+   and never renumber them.
+5. Distinct parts: neighbouring keypoints closer than ``min_separation``·perimeter along the
+   contour are pushed apart symmetrically. A keypoint's Gaussian has the covariance of the
+   high-curvature points within s/2 of it along the contour (weighted by excess turn; over a
+   whole group a long bend would spread it into a ridge with no clear peak for the student)
+   plus ``covariance_floor``·I. A keypoint its bends did not place (their total weight under
+   the anchor's, or none of them near it) is a completion keypoint with an isotropic Gaussian
+   of ``completion_sigma``.
 6. F = Σⱼ fⱼ with peak-1 Gaussians (so each keypoint is equally visible to the student), rendered
    only within ``window_sigmas`` standard deviations; channel 0 is F ⊙ S, channel 1 the mask.
    S is taken at full strength on the outline, min(1, 2S): the heatmap still fades out over the
@@ -51,14 +60,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.keypoints import ORDER_START_DEG, Points, order_by_angle
+from weldpool_core.keypoints import ORDER_START_DEG, Points, angles_around, order_by_angle
 
 KeypointRule = Literal["curvature", "completion"]
-"""Which rule placed a keypoint: a K-means group of high-curvature points, or completion."""
+"""Which rule placed a keypoint: its group's high-curvature points, or its anchor (completion)."""
 
 _TIE = 1e-9
 _NEIGHBOURS = 5
-_PLATEAU = 1.0
 
 
 @dataclass(frozen=True)
@@ -70,15 +78,13 @@ class HeatmapParams:
         blur_size: odd box-blur size in pixels for S (the paper's Block_B).
         turn_step: s in Δθᵢ = θᵢ₊ₛ − θᵢ₋ₛ, as a fraction of the contour's points (at least 2
             points), so λ means the same at 256×256 and at 1280×800.
-        turn_threshold: λ in radians; |Δθᵢ| above it marks a high-curvature point. 0.5 is
-            sharper than the ends of a 2:1 ellipse: only real corners (the wire's notch, a
-            pointed tail) count, and weak bends do not flicker in and out between frames.
-        covariance_floor: pixels² added to each group's covariance (σ ≥ √floor everywhere).
-        kmeans_iterations: most Lloyd iterations of K-means (it starts from the strongest
-            bends, so it has no random seed and needs no restarts).
+        turn_threshold: λ in radians; |Δθᵢ| above it marks a high-curvature point (1.0 over
+            ±5 % of the outline: a corner, not the end of a 2:1 ellipse).
+        covariance_floor: pixels² added to each curvature keypoint's covariance.
+        anchor_weight: weight of a group's anchor, per contour point, against the excess turns
+            (radians) of its high-curvature points; larger keeps keypoints nearer the anchors.
         min_separation: smallest arc distance between keypoints, as a fraction of the perimeter;
-            at most 1 / (2(k − 1)), which completion can always honour. None: 0.4 / k (0.1 for
-            k = 4, so four keypoints keep at least 40 % of an even spacing).
+            at most 1 / (2(k − 1)). None: 0.4 / k (0.1 for k = 4).
         completion_sigma: standard deviation in pixels of a completion keypoint's Gaussian.
         window_sigmas: a Gaussian is rendered within this many standard deviations.
         order_start_deg: start direction of the order rule (see ``weldpool_core.keypoints``).
@@ -87,10 +93,10 @@ class HeatmapParams:
 
     k: int = 4
     blur_size: int = 9
-    turn_step: float = 0.01
-    turn_threshold: float = 0.5
+    turn_step: float = 0.05
+    turn_threshold: float = 1.0
     covariance_floor: float = 4.0
-    kmeans_iterations: int = 30
+    anchor_weight: float = 0.015
     min_separation: float | None = None
     completion_sigma: float = 3.0
     window_sigmas: float = 3.0
@@ -108,8 +114,8 @@ class HeatmapParams:
             problems.append(f"k must be at least 1, not {self.k}")
         if self.blur_size < 1 or self.blur_size % 2 == 0:
             problems.append(f"blur_size must be a positive odd number, not {self.blur_size}")
-        if not 0 < self.turn_step < 0.25 or self.kmeans_iterations < 1:
-            problems.append("turn_step must lie in (0, 0.25), kmeans_iterations be at least 1")
+        if not 0 < self.turn_step < 0.25 or self.anchor_weight <= 0:
+            problems.append("turn_step must lie in (0, 0.25) and anchor_weight be positive")
         if self.turn_threshold < 0 or self.covariance_floor <= 0 or self.completion_sigma <= 0:
             problems.append("turn_threshold must be ≥ 0, covariance_floor and completion_sigma > 0")
         limit = 0.5 / (self.k - 1) if self.k > 1 else 0.5
@@ -248,22 +254,6 @@ def _arc_distance(a: NDArray[Any], b: NDArray[Any], perimeter: float) -> NDArray
     return distance
 
 
-def _first_of_ties(scores: NDArray[Any], contour: NDArray[Any]) -> int:
-    """Index of the largest score; among ties, the contour point with the smallest (y, x)."""
-    tied = np.flatnonzero(scores >= scores.max() - _TIE)
-    return int(tied[np.lexsort((contour[tied, 0], contour[tied, 1]))[0]])
-
-
-@dataclass(frozen=True)
-class _Group:
-    """A group of high-curvature contour points, where its keypoint sits and its Gaussian."""
-
-    members: NDArray[np.intp]
-    keypoint: NDArray[np.float64]
-    arc: float
-    covariance: NDArray[np.float64]
-
-
 def _nearest(distance: NDArray[Any], contour: NDArray[Any]) -> tuple[Any, NDArray[np.intp]]:
     """The contour point of smallest ``distance`` and the indices of the equally near points.
 
@@ -285,125 +275,6 @@ def _circular_mean(positions: NDArray[Any], perimeter: float) -> float:
     return (mean % (2 * math.pi)) * perimeter / (2 * math.pi)
 
 
-def _group(
-    members: NDArray[np.intp],
-    contour: NDArray[np.int32],
-    arcs: NDArray[Any],
-    perimeter: float,
-    floor: float,
-) -> _Group:
-    """A group: its keypoint is the contour point nearest its mean (equally near ones: averaged)."""
-    points = contour[members].astype(np.float64)
-    mean = points.mean(axis=0)
-    keypoint, tied = _nearest(np.hypot(contour[:, 0] - mean[0], contour[:, 1] - mean[1]), contour)
-    centred = points - mean
-    return _Group(
-        members=members,
-        keypoint=keypoint,
-        arc=_circular_mean(arcs[tied], perimeter),
-        covariance=centred.T @ centred / len(points) + floor * np.eye(2),
-    )
-
-
-def _bend_runs(is_bend: NDArray[np.bool_], bridge: int) -> list[NDArray[np.intp]]:
-    """Runs of consecutive high-curvature contour points (cyclic); gaps ≤ ``bridge`` joined."""
-    count = len(is_bend)
-    bends = np.flatnonzero(is_bend)
-    if bends.size in (0, count):
-        return [bends] if bends.size else []
-    steps = (np.roll(bends, -1) - bends) % count
-    breaks = np.flatnonzero(steps > bridge + 1)
-    if breaks.size == 0:
-        return [bends]
-    bends = np.roll(bends, -(int(breaks[0]) + 1))  # start right after a break
-    return np.split(bends, np.flatnonzero(np.diff(bends) % count > bridge + 1) + 1)
-
-
-def _kmeans(
-    points: NDArray[np.float64], centres: NDArray[np.float64], iterations: int
-) -> NDArray[np.intp]:
-    """Lloyd's K-means from the given centres; returns each point's group."""
-    labels = np.zeros(len(points), np.intp)
-    for _ in range(iterations):
-        distance = ((points[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-        labels = np.argmin(distance, axis=1)
-        moved = np.array(
-            [
-                points[labels == j].mean(axis=0) if np.any(labels == j) else centres[j]
-                for j in range(len(centres))
-            ]
-        )
-        if np.array_equal(moved, centres):
-            break
-        centres = moved
-    return labels
-
-
-def _curvature_groups(
-    contour: NDArray[np.int32],
-    turns: NDArray[Any],
-    arcs: NDArray[Any],
-    perimeter: float,
-    params: HeatmapParams,
-) -> list[_Group]:
-    """Step 4: K-means on the high-curvature points; groups closer than the separation merge.
-
-    K-means starts from the means of the k strongest bends (runs of high-curvature points,
-    by summed |Δθ|). Unlike random k-means++ seeds, this start does not depend on the order of
-    the points, so the groups do not change when the contour starts elsewhere or is mirrored.
-    """
-    runs = _bend_runs(turns > params.turn_threshold, _step(len(contour), params))
-    if not runs:
-        return []
-    strength = [float(turns[run].sum()) for run in runs]
-    means = [contour[run].mean(axis=0) for run in runs]
-    strongest = sorted(range(len(runs)), key=lambda i: (-strength[i], means[i][1], means[i][0]))
-    members = np.concatenate(runs)
-    points = contour[members].astype(np.float64)
-    centres = np.array([means[i] for i in strongest[: params.k]], np.float64)
-    labels = _kmeans(points, centres, params.kmeans_iterations)
-    floor = params.covariance_floor
-    groups = [
-        _group(members[labels == label], contour, arcs, perimeter, floor)
-        for label in range(len(centres))
-        if np.any(labels == label)
-    ]
-    separation = params.separation * perimeter
-    while len(groups) > 1:
-        positions = np.array([g.arc for g in groups])
-        gaps = _arc_distance(positions, positions, perimeter)
-        np.fill_diagonal(gaps, np.inf)
-        first, second = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
-        if gaps[first, second] >= separation:
-            break
-        merged = np.concatenate((groups[first].members, groups[second].members))
-        groups = [g for i, g in enumerate(groups) if i not in (first, second)]
-        groups.append(_group(merged, contour, arcs, perimeter, floor))
-    return groups
-
-
-def _plateau_middle(scores: NDArray[Any], contour: NDArray[Any]) -> int:
-    """Index of the largest score; on a plateau (a run of points within 1 px of it), its middle.
-
-    A pixel contour has flat runs (the end of an ellipse), so the exact maximum would jump along
-    the run under a flip; the run's middle does not. Ties between runs go to the smaller (y, x).
-    """
-    near = scores >= scores.max() - _PLATEAU
-    if near.all():
-        return _first_of_ties(scores, contour)
-    best = _first_of_ties(scores, contour)
-    # Walk both ways from the best point while the score stays on the plateau.
-    count = len(scores)
-    forward = backward = 0
-    while near[(best + forward + 1) % count]:
-        forward += 1
-    while near[(best - backward - 1) % count]:
-        backward += 1
-    run = (best + np.arange(-backward, forward + 1)) % count
-    steps = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(contour[run], axis=0).T))))
-    return int(run[int(np.argmin(np.abs(steps - steps[-1] / 2)))])
-
-
 def _point_at_arc(
     target: float, contour: NDArray[Any], arcs: NDArray[Any], perimeter: float
 ) -> Any:
@@ -411,25 +282,48 @@ def _point_at_arc(
     return _nearest(_arc_distance(arcs, np.array([target]), perimeter)[:, 0], contour)[0]
 
 
-def _spread_along_gaps(taken: list[float], count: int, perimeter: float) -> list[float]:
-    """Arc positions of ``count`` new keypoints that keep the smallest spacing as large as possible.
+def _signed_arc(arcs: NDArray[Any], origin: float, perimeter: float) -> NDArray[np.float64]:
+    """Arc offset of each position from ``origin``, wrapped to [−perimeter/2, perimeter/2)."""
+    offset: NDArray[np.float64] = np.mod(arcs - origin + perimeter / 2, perimeter) - perimeter / 2
+    return offset
 
-    Each new keypoint goes to the gap (between chosen keypoints) whose pieces are now longest; a
-    gap that receives n keypoints is cut into n + 1 equal pieces. It depends only on the gaps, not
-    on where the contour starts or which way it runs.
+
+def _anchor_arc(
+    angles: NDArray[Any], direction: float, arcs: NDArray[Any], perimeter: float
+) -> float:
+    """Arc position of the contour point seen from the centroid in ``direction`` (radians in the
+    order rule's frame); equally near points average (on the circle of arc positions)."""
+    off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+    tied = np.flatnonzero(off <= off.min() + _TIE)
+    return _circular_mean(arcs[tied], perimeter)
+
+
+def _separate(positions: list[float], perimeter: float, separation: float) -> list[float]:
+    """Push neighbouring keypoints (in group order around the contour) apart to ``separation``.
+
+    Each pair closer than that moves apart symmetrically about its middle; a few sweeps settle
+    chains. Positions only move continuously with the shape, so a small change of the mask
+    never renumbers or swaps keypoints.
     """
-    starts = sorted(taken)
-    lengths = [*np.diff(starts), starts[0] + perimeter - starts[-1]]
-    given = [0] * len(starts)
-    for _ in range(count):
-        pieces = [length / (n + 1) for length, n in zip(lengths, given, strict=True)]
-        widest = max(range(len(pieces)), key=lambda i: (pieces[i], -i))
-        given[widest] += 1
-    return [
-        float((start + length * j / (n + 1)) % perimeter)
-        for start, length, n in zip(starts, lengths, given, strict=True)
-        for j in range(1, n + 1)
-    ]
+    out = list(positions)
+    count = len(out)
+    if count < 2 or separation <= 0:
+        return out
+    for _ in range(4 * count):
+        moved = False
+        for j in range(count):
+            nxt = (j + 1) % count
+            gap = float(_signed_arc(np.array([out[nxt]]), out[j], perimeter)[0])
+            # groups go round the contour in one direction; the gap is the signed step to the next
+            step = abs(gap)
+            if step < separation - 1e-9:
+                push = (separation - step) / 2 * (1 if gap >= 0 else -1)
+                out[j] = (out[j] - push) % perimeter
+                out[nxt] = (out[nxt] + push) % perimeter
+                moved = True
+        if not moved:
+            break
+    return out
 
 
 def _select_keypoints(
@@ -438,24 +332,39 @@ def _select_keypoints(
     centre: tuple[float, float],
     params: HeatmapParams,
 ) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]], list[KeypointRule]]:
-    """Step 5: the separated curvature groups, then completion along the contour up to k."""
+    """Steps 4–5: k groups of high-curvature points anchored around the pool (module doc)."""
     arcs, perimeter = _arc_positions(contour)
-    groups = _curvature_groups(contour, turns, arcs, perimeter, params)
-    keypoints = [g.keypoint for g in groups]
-    covariances = [g.covariance for g in groups]
-    rules: list[KeypointRule] = ["curvature"] * len(groups)
-    taken = [g.arc for g in groups]
-    if not taken:
-        distance = np.hypot(contour[:, 0] - centre[0], contour[:, 1] - centre[1])
-        farthest = _plateau_middle(distance, contour)
-        taken = [float(arcs[farthest])]
-        keypoints.append(contour[farthest].astype(np.float64))
-        covariances.append(params.completion_sigma**2 * np.eye(2))
-        rules.append("completion")
-    for target in _spread_along_gaps(taken, params.k - len(taken), perimeter):
-        keypoints.append(_point_at_arc(target, contour, arcs, perimeter))
-        covariances.append(params.completion_sigma**2 * np.eye(2))
-        rules.append("completion")
+    angles = angles_around(contour, centre, params.order_start_deg)
+    width = 2 * math.pi / params.k
+    excess = np.clip(turns - params.turn_threshold, 0.0, None)
+    prior = params.anchor_weight * len(contour)
+    reach = 0.5 * _step(len(contour), params) * perimeter / len(contour)
+    positions: list[float] = []
+    weights: list[float] = []
+    for j in range(params.k):
+        direction = (j + 0.5) * width
+        anchor = _anchor_arc(angles, direction, arcs, perimeter)
+        off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+        share = excess * np.clip(1.0 - off / width, 0.0, None)
+        pull = float((share * _signed_arc(arcs, anchor, perimeter)).sum())
+        positions.append((anchor + pull / (float(share.sum()) + prior)) % perimeter)
+        weights.append(float(share.sum()))
+    positions = _separate(positions, perimeter, params.separation * perimeter)
+    keypoints, covariances, rules = [], [], []
+    points = contour.astype(np.float64)
+    for position, weight in zip(positions, weights, strict=True):
+        keypoint = _point_at_arc(position, contour, arcs, perimeter)
+        near = excess * (np.abs(_signed_arc(arcs, position, perimeter)) <= reach)
+        curved = weight >= prior and float(near.sum()) > _TIE
+        if curved:
+            centred = points - keypoint
+            spread = (near[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(0)
+            covariance = spread / float(near.sum()) + params.covariance_floor * np.eye(2)
+        else:
+            covariance = params.completion_sigma**2 * np.eye(2)
+        keypoints.append(np.asarray(keypoint, np.float64))
+        covariances.append(covariance)
+        rules.append("curvature" if curved else "completion")
     return keypoints, covariances, rules
 
 

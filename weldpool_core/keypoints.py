@@ -5,8 +5,10 @@ downwards, so an increasing image angle ``atan2(y, x)`` turns clockwise on scree
 
 Order rule (shared by Algorithm 1 and the student): keypoints are sorted by their angle around a
 centre (the pool's centroid), clockwise on screen, starting from the direction ``start_deg``
-(default −135°: up-left, between the usual top and trailing-edge keypoints, so that small
-changes of shape rarely move a keypoint across the start and renumber the set).
+(default 180°: straight left, the middle of the pool's trailing edge, where Algorithm 1 puts no
+keypoint: its k = 4 anchors sit at the diagonals, so keypoint 0 is the back-top corner, then
+front-top, front-bottom and back-bottom, and small changes of shape never move one across the
+start).
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
 
-ORDER_START_DEG = -135.0
-"""Default start direction of the order rule, in image degrees (−135°: up-left on screen)."""
+ORDER_START_DEG = 180.0
+"""Default start direction of the order rule, in image degrees (180°: left on screen)."""
 
 Points = NDArray[np.float64]
 """k×2 array of ``(x, y)`` keypoints."""

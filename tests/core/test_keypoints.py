@@ -27,18 +27,18 @@ def _gaussians(
     return heat.astype(np.float32)
 
 
-def test_order_rule_runs_clockwise_on_screen_from_up_left() -> None:
-    points = np.array([[-1, 0], [1, 0], [0, 1], [0, -1], [-1, -1]], np.float64)
+def test_order_rule_runs_clockwise_on_screen_from_the_left() -> None:
+    points = np.array([[1, 0], [0, 1], [0, -1], [-1, -1], [-1, 0.1], [-1, -0.1]], np.float64)
     ordered = points[order_by_angle(points, (0.0, 0.0))]
-    assert ordered.tolist() == [[-1, -1], [0, -1], [1, 0], [0, 1], [-1, 0]]
+    assert ordered.tolist() == [[-1, -0.1], [-1, -1], [0, -1], [1, 0], [0, 1], [-1, 0.1]]
     angles = angles_around(points, (0.0, 0.0))
     assert angles.min() >= 0 and angles.max() < 2 * np.pi
-    assert order_by_angle(points, (0.0, 0.0), start_deg=0.0)[0] == 1  # from the right instead
+    assert order_by_angle(points, (0.0, 0.0), start_deg=0.0)[0] == 0  # from the right instead
 
 
 def test_modes_are_found_sub_pixel_and_in_order() -> None:
-    # In the order rule around (80, 60); (40.3, 30.7) lies just before up-left, so it is last.
-    centres = [(120.6, 35.2), (100.25, 90.8), (30.9, 85.4), (40.3, 30.7)]
+    # In the order rule around (80, 60): up-left, up-right, down-right, down-left.
+    centres = [(40.3, 30.7), (120.6, 35.2), (100.25, 90.8), (30.9, 85.4)]
     modes = keypoints_from_heatmap(_gaussians(centres[::-1]), k=4, centre=(80.0, 60.0))
     assert np.abs(modes - np.array(centres)).max() < 0.05
 
@@ -65,8 +65,9 @@ def test_two_channel_heatmap_orders_around_the_mask_centroid() -> None:
     modes = keypoints_from_heatmap(stacked, k=5)
     explicit = keypoints_from_heatmap(heat, k=5, centre=(79.5, 59.5))
     assert np.array_equal(modes, explicit)
-    assert modes[0].round().tolist() == [80, 20]  # first clockwise from up-left
-    assert modes[-1].round().tolist() == [10, 20]
+    assert modes[0].round().tolist() == [10, 20]  # first clockwise from the left
+    assert modes[1].round().tolist() == [80, 20]
+    assert modes[-1].round().tolist() == [10, 100]
 
 
 def test_round_trip_through_algorithm_1() -> None:
