@@ -18,11 +18,10 @@ stay affordable on a CPU), and prints one row each; ``--repeats`` seeds per vari
 
     PYTHONPATH=. .venv/bin/python bench/real_student.py [--quick] [--ablation] [--repeats 1]
 
-Measured on 2 shared CPU cores, seed 0 (training seconds of uncontended runs; contended ones
-took up to 5× longer): LOCO mIoU 0.825 / 0.847 / 0.850 (held out 0mm / 2mm / mm, mean 0.841),
-within-clip 0.981 / 0.936 / 0.868 (mean 0.928), 70–140 s per fold, 75 s for all 9 frames.
-mED against Algorithm 1 on the true masks: 9.3 px within 0mm, 90–145 px elsewhere, because
-Algorithm 1's own keypoints jump by 100–570 px between frames of the 2mm and mm clips.
+Measured on 2 CPU cores, seed 0, 2026-11-28 (keypoints of Algorithm 1's anchored groups): LOCO
+mIoU 0.821 / 0.837 / 0.783 (held out 0mm / 2mm / mm, mean 0.813), mED 44.6 / 51.8 / 49.3 px;
+within-clip 0.972 / 0.950 / 0.900 (mean 0.941), mED 11.9 / 10.8 / 42.1 px; about 120 s per
+fold. The keypoint error sits on the front corners, where the predicted mask misses the wire.
 """
 
 from __future__ import annotations

@@ -350,7 +350,9 @@ def _select_keypoints(
         positions.append((anchor + pull / (float(share.sum()) + prior)) % perimeter)
         weights.append(float(share.sum()))
     positions = _separate(positions, perimeter, params.separation * perimeter)
-    keypoints, covariances, rules = [], [], []
+    keypoints: list[NDArray[np.float64]] = []
+    covariances: list[NDArray[np.float64]] = []
+    rules: list[KeypointRule] = []
     points = contour.astype(np.float64)
     for position, weight in zip(positions, weights, strict=True):
         keypoint = _point_at_arc(position, contour, arcs, perimeter)

@@ -28,6 +28,7 @@ from tests.core.shapes import (
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, HeatmapResult, heatmap_from_mask
 from weldpool_core.keypoints import angles_around
+from weldpool_core.synth import nudge_outline
 
 PROPERTY = settings(max_examples=25, deadline=None, derandomize=True)
 SEEDS = st.integers(0, 2**32 - 1)
@@ -162,16 +163,6 @@ def test_crowded_bends_pull_the_front_keypoints_into_the_notch() -> None:
     assert np.abs(plain.keypoints[[0, 3]] - result.keypoints[[0, 3]]).max() <= 8.0  # centroid
 
 
-def _nudged(mask: NDArray[np.bool_], seed: int, amplitude: float) -> NDArray[np.bool_]:
-    """The mask with its outline moved by a smooth random displacement of about ``amplitude``."""
-    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
-    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
-    rng = np.random.default_rng(seed)
-    cells = rng.standard_normal((mask.shape[0] // 40 + 2, mask.shape[1] // 40 + 2))
-    noise = cv2.resize(cells.astype(np.float32), mask.shape[::-1], interpolation=cv2.INTER_CUBIC)
-    return np.asarray(inside - outside + amplitude * noise > 0)
-
-
 @PROPERTY
 @given(SEEDS)
 def test_a_small_change_of_the_outline_moves_keypoints_a_little_and_keeps_their_numbers(
@@ -181,7 +172,7 @@ def test_a_small_change_of_the_outline_moves_keypoints_a_little_and_keeps_their_
     keypoint (matched by its number, not re-paired) by a few pixels, never to another part."""
     mask = pool_blob(seed)
     before = heatmap_from_mask(mask).keypoints
-    after = heatmap_from_mask(_nudged(mask, seed, 2.0)).keypoints
+    after = heatmap_from_mask(nudge_outline(mask, seed, 2.0)).keypoints
     assert np.linalg.norm(after - before, axis=1).max() <= 12.0
 
 
@@ -291,7 +282,7 @@ def test_on_real_pools_keypoints_mark_the_same_corners_in_every_frame_of_a_clip(
         mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
         keypoints = heatmap_from_mask(mask).keypoints
         clips.setdefault(path.stem.rsplit("_", 1)[0], []).append(keypoints)
-        nudged = heatmap_from_mask(_nudged(mask, 0, 4.0)).keypoints
+        nudged = heatmap_from_mask(nudge_outline(mask, 0, 4.0)).keypoints
         nudges.append(np.linalg.norm(nudged - keypoints, axis=1))
     assert len(clips) == 3
     moves = [
