@@ -2,6 +2,9 @@
 
 The database holds metadata and relative paths; the files live here. A file is written to a
 temporary name, flushed to disk, then renamed into place, and only then is its row committed.
+``put_many`` does this for a whole request in one batch: every file written, then all of them
+flushed to disk together (in parallel), renamed, and the directories that received them
+flushed, so the rows committed next never name a file the disk could lose.
 If the commit fails, the files this attempt created are removed again; if the process dies
 between rename and commit, ``sweep_orphans`` (run by ``weldpool serve``) removes the leftovers.
 """
@@ -12,7 +15,8 @@ import hashlib
 import os
 import time
 import uuid
-from collections.abc import Collection, Iterable
+from collections.abc import Collection, Iterable, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -66,6 +70,53 @@ class Storage:
             return StoredFile(relative, created=False)
         return self._install(self._write_temporary(data), relative)
 
+    def put_many(
+        self,
+        items: Sequence[tuple[bytes, str, str]],
+        area: str = "frames",
+        executor: Executor | None = None,
+    ) -> list[StoredFile]:
+        """``put`` for many ``(data, sha256, extension)`` at once, with one flush to disk.
+
+        Each new file is written to a temporary name; then every temporary is fsynced
+        (in ``executor``'s threads when given: fsync releases the GIL and the disk queues
+        them together), renamed into place, and each directory that gained an entry is
+        fsynced once, so a crash after this returns cannot lose a file or its name.
+        """
+        results: list[StoredFile | None] = [None] * len(items)
+        pending: dict[str, tuple[int, Path]] = {}
+        try:
+            for i, (data, sha256, extension) in enumerate(items):
+                relative = self.relative_path(area, sha256, extension)
+                if relative in pending or (self.home / relative).exists():
+                    results[i] = StoredFile(relative, created=False)
+                    continue
+                temporary = self._temporary()
+                temporary.write_bytes(data)
+                pending[relative] = (i, temporary)
+            paths = [temporary for _, temporary in pending.values()]
+            list(executor.map(_fsync, paths) if executor else map(_fsync, paths))
+        except BaseException:
+            for _, temporary in pending.values():
+                temporary.unlink(missing_ok=True)
+            raise
+        touched: set[Path] = set()
+        installed: list[StoredFile] = []
+        try:
+            for relative, (i, temporary) in pending.items():
+                final = self.home / relative
+                touched.update(_created_parents(final.parent, self.home))
+                touched.add(final.parent)
+                results[i] = stored = self._install(temporary, relative)
+                installed.append(stored)
+            list(executor.map(_fsync, touched) if executor else map(_fsync, touched))
+        except BaseException:
+            self.discard(installed)
+            for _, temporary in pending.values():
+                temporary.unlink(missing_ok=True)
+            raise
+        return [r for r in results if r is not None]  # every item got one
+
     def write(self, relative: str, data: bytes) -> Path:
         """Write (or replace) the file at ``relative`` atomically; returns its path."""
         target = self.absolute(relative)
@@ -73,7 +124,7 @@ class Storage:
         os.replace(self._write_temporary(data), target)
         return target
 
-    def _write_temporary(self, data: bytes) -> Path:
+    def _write_temporary(self, data: bytes) -> Path:  # one file, flushed on its own
         temporary = self._temporary()
         with open(temporary, "wb") as handle:
             handle.write(data)
@@ -130,3 +181,24 @@ class Storage:
             if stale.stat().st_mtime < cutoff:
                 stale.unlink()
         return removed
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file, or a directory's entries, to disk."""
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def _created_parents(directory: Path, home: Path) -> list[Path]:
+    """Create ``directory`` (and missing parents under home); returns the directories whose
+    entries changed: the parents of every directory created here."""
+    missing = []
+    while not directory.exists() and directory != home:
+        missing.append(directory)
+        directory = directory.parent
+    for path in reversed(missing):
+        path.mkdir(exist_ok=True)
+    return [path.parent for path in missing]

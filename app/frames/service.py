@@ -252,11 +252,12 @@ def record_frames(
                 new[frame.sha256] = frame
         written: list[StoredFile] = []
         try:
-            rows = []
-            for frame in new.values():
-                stored = storage.put(frame.data, frame.sha256, frame.info.extension)
-                written.append(stored)
-                rows.append(_frame_row(frame, stored.path, sequence_id, user, video_id))
+            items = [(f.data, f.sha256, f.info.extension) for f in new.values()]
+            written = storage.put_many(items, executor=_POOL)
+            rows = [
+                _frame_row(frame, stored.path, sequence_id, user, video_id)
+                for frame, stored in zip(new.values(), written, strict=True)
+            ]
             session.add_all(rows)
             session.commit()
         except sa.exc.IntegrityError:

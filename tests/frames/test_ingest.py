@@ -12,6 +12,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 from PIL import Image
 
+from app import storage as storage_module
 from app.config import Settings
 from app.frames import service
 from app.housekeeping import sweep_orphan_files
@@ -278,6 +279,60 @@ def test_failed_commit_leaves_no_file_and_no_row(
     with session_factory() as session:
         assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
     assert _stored_files(settings) == []
+
+
+def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
+    settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every file is fsynced before any is renamed into place, then each directory that gained
+    a name, then the rows are committed: nothing committed can name a file the disk lost."""
+    storage = Storage(settings.home)
+    events: list[str] = []
+    real_fsync, real_replace = storage_module._fsync, storage_module.os.replace
+    monkeypatch.setattr(
+        storage_module, "_fsync", lambda p: (events.append(f"fsync {p}"), real_fsync(p))[1]
+    )
+    monkeypatch.setattr(
+        storage_module.os, "replace", lambda a, b: (events.append("rename"), real_replace(a, b))[1]
+    )
+    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=60 + i)) for i in range(4)]
+    with session_factory() as session:
+        real_commit = session.commit
+        monkeypatch.setattr(session, "commit", lambda: (events.append("commit"), real_commit())[1])
+        result = service.ingest_frames(
+            session, storage, files, sequence_id=None, user=None, max_pixels=10**6
+        )
+    assert len(result.stored) == 4 and len(_stored_files(settings)) == 4
+    renames = [i for i, e in enumerate(events) if e == "rename"]
+    files_synced = [i for i, e in enumerate(events) if e.startswith("fsync") and ".part" in e]
+    dirs_synced = [i for i, e in enumerate(events) if e.startswith("fsync") and ".part" not in e]
+    assert len(files_synced) == 4 and len(renames) == 4
+    assert max(files_synced) < min(renames) and max(renames) < min(dirs_synced)
+    assert max(dirs_synced) < events.index("commit")
+    synced = {
+        e.removeprefix("fsync ") for e in events if e.startswith("fsync") and ".part" not in e
+    }
+    parents = {str(storage.absolute(row.path).parent) for row in result.stored}
+    assert parents <= synced  # every directory that received a file
+
+
+def test_a_failed_flush_leaves_no_file(
+    settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    storage = Storage(settings.home)
+
+    def broken(path: Path) -> None:
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(storage_module, "_fsync", broken)
+    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=70 + i)) for i in range(3)]
+    with session_factory() as session, pytest.raises(OSError):
+        service.ingest_frames(
+            session, storage, files, sequence_id=None, user=None, max_pixels=10**6
+        )
+    with session_factory() as session:
+        assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
+    assert _stored_files(settings) == [] and list((settings.home / "tmp").glob("*")) == []
 
 
 def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) -> None:
