@@ -85,24 +85,40 @@ def fill(session_factory: Any, count: int) -> tuple[int, str]:
         return run.id, token
 
 
-def page_json(app: Any, run_id: int, order: str, status: str, offset: int) -> str:
+def page_json(
+    app: Any, run_id: int, order: str, status: str, offset: int, after: str | None = None
+) -> str:
     """What the route does for a page, without HTTP: the list, its rows as JSON."""
     settings = app.state.settings
     with app.state.session_factory() as session:
-        rows, total = service.list_frames(
+        page = service.list_frames(
             session,
             sequence_id=run_id,
             status=None if status == "all" else "unreviewed",
             order=order,
             limit=PAGE,
-            offset=offset,
+            offset=0 if after else offset,
+            after=after,
             diversity=settings.queue_diversity,
             diversity_pool=settings.queue_diversity_pool,
         )
-        page = FramePage(
-            items=[FrameOut.model_validate(r) for r in rows], total=total, limit=PAGE, offset=offset
+        return FramePage(
+            items=[FrameOut.model_validate(r) for r in page.rows],
+            total=page.total,
+            limit=PAGE,
+            offset=offset,
+            next_after=page.next_after,
+        ).model_dump_json()
+
+
+def cursor_before(app: Any, run_id: int, order: str, status: str, offset: int) -> str:
+    """The cursor whose next page starts at ``offset`` (the previous row's sort key)."""
+    with app.state.session_factory() as session:
+        ordered, _ = service.list_query(
+            sequence_id=run_id, status=None if status == "all" else "unreviewed", order=order
         )
-        return page.model_dump_json()
+        row = session.scalars(ordered.offset(offset - 1).limit(1)).one()
+        return service.cursor_after(row, order)
 
 
 def median_ms(call: Any, runs: int) -> float:
@@ -159,28 +175,42 @@ def main() -> None:
                     total = connection.scalar(
                         sa.select(sa.func.count()).select_from(Frame).where(*where)
                     )
-                    for name, offset in (("first", 0), ("last", max(0, total - PAGE))):
+                    last = max(0, total - PAGE)
+                    for name, offset, by_cursor in (
+                        ("first", 0, False),
+                        ("last", last, False),
+                        ("last", last, True),
+                    ):
+                        after = (
+                            cursor_before(app, run_id, order, status, offset) if by_cursor else None
+                        )
                         path = (
                             f"/api/v1/frames?sequence_id={run_id}&order={order}&status={status}"
-                            f"&limit={PAGE}&offset={offset}"
+                            f"&limit={PAGE}&" + (f"after={after}" if after else f"offset={offset}")
                         )
                         api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
                         server = median_ms(
-                            lambda o=order, s=status, x=offset: page_json(app, run_id, o, s, x),
+                            lambda o=order, s=status, x=offset, a=after: page_json(
+                                app, run_id, o, s, x, a
+                            ),
                             args.runs,
                         )
-                        floor_query = (
-                            sa.select(Frame.id)
-                            .where(*where)
-                            .order_by(*_ORDERINGS[order])
-                            .limit(PAGE)
-                            .offset(offset)
-                        )
+                        floor_query = sa.select(Frame.id).where(*where).order_by(*_ORDERINGS[order])
+                        if after:
+                            key = service.parse_cursor(after, order)
+                            assert isinstance(key, list)
+                            nulls_first = args.database == "sqlite"
+                            floor_query = floor_query.where(
+                                service.after_condition(order, key, nulls_first)
+                            ).limit(PAGE)
+                        else:
+                            floor_query = floor_query.limit(PAGE).offset(offset)
                         floor = median_ms(
                             lambda q=floor_query: connection.execute(q).all(), args.runs
                         )
+                        how = "cursor" if after else f"offset {offset}"
                         print(
-                            f"| {order} ({status}) | {name} (offset {offset}) | {api:.1f} | "
+                            f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
                             f"{server:.1f} | {floor:.2f} |",
                             flush=True,
                         )

@@ -254,9 +254,17 @@ def list_frames(
     ),
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
+    after: Annotated[
+        str | None,
+        Query(
+            max_length=200,
+            description="Cursor: the previous page's `next_after`. The page after it reads "
+            "only its own rows, however deep (an `offset` walks every row it skips).",
+        ),
+    ] = None,
 ) -> FramePage:
-    """Frames, filtered and paginated."""
-    rows, total = service.list_frames(
+    """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
+    page = service.list_frames(
         session,
         sequence_id=sequence_id,
         status=None if status == "all" else status,
@@ -264,14 +272,16 @@ def list_frames(
         order=order,
         limit=limit,
         offset=offset,
+        after=after,
         diversity=settings.queue_diversity,
         diversity_pool=settings.queue_diversity_pool,
     )
     return FramePage(
-        items=[FrameOut.model_validate(r) for r in rows],
-        total=total,
+        items=[FrameOut.model_validate(r) for r in page.rows],
+        total=page.total,
         limit=limit,
         offset=offset,
+        next_after=page.next_after,
         ordering=service.ordering_note(
             order, settings.queue_diversity, settings.queue_diversity_pool
         ),

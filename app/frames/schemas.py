@@ -116,6 +116,10 @@ class FramePage(BaseModel):
     total: int
     limit: int
     offset: int
+    next_after: str | None = Field(
+        default=None,
+        description="Cursor of the next page (pass it as `after`); null on the last page.",
+    )
     ordering: str | None = Field(
         default=None, description="How the list is ordered, where the scores do not show it."
     )

@@ -365,6 +365,95 @@ def list_query(
     return sa.select(Frame).where(*conditions).order_by(*_ORDERINGS[order]), count
 
 
+# Keyset pagination: a page after a cursor reads only its own rows through the order's index,
+# where an offset walks every row it skips. The cursor names the order and the sort key of the
+# page's last row: ``<order>~<key>~<key>…`` (``null`` for a NULL), or ``uncertainty~head~<n>``
+# for a position inside the queue's diversity head (which is reordered on every request).
+_KEY_COLUMNS: dict[str, tuple[tuple[Any, bool], ...]] = {
+    # (column or expression, descending)
+    "id": ((Frame.id, False),),
+    "-id": ((Frame.id, True),),
+    "frame_index": ((Frame.sequence_id, False), (Frame.frame_index, False), (Frame.id, False)),
+    "uncertainty": ((_ORDERINGS["uncertainty"][0].element, True), (Frame.id, False)),
+}
+_HEAD = "head"
+_CURSOR_PROBLEM = (
+    "`after` is not a cursor of this list's order; pass the `next_after` of the previous page."
+)
+
+
+def _key(frame: Frame, order: str) -> list[Any]:
+    if order in ("id", "-id"):
+        return [frame.id]
+    if order == "frame_index":
+        return [frame.sequence_id, frame.frame_index, frame.id]
+    return [-1.0 if frame.uncertainty is None else float(frame.uncertainty), frame.id]
+
+
+def _cursor(order: str, values: Seq[Any]) -> str:
+    return "~".join([order, *("null" if v is None else repr(v) for v in values)])
+
+
+def cursor_after(frame: Frame, order: str) -> str:
+    """The cursor of the page that follows ``frame`` in ``order``."""
+    return _cursor(order, _key(frame, order))
+
+
+def parse_cursor(after: str, order: str) -> list[Any] | int:
+    """The sort key a cursor holds (or, for the queue's head, a position); 422 when foreign."""
+    parts = after.split("~")
+    columns = _KEY_COLUMNS[order]
+    try:
+        if parts[0] != order:
+            raise ValueError
+        if order == "uncertainty" and len(parts) == 3 and parts[1] == _HEAD:
+            return int(parts[2])
+        if len(parts) != len(columns) + 1:
+            raise ValueError
+        floats = order == "uncertainty"
+        values: list[Any] = []
+        for i, text in enumerate(parts[1:]):
+            if text == "null":
+                values.append(None)
+            else:
+                values.append(float(text) if floats and i == 0 else int(text))
+        if values[-1] is None:
+            raise ValueError
+        return values
+    except ValueError:
+        raise InvalidInputError(_CURSOR_PROBLEM) from None
+
+
+def after_condition(order: str, values: list[Any], nulls_first: bool) -> Any:
+    """Rows strictly after ``values`` in ``order``: a lexicographic comparison that places
+    NULLs where the database sorts them (first ascending on SQLite, last on PostgreSQL)."""
+
+    def equal(column: Any, value: Any) -> Any:
+        return column.is_(None) if value is None else column == value
+
+    def beyond(column: Any, value: Any, descending: bool) -> Any:
+        if value is None:
+            return column.is_not(None) if nulls_first else sa.false()
+        ahead = column < value if descending else column > value
+        return ahead if nulls_first else sa.or_(ahead, column.is_(None))
+
+    columns = _KEY_COLUMNS[order]
+    clauses = []
+    for i, (column, descending) in enumerate(columns):
+        same = [equal(c, v) for (c, _), v in zip(columns[:i], values[:i], strict=True)]
+        clauses.append(sa.and_(*same, beyond(column, values[i], descending)))
+    return sa.or_(*clauses)
+
+
+@dataclass
+class FramePageResult:
+    """A page of a frame list: its rows, the list's total and the cursor of the next page."""
+
+    rows: list[Frame]
+    total: int
+    next_after: str | None
+
+
 def list_frames(
     session: Session,
     *,
@@ -374,25 +463,57 @@ def list_frames(
     order: str = "id",
     limit: int = 50,
     offset: int = 0,
+    after: str | None = None,
     diversity: float = 0.0,
     diversity_pool: int = 50,
-) -> tuple[list[Frame], int]:
-    """Frames filtered and paginated; ``order=uncertainty`` is the review queue (most unsure
-    first, frames without a score last), whose first ``diversity_pool`` frames are reordered
-    for diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
+) -> FramePageResult:
+    """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
+    before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
+    frames without a score last), whose first ``diversity_pool`` frames are reordered for
+    diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
+    if after is not None and offset:
+        raise InvalidInputError("Use either `offset` or `after`, not both.")
     ordered, count = list_query(sequence_id=sequence_id, status=status, split=split, order=order)
     total = session.scalar(count) or 0
-    if order == "uncertainty" and diversity > 0 and offset < diversity_pool:
+    position = offset
+    key: list[Any] | None = None
+    if after is not None:
+        parsed = parse_cursor(after, order)
+        if isinstance(parsed, int):
+            position = parsed
+        else:
+            key = parsed
+    diverse = order == "uncertainty" and diversity > 0
+    if diverse and key is None and position < diversity_pool:
         from app.review.queue import diverse_head
 
         pool = ordered.options(undefer(Frame.descriptor)).limit(diversity_pool)
         head = diverse_head(list(session.scalars(pool)), diversity)
-        page = head[offset : offset + limit]
+        page = head[position : position + limit]
+        tail: list[Frame] = []
         if len(page) < limit and len(head) == diversity_pool:
-            page += session.scalars(ordered.offset(diversity_pool).limit(limit - len(page))).all()
-        return page, total
-    rows = session.scalars(ordered.limit(limit).offset(offset)).all()
-    return list(rows), total
+            tail = list(session.scalars(ordered.offset(diversity_pool).limit(limit - len(page))))
+        end = position + len(page)
+        if end < len(head):
+            return FramePageResult(page, total, f"uncertainty~{_HEAD}~{end}")
+        rows = page + tail
+        if len(head) < diversity_pool or len(rows) < limit:  # the list ends on this page
+            return FramePageResult(rows, total, None)
+        last = tail[-1] if tail else max(head, key=_sort_position)
+        return FramePageResult(rows, total, cursor_after(last, order))
+    if key is not None:
+        nulls_first = session.get_bind().dialect.name == "sqlite"
+        ordered = ordered.where(after_condition(order, key, nulls_first))
+        rows = list(session.scalars(ordered.limit(limit)))
+    else:
+        rows = list(session.scalars(ordered.limit(limit).offset(position)))
+    more = len(rows) == limit
+    return FramePageResult(rows, total, _cursor(order, _key(rows[-1], order)) if more else None)
+
+
+def _sort_position(frame: Frame) -> tuple[float, int]:
+    """The queue's sort key as a tuple that grows along the list."""
+    return (-(-1.0 if frame.uncertainty is None else float(frame.uncertainty)), frame.id)
 
 
 def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:

@@ -16,6 +16,9 @@ const selected = new Set();
 let sequences = [];
 let offset = Number(new URLSearchParams(location.search).get("offset") ?? 0) || 0;
 let lastPage = { items: [], total: 0 };
+// "Next" follows the server's cursor (a deep page then reads only its own rows); a reload or
+// "previous" uses the offset in the URL.
+let nextAfter = null;
 
 // --- filters and the URL ----------------------------------------------------------------------
 
@@ -140,7 +143,8 @@ function frameRow(frame) {
 }
 
 async function loadFrames() {
-  const params = { ...filters(), limit: PAGE_SIZE, offset };
+  const params = { ...filters(), limit: PAGE_SIZE, ...(nextAfter ? { after: nextAfter } : { offset }) };
+  nextAfter = null;
   try {
     lastPage = await api(`/frames${query(params)}`);
   } catch (error) {
@@ -184,7 +188,11 @@ async function refresh() {
 
 filterForm.addEventListener("change", () => { offset = 0; refresh(); });
 document.getElementById("prev-page").addEventListener("click", () => { offset = Math.max(0, offset - PAGE_SIZE); refresh(); });
-document.getElementById("next-page").addEventListener("click", () => { offset += PAGE_SIZE; refresh(); });
+document.getElementById("next-page").addEventListener("click", () => {
+  offset += PAGE_SIZE;
+  nextAfter = lastPage.next_after ?? null;
+  refresh();
+});
 document.getElementById("select-all").addEventListener("change", (event) => {
   for (const frame of lastPage.items) event.target.checked ? selected.add(frame.id) : selected.delete(frame.id);
   updateSelection();

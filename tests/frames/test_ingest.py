@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 from pathlib import Path
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
@@ -390,6 +391,91 @@ def test_listing_filters_pagination_and_queue_order(
     }
     listed = client.get("/api/v1/sequences", headers=auth(token)).json()
     assert listed[0]["frame_count"] == 5
+
+
+@pytest.mark.parametrize("order", ["id", "-id", "frame_index", "uncertainty"])
+def test_walking_a_list_by_cursor_gives_the_offset_order_exactly(
+    client: TestClient, token: str, session_factory, order: str
+) -> None:
+    """Keyset pages (``after`` = the previous page's ``next_after``) list every frame once, in
+    the order the offsets give: with NULL sequences, NULL frame indices, tied and missing
+    scores, on both databases (which sort NULLs at opposite ends), and through the queue's
+    diversity head."""
+    runs = [_sequence(client, token, f"run {i}") for i in range(2)]
+    rows = []
+    for i in range(23):
+        rows.append(
+            Frame(
+                sequence_id=None if i % 7 == 0 else runs[i % 2],
+                sha256=f"{i:064x}",
+                path=f"frames/x/{i}.png",
+                original_name=f"{i}.png",
+                media_type="image/png",
+                size_bytes=1,
+                width=4,
+                height=4,
+                channels=1,
+                frame_index=None if i % 5 == 0 else (i * 7) % 4,  # ties and NULLs
+                uncertainty=None if i % 6 == 0 else [0.25, 0.5, 0.75][i % 3],  # ties and NULLs
+            )
+        )
+    with session_factory() as session:
+        session.add_all(rows)
+        session.commit()
+    headers = auth(token)
+    whole = client.get(
+        "/api/v1/frames", params={"order": order, "limit": 500}, headers=headers
+    ).json()
+    expected = [f["id"] for f in whole["items"]]
+    assert len(expected) == 23
+    walked, after, pages = [], None, 0
+    while True:
+        params: dict[str, Any] = {"order": order, "limit": 4}
+        if after:
+            params["after"] = after
+        page = client.get("/api/v1/frames", params=params, headers=headers).json()
+        walked += [f["id"] for f in page["items"]]
+        after, pages = page["next_after"], pages + 1
+        if after is None:
+            break
+    assert walked == expected and pages == 6
+    assert page["total"] == 23
+    nothing = {"order": order, "status": "rejected"}  # an empty list (the queue: an empty head)
+    empty = client.get("/api/v1/frames", params=nothing, headers=headers)
+    assert (
+        empty.status_code == 200 and empty.json()["items"] == [] and not empty.json()["next_after"]
+    )
+    if order == "uncertainty":  # through a head of 5 reordered for diversity, pages of 4
+        with session_factory() as session:
+            walk = {"order": order, "limit": 4, "diversity": 1.0, "diversity_pool": 5}
+            by_offset = [
+                f.id
+                for offset in range(0, 24, 4)
+                for f in service.list_frames(session, offset=offset, **walk).rows
+            ]
+            by_cursor, cursor = [], None
+            while True:
+                result = service.list_frames(session, after=cursor, **walk)
+                by_cursor += [f.id for f in result.rows]
+                if (cursor := result.next_after) is None:
+                    break
+        assert by_cursor == by_offset and sorted(by_cursor) == sorted(expected)
+
+
+def test_a_foreign_cursor_or_a_cursor_with_an_offset_is_a_clear_400(
+    client: TestClient, token: str
+) -> None:
+    headers = auth(token)
+    for params in (
+        {"order": "id", "after": "uncertainty~0.5~3"},
+        {"order": "uncertainty", "after": "uncertainty~x~3"},
+        {"order": "frame_index", "after": "frame_index~1~2"},
+        {"order": "id", "after": "id~null"},
+        {"order": "id", "after": "id~3", "offset": 5},
+    ):
+        answer = client.get("/api/v1/frames", params=params, headers=headers)
+        assert answer.status_code == 400, params
+        assert "`after`" in answer.json()["detail"]
 
 
 def test_the_unreviewed_filter_is_new_and_proposed_frames(

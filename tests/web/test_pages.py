@@ -458,11 +458,15 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     page.wait_for_selector("body[data-ready]")
     assert page.inner_text("[data-testid=page-info]") == "1–50 of 53"
     assert page.locator("[data-testid=frame-row]").count() == 50
+    asked: list[str] = []
+    page.on("request", lambda r: asked.append(r.url) if "/api/v1/frames?" in r.url else None)
     page.click("#next-page")
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '51–53 of 53'"
     )
     assert "offset=50" in page.url
+    assert page.locator("[data-testid=frame-row]").count() == 3
+    assert any("after=" in url and "offset" not in url for url in asked), asked  # by cursor
     page.select_option("select[name=status]", "accepted")
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
