@@ -201,7 +201,7 @@ def main() -> None:
                             assert isinstance(key, list)
                             nulls_first = args.database == "sqlite"
                             floor_query = floor_query.where(
-                                service.after_condition(order, key, nulls_first)
+                                service.after_condition(order, key, nulls_first, run_id)
                             ).limit(PAGE)
                         else:
                             floor_query = floor_query.limit(PAGE).offset(offset)

@@ -369,12 +369,16 @@ def list_query(
 # where an offset walks every row it skips. The cursor names the order and the sort key of the
 # page's last row: ``<order>~<key>~<key>…`` (``null`` for a NULL), or ``uncertainty~head~<n>``
 # for a position inside the queue's diversity head (which is reordered on every request).
-_KEY_COLUMNS: dict[str, tuple[tuple[Any, bool], ...]] = {
-    # (column or expression, descending)
-    "id": ((Frame.id, False),),
-    "-id": ((Frame.id, True),),
-    "frame_index": ((Frame.sequence_id, False), (Frame.frame_index, False), (Frame.id, False)),
-    "uncertainty": ((_ORDERINGS["uncertainty"][0].element, True), (Frame.id, False)),
+_KEY_COLUMNS: dict[str, tuple[tuple[Any, bool, bool], ...]] = {
+    # (column or expression, descending, can be NULL)
+    "id": ((Frame.id, False, False),),
+    "-id": ((Frame.id, True, False),),
+    "frame_index": (
+        (Frame.sequence_id, False, True),
+        (Frame.frame_index, False, True),
+        (Frame.id, False, False),
+    ),
+    "uncertainty": ((_ORDERINGS["uncertainty"][0].element, True, False), (Frame.id, False, False)),
 }
 _HEAD = "head"
 _CURSOR_PROBLEM = (
@@ -424,25 +428,39 @@ def parse_cursor(after: str, order: str) -> list[Any] | int:
         raise InvalidInputError(_CURSOR_PROBLEM) from None
 
 
-def after_condition(order: str, values: list[Any], nulls_first: bool) -> Any:
+def after_condition(
+    order: str, values: list[Any], nulls_first: bool, sequence_id: int | None = None
+) -> Any:
     """Rows strictly after ``values`` in ``order``: a lexicographic comparison that places
-    NULLs where the database sorts them (first ascending on SQLite, last on PostgreSQL)."""
+    NULLs where the database sorts them (first ascending on SQLite, last on PostgreSQL).
+    ``sequence_id``: the list is one run's, which lets a frame-index page start its index
+    range at the cursor's frame index."""
 
     def equal(column: Any, value: Any) -> Any:
         return column.is_(None) if value is None else column == value
 
-    def beyond(column: Any, value: Any, descending: bool) -> Any:
+    def beyond(column: Any, value: Any, descending: bool, nullable: bool) -> Any:
         if value is None:
             return column.is_not(None) if nulls_first else sa.false()
         ahead = column < value if descending else column > value
-        return ahead if nulls_first else sa.or_(ahead, column.is_(None))
+        return ahead if nulls_first or not nullable else sa.or_(ahead, column.is_(None))
 
     columns = _KEY_COLUMNS[order]
     clauses = []
-    for i, (column, descending) in enumerate(columns):
-        same = [equal(c, v) for (c, _), v in zip(columns[:i], values[:i], strict=True)]
-        clauses.append(sa.and_(*same, beyond(column, values[i], descending)))
-    return sa.or_(*clauses)
+    for i, (column, descending, nullable) in enumerate(columns):
+        same = [equal(c, v) for (c, _, _), v in zip(columns[:i], values[:i], strict=True)]
+        clauses.append(sa.and_(*same, beyond(column, values[i], descending, nullable)))
+    condition = sa.or_(*clauses)
+    first, descending, nullable = columns[0]
+    if not nullable and len(columns) > 1:  # a range the index can start from; the OR filters
+        condition = sa.and_(first <= values[0] if descending else first >= values[0], condition)
+    one_run = sequence_id is not None and values[0] == sequence_id
+    if order == "frame_index" and one_run and values[1] is not None:
+        start = Frame.frame_index >= values[1]
+        condition = sa.and_(
+            start if nulls_first else start | Frame.frame_index.is_(None), condition
+        )
+    return condition
 
 
 @dataclass
@@ -503,7 +521,7 @@ def list_frames(
         return FramePageResult(rows, total, cursor_after(last, order))
     if key is not None:
         nulls_first = session.get_bind().dialect.name == "sqlite"
-        ordered = ordered.where(after_condition(order, key, nulls_first))
+        ordered = ordered.where(after_condition(order, key, nulls_first, sequence_id))
         rows = list(session.scalars(ordered.limit(limit)))
     else:
         rows = list(session.scalars(ordered.limit(limit).offset(position)))
