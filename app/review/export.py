@@ -11,20 +11,25 @@ Ultralytics YOLO segmentation layout — ``data.yaml``, ``images/<split>/`` and 
 from ``weldpool_core.outline``, coordinates 0–1 of the frame). YOLO polygons cannot hold holes:
 a region's holes are left out there (COCO keeps them). Stems are the frame ids, zero-padded.
 
-Large sets run as an ``export`` job (``POST /exports``) with progress and a download; ``GET
-/export`` builds the zip in the request.
+``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
+no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
+(``POST /exports``) with progress and a download. COCO masks are decoded and RLE-encoded in a
+thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import tempfile
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
+import cv2
 import numpy as np
 import sqlalchemy as sa
 from numpy.typing import NDArray
@@ -68,9 +73,26 @@ def _extension(frame: Frame) -> str:
 def _rle(mask: NDArray[np.bool_]) -> tuple[dict[str, Any], int, list[int]]:
     """COCO's compressed RLE of a mask (holes survive, unlike outer polygons), its area and
     bounding box, all from pycocotools (the reference implementation every COCO reader uses)."""
+    return _encoded(np.asfortranarray(mask.astype(np.uint8)))
+
+
+def _stored_rle(storage: Storage, path: str) -> tuple[dict[str, Any], int, list[int]]:
+    """``_rle`` of a stored label mask (a gray PNG the service wrote), read the short way: the
+    PNG decoded to gray, transposed and thresholded by OpenCV straight into the column-major
+    0/1 array pycocotools encodes (a third faster than ``load_mask`` and a Fortran copy)."""
+    data = storage.absolute(path).read_bytes()
+    gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        return _rle(load_mask(storage, path))  # says what is wrong with the file
+    level = 0 if int(gray.max()) <= 1 else 127  # 0/1 masks and 0/255 masks
+    _, columns = cv2.threshold(cv2.transpose(gray), level, 1, cv2.THRESH_BINARY)
+    return _encoded(columns.T)
+
+
+def _encoded(fortran: NDArray[Any]) -> tuple[dict[str, Any], int, list[int]]:
     from pycocotools import mask as coco_mask
 
-    rle = coco_mask.encode(np.asfortranarray(mask.astype(np.uint8)))
+    rle = coco_mask.encode(fortran)
     area = int(coco_mask.area(rle))
     box = [round(v) for v in coco_mask.toBbox(rle).tolist()]
     return {"size": rle["size"], "counts": rle["counts"].decode("ascii")}, area, box
@@ -109,6 +131,17 @@ def _rows(
     ]
 
 
+def export_rows(
+    session: Session, sequence_id: int | None = None, split: Split | None = None
+) -> list[Any]:
+    """The rows of an export (frame, label, sequence, validation keypoints), loaded now so that
+    writing the zip needs no database session; 400 when there is no label to export."""
+    rows = _rows(session, sequence_id, split)
+    if not rows:
+        raise InvalidInputError("There are no accepted or corrected labels to export.")
+    return rows
+
+
 def build_export(
     session: Session,
     storage: Storage,
@@ -120,32 +153,71 @@ def build_export(
 ) -> Path:
     """Write the export to a temporary zip file and return its path (the caller removes it).
     ``progress(fraction, message)`` is called after every frame; raise from it to stop."""
-    rows = _rows(session, sequence_id, split)
-    if not rows:
-        raise InvalidInputError("There are no accepted or corrected labels to export.")
+    rows = export_rows(session, sequence_id, split)
     (storage.home / "tmp").mkdir(parents=True, exist_ok=True)
     descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.home / "tmp")
     os.close(descriptor)
     target = Path(name)
+    report = progress or (lambda fraction, message: None)
     try:
         with zipfile.ZipFile(target, "w", zipfile.ZIP_STORED) as archive:
-            report = progress or (lambda fraction, message: None)
-            WRITERS[fmt](
-                archive,
-                storage,
-                rows,
-                lambda done: report(done / len(rows), f"{done} of {len(rows)} labels"),
-            )
+            for done in WRITERS[fmt](archive, storage, rows):
+                report(done / len(rows), f"{done} of {len(rows)} labels")
     except BaseException:
         target.unlink(missing_ok=True)
         raise
     return target
 
 
-Tick = Callable[[int], None]
+class _Sink(io.RawIOBase):
+    """A write-only, unseekable byte sink that ``stream_export`` empties after every entry
+    (zipfile then writes data descriptors instead of seeking back)."""
+
+    def __init__(self) -> None:
+        self._chunks: list[bytes] = []
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: Any) -> int:
+        self._chunks.append(bytes(data))
+        return len(data)
+
+    def drain(self) -> bytes:
+        out = b"".join(self._chunks)
+        self._chunks.clear()
+        return out
 
 
-def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
+def stream_export(storage: Storage, fmt: ExportFormat, rows: list[Any]) -> Iterator[bytes]:
+    """The zip of ``rows`` (from ``export_rows``) as a stream of byte chunks, one or more per
+    frame: nothing is written to disk and nothing is held beyond the entry being written."""
+    sink = _Sink()
+    with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as archive:
+        for _ in WRITERS[fmt](archive, storage, rows):
+            if chunk := sink.drain():
+                yield chunk
+    if chunk := sink.drain():
+        yield chunk
+
+
+Writer = Callable[[zipfile.ZipFile, Storage, list[Any]], Iterator[int]]
+_ENCODERS = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="rle")
+_AHEAD = 8
+
+
+def _ahead(function: Callable[[Any], Any], items: list[Any]) -> Iterator[Any]:
+    """``map(function, items)`` computed in the encoder pool at most ``_AHEAD`` items ahead of
+    the consumer (so a big export holds a few results, not all)."""
+    pending = [_ENCODERS.submit(function, item) for item in items[:_AHEAD]]
+    for index in range(len(items)):
+        result = pending.pop(0).result()
+        if index + _AHEAD < len(items):
+            pending.append(_ENCODERS.submit(function, items[index + _AHEAD]))
+        yield result
+
+
+def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
     manifest = []
     for done, (frame, label, sequence, manual) in enumerate(rows, 1):
         stem = _stem(frame)
@@ -169,14 +241,17 @@ def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], ti
                 "timestamp_s": frame.timestamp_s,
             }
         )
-        tick(done)
+        yield done
     archive.writestr("manifest.json", json.dumps({"frames": manifest}, indent=1))
 
 
-def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
+def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
     images, annotations = [], []
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
-    for done, (frame, label, sequence, manual) in enumerate(rows, 1):
+    masks = _ahead(lambda row: _stored_rle(storage, row[1].mask_path), rows)
+    for done, ((frame, label, sequence, manual), encoded) in enumerate(
+        zip(rows, masks, strict=True), 1
+    ):
         file_name = f"images/{_stem(frame)}{_extension(frame)}"
         archive.write(storage.absolute(frame.path), file_name)
         process = {f: getattr(sequence, f) for f in PROCESS_FIELDS} if sequence else {}
@@ -195,7 +270,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tic
                 "bit_depth": frame.bit_depth,
             }
         )
-        segmentation, area, box = _rle(load_mask(storage, label.mask_path))
+        segmentation, area, box = encoded
         keypoints = label.keypoints or []
         flat: list[float] = []
         for x, y in keypoints:
@@ -216,7 +291,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tic
         if manual is not None:
             annotation["validation_keypoints"] = manual.keypoints
         annotations.append(annotation)
-        tick(done)
+        yield done
     coco = {
         "info": {"description": "weldpool reviewed labels", "version": "1.0"},
         "images": images,
@@ -234,7 +309,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tic
     archive.writestr("annotations.json", json.dumps(coco))
 
 
-def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tick: Tick) -> None:
+def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
     """Ultralytics YOLO segmentation: one polygon line per region (holes cannot be written)."""
     from weldpool_core.outline import mask_polygons, normalised
 
@@ -251,11 +326,11 @@ def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any], tic
             if not polygon.hole
         ]
         archive.writestr(f"labels/{split}/{stem}.txt", "\n".join(lines) + ("\n" if lines else ""))
-        tick(done)
+        yield done
     splits = "".join(
         f"{name}: images/{name}\n" for name in ("train", "val", "test") if name in used
     )
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n  0: weld_pool\n")
 
 
-WRITERS = {"masks": _write_masks, "coco": _write_coco, "yolo": _write_yolo}
+WRITERS: dict[str, Writer] = {"masks": _write_masks, "coco": _write_coco, "yolo": _write_yolo}

@@ -8,8 +8,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Response, status
-from fastapi.responses import FileResponse
-from starlette.background import BackgroundTask
+from fastapi.responses import FileResponse, StreamingResponse
 
 from app.bounds import MAX_ID, IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
@@ -20,7 +19,7 @@ from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.models import Job, JobStatus, Proposal, Split, User
 from app.review import policy, service
-from app.review.export import build_export, export_path, export_size
+from app.review.export import export_path, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
     ExportIn,
@@ -357,7 +356,9 @@ def get_validation_keypoints(
 
 
 @router.get(
-    "/export", response_class=FileResponse, responses={200: {"content": {"application/zip": {}}}}
+    "/export",
+    response_class=StreamingResponse,
+    responses={200: {"content": {"application/zip": {}}}},
 )
 def export(
     session: SessionDep,
@@ -366,17 +367,15 @@ def export(
     format: Literal["coco", "masks", "yolo"] = "masks",
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     split: Split | None = None,
-) -> FileResponse:
+) -> StreamingResponse:
     """A zip of the accepted and corrected labels: COCO, the DATASET layout of
     `weldpool train` (images/, masks/, keypoints/, manifest.json), or Ultralytics YOLO
-    segmentation; built in the request (`POST /exports` runs it as a job)."""
-    path = build_export(session, storage, format, sequence_id=sequence_id, split=split)
-    name = f"weldpool-{format}.zip"
-    return FileResponse(
-        path,
+    segmentation; streamed as it is written (`POST /exports` runs it as a job instead)."""
+    rows = export_rows(session, sequence_id, split)
+    return StreamingResponse(
+        stream_export(storage, format, rows),
         media_type="application/zip",
-        filename=name,
-        background=BackgroundTask(path.unlink, missing_ok=True),
+        headers={"Content-Disposition": f'attachment; filename="weldpool-{format}.zip"'},
     )
 
 

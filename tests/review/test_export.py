@@ -188,3 +188,43 @@ def test_yolo_export_as_a_job_reads_back_as_the_masks(
     )
     assert empty.status_code == 400
     wait_for_job(client, other["job_id"], token)
+
+
+def test_the_export_streams_frame_by_frame_without_a_temporary_file(
+    client, settings, session_factory, make_user
+) -> None:
+    """The first frame's bytes leave before the last frame is read; nothing goes to disk."""
+    _demo(settings, session_factory)
+    _, token = make_user("streamer", Role.annotator)
+    chunks = []
+    with client.stream(
+        "GET", "/api/v1/export", params={"format": "coco"}, headers=auth(token)
+    ) as response:
+        assert response.status_code == 200 and "content-length" not in response.headers
+        assert response.headers["content-disposition"] == 'attachment; filename="weldpool-coco.zip"'
+        for chunk in response.iter_raw():
+            chunks.append(chunk)
+            assert list((settings.home / "tmp").glob("*")) == []
+    assert len(chunks) >= 4  # one or more per labelled frame, then the annotations
+    archive = zipfile.ZipFile(io.BytesIO(b"".join(chunks)))
+    assert archive.testzip() is None
+    coco = json.loads(archive.read("annotations.json"))
+    assert len(coco["images"]) == len(coco["annotations"]) == 4
+
+
+def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does(tmp_path: Path) -> None:
+    """COCO's RLE of a stored mask read the short way (OpenCV, transposed) equals the RLE of
+    the mask as the service reads it, for 0/255 and 0/1 PNGs, holes and edges included."""
+    from app.review.export import _rle, _stored_rle
+    from app.storage import Storage
+    from weldpool_core.io import encode_png
+
+    storage = Storage(tmp_path)
+    mask = np.zeros((37, 53), bool)
+    mask[5:30, 0:40] = True
+    mask[10:15, 10:20] = False  # a hole
+    mask[36, 52] = True  # a corner pixel
+    for scale in (255, 1):
+        path = storage.put(encode_png(mask.astype(np.uint8) * scale), f"{scale:064x}", ".png").path
+        assert _stored_rle(storage, path) == _rle(mask)
+    assert _rle(mask)[1] == int(mask.sum()) and _rle(mask.T)[0] != _rle(mask)[0]

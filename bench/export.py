@@ -1,0 +1,155 @@
+"""Benchmark the streamed export of reviewed labels against the zip-copy floor.
+
+Run: ``PYTHONPATH=. .venv/bin/python bench/export.py [--labels 400] [--runs 3]``
+
+It stores N labelled frames as review leaves them (the real WAAM frames, cycled, as the images;
+a different hand-drawn-like pool mask per label, as a 0/255 PNG), then times ``GET
+/api/v1/export`` for each format in process (the whole request path, streamed): the time to the
+first byte, the time to the last, and the process's peak RSS and temporary files. The floor is
+the zip-copy of the same image and mask files into an in-memory zip (what any exporter must at
+least do); the ratio is the export's total over it. Median of ``--runs``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import resource
+import statistics
+import sys
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.db import create_db_engine, create_session_factory, migrate
+from app.main import create_app
+from app.models import Frame, Label, LabelStatus, Role, Sequence, Split, User
+from app.security import hash_password, issue_token
+from app.storage import Storage
+from weldpool_core.io import encode_png
+
+REPO = Path(__file__).resolve().parents[1]
+FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
+
+
+def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
+    """``count`` labelled frames; returns an admin token and the stored files (the floor's)."""
+    storage = Storage(settings.home)
+    sources = sorted(FRAMES.glob("*.png"))
+    if not sources:
+        sys.exit(f"no frames in {FRAMES}")
+    engine = create_db_engine(settings.resolved_database_url)
+    migrate(engine)
+    files: list[str] = []
+    with create_session_factory(engine)() as session:
+        user = User(username="bench", password_hash=hash_password("bench-bench"), role=Role.admin)
+        run = Sequence(name="export run", wire_feed_m_min=6.0, voltage_v=21.5)
+        session.add_all([user, run])
+        session.flush()
+        images = []
+        for source in sources:
+            data = source.read_bytes()
+            images.append((storage.put(data, f"{abs(hash(source.name)):064d}", ".png").path, data))
+        rng = np.random.default_rng(0)
+        for index in range(count):
+            path, data = images[index % len(images)]
+            mask = np.zeros((800, 1280), np.uint8)
+            centre = (int(rng.integers(500, 800)), int(rng.integers(350, 450)))
+            axes = (int(rng.integers(250, 400)), int(rng.integers(100, 180)))
+            cv2.ellipse(mask, centre, axes, float(rng.uniform(-10, 10)), 0, 360, 255, -1)
+            cv2.rectangle(
+                mask, (centre[0] + axes[0] - 60, centre[1] - 20), (1280, centre[1]), 0, -1
+            )
+            png = encode_png(mask)
+            stored = storage.put(png, f"{index:064x}", ".png", area="labels")
+            frame = Frame(
+                sequence_id=run.id,
+                sha256=f"{index:064x}",
+                path=path,
+                original_name=f"f{index:05d}.png",
+                media_type="image/png",
+                size_bytes=len(data),
+                width=1280,
+                height=800,
+                channels=1,
+                frame_index=index,
+                split=Split.train,
+            )
+            session.add(frame)
+            session.flush()
+            keypoints = [[float(x), float(y)] for x, y in rng.uniform(100, 700, (4, 2))]
+            session.add(
+                Label(
+                    frame_id=frame.id,
+                    status=LabelStatus.accepted,
+                    mask_path=stored.path,
+                    keypoints=keypoints,
+                )
+            )
+            files += [path, stored.path]
+        _, token = issue_token(session, user, "bench")
+        session.commit()
+    engine.dispose()
+    return token, files
+
+
+def floor_s(storage: Storage, files: list[str]) -> float:
+    """Zip-copy of the export's files into memory (stored, like the export)."""
+    start = time.perf_counter()
+    with zipfile.ZipFile(io.BytesIO(), "w", zipfile.ZIP_STORED) as archive:
+        for index, relative in enumerate(files):
+            archive.write(storage.absolute(relative), f"{index}{Path(relative).suffix}")
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--labels", type=int, default=400)
+    parser.add_argument("--runs", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as home:
+        settings = Settings(_env_file=None, home=Path(home))  # type: ignore[call-arg]
+        token, files = fill(settings, args.labels)
+        storage = Storage(settings.home)
+        floor = statistics.median(floor_s(storage, files) for _ in range(args.runs))
+        print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")
+        print("| format | first byte ms | total ms | × floor | MB | temporary files |")
+        print("|---|---:|---:|---:|---:|---:|")
+        with TestClient(create_app(settings, embedded_worker=False)) as client:
+            for fmt in ("coco", "masks", "yolo"):
+                firsts, totals, size, leftovers = [], [], 0, 0
+                for _ in range(args.runs):
+                    start = time.perf_counter()
+                    first = None
+                    size = 0
+                    with client.stream(
+                        "GET",
+                        "/api/v1/export",
+                        params={"format": fmt},
+                        headers={"Authorization": f"Bearer {token}"},
+                    ) as response:
+                        assert response.status_code == 200, response.read()
+                        for chunk in response.iter_raw():
+                            first = first or time.perf_counter()
+                            size += len(chunk)
+                            leftovers = max(leftovers, len(list((settings.home / "tmp").glob("*"))))
+                    totals.append(time.perf_counter() - start)
+                    firsts.append((first or time.perf_counter()) - start)
+                total = statistics.median(totals)
+                print(
+                    f"| {fmt} | {statistics.median(firsts) * 1000:.0f} | {total * 1000:.0f} | "
+                    f"{total / floor:.1f}× | {size / 1e6:.0f} | {leftovers} |",
+                    flush=True,
+                )
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"\npeak RSS of this process: {peak:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
