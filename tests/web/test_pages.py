@@ -445,7 +445,9 @@ def test_review_pages_ask_for_nothing_that_is_absent(page: Any, server: LiveServ
     assert failures == []
 
 
-def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer) -> None:
+def test_frame_list_filters_pages_and_drop_upload(
+    page: Any, server: LiveServer, screenshots: Path
+) -> None:
     sequence = server.api("POST", "/sequences", json={"name": "Pagination run"}).json()
     files = [
         ("files", (f"small-{i}.png", image_bytes(seed=1000 + i), "image/png")) for i in range(53)
@@ -467,6 +469,10 @@ def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer)
     assert "offset=50" in page.url
     assert page.locator("[data-testid=frame-row]").count() == 3
     assert any("after=" in url and "offset" not in url for url in asked), asked  # by cursor
+    for width, height in ((1280, 800), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.wait_for_load_state("networkidle")  # the thumbnails
+        page.screenshot(path=str(screenshots / f"frames-page-2-{width}.png"), full_page=True)
     page.select_option("select[name=status]", "accepted")
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
