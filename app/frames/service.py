@@ -404,7 +404,8 @@ def cursor_after(frame: Frame, order: str) -> str:
 
 
 def parse_cursor(after: str, order: str) -> list[Any] | int:
-    """The sort key a cursor holds (or, for the queue's head, a position); 422 when foreign."""
+    """The sort key a cursor holds (or, for the queue's head, a position); a one-sentence 400
+    (``InvalidInputError``) when it is not a cursor of this order."""
     parts = after.split("~")
     columns = _KEY_COLUMNS[order]
     try:
@@ -526,12 +527,13 @@ def list_frames(
     else:
         rows = list(session.scalars(ordered.limit(limit).offset(position)))
     more = len(rows) == limit
-    return FramePageResult(rows, total, _cursor(order, _key(rows[-1], order)) if more else None)
+    return FramePageResult(rows, total, cursor_after(rows[-1], order) if more else None)
 
 
 def _sort_position(frame: Frame) -> tuple[float, int]:
     """The queue's sort key as a tuple that grows along the list."""
-    return (-(-1.0 if frame.uncertainty is None else float(frame.uncertainty)), frame.id)
+    score, frame_id = _key(frame, "uncertainty")
+    return -score, frame_id
 
 
 def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:
