@@ -300,6 +300,11 @@ class Label(Base):
         sa.ForeignKey("proposals.id", ondelete="SET NULL")
     )
     mask_changed: Mapped[bool | None]  # did the reviewer change the proposal's mask?
+    # The mask in COCO's terms, computed when the label is saved (exports read them instead of
+    # decoding every mask): compressed RLE {"size", "counts"}, area in pixels, [x, y, w, h].
+    mask_rle: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
+    mask_area: Mapped[int | None]
+    mask_bbox: Mapped[list[int] | None] = mapped_column(JSONType)
     updated_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )

@@ -17,6 +17,7 @@ between the uncertainty and 1 − IoU, pooled over the held-out frames of the LO
 stay affordable on a CPU), and prints one row each; ``--repeats`` seeds per variant (medians).
 
     PYTHONPATH=. .venv/bin/python bench/real_student.py [--quick] [--ablation] [--repeats 1]
+        [--seeds 0 1 2]
 
 Measured on 2 CPU cores, seed 0, 2026-11-28 (keypoints of Algorithm 1's anchored groups): LOCO
 mIoU 0.821 / 0.837 / 0.783 (held out 0mm / 2mm / mm, mean 0.813), mED 44.6 / 51.8 / 49.3 px;
@@ -188,6 +189,38 @@ def print_folds(results: dict[str, list[tuple[str, FoldResult]]]) -> None:
         )
 
 
+def print_seeds(runs: list[dict[str, list[tuple[str, FoldResult]]]], seeds: list[int]) -> None:
+    """Each fold's mean and range over the seeds, each kind's mean, and ρ per seed: the
+    LOCO frames alone and every held-out frame of both kinds pooled."""
+    print(f"\nover seeds {', '.join(map(str, seeds))}: mean (min–max)")
+    print(f"{'fold':<13}{'mIoU':>22}{'mED px':>22}{'train s':>9}")
+
+    def spread(values: list[float], digits: int) -> str:
+        return f"{np.mean(values):.{digits}f} ({min(values):.{digits}f}–{max(values):.{digits}f})"
+
+    for kind in runs[0]:
+        for index, (name, _) in enumerate(runs[0][kind]):
+            folds_ = [run[kind][index][1] for run in runs]
+            meds = [f.scores.med for f in folds_ if f.scores.med is not None]
+            print(
+                f"{name:<13}{spread([f.scores.miou for f in folds_], 3):>22}"
+                f"{spread(meds, 1) if meds else '-':>22}"
+                f"{np.mean([f.seconds for f in folds_]):>9.0f}"
+            )
+        means = [summary({kind: run[kind]}) for run in runs]
+        print(
+            f"{kind + ' mean':<13}{spread([m[f'{kind} mIoU'] for m in means], 3):>22}"
+            f"{spread([m[f'{kind} mED'] for m in means], 1):>22}"
+        )
+    for seed, run in zip(seeds, runs, strict=True):
+        pooled = [fold for done in run.values() for fold in done]
+        print(
+            f"seed {seed}: ρ(uncertainty, 1 − IoU) LOCO {rho(run.get('loco', [])):.2f}, "
+            f"LOCO and within pooled {rho(pooled):.2f} (novelty {rho(pooled, 'novelty'):.2f}, "
+            f"disagreement {rho(pooled, 'disagreement'):.2f})"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one fold of each kind")
@@ -197,6 +230,12 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=8, help="passes for the uncertainty")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="seed of the default run")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        help="run the default once per seed and print each fold's mean and range over them",
+    )
     parser.add_argument(
         "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
     )
@@ -216,11 +255,18 @@ def main() -> None:
     started = time.perf_counter()
     student, config = variant("default")
     print(f"default: {student}\n{config}\n", flush=True)
-    config = replace(config, seed=args.seed)
     results: dict[str, list[tuple[str, FoldResult]]] = {}
     if not args.no_default:
-        results = run_folds(frames, tuple(args.kinds), student, config, args.samples, limit)
-        print_folds(results)
+        runs = []
+        for seed in args.seeds or [args.seed]:
+            print(f"seed {seed}", flush=True)
+            seeded = replace(config, seed=seed)
+            results = run_folds(frames, tuple(args.kinds), student, seeded, args.samples, limit)
+            print_folds(results)
+            runs.append(results)
+        if len(runs) > 1:
+            print_seeds(runs, args.seeds)
+        config = replace(config, seed=args.seed)
     if args.time_all:
         with tempfile.TemporaryDirectory() as root:
             begun = time.perf_counter()

@@ -7,6 +7,10 @@ two-level contour hierarchy) and simplifies them with Douglas–Peucker (``toler
 ``fill_polygons`` of an unsimplified outline gives the mask back pixel for pixel: outer polygons
 are filled with their edges, holes are emptied inside their edges (the hole's boundary pixels
 belong to the region around it).
+
+``coco_mask`` is a mask as COCO holds it: compressed RLE (holes survive, unlike outer
+polygons), area and bounding box, from pycocotools (the reference implementation every COCO
+reader uses); ``coco_mask_png`` reads a stored 0/1 or 0/255 mask PNG the short way.
 """
 
 from __future__ import annotations
@@ -36,6 +40,42 @@ class Polygon:
         xy = np.asarray(self.points, dtype=np.float64)
         x, y = xy[:, 0], xy[:, 1]
         return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2)
+
+
+@dataclass(frozen=True)
+class CocoMask:
+    """A mask in COCO's terms: ``rle`` ``{"size": [h, w], "counts": str}`` (compressed,
+    column-major), ``area`` in pixels and ``bbox`` ``[x, y, width, height]``."""
+
+    rle: dict[str, Any]
+    area: int
+    bbox: list[int]
+
+
+def coco_mask(mask: NDArray[Any]) -> CocoMask:
+    """``CocoMask`` of a boolean (or 0/1) mask."""
+    return _coco_encoded(np.asfortranarray(mask.astype(np.uint8)))
+
+
+def coco_mask_png(data: bytes) -> CocoMask:
+    """``CocoMask`` of a mask PNG (0/1 or 0/255 gray), decoded to gray, transposed and
+    thresholded by OpenCV straight into the column-major 0/1 array pycocotools encodes (a third
+    faster than decoding to a boolean mask and copying it to column order)."""
+    gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        raise InvalidInputError("The mask is not a readable PNG image.")
+    level = 0 if int(gray.max()) <= 1 else 127
+    _, columns = cv2.threshold(cv2.transpose(gray), level, 1, cv2.THRESH_BINARY)
+    return _coco_encoded(columns.T)
+
+
+def _coco_encoded(fortran: NDArray[Any]) -> CocoMask:
+    from pycocotools import mask as coco
+
+    rle = coco.encode(fortran)
+    box = [round(v) for v in coco.toBbox(rle).tolist()]
+    counts = {"size": [int(v) for v in rle["size"]], "counts": rle["counts"].decode("ascii")}
+    return CocoMask(counts, int(coco.area(rle)), box)
 
 
 def mask_polygons(

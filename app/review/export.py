@@ -14,7 +14,8 @@ a region's holes are left out there (COCO keeps them). Stems are the frame ids, 
 ``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
 no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
 (``POST /exports``) with progress and a download. COCO masks are decoded and RLE-encoded in a
-thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL).
+thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL) — only
+for labels saved before their RLE, area and box were stored with them at save time.
 """
 
 from __future__ import annotations
@@ -29,16 +30,14 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
-import cv2
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.review.service import load_mask
 from app.storage import Storage
+from weldpool_core.outline import coco_mask, coco_mask_png
 
 EXPORTS_DIR = "exports"
 """Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
@@ -70,32 +69,17 @@ def _extension(frame: Frame) -> str:
     return Path(frame.path).suffix
 
 
-def _rle(mask: NDArray[np.bool_]) -> tuple[dict[str, Any], int, list[int]]:
-    """COCO's compressed RLE of a mask (holes survive, unlike outer polygons), its area and
-    bounding box, all from pycocotools (the reference implementation every COCO reader uses)."""
-    return _encoded(np.asfortranarray(mask.astype(np.uint8)))
-
-
-def _stored_rle(storage: Storage, path: str) -> tuple[dict[str, Any], int, list[int]]:
-    """``_rle`` of a stored label mask (a gray PNG the service wrote), read the short way: the
-    PNG decoded to gray, transposed and thresholded by OpenCV straight into the column-major
-    0/1 array pycocotools encodes (a third faster than ``load_mask`` and a Fortran copy)."""
-    data = storage.absolute(path).read_bytes()
-    gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
-        return _rle(load_mask(storage, path))  # says what is wrong with the file
-    level = 0 if int(gray.max()) <= 1 else 127  # 0/1 masks and 0/255 masks
-    _, columns = cv2.threshold(cv2.transpose(gray), level, 1, cv2.THRESH_BINARY)
-    return _encoded(columns.T)
-
-
-def _encoded(fortran: NDArray[Any]) -> tuple[dict[str, Any], int, list[int]]:
-    from pycocotools import mask as coco_mask
-
-    rle = coco_mask.encode(fortran)
-    area = int(coco_mask.area(rle))
-    box = [round(v) for v in coco_mask.toBbox(rle).tolist()]
-    return {"size": rle["size"], "counts": rle["counts"].decode("ascii")}, area, box
+def _stored_rle(storage: Storage, label: Label) -> tuple[dict[str, Any], int, list[int]]:
+    """A label's mask as COCO RLE, area and box: stored with the label when it was saved, else
+    (labels saved before they were stored) encoded from its mask PNG now."""
+    if label.mask_rle is not None and label.mask_area is not None and label.mask_bbox:
+        return label.mask_rle, label.mask_area, label.mask_bbox
+    assert label.mask_path is not None  # accepted and corrected labels have a mask
+    try:
+        coco = coco_mask_png(storage.absolute(label.mask_path).read_bytes())
+    except InvalidInputError:
+        coco = coco_mask(load_mask(storage, label.mask_path))  # says what is wrong with the file
+    return coco.rle, coco.area, coco.bbox
 
 
 def _query(
@@ -248,7 +232,7 @@ def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) ->
 def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
     images, annotations = [], []
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
-    masks = _ahead(lambda row: _stored_rle(storage, row[1].mask_path), rows)
+    masks = _ahead(lambda row: _stored_rle(storage, row[1]), rows)
     for done, ((frame, label, sequence, manual), encoded) in enumerate(
         zip(rows, masks, strict=True), 1
     ):

@@ -33,6 +33,7 @@ from app.models import (
 from app.review.queue import rescore_frame
 from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+from weldpool_core.outline import CocoMask, coco_mask, coco_mask_png
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
@@ -331,12 +332,19 @@ def save_label(
     if base_revision != current:  # refused before anything is written
         raise stale_revision(session, frame.id)
     stored: StoredFile | None = None
+    coco: CocoMask | None = None
     if mask is not None:
+        coco = coco_mask(mask)
         stored = store_mask_file(storage, mask)
         mask_path = stored.path
+    elif mask_path is not None:
+        coco = coco_mask_png(storage.absolute(mask_path).read_bytes())
     values = {
         "status": status,
         "mask_path": mask_path,
+        "mask_rle": coco.rle if coco else None,
+        "mask_area": coco.area if coco else None,
+        "mask_bbox": coco.bbox if coco else None,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
         "mask_changed": mask_changed,

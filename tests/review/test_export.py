@@ -212,19 +212,87 @@ def test_the_export_streams_frame_by_frame_without_a_temporary_file(
     assert len(coco["images"]) == len(coco["annotations"]) == 4
 
 
-def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does(tmp_path: Path) -> None:
-    """COCO's RLE of a stored mask read the short way (OpenCV, transposed) equals the RLE of
-    the mask as the service reads it, for 0/255 and 0/1 PNGs, holes and edges included."""
-    from app.review.export import _rle, _stored_rle
-    from app.storage import Storage
+def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does() -> None:
+    """COCO's RLE of a mask PNG read the short way (OpenCV, transposed) equals the RLE of the
+    mask as the service reads it, for 0/255 and 0/1 PNGs, holes and edges included."""
     from weldpool_core.io import encode_png
+    from weldpool_core.outline import coco_mask, coco_mask_png
 
-    storage = Storage(tmp_path)
     mask = np.zeros((37, 53), bool)
     mask[5:30, 0:40] = True
     mask[10:15, 10:20] = False  # a hole
     mask[36, 52] = True  # a corner pixel
     for scale in (255, 1):
-        path = storage.put(encode_png(mask.astype(np.uint8) * scale), f"{scale:064x}", ".png").path
-        assert _stored_rle(storage, path) == _rle(mask)
-    assert _rle(mask)[1] == int(mask.sum()) and _rle(mask.T)[0] != _rle(mask)[0]
+        assert coco_mask_png(encode_png(mask.astype(np.uint8) * scale)) == coco_mask(mask)
+    coco = coco_mask(mask)
+    assert coco.area == int(mask.sum()) and coco.bbox == [0, 5, 53, 32]
+    assert coco_mask(mask.T).rle != coco.rle
+
+
+def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
+    client, settings, session_factory, make_user
+) -> None:
+    """Saving a label (a drawn mask, or an accepted proposal's) stores the mask's RLE, area and
+    box; the COCO export writes the stored values (changed here in the database, the export
+    follows) and encodes the mask of a label saved before they were stored."""
+    import sqlalchemy as sa
+    from pycocotools import mask as coco_api
+
+    from app.models import Label, Proposal
+    from app.review.service import store_mask
+    from app.storage import Storage
+    from tests.helpers import corrected_label, image_bytes
+
+    _, token = make_user("rle-reviewer", Role.reviewer)
+    ids = []
+    for seed in range(2):
+        upload = [("files", (f"r{seed}.png", image_bytes(160, 100, seed=40 + seed), "image/png"))]
+        ids.append(
+            client.post("/api/v1/frames", files=upload, headers=auth(token)).json()["stored"][0][
+                "id"
+            ]
+        )
+    drawn = np.zeros((100, 160), bool)
+    drawn[20:70, 30:120] = True
+    drawn[40:50, 60:80] = False  # a hole
+    proposed = np.zeros((100, 160), bool)
+    proposed[10:30, 5:25] = True
+    with session_factory() as session:
+        path = store_mask(Storage(settings.home), proposed)
+        session.add(Proposal(frame_id=ids[1], source="teacher", model_id="t", mask_path=path))
+        session.commit()
+    saved = client.put(
+        f"/api/v1/frames/{ids[0]}/label", json=corrected_label(drawn), headers=auth(token)
+    )
+    assert saved.status_code == 200, saved.text
+    accepted = client.put(
+        f"/api/v1/frames/{ids[1]}/label",
+        json={"status": "accepted", "base_revision": 0},
+        headers=auth(token),
+    )
+    assert accepted.status_code == 200, accepted.text
+
+    def decode(rle: dict) -> np.ndarray:
+        return coco_api.decode({**rle, "counts": rle["counts"].encode()}).astype(bool)
+
+    with session_factory() as session:
+        first = session.scalars(sa.select(Label).where(Label.frame_id == ids[0])).one()
+        assert first.mask_area == int(drawn.sum()) == 50 * 90 - 10 * 20
+        assert first.mask_bbox == [30, 20, 90, 50]
+        assert first.mask_rle is not None and np.array_equal(decode(first.mask_rle), drawn)
+        second = session.scalars(sa.select(Label).where(Label.frame_id == ids[1])).one()
+        assert (second.mask_area, second.mask_bbox) == (400, [5, 10, 20, 20])
+        assert second.mask_rle is not None and np.array_equal(decode(second.mask_rle), proposed)
+        # The export reads what is stored: change it, and the export says so.
+        first.mask_area, first.mask_bbox = 1, [1, 2, 3, 4]
+        # A label saved before the values were stored: the export encodes its mask.
+        second.mask_rle = second.mask_area = second.mask_bbox = None
+        session.commit()
+    response = client.get("/api/v1/export", params={"format": "coco"}, headers=auth(token))
+    assert response.status_code == 200, response.text
+    coco = json.loads(zipfile.ZipFile(io.BytesIO(response.content)).read("annotations.json"))
+    by_frame = {a["image_id"]: a for a in coco["annotations"]}
+    assert (by_frame[ids[0]]["area"], by_frame[ids[0]]["bbox"]) == (1, [1, 2, 3, 4])
+    assert np.array_equal(decode(by_frame[ids[0]]["segmentation"]), drawn)
+    assert (by_frame[ids[1]]["area"], by_frame[ids[1]]["bbox"]) == (400, [5, 10, 20, 20])
+    assert np.array_equal(decode(by_frame[ids[1]]["segmentation"]), proposed)
