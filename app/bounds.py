@@ -17,6 +17,9 @@ MAX_ID = 2**31 - 1
 
 Id = Annotated[int, Field(ge=1, le=MAX_ID)]
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
+MAX_MM_PER_PX = 100.0
+"""The largest image scale a weld run may have (a pool camera sees far less than 100 mm a pixel)."""
+XY = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y] in pixels")]
 OffsetQuery = Annotated[int, Query(ge=0, le=MAX_ID)]
 
 

@@ -5,7 +5,8 @@ Length and width are the extents of the pool's pixels projected on the travel ax
 axis across it (each pixel counts its own size, so a 30×10 rectangle along x is 30 long and 10
 wide). The travel direction is the weld run's (an angle in the image, 0° pointing right, 90°
 down); without one, each mask's own major axis (its second moments) is used, the pool being
-longest along the weld. Millimetres follow from a scale in mm per pixel.
+longest along the weld. Millimetres follow from a scale in mm per pixel, given as a number or
+measured on a frame: two points a known distance apart (``scale_from_points``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from weldpool_core.errors import InvalidInputError
 
 
 @dataclass(frozen=True)
@@ -112,3 +115,24 @@ def pool_geometry(mask: NDArray[np.bool_], travel_deg: float | None = None) -> P
     """Area, centroid, length along ``travel_deg`` (the mask's major axis when None) and width
     across it, in pixels. An empty mask has area 0 and no other value."""
     return pool_shape(mask).measure(travel_deg)
+
+
+MIN_SCALE_SPAN_PX = 2.0
+"""Two scale points closer than this cannot give a scale worth having."""
+
+
+def scale_from_points(
+    first: tuple[float, float], second: tuple[float, float], distance_mm: float
+) -> float:
+    """The image scale in mm per pixel from two points (frame pixels) ``distance_mm`` apart:
+    the distance over the points' Euclidean separation. Raises ``InvalidInputError`` for
+    points closer than ``MIN_SCALE_SPAN_PX`` or a distance that is not positive."""
+    span = math.hypot(second[0] - first[0], second[1] - first[1])
+    if not math.isfinite(span) or span < MIN_SCALE_SPAN_PX:
+        raise InvalidInputError(
+            f"The two scale points are {span:.1f} px apart; place them at least "
+            f"{MIN_SCALE_SPAN_PX:g} px apart, at the ends of a known length."
+        )
+    if not (math.isfinite(distance_mm) and distance_mm > 0):
+        raise InvalidInputError("The known distance must be a positive number of millimetres.")
+    return distance_mm / span

@@ -6,7 +6,7 @@ import datetime as dt
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.bounds import Id, InputModel
+from app.bounds import MAX_MM_PER_PX, XY, Id, InputModel
 from app.models import FrameStatus, LabelStatus, Split
 
 
@@ -26,9 +26,17 @@ class SequenceIn(InputModel):
     )
     joint_type: str | None = Field(default=None, max_length=64, description="e.g. fillet (Tee).")
     mm_per_px: float | None = Field(
-        default=None, gt=0, le=100, description="Image scale at the pool, mm per pixel."
+        default=None, gt=0, le=MAX_MM_PER_PX, description="Image scale at the pool, mm per pixel."
     )
     notes: str = Field(default="", max_length=10_000)
+
+
+class ScalePoints(InputModel):
+    """Two points on a frame of the run (pixels) a known distance apart, e.g. the ends of a
+    scale bar or of a gauge in view: the run's scale is the distance over their separation."""
+
+    points: list[XY] = Field(min_length=2, max_length=2)
+    distance_mm: float = Field(gt=0, le=10_000, description="The real distance, mm.")
 
 
 class SequencePatch(InputModel):
@@ -40,7 +48,10 @@ class SequencePatch(InputModel):
     robot_speed_cm_min: float | None = Field(default=None, ge=0)
     synergic_law: str | None = Field(default=None, max_length=200)
     joint_type: str | None = Field(default=None, max_length=64)
-    mm_per_px: float | None = Field(default=None, gt=0, le=100)
+    mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
+    scale_points: ScalePoints | None = Field(
+        default=None, description="Set mm_per_px from two points a known distance apart."
+    )
     notes: str | None = Field(default=None, max_length=10_000)
 
     @model_validator(mode="after")
@@ -48,6 +59,8 @@ class SequencePatch(InputModel):
         for field in ("name", "notes"):
             if field in self.model_fields_set and getattr(self, field) is None:
                 raise ValueError(f"{field} cannot be null; leave it out to keep it")
+        if {"mm_per_px", "scale_points"} <= self.model_fields_set:
+            raise ValueError("give mm_per_px or scale_points, not both")
         return self
 
 

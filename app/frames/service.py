@@ -17,6 +17,7 @@ from typing import Any, BinaryIO, Literal
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, undefer
 
+from app.bounds import MAX_MM_PER_PX
 from app.db import commit_or_conflict
 from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.models import (
@@ -34,6 +35,7 @@ from app.models import (
     Video,
 )
 from app.storage import Storage, StoredFile
+from weldpool_core.geometry import scale_from_points
 from weldpool_core.io import EXTENSIONS, MEDIA_TYPES, ImageInfo, encode_png, read_image
 from weldpool_core.video import probe_video, sniff_container
 
@@ -78,6 +80,18 @@ def unique_sequence_name(session: Session, base: str) -> str:
 
 
 def update_sequence(session: Session, sequence: Sequence, values: dict[str, Any]) -> Sequence:
+    """Change a run's fields; ``scale_points`` (``{"points": [[x, y], [x, y]],
+    "distance_mm": d}``) sets ``mm_per_px`` from two points a known distance apart."""
+    values = dict(values)
+    if (scale := values.pop("scale_points", None)) is not None:
+        first, second = scale["points"]
+        mm_per_px = scale_from_points(tuple(first), tuple(second), scale["distance_mm"])
+        if mm_per_px > MAX_MM_PER_PX:
+            raise InvalidInputError(
+                f"That is {mm_per_px:.3g} mm per pixel, more than {MAX_MM_PER_PX:g} mm per pixel; check "
+                "the distance (millimetres) and the two points."
+            )
+        values["mm_per_px"] = mm_per_px
     renamed = "name" in values and values["name"] != sequence.name
     if renamed and session.scalar(sa.select(Sequence.id).where(Sequence.name == values["name"])):
         raise ConflictError(f"There is already a sequence named {values['name']!r}.")

@@ -7,6 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from app.bounds import MAX_MM_PER_PX
+
 
 class LiveIn(BaseModel):
     source: str = Field(
@@ -19,7 +21,7 @@ class LiveIn(BaseModel):
         default=None, ge=1, le=2**31 - 1, description="A student version; null: the promoted one."
     )
     smooth: bool = Field(default=True, description="One-euro filter on the keypoint tracks.")
-    mm_per_px: float | None = Field(default=None, gt=0, le=1000)
+    mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
     travel_deg: float | None = Field(default=None, ge=-360, le=360)
 
 

@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field, model_validator
 
-from app.bounds import MAX_ID, Id, InputModel
+from app.bounds import MAX_ID, XY, Id, InputModel
 from app.models import LabelStatus, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
 
 MAX_KEYPOINTS = 64
 """Most keypoints a label or a validation set of one frame may hold."""
-XY = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y] in pixels")]
 
 
 class TeacherRunIn(InputModel):

@@ -84,3 +84,19 @@ def test_real_pools_are_longer_than_wide_and_match_their_pixels() -> None:
         assert geometry.length_px >= geometry.width_px > 0
         ys, xs = np.nonzero(mask)
         assert geometry.centroid == pytest.approx((xs.mean(), ys.mean()))
+
+
+def test_the_scale_from_two_points_is_their_distance_over_their_separation() -> None:
+    """A 3-4-5 triangle: points 50 px apart, 10 mm apart → 0.2 mm/px, whichever way round and
+    whichever axis; points that are (almost) one point or a distance ≤ 0 are refused."""
+    from weldpool_core.errors import InvalidInputError
+    from weldpool_core.geometry import scale_from_points
+
+    assert scale_from_points((10, 20), (40, 60), 10.0) == pytest.approx(0.2)
+    assert scale_from_points((40, 60), (10, 20), 10.0) == pytest.approx(0.2)
+    assert scale_from_points((0, 0), (0, 200), 5.0) == pytest.approx(0.025)  # y counts too
+    assert scale_from_points((0, 0), (200, 0), 5.0) == pytest.approx(0.025)
+    with pytest.raises(InvalidInputError, match="0.5 px apart"):
+        scale_from_points((3, 3), (3.5, 3), 1.0)
+    with pytest.raises(InvalidInputError, match="positive"):
+        scale_from_points((0, 0), (100, 0), 0.0)

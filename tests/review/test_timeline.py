@@ -109,3 +109,33 @@ def test_the_runs_travel_axis_is_the_median_of_undirected_axes() -> None:
     assert _median_axis([178.0, 2.0, 1.0]) == pytest.approx(1.0, abs=0.01)
     assert _median_axis([10.0, 12.0, 80.0]) == pytest.approx(12.0, abs=0.01)
     assert _median_axis([]) is None
+
+
+def test_a_runs_scale_set_from_two_points_a_known_distance_apart(
+    client: TestClient, make_user
+) -> None:
+    """`PATCH /sequences/{id}` with ``scale_points``: two points 250 px apart that are 5 mm
+    apart give 0.02 mm/px; points on one spot, a scale over the bound, or both ways at once
+    are refused with a sentence and leave the scale as it was."""
+    _, token = make_user("scaler", Role.annotator)
+    run = client.post(
+        "/api/v1/sequences", json={"name": "Scaled", "mm_per_px": 0.5}, headers=auth(token)
+    ).json()
+    url = f"/api/v1/sequences/{run['id']}"
+    body = {"scale_points": {"points": [[100, 100], [250, 300]], "distance_mm": 5}}
+    patched = client.patch(url, json=body, headers=auth(token))
+    assert patched.status_code == 200, patched.text
+    assert patched.json()["mm_per_px"] == pytest.approx(5 / 250)
+    for wrong, status, words in (
+        ({"points": [[10, 10], [10.5, 10]], "distance_mm": 5}, 400, "0.5 px apart"),
+        ({"points": [[0, 0], [3, 4]], "distance_mm": 9000}, 400, "more than 100 mm per pixel"),
+        ({"points": [[0, 0]], "distance_mm": 5}, 422, "at least 2 items"),
+        ({"points": [[0, 0], [30, 40]], "distance_mm": 0}, 422, "greater than 0"),
+    ):
+        refused = client.patch(url, json={"scale_points": wrong}, headers=auth(token))
+        assert refused.status_code == status, refused.text
+        assert words in refused.text
+    both = client.patch(url, json={**body, "mm_per_px": 0.1}, headers=auth(token))
+    assert both.status_code == 422 and "not both" in both.text
+    after = client.get(url, headers=auth(token)).json()
+    assert after["mm_per_px"] == pytest.approx(0.02)

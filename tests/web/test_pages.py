@@ -1077,3 +1077,56 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
     page.click("[data-testid=propagate]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('Propagation done')", timeout=120_000)
     assert "2 frames proposed" in page.inner_text("[data-testid=propagate-note]")
+
+
+def test_measure_a_runs_scale_from_two_points_on_a_frame(
+    page: Any, server: LiveServer, screenshots: Path
+) -> None:
+    """On the review page, "Measure scale" (L) takes two clicks on the frame and a length in
+    mm; an end can be dragged; saving sets the run's mm per pixel (the length over the ends'
+    separation), and the clicks never touch the mask."""
+    sequence = server.api("POST", "/sequences", json={"name": "Scale run"}).json()
+    files = [("files", ("s0.png", synthetic_png(950, 320, 200), "image/png"))]
+    frame_id = server.api(
+        "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
+    ).json()["stored"][0]["id"]
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.wait_for_selector("[data-testid=scale-state]:has-text('No scale yet')")
+    page.locator(CANVAS).focus()
+    page.keyboard.press("l")
+    assert page.get_attribute("[data-testid=measure-scale]", "aria-pressed") == "true"
+    area = canvas_data(page, "mask-area")
+    page.mouse.click(*to_page(page, 40, 20))
+    assert "1 of 2 ends placed" in page.inner_text("[data-testid=scale-span]")
+    page.mouse.click(*to_page(page, 240, 20))
+
+    def span() -> float:  # the ends land to a screen pixel: a fraction of a frame pixel
+        text = page.inner_text("[data-testid=scale-span]")
+        return float(re.match(r"([\d.]+) px between the ends", text).group(1))  # type: ignore[union-attr]
+
+    assert span() == pytest.approx(200, abs=0.6)
+    stroke(page, (240, 20), (120, 170))  # the second end dragged: 80 across, 150 down
+    assert span() == pytest.approx(170, abs=0.6)
+    assert page.is_disabled("[data-testid=save-scale]")  # no length yet
+    page.fill("[data-testid=scale-mm]", "17")
+    assert "→ 0.100 mm per pixel" in page.inner_text("[data-testid=scale-span]")
+    for width, height in ((1280, 800), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.screenshot(path=str(screenshots / f"review-scale-{width}.png"))
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.click("[data-testid=save-scale]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('mm per pixel')")
+    assert page.is_hidden("[data-testid=scale-panel]")
+    state = page.inner_text("[data-testid=scale-state]")
+    assert re.search(r"Scale: 0\.(1|0999)\d* mm per pixel\.", state), state
+    run = server.api("GET", f"/sequences/{sequence['id']}").json()
+    assert run["mm_per_px"] == pytest.approx(0.1, abs=0.002)  # ends placed to the screen pixel
+    assert canvas_data(page, "mask-area") == area and page.is_hidden("[data-testid=dirty]")
+    # Esc puts the ruler away without saving anything.
+    page.keyboard.press("l")
+    page.mouse.click(*to_page(page, 10, 10))
+    page.keyboard.press("Escape")
+    assert page.is_hidden("[data-testid=scale-panel]")
+    assert server.api("GET", f"/sequences/{sequence['id']}").json()["mm_per_px"] == run["mm_per_px"]

@@ -9,6 +9,7 @@
 import { api, ApiError, isReviewer, jobFromButton, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
 import { Mask, MaskOverlay } from "./mask.js";
+import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
 
 const FRAME_ID = Number(document.getElementById("review").dataset.frameId);
@@ -29,6 +30,7 @@ let policyReason = "";
 let revision = 0;
 let labelStatus = null;
 let stage = null;
+let ruler = null; // measuring the run's scale: two ends of a known length
 let overlay = null;
 let state = null;
 let labelClean = null;
@@ -392,6 +394,10 @@ function onPointerDown(event) {
   const inside = x >= 0 && y >= 0 && x <= frame.width && y <= frame.height;
   gesture = { kind: "pan", sx, sy, lastX: sx, lastY: sy, moved: 0 };
   if (event.button === 1 || spaceHeld) return;
+  if (ruler.active) { // the ruler takes the clicks while it is out; elsewhere a drag pans
+    if (event.button === 0) gesture = ruler.pointerDown(sx, sy, x, y, inside) ?? gesture;
+    return;
+  }
   if (tool === "keypoint") {
     const index = stage.keypointAt(sx, sy);
     const key = validation ? "manual" : "keypoints";
@@ -493,6 +499,8 @@ function onPointerMove(event) {
     }
     state.outline.polygons[gesture.polygon].points[gesture.index] = clampToFrame([x, y]);
     stage.requestRender();
+  } else if (gesture.kind === "ruler") {
+    ruler.move(gesture.index, x, y);
   } else if (gesture.kind === "keypoint") {
     if (!gesture.committed) {
       gesture.committed = true;
@@ -815,8 +823,9 @@ function onKey(event) {
     h: () => setHeatmapVisible(!stage.showHeatmap),
     f: () => stage.fit(),
     v: () => toggleValidation(),
+    l: () => !$("measure-scale").disabled && ruler.toggle(),
     p: () => cycleProposal(),
-    escape: () => { stage.draft = null; gesture = null; endSession(); },
+    escape: () => { stage.draft = null; gesture = null; if (ruler.active) ruler.toggle(); else endSession(); },
     delete: () => deleteSelected(),
     backspace: () => deleteSelected(),
   };
@@ -1012,6 +1021,8 @@ async function start() {
   $("teacher-error").textContent = frame.teacher_error ? `The teacher's last run failed here: ${frame.teacher_error}` : "";
   $("show-heatmap").disabled = proposal === null;
   $("stage-message").hidden = true;
+  ruler = new ScaleRuler(stage, frame);
+  ruler.load();
   bindControls();
   renderProposals();
   renderPropagate();

@@ -1,5 +1,5 @@
 // The review canvas: the frame under a zoom / pan transform, the mask and heatmap overlays,
-// click prompts, the box being drawn, numbered keypoints and the brush cursor.
+// click prompts, the box being drawn, numbered keypoints, the scale ruler and the brush cursor.
 
 const KEYPOINT_RADIUS = 9;
 const COLOURS = {
@@ -10,6 +10,7 @@ const COLOURS = {
   box: "#00b8ff",
   outline: "#00e6ff",
   hole: "#ffd43b",
+  ruler: "#f8f9fa",
 };
 const VERTEX_HIT = 7; // screen pixels around a vertex or an edge that pick it
 const HANDLES_FROM = 16; // screen pixels: smaller polygons (specks) are drawn without handles
@@ -41,6 +42,8 @@ export class Stage {
     /** The outline being edited (polygon tool): [{points: [[x, y]…], hole}], or null. */
     this.polygons = null;
     this.selectedVertex = null; // {polygon, index}
+    /** The scale being measured: [[x, y]] or [[x, y], [x, y]] in frame pixels, or null. */
+    this.ruler = null;
     this.cursor = null;
     this.pending = false;
     this.onViewChange = () => {};
@@ -192,6 +195,7 @@ export class Stage {
     this.points.forEach((p) => this.drawPrompt(p));
     this.drawPolygons();
     if (this.display.keypoints) this.drawKeypoints();
+    this.drawRuler();
     this.drawCursor();
   }
 
@@ -283,6 +287,41 @@ export class Stage {
       ctx.fillStyle = "#1d232b";
       ctx.fillText(String(i + 1), x, y + 0.5);
     });
+    ctx.restore();
+  }
+
+  /** The scale's two ends as crosshairs joined by a line labelled with its length in pixels. */
+  drawRuler() {
+    if (!this.ruler?.length) return;
+    const { ctx } = this;
+    const ends = this.ruler.map(([x, y]) => this.toScreen(x, y));
+    ctx.save();
+    ctx.strokeStyle = COLOURS.ruler;
+    ctx.shadowColor = "#000";
+    ctx.shadowBlur = 3;
+    ctx.lineWidth = 1.5;
+    if (ends.length === 2) {
+      ctx.beginPath();
+      ctx.moveTo(...ends[0]);
+      ctx.lineTo(...ends[1]);
+      ctx.stroke();
+    }
+    for (const [x, y] of ends) {
+      ctx.beginPath();
+      ctx.moveTo(x - 8, y); ctx.lineTo(x + 8, y);
+      ctx.moveTo(x, y - 8); ctx.lineTo(x, y + 8);
+      ctx.stroke();
+      ctx.beginPath();
+      ctx.arc(x, y, 4, 0, Math.PI * 2);
+      ctx.stroke();
+    }
+    if (ends.length === 2) {
+      const [[x0, y0], [x1, y1]] = this.ruler;
+      ctx.font = "bold 12px system-ui, sans-serif";
+      ctx.fillStyle = COLOURS.ruler;
+      ctx.textAlign = "center";
+      ctx.fillText(`${Math.hypot(x1 - x0, y1 - y0).toFixed(1)} px`, (ends[0][0] + ends[1][0]) / 2, (ends[0][1] + ends[1][1]) / 2 - 10);
+    }
     ctx.restore();
   }
 
