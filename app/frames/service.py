@@ -88,8 +88,8 @@ def update_sequence(session: Session, sequence: Sequence, values: dict[str, Any]
         mm_per_px = scale_from_points(tuple(first), tuple(second), scale["distance_mm"])
         if mm_per_px > MAX_MM_PER_PX:
             raise InvalidInputError(
-                f"That is {mm_per_px:.3g} mm per pixel, more than {MAX_MM_PER_PX:g} mm per pixel; check "
-                "the distance (millimetres) and the two points."
+                f"That is {mm_per_px:.3g} mm per pixel, more than {MAX_MM_PER_PX:g} mm per "
+                "pixel; check the distance (millimetres) and the two points."
             )
         values["mm_per_px"] = mm_per_px
     renamed = "name" in values and values["name"] != sequence.name

@@ -36,7 +36,8 @@ def _sam2(ref: str, device: str) -> Sam2Predictor:
 def _sam2_video(ref: str, device: str) -> Sam2Propagator:
     from weldpool_core.teacher.loader import load_sam2_video
 
-    return load_sam2_video(ref, device)
+    # The video model borrows the image model's vision encoder: one copy of SAM2's largest part.
+    return load_sam2_video(ref, device, image_model=_sam2(ref, device))
 
 
 @lru_cache(maxsize=4)

@@ -9,6 +9,7 @@ load through here, so the device, the precision, the attention kernel and the we
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from weldpool_core.teacher.dino import DinoAttention
 from weldpool_core.teacher.propagate import Sam2Propagator
@@ -41,20 +42,46 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
     return Sam2Predictor(model, torch_device, weights_id=f"{ref}#{weights_fingerprint(path)}")
 
 
-def load_sam2_video(ref: str, device: str = "auto") -> Sam2Propagator:
+def load_sam2_video(
+    ref: str, device: str = "auto", image_model: Sam2Predictor | None = None
+) -> Sam2Propagator:
     """SAM2's video model from the same weights as ``load_sam2`` (one checkpoint holds the image
-    parts and the memory), for propagation through a run."""
+    parts and the memory), for propagation through a run.
+
+    ``image_model``: the process's image predictor loaded from the same checkpoint. Propagation
+    takes every frame's features from the image predictor (the one embedding seam), so the video
+    model's own vision encoder — most of SAM2's weights — would sit unused beside an identical
+    copy: it is replaced by the image model's (one copy in memory). Refused when the two were
+    not loaded from the same weights.
+    """
     from transformers import Sam2VideoModel
 
     from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights
+    from weldpool_core.teacher.weights import resolve_weights, weights_fingerprint
 
     torch_device = resolve_device(device)
     path = resolve_weights(ref, "WELDPOOL_SAM2")
     model = Sam2VideoModel.from_pretrained(
         path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
     )
+    if image_model is not None:
+        expected = f"{ref}#{weights_fingerprint(path)}"
+        if image_model.weights_id != expected:
+            raise ValueError(
+                f"The image model ({image_model.weights_id}) is not from the video model's "
+                f"weights ({expected}); its vision encoder cannot be shared."
+            )
+        share_vision_encoder(model, image_model)
     return Sam2Propagator(model, torch_device)
+
+
+def share_vision_encoder(video_model: Any, image_model: Sam2Predictor) -> None:
+    """Give ``video_model`` (a ``Sam2VideoModel``) the image predictor's vision encoder in place
+    of its own (same class, same checkpoint: the same weights), freeing its copy."""
+    ours, theirs = video_model.vision_encoder, image_model.model.vision_encoder
+    if type(ours) is not type(theirs) or ours.config.to_dict() != theirs.config.to_dict():
+        raise ValueError("The image model's vision encoder is not the video model's.")
+    video_model.vision_encoder = theirs
 
 
 def load_dino(ref: str, device: str = "auto", input_size: int = 480) -> DinoAttention:

@@ -167,3 +167,38 @@ def test_propagation_runs_in_bf16_as_on_a_gpu(run) -> None:
         assert a.low_res_logits.dtype == np.float32 and np.isfinite(a.confidence)
         agreement = np.mean((a.low_res_logits > 0) == (b.low_res_logits > 0))
         assert agreement > 0.9, (a.index, agreement)
+
+
+def test_the_video_model_borrows_the_image_models_vision_encoder(run, tmp_path: Path) -> None:
+    """Loaded from one checkpoint through the loader, the video model holds the image model's
+    vision encoder (one copy: the pair's distinct weights shrink by the encoder's) and
+    propagates exactly as it does with its own; an image model from other weights is refused."""
+    from weldpool_core.teacher.loader import load_sam2, load_sam2_video
+
+    _, saved = tiny_sam2_pair(seed=5)
+    saved.model.save_pretrained(tmp_path / "sam2")
+    ref = str(tmp_path / "sam2")
+    image = load_sam2(ref, "cpu")
+    own = load_sam2_video(ref, "cpu")
+    shared = load_sam2_video(ref, "cpu", image_model=image)
+    assert shared.model.vision_encoder is image.model.vision_encoder
+    assert own.model.vision_encoder is not image.model.vision_encoder
+
+    def distinct(*models) -> int:  # type: ignore[no-untyped-def]
+        seen = {id(p): p.numel() for m in models for p in m.parameters()}
+        return sum(seen.values())
+
+    encoder = sum(p.numel() for p in image.model.vision_encoder.parameters())
+    assert encoder > 0
+    assert distinct(image.model, shared.model) == distinct(image.model, own.model) - encoder
+
+    frames, mask = run
+    features = [image.set_image(f) for f in frames[:8]]
+    a = list(own.propagate(8, {3: mask}, lambda i: features[i]))
+    b = list(shared.propagate(8, {3: mask}, lambda i: features[i]))
+    for x, y in zip(a, b, strict=True):
+        assert x.index == y.index and np.array_equal(x.low_res_logits, y.low_res_logits)
+
+    other, _ = tiny_sam2_pair(seed=6)
+    with pytest.raises(ValueError, match="not from the video model's weights"):
+        load_sam2_video(ref, "cpu", image_model=other)
