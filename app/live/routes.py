@@ -32,6 +32,8 @@ def _out(view: LiveView) -> LiveOut:
         id=view.id,
         source=view.source,
         model_name=view.model_name,
+        model_id=view.model_id,
+        gate=view.gate,
         started_by=view.started_by,
         started_at=view.started_at,
         state=view.state,
@@ -65,6 +67,8 @@ def start_live(
         {
             "source": body.source,
             "model_name": model.name,
+            "model_id": model.id,
+            "gate": model.gate,
             "model_dir": folder,
             "started_by": user.username,
             "smooth": body.smooth,

@@ -29,6 +29,12 @@ class LiveOut(BaseModel):
     id: int
     source: str
     model_name: str
+    model_id: int | None = None
+    gate: dict[str, Any] | None = Field(
+        default=None,
+        description="The version's promotion-gate verdict (usable, reason, scores) when the view "
+        "started; null when the gate never measured it.",
+    )
     started_by: str
     started_at: dt.datetime
     state: str = Field(description="starting, running, ended, stopped or failed.")

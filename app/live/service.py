@@ -49,6 +49,9 @@ class LiveView:
     smooth: bool
     mm_per_px: float | None
     travel_deg: float | None
+    model_id: int | None = None
+    gate: dict[str, Any] | None = None
+    """The version's promotion-gate verdict when the view started (usable, reason, …)."""
     started_at: dt.datetime = field(default_factory=utcnow)
     state: str = "starting"
     message: str = "opening the source"

@@ -1,5 +1,7 @@
 // The one place that turns numbers into text on every page: same units, same rounding.
 
+import { badge, h } from "./ui.js";
+
 /** mIoU and other fractions of overlap: three decimals ("0.874"). */
 export const iou = (v) => (typeof v === "number" ? v.toFixed(3) : "–");
 /** Distances in pixels: one decimal ("11.4 px"). */
@@ -30,3 +32,13 @@ export function metric(name, value) {
 }
 /** A plain quantity with a fixed number of decimals ("15.0", "33.1"). */
 export const decimal = (v, digits = 1) => (typeof v === "number" && Number.isFinite(v) ? v.toFixed(digits) : "–");
+
+/** The promotion gate's verdict on a student version (models page, live view): usable or not,
+ * why, and on how many held-out frames it was measured against the teacher. */
+export function gateLine(gate) {
+  if (!gate) return h("p", { class: "muted small-text", "data-testid": "gate" }, "not measured by the promotion gate");
+  const frames = gate.frames?.length ?? 0;
+  return h("p", { class: `gate ${gate.usable ? "ok" : "warning"}`, "data-testid": "gate" },
+    badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "",
+    h("span", { class: "muted" }, ` (${count(frames, "held-out frame")})`));
+}

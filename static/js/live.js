@@ -3,7 +3,7 @@
 
 import { api, isReviewer } from "./api.js";
 import { lineChart } from "./chart.js";
-import { count, decimal } from "./format.js";
+import { count, decimal, gateLine } from "./format.js";
 import { badge, h, toast } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
@@ -77,6 +77,7 @@ function card(view) {
         entry.state,
         h("span", { class: "spacer" }),
         isReviewer() ? entry.stop : ""),
+      gateLine(view.gate),
       entry.stats,
       h("div", { class: "live-body" },
         h("div", { class: "live-frame-box" }, image),
@@ -121,7 +122,8 @@ async function fillModels() {
   const wanted = new URLSearchParams(location.search).get("model_id");
   try {
     const models = await api("/models");
-    select.append(...models.map((m) => h("option", { value: String(m.id) }, `${m.name}${m.is_promoted ? " (promoted)" : ""}`)));
+    const note = (m) => (m.is_promoted ? " (promoted)" : "") + (m.gate?.usable === false ? " — not usable (promotion gate)" : "");
+    select.append(...models.map((m) => h("option", { value: String(m.id) }, `${m.name}${note(m)}`)));
     if (wanted) select.value = wanted;
   } catch (error) {
     toast(error.message, "error");

@@ -2,7 +2,7 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
-import { count, metric } from "./format.js";
+import { count, gateLine, metric } from "./format.js";
 import { lineChart } from "./chart.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
@@ -50,15 +50,6 @@ async function promote(model) {
     }
   }
   load();
-}
-
-/** The promotion gate's verdict: measured against the teacher and the promoted version. */
-function gateLine(gate) {
-  if (!gate) return h("p", { class: "muted small-text", "data-testid": "gate" }, "not measured by the promotion gate");
-  const frames = gate.frames?.length ?? 0;
-  return h("p", { class: `gate ${gate.usable ? "ok" : "warning"}`, "data-testid": "gate" },
-    badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "",
-    h("span", { class: "muted" }, ` (${count(frames, "held-out frame")})`));
 }
 
 export function modelCard(model) {

@@ -589,10 +589,14 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     for width, height in ((1280, 800), (1920, 1080)):
         page.set_viewport_size({"width": width, "height": height})
         page.screenshot(path=str(screenshots / f"models-version-{width}.png"))
+    gate = card.locator("[data-testid=gate]").inner_text()
+    usable = server.api("GET", "/models").json()[0]["gate"]["usable"]
+    assert ("not usable" not in gate) == usable
     card.locator("[data-testid=live-view]").click()
     page.wait_for_url(re.compile(r"/live\?model_id=\d+"))
     wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
-    assert page.locator("[data-testid=live-model] option:checked").inner_text() == name
+    chosen = page.locator("[data-testid=live-model] option:checked").inner_text()
+    assert chosen.startswith(name) and ("not usable" in chosen) == (not usable)
     page.fill("[data-testid=live-source]", str(video))
     page.click("[data-testid=live-start]")
     live = page.locator("[data-testid=live-card][data-state=running]")
@@ -600,6 +604,7 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     wait_for_js(page, "document.querySelector('[data-testid=live-frame]').naturalWidth === 320")
     wait_for_js(page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)")
     assert live.locator("[data-testid=live-keypoints]").count() == 1
+    assert live.locator("[data-testid=gate]").inner_text() == gate  # the verdict, as on /models
     assert live.locator("svg.chart").count() == 3  # area, length, width scrolling
     for width, height in ((1280, 800), (1920, 1080)):
         page.set_viewport_size({"width": width, "height": height})
