@@ -189,9 +189,30 @@ def print_folds(results: dict[str, list[tuple[str, FoldResult]]]) -> None:
         )
 
 
-def print_seeds(runs: list[dict[str, list[tuple[str, FoldResult]]]], seeds: list[int]) -> None:
-    """Each fold's mean and range over the seeds, each kind's mean, and ρ per seed: the
-    LOCO frames alone and every held-out frame of both kinds pooled."""
+def bootstrap_rho(
+    scores: list[float], errors: list[float], draws: int = 2000
+) -> tuple[float, float, float]:
+    """Spearman ρ and its 95 % bootstrap interval (frames drawn with replacement)."""
+    rng = np.random.default_rng(0)
+    x, y = np.asarray(scores, float), np.asarray(errors, float)
+    values = []
+    for _ in range(draws):
+        pick = rng.integers(0, len(x), len(x))
+        if np.ptp(x[pick]) > 0 and np.ptp(y[pick]) > 0:
+            values.append(spearmanr(x[pick], y[pick])[0])
+    low, high = np.percentile(values, [2.5, 97.5])
+    return float(spearmanr(x, y)[0]), float(low), float(high)
+
+
+def print_seeds(
+    runs: list[dict[str, list[tuple[str, FoldResult]]]],
+    seeds: list[int],
+    frames: list[TrainingFrame],
+) -> None:
+    """Each fold's mean and range over the seeds, each kind's mean; ρ per seed (LOCO, and
+    LOCO with within-clip pooled); ρ over every seed's LOCO frames with a bootstrap interval;
+    and the ensemble of the seeds' students: their disagreement per held-out frame against
+    the students' mean error and the ensemble's own error."""
     print(f"\nover seeds {', '.join(map(str, seeds))}: mean (min–max)")
     print(f"{'fold':<13}{'mIoU':>22}{'mED px':>22}{'train s':>9}")
 
@@ -219,6 +240,46 @@ def print_seeds(runs: list[dict[str, list[tuple[str, FoldResult]]]], seeds: list
             f"LOCO and within pooled {rho(pooled):.2f} (novelty {rho(pooled, 'novelty'):.2f}, "
             f"disagreement {rho(pooled, 'disagreement'):.2f})"
         )
+    truth = {f.name: f.mask for f in frames}
+    for kind in runs[0]:
+        every = [fold for run in runs for _, fold in run[kind]]
+        errors = [1 - v for f in every for v in f.scores.ious]
+        parts = [p or {} for f in every for p in f.scores.parts]
+        for label, values in (
+            ("uncertainty", [u for f in every for u in f.scores.uncertainties]),
+            ("novelty", [p.get("novelty") for p in parts]),
+            ("disagreement", [p.get("disagreement") for p in parts]),
+        ):
+            if any(v is None for v in values):
+                continue
+            r, low, high = bootstrap_rho(values, errors)  # type: ignore[arg-type]
+            print(
+                f"{kind}, every seed's held-out frames ({len(errors)}): ρ({label}, 1 − IoU) "
+                f"{r:.2f} (95 % bootstrap {low:.2f} to {high:.2f})"
+            )
+        # The seeds' students as an ensemble: does their disagreement rank the error?
+        spreads, mean_errors, ensemble_errors = [], [], []
+        for index in range(len(runs[0][kind])):
+            folds_ = [run[kind][index][1] for run in runs]
+            for j, name in enumerate(folds_[0].scores.names):
+                masks = np.stack([f.predictions[j].mask for f in folds_])
+                union = int(np.count_nonzero(masks.any(0)))
+                split = int(np.count_nonzero(masks.any(0) & ~masks.all(0)))
+                spreads.append(split / max(union, 1))
+                mean_errors.append(float(np.mean([1 - f.scores.ious[j] for f in folds_])))
+                vote = np.mean([f.predictions[j].heatmap[..., 1] for f in folds_], 0) >= 0.5
+                true = truth[name]
+                both = int(np.count_nonzero(vote & true))
+                ensemble_errors.append(1 - both / max(int(np.count_nonzero(vote | true)), 1))
+        if len(runs) > 1 and len(spreads) >= 3:
+            r, low, high = bootstrap_rho(spreads, mean_errors)
+            r2, low2, high2 = bootstrap_rho(spreads, ensemble_errors)
+            print(
+                f"{kind}, ensemble of {len(runs)} seeds on {len(spreads)} frames: ρ(disagreement, "
+                f"students' mean 1 − IoU) {r:.2f} ({low:.2f} to {high:.2f}); ρ(disagreement, "
+                f"ensemble's 1 − IoU) {r2:.2f} ({low2:.2f} to {high2:.2f}); ensemble mIoU "
+                f"{1 - np.mean(ensemble_errors):.3f} vs students' {1 - np.mean(mean_errors):.3f}"
+            )
 
 
 def main() -> None:
@@ -257,15 +318,16 @@ def main() -> None:
     print(f"default: {student}\n{config}\n", flush=True)
     results: dict[str, list[tuple[str, FoldResult]]] = {}
     if not args.no_default:
-        runs = []
+        seeded = []
         for seed in args.seeds or [args.seed]:
             print(f"seed {seed}", flush=True)
-            seeded = replace(config, seed=seed)
-            results = run_folds(frames, tuple(args.kinds), student, seeded, args.samples, limit)
+            results = run_folds(
+                frames, tuple(args.kinds), student, replace(config, seed=seed), args.samples, limit
+            )
             print_folds(results)
-            runs.append(results)
-        if len(runs) > 1:
-            print_seeds(runs, args.seeds)
+            seeded.append(results)
+        if len(seeded) > 1:
+            print_seeds(seeded, args.seeds, frames)
         config = replace(config, seed=args.seed)
     if args.time_all:
         with tempfile.TemporaryDirectory() as root:

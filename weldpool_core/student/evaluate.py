@@ -102,6 +102,8 @@ class FoldResult:
     scores: HeldOutScores
     seconds: float
     result: TrainResult
+    predictions: list[StudentPrediction] = field(default_factory=list, repr=False)
+    """The held-out frames' predictions, in the order of ``scores.names``."""
 
 
 def train_and_score(
@@ -121,6 +123,5 @@ def train_and_score(
     predictor = StudentPredictor.load(folder, "cpu")
     predictions = predictor.predict([f.image for f in test], samples=samples)
     k = predictor.config.k
-    return FoldResult(
-        [f.name for f in train], score_predictions(predictions, test, k), seconds, result
-    )
+    scores = score_predictions(predictions, test, k)
+    return FoldResult([f.name for f in train], scores, seconds, result, predictions)
