@@ -124,16 +124,23 @@ def test_onnx_and_torch_streams_give_the_same_records(model_dir: Path, tmp_path:
         StreamStudent(model_dir, "onnx")
     export_student(model_dir, ["onnx"])
     video = write_video(tmp_path / "run.avi", 8)
-    records = {}
+    records, outputs = {}, {}
     for backend in ("onnx", "torch"):
         # torch's thread count is process-wide: leave it (other tests compare trained weights)
         student = StreamStudent(model_dir, backend, "cpu", threads=1 if backend == "onnx" else None)
         with FrameSource(str(video), prepare=student.prepare) as source:
-            records[backend] = [r.record for r in run_stream(source, student)]
+            results = list(run_stream(source, student))
+        records[backend] = [r.record for r in results]
+        outputs[backend] = [student(*student.prepare(r.frame.bgr))[:2] for r in results]
     assert len(records["onnx"]) == len(records["torch"]) == 8
+    # the same model in both runtimes: the same S×S mask and heatmap. Keypoints are the heatmap's
+    # modes, and a barely trained model's near-equal modes may swap order on a rounding
+    # difference, so the records are compared on what does not hinge on a tie.
+    for (mask, heatmap), (mask_t, heatmap_t) in zip(outputs["onnx"], outputs["torch"], strict=True):
+        assert np.abs(mask - mask_t).max() < 1e-4 and np.abs(heatmap - heatmap_t).max() < 1e-4
     for ours, theirs in zip(records["onnx"], records["torch"], strict=True):
         assert ours["area_px"] == pytest.approx(theirs["area_px"], abs=40)
-        assert np.allclose(ours["keypoints"], theirs["keypoints"], atol=1.0)
+        assert len(ours["keypoints"]) == len(theirs["keypoints"])
         assert ours["latency_ms"] > 0
     with pytest.raises(InvalidInputError, match="torch backend"):
         student = StreamStudent(model_dir, "onnx")
