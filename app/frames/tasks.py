@@ -7,11 +7,11 @@ from typing import Any
 
 from app.db import session_scope
 from app.frames.service import extract_video_frames
-from app.jobs.registry import JobContext, job_handler
+from app.jobs.registry import JobContext, counted, job_handler
 from app.jobs.service import create_job
 from app.models import User, Video
 from app.storage import Storage
-from app.system.status import teacher_problem
+from app.system.status import sam2_problem
 from weldpool_core.errors import InvalidInputError
 
 
@@ -28,8 +28,10 @@ def extract_video(ctx: JobContext) -> dict[str, Any]:
         result = extract_video_frames(
             session, Storage(ctx.settings.home), video, user=user, progress=ctx.progress
         )
-    ctx.progress(1.0, f"{result['frames']} frames stored")
-    if result["frames"] and ctx.queue is not None and teacher_problem(ctx.settings) is None:
+    ctx.summary = f"{counted(result['frames'], 'frame')} stored in sequence #{video_sequence}" + (
+        f" ({result['duplicates']} were already there)" if result["duplicates"] else ""
+    )
+    if result["frames"] and ctx.queue is not None and sam2_problem(ctx.settings) is None:
         # The run's embeddings next, so that the first click on any of its frames is quick.
         with ctx.session_factory() as session:
             create_job(session, ctx.queue, "embed", {"sequence_id": video_sequence}, None)

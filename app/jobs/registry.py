@@ -25,6 +25,11 @@ HANDLER_MODULES = (
 )
 
 
+def counted(n: int, word: str, plural: str | None = None) -> str:
+    """ "1 frame", "3 frames": a count in a job's message, as the pages write it (format.js)."""
+    return f"{n} {word if n == 1 else (plural or word + 's')}"
+
+
 class JobCancelled(Exception):
     """Raised inside a handler when a user asked to cancel its job."""
 

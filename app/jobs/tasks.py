@@ -26,6 +26,7 @@ def diagnostic(ctx: JobContext) -> dict[str, Any]:
         ctx.progress((step + 1) / steps, f"step {step + 1} of {steps}")
     if ctx.params.get("fail"):
         raise WeldpoolError(str(ctx.params["fail"]))
+    ctx.summary = f"worker {ctx.worker_id} ran it for {seconds:g} s"
     return {
         "seconds": seconds,
         "worker": ctx.worker_id,

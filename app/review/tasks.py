@@ -8,7 +8,7 @@ from typing import Any
 
 import structlog
 
-from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_handler
+from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, counted, job_handler
 from app.models import Frame
 from app.review import propagation, runtime
 from app.review.export import build_export, export_path
@@ -77,12 +77,26 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
     if failed and not proposed and not skipped and len(failed) == len(frame_ids):
         raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
+    ctx.summary = teacher_summary(proposed, skipped, failed)
     return {
         "proposed": proposed,
         "skipped": skipped,
         "failed": failed,
         "model_id": teacher.model_id,
     }
+
+
+def teacher_summary(proposed: int, skipped: int, failed: list[dict[str, Any]]) -> str:
+    """The teacher job's last word: what it proposed, skipped and could not do (the first
+    failure's reason; the rest are on their frames)."""
+    parts = [f"{counted(proposed, 'frame')} proposed"]
+    if skipped:
+        parts.append(
+            f"{skipped} skipped (this teacher proposed them before; run with force to redo)"
+        )
+    if failed:
+        parts.append(f"{len(failed)} failed, the first: {failed[0]['error']}")
+    return "; ".join(parts)
 
 
 @job_handler("export", max_attempts=1)
@@ -135,7 +149,7 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
     )
     proposed = int(result["proposed"])
     ctx.summary = (
-        f"{proposed} frame{'' if proposed == 1 else 's'} proposed, "
+        f"{counted(proposed, 'frame')} proposed, "
         f"{len(result['low_confidence_frame_ids'])} with low confidence"
         + (f"; {stops}" if stops else "")
     )
@@ -167,6 +181,7 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
             tiers[tier] += 1
             ctx.progress(done / len(frames), f"{done} of {len(frames)} frames")
     ctx.summary = (
-        f"{tiers['computed']} embeddings computed, {len(frames) - tiers['computed']} already cached"
+        f"{counted(tiers['computed'], 'embedding')} computed, "
+        f"{len(frames) - tiers['computed']} already cached"
     )
     return {"frames": len(frames), **tiers}

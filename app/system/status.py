@@ -2,25 +2,38 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from app.config import Settings
 from weldpool_core.teacher.weights import weights_status
 
 
-def teacher_problem(settings: Settings) -> str | None:
-    """Why the teacher cannot run here (missing weights), in one sentence; None when it can."""
-    missing = [
-        status
-        for status in (
-            weights_status(settings.dino, "WELDPOOL_DINO"),
-            weights_status(settings.sam2, "WELDPOOL_SAM2"),
-        )
-        if not status.available
-    ]
+def _missing(what: str, statuses: list[Any]) -> str | None:
+    """ "<what>: its weights are missing (settings) ..." with the fix, or None."""
+    missing = [status for status in statuses if not status.available]
     if not missing:
         return None
     names = " and ".join(s.setting for s in missing)
     return (
-        f"The teacher cannot run: its weights are missing ({names}). Run `weldpool weights "
-        "fetch` on a machine with internet access, or point "
-        f"{names} at a local folder, then restart."
+        f"{what}: its weights are missing ({names}). Run `weldpool weights fetch` on a machine "
+        f"with internet access, or point {names} at a local folder, then restart."
+    )
+
+
+def teacher_problem(settings: Settings) -> str | None:
+    """Why the teacher cannot run here (missing weights), in one sentence; None when it can."""
+    return _missing(
+        "The teacher cannot run",
+        [
+            weights_status(settings.dino, "WELDPOOL_DINO"),
+            weights_status(settings.sam2, "WELDPOOL_SAM2"),
+        ],
+    )
+
+
+def sam2_problem(settings: Settings) -> str | None:
+    """Why SAM2 alone cannot run (clicks, boxes, embeddings, propagation), or None when it can:
+    those need no DINO."""
+    return _missing(
+        "Clicks, boxes and propagation need SAM2", [weights_status(settings.sam2, "WELDPOOL_SAM2")]
     )

@@ -11,7 +11,7 @@ import numpy as np
 import sqlalchemy as sa
 import structlog
 
-from app.jobs.registry import JobContext, job_handler
+from app.jobs.registry import JobContext, counted, job_handler
 from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
 from app.review.queue import latest_teacher_proposal, rescore_frame
 from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
@@ -295,4 +295,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
                 session.commit()
                 proposed += 1
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
+    ctx.summary = f"{name} proposed {counted(proposed, 'frame')}" + (
+        f" ({len(frame_ids) - proposed} no longer exist)" if proposed < len(frame_ids) else ""
+    )
     return {"proposed": proposed, "model": name}

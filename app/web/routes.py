@@ -28,7 +28,7 @@ from app.security import (
     open_web_session,
     optional_user,
 )
-from app.system.status import teacher_problem
+from app.system.status import sam2_problem, teacher_problem
 
 TEMPLATES = Jinja2Templates(directory=Path(__file__).resolve().parents[2] / "templates")
 router = APIRouter(include_in_schema=False)
@@ -48,6 +48,7 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
     context.setdefault("csrf_token", web_session.csrf_token if web_session else "")
     if web_session is not None:
         context.setdefault("teacher_problem", teacher_problem(request.app.state.settings))
+        context.setdefault("sam2_problem", sam2_problem(request.app.state.settings))
     return TEMPLATES.TemplateResponse(request, name, context, status_code=status_code)
 
 

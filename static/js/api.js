@@ -5,6 +5,8 @@ const CSRF = document.querySelector('meta[name="csrf-token"]')?.content ?? "";
 export const ROLE = document.querySelector('meta[name="user-role"]')?.content ?? "annotator";
 /** Why the teacher cannot run here (missing weights), or "" when it can (set by the server). */
 export const TEACHER_PROBLEM = document.querySelector('meta[name="teacher-problem"]')?.content ?? "";
+/** Why SAM2 alone cannot run (clicks, boxes, embeddings, propagation), or "" when it can. */
+export const SAM2_PROBLEM = document.querySelector('meta[name="sam2-problem"]')?.content ?? "";
 const RANK = { annotator: 1, reviewer: 2, admin: 3 };
 
 /** Whether the logged-in user is a reviewer or admin. */

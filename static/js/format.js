@@ -6,6 +6,9 @@ import { badge, h } from "./ui.js";
 export const iou = (v) => (typeof v === "number" ? v.toFixed(3) : "–");
 /** Distances in pixels: one decimal ("11.4 px"). */
 export const px = (v) => (typeof v === "number" ? `${v.toFixed(1)} px` : "–");
+/** Scores between 0 and 1 a model gives itself (uncertainty, confidence, SAM2's predicted IoU):
+ * two decimals ("0.42"). */
+export const score = (v) => (typeof v === "number" ? v.toFixed(2) : "–");
 /** Rates: a whole percent below 10 % shows one decimal ("87 %", "4.5 %"). */
 export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
 /** "1 job", "3 jobs", "1 frame". */

@@ -2,7 +2,7 @@
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
 import { api, ApiError, isReviewer, jobFromButton, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
-import { count, decimal, everyNth } from "./format.js";
+import { count, decimal, everyNth, score } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 import { probeVideo } from "./video.js";
 
@@ -128,7 +128,7 @@ function frameRow(frame) {
     type: "checkbox", "aria-label": `select frame ${frame.id}`, checked: selected.has(frame.id),
     onchange: (event) => { event.target.checked ? selected.add(frame.id) : selected.delete(frame.id); updateSelection(); },
   });
-  const uncertainty = frame.uncertainty === null ? "—" : frame.uncertainty.toFixed(3);
+  const uncertainty = score(frame.uncertainty);
   return h("tr", { "data-frame-id": String(frame.id), "data-testid": "frame-row" },
     h("td", {}, box),
     h("td", { class: "thumb" }, h("a", { href, tabindex: "-1" },

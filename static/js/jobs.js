@@ -11,15 +11,11 @@ const rows = document.getElementById("job-rows");
 const highlight = Number(new URLSearchParams(location.search).get("job") ?? 0);
 let timer = null;
 
+/** The job's message: its progress while it runs, the sentence its handler summed up with once
+ * it succeeded (every kind writes one), its error when it failed. */
 function describe(job) {
   if (job.error) return h("span", { class: "error" }, job.error);
   const parts = [job.message];
-  if (job.status === "succeeded" && job.result) {
-    const summary = Object.entries(job.result)
-      .filter(([, v]) => typeof v === "number" || (typeof v === "string" && v.length <= 40) || Array.isArray(v))
-      .slice(0, 4).map(([k, v]) => `${k}: ${Array.isArray(v) ? v.length : v}`).join(", ");
-    if (summary) parts.push(summary);
-  }
   if (job.cancel_requested && ACTIVE.has(job.status)) parts.push("cancelling…");
   return parts.filter(Boolean).join(" — ");
 }

@@ -96,7 +96,7 @@ def test_the_scale_from_two_points_is_their_distance_over_their_separation() -> 
     assert scale_from_points((40, 60), (10, 20), 10.0) == pytest.approx(0.2)
     assert scale_from_points((0, 0), (0, 200), 5.0) == pytest.approx(0.025)  # y counts too
     assert scale_from_points((0, 0), (200, 0), 5.0) == pytest.approx(0.025)
-    with pytest.raises(InvalidInputError, match="0.5 px apart"):
+    with pytest.raises(InvalidInputError, match=r"0\.5 px apart"):
         scale_from_points((3, 3), (3.5, 3), 1.0)
     with pytest.raises(InvalidInputError, match="positive"):
         scale_from_points((0, 0), (100, 0), 0.0)

@@ -56,6 +56,7 @@ def test_avi_every_nth_frame_into_a_new_sequence(client: TestClient, token: str,
     job = wait_for_job(client, body["job_id"], token, timeout=60)
     assert job["status"] == "succeeded", job
     assert job["result"] == job["result"] | {"frames": 10, "duplicates": 0}
+    assert job["message"] == f"10 frames stored in sequence #{body['video']['sequence_id']}"
     sequence = client.get(
         f"/api/v1/sequences/{body['video']['sequence_id']}", headers=auth(token)
     ).json()

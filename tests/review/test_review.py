@@ -56,6 +56,7 @@ def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) 
     job = _teacher(client, token, frame_ids)
     assert job["status"] == "succeeded", job
     assert job["result"]["proposed"] == 2 and job["result"]["failed"] == []
+    assert job["message"] == "2 frames proposed"  # the jobs page's words, not a progress line
     proposal = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).json()
     assert _mask(proposal["mask_png"]).shape == (100, 160)
     assert proposal["source"] == "teacher" and proposal["model_id"] == job["result"]["model_id"]
@@ -74,6 +75,9 @@ def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) 
 
     again = _teacher(client, token, frame_ids)
     assert (again["result"]["proposed"], again["result"]["skipped"]) == (0, 2)
+    assert again["message"] == (
+        "0 frames proposed; 2 skipped (this teacher proposed them before; run with force to redo)"
+    )
 
 
 def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
@@ -312,6 +316,7 @@ def test_validation_keypoints_move_the_frame(client: TestClient, people) -> None
 
 def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_user, tmp_path):
     from app.main import create_app
+    from app.system.status import sam2_problem, teacher_problem
 
     broken = settings.model_copy(update={"dino": str(tmp_path / "no-dino")})
     _, token = make_user("weightless", Role.reviewer)
@@ -322,6 +327,13 @@ def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_us
         assert "WELDPOOL_DINO" in job["error"] and job["error"].endswith(".")
         health = client.get("/api/v1/health").json()  # usable, and it says what is missing
         assert health["status"] == "degraded" and "WELDPOOL_DINO" in health["warnings"][0]
+        # Clicks and boxes need SAM2 only: they stay usable without DINO, and say so without SAM2.
+        assert sam2_problem(broken) is None
+        assert "WELDPOOL_SAM2" not in str(teacher_problem(broken))
+        no_sam2 = settings.model_copy(update={"sam2": str(tmp_path / "no-sam2")})
+        assert str(sam2_problem(no_sam2)).startswith(
+            "Clicks, boxes and propagation need SAM2: its weights are missing (WELDPOOL_SAM2)."
+        )
         assert (
             client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).status_code
             == 404

@@ -64,6 +64,24 @@ def screenshots() -> Path:
     return SCREENSHOTS
 
 
+SIZES = ((1280, 800), (1920, 1080))
+
+
+def shoot(page: Any, name: str, *, full_page: bool = False, idle: bool = False) -> None:
+    """Screenshots of what the page shows now at 1280×800 and 1920×1080 (``<name>-1280.png``,
+    ``<name>-1920.png`` in test-artifacts/screenshots/), then back to 1280×800; ``idle`` waits
+    for the network to settle first (lazy thumbnails)."""
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    for width, height in SIZES:
+        page.set_viewport_size({"width": width, "height": height})
+        page.wait_for_timeout(150)  # a resize re-lays the canvas out on the next frame
+        if idle:
+            page.wait_for_load_state("networkidle")
+        page.screenshot(path=str(SCREENSHOTS / f"{name}-{width}.png"), full_page=full_page)
+    page.set_viewport_size(VIEWPORT)
+    page.wait_for_timeout(150)
+
+
 def synthetic_png(seed: int, width: int = 1280, height: int = 800) -> bytes:
     """A realistic weld-pool frame, PNG-encoded."""
     ok, data = cv2.imencode(".png", synth_frame(seed=seed, params=SynthParams(width, height)).image)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import corrected_label, image_bytes, write_video
-from tests.web.conftest import synthetic_png
+from tests.web.conftest import shoot, synthetic_png
 from tests.web.server import LiveServer, login, wait_for_js, wait_until
 from tests.web.test_review_flow import (
     CANVAS,
@@ -91,9 +91,10 @@ def test_the_api_page_works_offline_under_the_content_security_policy(
     page.wait_for_selector(".swagger-ui .opblock-tag", timeout=20_000)
     assert page.locator(".swagger-ui .title").first.inner_text().startswith("weldpool")
     assert elsewhere == []
+    shoot(page, "docs")
 
 
-def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screenshots: Path) -> None:
+def test_screenshots_of_review_and_models(page: Any, server: LiveServer) -> None:
     """A reviewed frame as a reviewer sees it (the synthetic ground truth saved as its label),
     and the models page; written to test-artifacts/screenshots/."""
     seed = 7
@@ -106,26 +107,27 @@ def test_screenshots_of_review_and_models(page: Any, server: LiveServer, screens
     assert canvas_data(page, "mask-area") == int(truth.sum())
     assert len(canvas_data(page, "keypoints")) == 4
     page.wait_for_selector("[data-testid=label-history] .badge.corrected")
-    page.screenshot(path=str(screenshots / "review.png"))
+    shoot(page, "review")
     page.check("[data-testid=show-heatmap]")
     page.wait_for_selector(f"{CANVAS}[data-heatmap=loaded]")
-    page.screenshot(path=str(screenshots / "review-heatmap.png"))
+    shoot(page, "review-heatmap")
 
     page.goto(f"{server.url}/")
     page.wait_for_selector("body[data-ready]")
-    page.screenshot(path=str(screenshots / "frames.png"))
+    shoot(page, "frames")
     page.goto(f"{server.url}/jobs")
     page.wait_for_selector("body[data-ready]")
-    page.screenshot(path=str(screenshots / "jobs.png"))
+    # A finished job says what it did in words (no raw result fields, no progress line).
+    teacher_row = page.locator("[data-testid=job-row]", has_text="teacher").first
+    assert teacher_row.locator("td.message").inner_text() == "1 frame proposed"
+    shoot(page, "jobs")
     page.goto(f"{server.url}/models")
     page.wait_for_selector("body[data-ready]")
     assert page.is_visible("[data-testid=train-button]")
-    page.screenshot(path=str(screenshots / "models.png"))
+    shoot(page, "models")
 
 
-def test_models_page_shows_a_trained_version_and_promotes_it(
-    page: Any, server: LiveServer, screenshots: Path
-) -> None:
+def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: LiveServer) -> None:
     """A real student version (4 reviewed frames, 2 epochs on the live server) as the API
     returns it: its card, metrics, curves and the gate's verdict; then Promote through the
     real endpoint, forcing it when the gate refuses (both dialogs accepted)."""
@@ -168,7 +170,7 @@ def test_models_page_shows_a_trained_version_and_promotes_it(
     gate = card.locator("[data-testid=gate]").inner_text()
     assert newest["gate"]["reason"] in gate
     assert ("not usable" in gate) != newest["gate"]["usable"]
-    page.screenshot(path=str(screenshots / "models-trained.png"), full_page=True)
+    shoot(page, "models-trained", full_page=True)
     if newest["is_promoted"]:
         assert card.locator("[data-testid=promote]").count() == 0
         assert card.locator(".badge.promoted").count() == 1
@@ -231,6 +233,7 @@ def test_annotator_saves_corrections_and_uploads_a_video(
     assert estimate.inner_text() == "6 frames at 10.0 fps (0.6 s) → 3 frames kept"
     offer.locator("[data-testid=video-every-nth]").fill("4")
     assert estimate.inner_text().endswith("→ 2 frames kept")
+    shoot(page, "video-estimate")
     offer.locator("[data-testid=video-import]").click()
     item = page.locator("[data-testid=upload-item][data-name='run.avi'][data-state=ok]")
     item.wait_for(timeout=60_000)
@@ -262,6 +265,7 @@ def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> 
         page, lambda: "Theirs: accepted by ada" in page.inner_text("[data-testid=conflict-theirs]")
     )
     assert page.inner_text("[data-testid=conflict-mine]") == "Yours: rejected (no pool)"
+    shoot(page, "conflict-dialog")
     page.click("[data-testid=conflict-overwrite]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('rejected')")
     label = server.api("GET", f"/frames/{frame_id}/label").json()
@@ -445,9 +449,7 @@ def test_review_pages_ask_for_nothing_that_is_absent(page: Any, server: LiveServ
     assert failures == []
 
 
-def test_frame_list_filters_pages_and_drop_upload(
-    page: Any, server: LiveServer, screenshots: Path
-) -> None:
+def test_frame_list_filters_pages_and_drop_upload(page: Any, server: LiveServer) -> None:
     sequence = server.api("POST", "/sequences", json={"name": "Pagination run"}).json()
     files = [
         ("files", (f"small-{i}.png", image_bytes(seed=1000 + i), "image/png")) for i in range(53)
@@ -469,10 +471,7 @@ def test_frame_list_filters_pages_and_drop_upload(
     assert "offset=50" in page.url
     assert page.locator("[data-testid=frame-row]").count() == 3
     assert any("after=" in url and "offset" not in url for url in asked), asked  # by cursor
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        page.wait_for_load_state("networkidle")  # the thumbnails
-        page.screenshot(path=str(screenshots / f"frames-page-2-{width}.png"), full_page=True)
+    shoot(page, "frames-page-2", full_page=True, idle=True)
     page.select_option("select[name=status]", "accepted")
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '0 frames'"
@@ -525,6 +524,7 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
     assert shown == set(ids[1:])
     # The queue says why its scores need not decrease (look-alikes are spread apart).
     assert "frames that look alike are spread apart" in page.inner_text("[data-testid=order-note]")
+    shoot(page, "queue")
     page.select_option("select[name=order]", "id")
     page.wait_for_selector("[data-testid=order-note]", state="hidden")
     page.select_option("select[name=order]", "uncertainty")
@@ -549,7 +549,7 @@ def test_the_queue_shows_only_frames_still_to_review(page: Any, server: LiveServ
 
 
 def test_real_model_version_on_the_models_and_metrics_pages(
-    page: Any, server: LiveServer, screenshots: Path, tmp_path: Path
+    page: Any, server: LiveServer, tmp_path: Path
 ) -> None:
     """A student trained for real on the live server shows on /models and /metrics, and runs
     live on a recorded weld from its card."""
@@ -580,15 +580,13 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     assert page.inner_text("[data-testid=acceptance]").startswith("Current labels:")
     assert "counts twice" in page.inner_text("[data-testid=review-table-note]")
     assert page.locator("svg.chart").count() == 2  # the learning curve: mIoU and mED
-    page.screenshot(path=str(screenshots / "metrics.png"), full_page=True)
+    shoot(page, "metrics", full_page=True)
 
     # The version live on a recorded weld (a file on the server, played at its frame rate).
     video = write_video(tmp_path / "weld.avi", 200, fps=20.0, size=(320, 200))
     page.goto(f"{server.url}/models")
     card.locator("[data-testid=live-view]").wait_for()
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        page.screenshot(path=str(screenshots / f"models-version-{width}.png"))
+    shoot(page, "models-version")
     gate = card.locator("[data-testid=gate]").inner_text()
     usable = server.api("GET", "/models").json()[0]["gate"]["usable"]
     assert ("not usable" not in gate) == usable
@@ -606,15 +604,13 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     assert live.locator("[data-testid=live-keypoints]").count() == 1
     assert live.locator("[data-testid=gate]").inner_text() == gate  # the verdict, as on /models
     assert live.locator("svg.chart").count() == 3  # area, length, width scrolling
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        page.screenshot(path=str(screenshots / f"live-{width}.png"))
+    shoot(page, "live")
     live.locator("[data-testid=live-stop]").click()
     page.locator("[data-testid=live-card][data-state=stopped]").wait_for()
 
 
 def test_review_switches_between_proposals_and_records_the_one_accepted(
-    page: Any, server: LiveServer, screenshots: Path
+    page: Any, server: LiveServer
 ) -> None:
     """Two teacher runs on one frame: both proposals are listed, P shows the other one, and
     the accepted label records the proposal it started from, unchanged."""
@@ -632,7 +628,7 @@ def test_review_switches_between_proposals_and_records_the_one_accepted(
     assert options.count() == 2
     assert options.nth(0).get_attribute("aria-pressed") == "true"
     assert "chosen" in options.nth(0).inner_text()
-    page.screenshot(path=str(screenshots / "review-proposals.png"))
+    shoot(page, "review-proposals")
     page.locator(CANVAS).focus()
     page.keyboard.press("p")
     page.wait_for_selector(f"[data-proposal-id='{oldest}'][aria-pressed=true]")
@@ -658,6 +654,7 @@ def test_token_page_creates_shows_once_and_revokes(page: Any, server: LiveServer
     page.click("[data-testid=create-token]")
     page.wait_for_selector("[data-testid=created-token]:not([hidden])")
     token = page.inner_text("[data-testid=created-token-text]").strip()
+    shoot(page, "tokens")
     me = httpx.get(f"{server.url}/api/v1/users/me", headers={"Authorization": f"Bearer {token}"})
     assert me.status_code == 200 and me.json()["username"] == "anna"
     row = page.locator("[data-testid=token-row]", has_text="robot cell 3")
@@ -701,7 +698,21 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
         assert page.is_visible("[data-testid=teacher-banner]")
         assert page.is_disabled("[data-testid=run-teacher]")
         assert "weights are missing" in page.get_attribute("[data-testid=run-teacher]", "title")
-        page.screenshot(path=str(tmp_path / "no-weights.png"))
+        # The tools that ask SAM2 for a mask say why they cannot; painting still works.
+        for tool in ("positive", "negative", "box"):
+            assert page.is_disabled(f"[data-testid=tool-{tool}]")
+            title = page.get_attribute(f"[data-testid=tool-{tool}]", "title")
+            assert title.startswith("Clicks, boxes and propagation need SAM2")
+        assert page.get_attribute("[data-testid=tool-brush]", "aria-pressed") == "true"
+        assert "with the brush or the polygon tool" in page.inner_text("#no-proposal")
+        page.locator(CANVAS).focus()
+        page.keyboard.press("1")  # the positive click's key: refused, with the reason
+        page.wait_for_selector("[data-testid=toast-error]:has-text('need SAM2')")
+        assert page.get_attribute("[data-testid=tool-brush]", "aria-pressed") == "true"
+        shoot(page, "no-weights-review")
+        page.goto(bare.url)
+        page.wait_for_selector("body[data-ready]")
+        shoot(page, "no-weights-frames")
     finally:
         context.close()
         bare.stop()
@@ -729,6 +740,7 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
     page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
     page.wait_for_selector("body[data-ready]")
     page.select_option("[data-testid=export-format]", "coco")
+    shoot(page, "export-menu")
     with page.expect_download() as download:
         page.click("[data-testid=export]")
     archive = zipfile.ZipFile(io.BytesIO(Path(download.value.path()).read_bytes()))
@@ -787,6 +799,7 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
     page.on("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
     for frame_id in ids[:2]:
         page.check(f"[data-testid=frame-row][data-frame-id='{frame_id}'] input[type=checkbox]")
+    shoot(page, "delete-selection")
     page.click("[data-testid=delete-selection]")
     page.wait_for_selector("[data-testid=toast-ok]")
     assert asked[0].startswith("Delete 2 selected frames")
@@ -810,6 +823,7 @@ def test_a_new_weld_run_asks_for_its_process_parameters(page: Any, server: LiveS
     page.wait_for_selector("[data-testid=sequence-dialog][open]")
     assert page.input_value("[data-testid=seq-name]") == "Fresh run"
     page.fill("[data-testid=seq-wire]", "8")
+    shoot(page, "weld-run-new")
     page.click("[data-testid=seq-save]")
     wait_until(
         page,
@@ -842,6 +856,7 @@ def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: Li
     page.fill("[data-testid=scale-mm]", "1.2")
     page.fill("[data-testid=scale-px]", "24")
     assert page.input_value("[data-testid=seq-scale]") == "0.05"
+    shoot(page, "weld-run-edit")
     page.click("[data-testid=seq-save]")
     page.wait_for_selector("[data-testid=toast-ok]")
     stored = server.api("GET", f"/sequences/{sequence['id']}").json()
@@ -850,6 +865,7 @@ def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: Li
     assert (stored["robot_speed_cm_min"], stored["mm_per_px"]) == (40, 0.05)
     line = item.locator("[data-testid=process-line]").inner_text()
     assert line == "6.5 m/min · 22.5 V · 180 A · 40 cm/min · 0.05 mm/px"
+    shoot(page, "weld-run-process-line")
     item.locator("[data-testid=edit-sequence]").click()  # the dialog shows what is stored
     assert page.input_value("[data-testid=seq-voltage]") == "22.5"
     page.fill("[data-testid=seq-voltage]", "")  # cleared: no longer known
@@ -887,6 +903,7 @@ def test_display_controls_change_only_the_view_and_are_remembered(
     display = canvas_data(page, "display")
     assert display == display | {"brightness": 2, "gamma": 0.5, "keypoints": False}
     assert canvas_data(page, "mask-area") == area  # the label is untouched
+    shoot(page, "review-display")
     page.keyboard.press("4")  # brush
     page.fill("[data-testid=brush-size]", "40")
     page.dispatch_event("[data-testid=brush-size]", "input")
@@ -937,6 +954,7 @@ def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
     assert (800, 500) in outline_points()
     page.keyboard.press("Control+y")
     wait_for_js(page, f"document.querySelector('{CANVAS}').dataset.maskArea === '{dragged}'")
+    shoot(page, "review-polygon")
 
     # A new vertex in the middle of the top edge, pulled 40 px up: 400 × 40 / 2 more.
     stroke(page, (600, 300), (600, 260))
@@ -967,6 +985,7 @@ def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
     page.check("[data-testid=display-outline]")
     page.wait_for_timeout(150)
     outlined = page.evaluate(pixel)
+    shoot(page, "review-outline-only")
     page.uncheck("#show-mask")
     page.wait_for_timeout(150)
     assert outlined == page.evaluate(pixel) != filled
@@ -1008,7 +1027,7 @@ def test_dropped_frames_get_ids_in_file_name_order(page: Any, server: LiveServer
 
 
 def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
-    page: Any, server: LiveServer, screenshots: Path
+    page: Any, server: LiveServer
 ) -> None:
     """A reviewer corrects one frame of a run, propagates from it, reads the timeline (strip,
     geometry curves), opens a propagated frame from the strip, fixes it, and sees it reviewed."""
@@ -1075,18 +1094,14 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
     assert page.locator("[data-testid=propagate-until]").is_disabled()  # "both ways": no end
     page.select_option("[data-testid=propagate-direction]", "forward")
     page.fill("[data-testid=propagate-until]", "2")
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        page.screenshot(path=str(screenshots / f"review-propagate-{width}.png"))
+    shoot(page, "review-propagate")
     page.fill("[data-testid=propagate-threshold]", "0")
     page.click("[data-testid=propagate]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('Propagation done')", timeout=120_000)
     assert "2 frames proposed" in page.inner_text("[data-testid=propagate-note]")
 
 
-def test_measure_a_runs_scale_from_two_points_on_a_frame(
-    page: Any, server: LiveServer, screenshots: Path
-) -> None:
+def test_measure_a_runs_scale_from_two_points_on_a_frame(page: Any, server: LiveServer) -> None:
     """On the review page, "Measure scale" (L) takes two clicks on the frame and a length in
     mm; an end can be dragged; saving sets the run's mm per pixel (the length over the ends'
     separation), and the clicks never touch the mask."""
@@ -1117,10 +1132,7 @@ def test_measure_a_runs_scale_from_two_points_on_a_frame(
     assert page.is_disabled("[data-testid=save-scale]")  # no length yet
     page.fill("[data-testid=scale-mm]", "17")
     assert "→ 0.100 mm per pixel" in page.inner_text("[data-testid=scale-span]")
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        page.screenshot(path=str(screenshots / f"review-scale-{width}.png"))
-    page.set_viewport_size({"width": 1280, "height": 800})
+    shoot(page, "review-scale")
     page.click("[data-testid=save-scale]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('mm per pixel')")
     assert page.is_hidden("[data-testid=scale-panel]")

@@ -580,7 +580,7 @@ def train_student(
             report(
                 (step + 1) / plan.total_steps,
                 f"{unit} {round_index + 1}/{plan.rounds} loss "
-                f"{sums[0] / (step - first_step + 1):.4f}",
+                f"{sums[0] / (step - first_step + 1):.3g}",
             )
         metrics = validate(model, held_out, device, config.batch_size)
         score = _score(metrics, config.selection)
@@ -634,7 +634,7 @@ def train_student(
                 "pretrained": pretrained,
             },
         )
-        med = "-" if metrics["mED"] is None else f"{metrics['mED']:.2f} px"
+        med = "–" if metrics["mED"] is None else f"{metrics['mED']:.1f} px"
         report(
             last_step / plan.total_steps,
             f"{unit} {round_index + 1}/{plan.rounds} mIoU {metrics['mIoU']:.3f} mED {med}",

@@ -6,8 +6,9 @@
 // maskEdited, kpEdited}); undo and redo move between them, and "unsaved" means the shown mask or keypoints
 // are not the ones last loaded or saved.
 
-import { api, ApiError, isReviewer, jobFromButton, ROLE, TEACHER_PROBLEM, waitForJob } from "../api.js";
+import { api, ApiError, isReviewer, jobFromButton, ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
+import { score } from "../format.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
@@ -162,12 +163,12 @@ function renderFrameInfo() {
   if (revision) pieces.push(h("span", { class: "muted" }, ` revision ${revision}`));
   if (proposal) {
     const iou = proposal.scores?.sam2_iou;
-    pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${Number(iou).toFixed(2)}` : ""));
+    pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : ""));
     if (proposal.scores?.low_confidence) pieces.push(h("br"), h("span", { class: "warning" }, "SAM2 lost confidence here: correct this frame and propagate again from it."));
     if (frame.uncertainty !== null) {
       const reason = REASONS[frame.uncertainty_reason] ?? frame.uncertainty_reason;
       pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
-        `uncertainty ${frame.uncertainty.toFixed(2)}`, reason ? ` — mostly ${reason}` : ""));
+        `uncertainty ${score(frame.uncertainty)}`, reason ? ` — mostly ${reason}` : ""));
     }
     if (proposal.scores?.warning) pieces.push(h("br"), h("span", { class: "warning" }, proposal.scores.warning));
   }
@@ -187,8 +188,17 @@ async function loadHistory() {
 
 // --- tools ----------------------------------------------------------------------------------
 
+/** The tools that ask SAM2 for a mask: without its weights they are disabled and say why. */
+const SAM2_TOOLS = new Set(["positive", "negative", "box"]);
+
+/** Whether a tool can be used now: keypoints only while validating, SAM2's only with SAM2. */
+const toolUsable = (name) => (validation ? name === "keypoint" : !(SAM2_PROBLEM && SAM2_TOOLS.has(name)));
+
 function setTool(name) {
-  if (validation && name !== "keypoint") return;
+  if (!toolUsable(name)) {
+    if (!validation) toast(SAM2_PROBLEM, "error");
+    return;
+  }
   tool = name;
   if (!validation) remember({ tool: name });
   for (const button of document.querySelectorAll("#tools .tool")) {
@@ -284,7 +294,7 @@ function segment(target) {
     const mask = await Mask.fromPng(answer.mask_png, frame.width, frame.height);
     target.mask = mask;
     target.maskEdited = true;
-    $("last-click").textContent = `mask in ${Math.round(answer.elapsed_ms)} ms · SAM2 IoU ${answer.score.toFixed(2)}`;
+    $("last-click").textContent = `mask in ${Math.round(answer.elapsed_ms)} ms · SAM2 IoU ${score(answer.score)}`;
     if (target === state) changed();
   })();
   track(run);
@@ -628,13 +638,21 @@ async function saveValidation() {
   }
 }
 
+/** Each tool button enabled when usable; SAM2's say why they are not. */
+function enableTools() {
+  for (const button of document.querySelectorAll("#tools .tool")) {
+    button.disabled = !toolUsable(button.dataset.tool);
+    if (SAM2_PROBLEM && SAM2_TOOLS.has(button.dataset.tool)) button.title = SAM2_PROBLEM;
+  }
+}
+
 function toggleValidation() {
   validation = !validation;
   document.body.classList.toggle("validating", validation);
   $("validation-toggle").setAttribute("aria-pressed", String(validation));
   $("validation-toggle").classList.toggle("active", validation);
   $("validation-panel").hidden = !validation;
-  for (const button of document.querySelectorAll("#tools .tool")) button.disabled = validation && button.dataset.tool !== "keypoint";
+  enableTools();
   stage.selected = -1;
   if (validation) {
     toolBeforeValidation = tool;
@@ -734,7 +752,7 @@ function sourceName(item) {
   if (item.source === "teacher") return "teacher";
   if (item.source === "propagated") {
     const confidence = item.scores?.confidence;
-    return `propagated from #${item.scores?.from_frame_id}` + (confidence !== undefined ? ` (confidence ${Number(confidence).toFixed(2)})` : "");
+    return `propagated from #${item.scores?.from_frame_id}` + (confidence !== undefined ? ` (confidence ${score(Number(confidence))})` : "");
   }
   return `${item.source} ${item.model_id}`;
 }
@@ -744,7 +762,7 @@ function renderProposals() {
   const list = $("proposal-sources");
   list.replaceChildren(...proposals.map((item) => {
     const iou = item.scores?.sam2_iou;
-    const detail = iou !== undefined && iou !== null ? ` · IoU ${Number(iou).toFixed(2)}` : "";
+    const detail = iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : "";
     return h("button", {
       type: "button",
       class: `source${proposal && item.id === proposal.id ? " shown" : ""}`,
@@ -919,8 +937,8 @@ function bindControls() {
 function renderPropagate() {
   const button = $("propagate");
   const reviewed = labelStatus === "accepted" || labelStatus === "corrected";
-  button.disabled = !frame.sequence_id || !reviewed || Boolean(TEACHER_PROBLEM);
-  button.title = TEACHER_PROBLEM
+  button.disabled = !frame.sequence_id || !reviewed || Boolean(SAM2_PROBLEM);
+  button.title = SAM2_PROBLEM
     || (!frame.sequence_id ? "This frame belongs to no weld run."
       : reviewed ? "SAM2's video model carries this frame's reviewed mask to the run's other frames"
         : "Accept or correct this frame first: propagation starts from a reviewed mask.");
@@ -1030,7 +1048,9 @@ async function start() {
   bindDisplay();
   const saved = prefs();
   if (saved.brush) setBrushSize(saved.brush);
-  setTool(Object.values(TOOL_KEYS).includes(saved.tool) ? saved.tool : "positive");
+  enableTools();
+  const start = Object.values(TOOL_KEYS).includes(saved.tool) ? saved.tool : "positive";
+  setTool(toolUsable(start) ? start : "brush");
   renderFrameInfo();
   changed();
   stage.render();
