@@ -917,6 +917,102 @@ def test_display_controls_change_only_the_view_and_are_remembered(
     assert canvas_data(page, "display")["brightness"] == 1
 
 
+IMAGE_PIXEL = (
+    "([x, y]) => { const c = document.querySelector('canvas[data-ready]'); const r = c.width / "
+    "c.getBoundingClientRect().width; const v = JSON.parse(c.dataset.view);"
+    " const d = c.getContext('2d').getImageData(Math.round((v.tx + x * v.scale) * r),"
+    " Math.round((v.ty + y * v.scale) * r), 1, 1).data; return [d[0], d[1], d[2]]; }"
+)
+"""The canvas's colour at frame pixel (x, y), through the view's transform."""
+
+
+def test_contrast_opacity_long_names_and_a_view_bar_that_never_covers_the_frame(
+    page: Any, server: LiveServer
+) -> None:
+    """Contrast spreads grey levels apart; mask opacity blends the mask from invisible to
+    full; long names wrap inside their boxes; at 1280, 1440 and 1920 wide the fitted frame
+    lies wholly clear of the Mask / Heatmap / Fit bar."""
+    long_run = "Fillet_T-joint_cell3_torch15deg_wire1.2mm_" * 3
+    long_file = "weld_2026_11_29_cell3_torch_angle_15deg_wire_1.2mm_exposure_long_f000123.png"
+    sequence = server.api("POST", "/sequences", json={"name": long_run}).json()
+    files = [("files", (long_file, synthetic_png(675), "image/png"))]
+    frame_id = server.api(
+        "POST", "/frames", files=files, data={"sequence_id": sequence["id"]}
+    ).json()["stored"][0]["id"]
+    mask = np.zeros((800, 1280), np.uint8)
+    mask[300:501, 400:801] = 255
+    assert server.api("PUT", f"/frames/{frame_id}/label", json=corrected_label(mask)).status_code
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+
+    def pixel(x: int, y: int) -> list[int]:
+        page.wait_for_timeout(120)  # the next animation frame has drawn
+        return page.evaluate(IMAGE_PIXEL, [x, y])
+
+    def set_slider(name: str, value: float) -> None:
+        page.fill(f"[data-testid=display-{name}]", str(value))
+        page.dispatch_event(f"[data-testid=display-{name}]", "input")
+
+    shown = pixel(600, 400)
+    page.uncheck("#show-mask")
+    bare = pixel(600, 400)
+    page.check("#show-mask")
+    assert shown != bare
+    set_slider("opacity", 0)
+    assert pixel(600, 400) == bare  # an invisible mask: the frame as it is
+    set_slider("opacity", 0.5)
+    half = pixel(600, 400)
+    for channel in range(3):  # half way between, to the rounding of one blend
+        assert abs(2 * half[channel] - shown[channel] - bare[channel]) <= 3
+    set_slider("opacity", 1)
+    assert pixel(600, 400) == shown
+    page.uncheck("#show-mask")
+    # Contrast 1.5 spreads grey levels away from mid-grey: v → 128 + 1.5 (v − 128). Checked
+    # on frame pixels below and above the middle that stay inside 0..255.
+    grid = [(x, y) for x in range(40, 1280, 120) for y in range(40, 800, 95)]
+    levels = {point: page.evaluate(IMAGE_PIXEL, list(point)) for point in grid}
+    below = next(p for p, v in levels.items() if 50 <= v[0] <= 110)
+    above = next(p for p, v in levels.items() if 150 <= v[0] <= 210)
+    set_slider("contrast", 1.5)
+    for point in (below, above):
+        expected = [128 + 1.5 * (v - 128) for v in levels[point]]
+        assert np.abs(np.array(pixel(*point)) - expected).max() <= 3, point
+    page.click("[data-testid=display-reset]")
+    page.check("#show-mask")
+
+    overflowing = (
+        "(selector) => [...document.querySelectorAll(selector)]"
+        ".filter((e) => e.scrollWidth > e.clientWidth + 1).length"
+    )
+    assert long_file in page.inner_text("#frame-meta")
+    assert page.evaluate(overflowing, "#frame-meta, aside, aside *") == 0
+    for width, height in ((1280, 800), (1440, 900), (1920, 1080)):
+        page.set_viewport_size({"width": width, "height": height})
+        page.keyboard.press("f")  # fit the frame to the canvas
+        page.wait_for_timeout(150)
+        clear = page.evaluate(
+            """() => {
+              const c = document.querySelector('canvas[data-ready]');
+              const v = JSON.parse(c.dataset.view), box = c.getBoundingClientRect();
+              const bar = document.querySelector('.viewbar').getBoundingClientRect();
+              const image = { left: box.left + v.tx, top: box.top + v.ty,
+                              right: box.left + v.tx + 1280 * v.scale,
+                              bottom: box.top + v.ty + 800 * v.scale };
+              return bar.top >= image.bottom || bar.bottom <= image.top
+                || bar.left >= image.right || bar.right <= image.left;
+            }"""
+        )
+        assert clear, f"the view bar covers the frame at {width}×{height}"
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
+    page.wait_for_selector("body[data-ready]")
+    item = f"li[data-sequence-id='{sequence['id']}']"
+    assert page.evaluate(overflowing, f"{item}, {item} *") == 0
+    assert page.evaluate(overflowing, "[data-testid=frame-row] td") == 0
+    shoot(page, "long-names")
+
+
 def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
     page: Any, server: LiveServer
 ) -> None:
@@ -973,22 +1069,16 @@ def test_polygon_tool_drags_adds_and_removes_vertices_with_undo(
     assert triangle == pytest.approx(dragged - 200 * 400 / 2 - 4000, abs=450)
 
     # Outline only: the inside shows the frame as if the mask were hidden; the label is unchanged.
-    pixel = (
-        "() => { const c = document.querySelector('canvas[data-ready]'); const r = c.width / "
-        "c.getBoundingClientRect().width; const v = JSON.parse(c.dataset.view);"
-        " const d = c.getContext('2d').getImageData(Math.round((v.tx + 700 * v.scale) * r),"
-        " Math.round((v.ty + 350 * v.scale) * r), 1, 1).data; return [d[0], d[1], d[2]]; }"
-    )
     page.keyboard.press("1")  # no outline handles in the way
     page.wait_for_timeout(150)
-    filled = page.evaluate(pixel)
+    filled = page.evaluate(IMAGE_PIXEL, [700, 350])
     page.check("[data-testid=display-outline]")
     page.wait_for_timeout(150)
-    outlined = page.evaluate(pixel)
+    outlined = page.evaluate(IMAGE_PIXEL, [700, 350])
     shoot(page, "review-outline-only")
     page.uncheck("#show-mask")
     page.wait_for_timeout(150)
-    assert outlined == page.evaluate(pixel) != filled
+    assert outlined == page.evaluate(IMAGE_PIXEL, [700, 350]) != filled
     page.uncheck("[data-testid=display-outline]")
     page.check("#show-mask")
     assert canvas_data(page, "mask-area") == triangle
