@@ -254,6 +254,8 @@ function editSequence(sequence) {
 }
 
 document.getElementById("sequence-cancel").addEventListener("click", () => dialog.close());
+// An error is about what was sent: it goes as soon as the user changes the form.
+sequenceForm.addEventListener("input", () => { document.getElementById("sequence-error").hidden = true; });
 // Two points a known distance apart: the scale is that distance over its length in pixels.
 for (const id of ["scale-mm", "scale-px"]) {
   document.getElementById(id).addEventListener("input", () => {

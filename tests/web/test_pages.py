@@ -243,6 +243,36 @@ def test_annotator_saves_corrections_and_uploads_a_video(
     assert page.input_value("[data-testid=every-nth]") == "2"
 
 
+def test_the_video_estimate_reads_an_mp4_header_as_opencv_does(
+    page: Any, server: LiveServer, tmp_path: Path
+) -> None:
+    """The upload's frame estimate for an MP4 (the video track's sample count and duration,
+    read in the browser before anything is sent) agrees with OpenCV's probe of the same file;
+    a file that is no video gives no estimate rather than a wrong one."""
+    video = tmp_path / "run.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (64, 48))
+    for index in range(37):
+        writer.write(np.full((48, 64, 3), 5 * index, np.uint8))
+    writer.release()
+    capture = cv2.VideoCapture(str(video))
+    frames, fps = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), capture.get(cv2.CAP_PROP_FPS)
+    capture.release()
+    assert frames == 37
+    login(page, server, "rita")
+    page.wait_for_selector("body[data-ready]")
+    probe = """async ([b64, name]) => {
+      const { probeVideo } = await import('/static/js/video.js');
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      return await probeVideo(new File([bytes], name));
+    }"""
+    found = page.evaluate(probe, [base64.b64encode(video.read_bytes()).decode(), "run.mp4"])
+    assert found["frames"] == frames
+    assert found["fps"] == pytest.approx(fps, rel=1e-3)
+    assert found["duration_s"] == pytest.approx(frames / fps, rel=1e-3)
+    not_video = base64.b64encode(b"\x00\x00\x00\x18ftypisom" + bytes(64)).decode()
+    assert page.evaluate(probe, [not_video, "broken.mp4"]) is None
+
+
 def test_conflict_dialog_overwrite_and_reload(page: Any, server: LiveServer) -> None:
     frame_id = add_frame(server, 401)
     login(page, server, "rita")
@@ -848,6 +878,7 @@ def test_edit_a_weld_run_name_process_parameters_and_scale(page: Any, server: Li
     error.wait_for()
     assert "already a sequence named 'Taken name'" in error.inner_text()
     page.fill("[data-testid=seq-name]", "Fillet T-joint, 6.5 m/min")
+    assert error.is_hidden()  # the error was about the name sent: editing it clears it
     page.fill("[data-testid=seq-wire]", "6.5")
     page.fill("[data-testid=seq-voltage]", "22.5")
     page.fill("[data-testid=seq-current]", "180")

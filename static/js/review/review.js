@@ -1034,7 +1034,7 @@ async function start() {
   labelClean = state;
   manualClean = state.manual;
   if (manual) $("validation-state").textContent = `${manual.keypoints.length} keypoints placed by hand (${formatDate(manual.updated_at)}).`;
-  $("no-proposal").hidden = proposal !== null;
+  $("no-proposal").hidden = proposal !== null || revision > 0; // reviewed: nothing to propose
   $("teacher-error").hidden = !frame.teacher_error;
   $("teacher-error").textContent = frame.teacher_error ? `The teacher's last run failed here: ${frame.teacher_error}` : "";
   $("show-heatmap").disabled = proposal === null;

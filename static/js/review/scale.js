@@ -48,7 +48,10 @@ export class ScaleRuler {
     $("scale-panel").hidden = !this.active;
     this.stage.canvas.classList.toggle("measuring", this.active);
     this.render();
-    if (this.active) this.stage.canvas.focus();
+    if (this.active) {
+      $("scale-panel").scrollIntoView({ block: "nearest" }); // its length field and Save in view
+      this.stage.canvas.focus({ preventScroll: true });
+    }
   }
 
   /** The separation of the two ends in frame pixels (null until both are placed). */
