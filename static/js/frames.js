@@ -101,7 +101,7 @@ function pickSequence(id) {
 function updateUploadTarget() {
   const id = filterForm.elements.sequence_id.value;
   const sequence = sequences.find((s) => String(s.id) === id);
-  document.getElementById("upload-target").textContent = sequence ? `sequence “${sequence.name}”` : "no sequence";
+  document.getElementById("upload-target").textContent = sequence ? `into sequence “${sequence.name}”` : "without a sequence";
   for (const item of document.querySelectorAll("#sequence-list li")) item.classList.toggle("active", item.dataset.sequenceId === id);
 }
 

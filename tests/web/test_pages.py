@@ -716,6 +716,7 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
         page.wait_for_selector("body[data-ready]")
         banner = page.inner_text("[data-testid=teacher-banner]")
         assert "weights are missing" in banner and "weldpool weights fetch" in banner
+        assert page.inner_text("[data-testid=teacher-banner] code") == "weldpool weights fetch"
         sequence_button = page.locator("[data-testid=teacher-sequence]")
         assert sequence_button.count() == 0 or sequence_button.first.is_disabled()
         page.check("[data-testid=frame-row] input[type=checkbox]")
