@@ -9,6 +9,8 @@ export const px = (v) => (typeof v === "number" ? `${v.toFixed(1)} px` : "–");
 /** Scores between 0 and 1 a model gives itself (uncertainty, confidence, SAM2's predicted IoU):
  * two decimals ("0.42"). */
 export const score = (v) => (typeof v === "number" ? v.toFixed(2) : "–");
+/** A scale in millimetres per pixel: three significant digits, no trailing zeros ("0.05"). */
+export const mmPerPx = (v) => (typeof v === "number" ? String(Number(v.toPrecision(3))) : "–");
 /** Rates: a whole percent below 10 % shows one decimal ("87 %", "4.5 %"). */
 export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
 /** "1 job", "3 jobs", "1 frame". */

@@ -2,7 +2,7 @@
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
 import { api, ApiError, isReviewer, jobFromButton, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
-import { count, decimal, everyNth, score } from "./format.js";
+import { count, decimal, everyNth, mmPerPx, score } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 import { probeVideo } from "./video.js";
 
@@ -241,7 +241,7 @@ function processLine(sequence) {
     sequence.voltage_v != null && `${sequence.voltage_v} V`,
     sequence.current_a != null && `${sequence.current_a} A`,
     sequence.robot_speed_cm_min != null && `${sequence.robot_speed_cm_min} cm/min`,
-    sequence.mm_per_px != null && `${sequence.mm_per_px} mm/px`,
+    sequence.mm_per_px != null && `${mmPerPx(sequence.mm_per_px)} mm/px`,
   ].filter(Boolean);
   return parts.length ? h("span", { class: "muted small-text process", "data-testid": "process-line" }, parts.join(" · ")) : "";
 }

@@ -3,7 +3,7 @@
 
 import { api, ApiError, jobFromButton, SAM2_PROBLEM } from "./api.js";
 import { lineChart } from "./chart.js";
-import { count, decimal } from "./format.js";
+import { count, decimal, mmPerPx } from "./format.js";
 import { h, toast } from "./ui.js";
 
 const SEQUENCE_ID = Number(document.getElementById("timeline").dataset.sequenceId);
@@ -70,7 +70,7 @@ function renderCharts() {
   const withPool = rows.filter((r) => r.area_px !== null).length;
   $("geometry-note").textContent = `${count(withPool, "frame")} of ${rows.length} with a pool (reviewed label, else the proposal shown). `
     + (timeline.travel_deg !== null ? `Length is measured along ${decimal(timeline.travel_deg, 1)}° (${timeline.travel_source}), width across it. ` : "")
-    + (mm ? `Scale: ${timeline.mm_per_px} mm per pixel.` : "No scale set: pixels (set mm per pixel in the weld run's Edit dialog for millimetres).");
+    + (mm ? `Scale: ${mmPerPx(timeline.mm_per_px)} mm per pixel.` : "No scale set: pixels (set mm per pixel in the weld run's Edit dialog for millimetres).");
 }
 
 function renderHead() {

@@ -1254,7 +1254,7 @@ def test_measure_a_runs_scale_from_two_points_on_a_frame(page: Any, server: Live
     assert span() == pytest.approx(170, abs=0.6)
     assert page.is_disabled("[data-testid=save-scale]")  # no length yet
     page.fill("[data-testid=scale-mm]", "17")
-    assert "→ 0.100 mm per pixel" in page.inner_text("[data-testid=scale-span]")
+    assert "→ 0.1 mm per pixel" in page.inner_text("[data-testid=scale-span]")
     shoot(page, "review-scale")
     page.click("[data-testid=save-scale]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('mm per pixel')")

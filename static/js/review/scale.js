@@ -4,6 +4,7 @@
 // the arithmetic, so the rule lives in one place). Its timeline then speaks millimetres.
 
 import { api } from "../api.js";
+import { mmPerPx } from "../format.js";
 import { toast } from "../ui.js";
 
 const $ = (id) => document.getElementById(id);
@@ -90,10 +91,10 @@ export class ScaleRuler {
     const mm = Number($("scale-mm").value);
     $("scale-span").textContent = span === null
       ? `${this.points.length} of 2 ends placed`
-      : `${span.toFixed(1)} px between the ends` + (mm > 0 ? ` → ${(mm / span).toPrecision(3)} mm per pixel` : "");
+      : `${span.toFixed(1)} px between the ends` + (mm > 0 ? ` → ${mmPerPx(mm / span)} mm per pixel` : "");
     $("save-scale").disabled = span === null || !(mm > 0);
     $("scale-state").textContent = !this.frame.sequence_id ? ""
-      : this.mmPerPx ? `Scale: ${Number(this.mmPerPx.toPrecision(4))} mm per pixel.`
+      : this.mmPerPx ? `Scale: ${mmPerPx(this.mmPerPx)} mm per pixel.`
         : "No scale yet: the timeline is in pixels.";
   }
 
@@ -107,7 +108,7 @@ export class ScaleRuler {
         json: { scale_points: { points: this.points, distance_mm: mm } },
       });
       this.mmPerPx = run.mm_per_px;
-      toast(`The run's scale is now ${Number(run.mm_per_px.toPrecision(4))} mm per pixel.`, "ok");
+      toast(`The run's scale is now ${mmPerPx(run.mm_per_px)} mm per pixel.`, "ok");
       this.toggle();
     } catch (error) {
       toast(error.message, "error");
