@@ -8,7 +8,10 @@ fast as possible delivers every frame in order (a queue of two).
 
 ``StreamStudent`` runs a trained student on one frame at a time: ONNX Runtime by default (the
 ``model.onnx`` of ``weldpool export-student``), PyTorch as an option (CUDA when present, and the
-only backend that can score the uncertainty, which needs test-time passes).
+only backend that can score the uncertainty, which needs test-time passes). With
+``sequential=True`` it runs the folder's sequential student instead (``student.sequential``: a
+recurrent cell on the latent, trained with ``weldpool train-sequential``), carrying its state
+from one delivered frame to the next; ``reset()`` starts a new stream.
 
 ``run_stream`` joins them: per frame one ``StreamResult`` whose ``record`` is what a controller
 reads (``record_fields``): capture time, frame index, keypoints in frame pixels, pool area,
@@ -280,15 +283,21 @@ class StreamStudent:
         device: str = "auto",
         threads: int | None = None,
         spin: bool = False,
+        sequential: bool = False,
     ) -> None:
         if backend not in BACKENDS:
             raise InvalidInputError(f"Unknown backend {backend!r}; use onnx or torch.")
         self.model_dir = Path(model_dir)
         self.config: StudentConfig = read_student_config(self.model_dir)
         self.backend = backend
+        self.sequential = sequential
         self._session: Any = None
         self._predictor: Any = None
-        if backend == "onnx":
+        self._recurrent: Any = None
+        self._state: Any = None
+        if sequential:
+            self._open_sequential(backend, device, threads, spin)
+        elif backend == "onnx":
             path = self.model_dir / ONNX_FILE
             if not path.is_file():
                 raise InvalidInputError(
@@ -305,6 +314,63 @@ class StreamStudent:
                 torch.set_num_threads(threads)
             self._predictor = StudentPredictor.load(self.model_dir, device, batch_size=1)
 
+    def _open_sequential(self, backend: str, device: str, threads: int | None, spin: bool) -> None:
+        from weldpool_core.student import sequential
+
+        if not sequential.has_sequential(self.model_dir):
+            raise InvalidInputError(
+                f"{self.model_dir} has no sequential student; train one with "
+                f"`weldpool train-sequential {self.model_dir} DATASET --videos DIR`."
+            )
+        if backend == "onnx":
+            path = sequential.export_sequential_onnx(self.model_dir)
+            self._session = onnx_session(path, threads, spin=spin)
+            return
+        import torch
+
+        from weldpool_core.device import resolve_device
+
+        if threads:
+            torch.set_num_threads(threads)
+        self._recurrent = sequential.load_sequential(self.model_dir, resolve_device(device))
+
+    def reset(self) -> None:
+        """Forget the sequential student's state: the next frame starts a new stream."""
+        self._state = None
+
+    def _sequential_step(
+        self, batch: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        if self._session is not None:
+            cells = self.config.input_size // 32
+            fresh = self._state is None
+            state = (
+                np.zeros((1, self.config.latent_channels, cells, cells), np.float32)
+                if fresh
+                else self._state
+            )
+            mask, heatmap, self._state = self._session.run(
+                None,
+                {
+                    "image": batch,
+                    "state": state,
+                    "fresh": np.full((1, 1, 1, 1), float(fresh), np.float32),
+                },
+            )
+            return mask[0], heatmap[0]
+        import torch
+
+        model = self._recurrent
+        device = next(model.parameters()).device
+        with torch.inference_mode():
+            mask_logits, heat_logits, self._state = model.step(
+                torch.from_numpy(batch).to(device), self._state
+            )
+        return (
+            torch.sigmoid(mask_logits)[0].float().cpu().numpy(),
+            torch.sigmoid(heat_logits)[0].float().cpu().numpy(),
+        )
+
     def prepare(self, bgr: NDArray[np.uint8]) -> tuple[NDArray[np.float32], FrameGeometry]:
         """A BGR frame → the 1×3×S×S RGB input in [0, 1], and its geometry (resized first,
         then converted: the colour conversion runs on the small image)."""
@@ -319,7 +385,15 @@ class StreamStudent:
         self, batch: NDArray[np.float32], geometry: FrameGeometry, samples: int = 0
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], float | None]:
         """Mask probability and heatmap (S×S) of one prepared frame, and its uncertainty with
-        ``samples`` > 0 (torch only)."""
+        ``samples`` > 0 (torch only, per-frame student only)."""
+        if self.sequential:
+            if samples:
+                raise InvalidInputError(
+                    "The uncertainty is the per-frame student's; stream without --sequential "
+                    "to score it."
+                )
+            mask, heatmap = self._sequential_step(batch)
+            return mask, heatmap, None
         if self._session is not None:
             if samples:
                 raise InvalidInputError(

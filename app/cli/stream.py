@@ -77,6 +77,12 @@ def promoted_model_dir() -> Path:
     show_default=True,
     help="Test-time passes for the uncertainty (torch backend; slower).",
 )
+@click.option(
+    "--sequential",
+    is_flag=True,
+    help="Use the folder's sequential student (weldpool train-sequential): steadier masks "
+    "and keypoints from the frames before.",
+)
 @click.option("--realtime", is_flag=True, help="Read a file at its frame rate, dropping stale.")
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
 @click.option(
@@ -103,6 +109,7 @@ def stream_cmd(
     mm_per_px: float | None,
     travel_deg: float | None,
     samples: int,
+    sequential: bool,
     realtime: bool,
     max_frames: int | None,
     decoder_threads: int,
@@ -123,10 +130,12 @@ def stream_cmd(
         fail(f"There is no student folder {str(model_dir)!r}.")
     if samples and backend != "torch":
         fail("--samples needs --backend torch (the uncertainty runs test-time passes in PyTorch).")
-    if backend == "onnx" and not (model_dir / ONNX_FILE).is_file():
+    if samples and sequential:
+        fail("--samples scores the per-frame student; leave out --sequential to use it.")
+    if backend == "onnx" and not sequential and not (model_dir / ONNX_FILE).is_file():
         click.echo(f"exporting {model_dir / ONNX_FILE} for ONNX Runtime …", err=True)
         ensure_onnx(model_dir)
-    student = StreamStudent(model_dir, backend, device, threads)
+    student = StreamStudent(model_dir, backend, device, threads, sequential=sequential)
     smoother = None
     if smooth == "one-euro":
         params = SmoothingParams()

@@ -1,4 +1,5 @@
-"""The student from the command line: train on a DATASET folder, predict, export."""
+"""The student from the command line: train on a DATASET folder (and its sequential cell on
+videos), predict, export."""
 
 from __future__ import annotations
 
@@ -145,6 +146,67 @@ def train_cmd(
     }
     click.echo(json.dumps(summary, indent=2))
     click.echo(f"trained a student into {out_dir} (best epoch {result.best_epoch})", err=True)
+
+
+@main.command("train-sequential")
+@click.argument("model_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option(
+    "--videos",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Folder of the videos the DATASET's frames come from (<video>.mp4 for <video>_f<index>).",
+)
+@click.option("--steps", default=200, show_default=True, type=click.IntRange(min=1))
+@click.option(
+    "--window", default=8, show_default=True, type=click.IntRange(min=2), help="Frames per window."
+)
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--device", help="cpu, cuda, cuda:N, mps or auto (default: WELDPOOL_DEVICE).")
+@friendly_errors
+def train_sequential_cmd(
+    model_dir: Path,
+    dataset: Path,
+    videos: Path,
+    steps: int,
+    window: int,
+    seed: int,
+    device: str | None,
+) -> None:
+    """Train the sequential cell of the student in MODEL_DIR on labelled frames of videos.
+
+    DATASET is a training folder (images/, masks/) whose stems name a video and a frame,
+    <video>_f<index> (0-based); each labelled frame and the frames before it in
+    --videos/<video>.mp4 make the training windows. The student itself is not changed; the
+    cell is saved beside it and used by `weldpool stream --sequential`.
+    """
+    from weldpool_core.student.sequential import (
+        SequentialConfig,
+        dataset_clips,
+        train_sequential,
+    )
+
+    settings = load_settings()
+    if not model_dir.is_dir():
+        fail(f"There is no student folder {str(model_dir)!r}.")
+    config = SequentialConfig(
+        window=window, steps=steps, seed=seed, device=device or settings.device
+    )
+    clips = dataset_clips(dataset, videos, config)
+    bar = _ProgressBar()
+    try:
+        result = train_sequential(model_dir, clips, config, bar)
+    finally:
+        bar.close()
+    summary = {
+        "model_dir": str(result.model_dir),
+        "windows": result.windows,
+        "first_loss": round(result.first_loss, 4),
+        "last_loss": round(result.last_loss, 4),
+        "seconds": round(result.seconds, 1),
+    }
+    click.echo(json.dumps(summary, indent=2))
+    click.echo(f"trained the sequential cell of {model_dir} on {result.windows} windows", err=True)
 
 
 @main.command("predict")
