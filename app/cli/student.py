@@ -157,10 +157,8 @@ def train_cmd(
     type=click.Path(file_okay=False, path_type=Path),
     help="Folder of the videos the DATASET's frames come from (<video>.mp4 for <video>_f<index>).",
 )
-@click.option("--steps", default=200, show_default=True, type=click.IntRange(min=1))
-@click.option(
-    "--window", default=8, show_default=True, type=click.IntRange(min=2), help="Frames per window."
-)
+@click.option("--steps", type=click.IntRange(min=1), help="Optimiser steps (default 200).")
+@click.option("--window", type=click.IntRange(min=2), help="Frames per window (default 8).")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--device", help="cpu, cuda, cuda:N, mps or auto (default: WELDPOOL_DEVICE).")
 @friendly_errors
@@ -168,8 +166,8 @@ def train_sequential_cmd(
     model_dir: Path,
     dataset: Path,
     videos: Path,
-    steps: int,
-    window: int,
+    steps: int | None,
+    window: int | None,
     seed: int,
     device: str | None,
 ) -> None:
@@ -189,9 +187,8 @@ def train_sequential_cmd(
     settings = load_settings()
     if not model_dir.is_dir():
         fail(f"There is no student folder {str(model_dir)!r}.")
-    config = SequentialConfig(
-        window=window, steps=steps, seed=seed, device=device or settings.device
-    )
+    config = SequentialConfig(seed=seed, device=device or settings.device)
+    config = replace(config, steps=steps or config.steps, window=window or config.window)
     clips = dataset_clips(dataset, videos, config)
     bar = _ProgressBar()
     try:
