@@ -17,7 +17,7 @@ Runtime, as ``weldpool stream`` runs it):
 - lag: the video panned back and forth at ``--speed`` px per frame (each frame shifted along x,
   40 frames each way, so the pool moves at a known speed and stays in view): how many frames the
   sequential keypoints (and the one-euro ones) trail the per-frame keypoints along the motion
-  (least squares, from frame 30 on).
+  (``trail``), and how many the sequential pool's centroid trails the per-frame one.
 """
 
 from __future__ import annotations
@@ -42,7 +42,12 @@ from weldpool_core.student.evaluate import labelled_frames
 from weldpool_core.student.export import export_student
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import frame_keypoints
-from weldpool_core.student.sequential import SequentialConfig, train_sequential, video_clip
+from weldpool_core.student.sequential import (
+    SequentialConfig,
+    has_sequential,
+    train_sequential,
+    video_clip,
+)
 from weldpool_core.student.train import TrainConfig, train_student
 from weldpool_core.video import iter_video_frames
 
@@ -50,6 +55,8 @@ REPO = Path(__file__).resolve().parents[1]
 CLIPS = ("0mm", "2mm", "mm")
 TRACKING_ONLY = SmoothingParams(min_cutoff=1e6, beta=0.0)
 PAN_PERIOD = 80
+STREAMS: dict[tuple[Path, str, bool, float], np.ndarray] = {}
+"""The pool centroid's track (T×1×2) of each stream run, by (model, clip, sequential, speed)."""
 
 
 def shared_data() -> Path:
@@ -76,7 +83,7 @@ def stream(
     full-resolution mask and keypoints, of every frame of a clip's video (panned by ``speed``)."""
     student = StreamStudent(model, "onnx", sequential=sequential)
     tracker = KeypointSmoother(student.config.k, TRACKING_ONLY)
-    rows, areas, outputs = [], [], {}
+    rows, areas, outputs, centroids = [], [], {}, []
     for frame in iter_video_frames(video(clip)):
         gray = frame.pixels
         if speed:
@@ -90,7 +97,10 @@ def stream(
         rows.append([p if p is not None else [np.nan, np.nan] for p in tracked])
         full = np.asarray(geometry.map_to_frame(mask)) >= 0.5
         areas.append(float(full.sum()))
+        ys, xs = np.nonzero(full)
+        centroids.append([[xs.mean(), ys.mean()]] if len(xs) else [[np.nan, np.nan]])
         outputs[frame.index] = (full, points)
+    STREAMS[(model, clip, sequential, speed)] = np.asarray(centroids, np.float64)
     return np.asarray(rows, np.float64), np.asarray(areas), outputs
 
 
@@ -117,14 +127,30 @@ def pan(index: int, speed: float, period: int = PAN_PERIOD) -> float:
 
 
 def trail(reference: np.ndarray, tracks: np.ndarray, speed: float) -> float:
-    """Frames ``tracks`` trail ``reference`` along the pan: the least-squares lag L in
-    reference − tracks ≈ L · velocity, from frame 30 on (NaN tracks left out)."""
+    """Frames ``tracks`` trail ``reference`` along the pan (T×k×2 each, or T×1×2 centroids).
+
+    Each reference track is paired with the track nearest to it on average (Hungarian: two
+    students may number their keypoints differently); per pair, d = reference − track along x
+    and the pan's velocity v are centred (a steady offset between two students is no lag), and
+    the lag is the least-squares L in d ≈ L · v over all pairs, from frame 30 on."""
+    from scipy.optimize import linear_sum_assignment
+
     velocity = np.array([pan(i, speed) - pan(i - 1, speed) for i in range(len(reference))])
-    behind = reference[:, :, 0] - tracks[:, :, 0]
-    v = np.repeat(velocity[:, None], behind.shape[1], 1)[30:]
-    d = behind[30:]
-    keep = np.isfinite(d)
-    return float((d[keep] * v[keep]).sum() / (v[keep] ** 2).sum())
+    ref, other = reference[30:], tracks[30:]
+    centres = np.nanmean(ref, axis=0), np.nanmean(other, axis=0)
+    cost = np.linalg.norm(centres[0][:, None] - centres[1][None], axis=-1)
+    rows, columns = linear_sum_assignment(np.nan_to_num(cost, nan=1e9))
+    top = bottom = 0.0
+    for row, column in zip(rows, columns, strict=True):
+        d = ref[:, row, 0] - other[:, column, 0]
+        keep = np.isfinite(d)
+        if keep.sum() < 10:
+            continue
+        dd = d[keep] - d[keep].mean()
+        vv = velocity[30:][keep] - velocity[30:][keep].mean()
+        top += float((dd * vv).sum())
+        bottom += float((vv**2).sum())
+    return top / bottom if bottom else float("nan")
 
 
 def accuracy(outputs: dict[int, Any], truth: dict[int, TrainingFrame]) -> tuple[float, float]:
@@ -138,7 +164,7 @@ def accuracy(outputs: dict[int, Any], truth: dict[int, TrainingFrame]) -> tuple[
 
 
 def fold(
-    held: str, seed: int, root: Path, speed: float, config: SequentialConfig
+    held: str, seed: int, root: Path, speed: float, config: SequentialConfig, reuse: bool
 ) -> dict[str, Any]:
     labels = labels_by_clip()
     train_clips = [c for c in CLIPS if c != held]
@@ -151,10 +177,11 @@ def fold(
         export_student(model, ["onnx"])
         per_frame_s = time.perf_counter() - start
     config = replace(config, seed=seed)
-    clips = [video_clip(video(c), labels[c], config) for c in train_clips]
-    result = train_sequential(model, clips, config)
-    row: dict[str, Any] = {"fold": held, "seed": seed, "train_s": per_frame_s}
-    row.update(seq_s=result.seconds, loss=(result.first_loss, result.last_loss))
+    row: dict[str, Any] = {"fold": held, "seed": seed, "train_s": per_frame_s, "seq_s": 0.0}
+    if not (reuse and has_sequential(model)):
+        clips = [video_clip(video(c), labels[c], config) for c in train_clips]
+        result = train_sequential(model, clips, config)
+        row.update(seq_s=result.seconds, loss=(result.first_loss, result.last_loss))
     raw, raw_area, raw_out = stream(model, held, False)
     seq, seq_area, seq_out = stream(model, held, True)
     row["acc_frame"] = accuracy(raw_out, labels[held])
@@ -169,6 +196,9 @@ def fold(
     pan_raw, _, _ = stream(model, held, False, speed)
     pan_seq, _, _ = stream(model, held, True, speed)
     row["lag"] = {
+        "centroid": trail(
+            STREAMS[(model, held, False, speed)], STREAMS[(model, held, True, speed)], speed
+        ),
         "one-euro": trail(pan_raw, smooth(pan_raw), speed),
         "sequential": trail(pan_raw, pan_seq, speed),
         "sequential + one-euro": trail(pan_raw, smooth(pan_seq), speed),
@@ -183,6 +213,9 @@ def main() -> None:
     parser.add_argument("--speed", type=float, default=4.0, help="pan, px per frame")
     parser.add_argument("--models", type=Path, help="keep the per-frame students here")
     parser.add_argument("--steps", type=int, default=SequentialConfig.steps)
+    parser.add_argument(
+        "--reuse-cells", action="store_true", help="with --models: keep cells trained before"
+    )
     parser.add_argument("--drift", type=float, default=SequentialConfig.drift)
     args = parser.parse_args()
     config = SequentialConfig(device="cpu", steps=args.steps, drift=args.drift)
@@ -191,16 +224,17 @@ def main() -> None:
         root = args.models or Path(scratch)
         for held in args.folds:
             for seed in args.seeds:
-                row = fold(held, seed, root, args.speed, config)
+                row = fold(held, seed, root, args.speed, config, args.reuse_cells)
                 rows.append(row)
                 print(row, flush=True)
     print(
         "\n| held-out clip | seed | mIoU: per frame → sequential | mED px: per frame → sequential "
         "| keypoint jitter px: per frame / one-euro / sequential / sequential + one-euro "
         "| area jitter %: per frame → sequential "
-        "| lag frames: one-euro / sequential / sequential + one-euro | cell training s |"
+        "| keypoint lag frames: one-euro / sequential / sequential + one-euro "
+        "| pool centroid lag frames, sequential | cell training s |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         j, lag, area = r["jitter"], r["lag"], r["area"]
         print(
@@ -210,7 +244,7 @@ def main() -> None:
             f"{j['sequential + one-euro']:.2f} "
             f"| {area['per frame']:.2f} → {area['sequential']:.2f} "
             f"| {lag['one-euro']:.2f} / {lag['sequential']:.2f} / "
-            f"{lag['sequential + one-euro']:.2f} | {r['seq_s']:.0f} |"
+            f"{lag['sequential + one-euro']:.2f} | {lag['centroid']:.2f} | {r['seq_s']:.0f} |"
         )
 
 
