@@ -298,7 +298,8 @@ class Augmentation:
     shift: float = 0.05
 
 
-def _affine(rng: np.random.Generator, size: int, params: Augmentation) -> NDArray[np.float64]:
+def random_affine(rng: np.random.Generator, size: int, params: Augmentation) -> NDArray[np.float64]:
+    """A random rotation, scale and shift of an S×S input (2×3, for ``cv2.warpAffine``)."""
     angle = rng.uniform(-params.rotation_deg, params.rotation_deg)
     scale = rng.uniform(1 - params.scale, 1 + params.scale)
     centre = ((size - 1) / 2, (size - 1) / 2)
@@ -307,9 +308,10 @@ def _affine(rng: np.random.Generator, size: int, params: Augmentation) -> NDArra
     return matrix
 
 
-def _photometric(
+def photometric(
     image: NDArray[np.float32], rng: np.random.Generator, params: Augmentation
 ) -> NDArray[np.float32]:
+    """``image`` (S×S×3, grey levels as floats) under a random exposure, glare, blur and noise."""
     size = image.shape[0]
     if params.gamma > 0:
         spread = np.log1p(params.gamma)
@@ -356,13 +358,13 @@ def make_targets(
     keypoints, covariances = frame.keypoints, frame.covariances
     if augmentation is not None and augmentation.enabled and rng is not None:
         size = image.shape[0]
-        matrix = _affine(rng, size, augmentation)
+        matrix = random_affine(rng, size, augmentation)
         image = np.asarray(cv2.warpAffine(image, matrix, (size, size)), np.float32)
         mask = np.asarray(cv2.warpAffine(mask, matrix, (size, size)), np.float32)
         linear = matrix[:, :2]
         keypoints = keypoints @ linear.T + matrix[:, 2]
         covariances = np.einsum("ij,njk,lk->nil", linear, covariances, linear)
-        image = _photometric(image, rng, augmentation)
+        image = photometric(image, rng, augmentation)
     heatmap = render_heatmap(keypoints, covariances, mask, sigma_floor)
     pixels = np.clip(image, 0, 255) / np.float32(255)
     return TrainingTargets(

@@ -67,7 +67,7 @@ def _examples(size: int, batch: int, seed: int = 0) -> torch.Tensor:
 
 
 @contextlib.contextmanager
-def _quiet_exporter() -> Iterator[None]:
+def quiet_exporter() -> Iterator[None]:
     """Keep the ONNX exporter's progress notes (info logs, torch's pytree notices) off stderr."""
     loggers = [logging.getLogger(name) for name in _EXPORTER_LOGGERS]
     levels = [logger.level for logger in loggers]
@@ -87,7 +87,7 @@ def export_onnx(model: ResNetVAE, path: Path) -> None:
     module = export_module(model)
     example = _examples(model.config.input_size, 2)
     batch = torch.export.Dim("batch", min=1, max=1024)
-    with _quiet_exporter():
+    with quiet_exporter():
         program = torch.onnx.export(
             module,
             (example,),

@@ -21,10 +21,10 @@ from weldpool_core.student.data import (
     FrameGeometry,
     FrameSet,
     TrainingFrame,
-    _affine,
-    _photometric,
     make_targets,
+    photometric,
     prepare_frame,
+    random_affine,
     read_dataset,
 )
 from weldpool_core.synth import synth_frame
@@ -110,7 +110,7 @@ def test_augmentation_moves_image_mask_and_keypoints_together() -> None:
     )
     rng = np.random.default_rng(5)
     targets = make_targets(prepared, 2.0, geometric, rng)
-    matrix = _affine(np.random.default_rng(5), 96, geometric)
+    matrix = random_affine(np.random.default_rng(5), 96, geometric)
     moved = prepared.keypoints @ matrix[:, :2].T + matrix[:, 2]
     modes = keypoints_from_heatmap(targets.heatmap.numpy(), k=4)
     distances = np.linalg.norm(modes[:, None] - moved[None], axis=2).min(axis=1)
@@ -127,14 +127,14 @@ def test_gamma_bends_mid_greys_both_ways_and_keeps_black_and_white() -> None:
     image = np.zeros((8, 8, 3), np.float32)
     image[:, 2:4], image[:, 4:] = 128.0, 255.0
     draws = [
-        _photometric(image.copy(), np.random.default_rng(seed), only_gamma) for seed in range(20)
+        photometric(image.copy(), np.random.default_rng(seed), only_gamma) for seed in range(20)
     ]
     middle = np.array([d[0, 2, 0] for d in draws])
     assert (middle > 140).any() and (middle < 116).any()  # brighter and darker exposures
     assert all(np.allclose(d[:, :2], 0) and np.allclose(d[:, 4:], 255, atol=1e-3) for d in draws)
     assert np.abs(np.log(middle / 255) / np.log(128 / 255)).max() <= 1.5 + 1e-4  # within 1 + γ
     off = replace(only_gamma, gamma=0.0)
-    assert np.allclose(_photometric(image.copy(), np.random.default_rng(0), off), image)
+    assert np.allclose(photometric(image.copy(), np.random.default_rng(0), off), image)
 
 
 def test_augmentation_depends_only_on_seed_epoch_and_index() -> None:
