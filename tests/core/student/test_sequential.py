@@ -246,7 +246,7 @@ def test_training_teaches_the_cell_to_steady_a_flickering_pool(tmp_path: Path) -
     ious = [iou(p) for p in alone[5:]]
     ious_seq = [iou(p) for p in together[5:]]
     print(f"moves {moves:.4f} → {moves_seq:.4f}; IoU {np.mean(ious):.3f} → {np.mean(ious_seq):.3f}")
-    assert moves_seq < 0.7 * moves
+    assert moves_seq < 0.4 * moves  # without the steadiness term: 0.52
     assert np.mean(ious_seq) >= np.mean(ious) - 0.02
 
 
