@@ -560,12 +560,31 @@ def save_cell(
         root / SEQUENTIAL_CONFIG,
         {
             "channels": cell.channels,
+            "student_sha256": _student_digest(root),
             "training": record,
             "windows": windows,
             "loss_curve": [round(x, 5) for x in losses[:: max(1, len(losses) // 50)]],
         },
     )
     (root / SEQUENTIAL_ONNX).unlink(missing_ok=True)  # an old export no longer matches
+
+
+def _student_digest(root: Path) -> str:
+    """SHA-256 of the per-frame student's weights the cell was trained on."""
+    import hashlib
+
+    return hashlib.sha256((root / checkpoint.WEIGHTS_FILE).read_bytes()).hexdigest()
+
+
+def _matching_record(root: Path) -> Any:
+    """The cell's record, or a one-sentence error when its student has been retrained since."""
+    record = checkpoint.read_json(root / SEQUENTIAL_CONFIG)
+    if record.get("student_sha256") != _student_digest(root):
+        raise InvalidInputError(
+            f"The sequential cell in {root} was trained for another version of its student; "
+            f"train it again with `weldpool train-sequential {root} …`."
+        )
+    return record
 
 
 def has_sequential(model_dir: str | Path) -> bool:
@@ -582,8 +601,8 @@ def load_sequential(model_dir: str | Path, device: torch.device | None = None) -
         raise InvalidInputError(
             f"{root} has no sequential cell; train one with `weldpool train-sequential {root} …`."
         )
+    record = _matching_record(root)
     student = checkpoint.load_student(root, device)
-    record = checkpoint.read_json(root / SEQUENTIAL_CONFIG)
     cell = LatentCell(int(record["channels"]))
     cell.load_state_dict(load_file(str(root / SEQUENTIAL_WEIGHTS)))
     return SequentialStudent(student, cell.to(device or torch.device("cpu"))).eval()
@@ -596,6 +615,7 @@ def export_sequential_onnx(model_dir: str | Path) -> Path:
     root = Path(model_dir)
     path = root / SEQUENTIAL_ONNX
     if path.is_file():
+        _matching_record(root)  # an export made before the student was retrained is refused too
         return path
     import copy
 

@@ -129,6 +129,18 @@ def test_onnx_and_torch_carry_the_same_state_and_reset_starts_again(
     assert (stateful_dir / "sequential.onnx").is_file()
 
 
+def test_a_cell_is_refused_once_its_student_is_retrained(stateful_dir: Path) -> None:
+    StreamStudent(stateful_dir, "onnx", sequential=True)  # exports sequential.onnx
+    student = checkpoint.load_student(stateful_dir)
+    with torch.no_grad():
+        student.to_latent.bias.add_(0.1)  # another training run into the same folder
+    checkpoint.save_weights(stateful_dir, student)
+    with pytest.raises(InvalidInputError, match="trained for another version of its student"):
+        load_sequential(stateful_dir)
+    with pytest.raises(InvalidInputError, match="trained for another version of its student"):
+        StreamStudent(stateful_dir, "onnx", sequential=True)
+
+
 def test_a_window_moves_its_frames_and_their_targets_together() -> None:
     """With a drift, step t of a window is the labelled frame shifted by v·(t − T + 1) — its
     input and its targets by the same amount (a target left behind, or moved the other way,
