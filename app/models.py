@@ -421,6 +421,7 @@ class ModelVersion(Base):
     train_frame_ids: Mapped[list[int] | None] = mapped_column(JSONType, default=list)
     held_out_frame_ids: Mapped[list[int] | None] = mapped_column(JSONType, default=list)
     gate: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # app.training.gate's verdict
+    sequential: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # its sequential cell
     is_promoted: Mapped[bool] = mapped_column(default=False, index=True)
     job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)

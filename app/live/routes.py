@@ -10,7 +10,7 @@ from fastapi.responses import StreamingResponse
 
 from app.bounds import IdPath
 from app.deps import SessionDep, StorageDep
-from app.errors import ConflictError, NotFoundError
+from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.live.schemas import LiveIn, LiveOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews
 from app.models import ModelVersion
@@ -41,6 +41,7 @@ def _out(view: LiveView) -> LiveOut:
         frames=view.frames,
         dropped=view.dropped,
         smooth=view.smooth,
+        sequential=view.sequential,
         mm_per_px=view.mm_per_px,
         last=last,
         **view.stats(),
@@ -63,6 +64,10 @@ def start_live(
     folder = storage.absolute(model.checkpoint_path) if model.checkpoint_path else None
     if folder is None or not folder.is_dir():
         raise ConflictError(f"{model.name} has no weights on this server.")
+    if body.sequential and not model.sequential:
+        raise InvalidInputError(
+            f"{model.name} has no sequential cell; train one on the models page first."
+        )
     view = _views(request).start(
         {
             "source": body.source,
@@ -72,6 +77,7 @@ def start_live(
             "model_dir": folder,
             "started_by": user.username,
             "smooth": body.smooth,
+            "sequential": body.sequential,
             "mm_per_px": body.mm_per_px,
             "travel_deg": body.travel_deg,
         }

@@ -21,6 +21,11 @@ class LiveIn(BaseModel):
         default=None, ge=1, le=2**31 - 1, description="A student version; null: the promoted one."
     )
     smooth: bool = Field(default=True, description="One-euro filter on the keypoint tracks.")
+    sequential: bool = Field(
+        default=False,
+        description="Run the version's sequential cell (it keeps a state from frame to frame: "
+        "a steadier mask and keypoints); the version must have one (`sequential` on the model).",
+    )
     mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
     travel_deg: float | None = Field(default=None, ge=-360, le=360)
 
@@ -45,6 +50,7 @@ class LiveOut(BaseModel):
     latency_p50_ms: float | None
     latency_p99_ms: float | None
     smooth: bool
+    sequential: bool
     mm_per_px: float | None
     last: dict[str, Any] | None = Field(description="The newest record (as `weldpool stream`).")
 

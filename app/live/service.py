@@ -49,6 +49,7 @@ class LiveView:
     smooth: bool
     mm_per_px: float | None
     travel_deg: float | None
+    sequential: bool = False
     model_id: int | None = None
     gate: dict[str, Any] | None = None
     """The version's promotion-gate verdict when the view started (usable, reason, …)."""
@@ -169,7 +170,9 @@ def _run(view: LiveView) -> None:
         if not (view.model_dir / "model.onnx").is_file():
             _set(view, message="exporting the student for ONNX Runtime")
             ensure_onnx(view.model_dir)
-        student = StreamStudent(view.model_dir, "onnx")
+        if view.sequential:
+            _set(view, message="preparing the sequential student for ONNX Runtime")
+        student = StreamStudent(view.model_dir, "onnx", sequential=view.sequential)
         smoother = KeypointSmoother(student.config.k) if view.smooth else None
         with FrameSource(
             view.source, realtime=True, prepare=student.prepare, decoder_threads=1

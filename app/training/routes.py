@@ -12,7 +12,7 @@ from app.jobs.service import create_job
 from app.review.service import frames_for_run
 from app.security import CurrentUser, ReviewerUser
 from app.training import gate, service
-from app.training.schemas import ModelVersionOut, StudentRunIn, TrainIn
+from app.training.schemas import ModelVersionOut, SequentialIn, StudentRunIn, TrainIn
 
 router = APIRouter(tags=["training"])
 
@@ -52,6 +52,31 @@ def list_models(session: SessionDep, _user: CurrentUser) -> list[ModelVersionOut
 @router.get("/models/{model_id}", response_model=ModelVersionOut)
 def get_model(model_id: IdPath, session: SessionDep, _user: CurrentUser) -> ModelVersionOut:
     return ModelVersionOut.model_validate(service.get_model(session, model_id))
+
+
+@router.post(
+    "/models/{model_id}/sequential",
+    response_model=JobCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={409: {"description": "A sequential cell for this version is already training."}},
+)
+def train_sequential(
+    model_id: IdPath, body: SequentialIn, session: SessionDep, queue: QueueDep, user: ReviewerUser
+) -> JobCreated:
+    """Train this version's sequential cell (steadier keypoints in live views) on the reviewed
+    frames of imported videos, in a worker job; the job measures it against the per-frame
+    student and the version records the measurement (`sequential`)."""
+    model = service.get_model(session, model_id)
+    if not service.has_video_labels(session):
+        raise InvalidInputError(
+            "No reviewed frame of the training split comes from an imported video; label frames "
+            "of a video to train the sequential cell."
+        )
+    if service.sequential_job(session, model.id) is not None:
+        raise ConflictError(f"A sequential cell for {model.name} is already training.")
+    params = body.model_dump() | {"model_version_id": model.id}
+    job = create_job(session, queue, service.SEQUENTIAL_KIND, params, user)
+    return JobCreated(job_id=job.id)
 
 
 @router.post(

@@ -36,6 +36,15 @@ class TrainIn(InputModel):
     pseudo_weight: float = Field(default=0.5, gt=0.0, le=1.0)
 
 
+class SequentialIn(InputModel):
+    """Options of a sequential-cell training job."""
+
+    steps: int | None = Field(
+        default=None, ge=1, le=10_000, description="Optimiser steps (default 200)."
+    )
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+
+
 class StudentRunIn(InputModel):
     """Which frames the promoted student should propose for."""
 
@@ -59,4 +68,12 @@ class ModelVersionOut(BaseModel):
     gate: dict[str, Any] | None = Field(
         default=None,
         description="The promotion gate's last verdict: `usable`, `promote`, `reason`, scores.",
+    )
+    sequential: dict[str, Any] | None = Field(
+        default=None,
+        description="Its sequential cell (for steadier live keypoints), null when it has none: "
+        "`trained_at`, `job_id`, `windows`, `videos`, and `measured` — the cell against the "
+        "per-frame student on the validation split's video frames (`per_frame_iou`, "
+        "`sequential_iou`, `frames`) and on unlabelled windows (`per_frame_change`, "
+        "`sequential_change`: the share of the mask that changes per frame, `windows`).",
     )

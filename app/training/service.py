@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,12 +23,17 @@ from app.models import (
     Proposal,
     Split,
     ValidationKeypoints,
+    Video,
 )
 from app.review.service import frame_rgb, load_mask
 from app.storage import Storage
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
 TRAIN_KIND = "train_student"
+SEQUENTIAL_KIND = "train_sequential"
+UNLABELLED_WINDOWS = 64
+"""Unlabelled windows over all videos for the sequential cell's steadiness term (each video's
+share decoded at full resolution, so memory stays bounded as videos are added)."""
 
 
 def list_models(session: Session) -> list[ModelVersion]:
@@ -187,3 +193,87 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
     rows = session.execute(sa.select(Frame.id, Frame.sha256).where(Frame.id.in_(frame_ids)))
     ranked = sorted(rows, key=lambda row: row.sha256)
     return sorted(row.id for row in ranked[:count])
+
+
+def has_video_labels(session: Session) -> bool:
+    """Whether a frame of an imported video outside the validation split has a reviewed label."""
+    query = (
+        sa.select(Frame.id)
+        .join(Label, Label.frame_id == Frame.id)
+        .where(
+            Label.status.in_(TRAINABLE),
+            Frame.video_id.is_not(None),
+            Frame.split != Split.validation,
+        )
+        .limit(1)
+    )
+    return session.scalar(query) is not None
+
+
+def sequential_job(session: Session, model_id: int) -> Job | None:
+    """The queued or running sequential-cell job of a version, if any."""
+    from app.models import JobStatus
+
+    jobs = session.scalars(
+        sa.select(Job).where(
+            Job.kind == SEQUENTIAL_KIND, Job.status.in_((JobStatus.queued, JobStatus.running))
+        )
+    )
+    return next((j for j in jobs if j.params.get("model_version_id") == model_id), None)
+
+
+@dataclass(frozen=True)
+class VideoClips:
+    """The reviewed frames of imported videos, one clip per video, for the sequential cell:
+    ``train`` holds the training split's labels (and the unlabelled windows), ``check`` the
+    validation split's (what the cell is measured on; it never trains on them)."""
+
+    train: list[Any]
+    check: list[Any]
+    labels: int
+
+
+def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
+    """``VideoClips`` of every video with a reviewed label (``config``: a SequentialConfig).
+
+    Each video is decoded once from its stored file, so the cell sees the camera's own frame
+    rate even where only every n-th frame was imported.
+    """
+    from dataclasses import replace
+
+    from weldpool_core.student.sequential import LabelledClip, video_clip
+    from weldpool_core.student.train import as_training_frame
+
+    rows = session.execute(
+        sa.select(Frame.id, Frame.video_id, Frame.frame_index, Frame.split)
+        .join(Label, Label.frame_id == Frame.id)
+        .where(Label.status.in_(TRAINABLE), Frame.video_id.is_not(None))
+        .order_by(Frame.video_id, Frame.frame_index)
+    ).all()
+    by_video: dict[int, list[Any]] = {}
+    for row in rows:
+        by_video.setdefault(int(row.video_id), []).append(row)
+    if not by_video:
+        return VideoClips([], [], 0)
+    share = max(4, UNLABELLED_WINDOWS // len(by_video))
+    train: list[LabelledClip] = []
+    check: list[LabelledClip] = []
+    for video_id, labelled in by_video.items():
+        video = session.get_one(Video, video_id)
+        samples = labelled_samples(session, storage, [r.id for r in labelled])
+        frames = {
+            int(row.frame_index): as_training_frame((image, mask, keypoints), frame_id)
+            for row, (frame_id, image, mask, keypoints) in zip(labelled, samples, strict=True)
+            if image is not None and mask is not None
+        }
+        validation = {int(r.frame_index) for r in labelled if r.split == Split.validation}
+        clip = video_clip(
+            storage.absolute(video.path), frames, replace(config, unlabelled_windows=share)
+        )
+        train.append(replace(clip, labels={i: f for i, f in frames.items() if i not in validation}))
+        check.append(
+            replace(
+                clip, labels={i: f for i, f in frames.items() if i in validation}, unlabelled=()
+            )
+        )
+    return VideoClips(train, check, len(rows))

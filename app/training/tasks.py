@@ -11,6 +11,7 @@ import numpy as np
 import sqlalchemy as sa
 import structlog
 
+from app.db import utcnow
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
 from app.review.queue import latest_teacher_proposal, rescore_frame
@@ -133,6 +134,85 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         "promoted": promoted,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
     }
+
+
+@job_handler(service.SEQUENTIAL_KIND)
+def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
+    """Train a version's sequential cell on the reviewed frames of imported videos (their
+    training split), then measure it against the version's per-frame student on the validation
+    split's video frames and on unlabelled windows; the cell lands beside the version's weights
+    (``weldpool_core.student.sequential``) and the measurement on the version."""
+    from dataclasses import replace
+
+    from weldpool_core.student.sequential import (
+        SequentialConfig,
+        measure_sequential,
+        train_sequential,
+    )
+
+    settings, storage = ctx.settings, Storage(ctx.settings.home)
+    config = SequentialConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
+    if ctx.params.get("steps"):
+        config = replace(config, steps=int(ctx.params["steps"]))
+    model_id = int(ctx.params["model_version_id"])
+    with ctx.session_factory() as session:
+        version = session.get(ModelVersion, model_id)
+        if version is None or not version.checkpoint_path:
+            raise InvalidInputError(f"Model version {model_id} no longer exists.")
+        root, name = settings.home / version.checkpoint_path, version.name
+        ctx.progress(0.0, "reading the labelled videos")
+        clips = service.video_clips(session, storage, config)
+    if not any(clip.labels for clip in clips.train):
+        raise InvalidInputError(
+            "No reviewed frame of the training split comes from an imported video; label frames "
+            "of a video to train the sequential cell."
+        )
+    result = train_sequential(
+        root,
+        clips.train,
+        config,
+        progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
+    )
+    ctx.progress(0.92, "measuring the cell against the per-frame student")
+    unlabelled = [replace(clip, labels={}) for clip in clips.train]  # trained on: not measured
+    measured = measure_sequential(root, clips.check + unlabelled, config)
+    record = {
+        "trained_at": utcnow().isoformat(),
+        "job_id": ctx.job_id,
+        "windows": result.windows,
+        "videos": sum(1 for clip in clips.train if clip.labels),
+        "steps": config.steps,
+        "seconds": round(result.seconds, 1),
+        "measured": measured,
+    }
+    with ctx.session_factory() as session:
+        version = session.get(ModelVersion, model_id)
+        if version is None:  # deleted while training: its folder went with it
+            raise InvalidInputError(f"Model version {model_id} was deleted during training.")
+        version.sequential = record
+        session.commit()
+    ctx.summary = f"{name}: sequential cell trained on {counted(result.windows, 'window')}; " + (
+        _sequential_verdict(measured)
+    )
+    return {"model_version_id": model_id, "sequential": record}
+
+
+def _sequential_verdict(measured: dict[str, Any]) -> str:
+    """The measurement in words, as the models page shows it (IoU 3 decimals, change in %)."""
+    parts = []
+    if measured["per_frame_iou"] is not None:
+        parts.append(
+            f"mask IoU {measured['sequential_iou']:.3f} against the per-frame "
+            f"{measured['per_frame_iou']:.3f} on {counted(measured['frames'], 'validation frame')}"
+        )
+    else:
+        parts.append("no validation frame of a video to measure its accuracy on")
+    if measured["per_frame_change"] is not None:
+        parts.append(
+            f"the mask changes {100 * measured['sequential_change']:.1f} % per frame against "
+            f"{100 * measured['per_frame_change']:.1f} %"
+        )
+    return "; ".join(parts)
 
 
 def _summary(

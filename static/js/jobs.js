@@ -39,6 +39,7 @@ function scope(job) {
   if (Array.isArray(p.frame_ids)) return count(p.frame_ids.length, "frame");
   if (p.sequence_id) return `sequence #${p.sequence_id}`;
   if (p.video_id) return `video #${p.video_id}`;
+  if (job.kind === "train_sequential") return `sequential cell of model #${p.model_version_id}`;
   if (job.kind === "train_student") return p.epochs ? count(p.epochs, "epoch") : "all reviewed labels";
   return "—";
 }

@@ -73,7 +73,7 @@ function card(view) {
     entry.stop.addEventListener("click", () => stop(view, entry.stop));
     entry.card = h("article", { class: "live-card", "data-testid": "live-card", "data-view-id": String(view.id) },
       h("header", {},
-        h("h2", {}, `${view.model_name} on ${view.source}`),
+        h("h2", {}, `${view.model_name}${view.sequential ? " (sequential)" : ""} on ${view.source}`),
         entry.state,
         h("span", { class: "spacer" }),
         isReviewer() ? entry.stop : ""),
@@ -122,9 +122,21 @@ async function fillModels() {
   const wanted = new URLSearchParams(location.search).get("model_id");
   try {
     const models = await api("/models");
-    const note = (m) => (m.is_promoted ? " (promoted)" : "") + (m.gate?.usable === false ? " — not usable (promotion gate)" : "");
+    const note = (m) => (m.is_promoted ? " (promoted)" : "") + (m.sequential ? ", sequential cell" : "") + (m.gate?.usable === false ? " — not usable (promotion gate)" : "");
     select.append(...models.map((m) => h("option", { value: String(m.id) }, `${m.name}${note(m)}`)));
     if (wanted) select.value = wanted;
+    const box = document.querySelector('#live-form input[name="sequential"]');
+    const chosen = () => models.find((m) => (select.value ? String(m.id) === select.value : m.is_promoted));
+    const follow = () => {
+      const model = chosen();
+      box.disabled = !model?.sequential;
+      if (box.disabled) box.checked = false;
+      box.parentElement.title = model?.sequential
+        ? `${model.name}'s sequential cell keeps a state from frame to frame: a steadier mask and keypoints (measured on the models page).`
+        : `${model?.name ?? "This version"} has no sequential cell; train one on the models page.`;
+    };
+    select.addEventListener("change", follow);
+    follow();
   } catch (error) {
     toast(error.message, "error");
   }
@@ -143,6 +155,7 @@ $("live-form")?.addEventListener("submit", async (event) => {
         source: data.get("source").trim(),
         model_id: data.get("model_id") ? Number(data.get("model_id")) : null,
         smooth: data.get("smooth") === "on",
+        sequential: data.get("sequential") === "on",
         mm_per_px: data.get("mm_per_px") ? Number(data.get("mm_per_px")) : null,
       },
     });

@@ -2,7 +2,7 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
-import { count, gateLine, metric } from "./format.js";
+import { count, gateLine, metric, sequentialLine } from "./format.js";
 import { lineChart } from "./chart.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
@@ -30,6 +30,26 @@ export function curveCharts(curve) {
       points: curve.filter((row) => typeof row[key] === "number").map((row) => [row.epoch, row[key]]),
     })),
   }));
+}
+
+async function trainSequential(model, button) {
+  if (!confirm(`Train a sequential cell for ${model.name}? It learns from the reviewed frames of imported videos (a few minutes on a CPU) and is measured against the per-frame student on the validation frames.`)) return;
+  button.disabled = true;
+  const stateLine = document.getElementById("train-state");
+  try {
+    const { job_id: jobId } = await api(`/models/${model.id}/sequential`, { method: "POST", json: {} });
+    const link = () => h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`);
+    stateLine.replaceChildren("Sequential cell job ", link(), " started.");
+    const job = await waitForJob(jobId, (j) => {
+      stateLine.replaceChildren("Sequential cell job ", link(), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);
+    }, 1500);
+    toast(`Sequential cell job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = false;
+  }
+  load();
 }
 
 async function promote(model) {
@@ -61,12 +81,16 @@ export function modelCard(model) {
       model.is_promoted ? badge("promoted") : "",
       h("span", { class: "spacer" }),
       isReviewer()
+        ? h("button", { type: "button", class: "secondary", "data-testid": "train-sequential", title: "Train a recurrent cell on this version's latent from the reviewed frames of imported videos: steadier mask and keypoints in live views", onclick: (event) => trainSequential(model, event.currentTarget) }, model.sequential ? "Retrain sequential cell" : "Train sequential cell")
+        : "",
+      isReviewer()
         ? h("a", { class: "button secondary", href: `/live?model_id=${model.id}`, "data-testid": "live-view", title: "Run this version on a camera, stream or video and watch its mask and keypoints live" }, "Live view")
         : "",
       isReviewer() && !model.is_promoted
         ? h("button", { type: "button", class: "secondary", "data-testid": "promote", onclick: () => promote(model) }, "Promote")
         : ""),
     gateLine(model.gate),
+    sequentialLine(model.sequential),
     h("p", { class: "muted" },
       `trained on ${count(model.train_label_count ?? 0, "label")} · ${formatDate(model.created_at)}`,
       model.job_id ? [" · ", h("a", { href: `/jobs?job=${model.job_id}` }, `job #${model.job_id}`)] : ""),

@@ -197,3 +197,74 @@ def test_only_the_newest_ended_views_are_kept(tmp_path: Path) -> None:
     assert started.message.endswith(
         "is not a student model folder (config.json is missing); train one with `weldpool train`."
     )
+
+
+def test_a_sequential_cell_learns_from_video_labels_is_measured_and_runs_live(
+    client: TestClient,
+    make_user,
+    session_factory,
+    settings: Settings,
+    student_dir: Path,
+    tmp_path: Path,
+) -> None:
+    """From the models page's button to a live view: the cell trains on the training split's
+    reviewed video frames (decoding the stored video at its own rate), is measured on the
+    validation split's against the per-frame student, and a live view runs it."""
+    from app.models import Frame, Split
+    from tests.helpers import corrected_label, wait_for_job
+    from weldpool_core.synth import SynthParams, synth_frame
+
+    _, token = make_user("cell", Role.reviewer)
+    _promote(session_factory, student_dir, settings.home)
+    unlabelled = client.post("/api/v1/models/1/sequential", json={}, headers=auth(token))
+    assert unlabelled.status_code == 400 and "imported video" in unlabelled.json()["detail"]
+    path = write_video(tmp_path / "run.avi", 30, fps=30.0)
+    with open(path, "rb") as handle:
+        uploaded = client.post(
+            "/api/v1/videos",
+            files={"file": ("run.avi", handle, "video/avi")},
+            data={"every_nth": "5"},
+            headers=auth(token),
+        ).json()
+    assert wait_for_job(client, uploaded["job_id"], token, timeout=60)["status"] == "succeeded"
+    with session_factory() as session:
+        frames = {f.frame_index: f.id for f in session.query(Frame).all()}
+        session.get_one(Frame, frames[25]).split = Split.validation
+        session.commit()
+    assert sorted(frames) == [0, 5, 10, 15, 20, 25]
+    for index in (10, 20, 25):  # write_video draws synthetic run index % 3
+        mask = synth_frame(index % 3, SynthParams(width=96, height=64)).mask
+        saved = client.put(
+            f"/api/v1/frames/{frames[index]}/label", json=corrected_label(mask), headers=auth(token)
+        )
+        assert saved.status_code == 200, saved.text
+    started = client.post("/api/v1/models/1/sequential", json={"steps": 10}, headers=auth(token))
+    assert started.status_code == 202, started.text
+    again = client.post("/api/v1/models/1/sequential", json={}, headers=auth(token))
+    assert again.status_code == 409 and "already training" in again.json()["detail"]
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=240)
+    assert job["status"] == "succeeded", job
+    record = client.get("/api/v1/models/1", headers=auth(token)).json()["sequential"]
+    # Label 10 makes one window (stride 1: frames 3–10), label 20 two (strides 1 and 2); the
+    # validation frame 25 is measured, never trained on.
+    assert (record["windows"], record["videos"], record["steps"]) == (3, 1, 10)
+    measured = record["measured"]
+    assert measured["frames"] == 1 and measured["windows"] >= 4
+    for key in ("per_frame_iou", "sequential_iou", "per_frame_change", "sequential_change"):
+        assert 0.0 <= measured[key] <= 1.0, (key, measured)
+    assert f"{measured['per_frame_iou']:.3f} on 1 validation frame" in job["message"]
+    assert (settings.home / "models" / "student-v1" / "sequential.safetensors").is_file()
+
+    live = client.post(
+        "/api/v1/live", json={"source": str(path), "sequential": True}, headers=auth(token)
+    )
+    assert live.status_code == 201, live.text
+    assert live.json()["sequential"] is True
+    done = _wait_state(client, live.json()["id"], token, {"ended", "failed"})
+    assert done["state"] == "ended" and done["frames"] > 0, done["message"]
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v2", checkpoint_path="models/student-v1"))
+        session.commit()
+    plain = {"source": str(path), "sequential": True, "model_id": 2}
+    refused = client.post("/api/v1/live", json=plain, headers=auth(token))
+    assert refused.status_code == 400 and "no sequential cell" in refused.json()["detail"]

@@ -46,7 +46,7 @@ import math
 import re
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -326,15 +326,19 @@ class SequentialResult:
 @dataclass
 class _Window:
     inputs: list[NDArray[np.uint8]]  # S×S×3 RGB, oldest first
-    target: PreparedFrame  # the labelled frame (for an unlabelled window: its clip's geometry)
+    target: PreparedFrame  # the labelled frame (for an unlabelled window: a blank one)
     labelled: bool = True
 
 
 def _windows(
-    clips: Sequence[LabelledClip], config: SequentialConfig, student: Any
+    clips: Sequence[LabelledClip],
+    config: SequentialConfig,
+    student: Any,
+    require_labelled: bool = True,
 ) -> list[_Window]:
     """Every (labelled frame, stride) window at model resolution, then the unlabelled windows
-    (``labelled`` False), the frames read once."""
+    (``labelled`` False; their target is a blank frame's, for the geometry), the frames read
+    once."""
     heatmap = HeatmapParams(k=student.k)
     cache: dict[tuple[int, int], NDArray[np.uint8]] = {}
     windows = []
@@ -352,11 +356,11 @@ def _windows(
                         cache[key] = target.geometry.image_to_input(clip.frames(frame_index))
                     inputs.append(cache[key])
                 windows.append(_Window(inputs, target))
-        if not clip.labels:
+        if not clip.unlabelled:
             continue
-        geometry_of = prepare_frame(
-            next(iter(clip.labels.values())), student.input_size, student.aspect, heatmap
-        )
+        image = clip.frames(clip.unlabelled[0])
+        blank = TrainingFrame(image, np.zeros(image.shape[:2], np.bool_), name=clip.name)
+        geometry_of = prepare_frame(blank, student.input_size, student.aspect, heatmap)
         for end in clip.unlabelled:
             inputs = []
             for frame_index in range(end - config.window + 1, end + 1):
@@ -365,7 +369,7 @@ def _windows(
                     cache[key] = geometry_of.geometry.image_to_input(clip.frames(frame_index))
                 inputs.append(cache[key])
             windows.append(_Window(inputs, geometry_of, labelled=False))
-    if not any(w.labelled for w in windows):
+    if require_labelled and not any(w.labelled for w in windows):
         raise InvalidInputError(
             f"No labelled frame has {config.window - 1} frames before it at stride "
             f"{min(config.strides)}; label frames further into the videos."
@@ -545,6 +549,74 @@ def train_sequential(
     first = float(np.mean(losses[: max(1, len(losses) // 10)]))
     last = float(np.mean(losses[-max(1, len(losses) // 10) :]))
     return SequentialResult(root, first, last, len(labelled), time.perf_counter() - started)
+
+
+def _as_batch(window: _Window, device: torch.device) -> torch.Tensor:
+    """A window's frames as 1×T×3×S×S in [0, 1], unaugmented."""
+    stacked = np.stack(window.inputs).transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255)
+    return torch.from_numpy(stacked)[None].to(device)
+
+
+def _per_frame_masks(model: SequentialStudent, images: torch.Tensor) -> torch.Tensor:
+    """The per-frame student's mask probabilities (N×T×S×S) of N×T×3×S×S frames, each alone."""
+    flat = images.flatten(0, 1).contiguous(memory_format=torch.channels_last)
+    mask_logits, _ = model.student.decode(model.student.encode(flat)[0])
+    return torch.sigmoid(mask_logits).reshape(*images.shape[:2], *mask_logits.shape[1:])
+
+
+def measure_sequential(
+    model_dir: str | Path,
+    clips: Sequence[LabelledClip],
+    config: SequentialConfig | None = None,
+) -> dict[str, Any]:
+    """The sequential student against its own per-frame student on the same frames.
+
+    Accuracy: on each labelled frame of ``clips`` with ``window`` − 1 frames before it, the
+    mask IoU (at model resolution, against the label brought there as for training) of the
+    per-frame student on that frame alone and of the sequential student after the window's
+    frames (stride 1, state fresh at the window's start). Steadiness: on the clips' unlabelled
+    windows, ``unsteadiness`` (no drift: the share of the pool's mask that changes from one
+    frame to the next) of each. Labelled frames should be ones the cell did not train on.
+
+    Returns ``frames`` and ``windows`` counted, ``per_frame_iou`` / ``sequential_iou`` (None
+    without a labelled window) and ``per_frame_change`` / ``sequential_change`` (None without
+    an unlabelled window).
+    """
+    config = replace(config or SequentialConfig(), strides=(1,))
+    root = Path(model_dir)
+    device = resolve_device(config.device)
+    model = load_sequential(root, device)
+    windows = _windows(clips, config, model.config, require_labelled=False)
+    ious: dict[str, list[float]] = {"per_frame": [], "sequential": []}
+    changes: dict[str, list[float]] = {"per_frame": [], "sequential": []}
+    still = torch.zeros(1, 2, device=device)
+    with torch.no_grad():
+        for window in windows:
+            images = _as_batch(window, device)
+            alone = _per_frame_masks(model, images)
+            mask_logits, _ = unroll(model, images)
+            steady = torch.sigmoid(mask_logits)
+            if window.labelled:
+                truth = torch.from_numpy(window.target.mask >= 128).to(device)
+                for name, probability in (("per_frame", alone), ("sequential", steady)):
+                    predicted = probability[0, -1] >= 0.5
+                    union = float((predicted | truth).sum())
+                    ious[name].append(float((predicted & truth).sum()) / union if union else 1.0)
+            else:
+                changes["per_frame"].append(float(unsteadiness(alone, still)))
+                changes["sequential"].append(float(unsteadiness(steady, still)))
+
+    def mean(values: list[float]) -> float | None:
+        return round(float(np.mean(values)), 4) if values else None
+
+    return {
+        "frames": len(ious["per_frame"]),
+        "windows": len(changes["per_frame"]),
+        "per_frame_iou": mean(ious["per_frame"]),
+        "sequential_iou": mean(ious["sequential"]),
+        "per_frame_change": mean(changes["per_frame"]),
+        "sequential_change": mean(changes["sequential"]),
+    }
 
 
 def save_cell(

@@ -254,7 +254,8 @@ class TrainResult:
     pretrained_encoder: bool
 
 
-def _as_frame(sample: TrainingSample, index: int) -> TrainingFrame:
+def as_training_frame(sample: TrainingSample, index: int) -> TrainingFrame:
+    """A sample as a ``TrainingFrame`` (a tuple's image made RGB uint8, named ``#index``)."""
     if isinstance(sample, TrainingFrame):
         return sample
     image, mask, keypoints = sample
@@ -271,7 +272,7 @@ def _prepare(
     heatmap = HeatmapParams(k=student.k)
     prepared = []
     for index, sample in enumerate(samples):
-        frame = _as_frame(sample, index)
+        frame = as_training_frame(sample, index)
         prepared.append(prepare_frame(frame, student.input_size, student.aspect, heatmap))
         if (index + 1) % 50 == 0:
             report(f"prepared {index + 1} {what} frames")

@@ -28,6 +28,7 @@ from weldpool_core.student.sequential import (
     _Window,
     has_sequential,
     load_sequential,
+    measure_sequential,
     save_cell,
     shift,
     train_sequential,
@@ -127,6 +128,62 @@ def test_onnx_and_torch_carry_the_same_state_and_reset_starts_again(
         again = sequential(*sequential.prepare(frames[3]))[0]
         assert np.abs(again - alone[3]).max() < 1e-4  # after reset: the per-frame answer
     assert (stateful_dir / "sequential.onnx").is_file()
+
+
+def test_the_measurement_compares_cell_and_per_frame_student_on_the_same_frames(
+    stateful_dir: Path,
+) -> None:
+    """IoU on each labelled frame after its window (per-frame: that frame alone), and how much of
+    the mask changes per frame on unlabelled windows. On a still clip the cell's state is the
+    frame's own latent, so the two agree exactly and nothing changes; on a flickering clip the
+    cell (keeping 60 % of the past) blends in the other image and changes less per frame."""
+    from tests.core.student.common import synthetic_frames
+
+    first, second = synthetic_frames(2)
+    still = [first.image] * 10
+    dark = np.zeros_like(second.image)  # the flicker: a dark frame between the pool's frames
+    flicker = [dark if i % 2 == 0 else second.image for i in range(10)]  # frame 9: second
+    config = SequentialConfig(device="cpu")
+    clips = [
+        LabelledClip(still.__getitem__, 10, {9: first}, "still", (7, 8, 9)),
+        LabelledClip(flicker.__getitem__, 10, {9: second}, "flicker"),
+    ]
+    measured = measure_sequential(stateful_dir, clips, config)
+    assert (measured["frames"], measured["windows"]) == (2, 3)
+    assert measured["per_frame_change"] == measured["sequential_change"] == 0.0
+
+    model = load_sequential(stateful_dir)
+
+    def prepared(frame: TrainingFrame) -> tuple[torch.Tensor, torch.Tensor]:
+        ready = prepare_frame(frame, 64, "letterbox", HeatmapParams())
+        image = torch.from_numpy(ready.image.transpose(2, 0, 1) / np.float32(255))[None]
+        return image, torch.from_numpy(ready.mask >= 128)
+
+    def iou(logits: torch.Tensor, truth: torch.Tensor) -> float:
+        found = torch.sigmoid(logits[0]) >= 0.5
+        return float((found & truth).sum()) / float((found | truth).sum())
+
+    (one, truth_one), (two, truth_two) = prepared(first), prepared(second)
+    off = prepared(TrainingFrame(dark, second.mask))[0]
+    with torch.inference_mode():
+        alone_one = model.step(one, None)[0]
+        alone_two = model.step(two, None)[0]
+        state = None
+        for t in range(2, 10):  # the flickering window: frames 2..9
+            mask, _, state = model.step(two if t % 2 else off, state)
+    per_frame = (iou(alone_one, truth_one) + iou(alone_two, truth_two)) / 2
+    sequential = (iou(alone_one, truth_one) + iou(mask, truth_two)) / 2
+    assert measured["per_frame_iou"] == pytest.approx(per_frame, abs=1e-4)
+    assert measured["sequential_iou"] == pytest.approx(sequential, abs=1e-4)
+    # The window's past is in the cell's answer; the barely trained student moves IoU little, but
+    # 4× the tolerance (with the rounding to 4 decimals): swapping the two fails the lines above.
+    assert abs(per_frame - sequential) > 4e-4
+
+    moving = measure_sequential(
+        stateful_dir, [LabelledClip(flicker.__getitem__, 10, {}, "flicker", (7, 8, 9))], config
+    )
+    assert (moving["frames"], moving["windows"], moving["per_frame_iou"]) == (0, 3, None)
+    assert 0 < moving["sequential_change"] < 0.8 * moving["per_frame_change"]
 
 
 def test_a_cell_is_refused_once_its_student_is_retrained(stateful_dir: Path) -> None:
