@@ -1270,3 +1270,99 @@ def test_measure_a_runs_scale_from_two_points_on_a_frame(page: Any, server: Live
     page.keyboard.press("Escape")
     assert page.is_hidden("[data-testid=scale-panel]")
     assert server.api("GET", f"/sequences/{sequence['id']}").json()["mm_per_px"] == run["mm_per_px"]
+
+
+def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
+    page: Any, server: LiveServer, tmp_path: Path
+) -> None:
+    """A version's card says it has no sequential cell and offers to train one (confirmed, a
+    job starts); once a cell is trained its measurement against the per-frame student shows on
+    the card, and the live page lets that version run with it (and only that version)."""
+    size = SynthParams(width=320, height=200)
+    video = write_video(tmp_path / "cell run.avi", 40, fps=20.0, size=(320, 200))
+    with open(video, "rb") as handle:
+        uploaded = server.api(
+            "POST",
+            "/videos",
+            files={"file": ("cell run.avi", handle, "video/avi")},
+            data={"every_nth": "5"},
+        ).json()
+    assert server.wait_for_job(uploaded["job_id"], timeout=120)["status"] == "succeeded"
+    frames = server.api(
+        "GET",
+        "/frames",
+        params={"sequence_id": uploaded["video"]["sequence_id"], "order": "frame_index"},
+    ).json()["items"]
+    by_index = {f["frame_index"]: f["id"] for f in frames}
+    for index in (10, 20, 30):  # write_video draws synthetic run index % 3
+        mask = synth_frame(index % 3, size).mask
+        saved = server.api("PUT", f"/frames/{by_index[index]}/label", json=corrected_label(mask))
+        assert saved.status_code == 200, saved.text
+    placed = server.api(
+        "PUT", f"/frames/{by_index[30]}/validation-keypoints", json={"keypoints": [[160, 100]]}
+    )
+    assert placed.status_code == 200  # frame 30 joins the validation split
+    trained = server.api("POST", "/student/train", json={"epochs": 1, "size": "light"})
+    assert server.wait_for_job(trained.json()["job_id"], timeout=300)["status"] == "succeeded"
+    version = server.api("GET", "/models").json()[0]
+    others = [m for m in server.api("GET", "/models").json() if m["id"] != version["id"]]
+    if not others:  # alone: a second version, without a cell, for the live page's choice
+        again = server.api("POST", "/student/train", json={"epochs": 1, "size": "light"})
+        assert server.wait_for_job(again.json()["job_id"], timeout=300)["status"] == "succeeded"
+        version, others = (
+            server.api("GET", "/models").json()[1],
+            [server.api("GET", "/models").json()[0]],
+        )
+
+    login(page, server, "rita")
+    dialogs: list[str] = []
+
+    def accept(dialog: Any) -> None:
+        dialogs.append(dialog.message)
+        dialog.accept()
+
+    page.on("dialog", accept)
+    page.goto(f"{server.url}/models")
+    card = page.locator(f"[data-testid=model-card][data-model-id='{version['id']}']")
+    card.wait_for()
+    assert card.locator("[data-testid=sequential]").inner_text() == "no sequential cell"
+    button = card.locator("[data-testid=train-sequential]")
+    assert button.inner_text() == "Train sequential cell"
+    button.click()
+    page.wait_for_selector("[data-testid=train-state] a")
+    assert dialogs and dialogs[0].startswith(f"Train a sequential cell for {version['name']}?")
+    clicked = int(page.inner_text("[data-testid=train-state] a").lstrip("#"))
+    assert server.api("GET", f"/jobs/{clicked}").json()["kind"] == "train_sequential"
+    server.api("POST", f"/jobs/{clicked}/cancel")  # 200 steps take minutes on a CPU
+    assert server.wait_for_job(clicked, timeout=120)["status"] == "cancelled"
+
+    short = server.api("POST", f"/models/{version['id']}/sequential", json={"steps": 5})
+    assert short.status_code == 202, short.text
+    assert server.wait_for_job(short.json()["job_id"], timeout=300)["status"] == "succeeded"
+    measured = server.api("GET", f"/models/{version['id']}").json()["sequential"]["measured"]
+    page.goto(f"{server.url}/models")
+    card.locator("[data-testid=sequential] .badge").wait_for()
+    line = card.locator("[data-testid=sequential]").inner_text()
+    assert f"mask IoU {measured['sequential_iou']:.3f} against the per-frame" in line
+    assert f"{measured['per_frame_iou']:.3f} on 1 validation frame" in line
+    assert card.locator("[data-testid=train-sequential]").inner_text() == "Retrain sequential cell"
+    shoot(page, "models-sequential", full_page=True)
+
+    page.goto(f"{server.url}/live?model_id={version['id']}")
+    wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
+    box = page.locator("[data-testid=live-sequential]")
+    assert box.is_enabled()
+    page.select_option("[data-testid=live-model]", str(others[0]["id"]))
+    assert box.is_disabled()  # a version without a cell
+    assert "has no sequential cell" in (box.locator("xpath=..").get_attribute("title") or "")
+    page.select_option("[data-testid=live-model]", str(version["id"]))
+    assert box.is_enabled()
+    box.check()
+    page.fill("[data-testid=live-source]", str(video))
+    page.click("[data-testid=live-start]")
+    live = page.locator("[data-testid=live-card][data-state=running]")
+    live.wait_for(timeout=60_000)
+    assert f"{version['name']} (sequential) on" in live.locator("h2").inner_text()
+    wait_for_js(page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)")
+    shoot(page, "live-sequential")
+    live.locator("[data-testid=live-stop]").click()
