@@ -346,6 +346,24 @@ class TrainingTargets:
     weight: torch.Tensor | None = None
 
 
+def warp_targets(
+    image: NDArray[np.float32],
+    mask: NDArray[np.float32],
+    keypoints: NDArray[np.float64],
+    covariances: NDArray[np.float64],
+    matrix: NDArray[np.float64],
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
+    """An S×S input (float32), its mask coverage (0..1), keypoints (k×2) and their covariances
+    (k×2×2), all moved by one 2×3 affine ``matrix`` (input pixels), so they stay together."""
+    size = image.shape[0]
+    moved_image = np.asarray(cv2.warpAffine(image, matrix, (size, size)), np.float32)
+    moved_mask = np.asarray(cv2.warpAffine(mask, matrix, (size, size)), np.float32)
+    linear = matrix[:, :2]
+    moved_points = keypoints @ linear.T + matrix[:, 2]
+    moved_covariances = np.einsum("ij,njk,lk->nil", linear, covariances, linear)
+    return moved_image, moved_mask, moved_points, moved_covariances
+
+
 def make_targets(
     frame: PreparedFrame,
     sigma_floor: float,
@@ -357,13 +375,10 @@ def make_targets(
     mask = frame.mask.astype(np.float32) / 255.0
     keypoints, covariances = frame.keypoints, frame.covariances
     if augmentation is not None and augmentation.enabled and rng is not None:
-        size = image.shape[0]
-        matrix = random_affine(rng, size, augmentation)
-        image = np.asarray(cv2.warpAffine(image, matrix, (size, size)), np.float32)
-        mask = np.asarray(cv2.warpAffine(mask, matrix, (size, size)), np.float32)
-        linear = matrix[:, :2]
-        keypoints = keypoints @ linear.T + matrix[:, 2]
-        covariances = np.einsum("ij,njk,lk->nil", linear, covariances, linear)
+        matrix = random_affine(rng, image.shape[0], augmentation)
+        image, mask, keypoints, covariances = warp_targets(
+            image, mask, keypoints, covariances, matrix
+        )
         image = photometric(image, rng, augmentation)
     heatmap = render_heatmap(keypoints, covariances, mask, sigma_floor)
     pixels = np.clip(image, 0, 255) / np.float32(255)

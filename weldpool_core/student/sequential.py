@@ -50,7 +50,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
 
-import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -69,6 +68,7 @@ from weldpool_core.student.data import (
     prepare_frame,
     random_affine,
     render_heatmap,
+    warp_targets,
 )
 from weldpool_core.student.model import ResNetVAE
 
@@ -393,13 +393,9 @@ def _example(
     for t, frame in enumerate(window.inputs):
         matrix = np.eye(3)[:2].copy() if base is None else base.copy()
         matrix[:, 2] += velocity * (t - (steps - 1))
-        image = np.asarray(
-            cv2.warpAffine(frame.astype(np.float32), matrix, (size, size)), np.float32
+        image, mask, points, covariances = warp_targets(
+            frame.astype(np.float32), mask0, target.keypoints, target.covariances, matrix
         )
-        mask = np.asarray(cv2.warpAffine(mask0, matrix, (size, size)), np.float32)
-        linear = matrix[:, :2]
-        points = target.keypoints @ linear.T + matrix[:, 2]
-        covariances = np.einsum("ij,njk,lk->nil", linear, target.covariances, linear)
         if config.augmentation.enabled:
             image = photometric(image, rng, config.augmentation)
         heat = render_heatmap(points, covariances, mask, config.heatmap_sigma)
@@ -681,8 +677,13 @@ def load_sequential(model_dir: str | Path, device: torch.device | None = None) -
 
 
 def export_sequential_onnx(model_dir: str | Path) -> Path:
-    """``sequential.onnx`` of a MODEL_DIR (written once; returns its path)."""
-    from weldpool_core.student.export import quiet_exporter
+    """``sequential.onnx`` of a MODEL_DIR (written once; returns its path).
+
+    The file is checked against PyTorch over two steps (a fresh frame, then a frame with the
+    state carried): more than ``export.TOLERANCE`` apart, it is removed and this raises
+    InvalidInputError.
+    """
+    from weldpool_core.student.export import TOLERANCE, quiet_exporter
 
     root = Path(model_dir)
     path = root / SEQUENTIAL_ONNX
@@ -693,8 +694,9 @@ def export_sequential_onnx(model_dir: str | Path) -> Path:
 
     from weldpool_core.student.model import fuse_batchnorm
 
-    model = load_sequential(root)
-    model.student = fuse_batchnorm(copy.deepcopy(model.student))
+    reference = load_sequential(root)
+    model = copy.deepcopy(reference)
+    model.student = fuse_batchnorm(model.student)
     size = model.config.input_size
     cells = size // 32
     image = torch.rand(1, 3, size, size, generator=torch.Generator().manual_seed(0))
@@ -712,4 +714,36 @@ def export_sequential_onnx(model_dir: str | Path) -> Path:
     if program is None:
         raise InvalidInputError("The ONNX exporter returned no program.")
     checkpoint.write_atomic(path, lambda p: program.save(str(p)))
+    difference = _onnx_difference(reference, path)
+    if difference > TOLERANCE:
+        path.unlink()
+        raise InvalidInputError(
+            f"The sequential ONNX export differs from PyTorch by {difference:.2g} (more than "
+            f"{TOLERANCE:g}); it was not kept."
+        )
     return path
+
+
+def _onnx_difference(reference: SequentialStudent, path: Path) -> float:
+    """Largest absolute difference between ``path`` and PyTorch over a fresh step and a step
+    with the state carried (two different random frames)."""
+    from weldpool_core.student.export import onnx_session
+
+    size, channels = reference.config.input_size, reference.cell.channels
+    frames = torch.rand(2, 1, 3, size, size, generator=torch.Generator().manual_seed(1))
+    session = onnx_session(path, threads=1)
+    torch_module = SequentialExport(reference).eval()
+    state = torch.zeros(1, channels, size // 32, size // 32)
+    worst = 0.0
+    for step, fresh in enumerate((1.0, 0.0)):
+        flag = torch.full((1, 1, 1, 1), fresh)
+        with torch.inference_mode():
+            expected = torch_module(frames[step], state, flag)
+        feeds = {"image": frames[step].numpy(), "state": state.numpy(), "fresh": flag.numpy()}
+        outputs = session.run(None, feeds)
+        worst = max(
+            worst,
+            *(float(np.abs(o - e.numpy()).max()) for o, e in zip(outputs, expected, strict=True)),
+        )
+        state = expected[2]
+    return worst

@@ -186,6 +186,23 @@ def test_the_measurement_compares_cell_and_per_frame_student_on_the_same_frames(
     assert 0 < moving["sequential_change"] < 0.8 * moving["per_frame_change"]
 
 
+def test_a_sequential_onnx_export_that_differs_from_pytorch_is_not_kept(
+    stateful_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The export is checked over a fresh step and a carried one; beyond the tolerance (here
+    made impossible to meet) the file is removed and the error says so."""
+    from weldpool_core.student import export
+    from weldpool_core.student.sequential import SEQUENTIAL_ONNX, export_sequential_onnx
+
+    (stateful_dir / SEQUENTIAL_ONNX).unlink(missing_ok=True)
+    monkeypatch.setattr(export, "TOLERANCE", -1.0)
+    with pytest.raises(InvalidInputError, match=r"differs from PyTorch by .*it was not kept"):
+        export_sequential_onnx(stateful_dir)
+    assert not (stateful_dir / SEQUENTIAL_ONNX).exists()
+    monkeypatch.setattr(export, "TOLERANCE", 1e-4)
+    assert export_sequential_onnx(stateful_dir).is_file()
+
+
 def test_a_cell_is_refused_once_its_student_is_retrained(stateful_dir: Path) -> None:
     StreamStudent(stateful_dir, "onnx", sequential=True)  # exports sequential.onnx
     student = checkpoint.load_student(stateful_dir)
