@@ -152,6 +152,19 @@ class LiveServer:
         self.process = None
 
 
+def accept_dialogs(page: Any) -> list[str]:
+    """Accept every confirm/alert the page opens from now on; returns the list their messages
+    are appended to, in order."""
+    messages: list[str] = []
+
+    def accept(dialog: Any) -> None:
+        messages.append(dialog.message)
+        dialog.accept()
+
+    page.on("dialog", accept)
+    return messages
+
+
 def login(page: Any, server: LiveServer, user: str = "rita") -> None:
     """Log in through the form, as a person does."""
     page.goto(f"{server.url}/login")

@@ -15,7 +15,7 @@ import pytest
 
 from tests.helpers import corrected_label, image_bytes, write_video
 from tests.web.conftest import shoot, synthetic_png
-from tests.web.server import LiveServer, login, wait_for_js, wait_until
+from tests.web.server import LiveServer, accept_dialogs, login, wait_for_js, wait_until
 from tests.web.test_review_flow import (
     CANVAS,
     canvas_data,
@@ -139,13 +139,7 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
     newest = models[0]
 
     login(page, server, "rita")
-    dialogs: list[str] = []
-
-    def accept(dialog: Any) -> None:
-        dialogs.append(dialog.message)
-        dialog.accept()
-
-    page.on("dialog", accept)
+    dialogs = accept_dialogs(page)
     page.goto(f"{server.url}/models")
     page.wait_for_selector("[data-testid=model-card]")
     cards = page.locator("[data-testid=model-card]")
@@ -826,8 +820,7 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
     login(page, server, "rita")
     page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all")
     page.wait_for_selector("body[data-ready]")
-    asked: list[str] = []
-    page.on("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
+    asked = accept_dialogs(page)
     for frame_id in ids[:2]:
         page.check(f"[data-testid=frame-row][data-frame-id='{frame_id}'] input[type=checkbox]")
     shoot(page, "delete-selection")
@@ -1315,13 +1308,7 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
         )
 
     login(page, server, "rita")
-    dialogs: list[str] = []
-
-    def accept(dialog: Any) -> None:
-        dialogs.append(dialog.message)
-        dialog.accept()
-
-    page.on("dialog", accept)
+    dialogs = accept_dialogs(page)
     page.goto(f"{server.url}/models")
     card = page.locator(f"[data-testid=model-card][data-model-id='{version['id']}']")
     card.wait_for()
