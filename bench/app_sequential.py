@@ -10,9 +10,10 @@ frame). One SQLite home in a temporary folder, the embedded worker, the CPU.
 
     PYTHONPATH=. HF_HUB_OFFLINE=1 .venv/bin/python bench/app_sequential.py [--held mm] [--steps 200]
 
-Measured 2026-11-29 on 2 CPU cores (defaults, seed 0), held-out mm: student job 290 s, cell job
-245 s; mask IoU on the 3 held-out frames 0.857 per frame → 0.848 sequential; the mask changes
-1.23 % → 0.82 % per frame over 63 unlabelled stretches (−33 %).
+Measured 2026-11-29 on 2 CPU cores (defaults, seed 0; mask IoU on the held-out clip's 3 frames
+per frame → sequential; the change of the mask per frame over 63 unlabelled stretches): held
+out 0mm 0.742 → 0.744, 0.90 → 0.58 %; 2mm 0.839 → 0.836, 0.95 → 0.61 %; mm 0.857 → 0.848,
+1.23 → 0.82 %. Student job 272–295 s, the cell's about 4 minutes.
 """
 
 from __future__ import annotations
