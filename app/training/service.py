@@ -230,7 +230,6 @@ class VideoClips:
 
     train: list[Any]
     check: list[Any]
-    labels: int
 
 
 def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
@@ -254,7 +253,7 @@ def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
     for row in rows:
         by_video.setdefault(int(row.video_id), []).append(row)
     if not by_video:
-        return VideoClips([], [], 0)
+        return VideoClips([], [])
     share = max(4, UNLABELLED_WINDOWS // len(by_video))
     train: list[LabelledClip] = []
     check: list[LabelledClip] = []
@@ -276,4 +275,4 @@ def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
                 clip, labels={i: f for i, f in frames.items() if i in validation}, unlabelled=()
             )
         )
-    return VideoClips(train, check, len(rows))
+    return VideoClips(train, check)
