@@ -347,10 +347,15 @@ class ValidationKeypoints(Base):
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+ONE_AT_A_TIME = "kind IN ('train_student', 'train_sequential') AND status IN ('queued', 'running')"
+"""The jobs of which at most one of each kind is queued or running (``uq_jobs_one_training``)."""
+
+
 class Job(Base):
     """A background job: the row is the truth about its state, the queue only carries its id.
 
-    At most one training job is queued or running at a time (a partial unique index).
+    At most one training job of each kind (a student, a sequential cell) is queued or running
+    at a time (a partial unique index).
     """
 
     __tablename__ = "jobs"
@@ -359,8 +364,8 @@ class Job(Base):
             "uq_jobs_one_training",
             "kind",
             unique=True,
-            sqlite_where=sa.text("kind = 'train_student' AND status IN ('queued', 'running')"),
-            postgresql_where=sa.text("kind = 'train_student' AND status IN ('queued', 'running')"),
+            sqlite_where=sa.text(ONE_AT_A_TIME),
+            postgresql_where=sa.text(ONE_AT_A_TIME),
         ),
     )
 

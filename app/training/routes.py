@@ -58,22 +58,36 @@ def get_model(model_id: IdPath, session: SessionDep, _user: CurrentUser) -> Mode
     "/models/{model_id}/sequential",
     response_model=JobCreated,
     status_code=status.HTTP_202_ACCEPTED,
-    responses={409: {"description": "A sequential cell for this version is already training."}},
+    responses={
+        409: {
+            "description": "A sequential cell is already training, or the version has no "
+            "weights on this server."
+        }
+    },
 )
 def train_sequential(
-    model_id: IdPath, body: SequentialIn, session: SessionDep, queue: QueueDep, user: ReviewerUser
+    model_id: IdPath,
+    body: SequentialIn,
+    session: SessionDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: ReviewerUser,
 ) -> JobCreated:
     """Train this version's sequential cell (steadier keypoints in live views) on the reviewed
     frames of imported videos, in a worker job; the job measures it against the per-frame
     student and the version records the measurement (`sequential`)."""
     model = service.get_model(session, model_id)
+    service.model_folder(settings.home, model)
     if not service.has_video_labels(session):
         raise InvalidInputError(
             "No reviewed frame of the training split comes from an imported video; label frames "
             "of a video to train the sequential cell."
         )
-    if service.sequential_job(session, model.id) is not None:
-        raise ConflictError(f"A sequential cell for {model.name} is already training.")
+    running = service.sequential_job(session)
+    if running is not None:
+        raise ConflictError(
+            f"A sequential cell is already training (job #{running.id}); wait for it to finish."
+        )
     params = body.model_dump() | {"model_version_id": model.id}
     job = create_job(session, queue, service.SEQUENTIAL_KIND, params, user)
     return JobCreated(job_id=job.id)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,7 +13,7 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import NotFoundError
+from app.errors import InvalidInputError, NotFoundError
 from app.models import (
     Frame,
     Job,
@@ -195,6 +196,16 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
     return sorted(row.id for row in ranked[:count])
 
 
+def model_folder(home: Path, model: ModelVersion) -> Path:
+    """A version's folder of weights, or a 409 when it has none on this server."""
+    from app.errors import ConflictError
+
+    folder = home / model.checkpoint_path if model.checkpoint_path else None
+    if folder is None or not folder.is_dir():
+        raise ConflictError(f"{model.name} has no weights on this server.")
+    return folder
+
+
 def has_video_labels(session: Session) -> bool:
     """Whether a frame of an imported video outside the validation split has a reviewed label."""
     query = (
@@ -210,38 +221,46 @@ def has_video_labels(session: Session) -> bool:
     return session.scalar(query) is not None
 
 
-def sequential_job(session: Session, model_id: int) -> Job | None:
-    """The queued or running sequential-cell job of a version, if any."""
+def sequential_job(session: Session) -> Job | None:
+    """The queued or running sequential-cell job, if any (one at a time, as for training)."""
     from app.models import JobStatus
 
-    jobs = session.scalars(
+    return session.scalar(
         sa.select(Job).where(
             Job.kind == SEQUENTIAL_KIND, Job.status.in_((JobStatus.queued, JobStatus.running))
         )
     )
-    return next((j for j in jobs if j.params.get("model_version_id") == model_id), None)
 
 
 @dataclass(frozen=True)
 class VideoClips:
-    """The reviewed frames of imported videos, one clip per video, for the sequential cell:
-    ``train`` holds the training split's labels (and the unlabelled windows), ``check`` the
-    validation split's (what the cell is measured on; it never trains on them)."""
+    """The reviewed frames of imported videos, one clip per video, for the sequential cell.
+
+    ``train``: the training split's labels and half of each video's unlabelled windows (none
+    that holds a validation frame); ``check``: the validation split's labels and the other half
+    of the windows, interleaved with the first (disjoint where the video is long enough): what
+    the cell is measured on and never trained on.
+    """
 
     train: list[Any]
     check: list[Any]
 
 
-def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
-    """``VideoClips`` of every video with a reviewed label (``config``: a SequentialConfig).
+def video_clips(
+    session: Session, storage: Storage, config: Any, exclude: Collection[int] = ()
+) -> VideoClips:
+    """``VideoClips`` of every video with a reviewed mask (``config``: a SequentialConfig).
 
     Each video is decoded once from its stored file, so the cell sees the camera's own frame
-    rate even where only every n-th frame was imported.
+    rate even where only every n-th frame was imported. ``exclude``: frames the version was
+    trained on, never measured on (one moved to the validation split since). A video whose file
+    is gone is a one-sentence error.
     """
     from dataclasses import replace
 
-    from weldpool_core.student.sequential import LabelledClip, video_clip
+    from weldpool_core.student.sequential import unlabelled_ends, video_clip
     from weldpool_core.student.train import as_training_frame
+    from weldpool_core.video import probe_video
 
     rows = session.execute(
         sa.select(Frame.id, Frame.video_id, Frame.frame_index, Frame.split)
@@ -252,27 +271,47 @@ def video_clips(session: Session, storage: Storage, config: Any) -> VideoClips:
     by_video: dict[int, list[Any]] = {}
     for row in rows:
         by_video.setdefault(int(row.video_id), []).append(row)
-    if not by_video:
-        return VideoClips([], [])
-    share = max(4, UNLABELLED_WINDOWS // len(by_video))
-    train: list[LabelledClip] = []
-    check: list[LabelledClip] = []
+    clips = VideoClips([], [])
+    share = max(8, UNLABELLED_WINDOWS // max(1, len(by_video)))
     for video_id, labelled in by_video.items():
         video = session.get_one(Video, video_id)
+        path = storage.absolute(video.path)
+        if not path.is_file():
+            raise InvalidInputError(
+                f"The stored file of video {video.original_name} is missing; import it again."
+            )
         samples = labelled_samples(session, storage, [r.id for r in labelled])
         frames = {
             int(row.frame_index): as_training_frame((image, mask, keypoints), frame_id)
             for row, (frame_id, image, mask, keypoints) in zip(labelled, samples, strict=True)
             if image is not None and mask is not None
         }
+        if not frames:
+            continue
         validation = {int(r.frame_index) for r in labelled if r.split == Split.validation}
-        clip = video_clip(
-            storage.absolute(video.path), frames, replace(config, unlabelled_windows=share)
+        measured = {
+            int(r.frame_index)
+            for r in labelled
+            if r.split == Split.validation and r.id not in exclude
+        }
+        ends = unlabelled_ends(
+            probe_video(path).frame_count, replace(config, unlabelled_windows=share)
         )
-        train.append(replace(clip, labels={i: f for i, f in frames.items() if i not in validation}))
-        check.append(
+        learned = [e for e in ends[0::2] if not any(e - config.window < v <= e for v in validation)]
+        clip = video_clip(path, frames, config, unlabelled=learned + list(ends[1::2]))
+        readable = set(clip.unlabelled)
+        clips.train.append(
             replace(
-                clip, labels={i: f for i, f in frames.items() if i in validation}, unlabelled=()
+                clip,
+                labels={i: f for i, f in frames.items() if i not in validation},
+                unlabelled=tuple(e for e in learned if e in readable),
             )
         )
-    return VideoClips(train, check)
+        clips.check.append(
+            replace(
+                clip,
+                labels={i: f for i, f in frames.items() if i in measured},
+                unlabelled=tuple(e for e in ends[1::2] if e in readable),
+            )
+        )
+    return clips

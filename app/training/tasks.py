@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import replace
+from functools import partial
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -139,9 +141,11 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
 @job_handler(service.SEQUENTIAL_KIND)
 def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
     """Train a version's sequential cell on the reviewed frames of imported videos (their
-    training split), then measure it against the version's per-frame student on the validation
-    split's video frames and on unlabelled windows; the cell lands beside the version's weights
-    (``weldpool_core.student.sequential``) and the measurement on the version."""
+    training split), then measure it against the version's per-frame student on what it never
+    trained on: the validation split's video frames and unlabelled windows of its own
+    (``service.video_clips``). The cell lands beside the version's weights
+    (``weldpool_core.student.sequential``) and the measurement on the version; a job that fails
+    or is cancelled after the cell was written puts the version's previous cell back."""
     from dataclasses import replace
 
     from weldpool_core.student.sequential import (
@@ -157,44 +161,82 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
     model_id = int(ctx.params["model_version_id"])
     with ctx.session_factory() as session:
         version = session.get(ModelVersion, model_id)
-        if version is None or not version.checkpoint_path:
+        if version is None:
             raise InvalidInputError(f"Model version {model_id} no longer exists.")
-        root, name = settings.home / version.checkpoint_path, version.name
+        root = service.model_folder(settings.home, version)
+        name, trained = version.name, set(version.train_frame_ids or [])
         ctx.progress(0.0, "reading the labelled videos")
-        clips = service.video_clips(session, storage, config)
+        clips = service.video_clips(session, storage, config, exclude=trained)
     if not any(clip.labels for clip in clips.train):
         raise InvalidInputError(
             "No reviewed frame of the training split comes from an imported video; label frames "
             "of a video to train the sequential cell."
         )
-    result = train_sequential(
-        root,
-        clips.train,
-        config,
-        progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
-    )
-    ctx.progress(0.92, "measuring the cell against the per-frame student")
-    unlabelled = [replace(clip, labels={}) for clip in clips.train]  # trained on: not measured
-    measured = measure_sequential(root, clips.check + unlabelled, config)
-    record = {
-        "trained_at": utcnow().isoformat(),
-        "job_id": ctx.job_id,
-        "windows": result.windows,
-        "videos": sum(1 for clip in clips.train if clip.labels),
-        "steps": config.steps,
-        "seconds": round(result.seconds, 1),
-        "measured": measured,
-    }
-    with ctx.session_factory() as session:
-        version = session.get(ModelVersion, model_id)
-        if version is None:  # deleted while training: its folder went with it
-            raise InvalidInputError(f"Model version {model_id} was deleted during training.")
-        version.sequential = record
-        session.commit()
+    previous = _cell_files(root)
+    try:
+        result = train_sequential(
+            root,
+            clips.train,
+            config,
+            progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
+        )
+        ctx.progress(0.92, "measuring the cell against the per-frame student")
+        measured = measure_sequential(root, clips.check, config)
+        record = {
+            "trained_at": utcnow().isoformat(),
+            "job_id": ctx.job_id,
+            "windows": result.windows,
+            "videos": sum(1 for clip in clips.train if clip.labels),
+            "steps": config.steps,
+            "seconds": round(result.seconds, 1),
+            "measured": measured,
+        }
+        with ctx.session_factory() as session:
+            version = session.get(ModelVersion, model_id)
+            if version is None:  # deleted while training: its folder went with it
+                raise InvalidInputError(f"Model version {model_id} was deleted during training.")
+            version.sequential = record
+            session.commit()
+    except BaseException:
+        _restore_cell_files(root, previous)
+        raise
     ctx.summary = f"{name}: sequential cell trained on {counted(result.windows, 'window')}; " + (
         _sequential_verdict(measured)
     )
     return {"model_version_id": model_id, "sequential": record}
+
+
+def _cell_files(root: Path) -> dict[str, bytes]:
+    """The bytes of a version's sequential cell files that exist now."""
+    from weldpool_core.student.sequential import SEQUENTIAL_CONFIG, SEQUENTIAL_WEIGHTS
+
+    return {
+        name: (root / name).read_bytes()
+        for name in (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG)
+        if (root / name).is_file()
+    }
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    path.write_bytes(data)
+
+
+def _restore_cell_files(root: Path, previous: dict[str, bytes]) -> None:
+    """Put a version's cell files back as ``_cell_files`` found them (absent ones removed; the
+    ONNX export is made again from them on its next use)."""
+    from weldpool_core.student import checkpoint
+    from weldpool_core.student.sequential import (
+        SEQUENTIAL_CONFIG,
+        SEQUENTIAL_ONNX,
+        SEQUENTIAL_WEIGHTS,
+    )
+
+    (root / SEQUENTIAL_ONNX).unlink(missing_ok=True)
+    for name in (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG):
+        if name in previous:
+            checkpoint.write_atomic(root / name, partial(_write_bytes, data=previous[name]))
+        else:
+            (root / name).unlink(missing_ok=True)
 
 
 def _sequential_verdict(measured: dict[str, Any]) -> str:

@@ -49,19 +49,26 @@ export function gateLine(gate) {
 }
 
 /** A student version's sequential cell and how it measured against the per-frame student (models
- * page, live view): mask IoU on validation frames of videos, and how much of the mask changes
- * from one frame to the next on unlabelled stretches of video. */
+ * page): mask IoU on validation frames of videos, and how much of the mask changes from one frame
+ * to the next on unlabelled stretches of video — both on what the cell never trained on. Flagged
+ * when it is less accurate (by more than 0.01) or less steady; plain when nothing was measured. */
 export function sequentialLine(record) {
   if (!record) return h("p", { class: "muted small-text", "data-testid": "sequential" }, "no sequential cell");
   const m = record.measured ?? {};
-  const accuracy = m.per_frame_iou === null || m.per_frame_iou === undefined
-    ? "accuracy not measured (no validation frame comes from a video)"
-    : `mask IoU ${iou(m.sequential_iou)} against the per-frame ${iou(m.per_frame_iou)} on ${count(m.frames, "validation frame")}`;
-  const steadiness = m.per_frame_change === null || m.per_frame_change === undefined
-    ? ""
-    : `; the mask changes ${pct(m.sequential_change)} per frame against ${pct(m.per_frame_change)} (${count(m.windows, "stretch", "stretches")} of video)`;
-  const worse = typeof m.sequential_iou === "number" && m.sequential_iou < m.per_frame_iou - 0.01;
-  return h("p", { class: `gate ${worse ? "warning" : "ok"}`, "data-testid": "sequential" },
+  const hasAccuracy = typeof m.per_frame_iou === "number" && typeof m.sequential_iou === "number";
+  const hasSteadiness = typeof m.per_frame_change === "number" && typeof m.sequential_change === "number";
+  const accuracy = hasAccuracy
+    ? `mask IoU ${iou(m.sequential_iou)} against the per-frame ${iou(m.per_frame_iou)} on ${count(m.frames, "validation frame")}`
+    : "accuracy not measured (no validation frame of a video has 7 frames before it)";
+  const steadiness = hasSteadiness
+    ? `; the mask changes ${pct(m.sequential_change)} per frame against ${pct(m.per_frame_change)} (${count(m.windows, "stretch", "stretches")} of video)`
+    : "";
+  const problems = [
+    hasAccuracy && m.sequential_iou < m.per_frame_iou - 0.01 ? "less accurate" : "",
+    hasSteadiness && m.sequential_change > m.per_frame_change ? "less steady" : "",
+  ].filter(Boolean);
+  const style = problems.length ? "warning" : hasAccuracy || hasSteadiness ? "ok" : "muted";
+  return h("p", { class: `gate ${style}`, "data-testid": "sequential" },
     badge("sequential cell"), ` ${accuracy}${steadiness}.`,
-    worse ? h("span", { class: "muted" }, " Less accurate than the per-frame student: use it where steadiness matters more.") : "");
+    problems.length ? h("span", { class: "muted" }, ` ${problems.join(" and ")} than the per-frame student: use it where that matters less.`) : "");
 }

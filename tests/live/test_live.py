@@ -248,12 +248,47 @@ def test_a_sequential_cell_learns_from_video_labels_is_measured_and_runs_live(
     # Label 10 makes one window (stride 1: frames 3–10), label 20 two (strides 1 and 2); the
     # validation frame 25 is measured, never trained on.
     assert (record["windows"], record["videos"], record["steps"]) == (3, 1, 10)
+    # Unlabelled windows end at frames 7..29, alternately learned from and measured on; those
+    # that hold the validation frame 25 (ends 25, 27, 29) are not learned from: 11 measured.
     measured = record["measured"]
-    assert measured["frames"] == 1 and measured["windows"] >= 4
+    assert (measured["frames"], measured["windows"]) == (1, 11)
     for key in ("per_frame_iou", "sequential_iou", "per_frame_change", "sequential_change"):
         assert 0.0 <= measured[key] <= 1.0, (key, measured)
-    assert f"{measured['per_frame_iou']:.3f} on 1 validation frame" in job["message"]
-    assert (settings.home / "models" / "student-v1" / "sequential.safetensors").is_file()
+    assert job["message"] == (
+        f"student-v1: sequential cell trained on 3 windows; mask IoU "
+        f"{measured['sequential_iou']:.3f} against the per-frame {measured['per_frame_iou']:.3f} "
+        f"on 1 validation frame; the mask changes {100 * measured['sequential_change']:.1f} % "
+        f"per frame against {100 * measured['per_frame_change']:.1f} %"
+    )
+    cell = settings.home / "models" / "student-v1" / "sequential.safetensors"
+    kept = cell.read_bytes()
+
+    # A job that fails after writing its cell puts the version's cell back, record unchanged.
+    import weldpool_core.student.sequential as sequential_module
+
+    def broken(*_args: object, **_kwargs: object) -> dict:
+        raise RuntimeError("the measurement broke")
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sequential_module, "measure_sequential", broken)
+        failing = client.post(
+            "/api/v1/models/1/sequential", json={"steps": 3, "seed": 1}, headers=auth(token)
+        )
+        assert wait_for_job(client, failing.json()["job_id"], token, 240)["status"] == "failed"
+    assert cell.read_bytes() == kept
+    assert client.get("/api/v1/models/1", headers=auth(token)).json()["sequential"] == record
+
+    # A frame the version trained on, moved to the validation split since, is not measured.
+    with session_factory() as session:
+        session.get_one(ModelVersion, 1).train_frame_ids = [frames[25]]
+        session.commit()
+    excluded = client.post("/api/v1/models/1/sequential", json={"steps": 3}, headers=auth(token))
+    job = wait_for_job(client, excluded.json()["job_id"], token, timeout=240)
+    assert job["status"] == "succeeded", job
+    remeasured = client.get("/api/v1/models/1", headers=auth(token)).json()["sequential"]
+    assert remeasured["measured"]["frames"] == 0
+    assert remeasured["measured"]["per_frame_iou"] is None
+    assert "no validation frame of a video to measure its accuracy on" in job["message"]
 
     live = client.post(
         "/api/v1/live", json={"source": str(path), "sequential": True}, headers=auth(token)
@@ -268,3 +303,20 @@ def test_a_sequential_cell_learns_from_video_labels_is_measured_and_runs_live(
     plain = {"source": str(path), "sequential": True, "model_id": 2}
     refused = client.post("/api/v1/live", json=plain, headers=auth(token))
     assert refused.status_code == 400 and "no sequential cell" in refused.json()["detail"]
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v3", checkpoint_path="models/gone"))
+        session.commit()
+    weightless = client.post("/api/v1/models/3/sequential", json={}, headers=auth(token))
+    assert weightless.status_code == 409
+    assert weightless.json()["detail"] == "student-v3 has no weights on this server."
+    assert (
+        client.post("/api/v1/models/9/sequential", json={}, headers=auth(token)).status_code == 404
+    )
+
+    # The stored video went missing: the job says which, in one sentence.
+    for stored in (settings.home / "videos").rglob("*.avi"):
+        stored.unlink()
+    lost = client.post("/api/v1/models/1/sequential", json={"steps": 3}, headers=auth(token))
+    job = wait_for_job(client, lost.json()["job_id"], token, timeout=240)
+    assert job["status"] == "failed"
+    assert job["error"] == "The stored file of video run.avi is missing; import it again."

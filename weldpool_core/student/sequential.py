@@ -248,14 +248,21 @@ def needed_frames(
 
 
 def video_clip(
-    path: str | Path, labels: dict[int, TrainingFrame], config: SequentialConfig
+    path: str | Path,
+    labels: dict[int, TrainingFrame],
+    config: SequentialConfig,
+    unlabelled: Sequence[int] | None = None,
 ) -> LabelledClip:
     """A ``LabelledClip`` of a video file that decodes only the frames its windows read (kept
-    as stored: gray for a grayscale camera)."""
+    as stored: gray for a grayscale camera). ``unlabelled``: the unlabelled windows' last frames
+    (default ``unlabelled_ends`` of the video's length)."""
     from weldpool_core.io import to_rgb8
     from weldpool_core.video import iter_video_frames, probe_video
 
-    ends = unlabelled_ends(probe_video(path).frame_count, config)
+    if unlabelled is None:
+        ends = unlabelled_ends(probe_video(path).frame_count, config)
+    else:
+        ends = tuple(sorted({int(e) for e in unlabelled if e >= config.window - 1}))
     wanted = needed_frames(list(labels), config, ends)
     kept: dict[int, NDArray[np.uint8]] = {}
     length = 0
@@ -680,8 +687,8 @@ def export_sequential_onnx(model_dir: str | Path) -> Path:
     """``sequential.onnx`` of a MODEL_DIR (written once; returns its path).
 
     The file is checked against PyTorch over two steps (a fresh frame, then a frame with the
-    state carried): more than ``export.TOLERANCE`` apart, it is removed and this raises
-    InvalidInputError.
+    state carried) before it takes its name: more than ``export.TOLERANCE`` apart, it is not kept
+    and this raises InvalidInputError.
     """
     from weldpool_core.student.export import TOLERANCE, quiet_exporter
 
@@ -713,14 +720,17 @@ def export_sequential_onnx(model_dir: str | Path) -> Path:
         )
     if program is None:
         raise InvalidInputError("The ONNX exporter returned no program.")
-    checkpoint.write_atomic(path, lambda p: program.save(str(p)))
-    difference = _onnx_difference(reference, path)
-    if difference > TOLERANCE:
-        path.unlink()
-        raise InvalidInputError(
-            f"The sequential ONNX export differs from PyTorch by {difference:.2g} (more than "
-            f"{TOLERANCE:g}); it was not kept."
-        )
+
+    def write_checked(temporary: Path) -> None:  # checked before it takes the file's name
+        program.save(str(temporary))
+        difference = _onnx_difference(reference, temporary)
+        if difference > TOLERANCE:
+            raise InvalidInputError(
+                f"The sequential ONNX export differs from PyTorch by {difference:.2g} (more "
+                f"than {TOLERANCE:g}); it was not kept."
+            )
+
+    checkpoint.write_atomic(path, write_checked)
     return path
 
 
