@@ -11,9 +11,9 @@ frame). One SQLite home in a temporary folder, the embedded worker, the CPU.
     PYTHONPATH=. HF_HUB_OFFLINE=1 .venv/bin/python bench/app_sequential.py [--held mm] [--steps 200]
 
 Measured 2026-11-29 on 2 CPU cores (defaults, seed 0; mask IoU on the held-out clip's 3 frames
-per frame → sequential; the change of the mask per frame over 63 unlabelled stretches): held
-out 0mm 0.742 → 0.744, 0.90 → 0.58 %; 2mm 0.839 → 0.836, 0.95 → 0.61 %; mm 0.857 → 0.848,
-1.23 → 0.82 %. Student job 272–295 s, the cell's about 4 minutes.
+per frame → sequential; the change of the mask per frame over 48 unlabelled stretches the cell
+never trained on): held out 0mm 0.742 → 0.745, 0.87 → 0.54 %; 2mm 0.839 → 0.838, 0.92 →
+0.59 %; mm 0.857 → 0.847, 1.17 → 0.75 %. Student job 267–291 s, the cell's 226–252 s.
 """
 
 from __future__ import annotations
