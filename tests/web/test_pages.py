@@ -1334,6 +1334,24 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
     assert f"{measured['per_frame_iou']:.3f} on 1 validation frame" in line
     assert card.locator("[data-testid=train-sequential]").inner_text() == "Retrain sequential cell"
     shoot(page, "models-sequential", full_page=True)
+    # The card's flag: a cell less accurate (by more than 0.01) or less steady is marked; one
+    # with nothing measured is neither marked good nor bad.
+    cases = [  # (per-frame IoU, sequential IoU, per-frame change, sequential change)
+        (0.85, 0.845, 0.02, 0.01),
+        (0.85, 0.83, 0.02, 0.01),
+        (0.85, 0.85, 0.01, 0.02),
+        (None, None, None, None),
+    ]
+    flags = page.evaluate(
+        """async (cases) => {
+          const { sequentialLine } = await import("/static/js/format.js");
+          return cases.map(([a, b, c, d]) => sequentialLine({ measured: {
+            frames: 3, windows: 9, per_frame_iou: a, sequential_iou: b,
+            per_frame_change: c, sequential_change: d } }).className);
+        }""",
+        cases,
+    )
+    assert flags == ["gate ok", "gate warning", "gate warning", "gate muted"]
 
     page.goto(f"{server.url}/live?model_id={version['id']}")
     wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
