@@ -231,6 +231,8 @@ def _restore_cell_files(root: Path, previous: dict[str, bytes]) -> None:
         SEQUENTIAL_WEIGHTS,
     )
 
+    if not root.is_dir():  # the version's folder is gone: nothing to put back into
+        return
     (root / SEQUENTIAL_ONNX).unlink(missing_ok=True)
     for name in (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG):
         if name in previous:
