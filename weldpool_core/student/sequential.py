@@ -59,6 +59,7 @@ from torch import nn
 from weldpool_core.device import resolve_device
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
+from weldpool_core.metrics import iou
 from weldpool_core.student import checkpoint
 from weldpool_core.student.data import (
     Augmentation,
@@ -426,20 +427,29 @@ def _loss(
     return bce + dice_loss(mask_logits, mask) + heatmap_loss(heat_logits, heat)
 
 
-def unroll(
-    model: SequentialStudent, images: torch.Tensor, first: int = 0
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mask and heatmap logits (N×(T − first)×S×S) of N windows of T frames (N×T×3×S×S), in
-    order, from step ``first`` on (training skips step 0: without a past the cell is the
-    identity, so decoding it teaches nothing)."""
+def encode_windows(model: SequentialStudent, images: torch.Tensor) -> torch.Tensor:
+    """The frozen student's latent means (N×T×C×h×w) of N windows of T frames (N×T×3×S×S)."""
     count, steps = images.shape[:2]
     with torch.no_grad():
         flat = images.flatten(0, 1).contiguous(memory_format=torch.channels_last)
         mean = model.student.encode(flat)[0]
-        latents = mean.reshape(count, steps, *mean.shape[1:])
+    return mean.reshape(count, steps, *mean.shape[1:])
+
+
+def unroll(
+    model: SequentialStudent,
+    images: torch.Tensor,
+    first: int = 0,
+    latents: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mask and heatmap logits (N×(T − first)×S×S) of N windows of T frames (N×T×3×S×S), in
+    order, from step ``first`` on (training skips step 0: without a past the cell is the
+    identity, so decoding it teaches nothing). ``latents``: the windows' ``encode_windows``
+    when already at hand."""
+    latents = encode_windows(model, images) if latents is None else latents
     state = None
     masks, heats = [], []
-    for t in range(steps):
+    for t in range(latents.shape[1]):
         state = model.cell(latents[:, t], state)
         if t < first:
             continue
@@ -560,11 +570,11 @@ def _as_batch(window: _Window, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(stacked)[None].to(device)
 
 
-def _per_frame_masks(model: SequentialStudent, images: torch.Tensor) -> torch.Tensor:
-    """The per-frame student's mask probabilities (N×T×S×S) of N×T×3×S×S frames, each alone."""
-    flat = images.flatten(0, 1).contiguous(memory_format=torch.channels_last)
-    mask_logits, _ = model.student.decode(model.student.encode(flat)[0])
-    return torch.sigmoid(mask_logits).reshape(*images.shape[:2], *mask_logits.shape[1:])
+def _per_frame_masks(model: SequentialStudent, latents: torch.Tensor) -> torch.Tensor:
+    """The per-frame student's mask probabilities (N×T×S×S) of ``encode_windows`` latents: each
+    frame decoded alone."""
+    mask_logits, _ = model.student.decode(latents.flatten(0, 1))
+    return torch.sigmoid(mask_logits).reshape(*latents.shape[:2], *mask_logits.shape[1:])
 
 
 def measure_sequential(
@@ -596,15 +606,15 @@ def measure_sequential(
     with torch.no_grad():
         for window in windows:
             images = _as_batch(window, device)
-            alone = _per_frame_masks(model, images)
-            mask_logits, _ = unroll(model, images)
-            steady = torch.sigmoid(mask_logits)
+            latents = encode_windows(model, images)  # once for both students
+            last = images.shape[1] - 1 if window.labelled else 0  # a label: its frame only
+            alone = _per_frame_masks(model, latents[:, last:])
+            steady = torch.sigmoid(unroll(model, images, first=last, latents=latents)[0])
             if window.labelled:
-                truth = torch.from_numpy(window.target.mask >= 128).to(device)
+                truth = window.target.mask >= 128
                 for name, probability in (("per_frame", alone), ("sequential", steady)):
-                    predicted = probability[0, -1] >= 0.5
-                    union = float((predicted | truth).sum())
-                    ious[name].append(float((predicted & truth).sum()) / union if union else 1.0)
+                    predicted = (probability[0, -1] >= 0.5).cpu().numpy()
+                    ious[name].append(iou(predicted, truth))
             else:
                 changes["per_frame"].append(float(unsteadiness(alone, still)))
                 changes["sequential"].append(float(unsteadiness(steady, still)))
