@@ -32,18 +32,24 @@ export function curveCharts(curve) {
   }));
 }
 
+/** Start a job (``start`` resolves to its ``{ job_id }``), follow it in the state line under the
+ * page's title, and say how it ended. */
+async function followJob(what, start) {
+  const stateLine = document.getElementById("train-state");
+  const { job_id: jobId } = await start();
+  const link = () => h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`);
+  stateLine.replaceChildren(`${what} job `, link(), " started.");
+  const job = await waitForJob(jobId, (j) => {
+    stateLine.replaceChildren(`${what} job `, link(), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);
+  }, 1500);
+  toast(`${what} job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+}
+
 async function trainSequential(model, button) {
   if (!confirm(`Train a sequential cell for ${model.name}? It learns from the reviewed frames of imported videos (a few minutes on a CPU) and is measured against the per-frame student on the validation frames.`)) return;
   button.disabled = true;
-  const stateLine = document.getElementById("train-state");
   try {
-    const { job_id: jobId } = await api(`/models/${model.id}/sequential`, { method: "POST", json: {} });
-    const link = () => h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`);
-    stateLine.replaceChildren("Sequential cell job ", link(), " started.");
-    const job = await waitForJob(jobId, (j) => {
-      stateLine.replaceChildren("Sequential cell job ", link(), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);
-    }, 1500);
-    toast(`Sequential cell job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+    await followJob("Sequential cell", () => api(`/models/${model.id}/sequential`, { method: "POST", json: {} }));
   } catch (error) {
     toast(error.message, "error");
   } finally {
@@ -131,17 +137,11 @@ trainForm?.addEventListener("submit", async (event) => {
   event.preventDefault();
   const epochs = Number(trainForm.elements.epochs.value);
   const button = trainForm.querySelector("button");
-  const stateLine = document.getElementById("train-state");
   button.disabled = true;
   try {
     const body = epochs > 0 ? { epochs } : {};
     if (trainForm.elements.pseudo_labels?.checked) body.pseudo_labels = true;
-    const { job_id: jobId } = await api("/student/train", { method: "POST", json: body });
-    stateLine.replaceChildren("Training job ", h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), " started.");
-    const job = await waitForJob(jobId, (j) => {
-      stateLine.replaceChildren(`Training job `, h("a", { href: `/jobs?job=${jobId}` }, `#${jobId}`), `: ${j.status}, ${Math.round(j.progress * 100)} % ${j.message ?? ""}`);
-    }, 1500);
-    toast(`Training job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+    await followJob("Training", () => api("/student/train", { method: "POST", json: body }));
     load();
   } catch (error) {
     const missing = error instanceof ApiError && error.status === 404;

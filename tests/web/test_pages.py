@@ -1295,8 +1295,14 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
         "PUT", f"/frames/{by_index[30]}/validation-keypoints", json={"keypoints": [[160, 100]]}
     )
     assert placed.status_code == 200  # frame 30 joins the validation split
-    trained = server.api("POST", "/student/train", json={"epochs": 1, "size": "light"})
-    assert server.wait_for_job(trained.json()["job_id"], timeout=300)["status"] == "succeeded"
+    login(page, server, "rita")
+    dialogs = accept_dialogs(page)
+    page.goto(f"{server.url}/models")
+    page.wait_for_selector("body[data-ready]")
+    page.fill("#train-form input[name=epochs]", "1")  # the form's own path to a version
+    page.click("[data-testid=train-button]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('Training job')", timeout=300_000)
+    assert "succeeded" in page.inner_text("[data-testid=train-state]")
     version = server.api("GET", "/models").json()[0]
     others = [m for m in server.api("GET", "/models").json() if m["id"] != version["id"]]
     if not others:  # alone: a second version, without a cell, for the live page's choice
@@ -1307,8 +1313,6 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
             [server.api("GET", "/models").json()[0]],
         )
 
-    login(page, server, "rita")
-    dialogs = accept_dialogs(page)
     page.goto(f"{server.url}/models")
     card = page.locator(f"[data-testid=model-card][data-model-id='{version['id']}']")
     card.wait_for()
