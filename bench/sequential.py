@@ -179,7 +179,8 @@ def fold(
     config = replace(config, seed=seed)
     row: dict[str, Any] = {"fold": held, "seed": seed, "train_s": per_frame_s, "seq_s": 0.0}
     if not (reuse and has_sequential(model)):
-        clips = [video_clip(video(c), labels[c], config) for c in train_clips]
+        student = StudentConfig()
+        clips = [video_clip(video(c), labels[c], config, student=student) for c in train_clips]
         result = train_sequential(model, clips, config)
         row.update(seq_s=result.seconds, loss=(result.first_loss, result.last_loss))
     raw, raw_area, raw_out = stream(model, held, False)

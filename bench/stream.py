@@ -2,13 +2,17 @@
 
 Run: ``.venv/bin/python bench/stream.py [--model DIR] [--frames N]`` (about ten minutes here).
 
-Speed: for each student size (random weights: speed does not depend on them), backend (ONNX
-Runtime, PyTorch) and thread count (1, all cores), the stream pipeline as the command runs it —
-decoding (one decoder thread, the command's default) and pre-processing on the reader thread,
-inference, keypoints and geometry on the main one — over the first N frames of each video, read
-as fast as possible. Frames per second (median over the three videos), p50 / p99 latency from a
-frame leaving the decoder to its record, and the ratio to the inference-only floor (the same
-model on already prepared inputs, nothing else running).
+Speed: for each student size (light: the student trained on the real labels, whose real masks
+make the work after inference what it is on a weld; larger sizes: random weights), backend (ONNX
+Runtime int8 and float, PyTorch) and thread count (1, all cores), the stream pipeline as the
+command runs it — decoding (one decoder thread, the command's default) and pre-processing on the
+reader thread, inference, keypoints and geometry on the main one — over the first N frames of
+each video, read as fast as possible. Frames per second (median over the three videos), p50 /
+p99 latency from a frame leaving the decoder to its record, and the ratio to the inference-only
+floor (the same model on already prepared inputs, nothing else running).
+
+int8: the trained student quantized (``weldpool export-student --format onnx-int8``) on frames
+spread through the three videos, and its agreement with the float student on others.
 
 Steadiness: a student trained on the 9 real labels (``--model``, else trained here with the
 default settings, ~90 s) streams every frame of each video twice, per frame and with the
@@ -34,8 +38,11 @@ import numpy as np
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
 from weldpool_core.stream import FrameSource, StreamStudent, run_stream, summary
 from weldpool_core.student.checkpoint import save_config, save_weights
-from weldpool_core.student.export import export_student
+from weldpool_core.student.export import ONNX_FILE, export_student
 from weldpool_core.student.model import STUDENT_SIZES, build_student
+from weldpool_core.student.predict import frames_to_batch
+from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_onnx, quantize_student
+from weldpool_core.video import spread_frames
 
 REPO = Path(__file__).resolve().parents[1]
 CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
@@ -53,14 +60,22 @@ def videos() -> list[Path]:
     return found
 
 
+def calibration_frames(per_video: int = 16) -> list[np.ndarray]:
+    """Frames spread evenly through each real video (what a user calibrates int8 on)."""
+    return [frame for video in videos() for frame in spread_frames(video, per_video)]
+
+
 def random_student(size: str, root: Path) -> Path:
-    """A random-weight student of ``size`` saved and exported to ONNX."""
+    """A random-weight student of ``size`` saved, exported to ONNX and quantized to int8
+    (calibrated on real frames; unchecked, as a random student's masks mean nothing)."""
     folder = root / size
     folder.mkdir(parents=True)
     config = STUDENT_SIZES[size]
     save_weights(folder, build_student(config, load_pretrained=False).model)
     save_config(folder, config, {})
     export_student(folder, ["onnx"])
+    batch, _ = frames_to_batch(calibration_frames(8), config)
+    quantize_onnx(folder / ONNX_FILE, folder / INT8_ONNX_FILE, batch.numpy())
     return folder
 
 
@@ -79,7 +94,8 @@ def floor_fps(student: StreamStudent, video: Path, runs: int = 50) -> float:
 
 
 def speed_row(model: Path, backend: str, threads: int, frames: int) -> dict[str, Any]:
-    student = StreamStudent(model, backend, "cpu", threads)
+    int8 = backend == "onnx-int8"
+    student = StreamStudent(model, "onnx" if int8 else backend, "cpu", threads, int8=int8)
     results = []
     latencies: list[float] = []
     for video in videos():
@@ -166,6 +182,19 @@ def steadiness(model: Path) -> None:
     )
 
 
+def int8_agreement(model: Path) -> None:
+    """Quantize the trained student on frames of the three videos and print the check."""
+    result = quantize_student(model, calibration_frames(16))
+    print(
+        f"\nint8 (calibrated on {result.calibration_frames} frames spread through the three "
+        f"videos, checked on {result.check_frames} others): mask IoU with the float student "
+        f"{result.mean_iou:.4f} on average, {result.min_iou:.4f} at worst; keypoints "
+        f"{result.keypoint_px} px apart (median of each frame's largest); mask probability "
+        f"{result.mask_difference:.5f} apart on average\n",
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", type=Path, help="a student trained on the real labels")
@@ -175,25 +204,28 @@ def main() -> None:
     args = parser.parse_args()
     cores = os.cpu_count() or 1
     with tempfile.TemporaryDirectory() as root:
+        model = args.model or train_real(Path(root) / "real")
+        if not (model / ONNX_FILE).is_file():
+            export_student(model, ["onnx"])
+        int8_agreement(model)
         if not args.skip_speed:
             head = f"{args.frames} frames of each of the 3 videos, 1280×800; {cores} cores"
             print(f"Speed ({head})\n")
             print("| student | backend | threads | fps | p50 ms | p99 ms | floor fps | of floor |")
             print("|---|---|---:|---:|---:|---:|---:|---:|")
             for size in args.sizes:
-                model = random_student(size, Path(root))
-                for backend in ("onnx", "torch"):
+                # light: the trained student (a random one's noisy masks make the keypoints
+                # and geometry after inference ~2.5× dearer than a real pool's)
+                weights = model if size == "light" else random_student(size, Path(root))
+                for backend in ("onnx-int8", "onnx", "torch"):
                     for threads in sorted({1, cores}):
-                        row = speed_row(model, backend, threads, args.frames)
+                        row = speed_row(weights, backend, threads, args.frames)
                         print(
                             f"| {size} | {backend} | {threads} | {row['fps']:.1f} | "
                             f"{row['p50']:.2f} | {row['p99']:.2f} | {row['floor']:.1f} | "
                             f"{row['fps'] / row['floor']:.0%} |",
                             flush=True,
                         )
-        model = args.model or train_real(Path(root) / "real")
-        if not (model / "model.onnx").is_file():
-            export_student(model, ["onnx"])
         steadiness(model)
 
 

@@ -7,7 +7,8 @@ so the output is never later than one frame plus its own work (no queue grows). 
 fast as possible delivers every frame in order (a queue of two).
 
 ``StreamStudent`` runs a trained student on one frame at a time: ONNX Runtime by default (the
-``model.onnx`` of ``weldpool export-student``), PyTorch as an option (CUDA when present, and the
+``model.onnx`` of ``weldpool export-student``; ``int8=True`` runs its ``model.int8.onnx``, the
+quantized student, ``student.quantize``), PyTorch as an option (CUDA when present, and the
 only backend that can score the uncertainty, which needs test-time passes). With
 ``sequential=True`` it runs the folder's sequential student instead (``student.sequential``: a
 recurrent cell on the latent, trained with ``weldpool train-sequential``), carrying its state
@@ -50,6 +51,7 @@ from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ONNX_FILE, onnx_session
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import combine, frame_keypoints
+from weldpool_core.student.quantize import INT8_ONNX_FILE
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
 AMBIGUOUS = (0.25, 0.75)
@@ -274,6 +276,9 @@ class StreamStudent:
         device: for torch: cpu, cuda, cuda:N, mps or auto.
         threads: intra-op threads (None: the runtime's default, one per core). For torch this
             is ``torch.set_num_threads``: it holds for the whole process.
+        spin: let ONNX Runtime's idle threads busy-wait (see ``onnx_session``).
+        sequential: run the folder's sequential student (see the module doc).
+        int8: run the folder's ``model.int8.onnx`` (ONNX Runtime, per frame only).
     """
 
     def __init__(
@@ -284,13 +289,20 @@ class StreamStudent:
         threads: int | None = None,
         spin: bool = False,
         sequential: bool = False,
+        int8: bool = False,
     ) -> None:
         if backend not in BACKENDS:
             raise InvalidInputError(f"Unknown backend {backend!r}; use onnx or torch.")
+        if int8 and (backend != "onnx" or sequential):
+            raise InvalidInputError(
+                "The int8 student runs on ONNX Runtime, per frame: use --backend onnx without "
+                "--sequential."
+            )
         self.model_dir = Path(model_dir)
         self.config: StudentConfig = read_student_config(self.model_dir)
         self.backend = backend
         self.sequential = sequential
+        self.int8 = int8
         self._session: Any = None
         self._predictor: Any = None
         self._recurrent: Any = None
@@ -298,11 +310,12 @@ class StreamStudent:
         if sequential:
             self._open_sequential(backend, device, threads, spin)
         elif backend == "onnx":
-            path = self.model_dir / ONNX_FILE
+            path = self.model_dir / (INT8_ONNX_FILE if int8 else ONNX_FILE)
             if not path.is_file():
                 raise InvalidInputError(
-                    f"{self.model_dir} has no {ONNX_FILE}; export it first "
-                    f"(weldpool export-student {self.model_dir} --format onnx) or use torch."
+                    f"{self.model_dir} has no {path.name}; export it first "
+                    f"(weldpool export-student {self.model_dir} --format "
+                    + ("onnx-int8 --calibrate FRAMES)" if int8 else "onnx) or use torch.")
                 )
             self._session = onnx_session(path, threads, spin=spin)
         else:

@@ -14,6 +14,8 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 
 _SUPPORTED = "upload an MP4 or AVI video"
+VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".avi", ".mkv"})
+"""File names of the containers ``sniff_container`` knows."""
 
 
 @dataclass(frozen=True)
@@ -109,3 +111,14 @@ def iter_video_frames(path: str | Path, every_nth: int = 1) -> Iterator[VideoFra
             index += 1
     finally:
         capture.release()
+
+
+def spread_frames(path: str | Path, count: int) -> list[NDArray[np.uint8]]:
+    """Up to ``count`` frames spread evenly through a video (gray or RGB, as stored)."""
+    every = max(1, probe_video(path).frame_count // max(count, 1))
+    frames = []
+    for frame in iter_video_frames(path, every):
+        frames.append(frame.pixels)
+        if len(frames) == count:
+            break
+    return frames

@@ -11,7 +11,15 @@ from typing import Any
 
 import click
 
-from app.cli.base import fail, friendly_errors, image_files, load_settings, main
+from app.cli.base import (
+    IMAGE_SUFFIXES,
+    fail,
+    friendly_errors,
+    image_files,
+    load_settings,
+    main,
+    named_files,
+)
 from app.errors import WeldpoolError
 
 MODEL_SIZES = ("resnet18", "resnet34", "light")
@@ -189,7 +197,9 @@ def train_sequential_cmd(
         fail(f"There is no student folder {str(model_dir)!r}.")
     config = SequentialConfig(seed=seed, device=device or settings.device)
     config = replace(config, steps=steps or config.steps, window=window or config.window)
-    clips = dataset_clips(dataset, videos, config)
+    from weldpool_core.student.checkpoint import read_student_config
+
+    clips = dataset_clips(dataset, videos, config, read_student_config(model_dir))
     bar = _ProgressBar()
     try:
         result = train_sequential(model_dir, clips, config, bar)
@@ -278,18 +288,69 @@ def predict_cmd(
     "--format",
     "formats",
     multiple=True,
-    type=click.Choice(["onnx", "torchscript"]),
-    help="Repeat for several; default both.",
+    type=click.Choice(["onnx", "torchscript", "onnx-int8"]),
+    help="Repeat for several; default onnx and torchscript. onnx-int8 needs --calibrate.",
+)
+@click.option(
+    "--calibrate",
+    "calibrate",
+    multiple=True,
+    metavar="PATH",
+    help="For onnx-int8: frames of the camera (images, folders of them, or videos); repeat.",
+)
+@click.option(
+    "--calibrate-frames",
+    type=click.IntRange(min=4),
+    default=64,
+    show_default=True,
+    help="For onnx-int8: how many frames, taken evenly from what --calibrate names.",
 )
 @friendly_errors
-def export_cmd(model_dir: Path, formats: tuple[str, ...]) -> None:
+def export_cmd(
+    model_dir: Path, formats: tuple[str, ...], calibrate: tuple[str, ...], calibrate_frames: int
+) -> None:
     """Export a trained student as ONNX and/or TorchScript into MODEL_DIR, checked against
-    PyTorch; prints the files and their largest difference as JSON."""
+    PyTorch; prints the files and their largest difference as JSON.
+
+    onnx-int8 quantizes model.onnx (int8 weights, uint8 activations; about 1.5× faster on a
+    CPU) with its ranges calibrated on real frames, and keeps it only when its masks agree with
+    the float student's on frames it was not calibrated on (the report gives the agreement).
+    """
     from weldpool_core.student.export import FORMATS, export_student
 
-    result = export_student(model_dir, formats or FORMATS)
-    report = {
-        "files": {name: str(path) for name, path in result.files.items()},
-        "max_abs_difference": result.differences,
+    wanted = formats or FORMATS
+    if "onnx-int8" in wanted and not calibrate:
+        fail("onnx-int8 needs frames of the camera to calibrate on: give --calibrate PATH.")
+    if calibrate and "onnx-int8" not in wanted:
+        fail("--calibrate is for --format onnx-int8.")
+    images = _calibration_images(calibrate, calibrate_frames) if calibrate else []
+    floats = [name for name in wanted if name != "onnx-int8"]
+    result = export_student(model_dir, floats) if floats else None
+    report: dict[str, Any] = {
+        "files": {name: str(path) for name, path in (result.files if result else {}).items()},
+        "max_abs_difference": result.differences if result else {},
     }
+    if images:
+        from weldpool_core.student.quantize import quantize_student
+
+        quantized = quantize_student(model_dir, images)
+        report["files"]["onnx-int8"] = str(quantized.path)
+        report["int8"] = quantized.as_dict()
     click.echo(json.dumps(report, indent=2))
+
+
+def _calibration_images(paths: tuple[str, ...], count: int) -> list[Any]:
+    """``count`` frames taken evenly from the images and videos PATHS name (folders expanded)."""
+    import numpy as np
+
+    from weldpool_core.io import read_image
+    from weldpool_core.video import VIDEO_SUFFIXES, spread_frames
+
+    files = named_files(paths, IMAGE_SUFFIXES | VIDEO_SUFFIXES, "image or video")
+    stills = [p for p in files if p.suffix.lower() not in VIDEO_SUFFIXES]
+    images = [read_image(p).pixels for p in stills[:: max(1, len(stills) // count)]]
+    for video in (p for p in files if p.suffix.lower() in VIDEO_SUFFIXES):
+        images += spread_frames(video, count)
+    if len(images) <= count:
+        return images
+    return [images[round(i)] for i in np.linspace(0, len(images) - 1, count)]

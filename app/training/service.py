@@ -248,9 +248,14 @@ class VideoClips:
 
 
 def video_clips(
-    session: Session, storage: Storage, config: Any, exclude: Collection[int] = ()
+    session: Session,
+    storage: Storage,
+    config: Any,
+    exclude: Collection[int] = (),
+    student: Any = None,
 ) -> VideoClips:
     """``VideoClips`` of every video with a reviewed mask (``config``: a SequentialConfig).
+    With ``student`` (the version's StudentConfig), window frames are kept at its input size.
 
     Each video is decoded once from its stored file, so the cell sees the camera's own frame
     rate even where only every n-th frame was imported. ``exclude``: frames the version was
@@ -299,7 +304,9 @@ def video_clips(
             probe_video(path).frame_count, replace(config, unlabelled_windows=share)
         )
         learned = [e for e in ends[0::2] if not any(e - config.window < v <= e for v in validation)]
-        clip = video_clip(path, frames, config, unlabelled=learned + list(ends[1::2]))
+        clip = video_clip(
+            path, frames, config, unlabelled=learned + list(ends[1::2]), student=student
+        )
         readable = set(clip.unlabelled)
         clips.train.append(
             replace(

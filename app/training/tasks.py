@@ -148,6 +148,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
     or is cancelled after the cell was written puts the version's previous cell back."""
     from dataclasses import replace
 
+    from weldpool_core.student.checkpoint import read_student_config
     from weldpool_core.student.sequential import (
         SequentialConfig,
         measure_sequential,
@@ -166,7 +167,8 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         root = service.model_folder(settings.home, version)
         name, trained = version.name, set(version.train_frame_ids or [])
         ctx.progress(0.0, "reading the labelled videos")
-        clips = service.video_clips(session, storage, config, exclude=trained)
+        student = read_student_config(root)
+        clips = service.video_clips(session, storage, config, exclude=trained, student=student)
     if not any(clip.labels for clip in clips.train):
         raise InvalidInputError(
             "No reviewed frame of the training split comes from an imported video; label frames "

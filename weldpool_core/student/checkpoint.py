@@ -14,7 +14,8 @@ Layout (every file written atomically: a temporary file, then a rename):
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
   from which ``resume`` continues; not needed for inference. The service removes it once a
   version is recorded (``prune_state``): an interrupted run keeps it to resume.
-- after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``.
+- after ``export``: ``model.onnx``, ``model.torchscript.pt`` and ``export.json``; after
+  ``quantize``, ``model.int8.onnx`` (its check recorded in ``export.json`` under ``int8``).
 
 torch and safetensors are imported by the functions that need them, so the layout (and
 ``prune_state``) can be used by a process that never loads the network.

@@ -205,9 +205,12 @@ def export_student(
             )
         files[name] = path
     config = model.config
+    earlier = root / EXPORT_FILE
+    kept = checkpoint.read_json(earlier) if earlier.is_file() else {}
     checkpoint.write_json(
         root / EXPORT_FILE,
         {
+            **{key: kept[key] for key in ("int8",) if key in kept},  # its file stays valid
             "input": {
                 "name": "image",
                 "shape": ["batch", 3, config.input_size, config.input_size],

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -409,3 +410,38 @@ def test_labels_that_cannot_make_a_window_are_one_sentence(
     absent = _dataset(tmp_path / "absent", "run7_f0020")
     with pytest.raises(InvalidInputError, match=r"No video run7\.mp4"):
         dataset_clips(absent, videos, config)
+
+
+def test_a_clip_kept_at_model_resolution_gives_the_same_windows(tmp_path: Path) -> None:
+    """Frames placed on the student's input as they are decoded (what keeps a long video's
+    windows small) make exactly the windows the full-resolution frames make."""
+    from tests.core.student.common import TINY_STUDENT
+    from weldpool_core.student.sequential import _windows, video_clip
+
+    video = write_video(tmp_path / "run.avi", 24)
+    capture = cv2.VideoCapture(str(video))
+    for _ in range(16):
+        ok, bgr = capture.read()
+    capture.release()
+    assert ok
+    mask = np.zeros(bgr.shape[:2], np.bool_)
+    mask[20:44, 30:70] = True
+    labels = {15: TrainingFrame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), mask, name="f15")}
+    config = SequentialConfig()
+    full = video_clip(video, labels, config, unlabelled=[9, 23])
+    small = video_clip(video, labels, config, unlabelled=[9, 23], student=TINY_STUDENT)
+    assert full.placed is None and small.frames(15).shape == (64, 64, 3)
+    assert full.frames(15).shape == (64, 96, 3)
+    ours, theirs = _windows([small], config, TINY_STUDENT), _windows([full], config, TINY_STUDENT)
+    assert [w.labelled for w in ours] == [True, True, False, False]
+    assert len(ours) == len(theirs)
+    for mine, reference in zip(ours, theirs, strict=True):
+        assert all(np.array_equal(a, b) for a, b in zip(mine.inputs, reference.inputs, strict=True))
+        assert np.array_equal(mine.target.mask, reference.target.mask)
+        assert np.array_equal(mine.target.keypoints, reference.target.keypoints)
+    other = replace(TINY_STUDENT, input_size=96)
+    with pytest.raises(InvalidInputError, match="were kept for a 64² input"):
+        _windows([small], config, other)
+    wrong = {15: TrainingFrame(np.zeros((32, 48, 3), np.uint8), mask[:32, :48], name="f15")}
+    with pytest.raises(InvalidInputError, match="is 48×32, but the video's frames are 96×64"):
+        video_clip(video, wrong, config, student=TINY_STUDENT)

@@ -1,0 +1,134 @@
+"""The int8 student: kept only when its masks agree with the float student's, and streamed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+
+from tests.core.student.common import TINY_FRAME, TINY_STUDENT, synthetic_frames, tiny_config
+from tests.helpers import run_cli, write_video
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import heatmap_from_mask
+from weldpool_core.stream import FrameSource, StreamStudent, run_stream
+from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.export import EXPORT_FILE, export_student
+from weldpool_core.student.quantize import INT8_ONNX_FILE, compare, quantize_student
+from weldpool_core.student.train import train_student
+from weldpool_core.synth import synth_frame
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny student trained long enough (100 steps) for crisp masks: int8 can match it."""
+    out = tmp_path_factory.mktemp("int8") / "model"
+    train_student(synthetic_frames(8), out, TINY_STUDENT, tiny_config(epochs=None, steps=100))
+    export_student(out, ["onnx"])
+    return out
+
+
+def _camera_frames(count: int = 12) -> list[np.ndarray]:
+    """Frames the student never trained on (other weld runs of the same synthetic camera)."""
+    return [synth_frame(seed, TINY_FRAME, 0.0).image for seed in range(100, 100 + count)]
+
+
+def test_compare_measures_masks_on_the_frame_and_keypoints_in_frame_pixels() -> None:
+    """A pool moved 4 model pixels to the right: IoU of the two discs, and every keypoint
+    6 frame pixels away (the 96-wide frame is 64 model pixels wide: 1.5 px per model pixel)."""
+    geometry = FrameGeometry.fit(64, 96, 64)
+    mask = np.zeros((64, 64), np.float32)
+    cv2.circle(mask, (30, 32), 12, 1.0, -1)
+    moved = np.roll(mask, 4, axis=1)
+    heatmap = heatmap_from_mask(mask).heatmap[:, :, 0].astype(np.float32)
+    outputs = (np.stack([mask]), np.stack([heatmap]))
+    same, distances, difference = compare(outputs, outputs, [geometry], 4)
+    assert same == [1.0] and distances == [0.0] and difference == 0.0
+    shifted = (np.stack([moved]), np.stack([np.roll(heatmap, 4, axis=1)]))
+    ious, distances, difference = compare(outputs, shifted, [geometry], 4)
+    overlap = np.count_nonzero((mask > 0) & (moved > 0))
+    expected = overlap / (2 * np.count_nonzero(mask) - overlap)
+    assert ious == [pytest.approx(expected)] and expected < 0.8
+    assert distances == [pytest.approx(6.0, abs=0.05)]
+    assert difference == pytest.approx(np.abs(mask - moved).mean())
+
+
+def test_an_int8_student_is_kept_when_its_masks_agree_and_streams_like_the_float_one(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    result = quantize_student(model_dir, _camera_frames())
+    assert result.path == model_dir / INT8_ONNX_FILE and result.path.is_file()
+    assert (result.calibration_frames, result.check_frames) == (6, 6)
+    assert result.mean_iou >= 0.97 and result.min_iou >= 0.9 and result.mask_difference > 0
+    record = json.loads((model_dir / EXPORT_FILE).read_text())["int8"]
+    assert record["file"] == INT8_ONNX_FILE and record["mean_iou"] == result.mean_iou
+    graph = onnx.load(str(result.path)).graph
+    kinds = {node.op_type for node in graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear"} <= kinds  # really quantized, not a copy
+    assert any(t.data_type == onnx.TensorProto.INT8 for t in graph.initializer)
+
+    video = write_video(tmp_path / "run.avi", 6)
+    masks = {}
+    for int8 in (False, True):
+        student = StreamStudent(model_dir, "onnx", "cpu", threads=1, int8=int8)
+        with FrameSource(str(video), prepare=student.prepare) as source:
+            masks[int8] = [r.mask_probability >= 0.5 for r in run_stream(source, student)]
+    assert len(masks[True]) == 6
+    for ours, theirs in zip(masks[True], masks[False], strict=True):
+        union = np.count_nonzero(ours | theirs)
+        assert union == 0 or np.count_nonzero(ours & theirs) / union >= 0.9
+    with pytest.raises(InvalidInputError, match="per frame"):
+        StreamStudent(model_dir, "torch", int8=True)
+
+
+def test_an_int8_student_calibrated_on_the_wrong_frames_is_refused(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    """Calibrated on underexposed frames (the ranges of a dark camera), checked on bright ones:
+    its masks disagree, so nothing is kept and the record stays as it was."""
+    folder = tmp_path / "model"
+    folder.mkdir()
+    for path in model_dir.iterdir():
+        if path.name != INT8_ONNX_FILE:
+            (folder / path.name).write_bytes(path.read_bytes())
+    record = json.loads((folder / EXPORT_FILE).read_text())
+    record.pop("int8", None)
+    (folder / EXPORT_FILE).write_text(json.dumps(record))
+    frames = _camera_frames()
+    dark = [frame // 8 if index % 2 == 0 else frame for index, frame in enumerate(frames)]
+    with pytest.raises(InvalidInputError, match="differ from the float student's"):
+        quantize_student(folder, dark)
+    assert not (folder / INT8_ONNX_FILE).exists()
+    assert json.loads((folder / EXPORT_FILE).read_text()) == record
+    with pytest.raises(InvalidInputError, match="at least 4 frames"):
+        quantize_student(folder, frames[:3])
+    with pytest.raises(InvalidInputError, match=r"no model\.int8\.onnx"):
+        StreamStudent(folder, "onnx", int8=True)
+
+
+def test_the_cli_quantizes_on_a_video_and_streams_the_int8_student(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    video = write_video(tmp_path / "camera.avi", 12)
+    stills = tmp_path / "stills"
+    stills.mkdir()
+    for index, frame in enumerate(_camera_frames(6)):
+        cv2.imwrite(str(stills / f"f{index}.png"), frame)
+    made = run_cli(
+        "export-student", str(model_dir), "--format", "onnx-int8", "--calibrate", str(stills),
+        "--calibrate", str(video), "--calibrate-frames", "12",
+    )  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    report = json.loads(made.stdout)
+    assert report["files"] == {"onnx-int8": str(model_dir / INT8_ONNX_FILE)}
+    assert report["int8"]["calibration_frames"] + report["int8"]["check_frames"] == 12
+    streamed = run_cli("stream", str(video), "--model", str(model_dir), "--int8", "--quiet")
+    assert streamed.returncode == 0, streamed.stderr
+    summary = json.loads(streamed.stderr.strip().splitlines()[-1])
+    assert (summary["backend"], summary["frames"]) == ("onnx-int8", 12)
+    missing = run_cli("export-student", str(model_dir), "--format", "onnx-int8")
+    assert missing.returncode == 2
+    assert "give --calibrate PATH" in missing.stderr

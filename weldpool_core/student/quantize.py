@@ -1,0 +1,206 @@
+"""An int8 student for a CPU beside the robot: ONNX Runtime's static quantization, checked.
+
+``quantize_student`` turns a folder's ``model.onnx`` into ``model.int8.onnx``: weights int8
+per output channel, activations uint8 (QDQ format, which ONNX Runtime runs with its integer
+kernels: VNNI where the CPU has it), the activations' ranges calibrated on real frames of the
+user's own camera. Random frames would calibrate the wrong ranges, so frames are required.
+
+Frames alternate between calibration and check: the int8 model is measured against the float
+one on frames it was not calibrated on — the mask IoU at the 0.5 threshold on each frame's
+image area (not the letterbox padding) and the keypoints' distance — and kept only when the
+masks agree (mean IoU ≥ ``MIN_MEAN_IOU`` and every frame ≥ ``MIN_FRAME_IOU``); otherwise the
+file is removed and the error gives the figures. The record lands in ``export.json`` under
+``int8``. ``weldpool stream --int8`` and ``StreamStudent(int8=True)`` run it.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.metrics import iou
+from weldpool_core.student import checkpoint
+from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE, ensure_onnx, onnx_session
+
+INT8_ONNX_FILE = "model.int8.onnx"
+MIN_FRAMES = 4
+"""Frames needed: half calibrate, half check."""
+MIN_MEAN_IOU = 0.97
+"""The int8 masks' mean IoU with the float ones on the check frames, at least."""
+MIN_FRAME_IOU = 0.90
+"""…and on every check frame."""
+
+
+@dataclass(frozen=True)
+class QuantizeResult:
+    """The int8 file and how far it is from the float student on the check frames.
+
+    Attributes:
+        path: ``model.int8.onnx``.
+        calibration_frames / check_frames: how many frames calibrated / checked it.
+        mean_iou / min_iou: the int8 masks' IoU with the float ones (0.5 threshold).
+        keypoint_px: median over check frames of the largest distance between a float
+            keypoint and its nearest int8 one, in frame pixels (None without keypoints).
+        mask_difference: mean absolute difference of the mask probabilities.
+    """
+
+    path: Path
+    calibration_frames: int
+    check_frames: int
+    mean_iou: float
+    min_iou: float
+    keypoint_px: float | None
+    mask_difference: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """The record written to ``export.json``."""
+        record = asdict(self)
+        record["file"] = self.path.name
+        del record["path"]
+        return record
+
+
+class _Frames:
+    """ONNX Runtime's calibration reader: one frame at a time from an N×3×S×S batch."""
+
+    def __init__(self, batch: NDArray[np.float32]) -> None:
+        self._frames: Iterator[NDArray[np.float32]] = iter(batch)
+
+    def get_next(self) -> dict[str, NDArray[np.float32]] | None:
+        frame = next(self._frames, None)
+        return None if frame is None else {"image": frame[None]}
+
+
+def quantize_onnx(source: Path, target: Path, calibration: NDArray[np.float32]) -> None:
+    """Write ``target``: ``source`` with int8 weights and uint8 activations (QDQ), ranges
+    calibrated on the N×3×S×S ``calibration`` frames. Not checked: ``quantize_student`` is
+    the way to make a student's int8 file."""
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        CalibrationMethod,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    class Reader(_Frames, CalibrationDataReader):  # type: ignore[misc]  # ORT is untyped
+        pass
+
+    quiet = logging.getLogger()  # the quantizer logs its advice on the root logger
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        with tempfile.TemporaryDirectory(dir=target.parent, prefix=".quantize.") as work:
+            prepared = Path(work) / "prepared.onnx"
+            quant_pre_process(str(source), str(prepared))
+
+            def write(path: Path) -> None:
+                quantize_static(
+                    str(prepared),
+                    str(path),
+                    Reader(calibration),
+                    quant_format=QuantFormat.QDQ,
+                    activation_type=QuantType.QUInt8,
+                    weight_type=QuantType.QInt8,
+                    per_channel=True,
+                    calibrate_method=CalibrationMethod.MinMax,
+                    extra_options={"CalibTensorRangeSymmetric": False},
+                )
+
+            checkpoint.write_atomic(target, write)
+    finally:
+        quiet.setLevel(level)
+
+
+def _keypoint_distance(float_points: NDArray[Any], int8_points: NDArray[Any]) -> float | None:
+    """The largest distance from a keypoint of either set to the nearest of the other."""
+    if not len(float_points) or not len(int8_points):
+        return None
+    distances = np.linalg.norm(float_points[:, None, :] - int8_points[None, :, :], axis=2)
+    return float(max(distances.min(axis=1).max(), distances.min(axis=0).max()))
+
+
+def compare(
+    float_outputs: Sequence[NDArray[np.float32]],
+    int8_outputs: Sequence[NDArray[np.float32]],
+    geometries: Sequence[FrameGeometry],
+    k: int,
+) -> tuple[list[float], list[float], float]:
+    """Per frame the masks' IoU and the keypoints' distance, and the mean probability
+    difference, of two students' (mask, heatmap) batches."""
+    from weldpool_core.student.predict import frame_keypoints
+
+    float_masks, float_heatmaps = float_outputs
+    int8_masks, int8_heatmaps = int8_outputs
+    ious: list[float] = []
+    distances: list[float] = []
+    for index, geometry in enumerate(geometries):
+        rows, columns = geometry.inner_rows, geometry.inner_columns
+        ious.append(
+            iou(float_masks[index][rows, columns] >= 0.5, int8_masks[index][rows, columns] >= 0.5)
+        )
+        distance = _keypoint_distance(
+            frame_keypoints(float_masks[index], float_heatmaps[index], geometry, k),
+            frame_keypoints(int8_masks[index], int8_heatmaps[index], geometry, k),
+        )
+        if distance is not None:
+            distances.append(distance)
+    difference = float(np.abs(np.asarray(float_masks) - np.asarray(int8_masks)).mean())
+    return ious, distances, difference
+
+
+def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> QuantizeResult:
+    """Write MODEL_DIR's ``model.int8.onnx`` calibrated on ``images`` (frames of the camera,
+    RGB or gray), checked against the float student (see the module doc).
+
+    Raises InvalidInputError with fewer than ``MIN_FRAMES`` frames, and when the int8 masks
+    differ from the float ones by more than the module's limits (the file is then removed).
+    """
+    from weldpool_core.student.predict import frames_to_batch
+
+    if len(images) < MIN_FRAMES:
+        raise InvalidInputError(
+            f"Quantizing needs at least {MIN_FRAMES} frames of the camera (half calibrate, half "
+            f"check the int8 model); {len(images)} given."
+        )
+    root = Path(model_dir)
+    config = checkpoint.read_student_config(root)
+    ensure_onnx(root)
+    batch_tensor, geometries = frames_to_batch(images, config)
+    batch = batch_tensor.numpy()
+    calibration, check = batch[0::2], batch[1::2]
+    path = root / INT8_ONNX_FILE
+    quantize_onnx(root / ONNX_FILE, path, calibration)
+    float_outputs = onnx_session(root / ONNX_FILE).run(None, {"image": check})
+    int8_outputs = onnx_session(path).run(None, {"image": check})
+    ious, distances, difference = compare(float_outputs, int8_outputs, geometries[1::2], config.k)
+    result = QuantizeResult(
+        path=path,
+        calibration_frames=len(calibration),
+        check_frames=len(check),
+        mean_iou=round(float(np.mean(ious)), 4),
+        min_iou=round(float(np.min(ious)), 4),
+        keypoint_px=round(float(np.median(distances)), 2) if distances else None,
+        mask_difference=round(difference, 5),
+    )
+    if result.mean_iou < MIN_MEAN_IOU or result.min_iou < MIN_FRAME_IOU:
+        path.unlink()
+        raise InvalidInputError(
+            f"The int8 student's masks differ from the float student's (IoU {result.mean_iou:.3f} "
+            f"on average, {result.min_iou:.3f} at worst, over {result.check_frames} frames; "
+            f"needed {MIN_MEAN_IOU} and {MIN_FRAME_IOU}); it was not kept."
+        )
+    record = checkpoint.read_json(root / EXPORT_FILE) if (root / EXPORT_FILE).is_file() else {}
+    record["int8"] = result.as_dict()
+    checkpoint.write_json(root / EXPORT_FILE, record)
+    return result
