@@ -347,15 +347,18 @@ class ValidationKeypoints(Base):
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
-ONE_AT_A_TIME = "kind IN ('train_student', 'train_sequential') AND status IN ('queued', 'running')"
+ONE_AT_A_TIME = (
+    "kind IN ('train_student', 'train_sequential', 'quantize_student') "
+    "AND status IN ('queued', 'running')"
+)
 """The jobs of which at most one of each kind is queued or running (``uq_jobs_one_training``)."""
 
 
 class Job(Base):
     """A background job: the row is the truth about its state, the queue only carries its id.
 
-    At most one training job of each kind (a student, a sequential cell) is queued or running
-    at a time (a partial unique index).
+    At most one job of each kind that makes a version's files (a student, a sequential cell, an
+    int8 student) is queued or running at a time (a partial unique index).
     """
 
     __tablename__ = "jobs"
@@ -427,6 +430,7 @@ class ModelVersion(Base):
     held_out_frame_ids: Mapped[list[int] | None] = mapped_column(JSONType, default=list)
     gate: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # app.training.gate's verdict
     sequential: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # its sequential cell
+    int8: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # its int8 student
     is_promoted: Mapped[bool] = mapped_column(default=False, index=True)
     job_id: Mapped[int | None] = mapped_column(sa.ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -42,6 +42,7 @@ def _out(view: LiveView) -> LiveOut:
         dropped=view.dropped,
         smooth=view.smooth,
         sequential=view.sequential,
+        int8=view.int8,
         mm_per_px=view.mm_per_px,
         last=last,
         **view.stats(),
@@ -64,9 +65,15 @@ def start_live(
     folder = storage.absolute(model.checkpoint_path) if model.checkpoint_path else None
     if folder is None or not folder.is_dir():
         raise ConflictError(f"{model.name} has no weights on this server.")
+    if body.int8 and body.sequential:
+        raise InvalidInputError("The int8 student runs frame by frame; choose int8 or sequential.")
     if body.sequential and not model.sequential:
         raise InvalidInputError(
             f"{model.name} has no sequential cell; train one on the models page first."
+        )
+    if body.int8 and not model.int8:
+        raise InvalidInputError(
+            f"{model.name} has no int8 student; make one on the models page first."
         )
     view = _views(request).start(
         {
@@ -78,6 +85,7 @@ def start_live(
             "started_by": user.username,
             "smooth": body.smooth,
             "sequential": body.sequential,
+            "int8": body.int8,
             "mm_per_px": body.mm_per_px,
             "travel_deg": body.travel_deg,
         }

@@ -26,6 +26,12 @@ class LiveIn(BaseModel):
         description="Run the version's sequential cell (it keeps a state from frame to frame: "
         "a steadier mask and keypoints); the version must have one (`sequential` on the model).",
     )
+    int8: bool = Field(
+        default=False,
+        description="Run the version's int8 student (faster on a CPU, its masks checked against "
+        "the float student's); the version must have one (`int8` on the model). Not with "
+        "`sequential`.",
+    )
     mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
     travel_deg: float | None = Field(default=None, ge=-360, le=360)
 
@@ -51,6 +57,7 @@ class LiveOut(BaseModel):
     latency_p99_ms: float | None
     smooth: bool
     sequential: bool
+    int8: bool
     mm_per_px: float | None
     last: dict[str, Any] | None = Field(description="The newest record (as `weldpool stream`).")
 

@@ -50,6 +50,7 @@ class LiveView:
     mm_per_px: float | None
     travel_deg: float | None
     sequential: bool = False
+    int8: bool = False
     model_id: int | None = None
     gate: dict[str, Any] | None = None
     """The version's promotion-gate verdict when the view started (usable, reason, …)."""
@@ -167,12 +168,12 @@ def _run(view: LiveView) -> None:
         from weldpool_core.stream import FrameSource, StreamStudent, run_stream
         from weldpool_core.student.export import ensure_onnx
 
-        if not (view.model_dir / "model.onnx").is_file():
+        if not view.int8 and not (view.model_dir / "model.onnx").is_file():
             _set(view, message="exporting the student for ONNX Runtime")
             ensure_onnx(view.model_dir)
         if view.sequential:
             _set(view, message="preparing the sequential student for ONNX Runtime")
-        student = StreamStudent(view.model_dir, "onnx", sequential=view.sequential)
+        student = StreamStudent(view.model_dir, "onnx", sequential=view.sequential, int8=view.int8)
         smoother = KeypointSmoother(student.config.k) if view.smooth else None
         with FrameSource(
             view.source, realtime=True, prepare=student.prepare, decoder_threads=1

@@ -13,6 +13,7 @@ from app.review.service import frames_for_run
 from app.security import CurrentUser, ReviewerUser
 from app.training import gate, service
 from app.training.schemas import ModelVersionOut, SequentialIn, StudentRunIn, TrainIn
+from weldpool_core.student.quantize import MIN_FRAMES
 
 router = APIRouter(tags=["training"])
 
@@ -83,13 +84,52 @@ def train_sequential(
             "No reviewed frame of the training split comes from an imported video; label frames "
             "of a video to train the sequential cell."
         )
-    running = service.sequential_job(session)
+    running = service.active_job(session, service.SEQUENTIAL_KIND)
     if running is not None:
         raise ConflictError(
             f"A sequential cell is already training (job #{running.id}); wait for it to finish."
         )
     params = body.model_dump() | {"model_version_id": model.id}
     job = create_job(session, queue, service.SEQUENTIAL_KIND, params, user)
+    return JobCreated(job_id=job.id)
+
+
+@router.post(
+    "/models/{model_id}/int8",
+    response_model=JobCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={
+        409: {
+            "description": "An int8 student is already being made, or the version has no "
+            "weights on this server."
+        }
+    },
+)
+def make_int8(
+    model_id: IdPath,
+    session: SessionDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: ReviewerUser,
+) -> JobCreated:
+    """Make this version's int8 student (ONNX Runtime's static quantization: about 1.5–3×
+    faster on a CPU) in a worker job, calibrated on frames spread over the project and kept
+    only when its masks agree with the float student's on others; the version records the
+    agreement and both speeds (`int8`), and live views can run it."""
+    model = service.get_model(session, model_id)
+    service.model_folder(settings.home, model)
+    frames = service.calibration_frame_ids(session)
+    if len(frames) < MIN_FRAMES:
+        raise InvalidInputError(
+            f"An int8 student is calibrated on frames of your camera; upload at least "
+            f"{MIN_FRAMES} frames first ({len(frames)} so far)."
+        )
+    running = service.active_job(session, service.QUANTIZE_KIND)
+    if running is not None:
+        raise ConflictError(
+            f"An int8 student is already being made (job #{running.id}); wait for it to finish."
+        )
+    job = create_job(session, queue, service.QUANTIZE_KIND, {"model_version_id": model.id}, user)
     return JobCreated(job_id=job.id)
 
 

@@ -77,3 +77,11 @@ class ModelVersionOut(BaseModel):
         "`sequential_iou`, `frames`) and on unlabelled windows (`per_frame_change`, "
         "`sequential_change`: the share of the mask that changes per frame, `windows`).",
     )
+    int8: dict[str, Any] | None = Field(
+        default=None,
+        description="Its int8 student (`POST /models/{id}/int8`), null when it has none: "
+        "`made_at`, `job_id`, the agreement with the float student on frames it was not "
+        "calibrated on (`mean_iou`, `min_iou`, `keypoint_px`, `mask_difference`, "
+        "`check_frames`, `calibration_frames`) and one frame's inference here on one thread "
+        "(`float_ms`, `int8_ms`).",
+    )

@@ -32,6 +32,9 @@ from app.storage import Storage
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
 TRAIN_KIND = "train_student"
 SEQUENTIAL_KIND = "train_sequential"
+QUANTIZE_KIND = "quantize_student"
+CALIBRATION_FRAMES = 64
+"""Frames an int8 student is calibrated and checked on (spread over the project's frames)."""
 UNLABELLED_WINDOWS = 96
 """Unlabelled windows over all videos (at least 8 a video), half for the sequential cell's
 steadiness term and half to measure it on; a window's 8 frames are decoded at full resolution,
@@ -222,15 +225,24 @@ def has_video_labels(session: Session) -> bool:
     return session.scalar(query) is not None
 
 
-def sequential_job(session: Session) -> Job | None:
-    """The queued or running sequential-cell job, if any (one at a time, as for training)."""
+def active_job(session: Session, kind: str) -> Job | None:
+    """The queued or running job of ``kind`` (one at a time: ``ONE_AT_A_TIME``), if any."""
     from app.models import JobStatus
 
     return session.scalar(
         sa.select(Job).where(
-            Job.kind == SEQUENTIAL_KIND, Job.status.in_((JobStatus.queued, JobStatus.running))
+            Job.kind == kind, Job.status.in_((JobStatus.queued, JobStatus.running))
         )
     )
+
+
+def calibration_frame_ids(session: Session, count: int = CALIBRATION_FRAMES) -> list[int]:
+    """Up to ``count`` frames spread evenly over the project's frames (by id): the cameras and
+    conditions an int8 student will see, reviewed or not."""
+    ids = list(session.scalars(sa.select(Frame.id).order_by(Frame.id)))
+    if len(ids) <= count:
+        return ids
+    return [ids[round(i)] for i in np.linspace(0, len(ids) - 1, count)]
 
 
 @dataclass(frozen=True)

@@ -208,39 +208,48 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
     return {"model_version_id": model_id, "sequential": record}
 
 
+def _files(root: Path, names: tuple[str, ...]) -> dict[str, bytes]:
+    """The bytes of those of a version's files ``names`` that exist now."""
+    return {name: (root / name).read_bytes() for name in names if (root / name).is_file()}
+
+
 def _cell_files(root: Path) -> dict[str, bytes]:
     """The bytes of a version's sequential cell files that exist now."""
     from weldpool_core.student.sequential import SEQUENTIAL_CONFIG, SEQUENTIAL_WEIGHTS
 
-    return {
-        name: (root / name).read_bytes()
-        for name in (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG)
-        if (root / name).is_file()
-    }
+    return _files(root, (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG))
 
 
 def _write_bytes(path: Path, data: bytes) -> None:
     path.write_bytes(data)
 
 
+def _put_back(root: Path, previous: dict[str, bytes], names: tuple[str, ...]) -> None:
+    """Put a version's files ``names`` back as ``_files`` found them (absent ones removed);
+    nothing when the version's folder is gone."""
+    from weldpool_core.student import checkpoint
+
+    if not root.is_dir():
+        return
+    for name in names:
+        if name in previous:
+            checkpoint.write_atomic(root / name, partial(_write_bytes, data=previous[name]))
+        else:
+            (root / name).unlink(missing_ok=True)
+
+
 def _restore_cell_files(root: Path, previous: dict[str, bytes]) -> None:
     """Put a version's cell files back as ``_cell_files`` found them (absent ones removed; the
     ONNX export is made again from them on its next use)."""
-    from weldpool_core.student import checkpoint
     from weldpool_core.student.sequential import (
         SEQUENTIAL_CONFIG,
         SEQUENTIAL_ONNX,
         SEQUENTIAL_WEIGHTS,
     )
 
-    if not root.is_dir():  # the version's folder is gone: nothing to put back into
-        return
-    (root / SEQUENTIAL_ONNX).unlink(missing_ok=True)
-    for name in (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG):
-        if name in previous:
-            checkpoint.write_atomic(root / name, partial(_write_bytes, data=previous[name]))
-        else:
-            (root / name).unlink(missing_ok=True)
+    if root.is_dir():
+        (root / SEQUENTIAL_ONNX).unlink(missing_ok=True)
+    _put_back(root, previous, (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG))
 
 
 def _sequential_verdict(measured: dict[str, Any]) -> str:
@@ -425,3 +434,47 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
         f" ({len(frame_ids) - proposed} no longer exist)" if proposed < len(frame_ids) else ""
     )
     return {"proposed": proposed, "model": name}
+
+
+@job_handler(service.QUANTIZE_KIND)
+def quantize_version(ctx: JobContext) -> dict[str, Any]:
+    """Make a version's int8 student (``weldpool_core.student.quantize``), calibrated on frames
+    spread over the project and checked against the float student on others; the version
+    records the check and both speeds. A job that fails after the file was written puts the
+    previous int8 file (or none) back, so the file and the record always agree."""
+    from weldpool_core.student.export import EXPORT_FILE
+    from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_student
+
+    storage = Storage(ctx.settings.home)
+    model_id = int(ctx.params["model_version_id"])
+    with ctx.session_factory() as session:
+        version = session.get(ModelVersion, model_id)
+        if version is None:
+            raise InvalidInputError(f"Model version {model_id} no longer exists.")
+        root = service.model_folder(ctx.settings.home, version)
+        name = version.name
+        frame_ids = service.calibration_frame_ids(session)
+        ctx.progress(0.0, f"reading {counted(len(frame_ids), 'frame')} to calibrate on")
+        images = [frame_rgb(storage, session.get_one(Frame, i)) for i in frame_ids]
+    files = (INT8_ONNX_FILE, EXPORT_FILE)
+    previous = _files(root, files)
+    ctx.progress(0.2, "quantizing, then checking it against the float student")
+    result = quantize_student(root, images)
+    try:
+        record = {"made_at": utcnow().isoformat(), "job_id": ctx.job_id, **result.as_dict()}
+        with ctx.session_factory() as session:
+            version = session.get(ModelVersion, model_id)
+            if version is None:  # deleted meanwhile: its folder went with it
+                raise InvalidInputError(f"Model version {model_id} was deleted meanwhile.")
+            version.int8 = record
+            session.commit()
+    except BaseException:
+        _put_back(root, previous, files)
+        raise
+    ctx.summary = (
+        f"{name}: int8 student made; masks agree with the float student's at IoU "
+        f"{result.mean_iou:.3f} ({result.min_iou:.3f} at worst) on "
+        f"{counted(result.check_frames, 'frame')}; {result.int8_ms:.1f} ms a frame against "
+        f"{result.float_ms:.1f} ms here"
+    )
+    return {"model_version_id": model_id, "int8": record}

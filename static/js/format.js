@@ -72,3 +72,14 @@ export function sequentialLine(record) {
     badge("sequential cell"), ` ${accuracy}${steadiness}.`,
     problems.length ? h("span", { class: "muted" }, ` ${problems.join(" and ")} than the per-frame student: use it where that matters less.`) : "");
 }
+
+/** A student version's int8 student (models page): how its masks agree with the float student's
+ * on frames it was not calibrated on, and one frame's inference through each on this server. */
+export function int8Line(record) {
+  if (!record) return h("p", { class: "muted small-text", "data-testid": "int8" }, "no int8 student");
+  const faster = record.float_ms / record.int8_ms;
+  const moved = typeof record.keypoint_px === "number" ? `, keypoints ${record.keypoint_px.toFixed(1)} px apart` : "";
+  return h("p", { class: "gate ok", "data-testid": "int8" },
+    badge("int8"), ` masks agree with the float student's at IoU ${iou(record.mean_iou)} (${iou(record.min_iou)} at worst) on ${count(record.check_frames, "frame")}${moved}; `,
+    `${record.int8_ms.toFixed(1)} ms a frame against ${record.float_ms.toFixed(1)} ms here (${faster.toFixed(1)}× on one thread).`);
+}

@@ -40,6 +40,7 @@ function scope(job) {
   if (p.sequence_id) return `sequence #${p.sequence_id}`;
   if (p.video_id) return `video #${p.video_id}`;
   if (job.kind === "train_sequential") return `sequential cell of model #${p.model_version_id}`;
+  if (job.kind === "quantize_student") return `int8 student of model #${p.model_version_id}`;
   if (job.kind === "train_student") return p.epochs ? count(p.epochs, "epoch") : "all reviewed labels";
   return "—";
 }

@@ -73,7 +73,7 @@ function card(view) {
     entry.stop.addEventListener("click", () => stop(view, entry.stop));
     entry.card = h("article", { class: "live-card", "data-testid": "live-card", "data-view-id": String(view.id) },
       h("header", {},
-        h("h2", {}, `${view.model_name}${view.sequential ? " (sequential)" : ""} on ${view.source}`),
+        h("h2", {}, `${view.model_name}${view.sequential ? " (sequential)" : ""}${view.int8 ? " (int8)" : ""} on ${view.source}`),
         entry.state,
         h("span", { class: "spacer" }),
         isReviewer() ? entry.stop : ""),
@@ -122,20 +122,28 @@ async function fillModels() {
   const wanted = new URLSearchParams(location.search).get("model_id");
   try {
     const models = await api("/models");
-    const note = (m) => (m.is_promoted ? " (promoted)" : "") + (m.sequential ? ", sequential cell" : "") + (m.gate?.usable === false ? " — not usable (promotion gate)" : "");
+    const note = (m) => (m.is_promoted ? " (promoted)" : "") + (m.sequential ? ", sequential cell" : "") + (m.int8 ? ", int8" : "") + (m.gate?.usable === false ? " — not usable (promotion gate)" : "");
     select.append(...models.map((m) => h("option", { value: String(m.id) }, `${m.name}${note(m)}`)));
     if (wanted) select.value = wanted;
     const box = document.querySelector('#live-form input[name="sequential"]');
+    const int8Box = document.querySelector('#live-form input[name="int8"]');
     const chosen = () => models.find((m) => (select.value ? String(m.id) === select.value : m.is_promoted));
     const follow = () => {
       const model = chosen();
-      box.disabled = !model?.sequential;
-      if (box.disabled) box.checked = false;
+      box.disabled = !model?.sequential || int8Box.checked;
+      if (!model?.sequential) box.checked = false;
       box.parentElement.title = model?.sequential
         ? `${model.name}'s sequential cell keeps a state from frame to frame: a steadier mask and keypoints (measured on the models page).`
         : `${model?.name ?? "This version"} has no sequential cell; train one on the models page.`;
+      int8Box.disabled = !model?.int8 || box.checked;
+      if (!model?.int8) int8Box.checked = false;
+      int8Box.parentElement.title = model?.int8
+        ? `${model.name}'s int8 student: ${model.int8.int8_ms.toFixed(1)} ms a frame against ${model.int8.float_ms.toFixed(1)} ms, masks at IoU ${model.int8.mean_iou.toFixed(3)} with the float student's. Frame by frame: not with sequential.`
+        : `${model?.name ?? "This version"} has no int8 student; make one on the models page.`;
     };
     select.addEventListener("change", follow);
+    box.addEventListener("change", follow);
+    int8Box.addEventListener("change", follow);
     follow();
   } catch (error) {
     toast(error.message, "error");
@@ -156,6 +164,7 @@ $("live-form")?.addEventListener("submit", async (event) => {
         model_id: data.get("model_id") ? Number(data.get("model_id")) : null,
         smooth: data.get("smooth") === "on",
         sequential: data.get("sequential") === "on",
+        int8: data.get("int8") === "on",
         mm_per_px: data.get("mm_per_px") ? Number(data.get("mm_per_px")) : null,
       },
     });

@@ -2,7 +2,7 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
-import { count, gateLine, metric, sequentialLine } from "./format.js";
+import { count, gateLine, int8Line, metric, sequentialLine } from "./format.js";
 import { lineChart } from "./chart.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
@@ -58,6 +58,19 @@ async function trainSequential(model, button) {
   load();
 }
 
+async function makeInt8(model, button) {
+  if (!confirm(`Make an int8 student for ${model.name}? It is calibrated on up to 64 frames spread over the project and kept only if its masks agree with the float student's on others (seconds to a minute on a CPU).`)) return;
+  button.disabled = true;
+  try {
+    await followJob("int8 student", () => api(`/models/${model.id}/int8`, { method: "POST" }));
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    button.disabled = false;
+  }
+  load();
+}
+
 async function promote(model) {
   if (!confirm(`Promote ${model.name}? It is measured against the promoted version and the teacher first.`)) return;
   try {
@@ -90,6 +103,9 @@ export function modelCard(model) {
         ? h("button", { type: "button", class: "secondary", "data-testid": "train-sequential", title: "Train a recurrent cell on this version's latent from the reviewed frames of imported videos: steadier mask and keypoints in live views", onclick: (event) => trainSequential(model, event.currentTarget) }, model.sequential ? "Retrain sequential cell" : "Train sequential cell")
         : "",
       isReviewer()
+        ? h("button", { type: "button", class: "secondary", "data-testid": "make-int8", title: "Quantize this version to int8 for ONNX Runtime: faster live inference on a CPU, checked against the float student", onclick: (event) => makeInt8(model, event.currentTarget) }, model.int8 ? "Remake int8" : "Make int8")
+        : "",
+      isReviewer()
         ? h("a", { class: "button secondary", href: `/live?model_id=${model.id}`, "data-testid": "live-view", title: "Run this version on a camera, stream or video and watch its mask and keypoints live" }, "Live view")
         : "",
       isReviewer() && !model.is_promoted
@@ -97,6 +113,7 @@ export function modelCard(model) {
         : ""),
     gateLine(model.gate),
     sequentialLine(model.sequential),
+    int8Line(model.int8),
     h("p", { class: "muted" },
       `trained on ${count(model.train_label_count ?? 0, "label")} · ${formatDate(model.created_at)}`,
       model.job_id ? [" · ", h("a", { href: `/jobs?job=${model.job_id}` }, `job #${model.job_id}`)] : ""),

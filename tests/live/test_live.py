@@ -320,3 +320,77 @@ def test_a_sequential_cell_learns_from_video_labels_is_measured_and_runs_live(
     job = wait_for_job(client, lost.json()["job_id"], token, timeout=240)
     assert job["status"] == "failed"
     assert job["error"] == "The stored file of video run.avi is missing; import it again."
+
+
+def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live(
+    client: TestClient,
+    make_user,
+    session_factory,
+    settings: Settings,
+    tmp_path: Path,
+) -> None:
+    """The models page's "Make int8": calibrated on the project's frames, checked against the
+    float student, recorded on the version with both speeds; a failed record puts the earlier
+    file back; the live view runs it, only for a version that has one and not with sequential."""
+    from tests.helpers import wait_for_job
+    from weldpool_core.student.quantize import INT8_ONNX_FILE
+    from weldpool_core.synth import SynthParams, synth_frame
+
+    crisp = tmp_path / "crisp"  # trained long enough for crisp masks: int8 can match it
+    train_student(synthetic_frames(8), crisp, TINY_STUDENT, tiny_config(epochs=None, steps=100))
+    _, token = make_user("cell", Role.reviewer)
+    _promote(session_factory, crisp, settings.home)
+    video = str(write_video(tmp_path / "run.avi", 20, fps=30.0))
+    early = client.post("/api/v1/models/1/int8", headers=auth(token))
+    assert early.status_code == 400 and "at least 4 frames" in early.json()["detail"]
+    params = SynthParams(width=96, height=64)
+    files = [
+        ("files", (f"c{s}.png", cv2.imencode(".png", synth_frame(s, params).image)[1].tobytes()))
+        for s in range(100, 112)
+    ]
+    assert client.post("/api/v1/frames", files=files, headers=auth(token)).status_code == 201
+    unmade = client.post("/api/v1/live", json={"source": video, "int8": True}, headers=auth(token))
+    assert unmade.status_code == 400 and "has no int8 student" in unmade.json()["detail"]
+
+    started = client.post("/api/v1/models/1/int8", headers=auth(token))
+    assert started.status_code == 202, started.text
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=120)
+    assert job["status"] == "succeeded", job
+    record = client.get("/api/v1/models/1", headers=auth(token)).json()["int8"]
+    assert (record["calibration_frames"], record["check_frames"]) == (6, 6)
+    assert record["mean_iou"] >= 0.97 and record["job_id"] == job["id"]
+    assert record["float_ms"] > 0 and record["int8_ms"] > 0
+    assert job["message"].startswith(
+        f"student-v1: int8 student made; masks agree with the float student's at IoU "
+        f"{record['mean_iou']:.3f}"
+    )
+    made = settings.home / "models" / "student-v1" / INT8_ONNX_FILE
+    kept = made.read_bytes()
+
+    # A job whose record cannot be written puts the earlier int8 file back, record unchanged
+    # (two more frames change the calibration, so the failing job's file differs).
+    more = [
+        ("files", (f"d{s}.png", cv2.imencode(".png", synth_frame(s, params).image)[1].tobytes()))
+        for s in (112, 113)
+    ]
+    assert client.post("/api/v1/frames", files=more, headers=auth(token)).status_code == 201
+    import app.training.tasks as tasks_module
+
+    def broken(*_args: object, **_kwargs: object) -> str:
+        raise RuntimeError("the clock broke")
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tasks_module, "utcnow", broken)
+        failing = client.post("/api/v1/models/1/int8", headers=auth(token))
+        assert wait_for_job(client, failing.json()["job_id"], token, 120)["status"] == "failed"
+    assert made.read_bytes() == kept
+    assert client.get("/api/v1/models/1", headers=auth(token)).json()["int8"] == record
+
+    both = {"source": video, "int8": True, "sequential": True}
+    mixed = client.post("/api/v1/live", json=both, headers=auth(token))
+    assert mixed.status_code == 400 and "choose int8 or sequential" in mixed.json()["detail"]
+    live = client.post("/api/v1/live", json={"source": video, "int8": True}, headers=auth(token))
+    assert live.status_code == 201, live.text
+    ended = _wait_state(client, live.json()["id"], token, {"ended", "failed"})
+    assert ended["state"] == "ended" and ended["int8"] is True, ended
+    assert ended["frames"] + ended["dropped"] == 20 and ended["last"]["area_px"] > 0

@@ -1375,3 +1375,88 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
     wait_for_js(page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)")
     shoot(page, "live-sequential")
     live.locator("[data-testid=live-stop]").click()
+
+
+def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path: Path) -> None:
+    """ "Make int8" on a version's card: the job calibrates on the project's frames, the card
+    then says how its masks agree with the float student's and how much faster it is here, and
+    the live page runs it (not with sequential). Its own server: the project's frames are the
+    camera the int8 student is calibrated on."""
+    import shutil
+
+    from app.db import create_db_engine, create_session_factory
+    from app.models import ModelVersion
+    from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
+    from weldpool_core.student.train import train_student
+
+    own = LiveServer(tmp_path / "home").start()
+    try:
+        crisp = tmp_path / "crisp"  # trained long enough for crisp masks: int8 can match it
+        train_student(synthetic_frames(8), crisp, TINY_STUDENT, tiny_config(epochs=None, steps=100))
+        shutil.copytree(crisp, own.home / "models" / "student-v1")
+        engine = create_db_engine(f"sqlite:///{(own.home / 'weldpool.sqlite3').resolve()}")
+        with create_session_factory(engine)() as session:
+            session.add(
+                ModelVersion(
+                    name="student-v1", checkpoint_path="models/student-v1", is_promoted=True
+                )
+            )
+            session.commit()
+        engine.dispose()
+        params = SynthParams(width=96, height=64)
+        files = [
+            (
+                "files",
+                (f"c{s}.png", cv2.imencode(".png", synth_frame(s, params).image)[1].tobytes()),
+            )
+            for s in range(100, 112)
+        ]
+        assert own.api("POST", "/frames", files=files).status_code == 201
+        login(page, own, "rita")
+        dialogs = accept_dialogs(page)
+        page.goto(f"{own.url}/models")
+        card = page.locator("[data-testid=model-card]").first
+        card.wait_for()
+        assert card.locator("[data-testid=int8]").inner_text() == "no int8 student"
+        assert card.locator("[data-testid=make-int8]").inner_text() == "Make int8"
+        card.locator("[data-testid=make-int8]").click()
+        page.wait_for_selector(
+            "[data-testid=toast-ok]:has-text('int8 student job')", timeout=120_000
+        )
+        assert dialogs and dialogs[0].startswith("Make an int8 student for student-v1?")
+        record = own.api("GET", "/models/1").json()["int8"]
+        page.goto(f"{own.url}/models")
+        card.locator("[data-testid=int8] .badge").wait_for()
+        line = card.locator("[data-testid=int8]").inner_text()
+        assert (
+            f"at IoU {record['mean_iou']:.3f} ({record['min_iou']:.3f} at worst) on 6 frames"
+            in line
+        )
+        assert (
+            f"{record['int8_ms']:.1f} ms a frame against {record['float_ms']:.1f} ms here" in line
+        )
+        assert card.locator("[data-testid=make-int8]").inner_text() == "Remake int8"
+        shoot(page, "models-int8", full_page=True)
+
+        video = write_video(tmp_path / "int8 run.avi", 200, fps=20.0)
+        page.goto(f"{own.url}/live?model_id=1")
+        wait_for_js(page, "document.querySelector('[data-testid=live-model]').options.length > 1")
+        int8, sequential = (
+            page.locator("[data-testid=live-int8]"),
+            page.locator("[data-testid=live-sequential]"),
+        )
+        assert int8.is_enabled() and sequential.is_disabled()  # no sequential cell
+        assert "ms a frame against" in (int8.locator("xpath=..").get_attribute("title") or "")
+        int8.check()
+        page.fill("[data-testid=live-source]", str(video))
+        page.click("[data-testid=live-start]")
+        live = page.locator("[data-testid=live-card][data-state=running]")
+        live.wait_for(timeout=60_000)
+        assert "student-v1 (int8) on" in live.locator("h2").inner_text()
+        wait_for_js(
+            page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)"
+        )
+        shoot(page, "live-int8")
+        live.locator("[data-testid=live-stop]").click()
+    finally:
+        own.stop()

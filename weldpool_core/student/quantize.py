@@ -8,19 +8,24 @@ user's own camera. Random frames would calibrate the wrong ranges, so frames are
 Frames alternate between calibration and check: the int8 model is measured against the float
 one on frames it was not calibrated on — the mask IoU at the 0.5 threshold on each frame's
 image area (not the letterbox padding) and the keypoints' distance — and kept only when the
-masks agree (mean IoU ≥ ``MIN_MEAN_IOU`` and every frame ≥ ``MIN_FRAME_IOU``); otherwise the
-file is removed and the error gives the figures. The record lands in ``export.json`` under
+masks agree (mean IoU ≥ ``MIN_MEAN_IOU`` and every frame ≥ ``MIN_FRAME_IOU``); otherwise
+nothing is written (an earlier int8 file stays) and the error gives the figures. The record,
+with one frame's time through each file on this machine, lands in ``export.json`` under
 ``int8``. ``weldpool stream --int8`` and ``StreamStudent(int8=True)`` run it.
+
+Importing this module loads neither torch nor ONNX Runtime (its functions do), so a web process
+can read its names.
 """
 
 from __future__ import annotations
 
 import logging
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,8 +33,9 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.metrics import iou
 from weldpool_core.student import checkpoint
-from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE, ensure_onnx, onnx_session
+
+if TYPE_CHECKING:
+    from weldpool_core.student.data import FrameGeometry
 
 INT8_ONNX_FILE = "model.int8.onnx"
 MIN_FRAMES = 4
@@ -38,6 +44,21 @@ MIN_MEAN_IOU = 0.97
 """The int8 masks' mean IoU with the float ones on the check frames, at least."""
 MIN_FRAME_IOU = 0.90
 """…and on every check frame."""
+TIMING_RUNS = 15
+
+
+def _frame_ms(path: Path, frame: NDArray[np.float32]) -> float:
+    """Median milliseconds of one frame through ``path`` on one thread."""
+    from weldpool_core.student.export import onnx_session
+
+    session = onnx_session(path, threads=1)
+    session.run(None, {"image": frame})
+    times = []
+    for _ in range(TIMING_RUNS):
+        start = time.perf_counter()
+        session.run(None, {"image": frame})
+        times.append(time.perf_counter() - start)
+    return round(1000.0 * float(np.median(times)), 2)
 
 
 @dataclass(frozen=True)
@@ -51,6 +72,8 @@ class QuantizeResult:
         keypoint_px: median over check frames of the largest distance between a float
             keypoint and its nearest int8 one, in frame pixels (None without keypoints).
         mask_difference: mean absolute difference of the mask probabilities.
+        float_ms / int8_ms: one frame's inference on one thread of this machine, median of
+            ``TIMING_RUNS`` (what the int8 file saves here).
     """
 
     path: Path
@@ -60,6 +83,8 @@ class QuantizeResult:
     min_iou: float
     keypoint_px: float | None
     mask_difference: float
+    float_ms: float
+    int8_ms: float
 
     def as_dict(self) -> dict[str, Any]:
         """The record written to ``export.json``."""
@@ -164,8 +189,10 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
     RGB or gray), checked against the float student (see the module doc).
 
     Raises InvalidInputError with fewer than ``MIN_FRAMES`` frames, and when the int8 masks
-    differ from the float ones by more than the module's limits (the file is then removed).
+    differ from the float ones by more than the module's limits (nothing is written then: an
+    int8 file made before stays, with its record).
     """
+    from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE, ensure_onnx, onnx_session
     from weldpool_core.student.predict import frames_to_batch
 
     if len(images) < MIN_FRAMES:
@@ -180,26 +207,38 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
     batch = batch_tensor.numpy()
     calibration, check = batch[0::2], batch[1::2]
     path = root / INT8_ONNX_FILE
-    quantize_onnx(root / ONNX_FILE, path, calibration)
-    float_outputs = onnx_session(root / ONNX_FILE).run(None, {"image": check})
-    int8_outputs = onnx_session(path).run(None, {"image": check})
-    ious, distances, difference = compare(float_outputs, int8_outputs, geometries[1::2], config.k)
-    result = QuantizeResult(
-        path=path,
-        calibration_frames=len(calibration),
-        check_frames=len(check),
-        mean_iou=round(float(np.mean(ious)), 4),
-        min_iou=round(float(np.min(ious)), 4),
-        keypoint_px=round(float(np.median(distances)), 2) if distances else None,
-        mask_difference=round(difference, 5),
-    )
-    if result.mean_iou < MIN_MEAN_IOU or result.min_iou < MIN_FRAME_IOU:
-        path.unlink()
-        raise InvalidInputError(
-            f"The int8 student's masks differ from the float student's (IoU {result.mean_iou:.3f} "
-            f"on average, {result.min_iou:.3f} at worst, over {result.check_frames} frames; "
-            f"needed {MIN_MEAN_IOU} and {MIN_FRAME_IOU}); it was not kept."
+    found: list[QuantizeResult] = []
+
+    def write(candidate: Path) -> None:  # checked before it takes the file's name
+        quantize_onnx(root / ONNX_FILE, candidate, calibration)
+        float_session, int8_session = onnx_session(root / ONNX_FILE), onnx_session(candidate)
+        float_outputs = float_session.run(None, {"image": check})
+        int8_outputs = int8_session.run(None, {"image": check})
+        ious, distances, difference = compare(
+            float_outputs, int8_outputs, geometries[1::2], config.k
         )
+        result = QuantizeResult(
+            path=path,
+            calibration_frames=len(calibration),
+            check_frames=len(check),
+            mean_iou=round(float(np.mean(ious)), 4),
+            min_iou=round(float(np.min(ious)), 4),
+            keypoint_px=round(float(np.median(distances)), 2) if distances else None,
+            mask_difference=round(difference, 5),
+            float_ms=_frame_ms(root / ONNX_FILE, check[:1]),
+            int8_ms=_frame_ms(candidate, check[:1]),
+        )
+        if result.mean_iou < MIN_MEAN_IOU or result.min_iou < MIN_FRAME_IOU:
+            raise InvalidInputError(
+                f"The int8 student's masks differ from the float student's (IoU "
+                f"{result.mean_iou:.3f} on average, {result.min_iou:.3f} at worst, over "
+                f"{result.check_frames} frames; needed {MIN_MEAN_IOU} and {MIN_FRAME_IOU}); it "
+                "was not kept."
+            )
+        found.append(result)
+
+    checkpoint.write_atomic(path, write)
+    result = found[0]
     record = checkpoint.read_json(root / EXPORT_FILE) if (root / EXPORT_FILE).is_file() else {}
     record["int8"] = result.as_dict()
     checkpoint.write_json(root / EXPORT_FILE, record)

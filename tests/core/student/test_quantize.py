@@ -63,6 +63,7 @@ def test_an_int8_student_is_kept_when_its_masks_agree_and_streams_like_the_float
     assert result.path == model_dir / INT8_ONNX_FILE and result.path.is_file()
     assert (result.calibration_frames, result.check_frames) == (6, 6)
     assert result.mean_iou >= 0.97 and result.min_iou >= 0.9 and result.mask_difference > 0
+    assert result.float_ms > 0 and result.int8_ms > 0
     record = json.loads((model_dir / EXPORT_FILE).read_text())["int8"]
     assert record["file"] == INT8_ONNX_FILE and record["mean_iou"] == result.mean_iou
     graph = onnx.load(str(result.path)).graph
@@ -88,23 +89,26 @@ def test_an_int8_student_calibrated_on_the_wrong_frames_is_refused(
     model_dir: Path, tmp_path: Path
 ) -> None:
     """Calibrated on underexposed frames (the ranges of a dark camera), checked on bright ones:
-    its masks disagree, so nothing is kept and the record stays as it was."""
+    its masks disagree, so nothing is written; the int8 file made before, and its record, stay."""
     folder = tmp_path / "model"
     folder.mkdir()
     for path in model_dir.iterdir():
-        if path.name != INT8_ONNX_FILE:
-            (folder / path.name).write_bytes(path.read_bytes())
-    record = json.loads((folder / EXPORT_FILE).read_text())
-    record.pop("int8", None)
-    (folder / EXPORT_FILE).write_text(json.dumps(record))
+        (folder / path.name).write_bytes(path.read_bytes())
     frames = _camera_frames()
+    if not (folder / INT8_ONNX_FILE).is_file():  # this test alone: make the earlier one
+        quantize_student(folder, frames)
+    earlier = (folder / INT8_ONNX_FILE).read_bytes()
+    record = json.loads((folder / EXPORT_FILE).read_text())
+    names = sorted(p.name for p in folder.iterdir())
     dark = [frame // 8 if index % 2 == 0 else frame for index, frame in enumerate(frames)]
     with pytest.raises(InvalidInputError, match="differ from the float student's"):
         quantize_student(folder, dark)
-    assert not (folder / INT8_ONNX_FILE).exists()
+    assert (folder / INT8_ONNX_FILE).read_bytes() == earlier
     assert json.loads((folder / EXPORT_FILE).read_text()) == record
+    assert sorted(p.name for p in folder.iterdir()) == names  # no temporary file left
     with pytest.raises(InvalidInputError, match="at least 4 frames"):
         quantize_student(folder, frames[:3])
+    (folder / INT8_ONNX_FILE).unlink()
     with pytest.raises(InvalidInputError, match=r"no model\.int8\.onnx"):
         StreamStudent(folder, "onnx", int8=True)
 
