@@ -1,17 +1,19 @@
 """Benchmark ``weldpool stream`` on the three real WAAM videos (1280×800): speed and steadiness.
 
-Run: ``.venv/bin/python bench/stream.py [--model DIR] [--frames N]`` (about ten minutes here).
+Run: ``.venv/bin/python bench/stream.py [--model DIR] [--resnet18-model DIR] [--frames N]``
+(about fifteen minutes here).
 
-Speed: for each student size (light: the student trained on the real labels, whose real masks
-make the work after inference what it is on a weld; larger sizes: random weights), backend (ONNX
-Runtime int8 and float, PyTorch) and thread count (1, all cores), the stream pipeline as the
-command runs it — decoding (one decoder thread, the command's default) and pre-processing on the
-reader thread, inference, keypoints and geometry on the main one — over the first N frames of
-each video, read as fast as possible. Frames per second (median over the three videos), p50 /
-p99 latency from a frame leaving the decoder to its record, and the ratio to the inference-only
-floor (the same model on already prepared inputs, nothing else running).
+Speed: for each student size (trained on the real labels: light, and resnet18 with
+``--resnet18-model``, whose real masks make the work after inference what it is on a weld;
+otherwise random weights), backend (ONNX Runtime int8 and float, PyTorch) and thread count (1,
+all cores), the stream pipeline as the command runs it — decoding (one decoder thread, the
+command's default) and pre-processing on the reader thread, inference, keypoints and geometry on
+the main one — over the first N frames of each video, read as fast as possible. Frames per
+second (median over the three videos), p50 / p99 latency from a frame leaving the decoder to its
+record, and the ratio to the inference-only floor (the same model on already prepared inputs,
+nothing else running).
 
-int8: the trained student quantized (``weldpool export-student --format onnx-int8``) on frames
+int8: each trained student quantized (``weldpool export-student --format onnx-int8``) on frames
 spread through the three videos, and its agreement with the float student on others.
 
 Steadiness: a student trained on the 9 real labels (``--model``, else trained here with the
@@ -182,15 +184,16 @@ def steadiness(model: Path) -> None:
     )
 
 
-def int8_agreement(model: Path) -> None:
+def int8_agreement(model: Path, size: str) -> None:
     """Quantize the trained student on frames of the three videos and print the check."""
     result = quantize_student(model, calibration_frames(16))
     print(
-        f"\nint8 (calibrated on {result.calibration_frames} frames spread through the three "
+        f"\n{size} int8 (calibrated on {result.calibration_frames} frames spread through the three "
         f"videos, checked on {result.check_frames} others): mask IoU with the float student "
         f"{result.mean_iou:.4f} on average, {result.min_iou:.4f} at worst; keypoints "
         f"{result.keypoint_px} px apart (median of each frame's largest); mask probability "
-        f"{result.mask_difference:.5f} apart on average\n",
+        f"{result.mask_difference:.5f} apart on average; one frame {result.int8_ms} ms against "
+        f"{result.float_ms} ms on one thread\n",
         flush=True,
     )
 
@@ -198,6 +201,9 @@ def int8_agreement(model: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", type=Path, help="a student trained on the real labels")
+    parser.add_argument(
+        "--resnet18-model", type=Path, help="a resnet18 student trained on the real labels"
+    )
     parser.add_argument("--frames", type=int, default=300, help="frames per video for speed")
     parser.add_argument("--sizes", nargs="+", default=["light", "resnet18"])
     parser.add_argument("--skip-speed", action="store_true")
@@ -207,16 +213,22 @@ def main() -> None:
         model = args.model or train_real(Path(root) / "real")
         if not (model / ONNX_FILE).is_file():
             export_student(model, ["onnx"])
-        int8_agreement(model)
+        trained = {"light": model}
+        if args.resnet18_model:
+            trained["resnet18"] = args.resnet18_model
+            if not (args.resnet18_model / ONNX_FILE).is_file():
+                export_student(args.resnet18_model, ["onnx"])
+        for size, folder in trained.items():
+            int8_agreement(folder, size)
         if not args.skip_speed:
             head = f"{args.frames} frames of each of the 3 videos, 1280×800; {cores} cores"
             print(f"Speed ({head})\n")
             print("| student | backend | threads | fps | p50 ms | p99 ms | floor fps | of floor |")
             print("|---|---|---:|---:|---:|---:|---:|---:|")
             for size in args.sizes:
-                # light: the trained student (a random one's noisy masks make the keypoints
-                # and geometry after inference ~2.5× dearer than a real pool's)
-                weights = model if size == "light" else random_student(size, Path(root))
+                # trained students where there are (a random one's noisy masks make the
+                # keypoints and geometry after inference ~2.5× dearer than a real pool's)
+                weights = trained.get(size) or random_student(size, Path(root))
                 for backend in ("onnx-int8", "onnx", "torch"):
                     for threads in sorted({1, cores}):
                         row = speed_row(weights, backend, threads, args.frames)

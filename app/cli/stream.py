@@ -87,7 +87,7 @@ def promoted_model_dir() -> Path:
     "--int8",
     is_flag=True,
     help="Run the quantized student (model.int8.onnx, weldpool export-student --format "
-    "onnx-int8): about 1.5× faster on a CPU, its masks checked against the float ones.",
+    "onnx-int8): 1.5–3× faster on a CPU, its masks checked against the float ones.",
 )
 @click.option("--realtime", is_flag=True, help="Read a file at its frame rate, dropping stale.")
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")

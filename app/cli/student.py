@@ -312,7 +312,7 @@ def export_cmd(
     """Export a trained student as ONNX and/or TorchScript into MODEL_DIR, checked against
     PyTorch; prints the files and their largest difference as JSON.
 
-    onnx-int8 quantizes model.onnx (int8 weights, uint8 activations; about 1.5× faster on a
+    onnx-int8 quantizes model.onnx (int8 weights, uint8 activations; 1.5–3× faster on a
     CPU) with its ranges calibrated on real frames, and keeps it only when its masks agree with
     the float student's on frames it was not calibrated on (the report gives the agreement).
     """
