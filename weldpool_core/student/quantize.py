@@ -19,6 +19,7 @@ can read its names.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import tempfile
 import time
@@ -121,30 +122,45 @@ def quantize_onnx(source: Path, target: Path, calibration: NDArray[np.float32]) 
     class Reader(_Frames, CalibrationDataReader):  # type: ignore[misc]  # ORT is untyped
         pass
 
-    quiet = logging.getLogger()  # the quantizer logs its advice on the root logger
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)
+    work_dir = tempfile.TemporaryDirectory(dir=target.parent, prefix=".quantize.")
+    with _quiet_quantizer(), work_dir as work:
+        prepared = Path(work) / "prepared.onnx"
+        quant_pre_process(str(source), str(prepared))
+
+        def write(path: Path) -> None:
+            quantize_static(
+                str(prepared),
+                str(path),
+                Reader(calibration),
+                quant_format=QuantFormat.QDQ,
+                activation_type=QuantType.QUInt8,
+                weight_type=QuantType.QInt8,
+                per_channel=True,
+                calibrate_method=CalibrationMethod.MinMax,
+            )
+
+        checkpoint.write_atomic(target, write)
+
+
+class _FromOnnxRuntime(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "onnxruntime" not in record.pathname
+
+
+@contextlib.contextmanager
+def _quiet_quantizer() -> Iterator[None]:
+    """Keep the quantizer's advice off the logs: it logs on the root logger (``logging.info``),
+    so a filter there drops only records from ONNX Runtime's files; its named loggers are
+    raised to errors. Other code's records pass."""
+    root, named = logging.getLogger(), logging.getLogger("onnxruntime")
+    only_ours, level = _FromOnnxRuntime(), named.level
+    root.addFilter(only_ours)
+    named.setLevel(logging.ERROR)
     try:
-        with tempfile.TemporaryDirectory(dir=target.parent, prefix=".quantize.") as work:
-            prepared = Path(work) / "prepared.onnx"
-            quant_pre_process(str(source), str(prepared))
-
-            def write(path: Path) -> None:
-                quantize_static(
-                    str(prepared),
-                    str(path),
-                    Reader(calibration),
-                    quant_format=QuantFormat.QDQ,
-                    activation_type=QuantType.QUInt8,
-                    weight_type=QuantType.QInt8,
-                    per_channel=True,
-                    calibrate_method=CalibrationMethod.MinMax,
-                    extra_options={"CalibTensorRangeSymmetric": False},
-                )
-
-            checkpoint.write_atomic(target, write)
+        yield
     finally:
-        quiet.setLevel(level)
+        root.removeFilter(only_ours)
+        named.setLevel(level)
 
 
 def _keypoint_distance(float_points: NDArray[Any], int8_points: NDArray[Any]) -> float | None:
