@@ -1437,6 +1437,12 @@ def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path
         )
         assert card.locator("[data-testid=make-int8]").inner_text() == "Remake int8"
         shoot(page, "models-int8", full_page=True)
+        page.goto(f"{own.url}/jobs")
+        page.wait_for_selector("body[data-ready]")
+        row = page.locator("[data-testid=job-row]", has_text="quantize_student").first
+        assert row.locator("[data-testid=job-scope]").inner_text() == "int8 student of model #1"
+        assert row.locator("td.message").inner_text().startswith("student-v1: int8 student made")
+        shoot(page, "jobs-int8")
 
         video = write_video(tmp_path / "int8 run.avi", 200, fps=20.0)
         page.goto(f"{own.url}/live?model_id=1")
