@@ -37,6 +37,7 @@ from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.metrics import proposal_quality
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter
 from weldpool_core.stream import StreamStudent
+from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.data import TrainingFrame
 from weldpool_core.student.evaluate import labelled_frames
 from weldpool_core.student.export import export_student
@@ -179,7 +180,7 @@ def fold(
     config = replace(config, seed=seed)
     row: dict[str, Any] = {"fold": held, "seed": seed, "train_s": per_frame_s, "seq_s": 0.0}
     if not (reuse and has_sequential(model)):
-        student = StudentConfig()
+        student = read_student_config(model)
         clips = [video_clip(video(c), labels[c], config, student=student) for c in train_clips]
         result = train_sequential(model, clips, config)
         row.update(seq_s=result.seconds, loss=(result.first_loss, result.last_loss))

@@ -200,7 +200,11 @@ def int8_agreement(model: Path, size: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", type=Path, help="a student trained on the real labels")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        help="a light student trained on the real labels (its folder gets a model.int8.onnx)",
+    )
     parser.add_argument(
         "--resnet18-model", type=Path, help="a resnet18 student trained on the real labels"
     )

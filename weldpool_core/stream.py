@@ -51,7 +51,7 @@ from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ONNX_FILE, onnx_session
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import combine, frame_keypoints
-from weldpool_core.student.quantize import INT8_ONNX_FILE
+from weldpool_core.student.quantize import INT8_ONNX_FILE, current_record
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
 AMBIGUOUS = (0.25, 0.75)
@@ -316,6 +316,12 @@ class StreamStudent:
                     f"{self.model_dir} has no {path.name}; export it first "
                     f"(weldpool export-student {self.model_dir} --format "
                     + ("onnx-int8 --calibrate FRAMES)" if int8 else "onnx) or use torch.")
+                )
+            if int8 and current_record(self.model_dir) is None:
+                raise InvalidInputError(
+                    f"The {INT8_ONNX_FILE} of {self.model_dir} was made from other weights; make "
+                    f"it again (weldpool export-student {self.model_dir} --format onnx-int8 "
+                    "--calibrate FRAMES)."
                 )
             self._session = onnx_session(path, threads, spin=spin)
         else:

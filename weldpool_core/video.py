@@ -116,9 +116,7 @@ def iter_video_frames(path: str | Path, every_nth: int = 1) -> Iterator[VideoFra
 def spread_frames(path: str | Path, count: int) -> list[NDArray[np.uint8]]:
     """Up to ``count`` frames spread evenly through a video (gray or RGB, as stored)."""
     every = max(1, probe_video(path).frame_count // max(count, 1))
-    frames = []
-    for frame in iter_video_frames(path, every):
-        frames.append(frame.pixels)
-        if len(frames) == count:
-            break
-    return frames
+    frames = [frame.pixels for frame in iter_video_frames(path, every)]
+    if len(frames) <= count:
+        return frames
+    return [frames[round(i)] for i in np.linspace(0, len(frames) - 1, count)]

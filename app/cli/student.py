@@ -330,7 +330,7 @@ def export_cmd(
         "files": {name: str(path) for name, path in (result.files if result else {}).items()},
         "max_abs_difference": result.differences if result else {},
     }
-    if images:
+    if "onnx-int8" in wanted:
         from weldpool_core.student.quantize import quantize_student
 
         quantized = quantize_student(model_dir, images)
@@ -346,7 +346,7 @@ def _calibration_images(paths: tuple[str, ...], count: int) -> list[Any]:
     from weldpool_core.io import read_image
     from weldpool_core.video import VIDEO_SUFFIXES, spread_frames
 
-    files = named_files(paths, IMAGE_SUFFIXES | VIDEO_SUFFIXES, "image or video")
+    files = named_files(paths, IMAGE_SUFFIXES | VIDEO_SUFFIXES, "image or video", stem=str)
     stills = [p for p in files if p.suffix.lower() not in VIDEO_SUFFIXES]
     images = [read_image(p).pixels for p in stills[:: max(1, len(stills) // count)]]
     for video in (p for p in files if p.suffix.lower() in VIDEO_SUFFIXES):

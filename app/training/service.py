@@ -37,8 +37,8 @@ CALIBRATION_FRAMES = 64
 """Frames an int8 student is calibrated and checked on (spread over the project's frames)."""
 UNLABELLED_WINDOWS = 96
 """Unlabelled windows over all videos (at least 8 a video), half for the sequential cell's
-steadiness term and half to measure it on; a window's 8 frames are decoded at full resolution,
-so this bounds the job's memory as videos are added (about 0.8 GB of 1280×800 gray frames)."""
+steadiness term and half to measure it on; a window's 8 frames are kept at the student's input
+size (64 KB each at 256²), so this bounds the job's memory as videos are added (~50 MB)."""
 
 
 def list_models(session: Session) -> list[ModelVersion]:

@@ -459,8 +459,8 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     files = (INT8_ONNX_FILE, EXPORT_FILE)
     previous = _files(root, files)
     ctx.progress(0.2, "quantizing, then checking it against the float student")
-    result = quantize_student(root, images)
     try:
+        result = quantize_student(root, images)
         record = {"made_at": utcnow().isoformat(), "job_id": ctx.job_id, **result.as_dict()}
         with ctx.session_factory() as session:
             version = session.get(ModelVersion, model_id)

@@ -74,12 +74,13 @@ export function sequentialLine(record) {
 }
 
 /** A student version's int8 student (models page): how its masks agree with the float student's
- * on frames it was not calibrated on, and one frame's inference through each on this server. */
+ * on frames it was not calibrated on, and one frame's inference through each on this server
+ * (flagged where it is no faster here: a CPU without integer kernels worth the conversions). */
 export function int8Line(record) {
   if (!record) return h("p", { class: "muted small-text", "data-testid": "int8" }, "no int8 student");
   const faster = record.float_ms / record.int8_ms;
   const moved = typeof record.keypoint_px === "number" ? `, keypoints ${record.keypoint_px.toFixed(1)} px apart` : "";
-  return h("p", { class: "gate ok", "data-testid": "int8" },
+  return h("p", { class: `gate ${faster > 1 ? "ok" : "warning"}`, "data-testid": "int8" },
     badge("int8"), ` masks agree with the float student's at IoU ${iou(record.mean_iou)} (${iou(record.min_iou)} at worst) on ${count(record.check_frames, "frame")}${moved}; `,
     `${record.int8_ms.toFixed(1)} ms a frame against ${record.float_ms.toFixed(1)} ms here (${faster.toFixed(1)}× on one thread).`);
 }

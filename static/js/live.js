@@ -130,13 +130,13 @@ async function fillModels() {
     const chosen = () => models.find((m) => (select.value ? String(m.id) === select.value : m.is_promoted));
     const follow = () => {
       const model = chosen();
-      box.disabled = !model?.sequential || int8Box.checked;
       if (!model?.sequential) box.checked = false;
+      if (!model?.int8) int8Box.checked = false;
+      box.disabled = !model?.sequential || int8Box.checked;
+      int8Box.disabled = !model?.int8 || box.checked;
       box.parentElement.title = model?.sequential
         ? `${model.name}'s sequential cell keeps a state from frame to frame: a steadier mask and keypoints (measured on the models page).`
         : `${model?.name ?? "This version"} has no sequential cell; train one on the models page.`;
-      int8Box.disabled = !model?.int8 || box.checked;
-      if (!model?.int8) int8Box.checked = false;
       int8Box.parentElement.title = model?.int8
         ? `${model.name}'s int8 student: ${model.int8.int8_ms.toFixed(1)} ms a frame against ${model.int8.float_ms.toFixed(1)} ms, masks at IoU ${model.int8.mean_iou.toFixed(3)} with the float student's. Frame by frame: not with sequential.`
         : `${model?.name ?? "This version"} has no int8 student; make one on the models page.`;

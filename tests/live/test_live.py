@@ -367,23 +367,30 @@ def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live
     made = settings.home / "models" / "student-v1" / INT8_ONNX_FILE
     kept = made.read_bytes()
 
-    # A job whose record cannot be written puts the earlier int8 file back, record unchanged
-    # (two more frames change the calibration, so the failing job's file differs).
-    more = [
-        ("files", (f"d{s}.png", cv2.imencode(".png", synth_frame(s, params).image)[1].tobytes()))
-        for s in (112, 113)
-    ]
-    assert client.post("/api/v1/frames", files=more, headers=auth(token)).status_code == 201
+    # A job whose record cannot be written puts the earlier int8 file and export.json back
+    # (this one writes other bytes first, so a missing put-back shows), record unchanged.
     import app.training.tasks as tasks_module
+    import weldpool_core.student.quantize as quantize_module
+
+    exported = made.parent / "export.json"
+    before = exported.read_bytes()
+    real = quantize_module.quantize_student
+
+    def other_bytes(*args: object, **kwargs: object) -> object:
+        result = real(*args, **kwargs)  # type: ignore[arg-type]
+        made.write_bytes(b"another int8 file")
+        exported.write_text("{}")
+        return result
 
     def broken(*_args: object, **_kwargs: object) -> str:
         raise RuntimeError("the clock broke")
 
     with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(quantize_module, "quantize_student", other_bytes)
         patch.setattr(tasks_module, "utcnow", broken)
         failing = client.post("/api/v1/models/1/int8", headers=auth(token))
         assert wait_for_job(client, failing.json()["job_id"], token, 120)["status"] == "failed"
-    assert made.read_bytes() == kept
+    assert made.read_bytes() == kept and exported.read_bytes() == before
     assert client.get("/api/v1/models/1", headers=auth(token)).json()["int8"] == record
 
     both = {"source": video, "int8": True, "sequential": True}

@@ -170,6 +170,17 @@ class ExportResult:
     differences: dict[str, float] = field(default_factory=dict)
 
 
+def _current_int8(root: Path) -> dict[str, Any] | None:
+    """The folder's int8 record when its file was made from the weights as they are now; a
+    stale int8 file (the folder was trained further since) is removed."""
+    from weldpool_core.student.quantize import INT8_ONNX_FILE, current_record
+
+    record = current_record(root)
+    if record is None:
+        (root / INT8_ONNX_FILE).unlink(missing_ok=True)
+    return record
+
+
 def export_student(
     model_dir: str | Path, formats: Sequence[str] = FORMATS, check_batch: int = 3
 ) -> ExportResult:
@@ -205,12 +216,11 @@ def export_student(
             )
         files[name] = path
     config = model.config
-    earlier = root / EXPORT_FILE
-    kept = checkpoint.read_json(earlier) if earlier.is_file() else {}
+    int8 = _current_int8(root)
     checkpoint.write_json(
         root / EXPORT_FILE,
         {
-            **{key: kept[key] for key in ("int8",) if key in kept},  # its file stays valid
+            **({"int8": int8} if int8 else {}),
             "input": {
                 "name": "image",
                 "shape": ["batch", 3, config.input_size, config.input_size],

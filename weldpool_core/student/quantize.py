@@ -20,6 +20,7 @@ can read its names.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import tempfile
 import time
@@ -46,6 +47,31 @@ MIN_MEAN_IOU = 0.97
 MIN_FRAME_IOU = 0.90
 """…and on every check frame."""
 TIMING_RUNS = 15
+
+
+def weights_digest(model_dir: str | Path) -> str:
+    """SHA-256 of a folder's float weights (``model.safetensors``), which an int8 file names."""
+    digest = hashlib.sha256()
+    with open(Path(model_dir) / checkpoint.WEIGHTS_FILE, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def current_record(model_dir: str | Path) -> dict[str, Any] | None:
+    """The folder's int8 record (``export.json["int8"]``) when its ``model.int8.onnx`` exists
+    and was made from the float weights as they are now; None otherwise (none made, or the
+    folder was trained further since and the int8 file is stale)."""
+    from weldpool_core.student.export import EXPORT_FILE
+
+    root = Path(model_dir)
+    if not (root / INT8_ONNX_FILE).is_file() or not (root / EXPORT_FILE).is_file():
+        return None
+    data = checkpoint.read_json(root / EXPORT_FILE)
+    record = data.get("int8") if isinstance(data, dict) else None
+    if not isinstance(record, dict) or record.get("weights_sha256") != weights_digest(root):
+        return None
+    return record
 
 
 def _frame_ms(path: Path, frame: NDArray[np.float32]) -> float:
@@ -75,6 +101,7 @@ class QuantizeResult:
         mask_difference: mean absolute difference of the mask probabilities.
         float_ms / int8_ms: one frame's inference on one thread of this machine, median of
             ``TIMING_RUNS`` (what the int8 file saves here).
+        weights_sha256: the float weights it was made from (``current_record``).
     """
 
     path: Path
@@ -86,6 +113,7 @@ class QuantizeResult:
     mask_difference: float
     float_ms: float
     int8_ms: float
+    weights_sha256: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """The record written to ``export.json``."""
@@ -243,6 +271,7 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
             mask_difference=round(difference, 5),
             float_ms=_frame_ms(root / ONNX_FILE, check[:1]),
             int8_ms=_frame_ms(candidate, check[:1]),
+            weights_sha256=weights_digest(root),
         )
         if result.mean_iou < MIN_MEAN_IOU or result.min_iou < MIN_FRAME_IOU:
             raise InvalidInputError(

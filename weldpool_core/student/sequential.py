@@ -311,15 +311,18 @@ def _placement(
     shape: tuple[int, ...], labels: dict[int, TrainingFrame], student: StudentConfig, name: str
 ) -> FrameGeometry:
     """The geometry that places a video's frames on the student's input; its labelled frames
-    must be the video's size."""
+    must land on the same part of the input (the video's size, or a scaled copy of it)."""
     height, width = int(shape[0]), int(shape[1])
+    placed = FrameGeometry.fit(height, width, student.input_size, student.aspect)
     for index, label in labels.items():
-        if label.image.shape[:2] != (height, width):
+        rows, columns = int(label.image.shape[0]), int(label.image.shape[1])
+        own = FrameGeometry.fit(rows, columns, student.input_size, student.aspect)
+        if (own.inner_rows, own.inner_columns) != (placed.inner_rows, placed.inner_columns):
             raise InvalidInputError(
                 f"Labelled frame {index} of {name} is {label.image.shape[1]}×"
-                f"{label.image.shape[0]}, but the video's frames are {width}×{height}."
+                f"{label.image.shape[0]}, another shape than the video's {width}×{height} frames."
             )
-    return FrameGeometry.fit(height, width, student.input_size, student.aspect)
+    return placed
 
 
 FRAME_STEM = re.compile(r"^(?P<video>.+)_f(?P<index>\d+)$")

@@ -113,6 +113,32 @@ def test_an_int8_student_calibrated_on_the_wrong_frames_is_refused(
         StreamStudent(folder, "onnx", int8=True)
 
 
+def test_a_stale_int8_file_is_refused_and_dropped_once_the_weights_change(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    """A folder trained further after its int8 file was made: streaming int8 is refused (it
+    would run the old network) and the next export removes the stale file and its record."""
+    import torch
+
+    from weldpool_core.student import checkpoint
+
+    folder = tmp_path / "model"
+    folder.mkdir()
+    for path in model_dir.iterdir():
+        (folder / path.name).write_bytes(path.read_bytes())
+    quantize_student(folder, _camera_frames())
+    StreamStudent(folder, "onnx", int8=True)  # current: it opens
+    model = checkpoint.load_student(folder)
+    with torch.no_grad():
+        next(model.parameters()).add_(0.01)
+    checkpoint.save_weights(folder, model)
+    with pytest.raises(InvalidInputError, match="was made from other weights"):
+        StreamStudent(folder, "onnx", int8=True)
+    export_student(folder, ["onnx"])
+    assert not (folder / INT8_ONNX_FILE).exists()
+    assert "int8" not in json.loads((folder / EXPORT_FILE).read_text())
+
+
 def test_the_cli_quantizes_on_a_video_and_streams_the_int8_student(
     model_dir: Path, tmp_path: Path
 ) -> None:

@@ -442,6 +442,8 @@ def test_a_clip_kept_at_model_resolution_gives_the_same_windows(tmp_path: Path) 
     other = replace(TINY_STUDENT, input_size=96)
     with pytest.raises(InvalidInputError, match="were kept for a 64² input"):
         _windows([small], config, other)
-    wrong = {15: TrainingFrame(np.zeros((32, 48, 3), np.uint8), mask[:32, :48], name="f15")}
-    with pytest.raises(InvalidInputError, match="is 48×32, but the video's frames are 96×64"):
+    halved = {15: TrainingFrame(np.zeros((32, 48, 3), np.uint8), mask[:32, :48], name="f15")}
+    assert video_clip(video, halved, config, student=TINY_STUDENT).placed == small.placed
+    wrong = {15: TrainingFrame(np.zeros((64, 64, 3), np.uint8), mask[:, :64], name="f15")}
+    with pytest.raises(InvalidInputError, match="is 64×64, another shape than the video's 96×64"):
         video_clip(video, wrong, config, student=TINY_STUDENT)
