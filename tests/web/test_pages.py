@@ -1437,6 +1437,16 @@ def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path
         )
         assert card.locator("[data-testid=make-int8]").inner_text() == "Remake int8"
         shoot(page, "models-int8", full_page=True)
+        # The card's flag: an int8 student no faster here than the float one is marked.
+        flags = page.evaluate(
+            """async (cases) => {
+              const { int8Line } = await import("/static/js/format.js");
+              return cases.map(([float_ms, int8_ms]) => int8Line({ mean_iou: 0.99,
+                min_iou: 0.98, check_frames: 6, keypoint_px: 1.0, float_ms, int8_ms }).className);
+            }""",
+            [[6.0, 3.9], [6.0, 6.5]],
+        )
+        assert flags == ["gate ok", "gate warning"]
         page.goto(f"{own.url}/jobs")
         page.wait_for_selector("body[data-ready]")
         row = page.locator("[data-testid=job-row]", has_text="quantize_student").first
