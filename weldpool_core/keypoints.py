@@ -89,7 +89,9 @@ def _heatmap_and_centre(
         raise InvalidInputError(
             f"A heatmap must be H×W or H×W×2 (heatmap, mask), not of shape {array.shape}."
         )
-    values = np.nan_to_num(array.astype(np.float32, copy=False), nan=0.0)
+    values = np.ascontiguousarray(array, dtype=np.float32)
+    if not np.isfinite(values).all():
+        values = np.nan_to_num(values, nan=0.0)
     return values, centre
 
 
@@ -129,10 +131,9 @@ def keypoints_from_heatmap(
     if peak < floor or peak <= 0:
         return np.zeros((0, 2), np.float64)
     is_max = (values == cv2.dilate(values, np.ones((3, 3), np.uint8))) & (values >= floor)
-    ys, xs = np.nonzero(is_max)
-    strength = values[ys, xs]
-    ranked = np.lexsort((xs, ys, -strength))  # strongest first; ties in raster order
-    xs, ys = xs[ranked], ys[ranked]
+    flat = np.flatnonzero(is_max)  # in raster order
+    ranked = flat[np.argsort(-values.ravel()[flat], kind="stable")]  # strongest first
+    ys, xs = np.divmod(ranked, values.shape[1])
     chosen: list[tuple[int, int]] = []
     alive = np.ones(len(xs), bool)
     while len(chosen) < k and alive.any():

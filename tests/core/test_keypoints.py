@@ -49,6 +49,27 @@ def test_strongest_modes_win_and_close_ones_are_suppressed() -> None:
     assert sorted(modes.round().tolist()) == [[40, 40], [120, 80]]
 
 
+def test_a_flat_topped_mode_is_taken_at_its_first_pixel_in_raster_order() -> None:
+    # An int8 student's heatmap has 256 levels, so its modes are plateaus: the strongest
+    # pixel is the plateau's first in raster order, the same on every run.
+    heat = _gaussians([(120, 90)], 3.0, [0.5])
+    heat[40:60, 60:80] = 0.8
+    modes = keypoints_from_heatmap(heat, k=1, params=ModeParams(min_distance=5))
+    # Refined over the plateau's part of the 7×7 window at (60, 40): pixels 60–63, 40–43.
+    assert modes.tolist() == [[61.5, 41.5]]
+    two = keypoints_from_heatmap(heat, k=2, params=ModeParams(min_distance=5), centre=(0, 0))
+    assert sorted(two.tolist()) == [[61.5, 41.5], [65.0, 41.5]]  # next: (65, 40), 5 px on
+
+
+def test_missing_values_in_a_heatmap_count_as_zero() -> None:
+    centres = [(40.3, 30.7), (120.6, 35.2)]
+    heat = _gaussians(centres)
+    heat[100:, :] = np.nan  # a band no model scored
+    modes = keypoints_from_heatmap(heat, k=2, centre=(80.0, 60.0))
+    assert np.abs(modes - np.array(centres)).max() < 0.05
+    assert keypoints_from_heatmap(np.full((30, 40), np.nan, np.float32), k=2).shape == (0, 2)
+
+
 def test_fewer_modes_than_k_and_an_empty_heatmap() -> None:
     assert len(keypoints_from_heatmap(_gaussians([(50, 50), (100, 60)]), k=4)) == 2
     empty = keypoints_from_heatmap(np.zeros((30, 40), np.float32), k=4)

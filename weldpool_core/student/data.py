@@ -45,6 +45,33 @@ from weldpool_core.student.model import Aspect
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
+BOX_FACTORS = (1, 3, 5)
+"""Whole shrink factors for which ``shrink`` takes the box filter's faster way."""
+
+
+def shrink(image: NDArray[Any], width: int, height: int) -> NDArray[Any]:
+    """``image`` shrunk to ``width``×``height`` by area averaging: ``cv2.resize`` with
+    ``INTER_AREA``, pixel for pixel. For a uint8 image shrunk by whole factors of 1, 3 or 5 on
+    each axis (not 1 on both: a 1280×800 frame onto 256×160), the same pixels come from a box
+    filter read at every factor-th pixel, 2–4× faster than OpenCV's area resize, which has a
+    vectorised way for a factor of 2 only. (With an odd box no average ends in exactly one
+    half, so both round alike; an even box's halves round differently, and larger factors are
+    slower by the filter.)"""
+    rows, columns = image.shape[:2]
+    fx, fy = columns // width, rows // height
+    if (
+        image.dtype == np.uint8
+        and fx * width == columns
+        and fy * height == rows
+        and fx in BOX_FACTORS
+        and fy in BOX_FACTORS
+        and fx * fy > 1
+    ):
+        box = cv2.boxFilter(image, -1, (fx, fy), anchor=(0, 0), borderType=cv2.BORDER_REPLICATE)
+        return box[::fy, ::fx]
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
 @dataclass(frozen=True)
 class FrameGeometry:
     """How a W×H frame maps onto the S×S model input and back (see the module doc).
@@ -118,11 +145,12 @@ class FrameGeometry:
 
     def image_to_input(self, image: NDArray[Any]) -> NDArray[Any]:
         """A frame (H×W or H×W×C) scaled into the S×S input, zero-padded (letterbox)."""
-        shrink = self.inner_width < self.width or self.inner_height < self.height
-        interpolation = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
-        inner = cv2.resize(
-            image, (self.inner_width, self.inner_height), interpolation=interpolation
-        )
+        if self.inner_width < self.width or self.inner_height < self.height:
+            inner = shrink(image, self.inner_width, self.inner_height)
+        else:
+            inner = cv2.resize(
+                image, (self.inner_width, self.inner_height), interpolation=cv2.INTER_LINEAR
+            )
         canvas = np.zeros((self.size, self.size, *image.shape[2:]), image.dtype)
         canvas[self.inner_rows, self.inner_columns] = inner
         return canvas

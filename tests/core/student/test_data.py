@@ -26,6 +26,7 @@ from weldpool_core.student.data import (
     prepare_frame,
     random_affine,
     read_dataset,
+    shrink,
 )
 from weldpool_core.synth import synth_frame
 
@@ -50,6 +51,38 @@ def test_points_map_to_the_input_and_back(aspect: str, height: int, width: int) 
         assert max(geometry.inner_width, geometry.inner_height) == 256
     else:
         assert geometry.inner_width == geometry.inner_height == 256
+
+
+@pytest.mark.parametrize("channels", [0, 1, 3, 4])
+def test_shrink_gives_opencvs_area_pixels_for_every_whole_factor(channels: int) -> None:
+    # The box filter's way (odd factors up to 5) and OpenCV's own (the rest) must give
+    # INTER_AREA's pixels exactly: a student sees the same input whichever way it was made.
+    rng = np.random.default_rng(channels)
+    for fx in range(1, 8):
+        for fy in range(1, 8):
+            width, height = int(rng.integers(3, 40)), int(rng.integers(3, 40))
+            shape = (height * fy, width * fx) + ((channels,) if channels else ())
+            noise = rng.integers(0, 256, shape, dtype=np.uint8)
+            binary = np.where(rng.random(shape) < 0.5, 0, 255).astype(np.uint8)
+            for image in (noise, binary):
+                expected = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+                got = shrink(image, width, height)
+                assert got.shape == expected.shape, (fx, fy)
+                assert np.array_equal(got, expected), (fx, fy)
+    frame = rng.integers(0, 65536, (800, 1280), dtype=np.uint16)  # 16-bit: OpenCV's way
+    expected = cv2.resize(frame, (256, 160), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(shrink(frame, 256, 160), expected)
+
+
+def test_a_real_frame_goes_to_the_input_by_the_box_filter_unchanged() -> None:
+    frame = cv2.GaussianBlur(
+        np.random.default_rng(3).integers(0, 256, (800, 1280, 3), dtype=np.uint8), (0, 0), 3
+    )
+    geometry = FrameGeometry.fit(800, 1280, 256)
+    placed = geometry.image_to_input(frame)
+    expected = cv2.resize(frame, (256, 160), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(placed[geometry.inner_rows, geometry.inner_columns], expected)
+    assert not placed[: geometry.offset_y].any() and not placed[geometry.offset_y + 160 :].any()
 
 
 @pytest.mark.parametrize("aspect", ["letterbox", "resize"])
