@@ -443,7 +443,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     records the check and both speeds. A job that fails after the file was written puts the
     previous int8 file (or none) back, so the file and the record always agree."""
     from weldpool_core.student.export import EXPORT_FILE
-    from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_student
+    from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_student, remove_leftovers
 
     storage = Storage(ctx.settings.home)
     model_id = int(ctx.params["model_version_id"])
@@ -456,6 +456,9 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
         frame_ids = service.calibration_frame_ids(session)
         ctx.progress(0.0, f"reading {counted(len(frame_ids), 'frame')} to calibrate on")
         images = [frame_rgb(storage, session.get_one(Frame, i)) for i in frame_ids]
+    leftovers = remove_leftovers(root)  # a killed worker's; this kind runs one at a time
+    if leftovers:
+        log.info("quantize_leftovers_removed", model=name, files=leftovers)
     files = (INT8_ONNX_FILE, EXPORT_FILE)
     previous = _files(root, files)
     ctx.progress(0.2, "quantizing, then checking it against the float student")

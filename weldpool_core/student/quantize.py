@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import shutil
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
@@ -56,6 +57,31 @@ def weights_digest(model_dir: str | Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+WORK_PREFIX = ".quantize."
+"""The quantizer's work folder in MODEL_DIR (removed when it ends, unless its process dies)."""
+
+
+def remove_leftovers(model_dir: str | Path) -> list[str]:
+    """Remove what a quantizing process killed midway leaves in MODEL_DIR: its work folder and
+    the files it had not yet renamed into place (``checkpoint.write_atomic``'s ``.NAME.*``
+    temporaries of the int8 file, the ONNX file and export.json). Returns their names. Only
+    for when nothing else writes those files there (the app runs one such job at a time)."""
+    from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE
+
+    root = Path(model_dir)
+    patterns = [f"{WORK_PREFIX}*"] + [f".{name}.*" for name in (INT8_ONNX_FILE, ONNX_FILE)]
+    patterns.append(f".{EXPORT_FILE}.*")
+    removed = []
+    for pattern in patterns:
+        for path in sorted(root.glob(pattern)):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+            removed.append(path.name)
+    return removed
 
 
 def current_record(model_dir: str | Path) -> dict[str, Any] | None:
@@ -150,7 +176,7 @@ def quantize_onnx(source: Path, target: Path, calibration: NDArray[np.float32]) 
     class Reader(_Frames, CalibrationDataReader):  # type: ignore[misc]  # ORT is untyped
         pass
 
-    work_dir = tempfile.TemporaryDirectory(dir=target.parent, prefix=".quantize.")
+    work_dir = tempfile.TemporaryDirectory(dir=target.parent, prefix=WORK_PREFIX)
     with _quiet_quantizer(), work_dir as work:
         prepared = Path(work) / "prepared.onnx"
         quant_pre_process(str(source), str(prepared))
