@@ -10,7 +10,8 @@ belong to the region around it).
 
 ``coco_mask`` is a mask as COCO holds it: compressed RLE (holes survive, unlike outer
 polygons), area and bounding box, from pycocotools (the reference implementation every COCO
-reader uses); ``coco_mask_png`` reads a stored 0/1 or 0/255 mask PNG the short way.
+reader uses); ``coco_mask_png`` reads a stored 0/1 or 0/255 mask PNG the short way, and
+``rle_mask`` decodes the RLE back to a mask.
 """
 
 from __future__ import annotations
@@ -67,6 +68,19 @@ def coco_mask_png(data: bytes) -> CocoMask:
     level = 0 if int(gray.max()) <= 1 else 127
     _, columns = cv2.threshold(cv2.transpose(gray), level, 1, cv2.THRESH_BINARY)
     return _coco_encoded(columns.T)
+
+
+def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
+    """The boolean H×W mask of a compressed RLE ``{"size": [h, w], "counts": str}`` (as
+    ``CocoMask.rle`` holds it), row-major: pycocotools decodes column-major."""
+    from pycocotools import mask as coco
+
+    counts = rle["counts"]
+    encoded = {
+        "size": list(rle["size"]),
+        "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
+    }
+    return np.ascontiguousarray(coco.decode(encoded), dtype=bool)
 
 
 def _coco_encoded(fortran: NDArray[Any]) -> CocoMask:

@@ -10,7 +10,14 @@ from tests.core.shapes import pool_blob
 from tests.helpers import real_label_masks
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import read_mask
-from weldpool_core.outline import Polygon, fill_polygons, mask_polygons, normalised
+from weldpool_core.outline import (
+    Polygon,
+    coco_mask,
+    fill_polygons,
+    mask_polygons,
+    normalised,
+    rle_mask,
+)
 
 
 def ring_and_square() -> np.ndarray:
@@ -82,6 +89,17 @@ def test_yolo_coordinates_are_x_over_width_and_y_over_height() -> None:
         pytest.approx(0.5 / 300, abs=1e-6),
         1.0,
     ]
+
+
+def test_a_stored_rle_decodes_to_its_mask_row_major() -> None:
+    mask = np.zeros((100, 160), bool)  # wider than high, and not symmetric: a transpose shows
+    mask[20:80, 30:130] = True
+    mask[40:60, 60:90] = False
+    mask[5:9, 150:158] = True
+    back = rle_mask(coco_mask(mask).rle)
+    assert back.dtype == bool and back.flags.c_contiguous
+    assert np.array_equal(back, mask)
+    assert mask_polygons(back, 1.0) == mask_polygons(mask, 1.0)
 
 
 def test_bad_outlines_are_refused_in_one_sentence() -> None:
