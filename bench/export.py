@@ -8,8 +8,10 @@ a different hand-drawn-like pool mask per label, as a 0/255 PNG), then times ``G
 first byte, the time to the last, and the process's peak RSS and temporary files. The floor is
 the zip-copy of the same image and mask files into an in-memory zip (what any exporter must at
 least do); the ratio is the export's total over it. Median of ``--runs``. Labels carry the RLE,
-area and box that saving stores with them; ``coco unstored`` is the same export after they are
-dropped (labels saved before revision 0008: every mask decoded and encoded during the export).
+area, box and outlines that saving stores with them; ``yolo unstored`` is the YOLO export after
+the outlines are dropped (labels saved before revision 0011: every mask decoded from its RLE and
+traced during the export), ``coco unstored`` the COCO export after the RLE, area and box are
+dropped too (labels saved before revision 0008: every mask PNG decoded and encoded).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from app.models import Frame, Label, LabelStatus, Role, Sequence, Split, User
 from app.security import hash_password, issue_token
 from app.storage import Storage
 from weldpool_core.io import encode_png
-from weldpool_core.outline import coco_mask
+from weldpool_core.outline import coco_mask, region_outlines
 
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
@@ -72,6 +74,7 @@ def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
             )
             png = encode_png(mask)
             coco = coco_mask(mask > 0)  # what saving a label stores with it
+            outlines = region_outlines(mask > 0)
             stored = storage.put(png, f"{index:064x}", ".png", area="labels")
             frame = Frame(
                 sequence_id=run.id,
@@ -98,6 +101,7 @@ def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
                     mask_rle=coco.rle,
                     mask_area=coco.area,
                     mask_bbox=coco.bbox,
+                    mask_polygons=outlines,
                 )
             )
             files += [path, stored.path]
@@ -107,11 +111,11 @@ def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
     return token, files
 
 
-def forget_stored_masks(settings: Settings) -> None:
-    """Drop the stored RLE, area and box, as labels saved before revision 0008 have none."""
+def forget(settings: Settings, **columns: None) -> None:
+    """Drop stored values, as labels saved before the revision that stores them have none."""
     engine = create_db_engine(settings.resolved_database_url)
     with engine.begin() as connection:
-        connection.execute(sa.update(Label).values(mask_rle=None, mask_area=None, mask_bbox=None))
+        connection.execute(sa.update(Label).values(**columns))
     engine.dispose()
 
 
@@ -138,9 +142,11 @@ def main() -> None:
         print("| format | first byte ms | total ms | × floor | MB | temporary files |")
         print("|---|---:|---:|---:|---:|---:|")
         with TestClient(create_app(settings, embedded_worker=False)) as client:
-            for fmt in ("coco", "masks", "yolo", "coco unstored"):
-                if fmt == "coco unstored":  # labels saved before their RLE was stored (0008)
-                    forget_stored_masks(settings)
+            for fmt in ("coco", "masks", "yolo", "yolo unstored", "coco unstored"):
+                if fmt == "yolo unstored":  # labels saved before their outlines were (0011)
+                    forget(settings, mask_polygons=None)
+                if fmt == "coco unstored":  # … and before their RLE was stored (0008)
+                    forget(settings, mask_rle=None, mask_area=None, mask_bbox=None)
                 firsts, totals, size, leftovers = [], [], 0, 0
                 for _ in range(args.runs):
                     start = time.perf_counter()

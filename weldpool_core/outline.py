@@ -16,6 +16,7 @@ reader uses); ``coco_mask_png`` reads a stored 0/1 or 0/255 mask PNG the short w
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -80,7 +81,9 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
         "size": list(rle["size"]),
         "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
     }
-    return np.ascontiguousarray(coco.decode(encoded), dtype=bool)
+    columns = coco.decode(encoded)  # H×W 0/1 uint8, column-major: its .T is a row-major W×H
+    rows: NDArray[np.bool_] = cv2.transpose(columns.T).view(bool)  # OpenCV's transpose: 10× numpy's
+    return rows
 
 
 def _coco_encoded(fortran: NDArray[Any]) -> CocoMask:
@@ -126,6 +129,23 @@ def mask_polygons(
     return polygons
 
 
+OUTLINE_TOLERANCE = 1.0
+"""Douglas–Peucker tolerance (px) of the outlines formats without masks get (YOLO)."""
+OUTLINE_MIN_AREA = 4.0
+"""Regions enclosing fewer pixels² than this are specks those outlines leave out."""
+
+
+def region_outlines(mask: NDArray[np.bool_]) -> list[list[list[float]]]:
+    """Each region's outer boundary ``[[x, y], …]`` (frame pixels), simplified by
+    ``OUTLINE_TOLERANCE`` and without specks: what a format without masks or holes (Ultralytics
+    YOLO segmentation) gets of a mask, and what a label stores when it is saved."""
+    return [
+        [[x, y] for x, y in polygon.points]
+        for polygon in mask_polygons(mask, OUTLINE_TOLERANCE, OUTLINE_MIN_AREA)
+        if not polygon.hole
+    ]
+
+
 def _simplified(contour: NDArray[Any], tolerance: float, *, hole: bool = False) -> Polygon:
     if tolerance > 0 and len(contour) > 3:
         contour = cv2.approxPolyDP(contour, tolerance, closed=True)
@@ -161,7 +181,11 @@ def _pixels(polygon: Polygon) -> NDArray[np.int32]:
     return np.rint(np.asarray(polygon.points, dtype=np.float64)).astype(np.int32).reshape(-1, 1, 2)
 
 
-def normalised(polygon: Polygon, height: int, width: int) -> list[float]:
-    """The polygon as ``x1 y1 x2 y2 …`` in 0–1 of the frame (YOLO), pixel centres, clipped."""
-    xy = (np.asarray(polygon.points, dtype=np.float64) + 0.5) / np.array([width, height])
+def normalised(
+    polygon: Polygon | Sequence[Sequence[float]], height: int, width: int
+) -> list[float]:
+    """A polygon (or its ``[[x, y], …]``) as ``x1 y1 x2 y2 …`` in 0–1 of the frame (YOLO), pixel
+    centres, clipped."""
+    points = polygon.points if isinstance(polygon, Polygon) else polygon
+    xy = (np.asarray(points, dtype=np.float64) + 0.5) / np.array([width, height])
     return [round(float(v), 6) for v in np.clip(xy, 0.0, 1.0).reshape(-1)]

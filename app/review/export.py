@@ -8,15 +8,17 @@ compressed RLE with ``iscrowd`` 0, so holes survive; bounding boxes, areas, keyp
 record carries its weld run's process parameters) with the images beside it. ``yolo``: the
 Ultralytics YOLO segmentation layout — ``data.yaml``, ``images/<split>/`` and ``labels/<split>/``
 (``train``, ``val``, ``test``), one line ``0 x1 y1 x2 y2 …`` per region of the mask (polygons
-from ``weldpool_core.outline``, coordinates 0–1 of the frame). YOLO polygons cannot hold holes:
-a region's holes are left out there (COCO keeps them). Stems are the frame ids, zero-padded.
+from ``weldpool_core.outline.region_outlines``, coordinates 0–1 of the frame). YOLO polygons
+cannot hold holes: a region's holes are left out there (COCO keeps them). Stems are the frame
+ids, zero-padded.
 
 ``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
 no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
 (``POST /exports``) with progress and a download. COCO masks are decoded and RLE-encoded in a
 thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL) — only
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
-polygons are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
+polygons are stored with labels too (``Label.mask_polygons``); those of labels saved before
+are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import sqlalchemy as sa
+from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError
@@ -83,7 +87,7 @@ def _stored_rle(storage: Storage, label: Label) -> tuple[dict[str, Any], int, li
     return coco.rle, coco.area, coco.bbox
 
 
-def _stored_mask(storage: Storage, label: Label) -> Any:
+def _stored_mask(storage: Storage, label: Label) -> NDArray[np.bool_]:
     """A label's mask: from the RLE stored with it when it was saved (a fifth of a PNG's
     decoding time), else from its mask PNG."""
     if label.mask_rle is not None:
@@ -304,15 +308,18 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
 
 
 def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
-    """Ultralytics YOLO segmentation: one polygon line per region (holes cannot be written)."""
-    from weldpool_core.outline import mask_polygons, normalised
+    """Ultralytics YOLO segmentation: one polygon line per region (holes cannot be written),
+    from the outlines stored with each label (traced from its mask for labels saved before)."""
+    from weldpool_core.outline import normalised, region_outlines
 
     def label_file(row: Any) -> str:
         frame, label = row[0], row[1]
+        outlines = label.mask_polygons
+        if outlines is None:  # saved before outlines were stored with labels
+            outlines = region_outlines(_stored_mask(storage, label))
         lines = [
-            "0 " + " ".join(f"{v:.6f}" for v in normalised(polygon, frame.height, frame.width))
-            for polygon in mask_polygons(_stored_mask(storage, label), tolerance=1.0, min_area=4)
-            if not polygon.hole
+            "0 " + " ".join(f"{v:.6f}" for v in normalised(points, frame.height, frame.width))
+            for points in outlines
         ]
         return "\n".join(lines) + ("\n" if lines else "")
 

@@ -33,7 +33,7 @@ from app.models import (
 from app.review.queue import rescore_frame
 from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
-from weldpool_core.outline import CocoMask, coco_mask, coco_mask_png
+from weldpool_core.outline import CocoMask, coco_mask, region_outlines
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
@@ -333,18 +333,21 @@ def save_label(
         raise stale_revision(session, frame.id)
     stored: StoredFile | None = None
     coco: CocoMask | None = None
+    outlines: list[Any] | None = None
     if mask is not None:
-        coco = coco_mask(mask)
+        coco, outlines = coco_mask(mask), region_outlines(mask)
         stored = store_mask_file(storage, mask)
         mask_path = stored.path
     elif mask_path is not None:
-        coco = coco_mask_png(storage.absolute(mask_path).read_bytes())
+        accepted = load_mask(storage, mask_path)
+        coco, outlines = coco_mask(accepted), region_outlines(accepted)
     values = {
         "status": status,
         "mask_path": mask_path,
         "mask_rle": coco.rle if coco else None,
         "mask_area": coco.area if coco else None,
         "mask_bbox": coco.bbox if coco else None,
+        "mask_polygons": outlines,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
         "mask_changed": mask_changed,

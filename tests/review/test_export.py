@@ -178,17 +178,32 @@ def test_yolo_export_as_a_job_reads_back_as_the_masks(
         mask = masks[frame_id]
         assert (back.astype(bool) & mask).sum() / (back.astype(bool) | mask).sum() > 0.97
 
-    # Labels saved before their RLE was stored trace the mask PNG: the same lines.
+    # Labels saved before their outlines were stored trace the mask decoded from their RLE,
+    # and those saved before that the mask PNG: the same lines either way.
     from app.models import Label
 
+    def yolo_labels() -> dict[str, bytes]:
+        got = client.get("/api/v1/export", params={"format": "yolo"}, headers=auth(token))
+        files = zipfile.ZipFile(io.BytesIO(got.content))
+        return {n: files.read(n) for n in files.namelist() if n.startswith("labels/")}
+
+    written = yolo_labels()
+    assert written == {n: archive.read(n) for n in archive.namelist() if n.startswith("labels/")}
+    for forgotten in ({"mask_polygons": None}, {"mask_rle": None}):
+        with session_factory() as session:
+            session.execute(sa.update(Label).values(**forgotten))
+            session.commit()
+        assert yolo_labels() == written, forgotten
+    # …and stored outlines are what the export writes (a triangle stored in place of one).
     with session_factory() as session:
-        session.execute(sa.update(Label).values(mask_rle=None))
+        session.execute(
+            sa.update(Label)
+            .where(Label.frame_id == first)
+            .values(mask_polygons=[[[0, 0], [159, 0], [0, 99]]])
+        )
         session.commit()
-    legacy = client.get("/api/v1/export", params={"format": "yolo"}, headers=auth(token))
-    again = zipfile.ZipFile(io.BytesIO(legacy.content))
-    for name in archive.namelist():
-        if name.startswith("labels/"):
-            assert again.read(name) == archive.read(name), name
+    triangle = yolo_labels()[f"labels/train/{first:07d}.txt"].decode()
+    assert triangle == "0 0.003125 0.005000 0.996875 0.005000 0.003125 0.995000\n"
 
     assert client.get("/api/v1/exports/999999", headers=auth(token)).status_code == 404
     other = client.post(
@@ -246,8 +261,9 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
     client, settings, session_factory, make_user
 ) -> None:
     """Saving a label (a drawn mask, or an accepted proposal's) stores the mask's RLE, area and
-    box; the COCO export writes the stored values (changed here in the database, the export
-    follows) and encodes the mask of a label saved before they were stored."""
+    box, and its regions' outlines; the COCO export writes the stored values (changed here in
+    the database, the export follows) and encodes the mask of a label saved before they were
+    stored."""
     import sqlalchemy as sa
     from pycocotools import mask as coco_api
 
@@ -296,6 +312,9 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
         second = session.scalars(sa.select(Label).where(Label.frame_id == ids[1])).one()
         assert (second.mask_area, second.mask_bbox) == (400, [5, 10, 20, 20])
         assert second.mask_rle is not None and np.array_equal(decode(second.mask_rle), proposed)
+        # …and the regions' outlines YOLO writes (pixel centres of the boundary pixels).
+        assert first.mask_polygons == [[[30, 20], [30, 69], [119, 69], [119, 20]]]
+        assert second.mask_polygons == [[[5, 10], [5, 29], [24, 29], [24, 10]]]
         # The export reads what is stored: change it, and the export says so.
         first.mask_area, first.mask_bbox = 1, [1, 2, 3, 4]
         # A label saved before the values were stored: the export encodes its mask.
