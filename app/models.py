@@ -307,7 +307,7 @@ class Label(Base):
     mask_bbox: Mapped[list[int] | None] = mapped_column(JSONType)
     # Its regions' outer outlines as the YOLO export writes them (``outline.region_outlines``):
     # [[[x, y], …], …] in frame pixels.
-    mask_polygons: Mapped[list[Any] | None] = mapped_column(JSONType)
+    mask_outlines: Mapped[list[Any] | None] = mapped_column(JSONType)
     updated_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )

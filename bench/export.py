@@ -101,7 +101,7 @@ def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
                     mask_rle=coco.rle,
                     mask_area=coco.area,
                     mask_bbox=coco.bbox,
-                    mask_polygons=outlines,
+                    mask_outlines=outlines,
                 )
             )
             files += [path, stored.path]
@@ -144,7 +144,7 @@ def main() -> None:
         with TestClient(create_app(settings, embedded_worker=False)) as client:
             for fmt in ("coco", "masks", "yolo", "yolo unstored", "coco unstored"):
                 if fmt == "yolo unstored":  # labels saved before their outlines were (0011)
-                    forget(settings, mask_polygons=None)
+                    forget(settings, mask_outlines=None)
                 if fmt == "coco unstored":  # … and before their RLE was stored (0008)
                     forget(settings, mask_rle=None, mask_area=None, mask_bbox=None)
                 firsts, totals, size, leftovers = [], [], 0, 0

@@ -1,7 +1,7 @@
 """Benchmark ``weldpool stream`` on the three real WAAM videos (1280×800): speed and steadiness.
 
-Run: ``.venv/bin/python bench/stream.py [--model DIR] [--resnet18-model DIR] [--frames N]``
-(about fifteen minutes here).
+Run: ``.venv/bin/python bench/stream.py [--model DIR] [--resnet18-model DIR] [--frames N]
+[--repeats N] [--sizes light resnet18]`` (about twenty-five minutes here with both students).
 
 Speed: for each student size (trained on the real labels: light, and resnet18 with
 ``--resnet18-model``, whose real masks make the work after inference what it is on a weld;
@@ -9,10 +9,10 @@ otherwise random weights), backend (ONNX Runtime int8 and float, PyTorch) and th
 all cores), the stream pipeline as the command runs it — decoding (one decoder thread, the
 command's default) and pre-processing on the reader thread, inference, keypoints and geometry on
 the main one — over the first N frames of each video, read as fast as possible. Frames per
-second (median over the three videos), p50 / p99 latency from a frame leaving the decoder to its
-record, and the ratio to the inference-only floor (the same model on already prepared inputs,
-nothing else running). Each row makes ``--repeats`` passes (3) over the three videos: fps is
-the median of its passes, p50 / p99 of all their frames, the floor the median of its passes'.
+second, p50 / p99 latency from a frame leaving the decoder to its record, and the ratio to the
+inference-only floor (the same model on already prepared inputs, nothing else running). Each
+row makes ``--repeats`` passes (3) over the three videos: fps is the median of its passes, p50 /
+p99 of all their frames, the floor the median of its passes'.
 
 int8: each trained student quantized (``weldpool export-student --format onnx-int8``) on frames
 spread through the three videos, and its agreement with the float student on others.

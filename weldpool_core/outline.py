@@ -132,7 +132,9 @@ def mask_polygons(
 OUTLINE_TOLERANCE = 1.0
 """Douglas–Peucker tolerance (px) of the outlines formats without masks get (YOLO)."""
 OUTLINE_MIN_AREA = 4.0
-"""Regions enclosing fewer pixels² than this are specks those outlines leave out."""
+"""Regions enclosing fewer pixels² than this are specks those outlines leave out. Labels store
+their outlines when saved (``Label.mask_outlines``): changing either constant leaves the stored
+ones as they were (null the column to have the export trace them again)."""
 
 
 def region_outlines(mask: NDArray[np.bool_]) -> list[list[list[float]]]:

@@ -17,7 +17,7 @@ no temporary file, memory bounded by one entry); large sets can also run as an `
 (``POST /exports``) with progress and a download. COCO masks are decoded and RLE-encoded in a
 thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL) — only
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
-polygons are stored with labels too (``Label.mask_polygons``); those of labels saved before
+polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
 """
 
@@ -314,7 +314,7 @@ def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
 
     def label_file(row: Any) -> str:
         frame, label = row[0], row[1]
-        outlines = label.mask_polygons
+        outlines = label.mask_outlines
         if outlines is None:  # saved before outlines were stored with labels
             outlines = region_outlines(_stored_mask(storage, label))
         lines = [

@@ -347,7 +347,7 @@ def save_label(
         "mask_rle": coco.rle if coco else None,
         "mask_area": coco.area if coco else None,
         "mask_bbox": coco.bbox if coco else None,
-        "mask_polygons": outlines,
+        "mask_outlines": outlines,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
         "mask_changed": mask_changed,

@@ -189,7 +189,7 @@ def test_yolo_export_as_a_job_reads_back_as_the_masks(
 
     written = yolo_labels()
     assert written == {n: archive.read(n) for n in archive.namelist() if n.startswith("labels/")}
-    for forgotten in ({"mask_polygons": None}, {"mask_rle": None}):
+    for forgotten in ({"mask_outlines": None}, {"mask_rle": None}):
         with session_factory() as session:
             session.execute(sa.update(Label).values(**forgotten))
             session.commit()
@@ -199,7 +199,7 @@ def test_yolo_export_as_a_job_reads_back_as_the_masks(
         session.execute(
             sa.update(Label)
             .where(Label.frame_id == first)
-            .values(mask_polygons=[[[0, 0], [159, 0], [0, 99]]])
+            .values(mask_outlines=[[[0, 0], [159, 0], [0, 99]]])
         )
         session.commit()
     triangle = yolo_labels()[f"labels/train/{first:07d}.txt"].decode()
@@ -313,8 +313,8 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
         assert (second.mask_area, second.mask_bbox) == (400, [5, 10, 20, 20])
         assert second.mask_rle is not None and np.array_equal(decode(second.mask_rle), proposed)
         # …and the regions' outlines YOLO writes (pixel centres of the boundary pixels).
-        assert first.mask_polygons == [[[30, 20], [30, 69], [119, 69], [119, 20]]]
-        assert second.mask_polygons == [[[5, 10], [5, 29], [24, 29], [24, 10]]]
+        assert first.mask_outlines == [[[30, 20], [30, 69], [119, 69], [119, 20]]]
+        assert second.mask_outlines == [[[5, 10], [5, 29], [24, 29], [24, 10]]]
         # The export reads what is stored: change it, and the export says so.
         first.mask_area, first.mask_bbox = 1, [1, 2, 3, 4]
         # A label saved before the values were stored: the export encodes its mask.

@@ -65,14 +65,12 @@ WORK_PREFIX = ".quantize."
 
 def remove_leftovers(model_dir: str | Path) -> list[str]:
     """Remove what a quantizing process killed midway leaves in MODEL_DIR: its work folder and
-    the files it had not yet renamed into place (``checkpoint.write_atomic``'s ``.NAME.*``
-    temporaries of the int8 file, the ONNX file and export.json). Returns their names. Only
-    for when nothing else writes those files there (the app runs one such job at a time)."""
-    from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE
-
+    the int8 file it had not yet renamed into place (``checkpoint.write_atomic``'s
+    ``.model.int8.onnx.*``). Returns their names. Only for when no other process quantizes
+    there (the app runs one such job at a time). The ``model.onnx`` and ``export.json``
+    temporaries are left alone: a live view or ``weldpool export-student`` may be writing them."""
     root = Path(model_dir)
-    patterns = [f"{WORK_PREFIX}*"] + [f".{name}.*" for name in (INT8_ONNX_FILE, ONNX_FILE)]
-    patterns.append(f".{EXPORT_FILE}.*")
+    patterns = [f"{WORK_PREFIX}*", f".{INT8_ONNX_FILE}.*"]
     removed = []
     for pattern in patterns:
         for path in sorted(root.glob(pattern)):

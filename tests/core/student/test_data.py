@@ -74,13 +74,42 @@ def test_shrink_gives_opencvs_area_pixels_for_every_whole_factor(channels: int) 
     assert np.array_equal(shrink(frame, 256, 160), expected)
 
 
-def test_a_real_frame_goes_to_the_input_by_the_box_filter_unchanged() -> None:
+@pytest.mark.parametrize(
+    "factors", [(3, 1), (1, 3), (3, 3), (5, 1), (1, 5), (3, 5), (5, 3), (5, 5)]
+)
+def test_shrink_rounds_every_possible_block_sum_as_opencv_does(factors: tuple[int, int]) -> None:
+    # One block per possible sum (0 … 255·area, saturated pool pixels included): the box
+    # filter's fixed-point division must round each exactly as INTER_AREA does.
+    fx, fy = factors
+    area = fx * fy
+    sums = np.arange(255 * area + 1)
+    columns = 64
+    rows = -(-len(sums) // columns)
+    sums = np.concatenate([sums, np.zeros(rows * columns - len(sums), int)])
+    ranks = np.arange(area).reshape(fy, fx)  # a block's pixels share its sum as evenly as can be
+    blocks = sums[:, None, None] // area + (ranks[None] < (sums % area)[:, None, None])
+    image = (
+        blocks.reshape(rows, columns, fy, fx).transpose(0, 2, 1, 3).reshape(rows * fy, -1)
+    ).astype(np.uint8)
+    assert np.array_equal(image.reshape(rows, fy, columns, fx).sum((1, 3)).ravel(), sums)
+    expected = cv2.resize(image, (columns, rows), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(shrink(image, columns, rows), expected)
+
+
+def test_a_real_frame_goes_to_the_input_by_the_box_filter_unchanged(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     frame = cv2.GaussianBlur(
         np.random.default_rng(3).integers(0, 256, (800, 1280, 3), dtype=np.uint8), (0, 0), 3
     )
+    expected = cv2.resize(frame, (256, 160), interpolation=cv2.INTER_AREA)
+
+    def no_resize(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("a 1280×800 frame takes the box filter's way")
+
+    monkeypatch.setattr(cv2, "resize", no_resize)
     geometry = FrameGeometry.fit(800, 1280, 256)
     placed = geometry.image_to_input(frame)
-    expected = cv2.resize(frame, (256, 160), interpolation=cv2.INTER_AREA)
     assert np.array_equal(placed[geometry.inner_rows, geometry.inner_columns], expected)
     assert not placed[: geometry.offset_y].any() and not placed[geometry.offset_y + 160 :].any()
 

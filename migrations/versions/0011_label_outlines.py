@@ -20,9 +20,9 @@ depends_on = None
 
 def upgrade() -> None:
     with op.batch_alter_table('labels', schema=None) as batch_op:
-        batch_op.add_column(sa.Column('mask_polygons', sa.JSON(), nullable=True))
+        batch_op.add_column(sa.Column('mask_outlines', sa.JSON(), nullable=True))
 
 
 def downgrade() -> None:
     with op.batch_alter_table('labels', schema=None) as batch_op:
-        batch_op.drop_column('mask_polygons')
+        batch_op.drop_column('mask_outlines')
