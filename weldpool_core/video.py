@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 
 _SUPPORTED = "upload an MP4 or AVI video"
+T = TypeVar("T")
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".avi", ".mkv"})
 """File names of the containers ``sniff_container`` knows."""
 
@@ -113,10 +114,15 @@ def iter_video_frames(path: str | Path, every_nth: int = 1) -> Iterator[VideoFra
         capture.release()
 
 
+def spread_evenly(items: Sequence[T], count: int) -> list[T]:
+    """Up to ``count`` of ``items`` spread evenly over them, first and last included (all of
+    them when there are no more than ``count``): frames of a run to calibrate on."""
+    if len(items) <= count:
+        return list(items)
+    return [items[round(i)] for i in np.linspace(0, len(items) - 1, count)]
+
+
 def spread_frames(path: str | Path, count: int) -> list[NDArray[np.uint8]]:
     """Up to ``count`` frames spread evenly through a video (gray or RGB, as stored)."""
     every = max(1, probe_video(path).frame_count // max(count, 1))
-    frames = [frame.pixels for frame in iter_video_frames(path, every)]
-    if len(frames) <= count:
-        return frames
-    return [frames[round(i)] for i in np.linspace(0, len(frames) - 1, count)]
+    return spread_evenly([frame.pixels for frame in iter_video_frames(path, every)], count)

@@ -341,16 +341,12 @@ def export_cmd(
 
 def _calibration_images(paths: tuple[str, ...], count: int) -> list[Any]:
     """``count`` frames taken evenly from the images and videos PATHS name (folders expanded)."""
-    import numpy as np
-
     from weldpool_core.io import read_image
-    from weldpool_core.video import VIDEO_SUFFIXES, spread_frames
+    from weldpool_core.video import VIDEO_SUFFIXES, spread_evenly, spread_frames
 
     files = named_files(paths, IMAGE_SUFFIXES | VIDEO_SUFFIXES, "image or video", stem=str)
     stills = [p for p in files if p.suffix.lower() not in VIDEO_SUFFIXES]
-    images = [read_image(p).pixels for p in stills[:: max(1, len(stills) // count)]]
+    images = [read_image(p).pixels for p in spread_evenly(stills, count)]
     for video in (p for p in files if p.suffix.lower() in VIDEO_SUFFIXES):
         images += spread_frames(video, count)
-    if len(images) <= count:
-        return images
-    return [images[round(i)] for i in np.linspace(0, len(images) - 1, count)]
+    return spread_evenly(images, count)

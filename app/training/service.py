@@ -239,10 +239,9 @@ def active_job(session: Session, kind: str) -> Job | None:
 def calibration_frame_ids(session: Session, count: int = CALIBRATION_FRAMES) -> list[int]:
     """Up to ``count`` frames spread evenly over the project's frames (by id): the cameras and
     conditions an int8 student will see, reviewed or not."""
-    ids = list(session.scalars(sa.select(Frame.id).order_by(Frame.id)))
-    if len(ids) <= count:
-        return ids
-    return [ids[round(i)] for i in np.linspace(0, len(ids) - 1, count)]
+    from weldpool_core.video import spread_evenly
+
+    return spread_evenly(list(session.scalars(sa.select(Frame.id).order_by(Frame.id))), count)
 
 
 @dataclass(frozen=True)
