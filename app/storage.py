@@ -2,9 +2,10 @@
 
 The database holds metadata and relative paths; the files live here. A file is written to a
 temporary name, flushed to disk, then renamed into place, and only then is its row committed.
-``put_many`` does this for a whole request in one batch: every file written, then all of them
-flushed to disk together (in parallel), renamed, and the directories that received them
-flushed, so the rows committed next never name a file the disk could lose.
+For a whole request this is two steps: ``stage`` writes and flushes each new file (in the
+ingest pool, as soon as it is checked), ``install_many`` renames them all into place and
+flushes the directories that received them, so the rows committed next never name a file the
+disk could lose.
 If the commit fails, the files this attempt created are removed again; if the process dies
 between rename and commit, ``sweep_orphans`` (run by ``weldpool serve``) removes the leftovers.
 """
@@ -16,12 +17,20 @@ import os
 import time
 import uuid
 from collections.abc import Collection, Iterable, Sequence
-from concurrent.futures import Executor
+from concurrent.futures import Executor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
 CHUNK = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class StagedFile:
+    """Content written and flushed under a temporary name, not yet in the store."""
+
+    relative: str
+    temporary: Path | None  # None: the store holds this content already
 
 
 @dataclass(frozen=True)
@@ -70,52 +79,80 @@ class Storage:
             return StoredFile(relative, created=False)
         return self._install(self._write_temporary(data), relative)
 
-    def put_many(
-        self,
-        items: Sequence[tuple[bytes, str, str]],
-        area: str = "frames",
-        executor: Executor | None = None,
-    ) -> list[StoredFile]:
-        """``put`` for many ``(data, sha256, extension)`` at once, with one flush to disk.
-
-        Each new file is written to a temporary name; then every temporary is fsynced
-        (in ``executor``'s threads when given: fsync releases the GIL and the disk queues
-        them together), renamed into place, and each directory that gained an entry is
-        fsynced once, so a crash after this returns cannot lose a file or its name.
-        """
-        results: list[StoredFile | None] = [None] * len(items)
-        pending: dict[str, tuple[int, Path]] = {}
+    def stage(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StagedFile:
+        """Write new content to a temporary name and flush it to disk; nothing is in the store
+        until ``install_many``. Any thread may stage (fsync releases the GIL), so a request's
+        files reach the disk while the rest of it is still being checked."""
+        relative = self.relative_path(area, sha256, extension)
+        if (self.home / relative).exists():
+            return StagedFile(relative, None)
+        temporary = self._temporary()
         try:
-            for i, (data, sha256, extension) in enumerate(items):
-                relative = self.relative_path(area, sha256, extension)
-                if relative in pending or (self.home / relative).exists():
-                    results[i] = StoredFile(relative, created=False)
-                    continue
-                temporary = self._temporary()
-                temporary.write_bytes(data)
-                pending[relative] = (i, temporary)
-            paths = [temporary for _, temporary in pending.values()]
-            list(executor.map(_fsync, paths) if executor else map(_fsync, paths))
+            temporary.write_bytes(data)
+            _fsync(temporary)
         except BaseException:
-            for _, temporary in pending.values():
-                temporary.unlink(missing_ok=True)
+            temporary.unlink(missing_ok=True)
             raise
+        return StagedFile(relative, temporary)
+
+    def unstage(self, staged: Iterable[StagedFile]) -> None:
+        """Remove staged temporaries that will not be installed."""
+        for item in staged:
+            if item.temporary is not None:
+                item.temporary.unlink(missing_ok=True)
+
+    def install_many(
+        self, staged: Sequence[StagedFile], executor: Executor | None = None
+    ) -> list[StoredFile]:
+        """Rename staged files into place, then flush each directory that gained an entry once
+        (in ``executor``'s threads when given), so a crash after this returns cannot lose a
+        file or its name. On failure nothing of it is left: installed files and temporaries
+        are removed."""
         touched: set[Path] = set()
         installed: list[StoredFile] = []
+        results: list[StoredFile] = []
         try:
-            for relative, (i, temporary) in pending.items():
-                final = self.home / relative
+            for item in staged:
+                if item.temporary is None:
+                    results.append(StoredFile(item.relative, created=False))
+                    continue
+                final = self.home / item.relative
                 touched.update(_created_parents(final.parent, self.home))
                 touched.add(final.parent)
-                results[i] = stored = self._install(temporary, relative)
+                stored = self._install(item.temporary, item.relative)
+                results.append(stored)
                 installed.append(stored)
             list(executor.map(_fsync, touched) if executor else map(_fsync, touched))
         except BaseException:
             self.discard(installed)
-            for _, temporary in pending.values():
-                temporary.unlink(missing_ok=True)
+            self.unstage(staged)
             raise
-        return [r for r in results if r is not None]  # every item got one
+        return results
+
+    def stage_many(
+        self,
+        items: Sequence[tuple[bytes, str, str]],
+        area: str = "frames",
+        executor: Executor | None = None,
+    ) -> list[StagedFile]:
+        """``stage`` for many ``(data, sha256, extension)``, in ``executor``'s threads when
+        given; if any fails, the others' temporaries are removed and its error raised."""
+        if executor is None:
+            staged: list[StagedFile] = []
+            try:
+                for item in items:
+                    staged.append(self.stage(*item, area))
+            except BaseException:
+                self.unstage(staged)
+                raise
+            return staged
+        futures = [executor.submit(self.stage, *item, area) for item in items]
+        wait(futures)
+        errors = [e for f in futures if (e := f.exception()) is not None]
+        if errors:
+            self.unstage(f.result() for f in futures if f.exception() is None)
+            raise errors[0]
+        return [f.result() for f in futures]
 
     def write(self, relative: str, data: bytes) -> Path:
         """Write (or replace) the file at ``relative`` atomically; returns its path."""

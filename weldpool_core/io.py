@@ -3,6 +3,8 @@
 ``read_image`` accepts PNG, JPEG, TIFF and BMP files, 8- or 16-bit, gray, RGB or RGBA, checks
 them (format by content, pixel limit before decoding, truncation) and decodes them once.
 ``to_rgb8`` turns any decoded frame into what the models take: RGB ``uint8``.
+``check_image`` checks a file without keeping its pixels (ingest): a plain PNG is decompressed in
+full and verified, any other file is decoded by ``read_image``.
 
 16-bit → 8-bit mapping (``stretch_to_uint8``): a linear stretch between the 0.5th percentile
 (the background) and the 99.99th percentile of the frame (so that a few hot pixels do not set
@@ -13,11 +15,13 @@ clipped flat). Frames whose values span less than 1 grey level map to black.
 from __future__ import annotations
 
 import io
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
+import deflate
 import numpy as np
 from numpy.typing import NDArray
 from PIL import Image, UnidentifiedImageError
@@ -108,7 +112,7 @@ def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXE
     fmt = _probe(data, max_pixels)
     pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None:
-        raise InvalidInputError("The image is truncated or corrupt and cannot be decoded.")
+        raise InvalidInputError(_CORRUPT)
     if pixels.dtype not in (np.uint8, np.uint16):
         raise InvalidInputError(
             f"{pixels.dtype} pixels are not supported; use 8- or 16-bit integer images."
@@ -129,6 +133,89 @@ def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXE
         bit_depth=16 if pixels.dtype == np.uint16 else 8,
     )
     return DecodedImage(pixels, info)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 6: 4}
+"""Colour types whose decoded channels follow from the header alone (gray, RGB, RGBA); the
+others (palette, gray + alpha) and any ``tRNS`` chunk change what OpenCV returns, so they are
+decoded."""
+_PNG_CHUNK = struct.Struct(">I4s")
+_CORRUPT = "The image is truncated or corrupt and cannot be decoded."
+
+
+def check_image(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> ImageInfo:
+    """What ``read_image(data).info`` says, checked as strictly, without keeping the pixels.
+
+    A plain PNG (8- or 16-bit gray, RGB or RGBA, not interlaced, no ``tRNS``) is verified down
+    to its last byte instead: every chunk's CRC-32, the whole image stream inflated (libdeflate,
+    2× zlib's speed) with its Adler-32, exactly the header's number of bytes, and a valid filter
+    type on every row. Only undoing the row filters is left out: it cannot fail, and ingest
+    needs no pixel. Any other file is decoded by ``read_image``.
+
+    Raises InvalidInputError with one sentence, as ``read_image`` does.
+    """
+    info = _check_plain_png(data, max_pixels) if data.startswith(PNG_SIGNATURE) else None
+    return info if info is not None else read_image(data, max_pixels=max_pixels).info
+
+
+def _check_plain_png(data: bytes, max_pixels: int) -> ImageInfo | None:
+    """The info of a verified plain PNG (see ``check_image``); None for any other PNG."""
+    view = memoryview(data)
+    chunks: list[tuple[bytes, memoryview]] = []
+    position = len(PNG_SIGNATURE)
+    while True:
+        if position + 12 > len(data):
+            raise InvalidInputError(_CORRUPT)  # truncated before IEND
+        length, kind = _PNG_CHUNK.unpack_from(data, position)
+        end = position + 8 + length
+        if length > 2**31 - 1 or end + 4 > len(data):
+            raise InvalidInputError(_CORRUPT)
+        body = view[position + 8 : end]
+        if deflate.crc32(view[position + 4 : end]) != int.from_bytes(view[end : end + 4], "big"):
+            raise InvalidInputError(_CORRUPT)
+        chunks.append((kind, body))
+        position = end + 4
+        if kind == b"IEND":
+            break
+    kinds = [kind for kind, _ in chunks]
+    if kinds[0] != b"IHDR" or len(chunks[0][1]) != 13:
+        return None  # let the decoder say what is wrong
+    width, height, depth, colour, compression, filtering, interlace = struct.unpack(
+        ">IIBBBBB", chunks[0][1]
+    )
+    plain = (
+        width > 0
+        and height > 0
+        and colour in _PNG_CHANNELS
+        and depth in (8, 16)
+        and (compression, filtering, interlace) == (0, 0, 0)
+        and b"tRNS" not in kinds
+        and all(kind in (b"IHDR", b"IDAT", b"IEND") or kind[:1].islower() for kind in kinds)
+    )
+    idat = [index for index, kind in enumerate(kinds) if kind == b"IDAT"]
+    if not plain or not idat or idat != list(range(idat[0], idat[-1] + 1)):
+        return None  # IDAT chunks must be consecutive: the decoder says so
+    if width * height > max_pixels:
+        _probe(data, max_pixels)  # says it in the same words as for every format
+    row = 1 + width * _PNG_CHANNELS[colour] * depth // 8
+    try:
+        stream = deflate.zlib_decompress(b"".join(chunks[i][1] for i in idat), row * height)
+    except deflate.DeflateError:
+        raise InvalidInputError(_CORRUPT) from None
+    if len(stream) != row * height:
+        raise InvalidInputError(_CORRUPT)
+    if int(np.frombuffer(stream, np.uint8)[::row].max()) > 4:
+        raise InvalidInputError(_CORRUPT)  # a row filter type PNG does not have
+    return ImageInfo(
+        format="PNG",
+        media_type=MEDIA_TYPES["PNG"],
+        extension=EXTENSIONS["PNG"],
+        width=width,
+        height=height,
+        channels=_PNG_CHANNELS[colour],
+        bit_depth=depth,
+    )
 
 
 def stretch_to_uint8(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import email.message
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, status
@@ -14,6 +14,7 @@ from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames import service
+from app.frames.multipart import StreamedForm, client_file_name
 from app.frames.schemas import (
     DeletionOut,
     Duplicate,
@@ -57,23 +58,13 @@ async def _form(request: Request, max_files: int) -> FormData:
 
 
 def _client_name(upload: UploadFile) -> str:
-    """The file name exactly as the client sent it.
-
-    The multipart parser keeps only what follows the last backslash of a name that looks like
-    a Windows path (``C:\\Windows\\x.png`` becomes ``x.png``), which would slip past the rule
-    that names with path parts are refused; so the part's own header is read again here.
-    """
+    """The file name exactly as the client sent it (``multipart.client_file_name``)."""
     raw = upload.headers.get("content-disposition")
-    if raw:
-        header = email.message.Message()
-        header["content-disposition"] = raw
-        name = header.get_filename()
-        if name is not None:
-            return str(name)
-    return upload.filename or ""
+    name = client_file_name(raw) if raw else None
+    return name if name is not None else upload.filename or ""
 
 
-def _optional_int(form: FormData, name: str, default: int | None = None) -> int | None:
+def _optional_int(form: Mapping[str, Any], name: str, default: int | None = None) -> int | None:
     value = form.get(name)
     if value is None or value == "":
         return default
@@ -195,23 +186,27 @@ async def upload_frames(
     settings: SettingsDep,
     user: CurrentUser,
 ) -> Response:
-    """Upload one or many frames (PNG, JPEG, TIFF, BMP; 8/16-bit): each is checked, decoded
-    once, stored by content hash and recorded; duplicates and refusals are listed."""
-    form = await _form(request, settings.max_files_per_request)
-    sequence_id = _optional_int(form, "sequence_id")
-    uploads = [u for u in form.getlist("files") if isinstance(u, UploadFile)]
-    if not uploads:
-        raise InvalidInputError("The request has no `files` part; attach one or more frames.")
-    files = [service.IncomingFile(_client_name(u), await u.read()) for u in uploads]
-    await form.close()
+    """Upload one or many frames (PNG, JPEG, TIFF, BMP; 8/16-bit): each is checked once (from
+    the moment it has arrived), stored by content hash and recorded; duplicates and refusals
+    are listed."""
+    checks = service.FrameChecks(storage, settings.max_image_pixels)
+    try:
+        form = StreamedForm(
+            lambda field, name, data: (
+                checks.add(service.IncomingFile(name, data)) if field == "files" else None
+            ),
+            max_files=settings.max_files_per_request,
+            max_fields=64,
+        )
+        await form.read(request.headers.get("content-type", ""), request.stream())
+        sequence_id = _optional_int(form.fields, "sequence_id")
+        if not len(checks):
+            raise InvalidInputError("The request has no `files` part; attach one or more frames.")
+    except BaseException:
+        await run_in_threadpool(checks.discard)
+        raise
     result = await run_in_threadpool(
-        service.ingest_frames,
-        session,
-        storage,
-        files,
-        sequence_id=sequence_id,
-        user=user,
-        max_pixels=settings.max_image_pixels,
+        service.record_checked, session, storage, checks, sequence_id=sequence_id, user=user
     )
     body = IngestOut(
         stored=[FrameOut.model_validate(f) for f in result.stored],

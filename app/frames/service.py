@@ -7,10 +7,11 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import threading
 from collections.abc import Callable, Iterable
 from collections.abc import Sequence as Seq
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
@@ -34,13 +35,23 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
-from app.storage import Storage, StoredFile
+from app.storage import StagedFile, Storage, StoredFile
 from weldpool_core.geometry import scale_from_points
-from weldpool_core.io import EXTENSIONS, MEDIA_TYPES, ImageInfo, encode_png, read_image
+from weldpool_core.io import (
+    EXTENSIONS,
+    MEDIA_TYPES,
+    ImageInfo,
+    check_image,
+    encode_png,
+    read_image,
+)
 from weldpool_core.video import probe_video, sniff_container
 
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
 _POOL = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="ingest")
+_DISK = ThreadPoolExecutor(max_workers=8, thread_name_prefix="ingest-disk")
+"""Writes and fsyncs wait on the disk, not a core: their own threads keep the checks going
+and let the disk queue several flushes at once."""
 
 
 # --- sequences ---------------------------------------------------------------------------------
@@ -135,6 +146,7 @@ class CheckedFrame:
     info: ImageInfo
     frame_index: int | None = None
     timestamp_s: float | None = None
+    staged: StagedFile | None = None  # already written and flushed (``Storage.stage``)
 
 
 @dataclass(frozen=True)
@@ -173,49 +185,107 @@ def name_problem(name: str) -> str | None:
 def check_frame_file(
     incoming: IncomingFile, max_pixels: int, digest: str | None = None
 ) -> CheckedFrame | Rejection:
-    """Name, content and decodability of one file; decodes it exactly once."""
+    """Name, content and decodability of one file (``check_image``: a plain PNG inflated in
+    full and verified, any other file decoded), exactly once."""
     problem = name_problem(incoming.name)
     if problem:
         return Rejection(incoming.name, problem)
     try:
-        image = read_image(incoming.data, max_pixels=max_pixels)
+        info = check_image(incoming.data, max_pixels=max_pixels)
     except InvalidInputError as exc:
         return Rejection(incoming.name, exc.message)
     digest = digest or hashlib.sha256(incoming.data).hexdigest()
-    return CheckedFrame(incoming.name, incoming.data, digest, image.info)
+    return CheckedFrame(incoming.name, incoming.data, digest, info)
 
 
-def _check_distinct(files: Seq[IncomingFile], max_pixels: int) -> list[CheckedFrame | Rejection]:
-    """``check_frame_file`` for every file, decoding each distinct content once.
+_Check = tuple[str, CheckedFrame | Rejection | None, Future[StagedFile] | None]
+"""What one file's check gives: its digest; its verdict, or None for a copy of a content
+another file of the request is checked for; the staging of a good one."""
 
-    Files are hashed first (cheap); the first well-named file of each content is decoded in
-    the pool, and its copies share its verdict (each still has its own name checked).
+
+class FrameChecks:
+    """The checks of one request's files, each started in the pool the moment it arrives.
+
+    A file is hashed; the first of each content is checked (``check_frame_file``) and, when
+    good, staged on disk at once (``Storage.stage``, in the disk threads) while later files
+    are still arriving or being checked; its copies share its verdict, each still with its own
+    name checked. ``results`` waits for all of them; ``discard`` undoes the staging.
     """
-    digests = list(_POOL.map(lambda f: hashlib.sha256(f.data).hexdigest(), files))
-    first: dict[str, int] = {}
-    for index, (incoming, digest) in enumerate(zip(files, digests, strict=True)):
-        if not name_problem(incoming.name):
-            first.setdefault(digest, index)
-    verdicts = dict(
-        zip(
-            first.values(),
-            _POOL.map(lambda i: check_frame_file(files[i], max_pixels, digests[i]), first.values()),
-            strict=True,
-        )
-    )
-    checked: list[CheckedFrame | Rejection] = []
-    for index, (incoming, digest) in enumerate(zip(files, digests, strict=True)):
-        problem = name_problem(incoming.name)
-        verdict = verdicts.get(first.get(digest, -1))
-        if problem or verdict is None:
-            checked.append(Rejection(incoming.name, problem or "The file could not be checked."))
-        elif index == first[digest]:
-            checked.append(verdict)
-        elif isinstance(verdict, Rejection):
-            checked.append(Rejection(incoming.name, verdict.reason))
-        else:
-            checked.append(CheckedFrame(incoming.name, incoming.data, digest, verdict.info))
-    return checked
+
+    def __init__(self, storage: Storage, max_pixels: int) -> None:
+        self._storage, self._max_pixels = storage, max_pixels
+        self._files: list[IncomingFile] = []
+        self._futures: list[Future[_Check] | None] = []  # None: refused by its name
+        self._started: set[str] = set()
+        self._lock = threading.Lock()
+
+    def add(self, incoming: IncomingFile) -> None:
+        """Start checking one file (returns at once)."""
+        self._files.append(incoming)
+        named = name_problem(incoming.name) is None
+        self._futures.append(_POOL.submit(self._check, incoming) if named else None)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def _check(self, incoming: IncomingFile) -> _Check:
+        digest = hashlib.sha256(incoming.data).hexdigest()
+        with self._lock:
+            if digest in self._started:
+                return digest, None, None
+            self._started.add(digest)
+        verdict = check_frame_file(incoming, self._max_pixels, digest)
+        if isinstance(verdict, Rejection):
+            return digest, verdict, None
+        extension = verdict.info.extension
+        return digest, verdict, _DISK.submit(self._storage.stage, incoming.data, digest, extension)
+
+    def _settle(self) -> tuple[list[_Check], list[BaseException]]:
+        """Wait for every check and staging; what they gave, and what they raised."""
+        futures = [f for f in self._futures if f is not None]
+        wait(futures)
+        checks = [f.result() for f in futures if f.exception() is None]
+        stages = [stage for _, _, stage in checks if stage is not None]
+        wait(stages)
+        pending: list[Future[Any]] = [*futures, *stages]
+        errors = [e for f in pending if (e := f.exception()) is not None]
+        return checks, errors
+
+    def discard(self) -> None:
+        """Wait for the checks, then remove every file they staged (the request failed)."""
+        checks, _ = self._settle()
+        stages = [stage for _, _, stage in checks if stage is not None]
+        self._storage.unstage(s.result() for s in stages if s.exception() is None)
+
+    def results(self) -> list[CheckedFrame | Rejection]:
+        """Every file's verdict, in the order they arrived; the first good file of each content
+        carries its staged file. If anything failed, nothing staged is left and it is raised."""
+        checks, errors = self._settle()
+        if errors:
+            self.discard()
+            raise errors[0]
+        verdicts: dict[str, CheckedFrame | Rejection] = {}
+        for digest, verdict, stage in checks:
+            if isinstance(verdict, CheckedFrame) and stage is not None:
+                verdict = replace(verdict, staged=stage.result())
+            if verdict is not None:
+                verdicts[digest] = verdict
+        checked: list[CheckedFrame | Rejection] = []
+        placed: set[str] = set()
+        for incoming, future in zip(self._files, self._futures, strict=True):
+            if future is None:
+                checked.append(Rejection(incoming.name, name_problem(incoming.name) or ""))
+                continue
+            digest = future.result()[0]
+            verdict = verdicts[digest]
+            if isinstance(verdict, Rejection):
+                checked.append(Rejection(incoming.name, verdict.reason))
+            elif digest in placed:
+                checked.append(CheckedFrame(incoming.name, incoming.data, digest, verdict.info))
+            else:
+                placed.add(digest)
+                checked.append(replace(verdict, name=incoming.name))
+        return checked
 
 
 def _existing(session: Session, sequence_id: int | None, hashes: Seq[str]) -> dict[str, int]:
@@ -250,7 +320,26 @@ def record_frames(
     video_id: int | None = None,
 ) -> IngestResult:
     """Store and record checked frames in one transaction; same content in the same sequence
-    is reported as a duplicate. Safe against a concurrent upload of the same content."""
+    is reported as a duplicate. Safe against a concurrent upload of the same content.
+
+    Frames staged while they were checked are installed as they are; the others are staged
+    here. Staged files that are not installed (duplicates) are removed."""
+    staged = {f.sha256: f.staged for f in frames if f.staged is not None}
+    try:
+        return _record_staged(session, storage, frames, staged, sequence_id, user, video_id)
+    finally:
+        storage.unstage(staged.values())
+
+
+def _record_staged(
+    session: Session,
+    storage: Storage,
+    frames: Seq[CheckedFrame],
+    staged: dict[str, StagedFile],
+    sequence_id: int | None,
+    user: User | None,
+    video_id: int | None,
+) -> IngestResult:
     for attempt in (1, 2):
         result = IngestResult()
         existing = _existing(session, sequence_id, [f.sha256 for f in frames])
@@ -266,8 +355,16 @@ def record_frames(
                 new[frame.sha256] = frame
         written: list[StoredFile] = []
         try:
-            items = [(f.data, f.sha256, f.info.extension) for f in new.values()]
-            written = storage.put_many(items, executor=_POOL)
+            unstaged = [f for f in new.values() if f.sha256 not in staged]
+            items = [(f.data, f.sha256, f.info.extension) for f in unstaged]
+            staged.update(
+                zip(
+                    [f.sha256 for f in unstaged],
+                    storage.stage_many(items, executor=_DISK),
+                    strict=True,
+                )
+            )
+            written = storage.install_many([staged.pop(f.sha256) for f in new.values()], _DISK)
             rows = [
                 _frame_row(frame, stored.path, sequence_id, user, video_id)
                 for frame, stored in zip(new.values(), written, strict=True)
@@ -331,11 +428,31 @@ def ingest_frames(
     user: User | None,
     max_pixels: int,
 ) -> IngestResult:
-    """Check every file (in parallel, each distinct content decoded once), then store and
+    """Check every file (in parallel, each distinct content checked once), then store and
     record the good ones atomically."""
-    if sequence_id is not None:
-        get_sequence(session, sequence_id)
-    checked = _check_distinct(files, max_pixels)
+    checks = FrameChecks(storage, max_pixels)
+    for incoming in files:
+        checks.add(incoming)
+    return record_checked(session, storage, checks, sequence_id=sequence_id, user=user)
+
+
+def record_checked(
+    session: Session,
+    storage: Storage,
+    checks: FrameChecks,
+    *,
+    sequence_id: int | None,
+    user: User | None,
+) -> IngestResult:
+    """Store and record the good files of ``checks`` atomically, once all are checked; the
+    refused ones are listed with their reasons. Nothing staged is left behind on failure."""
+    try:
+        if sequence_id is not None:
+            get_sequence(session, sequence_id)
+        checked = checks.results()
+    except BaseException:
+        checks.discard()
+        raise
     good = [c for c in checked if isinstance(c, CheckedFrame)]
     result = record_frames(session, storage, good, sequence_id=sequence_id, user=user)
     result.rejected = [c for c in checked if isinstance(c, Rejection)]

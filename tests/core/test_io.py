@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import io
+import struct
+import zlib
 
 import numpy as np
 import pytest
@@ -11,6 +13,7 @@ from PIL import Image
 from tests.helpers import SHARED_DATA, image_bytes
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import (
+    check_image,
     decode_mask_png,
     encode_mask_png,
     encode_png,
@@ -42,6 +45,7 @@ def test_reads_every_supported_kind(fmt, channels, bit_depth, media_type) -> Non
     assert image.info.channels == channels and image.info.bit_depth == bit_depth
     rgb = to_rgb8(image)
     assert rgb.shape == (30, 40, 3) and rgb.dtype == np.uint8
+    assert check_image(data) == image.info  # what ingest records without keeping pixels
 
 
 def test_rgb_order_is_kept() -> None:
@@ -123,3 +127,124 @@ def test_mask_codec_round_trip() -> None:
     assert np.array_equal(decode_mask_png(encode_png(mask.astype(np.uint8))), mask)  # 0/1
     with pytest.raises(InvalidInputError, match="must be a PNG"):
         decode_mask_png(image_bytes(fmt=".bmp"))
+
+
+# --- check_image: every frame checked at ingest without keeping its pixels ---------------------
+
+
+def _chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def _png(
+    width: int, height: int, stream: bytes, colour: int = 0, depth: int = 8, extra=()
+) -> bytes:
+    """A PNG from its raw parts: header, any extra chunks, one IDAT of ``stream``, IEND."""
+    header = struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)
+    chunks = [_chunk(b"IHDR", header), *extra, _chunk(b"IDAT", stream), _chunk(b"IEND", b"")]
+    return b"\x89PNG\r\n\x1a\n" + b"".join(chunks)
+
+
+def _rows(pixels: np.ndarray, filter_type: int = 0) -> bytes:
+    """Scanlines with a filter byte in front of each (type 0: the bytes as they are)."""
+    rows = pixels.reshape(pixels.shape[0], -1)
+    return b"".join(bytes([filter_type]) + row.tobytes() for row in rows)
+
+
+def _kinds_of_png() -> list[bytes]:
+    """PNGs of every layout: the plain ones check_image verifies and those it decodes."""
+    buffer = io.BytesIO()
+    Image.new("P", (12, 9), 3).save(buffer, "PNG")  # palette: decoded
+    palette = buffer.getvalue()
+    buffer = io.BytesIO()
+    Image.new("LA", (12, 9), (40, 200)).save(buffer, "PNG")  # gray + alpha: decoded
+    gray_alpha = buffer.getvalue()
+    buffer = io.BytesIO()
+    Image.new("L", (31, 17), 90).save(buffer, "PNG", interlace=1)  # Adam7: decoded
+    interlaced = buffer.getvalue()
+    gray = np.arange(9 * 12, dtype=np.uint8).reshape(9, 12)
+    transparent = _png(12, 9, zlib.compress(_rows(gray)), extra=[_chunk(b"tRNS", b"\x00\x05")])
+    text = _png(12, 9, zlib.compress(_rows(gray)), extra=[_chunk(b"tEXt", b"Camera\x00cam 2")])
+    return [
+        image_bytes(37, 23, channels=1, bit_depth=8),
+        image_bytes(37, 23, channels=3, bit_depth=8),
+        image_bytes(37, 23, channels=4, bit_depth=16),
+        image_bytes(37, 23, channels=1, bit_depth=16),
+        palette,
+        gray_alpha,
+        interlaced,
+        transparent,
+        text,
+    ]
+
+
+@pytest.mark.parametrize("index", range(9))
+def test_check_image_says_what_decoding_says(index: int) -> None:
+    data = _kinds_of_png()[index]
+    assert check_image(data) == read_image(data).info
+
+
+def test_check_image_inflates_the_whole_stream_not_only_the_checksums() -> None:
+    """Damage that only decoding the stream can see: every chunk's CRC is right."""
+    pixels = np.random.default_rng(3).integers(0, 255, (20, 30), dtype=np.uint8)
+    good = _png(30, 20, zlib.compress(_rows(pixels)))
+    assert check_image(good).width == 30
+    stream = bytearray(zlib.compress(_rows(pixels), 9))
+    stream[len(stream) // 2] ^= 0x10  # a flipped bit inside the deflate data
+    short = zlib.compress(_rows(pixels)[:-30])  # a whole stream, one row too short
+    bad_filter = zlib.compress(_rows(pixels, filter_type=5))  # no such row filter
+    for stream_bytes in (bytes(stream), short, bad_filter):
+        damaged = _png(30, 20, stream_bytes)
+        with pytest.raises(InvalidInputError, match="truncated or corrupt"):
+            check_image(damaged)
+        with pytest.raises(InvalidInputError):
+            read_image(damaged)  # the decoder refuses each too
+    # One row too many: libpng only warns; a frame whose stream disagrees with its header is
+    # refused here all the same (and a stream cannot inflate past the header's size).
+    with pytest.raises(InvalidInputError, match="truncated or corrupt"):
+        check_image(_png(30, 20, zlib.compress(_rows(pixels) + b"\x00" * 31)))
+
+
+def test_check_image_refuses_a_changed_byte_only_the_chunk_checksum_covers() -> None:
+    gray = np.arange(9 * 12, dtype=np.uint8).reshape(9, 12)
+    data = bytearray(_png(12, 9, zlib.compress(_rows(gray)), extra=[_chunk(b"tEXt", b"a\x00b")]))
+    assert check_image(bytes(data)).height == 9
+    data[data.index(b"tEXt") + 4] ^= 0x01  # the text's first byte: its CRC no longer matches
+    with pytest.raises(InvalidInputError, match="truncated or corrupt"):
+        check_image(bytes(data))
+
+
+def test_check_image_refuses_every_truncation_and_no_damage_the_decoder_refuses() -> None:
+    """Truncated at every length, and bytes flipped at random: whatever the decoder refuses,
+    check_image refuses too; what it accepts, the decoder reads with the same info."""
+    rng = np.random.default_rng(0)
+    originals = [image_bytes(23, 11, channels=c, bit_depth=b) for c, b in ((1, 8), (3, 16))]
+    for original in originals:
+        for length in range(len(original)):
+            with pytest.raises(InvalidInputError):
+                check_image(original[:length])
+        for _ in range(400):
+            damaged = bytearray(original)
+            for position in rng.integers(0, len(original), size=int(rng.integers(1, 4))):
+                damaged[position] ^= 1 << int(rng.integers(0, 8))
+            try:
+                info = check_image(bytes(damaged))
+            except InvalidInputError:
+                continue
+            assert read_image(bytes(damaged)).info == info
+
+
+def test_check_image_applies_the_pixel_limit_before_inflating() -> None:
+    with pytest.raises(InvalidInputError, match="WELDPOOL_MAX_IMAGE_PIXELS"):
+        check_image(image_bytes(100, 100), max_pixels=5000)
+
+
+def test_check_image_on_the_real_frames() -> None:
+    frames = sorted((SHARED_DATA / "waam" / "frames").glob("*.png"))[:4]
+    if not frames:
+        pytest.skip("../shared/data/waam is absent (a fresh checkout has no ../shared)")
+    for path in frames:
+        data = path.read_bytes()
+        assert check_image(data) == read_image(data).info
+        with pytest.raises(InvalidInputError):
+            check_image(data[: len(data) - 100])

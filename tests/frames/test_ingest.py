@@ -44,6 +44,12 @@ def _stored_files(settings: Settings) -> list[Path]:
     return [p for p in root.rglob("*") if p.is_file()] if root.exists() else []
 
 
+def _staged_files(settings: Settings) -> list[Path]:
+    """Temporaries of files staged for a request (``Storage.stage``) and not installed."""
+    root = settings.home / "tmp"
+    return sorted(root.glob("*")) if root.exists() else []
+
+
 def _bomb() -> bytes:
     buffer = io.BytesIO()
     Image.new("1", (20000, 20000)).save(buffer, "PNG")
@@ -193,19 +199,19 @@ def test_duplicates_are_reported_not_stored_twice(
     assert [r.status_code for r in loose] == [201, 200]  # also deduplicated without sequence
 
 
-def test_copies_in_one_request_are_decoded_once(
+def test_copies_in_one_request_are_checked_once(
     client: TestClient, token: str, monkeypatch
 ) -> None:
     import app.frames.service as frames_service
 
     decoded: list[int] = []
-    real = frames_service.read_image
+    real = frames_service.check_image
 
     def counting(data, *args, **kwargs):  # type: ignore[no-untyped-def]
         decoded.append(len(data))
         return real(data, *args, **kwargs)
 
-    monkeypatch.setattr(frames_service, "read_image", counting)
+    monkeypatch.setattr(frames_service, "check_image", counting)
     content, broken = image_bytes(seed=21), image_bytes(seed=22)[:150]
     files = [(f"copy{i}.png", content) for i in range(8)] + [("../bad-name.png", content)]
     files += [(f"cut{i}.png", broken) for i in range(3)] + [("other.png", image_bytes(seed=23))]
@@ -217,6 +223,38 @@ def test_copies_in_one_request_are_decoded_once(
     assert "path parts" in reasons["../bad-name.png"]
     assert {reasons[f"cut{i}.png"] for i in range(3)} == {reasons["cut0.png"]}
     assert "truncated" in reasons["cut0.png"]
+
+
+def test_a_request_refused_after_its_files_were_staged_leaves_nothing(
+    client: TestClient, token: str, settings: Settings, make_user
+) -> None:
+    """Files are checked and staged on disk while the body arrives; a request refused after
+    that (its run unknown, a bad field, too many files, a body cut short) leaves no file."""
+    good = [(f"{i}.png", image_bytes(seed=90 + i)) for i in range(3)]
+    missing = _upload(client, token, good, sequence_id="999")
+    assert missing.status_code == 404
+    not_int = _upload(client, token, good, sequence_id="seven")
+    assert not_int.status_code == 400 and "integer" in not_int.json()["detail"]
+    body = b"".join(
+        b'--x\r\nContent-Disposition: form-data; name="files"; filename="%d.png"\r\n\r\n%s\r\n'
+        % (i, data)
+        for i, (_, data) in enumerate(good)
+    )
+    cut = client.post(
+        "/api/v1/frames",
+        content=body + b"--x\r\nContent-Disp",  # no closing boundary
+        headers=auth(token) | {"content-type": "multipart/form-data; boundary=x"},
+    )
+    assert cut.status_code == 400 and cut.json()["detail"].endswith(".")
+    _, other = make_user("few", Role.annotator)
+    few = settings.model_copy(update={"max_files_per_request": 2})
+    with TestClient(create_app(few)) as limited:
+        too_many = _upload(limited, other, good)
+        assert too_many.status_code == 400
+        assert "WELDPOOL_MAX_FILES_PER_REQUEST" in too_many.json()["detail"]
+    assert _stored_files(settings) == [] and _staged_files(settings) == []
+    assert _upload(client, token, good).status_code == 201
+    assert len(_stored_files(settings)) == 3 and _staged_files(settings) == []
 
 
 def test_request_over_the_size_limit_is_413(
@@ -279,7 +317,7 @@ def test_failed_commit_leaves_no_file_and_no_row(
             )
     with session_factory() as session:
         assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
-    assert _stored_files(settings) == []
+    assert _stored_files(settings) == [] and _staged_files(settings) == []
 
 
 def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(

@@ -1,0 +1,155 @@
+"""A multipart/form-data body read as it arrives, each file handed on the moment it is whole.
+
+Starlette's ``request.form()`` returns only once the whole body is in, each file spooled to a
+temporary file; frame upload instead hands every file to its checks while the rest of the body
+is still arriving, so receiving and checking overlap. The parsing itself is python-multipart's
+(Starlette's parser too); this module keeps Starlette's limits and adds the file names exactly
+as the client sent them.
+"""
+
+from __future__ import annotations
+
+import codecs
+import email.message
+from collections.abc import AsyncIterable, Callable
+from dataclasses import dataclass, field
+
+from python_multipart.exceptions import MultipartParseError
+from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
+
+from app.errors import InvalidInputError
+
+MAX_FIELD_BYTES = 1024 * 1024
+"""The largest plain (non-file) field: a form's fields are ids and options, never data."""
+
+
+def client_file_name(content_disposition: str) -> str | None:
+    """A part's file name exactly as the client sent it (None when it names no file).
+
+    python-multipart keeps only what follows the last backslash of a name that looks like a
+    Windows path (``C:\\Windows\\x.png`` becomes ``x.png``), which would slip past the rule that
+    names with path parts are refused; so the header is read here with the standard library.
+    """
+    header = email.message.Message()
+    header["content-disposition"] = content_disposition
+    name = header.get_filename()
+    return None if name is None else str(name)
+
+
+@dataclass
+class _Part:
+    header_name: bytes = b""
+    header_value: bytes = b""
+    disposition: bytes = b""
+    field_name: str = ""
+    file_name: str | None = None
+    data: list[bytes] = field(default_factory=list)
+    size: int = 0
+
+
+class StreamedForm:
+    """Plain fields of a multipart body; its files go to ``on_file(field, name, data)``."""
+
+    def __init__(
+        self,
+        on_file: Callable[[str, str, bytes], None],
+        *,
+        max_files: int,
+        max_fields: int,
+        charset: str = "utf-8",
+    ) -> None:
+        self.fields: dict[str, str] = {}
+        self._on_file = on_file
+        self._max_files, self._max_fields = max_files, max_fields
+        self._files = self._field_count = 0
+        self._charset = charset
+        self._part = _Part()
+
+    async def read(self, content_type: str, body: AsyncIterable[bytes]) -> None:
+        """Parse ``body``; one-sentence InvalidInputError for a malformed or oversized form."""
+        if not content_type.startswith("multipart/form-data"):
+            raise InvalidInputError("Send the upload as multipart/form-data.")
+        _, params = parse_options_header(content_type)
+        boundary = params.get(b"boundary")
+        if not boundary:
+            raise InvalidInputError("The multipart body has no boundary in its Content-Type.")
+        charset = params.get(b"charset", b"utf-8").decode("latin-1")
+        try:
+            self._charset = codecs.lookup(charset).name
+        except LookupError:
+            self._charset = "latin-1"
+        parser = MultipartParser(
+            boundary,
+            {
+                "on_part_begin": self._begin,
+                "on_header_field": self._header_field,
+                "on_header_value": self._header_value,
+                "on_header_end": self._header_end,
+                "on_headers_finished": self._headers_finished,
+                "on_part_data": self._data,
+                "on_part_end": self._end,
+            },
+        )
+        try:
+            async for chunk in body:
+                parser.write(chunk)
+            parser.finalize()
+        except MultipartParseError as exc:
+            raise InvalidInputError(f"The multipart body is malformed ({exc}).") from None
+        if parser.state != MultipartState.END:
+            raise InvalidInputError("The multipart body ends before its closing boundary.")
+
+    def _decode(self, value: bytes) -> str:
+        try:
+            return value.decode(self._charset)
+        except UnicodeDecodeError:
+            return value.decode("latin-1")
+
+    def _begin(self) -> None:
+        self._part = _Part()
+
+    def _header_field(self, data: bytes, start: int, end: int) -> None:
+        self._part.header_name += data[start:end]
+
+    def _header_value(self, data: bytes, start: int, end: int) -> None:
+        self._part.header_value += data[start:end]
+
+    def _header_end(self) -> None:
+        if self._part.header_name.lower() == b"content-disposition":
+            self._part.disposition = self._part.header_value
+        self._part.header_name = self._part.header_value = b""
+
+    def _headers_finished(self) -> None:
+        part = self._part
+        _, options = parse_options_header(part.disposition)
+        if b"name" not in options:
+            raise InvalidInputError('Each part\'s Content-Disposition must give its "name".')
+        part.field_name = self._decode(options[b"name"])
+        if b"filename" in options or b"filename*" in options:
+            self._files += 1
+            if self._files > self._max_files:
+                raise InvalidInputError(
+                    f"Too many files in one request: at most {self._max_files} "
+                    "(WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests."
+                )
+            raw_name = client_file_name(self._decode(part.disposition))
+            part.file_name = raw_name if raw_name is not None else ""
+        else:
+            self._field_count += 1
+            if self._field_count > self._max_fields:
+                raise InvalidInputError(f"Too many form fields: at most {self._max_fields}.")
+
+    def _data(self, data: bytes, start: int, end: int) -> None:
+        part = self._part
+        part.size += end - start
+        if part.file_name is None and part.size > MAX_FIELD_BYTES:
+            raise InvalidInputError(f"The form field {part.field_name!r} is larger than 1 MB.")
+        part.data.append(data[start:end])
+
+    def _end(self) -> None:
+        part = self._part
+        data = b"".join(part.data)
+        if part.file_name is None:
+            self.fields[part.field_name] = self._decode(data)
+        else:
+            self._on_file(part.field_name, part.file_name, data)

@@ -1,0 +1,134 @@
+"""The upload's multipart body read as it arrives (app.frames.multipart) and the checks it
+starts (service.FrameChecks): each file is handed on, and its check begun, before the body
+has ended."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import AsyncIterator
+
+import pytest
+
+from app.errors import InvalidInputError
+from app.frames import service
+from app.frames.multipart import StreamedForm
+from app.storage import Storage
+from tests.helpers import image_bytes
+
+
+def _part(name: str, data: bytes, file_name: str | None = None) -> bytes:
+    disposition = f'form-data; name="{name}"' + (
+        f'; filename="{file_name}"' if file_name is not None else ""
+    )
+    return f"--b\r\nContent-Disposition: {disposition}\r\n\r\n".encode() + data + b"\r\n"
+
+
+def _read(chunks: list[bytes], **limits: int) -> tuple[StreamedForm, list[tuple[str, str, bytes]]]:
+    files: list[tuple[str, str, bytes]] = []
+    form = StreamedForm(
+        lambda *file: files.append(file),
+        max_files=limits.get("max_files", 10),
+        max_fields=limits.get("max_fields", 10),
+    )
+
+    async def body() -> AsyncIterator[bytes]:
+        for chunk in chunks:
+            yield chunk
+
+    asyncio.run(form.read("multipart/form-data; boundary=b", body()))
+    return form, files
+
+
+def test_each_file_is_handed_on_before_the_body_ends() -> None:
+    first, second = image_bytes(seed=1), image_bytes(seed=2)
+    files: list[tuple[str, str, bytes]] = []
+    seen_before_the_rest: list[list[str]] = []
+    form = StreamedForm(lambda *file: files.append(file), max_files=10, max_fields=10)
+
+    async def body() -> AsyncIterator[bytes]:
+        yield _part("sequence_id", b"7")
+        yield _part("files", first, "a.png")
+        yield b"--b\r\n"  # the next boundary: the first file is whole
+        seen_before_the_rest.append([name for _, name, _ in files])
+        yield _part("files", second, "b.png")[5:]
+        yield b"--b--\r\n"
+
+    asyncio.run(form.read("multipart/form-data; boundary=b", body()))
+    assert seen_before_the_rest == [["a.png"]]
+    assert files == [("files", "a.png", first), ("files", "b.png", second)]
+    assert form.fields == {"sequence_id": "7"}
+
+
+def test_names_are_kept_as_sent_and_fields_are_plain_text() -> None:
+    windows = "C:\\Windows\\x.png"
+    form, files = _read(
+        [_part("files", b"1", windows), _part("note", "s\u00e9am".encode()), b"--b--\r\n"]
+    )
+    assert files == [("files", windows, b"1")]  # python-multipart alone would give 'x.png'
+    assert form.fields == {"note": "s\u00e9am"}
+
+
+@pytest.mark.parametrize(
+    ("chunks", "limits", "message"),
+    [
+        (
+            [_part("files", b"1", "a"), _part("files", b"2", "b"), b"--b--\r\n"],
+            {"max_files": 1},
+            "Too many files in one request: at most 1",
+        ),
+        (
+            [_part("x", b"1"), _part("y", b"2"), b"--b--\r\n"],
+            {"max_fields": 1},
+            "Too many form fields",
+        ),
+        ([_part("note", b"x" * (1024 * 1024 + 1)), b"--b--\r\n"], {}, "larger than 1 MB"),
+        ([b"--b\r\nContent-Disposition: form-data\r\n\r\nx\r\n--b--\r\n"], {}, '"name"'),
+        ([_part("files", b"1", "a")], {}, "ends before its closing boundary"),
+    ],
+)
+def test_malformed_or_oversized_forms_are_one_sentence(chunks, limits, message) -> None:
+    with pytest.raises(InvalidInputError, match=message) as caught:
+        _read(chunks, **limits)
+    assert caught.value.message.endswith(".")
+
+
+def test_a_body_that_is_not_multipart_or_has_no_boundary() -> None:
+    form = StreamedForm(lambda *file: None, max_files=1, max_fields=1)
+
+    async def empty() -> AsyncIterator[bytes]:
+        yield b""
+
+    with pytest.raises(InvalidInputError, match="multipart/form-data"):
+        asyncio.run(form.read("application/json", empty()))
+    with pytest.raises(InvalidInputError, match="no boundary"):
+        asyncio.run(form.read("multipart/form-data", empty()))
+
+
+def test_a_file_is_checked_and_staged_while_the_caller_goes_on(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``FrameChecks.add`` returns at once: the check runs in the pool (here it waits for the
+    caller to go on, which it could not if add ran it), and results() has it staged."""
+    started, release = threading.Event(), threading.Event()
+    real = service.check_frame_file
+
+    def held(*args, **kwargs):  # type: ignore[no-untyped-def]
+        started.set()
+        assert release.wait(timeout=10), "the caller was blocked by the check"
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(service, "check_frame_file", held)
+    storage = Storage(tmp_path)
+    checks = service.FrameChecks(storage, max_pixels=10**6)
+    checks.add(service.IncomingFile("a.png", image_bytes(seed=5)))
+    checks.add(service.IncomingFile("copy.png", image_bytes(seed=5)))
+    assert started.wait(timeout=10)  # the check began while add's caller went on…
+    release.set()  # …and the caller is free to release it
+    first, copy = checks.results()
+    assert isinstance(first, service.CheckedFrame) and first.name == "a.png"
+    assert first.staged is not None and first.staged.temporary is not None
+    assert first.staged.temporary.read_bytes() == image_bytes(seed=5)  # on disk already
+    assert isinstance(copy, service.CheckedFrame) and copy.staged is None  # one file a content
+    checks.discard()
+    assert not first.staged.temporary.exists()
