@@ -15,6 +15,7 @@ clipped flat). Frames whose values span less than 1 grey level map to black.
 from __future__ import annotations
 
 import io
+import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,6 +142,39 @@ _PNG_CHANNELS = {0: 1, 2: 3, 6: 4}
 others (palette, gray + alpha) and any ``tRNS`` chunk change what OpenCV returns, so they are
 decoded."""
 _PNG_CHUNK = struct.Struct(">I4s")
+_PNG_MAX_SIDE = 1_000_000
+"""libpng's default limit on a side (OpenCV's decoder refuses larger)."""
+_PNG_MAX_CHUNK = 8_000_000
+"""libpng's default limit on a chunk other than IDAT."""
+_PNG_NAME = re.compile(rb"[A-Za-z]{2}[A-Z][A-Za-z]")
+"""A valid chunk name: four letters, the third (reserved bit) upper case."""
+_PNG_ANCILLARY = {
+    b"tEXt",
+    b"iTXt",
+    b"pHYs",
+    b"gAMA",
+    b"sRGB",
+    b"cHRM",
+    b"sBIT",
+    b"tIME",
+    b"eXIf",
+}
+"""Public ancillary chunks that change nothing OpenCV returns and that Pillow's header checks
+(``_probe``) read; any other public one (iCCP, zTXt, APNG's acTL / fcTL / fdAT, tRNS…) is
+decoded; so is bKGD, which OpenCV reads itself (an empty one fails there). Private chunks
+(second letter lower case) are skipped by both libraries."""
+_APNG = {b"acTL", b"fcTL", b"fdAT"}
+
+
+def _plain_chunk(kind: bytes, length: int) -> bool:
+    """Whether a chunk leaves a PNG plain (see ``check_image``)."""
+    if kind in (b"IHDR", b"IDAT", b"IEND"):
+        return True
+    private = kind[1:2].islower() and kind not in _APNG
+    named = _PNG_NAME.fullmatch(kind) is not None
+    return named and length <= _PNG_MAX_CHUNK and (kind in _PNG_ANCILLARY or private)
+
+
 _CORRUPT = "The image is truncated or corrupt and cannot be decoded."
 
 
@@ -184,23 +218,29 @@ def _check_plain_png(data: bytes, max_pixels: int) -> ImageInfo | None:
     width, height, depth, colour, compression, filtering, interlace = struct.unpack(
         ">IIBBBBB", chunks[0][1]
     )
+    idat = [index for index, kind in enumerate(kinds) if kind == b"IDAT"]
     plain = (
-        width > 0
-        and height > 0
+        0 < width <= _PNG_MAX_SIDE
+        and 0 < height <= _PNG_MAX_SIDE
         and colour in _PNG_CHANNELS
         and depth in (8, 16)
         and (compression, filtering, interlace) == (0, 0, 0)
-        and b"tRNS" not in kinds
-        and all(kind in (b"IHDR", b"IDAT", b"IEND") or kind[:1].islower() for kind in kinds)
+        and kinds.count(b"IHDR") == 1
+        and all(_plain_chunk(kind, len(body)) for kind, body in chunks)
+        and bool(idat)
+        and idat == list(range(idat[0], idat[-1] + 1))  # consecutive, as PNG requires
     )
-    idat = [index for index, kind in enumerate(kinds) if kind == b"IDAT"]
-    if not plain or not idat or idat != list(range(idat[0], idat[-1] + 1)):
-        return None  # IDAT chunks must be consecutive: the decoder says so
-    if width * height > max_pixels:
-        _probe(data, max_pixels)  # says it in the same words as for every format
+    if not plain:
+        return None  # the decoder says what it makes of it
+    _probe(data, max_pixels)  # Pillow's header checks and the pixel limit, as read_image
+    compressed = b"".join(chunks[i][1] for i in idat)
     row = 1 + width * _PNG_CHANNELS[colour] * depth // 8
+    if compressed[:1] != b"\x78" and (
+        not compressed or row * height > 1 << (compressed[0] // 16 + 8)
+    ):
+        return None  # a zlib window under 32 KiB, which libdeflate does not enforce and zlib does
     try:
-        stream = deflate.zlib_decompress(b"".join(chunks[i][1] for i in idat), row * height)
+        stream = deflate.zlib_decompress(compressed, row * height)
     except deflate.DeflateError:
         raise InvalidInputError(_CORRUPT) from None
     if len(stream) != row * height:

@@ -125,14 +125,14 @@ class StreamedForm:
         if b"name" not in options:
             raise InvalidInputError('Each part\'s Content-Disposition must give its "name".')
         part.field_name = self._decode(options[b"name"])
-        if b"filename" in options or b"filename*" in options:
+        raw_name = client_file_name(self._decode(part.disposition))
+        if b"filename" in options or raw_name is not None:  # also a name only as filename*
             self._files += 1
             if self._files > self._max_files:
                 raise InvalidInputError(
                     f"Too many files in one request: at most {self._max_files} "
                     "(WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests."
                 )
-            raw_name = client_file_name(self._decode(part.disposition))
             part.file_name = raw_name if raw_name is not None else ""
         else:
             self._field_count += 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
+import anyio
 from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
@@ -203,7 +204,8 @@ async def upload_frames(
         if not len(checks):
             raise InvalidInputError("The request has no `files` part; attach one or more frames.")
     except BaseException:
-        await run_in_threadpool(checks.discard)
+        with anyio.CancelScope(shield=True):  # a cancelled request still removes its files
+            await run_in_threadpool(checks.discard)
         raise
     result = await run_in_threadpool(
         service.record_checked, session, storage, checks, sequence_id=sequence_id, user=user

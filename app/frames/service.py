@@ -324,7 +324,9 @@ def record_frames(
 
     Frames staged while they were checked are installed as they are; the others are staged
     here. Staged files that are not installed (duplicates) are removed."""
-    staged = {f.sha256: f.staged for f in frames if f.staged is not None}
+    # A content found already stored while the request arrived is looked for again now: the
+    # last frame using its file may have been deleted meanwhile (stage_many writes it then).
+    staged = {f.sha256: f.staged for f in frames if f.staged is not None and f.staged.temporary}
     try:
         return _record_staged(session, storage, frames, staged, sequence_id, user, video_id)
     finally:

@@ -234,6 +234,59 @@ def test_check_image_refuses_every_truncation_and_no_damage_the_decoder_refuses(
             assert read_image(bytes(damaged)).info == info
 
 
+def _window(stream: bytes, cinfo: int) -> bytes:
+    """The same zlib stream claiming a window of 2**(cinfo + 8) bytes (its check bits mended)."""
+    cmf = (cinfo << 4) | 8
+    flg = stream[1] & 0xE0
+    flg |= (31 - (cmf * 256 + flg) % 31) % 31
+    return bytes([cmf, flg]) + stream[2:]
+
+
+def _odd_pngs() -> dict[str, bytes]:
+    """PNGs whose oddity one library refuses and the other may not (found in review)."""
+    gray = np.random.default_rng(4).integers(0, 255, (20, 300), dtype=np.uint8)
+    stream = zlib.compress(_rows(np.tile(gray[:, :150], 2)))  # repeats 150 bytes back and more
+    ok = zlib.compress(_rows(gray))
+    header = _chunk(b"IHDR", struct.pack(">IIBBBBB", 300, 20, 8, 0, 0, 0, 0))
+    return {
+        "two IHDR": _png(300, 20, ok, extra=[header]),
+        "a chunk name with a digit": _png(300, 20, ok, extra=[_chunk(b"a123", b"x")]),
+        "a chunk name with the reserved bit": _png(300, 20, ok, extra=[_chunk(b"abcd", b"x")]),
+        "iCCP of compression 1": _png(
+            300, 20, ok, extra=[_chunk(b"iCCP", b"p\x00\x01" + zlib.compress(b"x"))]
+        ),
+        "zTXt of compression 1": _png(
+            300, 20, ok, extra=[_chunk(b"zTXt", b"k\x00\x01" + zlib.compress(b"x"))]
+        ),
+        "a truncated gAMA": _png(300, 20, ok, extra=[_chunk(b"gAMA", b"\x00")]),
+        "an empty bKGD": _png(300, 20, ok, extra=[_chunk(b"bKGD", b"")]),
+        "a short APNG acTL": _png(300, 20, ok, extra=[_chunk(b"acTL", b"\x00")]),
+        "an ancillary chunk over 8 MB": _png(
+            300, 20, ok, extra=[_chunk(b"tEXt", b"k\x00" + b"x" * 8_000_000)]
+        ),
+        "a zlib window too small for its distances": _png(300, 20, _window(stream, 0)),
+        "a zlib window smaller than 32 KiB but enough": _png(300, 20, _window(stream, 5)),
+        "a private chunk": _png(300, 20, ok, extra=[_chunk(b"weLd", b"\x00" * 7)]),
+        "2,000,000 pixels in a row": _png(
+            2_000_000, 1, zlib.compress(b"\x00" + bytes(2_000_000)), colour=0
+        ),
+    }
+
+
+@pytest.mark.parametrize("name", list(_odd_pngs()))
+def test_check_image_agrees_with_decoding_on_odd_pngs(name: str) -> None:
+    """Whatever the decoder refuses is refused; what it reads is read with the same info."""
+    data = _odd_pngs()[name]
+
+    def outcome(read) -> object:  # type: ignore[no-untyped-def]
+        try:
+            return read(data)
+        except InvalidInputError:
+            return "refused"
+
+    assert outcome(check_image) == outcome(lambda d: read_image(d).info)
+
+
 def test_check_image_applies_the_pixel_limit_before_inflating() -> None:
     with pytest.raises(InvalidInputError, match="WELDPOOL_MAX_IMAGE_PIXELS"):
         check_image(image_bytes(100, 100), max_pixels=5000)

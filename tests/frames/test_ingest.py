@@ -320,6 +320,35 @@ def test_failed_commit_leaves_no_file_and_no_row(
     assert _stored_files(settings) == [] and _staged_files(settings) == []
 
 
+def test_a_stored_file_deleted_while_a_request_arrives_is_written_again(
+    settings: Settings, session_factory
+) -> None:
+    """A file already in the store is not staged when its copy arrives; if the last frame using
+    it is deleted before the request is recorded, the upload writes it again."""
+    storage = Storage(settings.home)
+    content = image_bytes(seed=95)
+    with session_factory() as session:
+        first = service.ingest_frames(
+            session,
+            storage,
+            [service.IncomingFile("a.png", content)],
+            sequence_id=None,
+            user=None,
+            max_pixels=10**6,
+        ).stored[0]
+        run = service.create_sequence(session, {"name": "later"}, None)
+        checks = service.FrameChecks(storage, max_pixels=10**6)
+        checks.add(service.IncomingFile("b.png", content))
+        (checked,) = checks.results()  # checked while the file was there: nothing staged
+        assert isinstance(checked, service.CheckedFrame) and checked.staged is not None
+        assert checked.staged.temporary is None
+        service.delete_frames(session, storage, [first.id], force=True)
+        assert _stored_files(settings) == []
+        result = service.record_checked(session, storage, checks, sequence_id=run.id, user=None)
+        assert storage.absolute(result.stored[0].path).read_bytes() == content
+    assert _staged_files(settings) == []
+
+
 def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
     settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -67,6 +67,11 @@ def test_names_are_kept_as_sent_and_fields_are_plain_text() -> None:
     )
     assert files == [("files", windows, b"1")]  # python-multipart alone would give 'x.png'
     assert form.fields == {"note": "s\u00e9am"}
+    rfc2231 = (
+        b"--b\r\nContent-Disposition: form-data; name=\"files\"; filename*=UTF-8''n%C3%A4me.png"
+    )
+    _, files = _read([rfc2231 + b"\r\n\r\n2\r\n", b"--b--\r\n"])
+    assert files == [("files", "n\u00e4me.png", b"2")]  # a name given only as filename*
 
 
 @pytest.mark.parametrize(
