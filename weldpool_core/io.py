@@ -181,8 +181,9 @@ _CORRUPT = "The image is truncated or corrupt and cannot be decoded."
 def check_image(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> ImageInfo:
     """What ``read_image(data).info`` says, checked as strictly, without keeping the pixels.
 
-    A plain PNG (8- or 16-bit gray, RGB or RGBA, not interlaced, no ``tRNS``) is verified down
-    to its last byte instead: every chunk's CRC-32, the whole image stream inflated (libdeflate,
+    A plain PNG (8- or 16-bit gray, RGB or RGBA, not interlaced, no ``tRNS``, only chunks both
+    OpenCV and Pillow read alike: ``_plain_chunk``) is verified down to its last byte instead,
+    after Pillow's header checks: every chunk's CRC-32, the whole image stream inflated (libdeflate,
     2× zlib's speed) with its Adler-32, exactly the header's number of bytes, and a valid filter
     type on every row. Only undoing the row filters is left out: it cannot fail, and ingest
     needs no pixel. Any other file is decoded by ``read_image``.
