@@ -3,7 +3,7 @@
 The database holds metadata and relative paths; the files live here. A file is written to a
 temporary name, flushed to disk, then renamed into place, and only then is its row committed.
 For a whole request this is two steps: ``stage`` writes and flushes each new file (in the
-ingest pool, as soon as it is checked), ``install_many`` renames them all into place and
+ingest's disk threads, as soon as it is checked), ``install_many`` renames them all into place and
 flushes the directories that received them, so the rows committed next never name a file the
 disk could lose.
 If the commit fails, the files this attempt created are removed again; if the process dies
