@@ -261,8 +261,8 @@ def _odd_pngs() -> dict[str, bytes]:
         "a truncated gAMA": _png(300, 20, ok, extra=[_chunk(b"gAMA", b"\x00")]),
         "an empty bKGD": _png(300, 20, ok, extra=[_chunk(b"bKGD", b"")]),
         "a short APNG acTL": _png(300, 20, ok, extra=[_chunk(b"acTL", b"\x00")]),
-        "an ancillary chunk over 8 MB": _png(
-            300, 20, ok, extra=[_chunk(b"tEXt", b"k\x00" + b"x" * 8_000_000)]
+        "a private chunk over 8 MB": _png(  # libpng's chunk limit: OpenCV refuses it
+            300, 20, ok, extra=[_chunk(b"weLd", b"x" * 8_000_001)]
         ),
         "a zlib window too small for its distances": _png(300, 20, _window(stream, 0)),
         "a zlib window smaller than 32 KiB but enough": _png(300, 20, _window(stream, 5)),
