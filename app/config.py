@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
@@ -79,6 +80,12 @@ class Settings(BaseSettings):
         gt=0,
         description="A running job whose worker is silent this long is failed or retried.",
     )
+    file_grace_s: float = Field(
+        default=900.0,
+        ge=1,
+        description="A stored file that no row names is removed once nobody has claimed it "
+        "(written or reused it) for this long: far longer than any upload takes to commit.",
+    )
     max_image_pixels: int = Field(
         default=DEFAULT_MAX_PIXELS,
         gt=0,
@@ -102,6 +109,12 @@ class Settings(BaseSettings):
     cookie_secure: bool = Field(
         default=False, description="Send the session cookie over HTTPS only (set behind TLS)."
     )
+    trusted_proxies: str = Field(
+        default="",
+        description="Reverse proxies (IP addresses or networks, comma-separated) whose "
+        "X-Forwarded-For and X-Forwarded-Proto are believed; empty: none, so a client cannot "
+        "choose the address the login lockout counts.",
+    )
     log_level: str = Field(default="INFO")
     log_format: Literal["console", "json"] = Field(default="console")
 
@@ -111,6 +124,25 @@ class Settings(BaseSettings):
         if value and not value.startswith(("redis://", "rediss://", "unix://")):
             raise ValueError("WELDPOOL_QUEUE_URL must be empty (embedded queue) or a redis://… URL")
         return value or None
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _proxy_addresses(cls, value: str) -> str:
+        proxies = [item.strip() for item in value.split(",") if item.strip()]
+        for proxy in proxies:
+            try:
+                ipaddress.ip_network(proxy, strict=False)
+            except ValueError:
+                raise ValueError(
+                    f"WELDPOOL_TRUSTED_PROXIES: {proxy!r} is not an IP address or network; give "
+                    "addresses such as 10.0.0.5 or 10.0.0.0/24, separated by commas"
+                ) from None
+        return ",".join(proxies)
+
+    @property
+    def trusted_proxy_list(self) -> list[str]:
+        """The trusted proxies' addresses and networks (none by default)."""
+        return self.trusted_proxies.split(",") if self.trusted_proxies else []
 
     @property
     def resolved_database_url(self) -> str:

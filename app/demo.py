@@ -60,7 +60,7 @@ def fill_demo(
         IncomingFile(f"demo_{i:04d}.png", cv2.imencode(".png", f.image)[1].tobytes())
         for i, f in enumerate(drawn)
     ]
-    storage = Storage(settings.home)
+    storage = Storage.of(settings)
     stored = ingest_frames(
         session,
         storage,

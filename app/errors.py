@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import re
+from pathlib import Path
+
 from weldpool_core.errors import InvalidInputError, WeightsUnavailableError, WeldpoolError
 
 __all__ = [
@@ -15,7 +19,18 @@ __all__ = [
     "WeightsUnavailableError",
     "WeldpoolError",
     "http_status_of",
+    "without_server_paths",
 ]
+
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~])(?:/[^\s/'\"]+){2,}")
+
+
+def without_server_paths(text: str, home: Path) -> str:
+    """A message as any user may read it: paths under the home folder relative to it, other
+    absolute paths of the server reduced to their last part (the log keeps them whole)."""
+    for prefix in {f"{home}{os.sep}", f"{home.resolve()}{os.sep}"}:
+        text = text.replace(prefix, "")
+    return _ABSOLUTE_PATH.sub(lambda match: match.group(0).rsplit("/", 1)[-1], text)
 
 
 class ConfigurationError(WeldpoolError):

@@ -1,25 +1,61 @@
-"""Housekeeping at start-up: files that a crash left without a row, and training state that
-recorded versions no longer need."""
+"""Housekeeping: the file collector (at start-up and in a thread of the web process), and
+training state and exports that are no longer needed."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+import structlog
+from sqlalchemy.orm import Session, sessionmaker
 
 from app.models import STORED_PATH_COLUMNS, ModelVersion
 from app.storage import Storage
 
 SWEPT_AREAS = ("frames", "videos", "artefacts")
+log = structlog.get_logger(__name__)
 
 
-def sweep_orphan_files(session: Session, storage: Storage, older_than_s: float = 3600.0) -> int:
-    """Remove stored files (frames, videos, masks, heatmaps) that no row names."""
+def sweep_orphan_files(
+    session: Session, storage: Storage, older_than_s: float | None = None
+) -> int:
+    """Remove stored files (frames, videos, masks, heatmaps) that no committed row names and
+    nobody claimed within the grace period (or ``older_than_s``)."""
     known: set[str] = set()
     for column in STORED_PATH_COLUMNS:
         known.update(p for p in session.scalars(sa.select(column).distinct()) if p)
     return len(storage.sweep_orphans(SWEPT_AREAS, known, older_than_s))
+
+
+class FileCollector:
+    """Sweeps the store a few times per grace period, in a thread of the web process: files
+    whose claim was too fresh when their rows were deleted, and files a failed write left."""
+
+    def __init__(self, session_factory: sessionmaker[Session], storage: Storage) -> None:
+        self.session_factory, self.storage = session_factory, storage
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="weldpool-files", daemon=True)
+
+    def sweep(self) -> int:
+        with self.session_factory() as session:
+            return sweep_orphan_files(session, self.storage)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.storage.grace_s / 3):
+            try:
+                if removed := self.sweep():
+                    log.info("files.collected", removed=removed)
+            except Exception:  # a database hiccup must not end the collector
+                log.exception("files.collect_failed")
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
 
 
 def prune_training_state(session: Session, home: Path) -> int:

@@ -16,9 +16,16 @@ from fastapi.staticfiles import StaticFiles
 
 from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
-from app.errors import AuthenticationError, TooManyAttemptsError, WeldpoolError, http_status_of
+from app.errors import (
+    AuthenticationError,
+    TooManyAttemptsError,
+    WeldpoolError,
+    http_status_of,
+    without_server_paths,
+)
 from app.frames.routes import router as frames_router
 from app.headers import SecurityHeaders
+from app.housekeeping import FileCollector
 from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
@@ -63,7 +70,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
         if isinstance(exc, TooManyAttemptsError):
             headers = {"Retry-After": str(math.ceil(exc.retry_after))}
-        body = {"detail": exc.message} | getattr(exc, "extra", {})
+        detail = without_server_paths(exc.message, request.app.state.settings.home)
+        body = {"detail": detail} | getattr(exc, "extra", {})
         return JSONResponse(body, status_code=status, headers=headers)
 
     @app.exception_handler(RequestValidationError)
@@ -108,10 +116,13 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
         background = (
             EmbeddedWorker(queue, settings.workers) if embedded_worker else JobReaper(queue)
         )
+        collector = FileCollector(session_factory, app.state.storage)
         background.start()
+        collector.start()
         try:
             yield
         finally:
+            collector.stop()
             background.stop()
             app.state.live_views.stop_all()
             engine.dispose()
@@ -129,7 +140,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.engine = engine
     app.state.session_factory = session_factory
     app.state.queue = queue
-    app.state.storage = Storage(settings.home)
+    app.state.storage = Storage.of(settings)
     app.state.live_views = LiveViews()
     app.state.login_throttle = LoginThrottle(
         settings.login_max_failures, settings.login_lockout_minutes * 60

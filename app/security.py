@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import datetime as dt
+import functools
 import hashlib
 import hmac
 import math
@@ -114,13 +115,18 @@ def close_web_session(session: Session, cookie: str) -> None:
     session.execute(sa.delete(WebSession).where(WebSession.session_hash == _sha256(cookie)))
 
 
+@functools.cache
+def _decoy_hash() -> str:
+    """A hash no password matches, checked for unknown names (made once per process)."""
+    return hash_password(secrets.token_urlsafe(32))
+
+
 def authenticate(session: Session, username: str, password: str) -> User | None:
-    """The active user with these credentials, or None."""
+    """The active user with these credentials, or None. An unknown name, a deactivated account
+    and a wrong password cost the same one hash check, so that timing tells none apart."""
     user = session.scalar(sa.select(User).where(User.username == username))
-    if user is None:
-        hash_password(password)  # spend the same time as a real check: no user enumeration
-        return None
-    if not user.is_active or not verify_password(user.password_hash, password):
+    matches = verify_password(user.password_hash if user else _decoy_hash(), password)
+    if user is None or not user.is_active or not matches:
         return None
     return user
 

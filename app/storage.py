@@ -1,4 +1,4 @@
-"""Files under WELDPOOL_HOME: content-addressed, written atomically.
+"""Files under WELDPOOL_HOME: content-addressed, written atomically, removed by one collector.
 
 The database holds metadata and relative paths; the files live here. A file is written to a
 temporary name, flushed to disk, then renamed into place, and only then is its row committed.
@@ -6,8 +6,20 @@ For a whole request this is two steps: ``stage`` writes and flushes each new fil
 ingest's disk threads, as soon as it is checked), ``install_many`` renames them all into place and
 flushes the directories that received them, so the rows committed next never name a file the
 disk could lose.
-If the commit fails, the files this attempt created are removed again; if the process dies
-between rename and commit, ``sweep_orphans`` (run by ``weldpool serve``) removes the leftovers.
+
+Content is shared by hash, so a file may be about to be named by a row that is not committed
+yet: an upload of the same content to another run, a label or a proposal with the same mask.
+Every writer therefore **claims** the file it will name (it writes it, or refreshes the file's
+modification time when the content is already there), and files are removed only by
+``collect``: a file no committed row names is removed when nobody claimed it within the grace
+period (``WELDPOOL_FILE_GRACE_S``). A writer commits within seconds of its claim, far inside the
+grace, so its file is never taken from under it. ``collect`` moves a file aside before it looks
+at the claim, so a claim made while it looks is seen (the claimer finds the name gone and writes
+the file again). A write that fails before its commit removes only the files it created that
+nobody claimed since (``discard``, by the exact claim time it wrote). Deletions collect the
+files their rows named at once; the collector thread (``FileCollector``) and ``serve``'s start-up
+sweep the rest: files whose claim was too fresh, and files a crash left between rename and
+commit.
 """
 
 from __future__ import annotations
@@ -16,13 +28,20 @@ import hashlib
 import os
 import time
 import uuid
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from concurrent.futures import Executor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
+
+if TYPE_CHECKING:
+    from app.config import Settings
 
 CHUNK = 1024 * 1024
+DEFAULT_GRACE_S = 900.0
+"""How long a claimed file is safe from the collector (``WELDPOOL_FILE_GRACE_S``): far longer than
+any writer takes from its claim to its commit."""
+_ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
 
 
 @dataclass(frozen=True)
@@ -30,23 +49,31 @@ class StagedFile:
     """Content written and flushed under a temporary name, not yet in the store."""
 
     relative: str
-    temporary: Path | None  # None: the store holds this content already
+    temporary: Path | None  # None: the store holds this content already (and it is claimed)
 
 
 @dataclass(frozen=True)
 class StoredFile:
-    """A file in the store: its path relative to home, and whether this call created it."""
+    """A file in the store: its path relative to home, and whether this call created it (then
+    ``claimed_ns`` is the exact claim time it wrote, which ``discard`` looks for)."""
 
     path: str
     created: bool
+    claimed_ns: int = 0
 
 
 class Storage:
     """Content-addressed files under one home directory."""
 
-    def __init__(self, home: Path) -> None:
+    def __init__(self, home: Path, grace_s: float = DEFAULT_GRACE_S) -> None:
         self.home = home.resolve()
         self.tmp = self.home / "tmp"
+        self.grace_s = grace_s
+
+    @classmethod
+    def of(cls, settings: Settings) -> Storage:
+        """The store of an instance, with its grace period."""
+        return cls(settings.home, settings.file_grace_s)
 
     def absolute(self, relative: str) -> Path:
         """The file behind a stored relative path (never outside home)."""
@@ -63,28 +90,47 @@ class Storage:
         self.tmp.mkdir(parents=True, exist_ok=True)
         return self.tmp / f"{uuid.uuid4().hex}.part"
 
+    @staticmethod
+    def _claim(final: Path) -> bool:
+        """Mark a stored file as about to be named by a row (its modification time becomes
+        now); False when it is not there (never stored, or collected)."""
+        now = time.time_ns()
+        try:
+            os.utime(final, ns=(now, now))
+        except FileNotFoundError:
+            return False
+        return True
+
     def _install(self, temporary: Path, relative: str) -> StoredFile:
+        """Put a flushed temporary in place, or claim the same content when it is there."""
         final = self.home / relative
-        if final.exists():
+        while not self._claim(final):
+            final.parent.mkdir(parents=True, exist_ok=True)
+            claimed = time.time_ns()
+            os.utime(temporary, ns=(claimed, claimed))  # the claim, before anyone can see it
+            try:
+                os.link(temporary, final)  # never replaces a file another writer put there
+            except FileExistsError:
+                continue  # written by another writer meanwhile: claim theirs
             temporary.unlink()
-            return StoredFile(relative, created=False)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(temporary, final)
-        return StoredFile(relative, created=True)
+            return StoredFile(relative, created=True, claimed_ns=claimed)
+        temporary.unlink()
+        return StoredFile(relative, created=False)
 
     def put(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StoredFile:
         """Store ``data`` (whose hash the caller computed) unless the same content is there."""
         relative = self.relative_path(area, sha256, extension)
-        if (self.home / relative).exists():
+        if self._claim(self.home / relative):
             return StoredFile(relative, created=False)
         return self._install(self._write_temporary(data), relative)
 
     def stage(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StagedFile:
         """Write new content to a temporary name and flush it to disk; nothing is in the store
-        until ``install_many``. Any thread may stage (fsync releases the GIL), so a request's
-        files reach the disk while the rest of it is still being checked."""
+        until ``install_many``. Content already stored is claimed instead. Any thread may stage
+        (fsync releases the GIL), so a request's files reach the disk while the rest of it is
+        still being checked."""
         relative = self.relative_path(area, sha256, extension)
-        if (self.home / relative).exists():
+        if self._claim(self.home / relative):
             return StagedFile(relative, None)
         temporary = self._temporary()
         try:
@@ -104,10 +150,10 @@ class Storage:
     def install_many(
         self, staged: Sequence[StagedFile], executor: Executor | None = None
     ) -> list[StoredFile]:
-        """Rename staged files into place, then flush each directory that gained an entry once
+        """Put staged files in place, then flush each directory that gained an entry once
         (in ``executor``'s threads when given), so a crash after this returns cannot lose a
-        file or its name. On failure nothing of it is left: installed files and temporaries
-        are removed."""
+        file or its name. On failure nothing of it is left: files it created (unless claimed
+        since) and temporaries are removed."""
         touched: set[Path] = set()
         installed: list[StoredFile] = []
         results: list[StoredFile] = []
@@ -189,35 +235,88 @@ class Storage:
         sha256 = digest.hexdigest()
         return self._install(temporary, self.relative_path(area, sha256, extension)), sha256, size
 
-    def discard(self, files: Iterable[StoredFile], in_use: Collection[str] = ()) -> None:
-        """Remove the files an aborted write created, except those a committed row now uses."""
-        for stored in files:
-            if stored.created and stored.path not in in_use:
-                (self.home / stored.path).unlink(missing_ok=True)
+    # --- removal: the one collector ----------------------------------------------------------
+
+    def discard(self, files: Iterable[StoredFile], in_use: Collection[str] = ()) -> int:
+        """Remove the files an aborted write created, except those a committed row names or
+        another writer claimed since (their claim time is no longer the one this write put);
+        returns how many went."""
+        return sum(
+            self._remove_if(stored.path, stored.claimed_ns.__eq__)
+            for stored in files
+            if stored.created and stored.path not in in_use
+        )
+
+    def collect(self, paths: Iterable[str], in_use: Collection[str]) -> list[str]:
+        """Remove the files of ``paths`` that no committed row names (``in_use``, read after
+        the rows that named them were deleted) and nobody claimed within the grace period;
+        returns those removed. The others stay for the next sweep."""
+        cutoff = time.time_ns() - int(self.grace_s * 1e9)
+        return [
+            path
+            for path in paths
+            if path not in in_use and self._remove_if(path, lambda ns: ns < cutoff)
+        ]
+
+    def _remove_if(self, relative: str, unclaimed: Callable[[int], bool]) -> bool:
+        """Move the file aside, then remove it if its claim time says nobody claimed it; else
+        put it back. A claim made while it is aside finds no file and writes it again."""
+        final = self.home / relative
+        self.tmp.mkdir(parents=True, exist_ok=True)
+        aside = self.tmp / f"{relative.replace('/', '~')}~{uuid.uuid4().hex}{_ASIDE}"
+        try:
+            os.rename(final, aside)
+        except FileNotFoundError:
+            return False
+        try:
+            if unclaimed(aside.stat().st_mtime_ns):
+                aside.unlink()
+                return True
+        except FileNotFoundError:  # a start-up sweep put it back meanwhile
+            return False
+        _put_back(aside, final)
+        return False
 
     def sweep_orphans(
-        self, areas: Iterable[str], known: set[str], older_than_s: float = 3600.0
+        self, areas: Iterable[str], known: set[str], older_than_s: float | None = None
     ) -> list[str]:
-        """Remove files of ``areas`` that no row names (a crash between rename and commit).
-
-        Only files older than ``older_than_s`` are touched, so uploads in flight in another
-        process are safe. Returns the removed relative paths.
-        """
-        cutoff = time.time() - older_than_s
+        """Remove files of ``areas`` that no row names and nobody claimed for ``older_than_s``
+        (the grace period by default): a crash between rename and commit, or a deletion's file
+        whose claim was too fresh then. ``known`` must be read before the walk starts. Returns
+        the removed relative paths."""
+        cutoff_s = time.time() - (self.grace_s if older_than_s is None else older_than_s)
+        for aside in self.tmp.glob(f"*{_ASIDE}") if self.tmp.is_dir() else ():
+            if aside.stat().st_ctime > time.time() - 60:
+                continue  # a collector is looking at it now
+            relative = aside.name.removesuffix(_ASIDE).rsplit("~", 1)[0].replace("~", "/")
+            _put_back(aside, self.home / relative)  # a collector died while it looked
         removed = []
+        cutoff = int(cutoff_s * 1e9)
         for area in areas:
             root = self.home / area
             if not root.is_dir():
                 continue
             for path in root.rglob("*"):
                 relative = path.relative_to(self.home).as_posix()
-                if path.is_file() and relative not in known and path.stat().st_mtime < cutoff:
-                    path.unlink()
+                if relative in known or not path.is_file():
+                    continue
+                if self._remove_if(relative, lambda ns: ns < cutoff):
                     removed.append(relative)
         for stale in self.tmp.glob("*.part") if self.tmp.is_dir() else ():
-            if stale.stat().st_mtime < cutoff:
-                stale.unlink()
+            if stale.stat().st_mtime < cutoff_s:
+                stale.unlink(missing_ok=True)
         return removed
+
+
+def _put_back(aside: Path, final: Path) -> None:
+    """Return a file the collector moved aside (unless it was written again meanwhile)."""
+    try:
+        os.link(aside, final)
+    except FileExistsError:
+        pass
+    except FileNotFoundError:
+        return
+    aside.unlink(missing_ok=True)
 
 
 def _fsync(path: Path) -> None:

@@ -77,6 +77,15 @@ def make_settings(home: Path, **overrides: Any) -> Settings:
     return Settings(_env_file=None, **values)  # type: ignore[call-arg]
 
 
+def age_stored_files(home: Path, seconds: float) -> None:
+    """Make every stored file look claimed ``seconds`` ago (time passing, for the collector)."""
+    then = time.time_ns() - int(seconds * 1e9)
+    for area in ("frames", "videos", "artefacts"):
+        for path in (home / area).rglob("*") if (home / area).is_dir() else ():
+            if path.is_file():
+                os.utime(path, ns=(then, then))
+
+
 def auth(token: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
 

@@ -78,7 +78,7 @@ def import_cmd(
     images, videos = _import_sources(paths)
     if not images and not videos:
         raise WeldpoolError("No frames or videos found in the given paths.")
-    storage = Storage(settings.home)
+    storage = Storage.of(settings)
     stored = duplicates = 0
     rejected: list[str] = []
     with open_sessions(settings)() as session:

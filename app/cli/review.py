@@ -50,7 +50,7 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
                 raise WeldpoolError(f"There is no sequence named {sequence_name!r}.")
         temporary = build_export(
             session,
-            Storage(settings.home),
+            Storage.of(settings),
             fmt,  # type: ignore[arg-type]
             sequence_id=sequence_id,
             split=Split(split) if split else None,

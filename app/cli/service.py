@@ -65,7 +65,7 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     password_file = prepare_instance(settings)
     engine = create_db_engine(settings.resolved_database_url)
     with create_session_factory(engine)() as session:
-        swept = sweep_orphan_files(session, Storage(settings.home))
+        swept = sweep_orphan_files(session, Storage.of(settings))
         freed = prune_training_state(session, settings.home)
     engine.dispose()
     if freed:
@@ -82,7 +82,18 @@ def serve(host: str, port: int, no_worker: bool) -> None:
         click.echo(login_hint(password_file, host, port), err=True)
     app = create_app(settings, embedded_worker=not no_worker)
     click.echo(f"weldpool serving on http://{host}:{port}", err=True)
-    uvicorn.run(app, host=host, port=port, log_config=None, access_log=True)
+    # X-Forwarded-For and -Proto only from WELDPOOL_TRUSTED_PROXIES (uvicorn's default trusts
+    # 127.0.0.1: any local client could then pick the address the login lockout counts).
+    proxies = settings.trusted_proxy_list
+    uvicorn.run(
+        app,
+        host=host,
+        port=port,
+        log_config=None,
+        access_log=True,
+        proxy_headers=bool(proxies),
+        forwarded_allow_ips=proxies,
+    )
 
 
 @main.command()

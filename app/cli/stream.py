@@ -27,7 +27,7 @@ def promoted_model_dir() -> Path:
             raise WeldpoolError(
                 "No student is promoted yet; train and promote one, or give --model MODEL_DIR."
             )
-        return Storage(settings.home).absolute(model.checkpoint_path)
+        return Storage.of(settings).absolute(model.checkpoint_path)
 
 
 @main.command("stream")
@@ -132,6 +132,8 @@ def stream_cmd(
     from weldpool_core.stream import FrameSource, Publisher, StreamStudent, run_stream, summary
     from weldpool_core.student.export import ONNX_FILE, ensure_onnx
 
+    if record_path is not None and not record_path.parent.is_dir():
+        fail(f"There is no folder {str(record_path.parent)!r} for --record; create it first.")
     model_dir = promoted_model_dir() if model == "promoted" else Path(model)
     if not model_dir.is_dir():
         fail(f"There is no student folder {str(model_dir)!r}.")
@@ -163,7 +165,13 @@ def stream_cmd(
         if lonely:
             click.echo(f"no subscriber after {wait_for_subscriber:g} s; publishing", err=True)
         if record_path is not None:
-            record_file = record_path.open("w", encoding="utf-8")
+            try:
+                record_file = record_path.open("w", encoding="utf-8")
+            except OSError as exc:
+                fail(
+                    f"--record cannot write {str(record_path)!r} ({exc.strerror}); choose "
+                    "another file."
+                )
         with FrameSource(
             source,
             realtime=realtime,

@@ -227,6 +227,7 @@ async def upload_frames(
     if code == status.HTTP_422_UNPROCESSABLE_CONTENT:
         first = result.rejected[0]
         payload["detail"] = f"No frame was stored; {first.name or 'the file'}: {first.reason}"
+        payload["errors"] = [{"loc": ["files", r.name], "msg": r.reason} for r in result.rejected]
     return JSONResponse(payload, status_code=code)
 
 

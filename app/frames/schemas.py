@@ -3,11 +3,37 @@
 from __future__ import annotations
 
 import datetime as dt
+import math
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
-from app.bounds import MAX_MM_PER_PX, XY, Id, InputModel
+from app.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX, XY, Id, InputModel
+from app.errors import InvalidInputError
 from app.models import FrameStatus, LabelStatus, Split
+from weldpool_core.geometry import scale_from_points
+
+
+def scale_problem(mm_per_px: float) -> str | None:
+    """Why ``mm_per_px`` cannot be a run's scale (outside the physical range), or None."""
+    if math.isfinite(mm_per_px) and MIN_MM_PER_PX <= mm_per_px <= MAX_MM_PER_PX:
+        return None
+    bound = (
+        f"more than {MAX_MM_PER_PX:g}" if mm_per_px > MAX_MM_PER_PX else f"under {MIN_MM_PER_PX:g}"
+    )
+    return (
+        f"That is {mm_per_px:.3g} mm per pixel, {bound} mm per pixel; check the distance "
+        "(millimetres) and the two points."
+    )
+
+
+def stored_scale(mm_per_px: float | None) -> float | None:
+    """A stored scale as the API reads it: None when it is outside the physical range (a row
+    written before the checks, or by hand), so that a stored value never breaks a read."""
+    if mm_per_px is None or scale_problem(mm_per_px) is not None:
+        return None
+    return mm_per_px
 
 
 class SequenceIn(InputModel):
@@ -26,7 +52,10 @@ class SequenceIn(InputModel):
     )
     joint_type: str | None = Field(default=None, max_length=64, description="e.g. fillet (Tee).")
     mm_per_px: float | None = Field(
-        default=None, gt=0, le=MAX_MM_PER_PX, description="Image scale at the pool, mm per pixel."
+        default=None,
+        ge=MIN_MM_PER_PX,
+        le=MAX_MM_PER_PX,
+        description="Image scale at the pool, mm per pixel.",
     )
     notes: str = Field(default="", max_length=10_000)
 
@@ -38,6 +67,22 @@ class ScalePoints(InputModel):
     points: list[XY] = Field(min_length=2, max_length=2)
     distance_mm: float = Field(gt=0, le=10_000, description="The real distance, mm.")
 
+    @property
+    def mm_per_px(self) -> float:
+        """The scale the points give (``weldpool_core.geometry.scale_from_points``)."""
+        first, second = self.points
+        return scale_from_points((first[0], first[1]), (second[0], second[1]), self.distance_mm)
+
+    @model_validator(mode="after")
+    def _scale_is_physical(self) -> ScalePoints:
+        try:
+            problem = scale_problem(self.mm_per_px)
+        except InvalidInputError as exc:  # points on one spot
+            problem = exc.message
+        if problem:
+            raise PydanticCustomError("scale_points", problem)
+        return self
+
 
 class SequencePatch(InputModel):
     name: str | None = Field(default=None, min_length=1, max_length=200)
@@ -48,7 +93,7 @@ class SequencePatch(InputModel):
     robot_speed_cm_min: float | None = Field(default=None, ge=0)
     synergic_law: str | None = Field(default=None, max_length=200)
     joint_type: str | None = Field(default=None, max_length=64)
-    mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
+    mm_per_px: float | None = Field(default=None, ge=MIN_MM_PER_PX, le=MAX_MM_PER_PX)
     scale_points: ScalePoints | None = Field(
         default=None, description="Set mm_per_px from two points a known distance apart."
     )
@@ -64,12 +109,39 @@ class SequencePatch(InputModel):
         return self
 
 
-class SequenceOut(SequenceIn):
+class SequenceOut(BaseModel):
+    """A weld run as stored. Unlike the inputs it bounds nothing: a value stored before a check
+    existed (or written by hand) is read as it is, and a scale outside the physical range as
+    null, so that a stored row never breaks a read."""
+
     model_config = ConfigDict(from_attributes=True)
 
     id: int
+    name: str
+    wire_feed_m_min: float | None = Field(default=None, description="Wire feed rate, m/min.")
+    voltage_v: float | None = Field(default=None, description="Voltage, V.")
+    current_a: float | None = Field(default=None, description="Current, A.")
+    arc_length_correction_pct: float | None = Field(
+        default=None, description="Arc length correction, %."
+    )
+    robot_speed_cm_min: float | None = Field(default=None, description="Robot speed, cm/min.")
+    synergic_law: str | None = Field(
+        default=None, description="Synergic law used instead of fixed V / A."
+    )
+    joint_type: str | None = Field(default=None, description="e.g. fillet (Tee).")
+    mm_per_px: float | None = Field(
+        default=None,
+        description="Image scale at the pool, mm per pixel; null when unknown or outside "
+        f"{MIN_MM_PER_PX:g}–{MAX_MM_PER_PX:g}.",
+    )
+    notes: str = ""
     created_at: dt.datetime
     frame_count: int = 0
+
+    @field_validator("mm_per_px", mode="before")
+    @classmethod
+    def _scale_in_range(cls, value: Any) -> Any:
+        return stored_scale(value) if isinstance(value, int | float) else value
 
 
 class FrameOut(BaseModel):

@@ -912,9 +912,10 @@ def delete_frames(
 
     Proposals, labels with their history and validation keypoints go with their frame. Frames
     a person reviewed (accepted, corrected, rejected, or with validation keypoints) are only
-    deleted with ``force``; otherwise ConflictError says how many would be lost. Files go after
-    the commit, each only when no remaining row names it (content is shared by hash); a crash
-    in between leaves orphans that start-up sweeps.
+    deleted with ``force``; otherwise ConflictError says how many would be lost. After the
+    commit the collector removes each file no remaining row names (content is shared by hash)
+    unless an upload in flight claimed it; what it leaves, and what a crash in between leaves,
+    the collector sweeps later.
     """
     frame_ids = sorted(set(frame_ids))
     found: set[int] = set()
@@ -961,10 +962,8 @@ def delete_frames(
         session.execute(sa.delete(Video).where(Video.sequence_id == sequence.id))
         session.execute(sa.delete(Sequence).where(Sequence.id == sequence.id))
     session.commit()
-    orphans = paths - _still_used(session, paths)
-    for path in orphans:
-        storage.absolute(path).unlink(missing_ok=True)
-    return Deletion(frames=len(frame_ids), reviewed=reviewed, files=len(orphans))
+    removed = storage.collect(paths, _still_used(session, paths))
+    return Deletion(frames=len(frame_ids), reviewed=reviewed, files=len(removed))
 
 
 def delete_sequence(

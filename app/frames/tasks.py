@@ -26,7 +26,7 @@ def extract_video(ctx: JobContext) -> dict[str, Any]:
         user = session.get(User, video.uploaded_by_id) if video.uploaded_by_id else None
         video_sequence = video.sequence_id
         result = extract_video_frames(
-            session, Storage(ctx.settings.home), video, user=user, progress=ctx.progress
+            session, Storage.of(ctx.settings), video, user=user, progress=ctx.progress
         )
     ctx.summary = f"{counted(result['frames'], 'frame')} stored in sequence #{video_sequence}" + (
         f" ({result['duplicates']} were already there)" if result["duplicates"] else ""

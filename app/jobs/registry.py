@@ -38,6 +38,12 @@ class JobInterrupted(Exception):
     """Raised inside a handler when its worker is shutting down; the job runs again later."""
 
 
+class JobLost(Exception):
+    """Raised inside a handler whose attempt no longer holds the job: it was reaped (its worker
+    looked dead, e.g. frozen past the stale limit) and retried or failed. The attempt stops and
+    writes nothing more; the row belongs to the newer attempt."""
+
+
 @dataclass(frozen=True)
 class JobSpec:
     """What a job kind runs, and how often a lost run may be tried again."""
@@ -92,14 +98,18 @@ class JobContext:
     worker_id: str
     stopping: threading.Event = field(default_factory=threading.Event)
     queue: Any = field(default=None, repr=False)  # the JobQueue, for jobs that start jobs
+    attempt: int = 1
+    """The fencing token: the row's ``attempts`` when this attempt claimed it. Every write of
+    progress or outcome is conditional on it, so a reaped attempt that wakes up cannot write."""
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
     summary: str | None = None
     """What the job did, in one line: its message once it succeeded (else the last progress)."""
 
     def progress(self, fraction: float, message: str = "") -> None:
-        """Record progress (0..1); raises JobCancelled when a user asked to cancel, and
-        JobInterrupted when the worker is shutting down."""
+        """Record progress (0..1); raises JobCancelled when a user asked to cancel,
+        JobInterrupted when the worker is shutting down and JobLost when this attempt no
+        longer holds the job."""
         if self.stopping.is_set():
             raise JobInterrupted()
         now = time.monotonic()
@@ -107,9 +117,9 @@ class JobContext:
             return
         self._last_write = now
         with self.session_factory() as session:
-            session.execute(
+            written = session.execute(
                 sa.update(Job)
-                .where(Job.id == self.job_id, Job.worker_id == self.worker_id)
+                .where(self.holds())
                 .values(
                     progress=min(max(fraction, 0.0), 1.0),
                     message=message[:500],
@@ -117,16 +127,33 @@ class JobContext:
                 )
             )
             session.commit()
+        if written.rowcount != 1:  # type: ignore[attr-defined]
+            self.check_cancelled()  # says which: cancelled, or lost
+            raise JobLost()
         self.check_cancelled()
+
+    def holds(self) -> sa.ColumnElement[bool]:
+        """The condition under which the job's row is still this attempt's."""
+        return sa.and_(
+            Job.id == self.job_id,
+            Job.worker_id == self.worker_id,
+            Job.attempts == self.attempt,
+            Job.status == JobStatus.running,
+        )
 
     def check_cancelled(self) -> None:
         """Raise JobCancelled when a user asked to cancel this job, JobInterrupted when the
-        worker is shutting down."""
+        worker is shutting down, JobLost when this attempt no longer holds it. Handlers call it
+        before they commit what they made, so a lost attempt records nothing."""
         if self.stopping.is_set():
             raise JobInterrupted()
         with self.session_factory() as session:
             row = session.execute(
-                sa.select(Job.cancel_requested, Job.status).where(Job.id == self.job_id)
-            ).one()
+                sa.select(Job.cancel_requested, Job.status, Job.worker_id, Job.attempts).where(
+                    Job.id == self.job_id
+                )
+            ).one_or_none()
+        if row is None or row.worker_id != self.worker_id or row.attempts != self.attempt:
+            raise JobLost()
         if row.cancel_requested or row.status != JobStatus.running:
             raise JobCancelled()

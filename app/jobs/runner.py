@@ -18,7 +18,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
 from app.db import utcnow
-from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, job_spec
+from app.errors import without_server_paths
+from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, JobLost, job_spec
 from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
 
@@ -32,14 +33,15 @@ def new_worker_id() -> str:
     return f"{HOSTNAME}:{os.getpid()}:{os.urandom(3).hex()}"
 
 
-def _finish(
-    session_factory: sessionmaker[Session], job_id: int, owner: str, **values: object
-) -> bool:
-    """Write a final state, only if worker ``owner`` still owns the running job."""
-    with session_factory() as session:
+def _finish(context: JobContext, **values: object) -> bool:
+    """Write a final state, only if this attempt still holds the running job (its fencing
+    token: a reaped attempt that wakes up writes nothing)."""
+    if isinstance(error := values.get("error"), str):
+        values["error"] = without_server_paths(error, context.settings.home)
+    with context.session_factory() as session:
         done = session.execute(
             sa.update(Job)
-            .where(Job.id == job_id, Job.worker_id == owner, Job.status == JobStatus.running)
+            .where(context.holds())
             .values(**({"finished_at": utcnow(), "heartbeat_at": utcnow()} | values))
         )
         session.commit()
@@ -74,29 +76,34 @@ def execute_job(
             log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
             return
         job = session.get_one(Job, job_id)
-        kind, params = job.kind, dict(job.params or {})
+        kind, params, attempt = job.kind, dict(job.params or {}), job.attempts
 
-    log.info("job.started", job_id=job_id, kind=kind, worker=worker_id)
+    log.info("job.started", job_id=job_id, kind=kind, worker=worker_id, attempt=attempt)
+    context = JobContext(
+        job_id,
+        params,
+        settings,
+        session_factory,
+        worker_id,
+        stopping or threading.Event(),
+        queue,
+        attempt=attempt,
+    )
     spec = job_spec(kind)
     if spec is None:
         _finish(
-            session_factory,
-            job_id,
-            worker_id,
+            context,
             status=JobStatus.failed,
             error=f"This worker does not know job kind {kind!r}; update the worker.",
         )
         return
-    context = JobContext(
-        job_id, params, settings, session_factory, worker_id, stopping or threading.Event(), queue
-    )
     try:
         result = spec.handler(context)
+    except JobLost:
+        log.warning("job.lost_lease", job_id=job_id, attempt=attempt)
     except JobInterrupted:
         requeued = _finish(
-            session_factory,
-            job_id,
-            worker_id,
+            context,
             status=JobStatus.queued,
             finished_at=None,
             worker_id=None,
@@ -106,32 +113,24 @@ def execute_job(
             queue.enqueue(job_id)
         log.info("job.interrupted", job_id=job_id)
     except JobCancelled:
-        _finish(
-            session_factory,
-            job_id,
-            worker_id,
-            status=JobStatus.cancelled,
-            message="cancelled by a user",
-        )
+        _finish(context, status=JobStatus.cancelled, message="cancelled by a user")
         log.info("job.cancelled", job_id=job_id)
     except WeldpoolError as exc:
-        _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=exc.message)
+        _finish(context, status=JobStatus.failed, error=exc.message)
         log.warning("job.failed", job_id=job_id, error=exc.message)
     except Exception as exc:
         message = f"Unexpected error ({type(exc).__name__}): {exc}"
-        _finish(session_factory, job_id, worker_id, status=JobStatus.failed, error=message)
+        _finish(context, status=JobStatus.failed, error=message)
         log.exception("job.crashed", job_id=job_id)
     else:
-        _finish(
-            session_factory,
-            job_id,
-            worker_id,
+        finished = _finish(
+            context,
             status=JobStatus.succeeded,
             progress=1.0,
             result=result or {},
             **({"message": context.summary[:500]} if context.summary else {}),
         )
-        log.info("job.succeeded", job_id=job_id)
+        log.info("job.succeeded" if finished else "job.lost_lease", job_id=job_id)
 
 
 def _pid_is_dead(worker_id: str) -> bool:

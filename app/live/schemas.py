@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from app.bounds import MAX_MM_PER_PX
+from app.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX
 
 
 class LiveIn(BaseModel):
@@ -32,7 +32,7 @@ class LiveIn(BaseModel):
         "the float student's); the version must have one (`int8` on the model). Not with "
         "`sequential`.",
     )
-    mm_per_px: float | None = Field(default=None, gt=0, le=MAX_MM_PER_PX)
+    mm_per_px: float | None = Field(default=None, ge=MIN_MM_PER_PX, le=MAX_MM_PER_PX)
     travel_deg: float | None = Field(default=None, ge=-360, le=360)
 
 

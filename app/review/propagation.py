@@ -24,8 +24,15 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError
+from app.jobs.registry import counted
 from app.models import Frame, FrameStatus, Label, LabelRevision, LabelStatus, Proposal
-from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
+from app.review.service import (
+    FrameDeleted,
+    frame_exists,
+    frame_rgb,
+    load_mask,
+    writing_for_frame,
+)
 from app.storage import Storage
 from weldpool_core.teacher.passes import Direction, passes
 
@@ -90,46 +97,46 @@ def record(
     from weldpool_core.heatmap import heatmap_from_mask
 
     keypoints: list[list[float]] = []
-    heatmap_path = None
-    try:
-        result = heatmap_from_mask(mask)
-    except CoreInvalidInput as exc:
-        scores = scores | {"warning": f"No keypoints: {exc.message}"}
-    else:
-        keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
-        heatmap_path = store_heatmap(storage, result.heatmap)
-    # Earlier propagated proposals go, except those a label started from (its history).
-    started_from = sa.union(
-        sa.select(Label.proposal_id).where(
-            Label.frame_id == frame.id, Label.proposal_id.is_not(None)
-        ),
-        sa.select(LabelRevision.proposal_id).where(
-            LabelRevision.frame_id == frame.id, LabelRevision.proposal_id.is_not(None)
-        ),
-    )
-    session.execute(
-        sa.delete(Proposal).where(
-            Proposal.frame_id == frame.id,
-            Proposal.source == SOURCE,
-            Proposal.id.not_in(started_from),
+    with writing_for_frame(session, storage, frame.id) as write:
+        heatmap_path = None
+        try:
+            result = heatmap_from_mask(mask)
+        except CoreInvalidInput as exc:
+            scores = scores | {"warning": f"No keypoints: {exc.message}"}
+        else:
+            keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+            heatmap_path = write.heatmap(result.heatmap)
+        # Earlier propagated proposals go, except those a label started from (its history).
+        started_from = sa.union(
+            sa.select(Label.proposal_id).where(
+                Label.frame_id == frame.id, Label.proposal_id.is_not(None)
+            ),
+            sa.select(LabelRevision.proposal_id).where(
+                LabelRevision.frame_id == frame.id, LabelRevision.proposal_id.is_not(None)
+            ),
         )
-    )
-    proposal = Proposal(
-        frame_id=frame.id,
-        source=SOURCE,
-        model_id=model_id,
-        job_id=job_id,
-        mask_path=store_mask(storage, mask),
-        heatmap_path=heatmap_path,
-        keypoints=keypoints,
-        prompts={"from_frame_id": scores["from_frame_id"]},
-        scores=scores | {"mask_fraction": float(mask.mean())},
-        timings={},
-    )
-    session.add(proposal)
-    if frame.status == FrameStatus.new:
-        frame.status = FrameStatus.proposed
-    session.commit()
+        session.execute(
+            sa.delete(Proposal).where(
+                Proposal.frame_id == frame.id,
+                Proposal.source == SOURCE,
+                Proposal.id.not_in(started_from),
+            )
+        )
+        proposal = Proposal(
+            frame_id=frame.id,
+            source=SOURCE,
+            model_id=model_id,
+            job_id=job_id,
+            mask_path=write.mask(mask),
+            heatmap_path=heatmap_path,
+            keypoints=keypoints,
+            prompts={"from_frame_id": scores["from_frame_id"]},
+            scores=scores | {"mask_fraction": float(mask.mean())},
+            timings={},
+        )
+        session.add(proposal)
+        if frame.status == FrameStatus.new:
+            frame.status = FrameStatus.proposed
     return proposal
 
 
@@ -185,36 +192,50 @@ def propagate_run(
             return False
         return True
 
+    deleted: list[int] = []
+    ids = [frame.id for frame in frames]
+
+    def embed(i: int) -> Any:
+        try:
+            return embedding(frames[i])
+        except FileNotFoundError:  # its file went with the frame, deleted meanwhile
+            if frame_exists(session, ids[i]):
+                raise
+            raise InvalidInputError(
+                f"Frame #{ids[i]} of the run was deleted while propagating; "
+                f"{counted(written, 'proposal')} had been recorded. Propagate again."
+            ) from None
+
     for item in propagator.propagate(
-        len(frames),
-        prompts,
-        lambda i: embedding(frames[i]),
-        direction,
-        until,
-        keep_going=keep_going,
+        len(frames), prompts, embed, direction, until, keep_going=keep_going
     ):
         frame = frames[item.index]
-        low = item.confidence < threshold
+        frame_id, low = frame.id, item.confidence < threshold
+        try:
+            record(
+                session,
+                storage,
+                frame,
+                item.mask,
+                {
+                    "confidence": item.confidence,
+                    "object_score": item.object_score,
+                    "sam2_iou": item.iou,
+                    "from_frame_id": frames[item.source_index].id,
+                    "low_confidence": low,
+                },
+                model_id,
+                job_id,
+            )
+        except FrameDeleted:
+            deleted.append(frame_id)
+            continue
         if low:
-            flagged.append(frame.id)
-        record(
-            session,
-            storage,
-            frame,
-            item.mask,
-            {
-                "confidence": item.confidence,
-                "object_score": item.object_score,
-                "sam2_iou": item.iou,
-                "from_frame_id": frames[item.source_index].id,
-                "low_confidence": low,
-            },
-            model_id,
-            job_id,
-        )
+            flagged.append(frame_id)
         written += 1
         progress(min(1.0, written / max(1, planned)), f"{written} of {planned} frames")
     return {
+        "deleted_frame_ids": deleted,
         "proposed": written,
         "low_confidence_frame_ids": flagged,
         "stopped": stopped,

@@ -10,7 +10,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse, StreamingResponse
 
-from app.bounds import MAX_ID, IdPath
+from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.frames.service import get_frame, get_sequence
@@ -41,7 +41,7 @@ from app.review.schemas import (
     SegmentOut,
     TeacherRunIn,
 )
-from app.security import CurrentUser
+from app.security import CurrentUser, ReviewerUser
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
 from weldpool_core.outline import Polygon, fill_polygons, mask_polygons
@@ -208,6 +208,10 @@ def segment(
 ) -> SegmentOut:
     """A new mask from clicks / a box / a previous mask, from the frame's cached embedding."""
     frame = get_frame(session, frame_id)
+    if body.box is not None:
+        x0, y0, x1, y1 = body.box
+        for x, y in ((x0, y0), (x1, y1)):
+            check_in_frame(x, y, frame.width, frame.height, "box corner")
     previous = None
     if body.mask_png:
         previous = decode_mask_png(_png_bytes(body.mask_png, "mask_png"))
@@ -249,7 +253,8 @@ def outline(
 def outline_mask(
     frame_id: IdPath, body: OutlineMaskIn, session: SessionDep, _user: CurrentUser
 ) -> OutlineMaskOut:
-    """An edited outline of this frame rasterised: regions filled, holes emptied."""
+    """An edited outline of this frame rasterised: regions filled, holes emptied (at most
+    10,000 vertices in all, none more than one frame width or height outside the frame)."""
     frame = get_frame(session, frame_id)
     polygons = [Polygon([(p[0], p[1]) for p in poly.points], poly.hole) for poly in body.polygons]
     mask = fill_polygons(polygons, frame.height, frame.width)
@@ -429,7 +434,7 @@ def propagate(
     body: PropagateIn,
     session: SessionDep,
     queue: QueueDep,
-    user: CurrentUser,
+    user: ReviewerUser,
 ) -> JobCreated:
     """SAM2's video model carries the reviewed masks of `from_frame_ids` through the run in
     frame order: one `propagated` proposal per frame with its confidence (a job)."""

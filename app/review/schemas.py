@@ -68,7 +68,7 @@ class SegmentIn(InputModel):
 
     points: list[Point] = Field(default_factory=list, max_length=64)
     box: tuple[float, float, float, float] | None = Field(
-        default=None, description="[x0, y0, x1, y1]"
+        default=None, description="[x0, y0, x1, y1], inside the frame (its edges included)."
     )
     mask_png: str | None = Field(
         default=None, description="A previous mask to refine (base64 PNG)."
@@ -130,9 +130,25 @@ class OutlineOut(BaseModel):
 
 
 class OutlineMaskIn(InputModel):
-    """An edited outline to turn back into a mask."""
+    """An edited outline to turn back into a mask: at most ``MAX_VERTICES`` vertices in all,
+    none more than one frame width or height outside the frame."""
 
     polygons: list[PolygonIO] = Field(max_length=MAX_POLYGONS)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _vertices_in_all(cls, data: Any) -> Any:
+        # Counted before each vertex is validated, so the refusal costs no more than the count.
+        polygons = data.get("polygons") if isinstance(data, dict) else None
+        if isinstance(polygons, list):
+            total = sum(
+                len(p["points"])
+                for p in polygons
+                if isinstance(p, dict) and isinstance(p.get("points"), list)
+            )
+            if total > MAX_VERTICES:
+                raise ValueError(f"an outline has at most {MAX_VERTICES:,} vertices in all")
+        return data
 
 
 class OutlineMaskOut(BaseModel):

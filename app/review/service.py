@@ -6,14 +6,16 @@ from __future__ import annotations
 import hashlib
 import io
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.exc import StaleDataError
 
 from app.config import Settings
 from app.db import commit_or_conflict, utcnow
@@ -62,12 +64,71 @@ def _masks_in_use(session: Session, paths: list[str]) -> set[str]:
     return {p for p in used if p}
 
 
-def store_heatmap(storage: Storage, heatmap: NDArray[np.float32]) -> str:
+def store_heatmap_file(storage: Storage, heatmap: NDArray[np.float32]) -> StoredFile:
     """Channel 0 of Algorithm 1's array (the mask is stored apart) as compressed float16."""
     buffer = io.BytesIO()
     np.savez_compressed(buffer, heatmap=heatmap[:, :, 0].astype(np.float16))
     data = buffer.getvalue()
-    return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts").path
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts")
+
+
+def store_heatmap(storage: Storage, heatmap: NDArray[np.float32]) -> str:
+    """``store_heatmap_file``'s relative path."""
+    return store_heatmap_file(storage, heatmap).path
+
+
+class FrameDeleted(NotFoundError):
+    """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
+
+    def __init__(self, frame_id: int) -> None:
+        super().__init__(f"Frame {frame_id} was deleted while the job ran; nothing was recorded.")
+        self.frame_id = frame_id
+
+
+def frame_exists(session: Session, frame_id: int) -> bool:
+    """Whether the frame is there now (asked on a connection of its own, so a long read
+    transaction's snapshot cannot hide a deletion)."""
+    with Session(session.get_bind()) as fresh:
+        return fresh.scalar(sa.select(Frame.id).where(Frame.id == frame_id)) is not None
+
+
+@dataclass
+class FrameWrite:
+    """The files one guarded write for a frame stores (``writing_for_frame``)."""
+
+    storage: Storage
+    files: list[StoredFile] = field(default_factory=list)
+
+    def mask(self, mask: NDArray[np.bool_]) -> str:
+        self.files.append(store_mask_file(self.storage, mask))
+        return self.files[-1].path
+
+    def heatmap(self, heatmap: NDArray[np.float32]) -> str:
+        self.files.append(store_heatmap_file(self.storage, heatmap))
+        return self.files[-1].path
+
+
+@contextmanager
+def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iterator[FrameWrite]:
+    """Rows and files a job records for one frame, committed at the end of the block, while
+    the frame may be deleted: its row is locked first (PostgreSQL; a deletion then waits for
+    the commit), and a frame deleted before (or, on SQLite, a commit that loses to the
+    deletion) ends in FrameDeleted. On any failure the rows are rolled back and the files this
+    write created are discarded (unless another writer claimed them since)."""
+    write = FrameWrite(storage)
+    try:
+        locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
+        if session.execute(locked).first() is None:
+            raise FrameDeleted(frame_id)
+        yield write
+        session.commit()
+    except BaseException as exc:
+        session.rollback()
+        storage.discard(write.files)
+        lost = isinstance(exc, sa.exc.IntegrityError | StaleDataError)
+        if lost and not frame_exists(session, frame_id):
+            raise FrameDeleted(frame_id) from None
+        raise
 
 
 def load_mask(storage: Storage, path: str) -> NDArray[np.bool_]:
@@ -113,34 +174,34 @@ def record_teacher_proposal(
     weights: Mapping[str, float],
 ) -> Proposal:
     """Store a TeacherResult as the frame's newest proposal, with the frame's DINO descriptor
-    and its uncertainty re-scored."""
-    proposal = Proposal(
-        frame_id=frame.id,
-        source="teacher",
-        model_id=model_id,
-        job_id=job_id,
-        mask_path=store_mask(storage, result.mask),
-        heatmap_path=store_heatmap(storage, result.heatmap) if result.heatmap is not None else None,
-        keypoints=result.keypoints,
-        prompts=result.prompts.as_dict(),
-        scores={
-            "sam2_iou": result.score,
-            "object_score": result.object_score,
-            "prompt_stability": result.prompt_stability,
-            "mask_fraction": float(result.mask.mean()),
-            "warning": result.warning,
-            "keypoint_rules": result.keypoint_rules,
-        },
-        timings=result.timings,
-    )
-    session.add(proposal)
-    if frame.status == FrameStatus.new:
-        frame.status = FrameStatus.proposed
-    frame.descriptor = [round(float(v), 5) for v in result.attention.cls]
-    frame.teacher_error = None
-    session.flush()
-    rescore_frame(session, frame, weights)
-    session.commit()
+    and its uncertainty re-scored; FrameDeleted when the frame went meanwhile."""
+    with writing_for_frame(session, storage, frame.id) as write:
+        proposal = Proposal(
+            frame_id=frame.id,
+            source="teacher",
+            model_id=model_id,
+            job_id=job_id,
+            mask_path=write.mask(result.mask),
+            heatmap_path=write.heatmap(result.heatmap) if result.heatmap is not None else None,
+            keypoints=result.keypoints,
+            prompts=result.prompts.as_dict(),
+            scores={
+                "sam2_iou": result.score,
+                "object_score": result.object_score,
+                "prompt_stability": result.prompt_stability,
+                "mask_fraction": float(result.mask.mean()),
+                "warning": result.warning,
+                "keypoint_rules": result.keypoint_rules,
+            },
+            timings=result.timings,
+        )
+        session.add(proposal)
+        if frame.status == FrameStatus.new:
+            frame.status = FrameStatus.proposed
+        frame.descriptor = [round(float(v), 5) for v in result.attention.cls]
+        frame.teacher_error = None
+        session.flush()
+        rescore_frame(session, frame, weights)
     return proposal
 
 

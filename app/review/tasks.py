@@ -8,11 +8,25 @@ from typing import Any
 
 import structlog
 
-from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, counted, job_handler
+from app.errors import without_server_paths
+from app.jobs.registry import (
+    JobCancelled,
+    JobContext,
+    JobInterrupted,
+    JobLost,
+    counted,
+    job_handler,
+)
 from app.models import Frame
 from app.review import propagation, runtime
 from app.review.export import build_export, export_path
-from app.review.service import frame_rgb, has_proposal, record_teacher_proposal
+from app.review.service import (
+    FrameDeleted,
+    frame_exists,
+    frame_rgb,
+    has_proposal,
+    record_teacher_proposal,
+)
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
 
@@ -36,57 +50,79 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     ctx.progress(0.0, "loading the teacher")
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
     ctx.check_cancelled()
-    storage = Storage(ctx.settings.home)
-    proposed, skipped, failed = 0, 0, []
+    storage = Storage.of(ctx.settings)
+    proposed, skipped, failed, deleted = 0, 0, [], []
     for done, frame_id in enumerate(frame_ids):
         with ctx.session_factory() as session:
             frame = session.get(Frame, frame_id)
             if frame is None:
-                failed.append({"frame_id": frame_id, "error": "The frame no longer exists."})
+                deleted.append(frame_id)
             elif not force and has_proposal(session, frame_id, teacher.model_id):
                 skipped += 1
             else:
-                try:
-                    result = teacher.run(
-                        frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled
-                    )
-                except (JobCancelled, JobInterrupted):
-                    raise
-                except Exception as exc:  # one bad frame must not end the run for the others
-                    message = _frame_error(exc)
-                    failed.append({"frame_id": frame_id, "error": message})
-                    frame.teacher_error = message[:500]
-                    session.commit()
-                    log.warning(
-                        "teacher.frame_failed",
-                        frame_id=frame_id,
-                        error=message,
-                        exc_info=not isinstance(exc, WeldpoolError | OSError),
-                    )
-                else:
-                    record_teacher_proposal(
-                        session,
-                        storage,
-                        frame,
-                        result,
-                        teacher.model_id,
-                        ctx.job_id,
-                        ctx.settings.uncertainty_weights,
-                    )
+                outcome = _propose(ctx, session, storage, teacher, frame)
+                if outcome is None:
                     proposed += 1
+                elif isinstance(outcome, FrameDeleted):
+                    deleted.append(frame_id)
+                else:
+                    failed.append({"frame_id": frame_id, "error": outcome})
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
-    if failed and not proposed and not skipped and len(failed) == len(frame_ids):
+    if len(deleted) == len(frame_ids):
+        raise WeldpoolError("Every frame of this run was deleted before the teacher saw it.")
+    if failed and not proposed and not skipped and len(failed) + len(deleted) == len(frame_ids):
         raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
-    ctx.summary = teacher_summary(proposed, skipped, failed)
+    ctx.summary = teacher_summary(proposed, skipped, failed, len(deleted))
     return {
         "proposed": proposed,
         "skipped": skipped,
         "failed": failed,
+        "deleted_frame_ids": deleted,
         "model_id": teacher.model_id,
     }
 
 
-def teacher_summary(proposed: int, skipped: int, failed: list[dict[str, Any]]) -> str:
+def _propose(
+    ctx: JobContext, session: Any, storage: Storage, teacher: Any, frame: Frame
+) -> str | FrameDeleted | None:
+    """The teacher on one frame, recorded: None when it was, the frame's failure in one
+    sentence (stored on the frame), or FrameDeleted when the frame went meanwhile."""
+    try:
+        result = teacher.run(frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled)
+        ctx.check_cancelled()  # a lost or cancelled attempt records nothing more
+        record_teacher_proposal(
+            session,
+            storage,
+            frame,
+            result,
+            teacher.model_id,
+            ctx.job_id,
+            ctx.settings.uncertainty_weights,
+        )
+    except (JobCancelled, JobInterrupted, JobLost):
+        raise
+    except FrameDeleted as exc:
+        return exc
+    except Exception as exc:  # one bad frame must not end the run for the others
+        session.rollback()
+        if not frame_exists(session, frame.id):  # its file went with it
+            return FrameDeleted(frame.id)
+        message = without_server_paths(_frame_error(exc), ctx.settings.home)
+        frame.teacher_error = message[:500]
+        session.commit()
+        log.warning(
+            "teacher.frame_failed",
+            frame_id=frame.id,
+            error=message,
+            exc_info=not isinstance(exc, WeldpoolError | OSError),
+        )
+        return message
+    return None
+
+
+def teacher_summary(
+    proposed: int, skipped: int, failed: list[dict[str, Any]], deleted: int = 0
+) -> str:
     """The teacher job's last word: what it proposed, skipped and could not do (the first
     failure's reason; the rest are on their frames)."""
     parts = [f"{counted(proposed, 'frame')} proposed"]
@@ -94,6 +130,8 @@ def teacher_summary(proposed: int, skipped: int, failed: list[dict[str, Any]]) -
         parts.append(
             f"{skipped} skipped (this teacher proposed them before; run with force to redo)"
         )
+    if deleted:
+        parts.append(f"{deleted} skipped (deleted while the teacher ran)")
     if failed:
         parts.append(f"{len(failed)} failed, the first: {failed[0]['error']}")
     return "; ".join(parts)
@@ -102,7 +140,7 @@ def teacher_summary(proposed: int, skipped: int, failed: list[dict[str, Any]]) -
 @job_handler("export", max_attempts=1)
 def export_run(ctx: JobContext) -> dict[str, Any]:
     """Write an export zip with progress per label; ``GET /exports/{job id}`` downloads it."""
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         written = build_export(
             session,
@@ -122,7 +160,7 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
 @job_handler("propagate", max_attempts=1)
 def propagate_run(ctx: JobContext) -> dict[str, Any]:
     """SAM2's video model carries reviewed masks through a weld run (``app.review.propagation``)."""
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     ctx.progress(0.0, "loading SAM2's video model")
     propagator = runtime.propagator(ctx.settings)  # missing weights: the job fails here
     predictor = runtime.sam2_predictor(ctx.settings)
@@ -147,11 +185,12 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
         f"stopped {s['direction']} at frame #{s['frame_id']} (confidence fell)"
         for s in result["stopped"]
     )
-    proposed = int(result["proposed"])
+    proposed, deleted = int(result["proposed"]), len(result["deleted_frame_ids"])
     ctx.summary = (
         f"{counted(proposed, 'frame')} proposed, "
         f"{len(result['low_confidence_frame_ids'])} with low confidence"
         + (f"; {stops}" if stops else "")
+        + (f"; {counted(deleted, 'frame')} skipped (deleted meanwhile)" if deleted else "")
     )
     return result
 
@@ -163,7 +202,7 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
     teacher reuse them."""
     from weldpool_core.teacher.cache import cached_embedding
 
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     ctx.progress(0.0, "loading SAM2")
     predictor = runtime.sam2_predictor(ctx.settings)
     cache = runtime.embedding_cache(ctx.settings)

@@ -21,6 +21,7 @@ import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.frames.schemas import stored_scale
 from app.frames.service import get_sequence
 from app.models import Frame, Label, LabelStatus, Proposal
 from app.review import policy
@@ -88,6 +89,7 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
         else:
             sources.append((frame, None, None, None))
 
+    scale = stored_scale(sequence.mm_per_px)  # one outside the physical range: no mm at all
     shapes = {path: _shape(storage, path) for _, _, path, _ in sources if path is not None}
     travel = _median_axis([s.major_deg for s in shapes.values() if s.major_deg is not None])
     rows = []
@@ -115,7 +117,7 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
             "keypoints": keypoints or [],
         }
         row |= (
-            geometry.in_mm(sequence.mm_per_px)
+            geometry.in_mm(scale)
             if geometry
             else {"area_mm2": None, "length_mm": None, "width_mm": None}
         )
@@ -123,7 +125,7 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
     return {
         "sequence_id": sequence.id,
         "name": sequence.name,
-        "mm_per_px": sequence.mm_per_px,
+        "mm_per_px": scale,
         "travel_deg": travel,
         "travel_source": "the run's median major axis of its masks" if travel is not None else None,
         "process": {

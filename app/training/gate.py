@@ -19,6 +19,7 @@ No frames to measure on: not usable, with the reason.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -75,8 +76,14 @@ def _student_outputs(
 
     if version.checkpoint_path is None:
         raise InvalidInputError(f"{version.name} has no checkpoint to measure.")
-    predictor = StudentPredictor.load(storage.absolute(version.checkpoint_path), device)
-    images = [frame_rgb(storage, session.get_one(Frame, f)) for f in frame_ids]
+    try:
+        predictor = StudentPredictor.load(storage.absolute(version.checkpoint_path), device)
+        images = [frame_rgb(storage, session.get_one(Frame, f)) for f in frame_ids]
+    except InvalidInputError as exc:  # the core names files by their path on this server
+        home = f"{storage.home}{os.sep}"
+        raise InvalidInputError(
+            f"{version.name} cannot be measured: {exc.message.replace(home, '')}"
+        ) from None
     predictions = predictor.predict(images)
     return {f: (p.mask, p.keypoints) for f, p in zip(frame_ids, predictions, strict=True)}
 

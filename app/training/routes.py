@@ -151,7 +151,8 @@ def promote(
 ) -> ModelVersionOut:
     """Make this version the student that proposes for frames and scores the queue. The gate
     measures it first, now, against the promoted version and the teacher; a version it finds
-    unusable is refused (409) unless `force=true`. Queues a student run on the unreviewed frames.
+    unusable is refused (409) unless `force=true`. Queues a student run on the unreviewed frames
+    (one: a run an earlier promotion queued that has not started yet runs this version instead).
     """
     model = service.get_model(session, model_id)
     verdict = gate.measure(
@@ -166,9 +167,5 @@ def promote(
             "proposals while they agree better with the labels."
         )
     model = service.promote(session, model)
-    unlabelled = service.unreviewed_frame_ids(session)
-    if unlabelled:
-        create_job(
-            session, queue, "student", {"frame_ids": unlabelled, "model_version_id": model.id}, user
-        )
+    service.queue_promoted_run(session, queue, model, user)
     return ModelVersionOut.model_validate(model)

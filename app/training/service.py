@@ -26,13 +26,16 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
-from app.review.service import frame_rgb, load_mask
+from app.review.service import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
 TRAIN_KIND = "train_student"
 SEQUENTIAL_KIND = "train_sequential"
 QUANTIZE_KIND = "quantize_student"
+STUDENT_RUN_KIND = "student"
+PROMOTED_RUN = "after_promotion"
+"""The parameter that marks the run a promotion queued (``queue_promoted_run``)."""
 CALIBRATION_FRAMES = 64
 """Frames an int8 student is calibrated and checked on (spread over the project's frames)."""
 UNLABELLED_WINDOWS = 96
@@ -95,24 +98,42 @@ def validation_frame_ids(session: Session) -> list[int]:
     )
 
 
+def existing_frame_ids(session: Session, frame_ids: list[int]) -> list[int]:
+    """Those of ``frame_ids`` whose frames are still there."""
+    found: set[int] = set()
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
+    return [f for f in frame_ids if f in found]
+
+
 def labelled_samples(
     session: Session, storage: Storage, frame_ids: list[int], with_images: bool = True
 ) -> Iterator[tuple[int, NDArray[np.uint8] | None, NDArray[np.bool_] | None, Any]]:
     """(frame id, RGB image or None, reviewed mask or None, keypoints or None) for each frame.
 
     Keypoints: the manual validation keypoints when there are some, else the label's.
+    Frames deleted since their ids were read are left out.
     """
     for frame_id in frame_ids:
-        frame = session.get_one(Frame, frame_id)
+        frame = session.get(Frame, frame_id)
+        if frame is None:
+            continue
         label = session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
         manual = session.scalar(
             sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame_id)
         )
         mask = None
-        if label is not None and label.status in TRAINABLE and label.mask_path:
-            mask = load_mask(storage, label.mask_path)
+        try:
+            if label is not None and label.status in TRAINABLE and label.mask_path:
+                mask = load_mask(storage, label.mask_path)
+            image = frame_rgb(storage, frame) if with_images else None
+        except FileNotFoundError:  # its files went with the frame, deleted meanwhile
+            if frame_exists(session, frame_id):
+                raise
+            continue
         keypoints = manual.keypoints if manual else (label.keypoints if label else None)
-        yield frame_id, frame_rgb(storage, frame) if with_images else None, mask, keypoints
+        yield frame_id, image, mask, keypoints
 
 
 def teacher_confidence(scores: dict[str, Any]) -> float | None:
@@ -153,6 +174,38 @@ def unreviewed_frame_ids(session: Session) -> list[int]:
     return list(
         session.scalars(sa.select(Frame.id).where(Frame.id.not_in(reviewed)).order_by(Frame.id))
     )
+
+
+def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: Any) -> Job | None:
+    """The promoted student's run over the unreviewed frames (proposals and uncertainty for the
+    queue), queued at most once: a run that an earlier promotion queued and no worker has
+    started yet is handed to ``model`` and today's unreviewed frames instead of queuing another
+    (a worker reads a job's parameters when it claims it). None when no frame awaits review."""
+    from app.jobs.service import create_job
+    from app.models import JobStatus
+
+    frame_ids = unreviewed_frame_ids(session)
+    if not frame_ids:
+        return None
+    params = {"frame_ids": frame_ids, "model_version_id": model.id, PROMOTED_RUN: True}
+    waiting = session.scalars(
+        sa.select(Job)
+        .where(Job.kind == STUDENT_RUN_KIND, Job.status == JobStatus.queued)
+        .order_by(Job.id)
+    )
+    for job in list(waiting):
+        if not (job.params or {}).get(PROMOTED_RUN):
+            continue  # a run a user asked for, on frames of their choice
+        handed = session.execute(
+            sa.update(Job)
+            .where(Job.id == job.id, Job.status == JobStatus.queued)
+            .values(params=params)
+        )
+        session.commit()
+        if handed.rowcount == 1:  # type: ignore[attr-defined]
+            session.refresh(job)
+            return job
+    return create_job(session, queue, STUDENT_RUN_KIND, params, user)
 
 
 def labels_since_last_training(session: Session) -> int:

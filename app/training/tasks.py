@@ -17,7 +17,13 @@ from app.db import utcnow
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
 from app.review.queue import latest_teacher_proposal, rescore_frame
-from app.review.service import frame_rgb, load_mask, store_heatmap, store_mask
+from app.review.service import (
+    FrameDeleted,
+    frame_exists,
+    frame_rgb,
+    load_mask,
+    writing_for_frame,
+)
 from app.storage import Storage
 from app.training import service
 from weldpool_core.active import disagreement as teacher_disagreement
@@ -50,7 +56,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     from weldpool_core.student.model import StudentConfig, student_config
     from weldpool_core.student.train import TrainConfig, train_student
 
-    settings, storage = ctx.settings, Storage(ctx.settings.home)
+    settings, storage = ctx.settings, Storage.of(ctx.settings)
     models_dir = settings.home / "models"
     models_dir.mkdir(parents=True, exist_ok=True)
     work = models_dir / f".work-job{ctx.job_id}"
@@ -94,7 +100,14 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             validation=validation or None,
         )
 
+    ctx.check_cancelled()  # a lost or cancelled attempt records no version
     with ctx.session_factory() as session:
+        if not service.existing_frame_ids(session, [frame_id for frame_id, _ in training]):
+            shutil.rmtree(work, ignore_errors=True)
+            raise InvalidInputError(
+                "Every labelled frame it trained on was deleted during training; no version "
+                "was recorded."
+            )
         name = _free_name(session, models_dir)
         final = models_dir / name
         work.rename(final)
@@ -123,8 +136,12 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             shutil.rmtree(final, ignore_errors=True)
             raise
     checkpoint.prune_state(final)  # a recorded version is never resumed
-    ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
-    verdict = _gate_and_promote(ctx, version.id)
+    try:
+        ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
+        verdict = _gate_and_promote(ctx, version.id)
+    except BaseException:  # a version is recorded with its verdict, or not at all
+        _forget_version(ctx, version.id, final)
+        raise
     promoted = verdict["promote"] and ctx.settings.auto_promote
     ctx.summary = _summary(
         name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
@@ -136,6 +153,14 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
         "promoted": promoted,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
     }
+
+
+def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
+    """Remove a version the job recorded but could not measure: its row and its folder."""
+    with ctx.session_factory() as session:
+        session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
+        session.commit()
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 @job_handler(service.SEQUENTIAL_KIND)
@@ -155,7 +180,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         train_sequential,
     )
 
-    settings, storage = ctx.settings, Storage(ctx.settings.home)
+    settings, storage = ctx.settings, Storage.of(ctx.settings)
     config = SequentialConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
     if ctx.params.get("steps"):
         config = replace(config, steps=int(ctx.params["steps"]))
@@ -344,10 +369,9 @@ def _free_name(session: Any, models_dir: Any) -> str:
 def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     """Measure the new version (``app.training.gate``), store the verdict, and promote it when
     the gate says so and WELDPOOL_AUTO_PROMOTE is on; then re-score the review queue."""
-    from app.jobs.service import create_job
     from app.training import gate
 
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
         incumbent = service.promoted_model(session)
@@ -357,15 +381,8 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
         if not (verdict["promote"] and ctx.settings.auto_promote):
             return verdict
         service.promote(session, version)
-        unreviewed = service.unreviewed_frame_ids(session)
-        if unreviewed and ctx.queue is not None:
-            create_job(
-                session,
-                ctx.queue,
-                "student",
-                {"frame_ids": unreviewed, "model_version_id": version_id},
-                None,
-            )
+        if ctx.queue is not None:
+            service.queue_promoted_run(session, ctx.queue, version, None)
     return verdict
 
 
@@ -376,7 +393,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
     the review queue."""
     from weldpool_core.student.predict import StudentPredictor
 
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     frame_ids = [int(i) for i in ctx.params["frame_ids"]]
     with ctx.session_factory() as session:
         version = session.get(ModelVersion, int(ctx.params["model_version_id"]))
@@ -389,51 +406,67 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
     for done, frame_id in enumerate(frame_ids):
         with ctx.session_factory() as session:
             frame = session.get(Frame, frame_id)
-            if frame is not None:
-                prediction = predictor.predict(
-                    [frame_rgb(storage, frame)], samples=UNCERTAINTY_SAMPLES
-                )[0]
-                keypoints = [[float(x), float(y)] for x, y in prediction.keypoints]
-                teacher = latest_teacher_proposal(session, frame.id)
-                disagreement = None
-                if teacher is not None:
-                    disagreement = teacher_disagreement(
-                        prediction.mask,
-                        load_mask(storage, teacher.mask_path),
-                        keypoints,
-                        teacher.keypoints,
-                    )
-                session.add(
-                    Proposal(
-                        frame_id=frame.id,
-                        source="student",
-                        model_id=name,
-                        model_version_id=version_id,
-                        job_id=ctx.job_id,
-                        mask_path=store_mask(storage, prediction.mask),
-                        heatmap_path=store_heatmap(storage, prediction.heatmap),
-                        keypoints=keypoints,
-                        prompts={},
-                        timings={},
-                        scores={
-                            "uncertainty": prediction.uncertainty,
-                            "uncertainty_parts": prediction.uncertainty_parts,
-                            "disagreement": disagreement,
-                            "mask_fraction": float(prediction.mask.mean()),
-                        },
-                    )
-                )
-                session.flush()
-                rescore_frame(session, frame, ctx.settings.uncertainty_weights)
-                if frame.status == FrameStatus.new:
-                    frame.status = FrameStatus.proposed
-                session.commit()
-                proposed += 1
+            try:
+                if frame is not None:
+                    _student_proposal(ctx, session, storage, predictor, frame, name, version_id)
+                    proposed += 1
+            except FrameDeleted:
+                pass
+            except FileNotFoundError:  # its file went with the frame, deleted meanwhile
+                if frame_exists(session, frame_id):
+                    raise
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
     ctx.summary = f"{name} proposed {counted(proposed, 'frame')}" + (
         f" ({len(frame_ids) - proposed} no longer exist)" if proposed < len(frame_ids) else ""
     )
     return {"proposed": proposed, "model": name}
+
+
+def _student_proposal(
+    ctx: JobContext,
+    session: Any,
+    storage: Storage,
+    predictor: Any,
+    frame: Frame,
+    name: str,
+    version_id: int,
+) -> None:
+    """The student's proposal for one frame, with its disagreement with the teacher's and the
+    frame re-scored; FrameDeleted when the frame went meanwhile."""
+    prediction = predictor.predict([frame_rgb(storage, frame)], samples=UNCERTAINTY_SAMPLES)[0]
+    keypoints = [[float(x), float(y)] for x, y in prediction.keypoints]
+    teacher = latest_teacher_proposal(session, frame.id)
+    disagreement = None
+    if teacher is not None:
+        disagreement = teacher_disagreement(
+            prediction.mask, load_mask(storage, teacher.mask_path), keypoints, teacher.keypoints
+        )
+    ctx.check_cancelled()  # a lost or cancelled attempt records nothing more
+    with writing_for_frame(session, storage, frame.id) as write:
+        session.add(
+            Proposal(
+                frame_id=frame.id,
+                source="student",
+                model_id=name,
+                model_version_id=version_id,
+                job_id=ctx.job_id,
+                mask_path=write.mask(prediction.mask),
+                heatmap_path=write.heatmap(prediction.heatmap),
+                keypoints=keypoints,
+                prompts={},
+                timings={},
+                scores={
+                    "uncertainty": prediction.uncertainty,
+                    "uncertainty_parts": prediction.uncertainty_parts,
+                    "disagreement": disagreement,
+                    "mask_fraction": float(prediction.mask.mean()),
+                },
+            )
+        )
+        session.flush()
+        rescore_frame(session, frame, ctx.settings.uncertainty_weights)
+        if frame.status == FrameStatus.new:
+            frame.status = FrameStatus.proposed
 
 
 @job_handler(service.QUANTIZE_KIND)
@@ -445,7 +478,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     from weldpool_core.student.export import EXPORT_FILE
     from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_student, remove_leftovers
 
-    storage = Storage(ctx.settings.home)
+    storage = Storage.of(ctx.settings)
     model_id = int(ctx.params["model_version_id"])
     with ctx.session_factory() as session:
         version = session.get(ModelVersion, model_id)

@@ -1,7 +1,7 @@
 // A weld run over time: a strip of its frames coloured by review status and confidence, the
 // pool's area, length and width over the run (a click opens that frame), and propagation.
 
-import { api, ApiError, jobFromButton, SAM2_PROBLEM } from "./api.js";
+import { api, ApiError, isReviewer, jobFromButton, SAM2_PROBLEM } from "./api.js";
 import { lineChart } from "./chart.js";
 import { count, decimal, mmPerPx } from "./format.js";
 import { h, toast } from "./ui.js";
@@ -89,8 +89,8 @@ function renderHead() {
   const reviewed = timeline.frames.filter((r) => r.source === "label" && r.area_px !== null);
   Object.assign($("embed-run"), { disabled: Boolean(SAM2_PROBLEM), title: SAM2_PROBLEM || "Compute SAM2's embedding of every frame now, so that the first click on any frame is as quick as the later ones" });
   const button = $("propagate-run");
-  button.disabled = reviewed.length === 0 || Boolean(SAM2_PROBLEM);
-  button.title = SAM2_PROBLEM || (reviewed.length ? `Carry the ${count(reviewed.length, "reviewed mask")} of this run to its other frames (SAM2 video)` : "Accept or correct a frame of this run first: propagation starts from reviewed masks.");
+  button.disabled = reviewed.length === 0 || Boolean(SAM2_PROBLEM) || !isReviewer();
+  button.title = SAM2_PROBLEM || (!isReviewer() ? "A reviewer propagates: it writes proposals over the whole run." : reviewed.length ? `Carry the ${count(reviewed.length, "reviewed mask")} of this run to its other frames (SAM2 video)` : "Accept or correct a frame of this run first: propagation starts from reviewed masks.");
 }
 
 async function load() {

@@ -7,7 +7,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.models import Role
-from tests.helpers import auth, corrected_label, image_bytes
+from tests.helpers import age_stored_files, auth, corrected_label, image_bytes
 
 
 def _upload(client: TestClient, token: str, names: list[tuple[str, int]], sequence: int) -> list:
@@ -64,6 +64,7 @@ def test_deleting_frames_and_a_sequence(client: TestClient, make_user, settings)
 
     refused = client.delete(f"/api/v1/sequences/{run_id}", headers=auth(token))
     assert refused.status_code == 409 and "'wrong upload'" in refused.json()["detail"]
+    age_stored_files(settings.home, settings.file_grace_s + 1)  # uploaded a while ago
     whole = client.delete(
         f"/api/v1/sequences/{run_id}", params={"force": "true"}, headers=auth(token)
     )

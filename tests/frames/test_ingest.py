@@ -20,7 +20,7 @@ from app.housekeeping import sweep_orphan_files
 from app.main import create_app
 from app.models import Frame, Role
 from app.storage import Storage
-from tests.helpers import auth, image_bytes
+from tests.helpers import age_stored_files, auth, image_bytes
 
 
 @pytest.fixture
@@ -342,6 +342,7 @@ def test_a_stored_file_deleted_while_a_request_arrives_is_written_again(
         (checked,) = checks.results()  # checked while the file was there: nothing staged
         assert isinstance(checked, service.CheckedFrame) and checked.staged is not None
         assert checked.staged.temporary is None
+        age_stored_files(settings.home, storage.grace_s + 1)  # its claim has lapsed
         service.delete_frames(session, storage, [first.id], force=True)
         assert _stored_files(settings) == []
         result = service.record_checked(session, storage, checks, sequence_id=run.id, user=None)
@@ -356,12 +357,12 @@ def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
     a name, then the rows are committed: nothing committed can name a file the disk lost."""
     storage = Storage(settings.home)
     events: list[str] = []
-    real_fsync, real_replace = storage_module._fsync, storage_module.os.replace
+    real_fsync, real_link = storage_module._fsync, storage_module.os.link
     monkeypatch.setattr(
         storage_module, "_fsync", lambda p: (events.append(f"fsync {p}"), real_fsync(p))[1]
     )
     monkeypatch.setattr(
-        storage_module.os, "replace", lambda a, b: (events.append("rename"), real_replace(a, b))[1]
+        storage_module.os, "link", lambda a, b: (events.append("rename"), real_link(a, b))[1]
     )
     files = [service.IncomingFile(f"{i}.png", image_bytes(seed=60 + i)) for i in range(4)]
     with session_factory() as session:

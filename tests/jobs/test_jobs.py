@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.db import utcnow
-from app.jobs.registry import JobContext, job_handler
+from app.jobs.registry import JobContext, JobLost, job_handler
 from app.jobs.runner import execute_job, reap_lost_jobs
 from app.jobs.service import cancel_job, create_job
 from app.models import Job, JobStatus, Role, User
@@ -210,9 +210,68 @@ def test_stale_worker_cannot_overwrite_a_reaped_job(session_factory, settings: S
     reap_lost_jobs(session_factory, 60.0, lambda _id: None)
     from app.jobs.runner import _finish
 
-    assert not _finish(session_factory, job_id, "old:1:aaa", status=JobStatus.succeeded)
+    stale = JobContext(job_id, {}, settings, session_factory, "old:1:aaa", attempt=1)
+    assert not _finish(stale, status=JobStatus.succeeded)
     with session_factory() as session:
         assert session.get_one(Job, job_id).status == JobStatus.failed
+
+
+frozen, resumed = threading.Event(), threading.Event()
+second_runs, second_may_finish = threading.Event(), threading.Event()
+stale_outcomes: list[str] = []
+
+
+@job_handler("test-frozen", max_attempts=2)
+def _frozen(ctx: JobContext) -> dict:
+    if ctx.attempt == 1:
+        frozen.set()
+        resumed.wait(20)  # SIGSTOP: the worker is silent past the stale limit
+        try:
+            ctx.progress(0.7, "the stale attempt writes")
+        except JobLost:
+            stale_outcomes.append("lost at progress")
+        return {"by": "the stale attempt"}  # as a handler that never reports progress would
+    second_runs.set()
+    second_may_finish.wait(20)
+    ctx.progress(0.5, "the live attempt")
+    return {"by": "the live attempt"}
+
+
+def test_a_reaped_attempt_that_wakes_up_writes_nothing(session_factory, settings: Settings) -> None:
+    """A worker frozen past the stale limit is reaped and its job retried, here by a worker
+    with the same id (its own process after SIGCONT); the old attempt, woken while the new one
+    runs, can write neither progress nor a result: each write carries the attempt's token."""
+    for event in (frozen, resumed, second_runs, second_may_finish):
+        event.clear()
+    stale_outcomes.clear()
+    with session_factory() as session:
+        job = Job(kind="test-frozen", params={}, max_attempts=2)
+        session.add(job)
+        session.commit()
+        job_id = job.id
+    worker = "here:1:same"
+    first = threading.Thread(target=execute_job, args=(job_id, settings, session_factory, worker))
+    first.start()
+    assert frozen.wait(20)
+    with session_factory() as session:
+        session.get_one(Job, job_id).heartbeat_at = utcnow() - dt.timedelta(seconds=120)
+        session.commit()
+    assert reap_lost_jobs(session_factory, 60.0, lambda _id: None) == [job_id]
+    second = threading.Thread(target=execute_job, args=(job_id, settings, session_factory, worker))
+    second.start()
+    assert second_runs.wait(20)
+    resumed.set()  # SIGCONT while the live attempt runs
+    first.join(20)
+    with session_factory() as session:
+        row = session.get_one(Job, job_id)
+        assert (row.status, row.attempts, row.result) == (JobStatus.running, 2, None)
+        assert row.message != "the stale attempt writes"
+    assert stale_outcomes == ["lost at progress"]
+    second_may_finish.set()
+    second.join(20)
+    with session_factory() as session:
+        row = session.get_one(Job, job_id)
+        assert (row.status, row.result) == (JobStatus.succeeded, {"by": "the live attempt"})
 
 
 def test_unreachable_queue_fails_the_job_with_a_clear_503(
@@ -264,3 +323,29 @@ def test_stopping_the_server_requeues_a_running_job(
         )
         client.post(f"/api/v1/jobs/{job_id}/cancel", headers=auth(token))
         assert wait_for_job(client, job_id, token)["status"] == "cancelled"
+
+
+@job_handler("test-missing-file")
+def _missing_file(ctx: JobContext) -> dict:
+    (ctx.settings.home / "frames" / "ab" / "gone.png").read_bytes()
+    return {}
+
+
+def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -> None:
+    """Every user reads a job's error: paths under the home folder are relative, other server
+    paths only their last part."""
+    from app.errors import without_server_paths
+
+    with session_factory() as session:
+        job = Job(kind="test-missing-file", params={})
+        session.add(job)
+        session.commit()
+        job_id = job.id
+    execute_job(job_id, settings, session_factory, "here:1:paths")
+    with session_factory() as session:
+        error = session.get_one(Job, job_id).error
+    assert error.startswith("Unexpected error (FileNotFoundError)")
+    assert "'frames/ab/gone.png'" in error and str(settings.home) not in error
+    assert without_server_paths("at /usr/lib/x/y.py, 1/2 done", settings.home) == (
+        "at y.py, 1/2 done"
+    )

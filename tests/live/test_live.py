@@ -172,6 +172,21 @@ def test_weldpool_stream_runs_this_homes_promoted_student(
     assert json.loads(ran.stderr.strip().splitlines()[-1])["model"].endswith("models/student-v1")
 
 
+def test_weldpool_stream_records_only_into_a_folder_that_exists(
+    student_dir: Path, tmp_path: Path
+) -> None:
+    """--record into a missing folder: one line on stderr and exit 2, before any frame is read
+    (not a traceback once the student has loaded)."""
+    video = str(write_video(tmp_path / "run.avi", 3))
+    record = tmp_path / "missing" / "run.jsonl"
+    ran = run_cli("stream", video, "--model", student_dir, "--record", record, "--quiet")
+    assert ran.returncode == 2, ran.stderr
+    assert ran.stderr.splitlines() == [
+        f"weldpool: There is no folder {str(record.parent)!r} for --record; create it first."
+    ]
+    assert not record.parent.exists()
+
+
 def test_only_the_newest_ended_views_are_kept(tmp_path: Path) -> None:
     """A long-running server does not keep every view it ever ran: the 20 newest ended ones."""
     from app.live.service import KEEP_ENDED, LiveView, LiveViews

@@ -222,3 +222,21 @@ def test_a_runs_embeddings_are_precomputed_so_the_first_click_is_quick(
             "sequence_id": upload.json()["video"]["sequence_id"]
         }
     assert wait_for_job(client, embed.id, token)["result"]["computed"] == 4
+
+
+def test_only_reviewers_propagate(client: TestClient, make_user) -> None:
+    """Propagation writes proposals over a whole run: a reviewer's decision, as accepting is."""
+    _, reviewer = make_user("rev", Role.reviewer)
+    _, annotator = make_user("ann", Role.annotator)
+    sequence_id, ids, frames = _run(client, reviewer, count=2)
+    client.put(
+        f"/api/v1/frames/{ids[0]}/label",
+        json=corrected_label(frames[0].mask),
+        headers=auth(reviewer),
+    )
+    refused = client.post(
+        f"/api/v1/sequences/{sequence_id}/propagate",
+        json={"from_frame_ids": [ids[0]]},
+        headers=auth(annotator),
+    )
+    assert refused.status_code == 403

@@ -127,8 +127,8 @@ def test_a_runs_scale_set_from_two_points_a_known_distance_apart(
     assert patched.status_code == 200, patched.text
     assert patched.json()["mm_per_px"] == pytest.approx(5 / 250)
     for wrong, status, words in (
-        ({"points": [[10, 10], [10.5, 10]], "distance_mm": 5}, 400, "0.5 px apart"),
-        ({"points": [[0, 0], [3, 4]], "distance_mm": 9000}, 400, "more than 100 mm per pixel"),
+        ({"points": [[10, 10], [10.5, 10]], "distance_mm": 5}, 422, "0.5 px apart"),
+        ({"points": [[0, 0], [3, 4]], "distance_mm": 9000}, 422, "more than 100 mm per pixel"),
         ({"points": [[0, 0]], "distance_mm": 5}, 422, "at least 2 items"),
         ({"points": [[0, 0], [30, 40]], "distance_mm": 0}, 422, "greater than 0"),
     ):

@@ -60,6 +60,9 @@ MIN_MODE_DISTANCE = 5.0
 TTA_RANGES = {"shift": 0.04, "scale": 0.06, "rotation_deg": 4.0, "gamma": 0.35, "gain": 0.2}
 """Largest changes of the test-time passes (± fractions of the input, degrees, log-gamma
 spread, gain)."""
+MAX_SAMPLES = 64
+"""Most test-time passes an uncertainty may take: each is one more forward pass of the batch,
+and the score has long settled by then (the app takes 8)."""
 
 
 @dataclass(frozen=True)
@@ -159,6 +162,11 @@ def tta_thetas(count: int, seed: int = UNCERTAINTY_SEED) -> list[tuple[torch.Ten
         gain = float(1 + rng.uniform(-1, 1) * TTA_RANGES["gain"])
         passes.append((theta, gamma, gain))
     return passes
+
+
+def _check_samples(samples: int) -> None:
+    if not 0 <= samples <= MAX_SAMPLES:
+        raise InvalidInputError(f"samples must be between 0 and {MAX_SAMPLES}, not {samples}.")
 
 
 def _warp(images: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
@@ -285,8 +293,7 @@ class StudentPredictor:
 
         ``samples`` > 0 also scores each frame's uncertainty, with that many test-time passes.
         """
-        if samples < 0:
-            raise InvalidInputError(f"samples must be 0 or more, not {samples}.")
+        _check_samples(samples)
         results: list[StudentPrediction] = []
         for start in range(0, len(images), self.batch_size):
             chunk = images[start : start + self.batch_size]
@@ -298,6 +305,7 @@ class StudentPredictor:
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], list[dict[str, float | None] | None]]:
         """Model-resolution outputs of an N×3×S×S batch in [0, 1]: mask probability and heatmap
         (N×S×S each), and with ``samples`` > 0 each frame's uncertainty parts (else None)."""
+        _check_samples(samples)
         batch = batch.to(self.device).contiguous(memory_format=torch.channels_last)
         autocast = torch.autocast(self.device.type, self.dtype, enabled=self.dtype != torch.float32)
         with torch.inference_mode(), autocast:

@@ -937,9 +937,10 @@ function bindControls() {
 function renderPropagate() {
   const button = $("propagate");
   const reviewed = labelStatus === "accepted" || labelStatus === "corrected";
-  button.disabled = !frame.sequence_id || !reviewed || Boolean(SAM2_PROBLEM);
+  button.disabled = !frame.sequence_id || !reviewed || Boolean(SAM2_PROBLEM) || !isReviewer();
   button.title = SAM2_PROBLEM
-    || (!frame.sequence_id ? "This frame belongs to no weld run."
+    || (!isReviewer() ? "A reviewer propagates: it writes proposals over the whole run."
+      : !frame.sequence_id ? "This frame belongs to no weld run."
       : reviewed ? "SAM2's video model carries this frame's reviewed mask to the run's other frames"
         : "Accept or correct this frame first: propagation starts from a reviewed mask.");
 }

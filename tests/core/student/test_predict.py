@@ -79,6 +79,21 @@ def test_uncertainty_is_a_reproducible_spread_in_zero_one(trained: TrainResult) 
         predictor.predict(frames, samples=-1)
 
 
+def test_samples_are_at_most_64(trained: TrainResult) -> None:
+    """Each sample is one more forward pass: a count past the documented cap
+    (``predict.MAX_SAMPLES``) is one sentence, either way in (``predict`` of frames, and
+    ``outputs`` of a prepared batch, as ``weldpool stream --samples`` calls it)."""
+    import torch
+
+    predictor = StudentPredictor.load(trained.model_dir, "cpu")
+    frames = [synth_frame(3, SynthParams(width=96, height=64)).image]
+    sentence = "samples must be between 0 and 64, not 65."
+    with pytest.raises(InvalidInputError, match=sentence):
+        predictor.predict(frames, samples=65)
+    with pytest.raises(InvalidInputError, match=sentence):
+        predictor.outputs(torch.zeros(1, 3, 64, 64), samples=65)
+
+
 def test_a_folder_without_a_model_is_one_sentence(tmp_path) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(InvalidInputError, match="not a student model folder"):
         StudentPredictor.load(tmp_path, "cpu")
