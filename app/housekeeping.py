@@ -3,7 +3,6 @@ training state and exports that are no longer needed."""
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 
 import sqlalchemy as sa
@@ -11,6 +10,7 @@ import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.models import STORED_PATH_COLUMNS, ModelVersion
+from app.periodic import Periodic
 from app.storage import Storage
 
 SWEPT_AREAS = ("frames", "videos", "artefacts")
@@ -28,34 +28,20 @@ def sweep_orphan_files(
     return len(storage.sweep_orphans(SWEPT_AREAS, known, older_than_s))
 
 
-class FileCollector:
-    """Sweeps the store a few times per grace period, in a thread of the web process: files
+class FileCollector(Periodic):
+    """Sweeps the store three times per grace period, in a thread of the web process: files
     whose claim was too fresh when their rows were deleted, and files a failed write left."""
 
     def __init__(self, session_factory: sessionmaker[Session], storage: Storage) -> None:
         self.session_factory, self.storage = session_factory, storage
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="weldpool-files", daemon=True)
+        super().__init__("files", storage.grace_s / 3, self.sweep)
 
     def sweep(self) -> int:
         with self.session_factory() as session:
-            return sweep_orphan_files(session, self.storage)
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.storage.grace_s / 3):
-            try:
-                if removed := self.sweep():
-                    log.info("files.collected", removed=removed)
-            except Exception:  # a database hiccup must not end the collector
-                log.exception("files.collect_failed")
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5)
+            removed = sweep_orphan_files(session, self.storage)
+        if removed:
+            log.info("files.collected", removed=removed)
+        return removed
 
 
 def prune_training_state(session: Session, home: Path) -> int:

@@ -19,6 +19,7 @@ from app.db import utcnow
 from app.errors import ConfigurationError
 from app.jobs.runner import execute_job, new_worker_id, reap_lost_jobs, record_heartbeat
 from app.models import Worker
+from app.periodic import Periodic
 
 log = structlog.get_logger(__name__)
 
@@ -128,7 +129,7 @@ class WorkerPresence:
             log.exception("worker.unregister_failed", worker=self.row.id)
 
 
-class JobReaper:
+class JobReaper(Periodic):
     """Reaps jobs of dead workers from the web process of ``serve --no-worker``.
 
     Workers reap each other's jobs, but with every worker gone nobody would: the job would stay
@@ -138,28 +139,12 @@ class JobReaper:
 
     def __init__(self, queue: JobQueue) -> None:
         self.queue = queue
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="weldpool-reaper", daemon=True)
+        super().__init__("reaper", queue.settings.job_heartbeat_s, self.reap)
 
     def reap(self) -> list[int]:
         return reap_lost_jobs(
             self.queue.session_factory, self.queue.settings.job_stale_after_s, self.queue.enqueue
         )
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.queue.settings.job_heartbeat_s):
-            try:
-                self.reap()
-            except Exception:  # a database hiccup must not end the reaper
-                log.exception("reaper.failed")
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5)
 
 
 class EmbeddedWorker:

@@ -16,7 +16,7 @@ from PIL import Image
 from app import storage as storage_module
 from app.config import Settings
 from app.frames import service
-from app.housekeeping import sweep_orphan_files
+from app.housekeeping import FileCollector, sweep_orphan_files
 from app.main import create_app
 from app.models import Frame, Role
 from app.storage import Storage
@@ -418,7 +418,12 @@ def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) ->
         orphan = storage.put(image_bytes(seed=51), "f" * 64, ".png")  # renamed, never committed
         assert sweep_orphan_files(session, storage, older_than_s=3600) == 0  # too new
         assert sweep_orphan_files(session, storage, older_than_s=0) == 1
-    assert not storage.absolute(orphan.path).exists()
+        again = storage.put(image_bytes(seed=52), "e" * 64, ".png")
+    collector = FileCollector(session_factory, storage)  # the web process's thread
+    assert collector.sweep() == 0  # claimed within the grace period
+    age_stored_files(settings.home, storage.grace_s + 1)
+    assert collector.sweep() == 1
+    assert not storage.absolute(orphan.path).exists() and not storage.absolute(again.path).exists()
     assert storage.absolute(kept.path).exists()
 
 
