@@ -13,6 +13,7 @@ from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
+from sqlalchemy.orm.exc import ObjectDeletedError, StaleDataError
 
 from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
@@ -73,6 +74,18 @@ def _install_error_handlers(app: FastAPI) -> None:
         detail = without_server_paths(exc.message, request.app.state.settings.home)
         body = {"detail": detail} | getattr(exc, "extra", {})
         return JSONResponse(body, status_code=status, headers=headers)
+
+    @app.exception_handler(StaleDataError)
+    @app.exception_handler(ObjectDeletedError)
+    async def changed_meanwhile(request: Request, exc: Exception) -> Response:
+        log.info("request.raced", path=request.url.path, error=str(exc))
+        return JSONResponse(
+            {
+                "detail": "What this request worked on was changed or deleted by someone else "
+                "meanwhile; reload and try again."
+            },
+            status_code=409,
+        )
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, exc: RequestValidationError) -> Response:

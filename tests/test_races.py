@@ -11,11 +11,12 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from app.models import Role
-from tests.helpers import age_stored_files, auth, image_bytes
+from tests.helpers import age_stored_files, auth, corrected_label, image_bytes
 
 ROUNDS, RACERS = 5, 6
 
@@ -143,3 +144,43 @@ def test_deleting_a_run_while_its_content_is_uploaded_to_another_loses_nothing(
                 or image.content != contents[int(frame["original_name"].removesuffix(".png"))]
             )
     assert acknowledged == rounds * count and lost == 0
+
+
+def _delete_or_label(
+    client: TestClient, admin: str, frame_id: int, mask: np.ndarray, i: int
+) -> Any:
+    """Racer 0 deletes the frame, 1 saves its label, 2 its validation keypoints."""
+    if i == 0:
+        return client.post(
+            "/api/v1/frames/delete",
+            json={"frame_ids": [frame_id], "force": True},
+            headers=auth(admin),
+        )
+    if i == 1:
+        return client.put(
+            f"/api/v1/frames/{frame_id}/label", json=corrected_label(mask), headers=auth(admin)
+        )
+    return client.put(
+        f"/api/v1/frames/{frame_id}/validation-keypoints",
+        json={"keypoints": [[5, 5], [20, 20], [30, 10], [40, 30]]},
+        headers=auth(admin),
+    )
+
+
+def test_saving_labels_while_their_frames_are_deleted_never_answers_500(
+    client: TestClient, admin: str
+) -> None:
+    """A label saved (or validation keypoints set) while its frame is deleted: 200 or 404,
+    never a 500."""
+    run = client.post("/api/v1/sequences", json={"name": "labels"}, headers=auth(admin)).json()
+    mask = np.zeros((48, 64), bool)
+    mask[10:30, 10:40] = True
+    statuses: list[int] = []
+    for round_ in range(12):
+        files = [("files", (f"{round_}.png", image_bytes(seed=3000 + round_), "image/png"))]
+        frame = client.post(
+            "/api/v1/frames", files=files, data={"sequence_id": str(run["id"])}, headers=auth(admin)
+        ).json()["stored"][0]
+        race = functools.partial(_delete_or_label, client, admin, frame["id"], mask)
+        statuses += at_once(3, race)
+    assert set(statuses) <= {200, 404, 409} and 200 in statuses, statuses

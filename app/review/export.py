@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -39,6 +40,7 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError
+from app.frames.schemas import stored_scale
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.review.service import load_mask
 from app.storage import Storage
@@ -60,6 +62,17 @@ PROCESS_FIELDS = (
     "mm_per_px",
     "notes",
 )
+
+
+def process_parameters(sequence: Sequence) -> dict[str, Any]:
+    """A run's process parameters as an export writes them: a number that is not finite, or a
+    scale outside the physical range (a row written before the checks), as null."""
+    values = {f: getattr(sequence, f) for f in PROCESS_FIELDS}
+    for name, value in values.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            values[name] = None
+    values["mm_per_px"] = stored_scale(values["mm_per_px"])
+    return values
 
 
 def export_path(home: Path, job_id: int) -> Path:
@@ -252,7 +265,7 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
     ):
         file_name = f"images/{_stem(frame)}{_extension(frame)}"
         archive.write(storage.absolute(frame.path), file_name)
-        process = {f: getattr(sequence, f) for f in PROCESS_FIELDS} if sequence else {}
+        process = process_parameters(sequence) if sequence else {}
         images.append(
             {
                 "id": frame.id,

@@ -81,7 +81,7 @@ class FrameDeleted(NotFoundError):
     """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
 
     def __init__(self, frame_id: int) -> None:
-        super().__init__(f"Frame {frame_id} was deleted while the job ran; nothing was recorded.")
+        super().__init__(f"Frame {frame_id} was deleted meanwhile; nothing was recorded for it.")
         self.frame_id = frame_id
 
 
@@ -108,6 +108,14 @@ class FrameWrite:
         return self.files[-1].path
 
 
+def lock_frame(session: Session, frame_id: int) -> None:
+    """Lock the frame's row until the commit (PostgreSQL; a deletion then waits for it), or
+    raise FrameDeleted when it is gone."""
+    locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
+    if session.execute(locked).first() is None:
+        raise FrameDeleted(frame_id)
+
+
 @contextmanager
 def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iterator[FrameWrite]:
     """Rows and files a job records for one frame, committed at the end of the block, while
@@ -117,9 +125,7 @@ def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iter
     write created are discarded (unless another writer claimed them since)."""
     write = FrameWrite(storage)
     try:
-        locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
-        if session.execute(locked).first() is None:
-            raise FrameDeleted(frame_id)
+        lock_frame(session, frame_id)
         yield write
         session.commit()
     except BaseException as exc:
@@ -351,6 +357,8 @@ def save_label(
     """
     from app.review.policy import pick
 
+    frame_id = frame.id
+    lock_frame(session, frame_id)  # a deletion now waits for this save (PostgreSQL)
     if (
         status in (LabelStatus.accepted, LabelStatus.rejected)
         and user.role.rank < Role.reviewer.rank
@@ -446,10 +454,15 @@ def save_label(
         session.rollback()
         if stored is not None:
             storage.discard([stored], in_use=_masks_in_use(session, [stored.path]))
-        if isinstance(exc, sa.exc.IntegrityError):  # two first labels at once: this one is stale
-            raise stale_revision(session, frame.id) from None
+        if isinstance(exc, sa.exc.IntegrityError | StaleDataError):
+            if not frame_exists(session, frame_id):
+                raise FrameDeleted(frame_id) from None
+            raise stale_revision(session, frame_id) from None  # two first labels at once
         raise
-    session.refresh(label)
+    try:
+        session.refresh(label)
+    except sa.exc.InvalidRequestError:  # saved, then deleted with its frame at once
+        raise FrameDeleted(frame_id) from None
     return label
 
 
@@ -502,6 +515,7 @@ def save_validation_keypoints(
     if not keypoints:
         raise InvalidInputError("Give at least one keypoint.")
     points = check_keypoints(frame, keypoints)
+    lock_frame(session, frame.id)
     row = session.scalar(
         sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
     )

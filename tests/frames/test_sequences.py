@@ -3,7 +3,10 @@ read (a value from before a check existed, or written by hand, is read as it is 
 
 from __future__ import annotations
 
+import io
+import json
 import math
+import zipfile
 
 import numpy as np
 import pytest
@@ -84,6 +87,13 @@ def test_a_bad_stored_row_still_lists_and_shows_its_geometry(
         f"/api/v1/sequences/{run['id']}/geometry", params={"format": "csv"}, headers=auth(token)
     )
     assert csv.status_code == 200
+    exported = client.get("/api/v1/export", params={"format": "coco"}, headers=auth(token))
+    assert exported.status_code == 200, exported.text
+    with zipfile.ZipFile(io.BytesIO(exported.content)) as archive:
+        text = archive.read("annotations.json").decode()
+    assert "NaN" not in text and "Infinity" not in text  # strict JSON for every reader
+    (image,) = json.loads(text)["images"]
+    assert image["process"]["mm_per_px"] is None
     # Editing the run still works, and a good scale replaces the bad one.
     fixed = client.patch(
         f"/api/v1/sequences/{run['id']}", json={"mm_per_px": 0.1}, headers=auth(token)

@@ -32,6 +32,11 @@ def real_frames() -> list[TrainingFrame]:
     return labelled_frames(DATA / "frames", DATA / "labels")
 
 
+FIRST_LABELS = ("f0050", "f0250", "f0450")
+"""The frames labelled first in each clip (the data now has five a clip): the leave-a-clip-out
+fold trains on the other clips' six, as its window was measured."""
+
+
 def _pick(frames: list[TrainingFrame], *prefixes: str) -> list[TrainingFrame]:
     return [f for f in frames if f.name.startswith(prefixes)]
 
@@ -53,8 +58,9 @@ def test_within_a_clip_the_default_student_draws_the_pool(
 def test_a_clip_left_out_is_drawn_and_scores_as_less_sure(
     tmp_path: Path, real_frames: list[TrainingFrame]
 ) -> None:
-    train = _pick(real_frames, "compressed_0mm_", "compressed_2mm_")
-    test = _pick(real_frames, "compressed_mm_")
+    first = [f for f in real_frames if f.name.endswith(FIRST_LABELS)]  # as the window was set
+    train = _pick(first, "compressed_0mm_", "compressed_2mm_")
+    test = _pick(first, "compressed_mm_")
     assert (len(train), len(test)) == (6, 3)
     fold = train_and_score(train, test, tmp_path / "model", samples=8)
     print(f"LOCO mm: mIoU {fold.scores.miou:.3f} in {fold.seconds:.0f} s")
