@@ -1216,6 +1216,20 @@ def test_propagate_from_a_corrected_frame_then_read_the_runs_timeline(
     page.wait_for_selector("[data-testid=toast-ok]:has-text('Propagation done')", timeout=120_000)
     assert "2 frames proposed" in page.inner_text("[data-testid=propagate-note]")
 
+    # An annotator sees both propagate buttons off, and why (the API refuses them: 403).
+    page.context.clear_cookies()
+    login(page, server, "anna")
+    page.goto(f"{server.url}/frames/{ids[0]}")
+    open_review(page)
+    button = page.locator("[data-testid=propagate]")
+    assert button.is_disabled() and "A reviewer propagates" in button.get_attribute("title")
+    shoot(page, "review-propagate-annotator")
+    page.goto(f"{server.url}/sequences/{sequence['id']}")
+    page.wait_for_selector("body[data-ready]")
+    button = page.locator("[data-testid=propagate-run]")
+    assert button.is_disabled() and "A reviewer propagates" in button.get_attribute("title")
+    shoot(page, "timeline-annotator")
+
 
 def test_measure_a_runs_scale_from_two_points_on_a_frame(page: Any, server: LiveServer) -> None:
     """On the review page, "Measure scale" (L) takes two clicks on the frame and a length in
