@@ -15,6 +15,15 @@ the frame's diagonal).
   no true keypoints, or on a tie) and an mIoU no lower than the incumbent's minus
   ``MIOU_TOLERANCE``.
 No frames to measure on: not usable, with the reason.
+
+A fair yardstick: a label a reviewer accepted unchanged from a model's proposal *is* that
+model's output, so the model scores 1.0 on it and nobody can beat it there. Each comparison
+therefore leaves out the frames whose label was taken unchanged from one of the two models
+compared (``taken_from``): the teacher is compared on frames whose labels were drawn or
+corrected, the incumbent likewise. On the frames accepted from the teacher the candidate only
+has to reach ``MIN_MIOU`` (a reviewer found the teacher right there: the candidate must not be
+far off). Where every frame's label came from the teacher, the candidate is judged by that
+floor alone, as when the teacher proposed for none.
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.errors import InvalidInputError
-from app.models import ModelVersion, Proposal
+from app.models import Label, ModelVersion, Proposal
 from app.review.service import frame_rgb, load_mask
 from app.storage import Storage
 from app.training import service
@@ -52,6 +61,17 @@ def gate_frames(
     validation = service.validation_frame_ids(session)
     pool = validation if validation else list(candidate.held_out_frame_ids or [])
     return [f for f in pool if f not in trained]
+
+
+def taken_from(session: Session, frame_ids: list[int]) -> dict[int, tuple[str, int | None]]:
+    """The frames among ``frame_ids`` whose label is a proposal accepted unchanged: its
+    source (``teacher``, ``student``, ``propagated``) and model version."""
+    rows = session.execute(
+        sa.select(Label.frame_id, Proposal.source, Proposal.model_version_id)
+        .join(Proposal, Proposal.id == Label.proposal_id)
+        .where(Label.frame_id.in_(frame_ids), Label.mask_changed.is_(False))
+    )
+    return {frame_id: (source, version) for frame_id, source, version in rows}
 
 
 def _truth(session: Session, storage: Storage, frame_ids: list[int]) -> Truth:
@@ -156,6 +176,16 @@ def measure(
     verdict["candidate"] = _score(mine, truth, ids)
     teacher = _teacher_outputs(session, storage, ids)
     usable, reasons = True, []
+    taken = taken_from(session, ids)
+    accepted = [f for f in ids if taken.get(f, ("",))[0] == "teacher"]
+    verdict["accepted_from_teacher"] = accepted
+    if accepted and (floor := _score(mine, truth, accepted))["mIoU"] < MIN_MIOU:
+        usable = False
+        reasons.append(
+            f"below the minimum quality on {_count(len(accepted))} whose labels were accepted "
+            f"from the teacher unchanged ({_fmt(floor)}; needs mIoU ≥ {MIN_MIOU})"
+        )
+    teacher = {f: out for f, out in teacher.items() if f not in accepted}
     if teacher:
         common = sorted(teacher)
         mine_common, theirs = _score(mine, truth, common), _score(teacher, truth, common)
@@ -178,13 +208,15 @@ def measure(
             )
     better = usable
     if usable and incumbent is not None:
-        theirs = _score(_student_outputs(session, storage, incumbent, ids, device), truth, ids)
+        compared = {candidate.id, incumbent.id}
+        fair = [f for f in ids if taken.get(f, ("", None))[1] not in compared] or ids
+        theirs = _score(_student_outputs(session, storage, incumbent, fair, device), truth, fair)
         verdict["incumbent_scores"] = theirs
-        better = _better(verdict["candidate"], theirs)
+        better = _better(_score(mine, truth, fair), theirs)
         if not better:
             reasons.append(
-                f"not better than {incumbent.name} on {_count(len(ids))} "
-                f"({_fmt(verdict['candidate'])} vs {_fmt(theirs)})"
+                f"not better than {incumbent.name} on {_count(len(fair))} "
+                f"({_fmt(_score(mine, truth, fair))} vs {_fmt(theirs)})"
             )
     if usable and better:
         against = f"{incumbent.name} and the teacher" if incumbent else "the teacher"

@@ -410,3 +410,50 @@ def test_the_train_job_says_which_round_it_kept_and_the_verdict() -> None:
         "(mIoU 0.500); promoted"
     )
     assert "promote it on the models page" in _summary("v", 1, 1, metrics, yes, False)
+
+
+def _big() -> np.ndarray:
+    mask = np.zeros((H, W), bool)
+    mask[4:60, 4:92] = True  # IoU 0.80 with a whole-frame mask
+    return mask
+
+
+def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student(
+    client: TestClient, settings, session_factory, make_user, base_model: Path
+) -> None:
+    """Four held-out labels were accepted unchanged from the teacher (its mIoU there: 1.000),
+    two were drawn by hand, where the teacher is far off (0.66) and the student close (0.90).
+    Over all six the teacher wins (0.89 vs 0.83); on the drawn labels, the fair yardstick, the
+    student does, and on the accepted ones it is near enough (0.80 ≥ MIN_MIOU): promoted."""
+    _, token = make_user("fair", Role.reviewer)
+    storage = Storage(settings.home)
+    ids = _upload(client, token, 500, 6)
+    accepted = ids[:4]
+    for frame_id in ids:
+        mask = _big() if frame_id in accepted else _shrunk()
+        proposal = _propose(session_factory, storage, frame_id, "teacher", "teacher-t", mask)
+        body = (
+            {"status": "accepted", "base_revision": 0, "proposal_id": proposal}
+            if frame_id in accepted
+            else corrected_label(_truth())
+        )
+        saved = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+        assert saved.status_code == 200, saved.text
+    whole = _version(settings, session_factory, base_model, "fair-whole", 30.0, -30.0, ids)
+    verdict = _measure(settings, session_factory, whole)
+    assert verdict["usable"] and verdict["promote"], verdict["reason"]
+    assert verdict["accepted_from_teacher"] == accepted
+    assert verdict["teacher"]["mIoU"] == pytest.approx(48 * 76 / (60 * 92))  # drawn ones only
+    assert verdict["teacher"]["candidate_on_these"]["mIoU"] == pytest.approx(60 * 92 / (H * W))
+
+    # The floor holds: a student far off where the teacher was accepted is not usable.
+    for frame_id in accepted:  # the labels accepted the small box instead
+        current = client.get(f"/api/v1/frames/{frame_id}/label", headers=auth(token)).json()
+        proposal = _propose(
+            session_factory, storage, frame_id, "teacher", "teacher-t", _box(40, 56)
+        )
+        body = {"status": "accepted", "base_revision": current["revision"], "proposal_id": proposal}
+        saved = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+        assert saved.status_code == 200, saved.text
+    verdict = _measure(settings, session_factory, whole)
+    assert not verdict["usable"] and "accepted from the teacher unchanged" in verdict["reason"]
