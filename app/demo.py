@@ -73,33 +73,23 @@ def fill_demo(
     unlabelled = []
     for index, (frame, truth) in enumerate(zip(stored, drawn, strict=True)):
         keypoints = [[float(x), float(y)] for x, y in truth.keypoints]
-        if index % 2 == 0:
-            save_label(
-                session,
-                storage,
-                frame,
-                user,
-                status=LabelStatus.accepted,
-                base_revision=0,
-                mask_png=encode_mask_png(truth.mask),
-                keypoints=keypoints,
-            )
-            labelled += 1
-        elif index % 4 == 1:  # held out with a mask too, so the gate measures on merit
-            save_label(
-                session,
-                storage,
-                frame,
-                user,
-                status=LabelStatus.corrected,
-                base_revision=0,
-                mask_png=encode_mask_png(truth.mask),
-                keypoints=keypoints,
-            )
-            save_validation_keypoints(session, frame, user, keypoints)
-            labelled, validation = labelled + 1, validation + 1
-        else:
+        if index % 4 == 3:
             unlabelled.append(frame.id)
+            continue
+        save_label(
+            session,
+            storage,
+            frame,
+            user,
+            status=LabelStatus.accepted,
+            base_revision=0,
+            mask_png=encode_mask_png(truth.mask),
+            keypoints=keypoints,
+        )
+        labelled += 1
+        if index % 4 == 1:  # held out, with its mask, so the gate measures a student on merit
+            save_validation_keypoints(session, frame, user, keypoints)
+            validation += 1
     summary = (
         f"demo: sequence {sequence.name!r} with {len(stored)} frames; {labelled} labelled "
         f"from ground truth, {validation} of them held out for validation (mask and keypoints)."

@@ -141,6 +141,6 @@ def test_demo_on_a_fresh_home_needs_no_migrate_and_says_how_to_log_in(
         assert sequences[0]["name"].startswith("demo weld run") and sequences[0]["frame_count"] == 4
         held_out = client.get("/api/v1/frames", params={"split": "validation"}).json()["items"]
         assert held_out  # with masks, so the gate can measure a student on them
-        assert all(f["status"] == "corrected" for f in held_out)  # split: by its keypoints
+        assert all(f["status"] == "accepted" for f in held_out)  # split: by its keypoints
     again = run(cli_settings, "demo", "--frames", "4")  # a second demo: users exist already
     assert again.returncode == 0 and "with your account" in again.stderr
