@@ -219,8 +219,13 @@ def measure(
                 f"({_fmt(_score(mine, truth, fair))} vs {_fmt(theirs)})"
             )
     if usable and better:
-        against = f"{incumbent.name} and the teacher" if incumbent else "the teacher"
-        reason = f"Better than {against} on {_count(len(ids))} ({_fmt(verdict['candidate'])})."
+        others = [incumbent.name] if incumbent else []
+        others += ["the teacher"] if verdict["teacher"] else []
+        if others:
+            reason = f"Better than {' and '.join(others)} on {_count(len(ids))}"
+        else:  # no teacher proposal on these frames: the floor alone
+            reason = f"Meets the minimum quality on {_count(len(ids))} (no teacher proposal there)"
+        reason += f" ({_fmt(verdict['candidate'])})."
     else:
         reason = "Not promoted: " + "; ".join(reasons) + "."
     return verdict | {"usable": usable, "promote": usable and better, "reason": reason}

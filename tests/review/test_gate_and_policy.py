@@ -443,6 +443,7 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
     verdict = _measure(settings, session_factory, whole)
     assert verdict["usable"] and verdict["promote"], verdict["reason"]
     assert verdict["accepted_from_teacher"] == accepted
+    assert verdict["reason"].startswith("Better than the teacher on 6 held-out frames")
     assert verdict["teacher"]["mIoU"] == pytest.approx(48 * 76 / (60 * 92))  # drawn ones only
     assert verdict["teacher"]["candidate_on_these"]["mIoU"] == pytest.approx(60 * 92 / (H * W))
 
