@@ -27,7 +27,7 @@ def test_demo_then_masks_export_in_the_dataset_layout(
     client, settings, session_factory, make_user
 ) -> None:
     summary = _demo(settings, session_factory)
-    assert "8 frames; 4 labelled from ground truth, 2 with validation keypoints" in summary
+    assert "8 frames; 6 labelled from ground truth, 2 of them held out for validation" in summary
     assert "Teacher job" in summary  # the tiny teacher's weights are configured here
     _, token = make_user("exporter", Role.annotator)
     response = client.get("/api/v1/export", params={"format": "masks"}, headers=auth(token))
@@ -36,7 +36,7 @@ def test_demo_then_masks_export_in_the_dataset_layout(
     archive = zipfile.ZipFile(io.BytesIO(response.content))
     names = archive.namelist()
     images = sorted(n for n in names if n.startswith("images/"))
-    assert len(images) == 4
+    assert len(images) == 6  # the held-out frames too: their masks are labels
     for image in images:
         stem = Path(image).stem
         mask = decode_mask_png(archive.read(f"masks/{stem}.png"))
@@ -55,7 +55,7 @@ def test_coco_export_carries_process_parameters(
     _, token = make_user("cocoa", Role.annotator)
     response = client.get("/api/v1/export", params={"format": "coco"}, headers=auth(token))
     coco = json.loads(zipfile.ZipFile(io.BytesIO(response.content)).read("annotations.json"))
-    assert len(coco["images"]) == len(coco["annotations"]) == 2
+    assert len(coco["images"]) == len(coco["annotations"]) == 3
     image, annotation = coco["images"][0], coco["annotations"][0]
     assert image["process"]["voltage_v"] == 22.5 and image["process"]["joint_type"] == "fillet"
     assert annotation["num_keypoints"] == 4 and len(annotation["keypoints"]) == 12
@@ -115,7 +115,7 @@ def test_command_line_export(settings: Settings, session_factory, tmp_path: Path
     out = tmp_path / "export" / "labels.zip"
     result = run_cli("export", "--out", out, "--sequence", "demo weld run (synthetic)", env=env)
     assert result.returncode == 0, result.stderr
-    assert len([n for n in zipfile.ZipFile(out).namelist() if n.startswith("masks/")]) == 2
+    assert len([n for n in zipfile.ZipFile(out).namelist() if n.startswith("masks/")]) == 3
     missing = run_cli("export", "--out", out, "--sequence", "nope", env=env)
     assert missing.returncode == 2 and "There is no sequence named 'nope'." in missing.stderr
 
@@ -237,7 +237,7 @@ def test_the_export_streams_frame_by_frame_without_a_temporary_file(
     archive = zipfile.ZipFile(io.BytesIO(b"".join(chunks)))
     assert archive.testzip() is None
     coco = json.loads(archive.read("annotations.json"))
-    assert len(coco["images"]) == len(coco["annotations"]) == 4
+    assert len(coco["images"]) == len(coco["annotations"]) == 6
 
 
 def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does() -> None:
