@@ -128,15 +128,16 @@ class Settings(BaseSettings):
     @field_validator("trusted_proxies")
     @classmethod
     def _proxy_addresses(cls, value: str) -> str:
-        proxies = [item.strip() for item in value.split(",") if item.strip()]
-        for proxy in proxies:
-            try:
-                ipaddress.ip_network(proxy, strict=False)
+        proxies = []
+        for proxy in (item.strip() for item in value.split(",") if item.strip()):
+            try:  # 10.0.0.5/24 means its network: uvicorn reads networks strictly
+                network = ipaddress.ip_network(proxy, strict=False)
             except ValueError:
                 raise ValueError(
                     f"WELDPOOL_TRUSTED_PROXIES: {proxy!r} is not an IP address or network; give "
                     "addresses such as 10.0.0.5 or 10.0.0.0/24, separated by commas"
                 ) from None
+            proxies.append(proxy if "/" not in proxy else str(network))
         return ",".join(proxies)
 
     @property

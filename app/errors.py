@@ -22,7 +22,14 @@ __all__ = [
     "without_server_paths",
 ]
 
-_ABSOLUTE_PATH = re.compile(r"(?<![\w.~])(?:/[^\s/'\"]+){2,}")
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~:/])/([^\s/'\"]+)(?:/[^\s/'\"]+)+")
+
+
+def _server_path_tail(match: re.Match[str]) -> str:
+    """A path's last part when it starts at a folder of this server's root (``/usr``, ``/tmp``,
+    …); anything else (an API path, a ratio) as it was."""
+    path = match.group(0)
+    return path.rsplit("/", 1)[-1] if os.path.isdir(f"/{match.group(1)}") else path
 
 
 def without_server_paths(text: str, home: Path) -> str:
@@ -30,7 +37,7 @@ def without_server_paths(text: str, home: Path) -> str:
     absolute paths of the server reduced to their last part (the log keeps them whole)."""
     for prefix in {f"{home}{os.sep}", f"{home.resolve()}{os.sep}"}:
         text = text.replace(prefix, "")
-    return _ABSOLUTE_PATH.sub(lambda match: match.group(0).rsplit("/", 1)[-1], text)
+    return _ABSOLUTE_PATH.sub(_server_path_tail, text)
 
 
 class ConfigurationError(WeldpoolError):

@@ -41,6 +41,9 @@ CHUNK = 1024 * 1024
 DEFAULT_GRACE_S = 900.0
 """How long a claimed file is safe from the collector (``WELDPOOL_FILE_GRACE_S``): far longer than
 any writer takes from its claim to its commit."""
+PART_LIFETIME_S = 86_400.0
+"""A request's staged temporary (``tmp/*.part``) is swept only after a day: a slow upload of
+many files may hold its first ones long before it commits."""
 _ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
 
 
@@ -97,14 +100,18 @@ class Storage:
         now = time.time_ns()
         try:
             os.utime(final, ns=(now, now))
+            # The name is looked up before the inode is touched: had the collector moved the
+            # file aside in between, the claim would land on the file it is about to remove.
+            return os.stat(final).st_mtime_ns == now
         except FileNotFoundError:
             return False
-        return True
 
     def _install(self, temporary: Path, relative: str) -> StoredFile:
         """Put a flushed temporary in place, or claim the same content when it is there."""
         final = self.home / relative
-        while not self._claim(final):
+        for _ in range(8):  # another writer's file can appear (or go) between two looks
+            if self._claim(final):
+                break
             final.parent.mkdir(parents=True, exist_ok=True)
             claimed = time.time_ns()
             os.utime(temporary, ns=(claimed, claimed))  # the claim, before anyone can see it
@@ -114,6 +121,9 @@ class Storage:
                 continue  # written by another writer meanwhile: claim theirs
             temporary.unlink()
             return StoredFile(relative, created=True, claimed_ns=claimed)
+        else:
+            temporary.unlink()
+            raise OSError(f"{relative} could neither be claimed nor written; check the store.")
         temporary.unlink()
         return StoredFile(relative, created=False)
 
@@ -261,7 +271,10 @@ class Storage:
     def _remove_if(self, relative: str, unclaimed: Callable[[int], bool]) -> bool:
         """Move the file aside, then remove it if its claim time says nobody claimed it; else
         put it back. A claim made while it is aside finds no file and writes it again."""
-        final = self.home / relative
+        try:
+            final = self.absolute(relative)
+        except ValueError:  # a row naming a path outside the store: never touched
+            return False
         self.tmp.mkdir(parents=True, exist_ok=True)
         aside = self.tmp / f"{relative.replace('/', '~')}~{uuid.uuid4().hex}{_ASIDE}"
         try:
@@ -286,8 +299,8 @@ class Storage:
         the removed relative paths."""
         cutoff_s = time.time() - (self.grace_s if older_than_s is None else older_than_s)
         for aside in self.tmp.glob(f"*{_ASIDE}") if self.tmp.is_dir() else ():
-            if aside.stat().st_ctime > time.time() - 60:
-                continue  # a collector is looking at it now
+            if _changed_s(aside, "st_ctime") > time.time() - 60:
+                continue  # a collector is looking at it now (or it is gone already)
             relative = aside.name.removesuffix(_ASIDE).rsplit("~", 1)[0].replace("~", "/")
             _put_back(aside, self.home / relative)  # a collector died while it looked
         removed = []
@@ -302,10 +315,19 @@ class Storage:
                     continue
                 if self._remove_if(relative, lambda ns: ns < cutoff):
                     removed.append(relative)
+        parts_cutoff_s = time.time() - max(PART_LIFETIME_S, self.grace_s)
         for stale in self.tmp.glob("*.part") if self.tmp.is_dir() else ():
-            if stale.stat().st_mtime < cutoff_s:
+            if _changed_s(stale, "st_mtime") < parts_cutoff_s:
                 stale.unlink(missing_ok=True)
         return removed
+
+
+def _changed_s(path: Path, field: str) -> float:
+    """A file's ``st_ctime`` or ``st_mtime``; now when it has gone (another sweep took it)."""
+    try:
+        return float(getattr(path.stat(), field))
+    except FileNotFoundError:
+        return time.time()
 
 
 def _put_back(aside: Path, final: Path) -> None:

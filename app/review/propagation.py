@@ -22,6 +22,7 @@ import numpy as np
 import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.errors import InvalidInputError
 from app.jobs.registry import counted
@@ -167,10 +168,12 @@ def propagate_run(
         position[i]: load_mask(storage, labels[i].mask_path)  # type: ignore[arg-type]
         for i in from_frame_ids
     }
+    ids = [frame.id for frame in frames]  # read now: a rollback expires the loaded rows
+    indices = [frame.frame_index for frame in frames]
     until = None
     if until_frame_index is not None:
-        indices = [f.frame_index if f.frame_index is not None else i for i, f in enumerate(frames)]
-        until = min(range(len(frames)), key=lambda i: abs(indices[i] - until_frame_index))
+        order = [index if index is not None else i for i, index in enumerate(indices)]
+        until = min(range(len(frames)), key=lambda i: abs(order[i] - until_frame_index))
     walk = passes(len(frames), prompts, cast(Direction, direction), until)
     planned = len([i for order, _ in walk for i in order if i not in prompts])
     low_streak = {False: 0, True: 0}
@@ -181,24 +184,22 @@ def propagate_run(
     def keep_going(item: Any, reverse: bool) -> bool:
         low_streak[reverse] = low_streak[reverse] + 1 if item.confidence < threshold else 0
         if low_streak[reverse] >= STOP_AFTER:
-            frame = frames[item.index]
             stopped.append(
                 {
                     "direction": "backward" if reverse else "forward",
-                    "frame_id": frame.id,
-                    "frame_index": frame.frame_index,
+                    "frame_id": ids[item.index],
+                    "frame_index": indices[item.index],
                 }
             )
             return False
         return True
 
     deleted: list[int] = []
-    ids = [frame.id for frame in frames]
 
     def embed(i: int) -> Any:
         try:
             return embedding(frames[i])
-        except FileNotFoundError:  # its file went with the frame, deleted meanwhile
+        except (FileNotFoundError, ObjectDeletedError):  # the frame was deleted meanwhile
             if frame_exists(session, ids[i]):
                 raise
             raise InvalidInputError(
@@ -209,25 +210,25 @@ def propagate_run(
     for item in propagator.propagate(
         len(frames), prompts, embed, direction, until, keep_going=keep_going
     ):
-        frame = frames[item.index]
-        frame_id, low = frame.id, item.confidence < threshold
+        frame_id, low = ids[item.index], item.confidence < threshold
         try:
             record(
                 session,
                 storage,
-                frame,
+                frames[item.index],
                 item.mask,
                 {
                     "confidence": item.confidence,
                     "object_score": item.object_score,
                     "sam2_iou": item.iou,
-                    "from_frame_id": frames[item.source_index].id,
+                    "from_frame_id": ids[item.source_index],
                     "low_confidence": low,
                 },
                 model_id,
                 job_id,
             )
-        except FrameDeleted:
+        except (FrameDeleted, ObjectDeletedError):  # gone before, or while, it was written
+            session.rollback()
             deleted.append(frame_id)
             continue
         if low:

@@ -6,6 +6,7 @@ import functools
 import os
 from typing import Any
 
+import sqlalchemy as sa
 import structlog
 
 from app.errors import without_server_paths
@@ -87,6 +88,7 @@ def _propose(
 ) -> str | FrameDeleted | None:
     """The teacher on one frame, recorded: None when it was, the frame's failure in one
     sentence (stored on the frame), or FrameDeleted when the frame went meanwhile."""
+    frame_id = frame.id  # a rollback expires the object; a deleted row cannot be read again
     try:
         result = teacher.run(frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled)
         ctx.check_cancelled()  # a lost or cancelled attempt records nothing more
@@ -105,14 +107,16 @@ def _propose(
         return exc
     except Exception as exc:  # one bad frame must not end the run for the others
         session.rollback()
-        if not frame_exists(session, frame.id):  # its file went with it
-            return FrameDeleted(frame.id)
+        if not frame_exists(session, frame_id):  # its file went with it
+            return FrameDeleted(frame_id)
         message = without_server_paths(_frame_error(exc), ctx.settings.home)
-        frame.teacher_error = message[:500]
+        session.execute(
+            sa.update(Frame).where(Frame.id == frame_id).values(teacher_error=message[:500])
+        )
         session.commit()
         log.warning(
             "teacher.frame_failed",
-            frame_id=frame.id,
+            frame_id=frame_id,
             error=message,
             exc_info=not isinstance(exc, WeldpoolError | OSError),
         )

@@ -34,9 +34,10 @@ from typing import Any
 import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.db import utcnow
-from app.errors import InvalidInputError
+from app.errors import ConflictError, InvalidInputError
 from app.models import Label, ModelVersion, Proposal
 from app.review.service import frame_rgb, load_mask
 from app.storage import Storage
@@ -99,6 +100,12 @@ def _student_outputs(
     try:
         predictor = StudentPredictor.load(storage.absolute(version.checkpoint_path), device)
         images = [frame_rgb(storage, session.get_one(Frame, f)) for f in frame_ids]
+    except (FileNotFoundError, sa.exc.NoResultFound, ObjectDeletedError):
+        if len(service.existing_frame_ids(session, frame_ids)) == len(frame_ids):
+            raise
+        raise ConflictError(
+            "A frame it is measured on was deleted meanwhile; measure it again."
+        ) from None
     except InvalidInputError as exc:  # the core names files by their path on this server
         home = f"{storage.home}{os.sep}"
         raise InvalidInputError(
@@ -185,7 +192,10 @@ def measure(
             f"below the minimum quality on {_count(len(accepted))} whose labels were accepted "
             f"from the teacher unchanged ({_fmt(floor)}; needs mIoU ≥ {MIN_MIOU})"
         )
-    teacher = {f: out for f, out in teacher.items() if f not in accepted}
+    from_candidate = {f for f, (_, version) in taken.items() if version == candidate.id}
+    teacher = {
+        f: out for f, out in teacher.items() if f not in accepted and f not in from_candidate
+    }
     if teacher:
         common = sorted(teacher)
         mine_common, theirs = _score(mine, truth, common), _score(teacher, truth, common)
@@ -209,22 +219,33 @@ def measure(
     better = usable
     if usable and incumbent is not None:
         compared = {candidate.id, incumbent.id}
-        fair = [f for f in ids if taken.get(f, ("", None))[1] not in compared] or ids
-        theirs = _score(_student_outputs(session, storage, incumbent, fair, device), truth, fair)
-        verdict["incumbent_scores"] = theirs
-        better = _better(_score(mine, truth, fair), theirs)
-        if not better:
+        fair = [f for f in ids if taken.get(f, ("", None))[1] not in compared]
+        if not fair:
+            better = False
             reasons.append(
-                f"not better than {incumbent.name} on {_count(len(fair))} "
-                f"({_fmt(_score(mine, truth, fair))} vs {_fmt(theirs)})"
+                f"every held-out label was accepted unchanged from {incumbent.name} or this "
+                "version, so they cannot be compared fairly; draw or correct some held-out labels"
             )
+        else:
+            incumbent_outputs = _student_outputs(session, storage, incumbent, fair, device)
+            theirs = _score(incumbent_outputs, truth, fair)
+            verdict["incumbent_scores"] = theirs
+            better = _better(_score(mine, truth, fair), theirs)
+            if not better:
+                reasons.append(
+                    f"not better than {incumbent.name} on {_count(len(fair))} "
+                    f"({_fmt(_score(mine, truth, fair))} vs {_fmt(theirs)})"
+                )
     if usable and better:
         others = [incumbent.name] if incumbent else []
         others += ["the teacher"] if verdict["teacher"] else []
         if others:
             reason = f"Better than {' and '.join(others)} on {_count(len(ids))}"
-        else:  # no teacher proposal on these frames: the floor alone
-            reason = f"Meets the minimum quality on {_count(len(ids))} (no teacher proposal there)"
+        else:  # no teacher proposal to compare with on these frames: the floor alone
+            reason = f"Meets the minimum quality on {_count(len(ids))} (no teacher proposal to "
+            reason += "compare with" + (
+                ", those there were accepted unchanged)" if accepted else ")"
+            )
         reason += f" ({_fmt(verdict['candidate'])})."
     else:
         reason = "Not promoted: " + "; ".join(reasons) + "."

@@ -100,7 +100,9 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             validation=validation or None,
         )
 
-    ctx.check_cancelled()  # a lost or cancelled attempt records no version
+    # A lost, cancelled or interrupted attempt records no version.
+    ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
+    ctx.check_cancelled()  # progress may skip its write (and check) when the last was recent
     with ctx.session_factory() as session:
         if not service.existing_frame_ids(session, [frame_id for frame_id, _ in training]):
             shutil.rmtree(work, ignore_errors=True)
@@ -136,12 +138,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             shutil.rmtree(final, ignore_errors=True)
             raise
     checkpoint.prune_state(final)  # a recorded version is never resumed
-    try:
-        ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
-        verdict = _gate_and_promote(ctx, version.id)
-    except BaseException:  # a version is recorded with its verdict, or not at all
-        _forget_version(ctx, version.id, final)
-        raise
+    verdict = _gate_and_promote(ctx, version.id)
     promoted = verdict["promote"] and ctx.settings.auto_promote
     ctx.summary = _summary(
         name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
@@ -374,13 +371,19 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
+        folder = ctx.settings.home / (version.checkpoint_path or f"models/{version.name}")
         incumbent = service.promoted_model(session)
-        verdict = gate.measure(session, storage, version, incumbent, ctx.settings.device)
-        version.gate = verdict
-        session.commit()
+        try:
+            verdict = gate.measure(session, storage, version, incumbent, ctx.settings.device)
+            version.gate = verdict
+            session.commit()
+        except BaseException:  # a version is recorded with its verdict, or not at all
+            session.rollback()
+            _forget_version(ctx, version_id, folder)
+            raise
         if not (verdict["promote"] and ctx.settings.auto_promote):
             return verdict
-        service.promote(session, version)
+        service.promote(session, version)  # measured and kept: a failure after is the queue's
         if ctx.queue is not None:
             service.queue_promoted_run(session, ctx.queue, version, None)
     return verdict

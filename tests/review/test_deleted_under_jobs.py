@@ -184,3 +184,27 @@ def test_a_write_that_loses_to_a_deletion_discards_its_files(
     assert job["status"] == "succeeded", job["error"]
     assert job["result"]["deleted_frame_ids"] == [ids[0]] and job["result"]["proposed"] == 1
     assert _unnamed_files(settings, session_factory) == []
+
+
+def test_a_frame_whose_file_goes_before_the_teacher_reads_it_is_skipped(
+    client: TestClient, make_user, settings, session_factory, monkeypatch
+) -> None:
+    """The frame is deleted (and its old file collected) just before the teacher reads it:
+    the read fails, the frame counts as deleted, the job goes on."""
+    import app.review.tasks as review_tasks
+
+    _, token = make_user("rev", Role.reviewer)
+    _, ids, _ = _run(client, token, 2)
+    age_stored_files(settings.home, settings.file_grace_s + 1)
+    real_read = review_tasks.frame_rgb
+
+    def delete_then_read(storage, frame):  # type: ignore[no-untyped-def]
+        if frame.id == ids[0]:
+            _delete(client, token, [ids[0]])
+        return real_read(storage, frame)
+
+    monkeypatch.setattr(review_tasks, "frame_rgb", delete_then_read)
+    started = client.post("/api/v1/teacher/runs", json={"frame_ids": ids}, headers=auth(token))
+    job = wait_for_job(client, started.json()["job_id"], token, timeout=300)
+    assert job["status"] == "succeeded", job["error"]
+    assert job["result"]["deleted_frame_ids"] == [ids[0]] and job["result"]["failed"] == []

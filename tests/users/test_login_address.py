@@ -98,6 +98,8 @@ def test_a_trusted_proxys_forwarded_for_is_honoured(tmp_path: Path) -> None:
 def test_trusted_proxies_are_addresses_or_networks() -> None:
     settings = Settings(_env_file=None, trusted_proxies=" 10.0.0.5, 10.1.0.0/16 ,::1")  # type: ignore[call-arg]
     assert settings.trusted_proxy_list == ["10.0.0.5", "10.1.0.0/16", "::1"]
+    loose = Settings(_env_file=None, trusted_proxies="10.0.0.5/24")  # type: ignore[call-arg]
+    assert loose.trusted_proxy_list == ["10.0.0.0/24"]  # as uvicorn reads a network
     assert Settings(_env_file=None).trusted_proxy_list == []  # type: ignore[call-arg]
     with pytest.raises(ValidationError, match=r"WELDPOOL_TRUSTED_PROXIES: 'proxy\.local'"):
         Settings(_env_file=None, trusted_proxies="10.0.0.5,proxy.local")  # type: ignore[call-arg]
