@@ -82,7 +82,7 @@ class Settings(BaseSettings):
     )
     file_grace_s: float = Field(
         default=900.0,
-        ge=1,
+        ge=60,
         description="A stored file that no row names is removed once nobody has claimed it "
         "(written or reused it) for this long: far longer than any upload takes to commit.",
     )

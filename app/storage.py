@@ -41,6 +41,8 @@ CHUNK = 1024 * 1024
 DEFAULT_GRACE_S = 900.0
 """How long a claimed file is safe from the collector (``WELDPOOL_FILE_GRACE_S``): far longer than
 any writer takes from its claim to its commit."""
+CLAIM_SLACK_NS = 2_000_000_000
+"""How fresh a claim must read back (2 s; the grace period is at least a minute)."""
 PART_LIFETIME_S = 86_400.0
 """A request's staged temporary (``tmp/*.part``) is swept only after a day: a slow upload of
 many files may hold its first ones long before it commits."""
@@ -102,7 +104,9 @@ class Storage:
             os.utime(final, ns=(now, now))
             # The name is looked up before the inode is touched: had the collector moved the
             # file aside in between, the claim would land on the file it is about to remove.
-            return os.stat(final).st_mtime_ns == now
+            # So the file now at the name must carry a fresh claim (ours, or another writer's;
+            # the slack is for filesystems that keep coarser times).
+            return os.stat(final).st_mtime_ns >= now - CLAIM_SLACK_NS
         except FileNotFoundError:
             return False
 
