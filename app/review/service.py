@@ -72,11 +72,6 @@ def store_heatmap_file(storage: Storage, heatmap: NDArray[np.float32]) -> Stored
     return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts")
 
 
-def store_heatmap(storage: Storage, heatmap: NDArray[np.float32]) -> str:
-    """``store_heatmap_file``'s relative path."""
-    return store_heatmap_file(storage, heatmap).path
-
-
 class FrameDeleted(NotFoundError):
     """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
 

@@ -458,3 +458,34 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
         assert saved.status_code == 200, saved.text
     verdict = _measure(settings, session_factory, whole)
     assert not verdict["usable"] and "accepted from the teacher unchanged" in verdict["reason"]
+
+
+def test_an_incumbent_is_not_judged_on_labels_taken_from_its_own_proposals(
+    client: TestClient, settings, session_factory, make_user, base_model: Path
+) -> None:
+    """Every held-out label was accepted unchanged from the promoted version's proposals: it
+    would score 1.000 there, so the gate refuses to compare on them and says what to do."""
+    _, token = make_user("fair2", Role.reviewer)
+    storage = Storage(settings.home)
+    ids = _upload(client, token, 600, 3)
+    incumbent = _version(settings, session_factory, base_model, "inc", 30.0, -30.0, ids, True)
+    for frame_id in ids:
+        with session_factory() as session:
+            proposal = Proposal(
+                frame_id=frame_id,
+                source="student",
+                model_id="inc",
+                model_version_id=incumbent,
+                mask_path=store_mask(storage, _truth()),
+                keypoints=[],
+            )
+            session.add(proposal)
+            session.commit()
+            body = {"status": "accepted", "base_revision": 0, "proposal_id": proposal.id}
+        saved = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+        assert saved.status_code == 200, saved.text
+    candidate = _version(settings, session_factory, base_model, "cand", 30.0, -30.0, ids)
+    verdict = _measure(settings, session_factory, candidate, incumbent=incumbent)
+    assert verdict["usable"] and not verdict["promote"]
+    assert "cannot be compared fairly" in verdict["reason"]
+    assert "incumbent_scores" not in verdict
