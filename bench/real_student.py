@@ -28,6 +28,7 @@ fold. The keypoint error sits on the front corners, where the predicted mask mis
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import tempfile
@@ -41,9 +42,15 @@ import torch
 from scipy.stats import spearmanr
 
 from weldpool_core.student.data import Augmentation, TrainingFrame
-from weldpool_core.student.evaluate import FoldResult, labelled_frames, train_and_score
+from weldpool_core.student.evaluate import (
+    FoldResult,
+    labelled_frames,
+    score_predictions,
+    train_and_score,
+)
 from weldpool_core.student.model import StudentConfig
-from weldpool_core.student.train import TrainConfig, train_student
+from weldpool_core.student.predict import StudentPredictor
+from weldpool_core.student.train import TrainConfig, TrainResult, train_student
 
 CLIPS = ("compressed_0mm", "compressed_2mm", "compressed_mm")
 REPO = Path(__file__).resolve().parents[1]
@@ -80,6 +87,10 @@ VARIANTS = (
     "steps halved (400)",
     "augmentation off",
     "no gamma",
+    "boundary loss (weight 1, band ±5 px)",
+    "input 384",
+    "wider geometry (scale ±25 %, shift ±10 %, rotation ±12°)",
+    "steps doubled (1600)",
 )
 
 
@@ -97,11 +108,48 @@ def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
         VARIANTS[2]: ({}, {"steps": config.steps // 2}),
         VARIANTS[3]: ({}, {"augmentation": Augmentation(enabled=False)}),
         VARIANTS[4]: ({}, {"augmentation": no_gamma}),
+        VARIANTS[5]: ({}, {"losses": replace(config.losses, mask_boundary=1.0)}),
+        VARIANTS[6]: ({"input_size": 384}, {}),
+        VARIANTS[7]: (
+            {},
+            {
+                "augmentation": replace(
+                    config.augmentation, scale=0.25, shift=0.1, rotation_deg=12.0
+                )
+            },
+        ),
+        VARIANTS[8]: ({}, {"steps": config.steps * 2}),
     }
     if name not in changes:
         raise SystemExit(f"unknown variant {name!r}; use one of: {', '.join(changes)}")
     student_changes, train_changes = changes[name]
     return replace(student, **student_changes), replace(config, **train_changes)
+
+
+def cached_fold(
+    train: list[TrainingFrame],
+    test: list[TrainingFrame],
+    folder: Path,
+    student: StudentConfig,
+    config: TrainConfig,
+    samples: int,
+) -> FoldResult:
+    """``evaluate.train_and_score``, unless ``folder`` holds this fold's finished training (a
+    ``bench-done.json`` marker): then its student is only scored again."""
+    done = folder / "bench-done.json"
+    if not done.is_file():
+        fold = train_and_score(train, test, folder, student, config, samples)
+        marker = {"seconds": fold.seconds, "best_epoch": fold.result.best_epoch}
+        done.write_text(json.dumps(marker))
+        return fold
+    marker = json.loads(done.read_text())
+    predictor = StudentPredictor.load(folder, "cpu")
+    predictions = predictor.predict([f.image for f in test], samples=samples)
+    scores = score_predictions(predictions, test, predictor.config.k)
+    result = TrainResult(
+        folder, int(marker.get("best_epoch", 0)), {}, [], len(train), len(train), False
+    )
+    return FoldResult([f.name for f in train], scores, marker["seconds"], result, predictions)
 
 
 def run_folds(
@@ -111,17 +159,21 @@ def run_folds(
     config: TrainConfig,
     samples: int,
     limit: int | None,
+    cache: Path | None = None,
+    tag: str = "default",
 ) -> dict[str, list[tuple[str, FoldResult]]]:
-    """Every fold of ``kinds`` trained and scored (at most ``limit`` per kind)."""
+    """Every fold of ``kinds`` trained and scored (at most ``limit`` per kind); with ``cache``,
+    trained folders are kept there (``<tag>-<fold>-s<seed>``) and reused by a rerun."""
     results: dict[str, list[tuple[str, FoldResult]]] = {}
-    with tempfile.TemporaryDirectory() as root:
+    with tempfile.TemporaryDirectory() as scratch:
+        root = cache or Path(scratch)
         for kind in kinds:
             for name, train, test in folds(frames, kind)[:limit]:
-                folder = Path(root) / name.replace(":", "-")
-                fold = train_and_score(
+                slug = f"{tag}-{name.replace(':', '-')}-s{config.seed}"
+                fold = cached_fold(
                     [frames[i] for i in train],
                     [frames[i] for i in test],
-                    folder,
+                    root / slug,
                     student,
                     config,
                     samples,
@@ -288,6 +340,12 @@ def main() -> None:
     parser.add_argument("--ablation", action="store_true", help="also run the variants")
     parser.add_argument("--variants", nargs="*", help=f"variants (default: {'; '.join(VARIANTS)})")
     parser.add_argument("--repeats", type=int, default=1, help="seeds per variant (medians)")
+    parser.add_argument(
+        "--every-fold", action="store_true", help="variants on every fold, not only the first"
+    )
+    parser.add_argument(
+        "--cache", type=Path, help="keep trained folders here and reuse them in a rerun"
+    )
     parser.add_argument("--samples", type=int, default=8, help="passes for the uncertainty")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="seed of the default run")
@@ -322,7 +380,13 @@ def main() -> None:
         for seed in args.seeds or [args.seed]:
             print(f"seed {seed}", flush=True)
             results = run_folds(
-                frames, tuple(args.kinds), student, replace(config, seed=seed), args.samples, limit
+                frames,
+                tuple(args.kinds),
+                student,
+                replace(config, seed=seed),
+                args.samples,
+                limit,
+                args.cache,
             )
             print_folds(results)
             seeded.append(results)
@@ -339,8 +403,10 @@ def main() -> None:
                 f"validation mIoU {trained.metrics['mIoU']:.3f}"
             )
     if args.ablation:
-        # One fold of each kind per variant (the first), to keep the run affordable on a CPU.
-        first = {kind: dict(done[:1]) for kind, done in results.items()}
+        # One fold of each kind per variant (the first), to keep the run affordable on a CPU,
+        # unless --every-fold.
+        keep = None if args.every_fold else 1
+        first = {kind: dict(done[:keep]) for kind, done in results.items()}
         rows = [("default", summary({k: list(v.items()) for k, v in first.items()}))] * bool(first)
         for name in args.variants or VARIANTS:
             runs = []
@@ -348,11 +414,22 @@ def main() -> None:
                 student, config = variant(name)
                 print(f"{name} seed {repeat}", flush=True)
                 config = replace(config, seed=repeat)
-                done = run_folds(frames, tuple(args.kinds), student, config, args.samples, 1)
+                tag = "v" + str(VARIANTS.index(name)) if name in VARIANTS else name
+                done = run_folds(
+                    frames,
+                    tuple(args.kinds),
+                    student,
+                    config,
+                    args.samples,
+                    keep,
+                    args.cache,
+                    tag,
+                )
                 runs.append(summary(done))
             rows.append((name, {key: statistics.median(r[key] for r in runs) for key in runs[0]}))
         print(
-            f"\nablation on the first fold of {' and '.join(args.kinds)} (median of "
+            f"\nablation on {'every' if args.every_fold else 'the first'} fold of "
+            f"{' and '.join(args.kinds)} (median of "
             f"{args.repeats} seed(s); default: the run above, when run)"
         )
         print(

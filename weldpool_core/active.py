@@ -9,8 +9,9 @@ Uncertainty components, each in [0, 1] (1 = most unsure), None when it cannot be
   1 − IoU(student mask, teacher mask) and the mean distance between matched keypoints divided
   by the frame diagonal × ``KEYPOINT_SCALE`` (capped at 1).
 - ``student_uncertainty``: the promoted student's uncertainty (``StudentPrediction.uncertainty``):
-  how much its mask changes under test-time passes (shift, scale, rotation, exposure), combined
-  with how unlike its training frames the frame looks to its encoder (``student.predict``).
+  how much of its predicted pool it is unsure of (the mask probability in doubt over the pool's
+  area), combined with how far beyond its training frames the frame lies to its encoder
+  (``student.predict``).
 
 The combined score is the weighted mean of the components that are present (weights from the
 settings); a frame with none has no score and goes to the end of the queue.

@@ -9,7 +9,7 @@ fast as possible delivers every frame in order (a queue of two).
 ``StreamStudent`` runs a trained student on one frame at a time: ONNX Runtime by default (the
 ``model.onnx`` of ``weldpool export-student``; ``int8=True`` runs its ``model.int8.onnx``, the
 quantized student, ``student.quantize``), PyTorch as an option (CUDA when present, and the
-only backend that can score the uncertainty, which needs test-time passes). With
+only backend that can score the uncertainty, which draws the latent and reads the encoder). With
 ``sequential=True`` it runs the folder's sequential student instead (``student.sequential``: a
 recurrent cell on the latent, trained with ``weldpool train-sequential``), carrying its state
 from one delivered frame to the next; ``reset()`` starts a new stream.
@@ -19,9 +19,10 @@ reads (``record_fields``): capture time, frame index, keypoints in frame pixels,
 length, width and centroid (pixels, and millimetres with a scale), ambiguity, uncertainty,
 frames dropped before it, and the latency from capture to the record. Geometry is measured on
 the model's mask placed in frame pixels (``geometry.pool_shape`` with origin and pixel size), so
-no full-resolution mask is made per frame. ``ambiguity`` is cheap and always there: the share of
-the frame's pixels whose mask probability lies between 0.25 and 0.75, relative to the pool's
-area (0 for a crisp mask; high where the student hesitates about the boundary).
+no full-resolution mask is made per frame. ``ambiguity`` is cheap and always there: the mask
+probability in doubt, Σ 2·min(p, 1 − p), relative to the pool's area (0 for a crisp mask; high
+where the student hesitates about the boundary; ``predict.mask_ambiguity``, the rule the
+uncertainty's ambiguity part uses on the latent draws' mean).
 
 ``Publisher`` sends each record as one JSON message on a ZeroMQ XPUB socket (subscribers use a
 SUB socket and subscribe to ""; see the README for a five-line subscriber).
@@ -50,11 +51,10 @@ from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ONNX_FILE, onnx_session
 from weldpool_core.student.model import StudentConfig
-from weldpool_core.student.predict import combine, frame_keypoints
+from weldpool_core.student.predict import frame_keypoints, mask_ambiguity, uncertainty_of
 from weldpool_core.student.quantize import INT8_ONNX_FILE, current_record
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
-AMBIGUOUS = (0.25, 0.75)
 BACKENDS = ("onnx", "torch")
 OPEN_TIMEOUT_MS = 5000
 """How long opening (or reading) a network stream may take before it counts as unreachable."""
@@ -426,9 +426,7 @@ class StreamStudent:
             torch.from_numpy(batch), samples, [geometry]
         )
         part = parts[0]
-        uncertainty = (
-            None if part is None else combine(float(part["disagreement"] or 0), part["novelty"])
-        )
+        uncertainty = None if part is None else uncertainty_of(part)
         return masks[0], heatmaps[0], uncertainty
 
 
@@ -464,14 +462,6 @@ def record_fields() -> tuple[str, ...]:
         "dropped",
         "latency_ms",
     )
-
-
-def ambiguity(mask_probability: NDArray[np.float32]) -> float:
-    """Pixels with a mask probability in (0.25, 0.75) per pool pixel (see the module doc)."""
-    low, high = AMBIGUOUS
-    unsure = int(np.count_nonzero((mask_probability > low) & (mask_probability < high)))
-    pool = int(np.count_nonzero(mask_probability >= 0.5))
-    return float(min(1.0, unsure / max(pool, 1))) if unsure else 0.0
 
 
 def _rounded(values: Any, digits: int = 2) -> Any:
@@ -516,7 +506,7 @@ def analyse(
         "centroid": _rounded(list(pool.centroid)) if pool.centroid else None,
         "travel_deg": _rounded(pool.travel_deg),
         **{key: _rounded(value, 4) for key, value in pool.in_mm(mm_per_px).items()},
-        "ambiguity": round(ambiguity(inner), 4),
+        "ambiguity": round(mask_ambiguity(inner), 4),
         "uncertainty": None if uncertainty is None else round(uncertainty, 4),
         "dropped": frame.dropped,
         "latency_ms": None,

@@ -75,7 +75,7 @@ def promoted_model_dir() -> Path:
     type=click.IntRange(min=0),
     default=0,
     show_default=True,
-    help="Test-time passes for the uncertainty (torch backend; slower).",
+    help="Latent draws for the uncertainty (torch backend; 0: none).",
 )
 @click.option(
     "--sequential",
@@ -138,7 +138,7 @@ def stream_cmd(
     if not model_dir.is_dir():
         fail(f"There is no student folder {str(model_dir)!r}.")
     if samples and backend != "torch":
-        fail("--samples needs --backend torch (the uncertainty runs test-time passes in PyTorch).")
+        fail("--samples needs --backend torch (the uncertainty draws the latent in PyTorch).")
     if samples and sequential:
         fail("--samples scores the per-frame student; leave out --sequential to use it.")
     if backend == "onnx" and not sequential and not int8 and not (model_dir / ONNX_FILE).is_file():

@@ -90,6 +90,22 @@ class LossWeights:
     mask_bce: float = 1.0
     mask_dice: float = 1.0
     heatmap: float = 1.0
+    mask_boundary: float = 0.0
+    """BCE on a band of ``BOUNDARY_BAND`` input pixels either side of the true outline,
+    averaged over the band (0: off): where the mask's errors are, e.g. at the wire."""
+
+
+BOUNDARY_BAND = 5
+"""Half-width of the boundary loss's band, in model input pixels."""
+
+
+def boundary_band(mask: torch.Tensor, band: int = BOUNDARY_BAND) -> torch.Tensor:
+    """N×H×W 0/1: the pixels within ``band`` pixels of the edge of the N×H×W mask in [0, 1]
+    (its dilation minus its erosion by a (2·band + 1)² square)."""
+    size = 2 * band + 1
+    grown = F.max_pool2d(mask[:, None], size, stride=1, padding=band)
+    shrunk = -F.max_pool2d(-mask[:, None], size, stride=1, padding=band)
+    return (grown - shrunk)[:, 0].clamp(0, 1)
 
 
 IOU_TIE_BREAK_PX = 10.0
@@ -361,6 +377,10 @@ def student_loss(
     mask = weights.mask_bce * _weighted_mean(
         bce.flatten(1).mean(1), batch.weight
     ) + weights.mask_dice * dice_loss(output.mask_logits, batch.mask, batch.weight)
+    if weights.mask_boundary:
+        band = boundary_band(batch.mask)
+        per_frame = (bce * band).flatten(1).sum(1) / band.flatten(1).sum(1).clamp(min=1.0)
+        mask = mask + weights.mask_boundary * _weighted_mean(per_frame, batch.weight)
     heat = weights.heatmap * heatmap_loss(output.heatmap_logits, batch.heatmap, batch.weight)
     kl = kl_divergence(output.mean, output.logvar)
     return _Losses(mask + heat + beta * kl, mask, heat, kl)
