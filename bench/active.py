@@ -4,7 +4,7 @@ A pool of frames from many synthetic runs (consecutive frames of a run look alik
 video), a fixed validation set (best-epoch choice, as the validation split does in the service)
 and a test set, both from other runs. Both strategies start from the same random labels; each
 round the oracle labels ``--step`` more frames — (a) the head of the review queue as the service
-builds it (``combined_score`` of the student's uncertainty: test-time-pass disagreement and
+builds it (``combined_score`` of the student's uncertainty: mask ambiguity and
 novelty against its training frames, ``student.predict``; then the diversity pick over its top
 50, on small thumbnails since no DINO weights are here; no teacher components, as a
 random-weight teacher would score noise) or (b) random ones — and a fresh student is
@@ -116,7 +116,7 @@ def _queue_pick(
         [combined_score({"student_uncertainty": p.uncertainty}) or 0.0 for p in predictions]
     )
     errors = [1 - iou(p.mask, frames[i].mask) for p, i in zip(predictions, unlabelled, strict=True)]
-    for part in ("disagreement", "novelty"):
+    for part in ("ambiguity", "novelty"):
         values = [(p.uncertainty_parts or {}).get(part) for p in predictions]
         if all(v is not None for v in values):
             print(f"  ρ of {part} alone: {spearmanr(values, errors)[0]:.2f}", flush=True)
@@ -172,7 +172,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="start sets averaged over")
     parser.add_argument("--pool-runs", type=int, default=20)
     parser.add_argument("--run-length", type=int, default=12)
-    parser.add_argument("--samples", type=int, default=8, help="test-time passes per frame")
+    parser.add_argument("--samples", type=int, default=8, help="latent draws per frame")
     parser.add_argument(
         "--diverse",
         action="store_true",

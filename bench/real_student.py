@@ -1,10 +1,10 @@
 """The student on the real WAAM labels: leave-one-clip-out and within-clip, plus ablations.
 
-Reads the 9 hand-drawn pool masks of ../shared/data/waam/labels (or $WELDPOOL_SHARED_DATA) and
-their frames. Folds:
+Reads the 15 hand-drawn pool masks of ../shared/data/waam/labels (5 a clip; or
+$WELDPOOL_SHARED_DATA) and their frames. Folds:
 
-- LOCO (leave one clip out): train on the 6 frames of two clips, test on the 3 of the third.
-- within-clip: train on f0050 and f0450 of one clip, test on its f0250.
+- LOCO (leave one clip out): train on the 10 frames of two clips, test on the 5 of the third.
+- within-clip: train on the clip's other four frames, test on its f0250.
 
 Each fold trains a fresh student with the default settings (``StudentConfig()``,
 ``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, on all of the
@@ -14,15 +14,18 @@ held-out frames: mIoU, mED against Algorithm 1's keypoints on the true masks (px
 resolution), the training seconds, and the uncertainty. ρ is Spearman's rank correlation
 between the uncertainty and 1 − IoU, pooled over the held-out frames of the LOCO folds.
 ``--ablation`` also runs variants, each on the first LOCO and the first within-clip fold (to
-stay affordable on a CPU), and prints one row each; ``--repeats`` seeds per variant (medians).
+stay affordable on a CPU; ``--every-fold`` runs them on all), and prints one row each;
+``--repeats`` seeds per variant (medians). ``--cache DIR`` keeps the trained folders (named
+``<variant>-<fold>-s<seed>``) and a rerun only scores them; ``bench/uncertainty.py`` shares it.
 
     PYTHONPATH=. .venv/bin/python bench/real_student.py [--quick] [--ablation] [--repeats 1]
         [--seeds 0 1 2]
 
-Measured on 2 CPU cores, seed 0, 2026-11-28 (keypoints of Algorithm 1's anchored groups): LOCO
-mIoU 0.821 / 0.837 / 0.783 (held out 0mm / 2mm / mm, mean 0.813), mED 44.6 / 51.8 / 49.3 px;
-within-clip 0.972 / 0.950 / 0.900 (mean 0.941), mED 11.9 / 10.8 / 42.1 px; about 120 s per
-fold. The keypoint error sits on the front corners, where the predicted mask misses the wire.
+Measured on 2 CPU cores, 2026-12-02, 15 labels: LOCO mIoU 0.784 / 0.849 / 0.841 (held out
+0mm / 2mm / mm, mean of seeds 0–2; mean 0.825), mED 50.9 / 56.2 / 49.5 px; within-clip (seed 0)
+0.974 / 0.965 / 0.894, mED 9.5 / 9.8 / 38.2 px; 85–105 s per fold. The keypoint error sits on
+the front corners, where the predicted mask misses the wire (README, "The student on the real
+WAAM labels").
 """
 
 from __future__ import annotations
@@ -362,7 +365,7 @@ def main() -> None:
         "--no-default", action="store_true", help="skip the default run (ablation only)"
     )
     parser.add_argument(
-        "--time-all", action="store_true", help="also time a default training on all 9 frames"
+        "--time-all", action="store_true", help="also time a training on every label"
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -10,7 +10,7 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.student.data import TrainingFrame, collate, make_targets, prepare_frame
 from weldpool_core.student.model import build_student
-from weldpool_core.student.train import LossWeights, student_loss
+from weldpool_core.student.train import LossWeights, boundary_band, student_loss
 
 
 def _loss(frames: list[TrainingFrame], weights: list[float] | None) -> float:
@@ -54,3 +54,28 @@ def test_a_frame_weight_must_lie_in_0_1() -> None:
         TrainingFrame(frame.image, frame.mask, None, "w", 0.25), 64, "letterbox", HeatmapParams()
     )
     assert prepared.weight == 0.25 and float(make_targets(prepared, 2.0).weight) == 0.25
+
+
+def test_the_boundary_band_is_the_outline_and_its_loss_weighs_only_there() -> None:
+    mask = torch.zeros(1, 40, 40)
+    mask[:, 10:30, 10:30] = 1
+    band = boundary_band(mask, band=3)
+    assert band[0, 20, 20] == 0 and band[0, 2, 2] == 0  # deep inside, far outside
+    assert band[0, 10, 20] == 1 and band[0, 7, 20] == 1 and band[0, 12, 20] == 1
+    assert band[0, 6, 20] == 0 and band[0, 13, 20] == 0  # beyond 3 px either side
+    assert float(band.sum()) == 26 * 26 - 14 * 14  # the ring between dilation and erosion
+    frames = synthetic_frames(1)
+    plain = _loss(frames, None)
+    torch.manual_seed(0)
+    model = build_student(TINY_STUDENT, load_pretrained=False).model.eval()
+    prepared = prepare_frame(
+        frames[0], TINY_STUDENT.input_size, TINY_STUDENT.aspect, HeatmapParams(k=4)
+    )
+    batch = collate([make_targets(prepared, 2.0)])
+    with torch.no_grad():
+        off = student_loss(model, batch, LossWeights(), 0.0, torch.Generator().manual_seed(0))
+        on = student_loss(
+            model, batch, LossWeights(mask_boundary=1.0), 0.0, torch.Generator().manual_seed(0)
+        )
+    assert float(off.mask + off.heatmap) == pytest.approx(plain)
+    assert float(on.mask) > float(off.mask)  # the band's BCE is added on top
