@@ -4,6 +4,7 @@ Debian's Chromium by Playwright. Missing Chromium or Playwright fails these test
 from __future__ import annotations
 
 from collections.abc import Iterator
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +81,12 @@ def shoot(page: Any, name: str, *, full_page: bool = False, idle: bool = False) 
         page.screenshot(path=str(SCREENSHOTS / f"{name}-{width}.png"), full_page=full_page)
     page.set_viewport_size(VIEWPORT)
     page.wait_for_timeout(150)
+
+
+def fixed(value: float, digits: int) -> str:
+    """``value.toFixed(digits)`` as the pages' JavaScript writes it: the exact binary value
+    rounded half up, where Python's format rounds an exact tie (0.25) to even."""
+    return str(Decimal(value).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP))
 
 
 def synthetic_png(seed: int, width: int = 1280, height: int = 800) -> bytes:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import corrected_label, image_bytes, write_video
-from tests.web.conftest import shoot, synthetic_png
+from tests.web.conftest import fixed, shoot, synthetic_png
 from tests.web.server import LiveServer, accept_dialogs, login, wait_for_js, wait_until
 from tests.web.test_review_flow import (
     CANVAS,
@@ -147,7 +147,7 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
     card = page.locator(f"[data-testid=model-card][data-model-id='{newest['id']}']")
     text = card.inner_text()
     assert newest["name"] in text and f"trained on {newest['train_label_count']} labels" in text
-    assert f"{newest['metrics']['mIoU']:.3f}" in text
+    assert f"{fixed(newest['metrics']['mIoU'], 3)}" in text
     assert card.locator("svg.chart").count() >= 2  # loss and mIoU curves at least
     # One way to write numbers: no long decimals, counts as integers, mED_k in px, whole epochs.
     assert not re.search(r"\d\.\d{4,}", text), text
@@ -158,7 +158,7 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
     assert ticks and all(t.isdigit() for t in ticks), ticks
     page.goto(f"{server.url}/metrics")
     student_row = page.locator("[data-testid=student-table] tr", has_text=newest["name"])
-    assert f"{newest['metrics']['mIoU']:.3f}" in student_row.inner_text()
+    assert f"{fixed(newest['metrics']['mIoU'], 3)}" in student_row.inner_text()
     page.goto(f"{server.url}/models")
     page.wait_for_selector(f"[data-testid=model-card][data-model-id='{newest['id']}']")
     gate = card.locator("[data-testid=gate]").inner_text()
@@ -1348,8 +1348,8 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
     page.goto(f"{server.url}/models")
     card.locator("[data-testid=sequential] .badge").wait_for()
     line = card.locator("[data-testid=sequential]").inner_text()
-    assert f"mask IoU {measured['sequential_iou']:.3f} against the per-frame" in line
-    assert f"{measured['per_frame_iou']:.3f} on 1 validation frame" in line
+    assert f"mask IoU {fixed(measured['sequential_iou'], 3)} against the per-frame" in line
+    assert f"{fixed(measured['per_frame_iou'], 3)} on 1 validation frame" in line
     assert card.locator("[data-testid=train-sequential]").inner_text() == "Retrain sequential cell"
     shoot(page, "models-sequential", full_page=True)
     # The card's flag: a cell less accurate (by more than 0.01) or less steady is marked; one
@@ -1442,13 +1442,10 @@ def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path
         page.goto(f"{own.url}/models")
         card.locator("[data-testid=int8] .badge").wait_for()
         line = card.locator("[data-testid=int8]").inner_text()
-        assert (
-            f"at IoU {record['mean_iou']:.3f} ({record['min_iou']:.3f} at worst) on 6 frames"
-            in line
-        )
-        assert (
-            f"{record['int8_ms']:.1f} ms a frame against {record['float_ms']:.1f} ms here" in line
-        )
+        mean, worst = fixed(record["mean_iou"], 3), fixed(record["min_iou"], 3)
+        assert f"at IoU {mean} ({worst} at worst) on 6 frames" in line
+        int8_ms, float_ms = fixed(record["int8_ms"], 1), fixed(record["float_ms"], 1)
+        assert f"{int8_ms} ms a frame against {float_ms} ms here" in line
         assert card.locator("[data-testid=make-int8]").inner_text() == "Remake int8"
         shoot(page, "models-int8", full_page=True)
         # The card's flag: an int8 student no faster here than the float one is marked.
