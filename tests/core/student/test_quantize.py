@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -10,7 +11,7 @@ import numpy as np
 import onnx
 import pytest
 
-from tests.core.student.common import TINY_FRAME, TINY_STUDENT, synthetic_frames, tiny_config
+from tests.core.student.common import TINY_FRAME
 from tests.helpers import run_cli, write_video
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import heatmap_from_mask
@@ -18,15 +19,15 @@ from weldpool_core.stream import FrameSource, StreamStudent, run_stream
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import EXPORT_FILE, export_student
 from weldpool_core.student.quantize import INT8_ONNX_FILE, compare, quantize_student
-from weldpool_core.student.train import train_student
+from weldpool_core.student.train import TrainResult
 from weldpool_core.synth import synth_frame
 
 
 @pytest.fixture(scope="module")
-def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny student trained long enough (100 steps) for crisp masks: int8 can match it."""
-    out = tmp_path_factory.mktemp("int8") / "model"
-    train_student(synthetic_frames(8), out, TINY_STUDENT, tiny_config(epochs=None, steps=100))
+def model_dir(tmp_path_factory: pytest.TempPathFactory, sure_student: TrainResult) -> Path:
+    """The tiny student trained long enough (800 steps) for crisp masks: int8 can match it
+    (IoU 0.99 over seeds and thread counts; after 100 steps, 0.965 to 0.99)."""
+    out = Path(shutil.copytree(sure_student.model_dir, tmp_path_factory.mktemp("int8") / "model"))
     export_student(out, ["onnx"])
     return out
 
