@@ -10,6 +10,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from weldpool_core.active import DEFAULT_WEIGHTS
 from weldpool_core.io import DEFAULT_MAX_PIXELS
 
 
@@ -51,12 +52,7 @@ class Settings(BaseSettings):
     )
 
     uncertainty_weights: dict[str, float] = Field(
-        default_factory=lambda: {
-            "teacher_iou": 1.0,
-            "instability": 1.0,
-            "disagreement": 1.0,
-            "student_uncertainty": 1.0,
-        },
+        default_factory=lambda: dict(DEFAULT_WEIGHTS),
         description="Weights of the uncertainty components in the review queue's score (JSON).",
     )
     queue_diversity: float = Field(

@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.models import STORED_PATH_COLUMNS, ModelVersion
 from app.periodic import Periodic
-from app.storage import Storage
+from app.storage import EXPORTS_DIR, Storage
 
 SWEPT_AREAS = ("frames", "videos", "artefacts")
 log = structlog.get_logger(__name__)
@@ -62,8 +62,6 @@ def prune_training_state(session: Session, home: Path) -> int:
 def prune_exports(home: Path, older_than_s: float = 86_400.0) -> int:
     """Remove export zips older than a day (an export job's download is kept that long)."""
     import time
-
-    from app.review.export import EXPORTS_DIR
 
     removed = 0
     for path in (home / EXPORTS_DIR).glob("*.zip"):

@@ -38,6 +38,8 @@ if TYPE_CHECKING:
     from app.config import Settings
 
 CHUNK = 1024 * 1024
+EXPORTS_DIR = "exports"
+"""Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
 DEFAULT_GRACE_S = 900.0
 """How long a claimed file is safe from the collector (``WELDPOOL_FILE_GRACE_S``): far longer than
 any writer takes from its claim to its commit."""

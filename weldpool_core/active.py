@@ -8,6 +8,9 @@ Uncertainty components, each in [0, 1] (1 = most unsure), None when it cannot be
 - ``disagreement``: how far the promoted student is from the teacher: the mean of
   1 − IoU(student mask, teacher mask) and the mean distance between matched keypoints divided
   by the frame diagonal × ``KEYPOINT_SCALE`` (capped at 1).
+- ``propagation_doubt``: 1 − the confidence of the frame's propagated mask (SAM2's video
+  model: object probability × predicted IoU), where the frame has one: a mask carried from a
+  reviewed frame that SAM2 itself doubts is a frame to look at.
 - ``student_uncertainty``: the promoted student's uncertainty (``StudentPrediction.uncertainty``):
   how much of its predicted pool it is unsure of (the mask probability in doubt over the pool's
   area), combined with how far beyond its training frames the frame lies to its encoder
@@ -27,14 +30,22 @@ from numpy.typing import NDArray
 
 from weldpool_core.metrics import iou, match_keypoints
 
-COMPONENTS = ("teacher_iou", "instability", "disagreement", "student_uncertainty")
+COMPONENTS = (
+    "teacher_iou",
+    "instability",
+    "disagreement",
+    "student_uncertainty",
+    "propagation_doubt",
+)
 KEYPOINT_SCALE = 10.0  # a mean error of a tenth of the diagonal counts as full disagreement
 DEFAULT_WEIGHTS = {
     "teacher_iou": 1.0,
     "instability": 1.0,
     "disagreement": 1.0,
     "student_uncertainty": 1.0,
+    "propagation_doubt": 1.0,
 }
+"""The components' weights when the settings give none (``WELDPOOL_UNCERTAINTY_WEIGHTS``)."""
 
 
 def _clip(value: float) -> float:
@@ -47,6 +58,11 @@ def teacher_components(sam2_iou: float | None, stability: float | None) -> dict[
         "teacher_iou": None if sam2_iou is None else _clip(1.0 - sam2_iou),
         "instability": None if stability is None else _clip(1.0 - stability),
     }
+
+
+def propagation_components(confidence: float | None) -> dict[str, float | None]:
+    """A propagated mask's uncertainty component."""
+    return {"propagation_doubt": None if confidence is None else _clip(1.0 - confidence)}
 
 
 def disagreement(

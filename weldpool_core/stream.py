@@ -49,10 +49,9 @@ from weldpool_core.geometry import pool_shape
 from weldpool_core.smoothing import KeypointSmoother
 from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import ONNX_FILE, onnx_session
+from weldpool_core.student.export import INT8_ONNX_FILE, ONNX_FILE, current_record, onnx_session
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import frame_keypoints, mask_ambiguity, uncertainty_of
-from weldpool_core.student.quantize import INT8_ONNX_FILE, current_record
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
 BACKENDS = ("onnx", "torch")

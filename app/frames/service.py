@@ -35,6 +35,8 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
+from app.proposals.policy import pick
+from app.proposals.queue import diverse_head
 from app.storage import StagedFile, Storage, StoredFile
 from weldpool_core.geometry import scale_from_points
 from weldpool_core.io import (
@@ -637,8 +639,6 @@ def list_frames(
             key = parsed
     diverse = order == "uncertainty" and diversity > 0
     if diverse and key is None and position < diversity_pool:
-        from app.review.queue import diverse_head
-
         pool = ordered.options(undefer(Frame.descriptor)).limit(diversity_pool)
         head = diverse_head(list(session.scalars(pool)), diversity)
         page = head[position : position + limit]
@@ -690,8 +690,6 @@ def get_frame(session: Session, frame_id: int) -> Frame:
 
 def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, Any]:
     """The frame's label, the proposal the policy shows and whether it has manual keypoints."""
-    from app.review.policy import pick
-
     label = session.scalar(sa.select(Label).where(Label.frame_id == frame.id))
     proposal = pick(session, storage, frame.id)
     manual = session.scalar(
@@ -972,3 +970,25 @@ def delete_sequence(
     """A weld run with its frames and videos (see ``delete_frames`` for the guard)."""
     frame_ids = list(session.scalars(sa.select(Frame.id).where(Frame.sequence_id == sequence.id)))
     return delete_frames(session, storage, frame_ids, force=force, sequence=sequence)
+
+
+def frames_for_run(
+    session: Session, frame_ids: list[int] | None, sequence_id: int | None
+) -> list[int]:
+    """The frames a teacher run covers: the given ids (all must exist) or a whole sequence."""
+    if frame_ids:
+        found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(frame_ids))))
+        missing = sorted(set(frame_ids) - found)
+        if missing:
+            raise NotFoundError(f"There is no frame {missing[0]}.")
+        return list(dict.fromkeys(frame_ids))
+    if sequence_id is not None:
+        ids = list(
+            session.scalars(
+                sa.select(Frame.id).where(Frame.sequence_id == sequence_id).order_by(Frame.id)
+            )
+        )
+        if not ids:
+            raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
+        return ids
+    raise InvalidInputError("Give frame_ids or a sequence_id.")

@@ -4,8 +4,6 @@ masks, and how reviewers receive the teacher's proposals."""
 from __future__ import annotations
 
 from collections import defaultdict
-from functools import lru_cache
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,15 +11,8 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
+from app.proposals.policy import current, source_key, stored_iou
 from app.storage import Storage
-from weldpool_core.io import read_mask
-from weldpool_core.metrics import iou
-
-
-@lru_cache(maxsize=65536)
-def stored_iou(first: Path, second: Path) -> float:
-    """IoU of two stored masks; paths are content-addressed, so the answer never changes."""
-    return iou(read_mask(first), read_mask(second))
 
 
 def student_curve(session: Session) -> list[dict[str, Any]]:
@@ -95,8 +86,6 @@ def review_figures(session: Session) -> dict[str, Any]:
     that started from its proposals: accepted, corrected, rejected, and ``unchanged`` (saved
     with the proposal's mask as it was); ``acceptance_rate`` is unchanged / all its labels.
     """
-    from app.review.policy import source_key
-
     counts = dict.fromkeys(("accepted", "corrected", "rejected"), 0)
     by_source: dict[str, dict[str, int]] = {}
     rows = session.execute(
@@ -140,8 +129,6 @@ def review_figures(session: Session) -> dict[str, Any]:
 def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
     """Everything `GET /api/v1/metrics` and the metrics page show."""
     scored = session.scalar(sa.select(sa.func.count()).where(Frame.uncertainty.is_not(None)))
-    from app.review.policy import current
-
     return {
         "policy": current(session, storage).as_dict(),
         "student": student_curve(session),

@@ -42,12 +42,10 @@ from sqlalchemy.orm import Session
 from app.errors import InvalidInputError
 from app.frames.schemas import stored_scale
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
-from app.review.service import load_mask
-from app.storage import Storage
+from app.proposals.files import load_mask
+from app.storage import EXPORTS_DIR, Storage
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
 
-EXPORTS_DIR = "exports"
-"""Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
 ExportFormat = Literal["coco", "masks", "yolo"]
 YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}
 Progress = Callable[[float, str], None]

@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, cast
 
 import numpy as np
@@ -26,18 +26,15 @@ from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.errors import InvalidInputError
 from app.jobs.registry import counted
-from app.models import Frame, FrameStatus, Label, LabelRevision, LabelStatus, Proposal
-from app.review.service import (
-    FrameDeleted,
-    frame_exists,
-    frame_rgb,
-    load_mask,
-    writing_for_frame,
-)
+from app.models import Frame, Label, LabelStatus, Proposal
+from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
+from app.proposals.record import PROPAGATED, record_proposal
 from app.storage import Storage
+from weldpool_core.errors import InvalidInputError as CoreInvalidInput
+from weldpool_core.heatmap import heatmap_from_mask
 from weldpool_core.teacher.passes import Direction, passes
 
-SOURCE = "propagated"
+SOURCE = PROPAGATED
 STOP_AFTER = 3
 """Frames in a row under the confidence threshold after which a pass stops."""
 
@@ -92,53 +89,34 @@ def record(
     scores: dict[str, Any],
     model_id: str,
     job_id: int | None,
+    weights: Mapping[str, float],
 ) -> Proposal:
-    """Store one propagated mask as the frame's proposal, replacing its earlier ones."""
-    from weldpool_core.errors import InvalidInputError as CoreInvalidInput
-    from weldpool_core.heatmap import heatmap_from_mask
-
+    """Store one propagated mask as the frame's proposal, replacing its earlier ones; its
+    confidence joins the frame's queue score."""
     keypoints: list[list[float]] = []
-    with writing_for_frame(session, storage, frame.id) as write:
-        heatmap_path = None
-        try:
-            result = heatmap_from_mask(mask)
-        except CoreInvalidInput as exc:
-            scores = scores | {"warning": f"No keypoints: {exc.message}"}
-        else:
-            keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
-            heatmap_path = write.heatmap(result.heatmap)
-        # Earlier propagated proposals go, except those a label started from (its history).
-        started_from = sa.union(
-            sa.select(Label.proposal_id).where(
-                Label.frame_id == frame.id, Label.proposal_id.is_not(None)
-            ),
-            sa.select(LabelRevision.proposal_id).where(
-                LabelRevision.frame_id == frame.id, LabelRevision.proposal_id.is_not(None)
-            ),
-        )
-        session.execute(
-            sa.delete(Proposal).where(
-                Proposal.frame_id == frame.id,
-                Proposal.source == SOURCE,
-                Proposal.id.not_in(started_from),
-            )
-        )
-        proposal = Proposal(
-            frame_id=frame.id,
-            source=SOURCE,
-            model_id=model_id,
-            job_id=job_id,
-            mask_path=write.mask(mask),
-            heatmap_path=heatmap_path,
-            keypoints=keypoints,
-            prompts={"from_frame_id": scores["from_frame_id"]},
-            scores=scores | {"mask_fraction": float(mask.mean())},
-            timings={},
-        )
-        session.add(proposal)
-        if frame.status == FrameStatus.new:
-            frame.status = FrameStatus.proposed
-    return proposal
+    heatmap = None
+    try:
+        result = heatmap_from_mask(mask)
+    except CoreInvalidInput as exc:
+        scores = scores | {"warning": f"No keypoints: {exc.message}"}
+    else:
+        keypoints = [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+        heatmap = result.heatmap
+    return record_proposal(
+        session,
+        storage,
+        frame,
+        source=PROPAGATED,
+        model_id=model_id,
+        mask=mask,
+        heatmap=heatmap,
+        keypoints=keypoints,
+        scores=scores,
+        weights=weights,
+        job_id=job_id,
+        prompts={"from_frame_id": scores["from_frame_id"]},
+        replace_earlier=True,
+    )
 
 
 def propagate_run(
@@ -155,6 +133,7 @@ def propagate_run(
     model_id: str,
     job_id: int | None,
     progress: Callable[[float, str], None],
+    weights: Mapping[str, float],
 ) -> dict[str, Any]:
     """Propagate through the run (module doc); returns what was written and where it stopped."""
     check_prompts(session, sequence_id, from_frame_ids)
@@ -226,6 +205,7 @@ def propagate_run(
                 },
                 model_id,
                 job_id,
+                weights,
             )
         except (FrameDeleted, ObjectDeletedError):  # gone before, or while, it was written
             session.rollback()

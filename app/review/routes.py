@@ -13,12 +13,14 @@ from fastapi.responses import FileResponse, StreamingResponse
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.frames.service import get_frame, get_sequence
+from app.frames.service import frames_for_run, get_frame, get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.models import Job, JobStatus, Proposal, Split, User
-from app.review import policy, service
+from app.proposals import policy
+from app.proposals.files import load_heatmap
+from app.review import service
 from app.review.export import export_path, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
@@ -65,7 +67,7 @@ def start_teacher_run(
     body: TeacherRunIn, session: SessionDep, queue: QueueDep, user: CurrentUser
 ) -> JobCreated:
     """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
-    frame_ids = service.frames_for_run(session, body.frame_ids, body.sequence_id)
+    frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
     params = {"frame_ids": frame_ids, "prompts": body.prompts, "force": body.force}
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
 
@@ -174,7 +176,7 @@ def get_proposal_heatmap_png(
     """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
     import cv2
 
-    heat = service.load_heatmap(storage, proposal)[:, :, 0]
+    heat = load_heatmap(storage, proposal)[:, :, 0]
     scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
     colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
     rgba = np.dstack([colours[:, :, ::-1], (scaled * 255).astype(np.uint8)])
@@ -193,7 +195,7 @@ def get_proposal_heatmap_npy(
     import io
 
     buffer = io.BytesIO()
-    np.save(buffer, service.load_heatmap(storage, proposal))
+    np.save(buffer, load_heatmap(storage, proposal))
     return Response(buffer.getvalue(), media_type="application/octet-stream")
 
 

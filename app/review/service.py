@@ -3,12 +3,8 @@ validation keypoints. Every computation is weldpool_core's; this module stores a
 
 from __future__ import annotations
 
-import hashlib
-import io
 import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -26,207 +22,27 @@ from app.models import (
     Label,
     LabelRevision,
     LabelStatus,
-    Proposal,
     Role,
     Split,
     User,
     ValidationKeypoints,
 )
-from app.review.queue import rescore_frame
+from app.proposals.files import (
+    FrameDeleted,
+    frame_exists,
+    frame_rgb,
+    load_mask,
+    lock_frame,
+    masks_in_use,
+    store_mask_file,
+)
+from app.proposals.policy import pick
+from app.review import runtime
 from app.storage import Storage, StoredFile
-from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import CocoMask, coco_mask, region_outlines
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
-
-# --- artefacts ---------------------------------------------------------------------------------
-
-
-def store_mask_file(storage: Storage, mask: NDArray[np.bool_]) -> StoredFile:
-    """A mask as a content-addressed PNG under artefacts/ (and whether this call wrote it)."""
-    data = encode_mask_png(mask)
-    return storage.put(data, hashlib.sha256(data).hexdigest(), ".png", area="artefacts")
-
-
-def store_mask(storage: Storage, mask: NDArray[np.bool_]) -> str:
-    """A mask as a content-addressed PNG under artefacts/; returns its relative path."""
-    return store_mask_file(storage, mask).path
-
-
-def _masks_in_use(session: Session, paths: list[str]) -> set[str]:
-    """Which of ``paths`` a committed label revision or proposal names."""
-    used = set(
-        session.scalars(
-            sa.select(LabelRevision.mask_path).where(LabelRevision.mask_path.in_(paths))
-        )
-    )
-    used |= set(session.scalars(sa.select(Proposal.mask_path).where(Proposal.mask_path.in_(paths))))
-    return {p for p in used if p}
-
-
-def store_heatmap_file(storage: Storage, heatmap: NDArray[np.float32]) -> StoredFile:
-    """Channel 0 of Algorithm 1's array (the mask is stored apart) as compressed float16."""
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, heatmap=heatmap[:, :, 0].astype(np.float16))
-    data = buffer.getvalue()
-    return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts")
-
-
-class FrameDeleted(NotFoundError):
-    """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
-
-    def __init__(self, frame_id: int) -> None:
-        super().__init__(f"Frame {frame_id} was deleted meanwhile; nothing was recorded for it.")
-        self.frame_id = frame_id
-
-
-def frame_exists(session: Session, frame_id: int) -> bool:
-    """Whether the frame is there now (asked on a connection of its own, so a long read
-    transaction's snapshot cannot hide a deletion)."""
-    with Session(session.get_bind()) as fresh:
-        return fresh.scalar(sa.select(Frame.id).where(Frame.id == frame_id)) is not None
-
-
-@dataclass
-class FrameWrite:
-    """The files one guarded write for a frame stores (``writing_for_frame``)."""
-
-    storage: Storage
-    files: list[StoredFile] = field(default_factory=list)
-
-    def mask(self, mask: NDArray[np.bool_]) -> str:
-        self.files.append(store_mask_file(self.storage, mask))
-        return self.files[-1].path
-
-    def heatmap(self, heatmap: NDArray[np.float32]) -> str:
-        self.files.append(store_heatmap_file(self.storage, heatmap))
-        return self.files[-1].path
-
-
-def lock_frame(session: Session, frame_id: int) -> None:
-    """Lock the frame's row until the commit (PostgreSQL; a deletion then waits for it), or
-    raise FrameDeleted when it is gone."""
-    locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
-    if session.execute(locked).first() is None:
-        raise FrameDeleted(frame_id)
-
-
-@contextmanager
-def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iterator[FrameWrite]:
-    """Rows and files a job records for one frame, committed at the end of the block, while
-    the frame may be deleted: its row is locked first (PostgreSQL; a deletion then waits for
-    the commit), and a frame deleted before (or, on SQLite, a commit that loses to the
-    deletion) ends in FrameDeleted. On any failure the rows are rolled back and the files this
-    write created are discarded (unless another writer claimed them since)."""
-    write = FrameWrite(storage)
-    try:
-        lock_frame(session, frame_id)
-        yield write
-        session.commit()
-    except BaseException as exc:
-        session.rollback()
-        storage.discard(write.files)
-        lost = isinstance(exc, sa.exc.IntegrityError | StaleDataError)
-        if lost and not frame_exists(session, frame_id):
-            raise FrameDeleted(frame_id) from None
-        raise
-
-
-def load_mask(storage: Storage, path: str) -> NDArray[np.bool_]:
-    return decode_mask_png(storage.absolute(path).read_bytes())
-
-
-def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
-    """The H×W×2 array (heatmap, mask) of a proposal, as Algorithm 1 returned it."""
-    mask = load_mask(storage, proposal.mask_path).astype(np.float32)
-    if proposal.heatmap_path is None:
-        return np.stack([np.zeros_like(mask), mask], axis=2)
-    with np.load(storage.absolute(proposal.heatmap_path)) as data:
-        heat = data["heatmap"].astype(np.float32)
-    return np.stack([heat, mask], axis=2)
-
-
-def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
-    """The frame as the models see it (RGB uint8, 16-bit stretched)."""
-    return to_rgb8(read_image(storage.absolute(frame.path)))
-
-
-# --- proposals ---------------------------------------------------------------------------------
-
-
-def has_proposal(session: Session, frame_id: int, model_id: str) -> bool:
-    return (
-        session.scalar(
-            sa.select(Proposal.id).where(
-                Proposal.frame_id == frame_id, Proposal.model_id == model_id
-            )
-        )
-        is not None
-    )
-
-
-def record_teacher_proposal(
-    session: Session,
-    storage: Storage,
-    frame: Frame,
-    result: Any,
-    model_id: str,
-    job_id: int | None,
-    weights: Mapping[str, float],
-) -> Proposal:
-    """Store a TeacherResult as the frame's newest proposal, with the frame's DINO descriptor
-    and its uncertainty re-scored; FrameDeleted when the frame went meanwhile."""
-    with writing_for_frame(session, storage, frame.id) as write:
-        proposal = Proposal(
-            frame_id=frame.id,
-            source="teacher",
-            model_id=model_id,
-            job_id=job_id,
-            mask_path=write.mask(result.mask),
-            heatmap_path=write.heatmap(result.heatmap) if result.heatmap is not None else None,
-            keypoints=result.keypoints,
-            prompts=result.prompts.as_dict(),
-            scores={
-                "sam2_iou": result.score,
-                "object_score": result.object_score,
-                "prompt_stability": result.prompt_stability,
-                "mask_fraction": float(result.mask.mean()),
-                "warning": result.warning,
-                "keypoint_rules": result.keypoint_rules,
-            },
-            timings=result.timings,
-        )
-        session.add(proposal)
-        if frame.status == FrameStatus.new:
-            frame.status = FrameStatus.proposed
-        frame.descriptor = [round(float(v), 5) for v in result.attention.cls]
-        frame.teacher_error = None
-        session.flush()
-        rescore_frame(session, frame, weights)
-    return proposal
-
-
-def frames_for_run(
-    session: Session, frame_ids: list[int] | None, sequence_id: int | None
-) -> list[int]:
-    """The frames a teacher run covers: the given ids (all must exist) or a whole sequence."""
-    if frame_ids:
-        found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(frame_ids))))
-        missing = sorted(set(frame_ids) - found)
-        if missing:
-            raise NotFoundError(f"There is no frame {missing[0]}.")
-        return list(dict.fromkeys(frame_ids))
-    if sequence_id is not None:
-        ids = list(
-            session.scalars(
-                sa.select(Frame.id).where(Frame.sequence_id == sequence_id).order_by(Frame.id)
-            )
-        )
-        if not ids:
-            raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
-        return ids
-    raise InvalidInputError("Give frame_ids or a sequence_id.")
-
 
 # --- click corrections -------------------------------------------------------------------------
 
@@ -260,7 +76,6 @@ def segment(
 ) -> Segmentation:
     """A new mask for ``frame`` from clicks, a box and/or a previous mask, using the frame's
     cached SAM2 embedding (computed and cached on first use)."""
-    from app.review import runtime
     from weldpool_core.teacher.cache import cached_embedding
     from weldpool_core.teacher.sam2 import Prompts
 
@@ -350,7 +165,6 @@ def save_label(
     the proposal it started from (``proposal_id``, default the one the policy shows) and whether
     its mask differs from that proposal's.
     """
-    from app.review.policy import pick
 
     frame_id = frame.id
     lock_frame(session, frame_id)  # a deletion now waits for this save (PostgreSQL)
@@ -448,7 +262,7 @@ def save_label(
     except BaseException as exc:
         session.rollback()
         if stored is not None:
-            storage.discard([stored], in_use=_masks_in_use(session, [stored.path]))
+            storage.discard([stored], in_use=masks_in_use(session, [stored.path]))
         if isinstance(exc, sa.exc.IntegrityError | StaleDataError):
             if not frame_exists(session, frame_id):
                 raise FrameDeleted(frame_id) from None

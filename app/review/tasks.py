@@ -19,15 +19,10 @@ from app.jobs.registry import (
     job_handler,
 )
 from app.models import Frame
+from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
+from app.proposals.record import has_proposal, record_teacher_proposal
 from app.review import propagation, runtime
 from app.review.export import build_export, export_path
-from app.review.service import (
-    FrameDeleted,
-    frame_exists,
-    frame_rgb,
-    has_proposal,
-    record_teacher_proposal,
-)
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
 
@@ -184,6 +179,7 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
             model_id=propagation.model_id(ctx.settings.sam2),
             job_id=ctx.job_id,
             progress=ctx.progress,
+            weights=ctx.settings.uncertainty_weights,
         )
     stops = "; ".join(
         f"stopped {s['direction']} at frame #{s['frame_id']} (confidence fell)"

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from app.db import schema_revision
+from app.jobs.runner import live_workers
 from app.queue import describe
 from app.system.status import teacher_problem
 from weldpool_core.teacher.weights import weights_status
@@ -31,7 +32,6 @@ def _database(request: Request) -> dict[str, Any]:
 
 
 def _workers(request: Request) -> dict[str, Any]:
-    from app.jobs.runner import live_workers
 
     try:
         return {

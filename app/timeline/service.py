@@ -24,8 +24,8 @@ from sqlalchemy.orm import Session
 from app.frames.schemas import stored_scale
 from app.frames.service import get_sequence
 from app.models import Frame, Label, LabelStatus, Proposal
-from app.review import policy
-from app.review.service import load_mask
+from app.proposals import policy
+from app.proposals.files import load_mask
 from app.storage import Storage
 from weldpool_core.geometry import PoolShape, pool_shape
 

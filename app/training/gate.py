@@ -38,8 +38,8 @@ from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError
-from app.models import Label, ModelVersion, Proposal
-from app.review.service import frame_rgb, load_mask
+from app.models import Frame, Label, ModelVersion, Proposal
+from app.proposals.files import frame_rgb, load_mask
 from app.storage import Storage
 from app.training import service
 from weldpool_core.metrics import proposal_quality
@@ -92,7 +92,6 @@ def _student_outputs(
     session: Session, storage: Storage, version: ModelVersion, frame_ids: list[int], device: str
 ) -> Outputs:
     """The version's mask and keypoints on each frame, predicted now."""
-    from app.models import Frame
     from weldpool_core.student.predict import StudentPredictor
 
     if version.checkpoint_path is None:

@@ -7,9 +7,9 @@ from fastapi import APIRouter, status
 from app.bounds import IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError
+from app.frames.service import frames_for_run
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.review.service import frames_for_run
 from app.security import CurrentUser, ReviewerUser
 from app.training import gate, service
 from app.training.schemas import ModelVersionOut, SequentialIn, StudentRunIn, TrainIn

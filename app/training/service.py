@@ -13,10 +13,12 @@ from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import InvalidInputError, NotFoundError
+from app.errors import ConflictError, InvalidInputError, NotFoundError
+from app.jobs.service import create_job
 from app.models import (
     Frame,
     Job,
+    JobStatus,
     Label,
     LabelRevision,
     LabelStatus,
@@ -26,7 +28,7 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
-from app.review.service import frame_exists, frame_rgb, load_mask
+from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
@@ -181,9 +183,6 @@ def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: 
     queue), queued at most once: a run that an earlier promotion queued and no worker has
     started yet is handed to ``model`` and today's unreviewed frames instead of queuing another
     (a worker reads a job's parameters when it claims it). None when no frame awaits review."""
-    from app.jobs.service import create_job
-    from app.models import JobStatus
-
     frame_ids = unreviewed_frame_ids(session)
     if not frame_ids:
         return None
@@ -224,8 +223,6 @@ def labels_since_last_training(session: Session) -> int:
 def maybe_retrain(session: Session, queue: Any, every: int, user: Any) -> Job | None:
     """Start a training job after ``every`` new reviewed labels (0: never), unless one is
     queued or running — the database guarantees there is never a second one."""
-    from app.errors import ConflictError
-    from app.jobs.service import create_job
 
     if every <= 0 or labels_since_last_training(session) < every:
         return None
@@ -255,7 +252,6 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
 
 def model_folder(home: Path, model: ModelVersion) -> Path:
     """A version's folder of weights, or a 409 when it has none on this server."""
-    from app.errors import ConflictError
 
     folder = home / model.checkpoint_path if model.checkpoint_path else None
     if folder is None or not folder.is_dir():
@@ -280,7 +276,6 @@ def has_video_labels(session: Session) -> bool:
 
 def active_job(session: Session, kind: str) -> Job | None:
     """The queued or running job of ``kind`` (one at a time: ``ONE_AT_A_TIME``), if any."""
-    from app.models import JobStatus
 
     return session.scalar(
         sa.select(Job).where(

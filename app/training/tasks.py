@@ -15,17 +15,12 @@ import structlog
 
 from app.db import utcnow
 from app.jobs.registry import JobContext, counted, job_handler
-from app.models import Frame, FrameStatus, Job, ModelVersion, Proposal
-from app.review.queue import latest_teacher_proposal, rescore_frame
-from app.review.service import (
-    FrameDeleted,
-    frame_exists,
-    frame_rgb,
-    load_mask,
-    writing_for_frame,
-)
+from app.models import Frame, Job, ModelVersion
+from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
+from app.proposals.queue import latest_teacher_proposal
+from app.proposals.record import STUDENT, record_proposal
 from app.storage import Storage
-from app.training import service
+from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
 
@@ -366,7 +361,6 @@ def _free_name(session: Any, models_dir: Any) -> str:
 def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     """Measure the new version (``app.training.gate``), store the verdict, and promote it when
     the gate says so and WELDPOOL_AUTO_PROMOTE is on; then re-score the review queue."""
-    from app.training import gate
 
     storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
@@ -445,31 +439,24 @@ def _student_proposal(
             prediction.mask, load_mask(storage, teacher.mask_path), keypoints, teacher.keypoints
         )
     ctx.check_cancelled()  # a lost or cancelled attempt records nothing more
-    with writing_for_frame(session, storage, frame.id) as write:
-        session.add(
-            Proposal(
-                frame_id=frame.id,
-                source="student",
-                model_id=name,
-                model_version_id=version_id,
-                job_id=ctx.job_id,
-                mask_path=write.mask(prediction.mask),
-                heatmap_path=write.heatmap(prediction.heatmap),
-                keypoints=keypoints,
-                prompts={},
-                timings={},
-                scores={
-                    "uncertainty": prediction.uncertainty,
-                    "uncertainty_parts": prediction.uncertainty_parts,
-                    "disagreement": disagreement,
-                    "mask_fraction": float(prediction.mask.mean()),
-                },
-            )
-        )
-        session.flush()
-        rescore_frame(session, frame, ctx.settings.uncertainty_weights)
-        if frame.status == FrameStatus.new:
-            frame.status = FrameStatus.proposed
+    record_proposal(
+        session,
+        storage,
+        frame,
+        source=STUDENT,
+        model_id=name,
+        mask=prediction.mask,
+        heatmap=prediction.heatmap,
+        keypoints=keypoints,
+        scores={
+            "uncertainty": prediction.uncertainty,
+            "uncertainty_parts": prediction.uncertainty_parts,
+            "disagreement": disagreement,
+        },
+        weights=ctx.settings.uncertainty_weights,
+        job_id=ctx.job_id,
+        model_version_id=version_id,
+    )
 
 
 @job_handler(service.QUANTIZE_KIND)
@@ -478,8 +465,8 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     spread over the project and checked against the float student on others; the version
     records the check and both speeds. A job that fails after the file was written puts the
     previous int8 file (or none) back, so the file and the record always agree."""
-    from weldpool_core.student.export import EXPORT_FILE
-    from weldpool_core.student.quantize import INT8_ONNX_FILE, quantize_student, remove_leftovers
+    from weldpool_core.student.export import EXPORT_FILE, INT8_ONNX_FILE
+    from weldpool_core.student.quantize import quantize_student, remove_leftovers
 
     storage = Storage.of(ctx.settings)
     model_id = int(ctx.params["model_version_id"])

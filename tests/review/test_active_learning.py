@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.models import Frame, Job, JobStatus, Proposal, Role
-from app.review.queue import rescore_frame
+from app.proposals.queue import rescore_frame
+from app.review import propagation
+from app.storage import Storage
 from tests.helpers import auth, corrected_label, image_bytes
 from tests.review.test_review import _teacher, _upload_synthetic
 
@@ -211,3 +214,33 @@ def test_lists_never_read_descriptors_but_the_diversity_pick_does(
         assert len(reads) == 1 and "LIMIT" in reads[0].upper()  # one query, not one per frame
     finally:
         sa.event.remove(engine, "before_cursor_execute", record)
+
+
+def test_a_propagated_mask_sam2_doubts_ranks_above_a_confident_one(
+    client: TestClient, session_factory, settings, make_user
+) -> None:
+    """Propagation's confidence is a component of the queue's score: two frames whose
+    propagated masks came with confidence 0.2 and 0.9, recorded through propagation's own
+    write; the doubted one comes first, for that reason, and the weight turns it off."""
+    _, token = make_user("carrier", Role.reviewer)
+    confident, doubted = _frames(client, token, 2)
+    storage = Storage.of(settings)
+    mask = np.zeros((24, 32), bool)
+    mask[8:16, 10:22] = True
+    weights = settings.uncertainty_weights
+    with session_factory() as session:
+        for frame_id, confidence in ((confident, 0.9), (doubted, 0.2)):
+            scores = {"confidence": confidence, "from_frame_id": frame_id}
+            frame = session.get_one(Frame, frame_id)
+            propagation.record(session, storage, frame, mask, scores, "sam2-video:t", None, weights)
+    queue = client.get(
+        "/api/v1/frames", params={"order": "uncertainty"}, headers=auth(token)
+    ).json()["items"]
+    assert [f["id"] for f in queue] == [doubted, confident]
+    assert queue[0]["uncertainty_reason"] == "propagation_doubt"
+    assert queue[0]["uncertainty"] == pytest.approx(0.8)
+    assert queue[1]["uncertainty"] == pytest.approx(0.1)
+    with session_factory() as session:
+        frame = session.get_one(Frame, doubted)
+        rescore_frame(session, frame, weights | {"propagation_doubt": 0.0})
+        assert frame.uncertainty is None  # no other component: unscored

@@ -164,7 +164,7 @@ def test_a_write_that_loses_to_a_deletion_discards_its_files(
     its insert. The insert then fails, the proposal's files (written just before) are removed
     and the frame counts as deleted. (On PostgreSQL the frame's row is locked, so the deletion
     waits for the commit instead.)"""
-    from app.review import service as review_service
+    from app.proposals import files as review_service
 
     _, token = make_user("rev", Role.reviewer)
     _, ids, _ = _run(client, token, 2)

@@ -268,7 +268,7 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
     from pycocotools import mask as coco_api
 
     from app.models import Label, Proposal
-    from app.review.service import store_mask
+    from app.proposals.files import store_mask
     from app.storage import Storage
     from tests.helpers import corrected_label, image_bytes
 

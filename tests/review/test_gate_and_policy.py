@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 from safetensors.torch import load_file, save_file
 
 from app.models import Frame, ModelVersion, Proposal, Role
-from app.review.service import store_mask
+from app.proposals.files import store_mask
 from app.storage import Storage
 from app.training import gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config

@@ -63,10 +63,14 @@ def test_propagate_from_a_reviewed_frame_then_again_downstream(
     assert job["result"]["proposed"] == 5
     first = _propagated(session_factory)
     assert sorted(first) == [ids[i] for i in (0, 1, 3, 4, 5)]  # every frame but the prompt
-    for (proposal,) in first.values():
+    for frame_id, (proposal,) in first.items():
         assert proposal.scores["from_frame_id"] == ids[2]
         assert 0.0 <= proposal.scores["confidence"] <= 1.0
         assert proposal.model_id.startswith("sam2-video:")
+        # the job rescored the frame: SAM2's doubt is in the queue's score
+        detail = client.get(f"/api/v1/frames/{frame_id}", headers=auth(token)).json()
+        doubt = detail["uncertainty_components"]["propagation_doubt"]
+        assert doubt == pytest.approx(1 - proposal.scores["confidence"], abs=1e-6)
     listed = client.get(f"/api/v1/frames/{ids[5]}/proposals", headers=auth(token)).json()
     assert [p["source"] for p in listed["items"]] == ["propagated"]
     timeline = client.get(f"/api/v1/sequences/{sequence_id}/geometry", headers=auth(token)).json()

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.models import Proposal, Role
-from app.review.service import store_mask
+from app.proposals.files import store_mask
 from app.storage import Storage
 from tests.helpers import auth, corrected_label, image_bytes
 

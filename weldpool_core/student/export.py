@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import hashlib
 import logging
 import warnings
 from collections.abc import Iterator, Sequence
@@ -35,6 +36,9 @@ from weldpool_core.student.model import ResNetVAE, fuse_batchnorm
 ONNX_FILE = "model.onnx"
 TORCHSCRIPT_FILE = "model.torchscript.pt"
 EXPORT_FILE = "export.json"
+INT8_ONNX_FILE = "model.int8.onnx"
+"""The int8 student ``quantize`` makes beside the float ONNX file; its record is
+``export.json["int8"]``."""
 FORMATS = ("onnx", "torchscript")
 TOLERANCE = 1e-4
 """Largest absolute difference allowed between an exported model and PyTorch."""
@@ -162,6 +166,29 @@ def _difference(model: ResNetVAE, outputs: Sequence[Any], images: torch.Tensor) 
     )
 
 
+def weights_digest(model_dir: str | Path) -> str:
+    """SHA-256 of a folder's float weights (``model.safetensors``), which an int8 file names."""
+    digest = hashlib.sha256()
+    with open(Path(model_dir) / checkpoint.WEIGHTS_FILE, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def current_record(model_dir: str | Path) -> dict[str, Any] | None:
+    """The folder's int8 record (``export.json["int8"]``) when its ``model.int8.onnx`` exists
+    and was made from the float weights as they are now; None otherwise (none made, or the
+    folder was trained further since and the int8 file is stale)."""
+    root = Path(model_dir)
+    if not (root / INT8_ONNX_FILE).is_file() or not (root / EXPORT_FILE).is_file():
+        return None
+    data = checkpoint.read_json(root / EXPORT_FILE)
+    record = data.get("int8") if isinstance(data, dict) else None
+    if not isinstance(record, dict) or record.get("weights_sha256") != weights_digest(root):
+        return None
+    return record
+
+
 @dataclass(frozen=True)
 class ExportResult:
     """Written files and how far each format is from PyTorch (max absolute difference)."""
@@ -173,8 +200,6 @@ class ExportResult:
 def _current_int8(root: Path) -> dict[str, Any] | None:
     """The folder's int8 record when its file was made from the weights as they are now; a
     stale int8 file (the folder was trained further since) is removed."""
-    from weldpool_core.student.quantize import INT8_ONNX_FILE, current_record
-
     record = current_record(root)
     if record is None:
         (root / INT8_ONNX_FILE).unlink(missing_ok=True)

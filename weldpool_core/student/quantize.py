@@ -21,7 +21,6 @@ can read its names.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
 import shutil
 import tempfile
@@ -37,11 +36,18 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.metrics import iou
 from weldpool_core.student import checkpoint
+from weldpool_core.student.export import (
+    EXPORT_FILE,
+    INT8_ONNX_FILE,
+    ONNX_FILE,
+    ensure_onnx,
+    onnx_session,
+    weights_digest,
+)
 
 if TYPE_CHECKING:
     from weldpool_core.student.data import FrameGeometry
 
-INT8_ONNX_FILE = "model.int8.onnx"
 MIN_FRAMES = 4
 """Frames needed: half calibrate, half check."""
 MIN_MEAN_IOU = 0.97
@@ -49,15 +55,6 @@ MIN_MEAN_IOU = 0.97
 MIN_FRAME_IOU = 0.90
 """…and on every check frame."""
 TIMING_RUNS = 15
-
-
-def weights_digest(model_dir: str | Path) -> str:
-    """SHA-256 of a folder's float weights (``model.safetensors``), which an int8 file names."""
-    digest = hashlib.sha256()
-    with open(Path(model_dir) / checkpoint.WEIGHTS_FILE, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 WORK_PREFIX = ".quantize."
@@ -83,26 +80,8 @@ def remove_leftovers(model_dir: str | Path) -> list[str]:
     return removed
 
 
-def current_record(model_dir: str | Path) -> dict[str, Any] | None:
-    """The folder's int8 record (``export.json["int8"]``) when its ``model.int8.onnx`` exists
-    and was made from the float weights as they are now; None otherwise (none made, or the
-    folder was trained further since and the int8 file is stale)."""
-    from weldpool_core.student.export import EXPORT_FILE
-
-    root = Path(model_dir)
-    if not (root / INT8_ONNX_FILE).is_file() or not (root / EXPORT_FILE).is_file():
-        return None
-    data = checkpoint.read_json(root / EXPORT_FILE)
-    record = data.get("int8") if isinstance(data, dict) else None
-    if not isinstance(record, dict) or record.get("weights_sha256") != weights_digest(root):
-        return None
-    return record
-
-
 def _frame_ms(path: Path, frame: NDArray[np.float32]) -> float:
     """Median milliseconds of one frame through ``path`` on one thread."""
-    from weldpool_core.student.export import onnx_session
-
     session = onnx_session(path, threads=1)
     session.run(None, {"image": frame})
     times = []
@@ -267,7 +246,6 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
     differ from the float ones by more than the module's limits (nothing is written then: an
     int8 file made before stays, with its record).
     """
-    from weldpool_core.student.export import EXPORT_FILE, ONNX_FILE, ensure_onnx, onnx_session
     from weldpool_core.student.predict import frames_to_batch
 
     if len(images) < MIN_FRAMES:

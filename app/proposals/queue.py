@@ -1,5 +1,6 @@
-"""The review queue: each frame's uncertainty from its latest proposals, and a diverse order
-of the queue's head (see weldpool_core.active for the scores)."""
+"""The review queue: each frame's uncertainty from its latest proposals (the teacher's, the
+student's, propagation's), and a diverse order of the queue's head (see weldpool_core.active
+for the scores)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,13 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.models import Frame, Proposal
-from weldpool_core.active import combined_score, diverse_order, main_reason, teacher_components
+from weldpool_core.active import (
+    combined_score,
+    diverse_order,
+    main_reason,
+    propagation_components,
+    teacher_components,
+)
 
 
 def latest_teacher_proposal(session: Session, frame_id: int) -> Proposal | None:
@@ -38,6 +45,9 @@ def rescore_frame(session: Session, frame: Frame, weights: Mapping[str, float]) 
     if student is not None:
         components["student_uncertainty"] = student.scores.get("uncertainty")
         components["disagreement"] = student.scores.get("disagreement")
+    propagated = _latest(session, frame.id, "propagated")
+    if propagated is not None:
+        components |= propagation_components(propagated.scores.get("confidence"))
     frame.uncertainty_components = components or None
     frame.uncertainty = combined_score(components, weights)
     frame.uncertainty_reason = main_reason(components, weights)

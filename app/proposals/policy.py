@@ -21,15 +21,18 @@ from __future__ import annotations
 
 import threading
 from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInputError, NotFoundError
-from app.insights.service import stored_iou
 from app.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
 from app.storage import Storage
+from weldpool_core.io import read_mask
+from weldpool_core.metrics import iou
 
 TEACHER = "teacher"
 MIN_FRAMES = 3
@@ -85,6 +88,12 @@ class Policy:
             "reason": self.reason,
             "sources": [s.as_dict() for s in self.sources],
         }
+
+
+@lru_cache(maxsize=65536)
+def stored_iou(first: Path, second: Path) -> float:
+    """IoU of two stored masks; paths are content-addressed, so the answer never changes."""
+    return iou(read_mask(first), read_mask(second))
 
 
 def source_key(proposal: Proposal) -> str:

@@ -1,0 +1,134 @@
+"""A proposal's files and the guarded write of one frame's rows and files.
+
+Masks are content-addressed PNGs and heatmaps compressed float16 arrays under ``artefacts/``;
+``writing_for_frame`` commits a job's rows for one frame together with the files it stored,
+or rolls both back, while the frame may be deleted meanwhile.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+from sqlalchemy.orm.exc import StaleDataError
+
+from app.errors import NotFoundError
+from app.models import Frame, LabelRevision, Proposal
+from app.storage import Storage, StoredFile
+from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+
+
+def store_mask_file(storage: Storage, mask: NDArray[np.bool_]) -> StoredFile:
+    """A mask as a content-addressed PNG under artefacts/ (and whether this call wrote it)."""
+    data = encode_mask_png(mask)
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".png", area="artefacts")
+
+
+def store_mask(storage: Storage, mask: NDArray[np.bool_]) -> str:
+    """A mask as a content-addressed PNG under artefacts/; returns its relative path."""
+    return store_mask_file(storage, mask).path
+
+
+def masks_in_use(session: Session, paths: list[str]) -> set[str]:
+    """Which of ``paths`` a committed label revision or proposal names."""
+    used = set(
+        session.scalars(
+            sa.select(LabelRevision.mask_path).where(LabelRevision.mask_path.in_(paths))
+        )
+    )
+    used |= set(session.scalars(sa.select(Proposal.mask_path).where(Proposal.mask_path.in_(paths))))
+    return {p for p in used if p}
+
+
+def store_heatmap_file(storage: Storage, heatmap: NDArray[np.float32]) -> StoredFile:
+    """Channel 0 of Algorithm 1's array (the mask is stored apart) as compressed float16."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, heatmap=heatmap[:, :, 0].astype(np.float16))
+    data = buffer.getvalue()
+    return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts")
+
+
+class FrameDeleted(NotFoundError):
+    """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
+
+    def __init__(self, frame_id: int) -> None:
+        super().__init__(f"Frame {frame_id} was deleted meanwhile; nothing was recorded for it.")
+        self.frame_id = frame_id
+
+
+def frame_exists(session: Session, frame_id: int) -> bool:
+    """Whether the frame is there now (asked on a connection of its own, so a long read
+    transaction's snapshot cannot hide a deletion)."""
+    with Session(session.get_bind()) as fresh:
+        return fresh.scalar(sa.select(Frame.id).where(Frame.id == frame_id)) is not None
+
+
+@dataclass
+class FrameWrite:
+    """The files one guarded write for a frame stores (``writing_for_frame``)."""
+
+    storage: Storage
+    files: list[StoredFile] = field(default_factory=list)
+
+    def mask(self, mask: NDArray[np.bool_]) -> str:
+        self.files.append(store_mask_file(self.storage, mask))
+        return self.files[-1].path
+
+    def heatmap(self, heatmap: NDArray[np.float32]) -> str:
+        self.files.append(store_heatmap_file(self.storage, heatmap))
+        return self.files[-1].path
+
+
+def lock_frame(session: Session, frame_id: int) -> None:
+    """Lock the frame's row until the commit (PostgreSQL; a deletion then waits for it), or
+    raise FrameDeleted when it is gone."""
+    locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
+    if session.execute(locked).first() is None:
+        raise FrameDeleted(frame_id)
+
+
+@contextmanager
+def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iterator[FrameWrite]:
+    """Rows and files a job records for one frame, committed at the end of the block, while
+    the frame may be deleted: its row is locked first (PostgreSQL; a deletion then waits for
+    the commit), and a frame deleted before (or, on SQLite, a commit that loses to the
+    deletion) ends in FrameDeleted. On any failure the rows are rolled back and the files this
+    write created are discarded (unless another writer claimed them since)."""
+    write = FrameWrite(storage)
+    try:
+        lock_frame(session, frame_id)
+        yield write
+        session.commit()
+    except BaseException as exc:
+        session.rollback()
+        storage.discard(write.files)
+        lost = isinstance(exc, sa.exc.IntegrityError | StaleDataError)
+        if lost and not frame_exists(session, frame_id):
+            raise FrameDeleted(frame_id) from None
+        raise
+
+
+def load_mask(storage: Storage, path: str) -> NDArray[np.bool_]:
+    return decode_mask_png(storage.absolute(path).read_bytes())
+
+
+def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
+    """The H×W×2 array (heatmap, mask) of a proposal, as Algorithm 1 returned it."""
+    mask = load_mask(storage, proposal.mask_path).astype(np.float32)
+    if proposal.heatmap_path is None:
+        return np.stack([np.zeros_like(mask), mask], axis=2)
+    with np.load(storage.absolute(proposal.heatmap_path)) as data:
+        heat = data["heatmap"].astype(np.float32)
+    return np.stack([heat, mask], axis=2)
+
+
+def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
+    """The frame as the models see it (RGB uint8, 16-bit stretched)."""
+    return to_rgb8(read_image(storage.absolute(frame.path)))

@@ -1,0 +1,139 @@
+"""Recording a proposal: the teacher's, the student's and propagation's go through
+``record_proposal``, which stores the files and the row in one guarded write, moves a new frame
+to ``proposed`` and rescores it for the review queue."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import sqlalchemy as sa
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from app.models import Frame, FrameStatus, Label, LabelRevision, Proposal
+from app.proposals.files import writing_for_frame
+from app.proposals.queue import rescore_frame
+from app.storage import Storage
+
+TEACHER, STUDENT, PROPAGATED = "teacher", "student", "propagated"
+"""The proposal sources (``Proposal.source``)."""
+
+
+def has_proposal(session: Session, frame_id: int, model_id: str) -> bool:
+    return (
+        session.scalar(
+            sa.select(Proposal.id).where(
+                Proposal.frame_id == frame_id, Proposal.model_id == model_id
+            )
+        )
+        is not None
+    )
+
+
+def _drop_earlier(session: Session, frame_id: int, source: str) -> None:
+    """Delete the frame's earlier proposals of ``source``, except those a label (or one of
+    its revisions) started from: they are the label's history."""
+    started_from = sa.union(
+        sa.select(Label.proposal_id).where(
+            Label.frame_id == frame_id, Label.proposal_id.is_not(None)
+        ),
+        sa.select(LabelRevision.proposal_id).where(
+            LabelRevision.frame_id == frame_id, LabelRevision.proposal_id.is_not(None)
+        ),
+    )
+    session.execute(
+        sa.delete(Proposal).where(
+            Proposal.frame_id == frame_id,
+            Proposal.source == source,
+            Proposal.id.not_in(started_from),
+        )
+    )
+
+
+def record_proposal(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    *,
+    source: str,
+    model_id: str,
+    mask: NDArray[np.bool_],
+    heatmap: NDArray[np.float32] | None,
+    keypoints: list[list[float]],
+    scores: dict[str, Any],
+    weights: Mapping[str, float],
+    job_id: int | None = None,
+    model_version_id: int | None = None,
+    prompts: dict[str, Any] | None = None,
+    timings: dict[str, Any] | None = None,
+    replace_earlier: bool = False,
+    frame_fields: Mapping[str, Any] | None = None,
+) -> Proposal:
+    """Store a proposal as the frame's newest: its mask (and heatmap, channel 0 of Algorithm
+    1's array) under artefacts/, the row with ``scores`` and the mask's area fraction, the
+    frame ``proposed`` if it was new, and its queue score recomputed. ``replace_earlier``
+    first drops the frame's earlier proposals of the same source (not those a label started
+    from); ``frame_fields`` are set on the frame in the same write. FrameDeleted when the frame
+    went meanwhile; nothing is then left behind."""
+    with writing_for_frame(session, storage, frame.id) as write:
+        for name, value in (frame_fields or {}).items():
+            setattr(frame, name, value)
+        if replace_earlier:
+            _drop_earlier(session, frame.id, source)
+        proposal = Proposal(
+            frame_id=frame.id,
+            source=source,
+            model_id=model_id,
+            model_version_id=model_version_id,
+            job_id=job_id,
+            mask_path=write.mask(mask),
+            heatmap_path=None if heatmap is None else write.heatmap(heatmap),
+            keypoints=keypoints,
+            prompts=prompts or {},
+            scores=scores | {"mask_fraction": float(mask.mean())},
+            timings=timings or {},
+        )
+        session.add(proposal)
+        if frame.status == FrameStatus.new:
+            frame.status = FrameStatus.proposed
+        session.flush()
+        rescore_frame(session, frame, weights)
+    return proposal
+
+
+def record_teacher_proposal(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    result: Any,
+    model_id: str,
+    job_id: int | None,
+    weights: Mapping[str, float],
+) -> Proposal:
+    """A TeacherResult as the frame's newest proposal; the frame keeps its DINO descriptor
+    (the queue's diversity) and loses its last teacher error."""
+    descriptor = [round(float(v), 5) for v in result.attention.cls]
+    return record_proposal(
+        session,
+        storage,
+        frame,
+        source=TEACHER,
+        model_id=model_id,
+        mask=result.mask,
+        heatmap=result.heatmap,
+        keypoints=result.keypoints,
+        scores={
+            "sam2_iou": result.score,
+            "object_score": result.object_score,
+            "prompt_stability": result.prompt_stability,
+            "warning": result.warning,
+            "keypoint_rules": result.keypoint_rules,
+        },
+        weights=weights,
+        job_id=job_id,
+        prompts=result.prompts.as_dict(),
+        timings=result.timings,
+        frame_fields={"descriptor": descriptor, "teacher_error": None},
+    )

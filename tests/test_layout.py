@@ -1,0 +1,126 @@
+"""The house's layout: no import loop between modules (imports inside functions count), and the
+app's domains point one way (README, "Layout")."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+from tests.helpers import REPO
+
+PACKAGES = ("app", "weldpool_core")
+BELOW_REVIEW = ("frames", "training", "proposals")
+"""App domains that ``app.review`` sits above: they never import it."""
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _under_type_checking(node: ast.AST, parents: dict[int, ast.AST]) -> bool:
+    while id(node) in parents:
+        node = parents[id(node)]
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            return True
+    return False
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Every module of ``app`` and ``weldpool_core`` → the modules of both it imports at run
+    time, wherever the import stands (not under ``if TYPE_CHECKING``)."""
+    files = {_module_name(p): p for package in PACKAGES for p in (REPO / package).rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        tree = ast.parse(path.read_text())
+        parents = {
+            id(child): node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)
+        }
+        found: set[str] = set()
+        for node in ast.walk(tree):
+            if _under_type_checking(node, parents):
+                continue
+            if isinstance(node, ast.Import):
+                found |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                found.add(node.module)
+                found |= {f"{node.module}.{alias.name}" for alias in node.names}
+        graph[name] = {m for m in found if m in files and m != name}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for other in sorted(graph[node]):
+            if other not in index:
+                visit(other)
+                low[node] = min(low[node], low[other])
+            elif other in on_stack:
+                low[node] = min(low[node], index[other])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                on_stack.discard(top)
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def _is_package_import(graph: dict[str, set[str]], module: str, target: str) -> bool:
+    return target in graph and module == target.rsplit(".", 1)[0]
+
+
+def test_no_import_loop_between_modules() -> None:
+    graph = import_graph()
+    # a package's __init__ naming its own modules is not a loop through them
+    for name, targets in graph.items():
+        graph[name] = {t for t in targets if not _is_package_import(graph, name, t)}
+    assert _cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_a_loop() -> None:
+    """The check above fails on a loop (a finder that finds nothing would pass anything)."""
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_domains_below_review_never_import_it() -> None:
+    graph = import_graph()
+    wrong = sorted(
+        f"{module} → {target}"
+        for module, targets in graph.items()
+        for target in targets
+        if module.split(".")[:2] in [["app", d] for d in BELOW_REVIEW]
+        and target.startswith("app.review")
+    )
+    assert wrong == []
+
+
+def test_the_core_library_never_imports_the_service() -> None:
+    graph = import_graph()
+    wrong = sorted(
+        f"{m} → {t}"
+        for m, ts in graph.items()
+        if m.startswith("weldpool_core")
+        for t in ts
+        if t.startswith("app")
+    )
+    assert wrong == []
