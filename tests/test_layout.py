@@ -11,6 +11,20 @@ from tests.helpers import REPO
 PACKAGES = ("app", "weldpool_core")
 BELOW_REVIEW = ("frames", "training", "proposals")
 """App domains that ``app.review`` sits above: they never import it."""
+LAYERS = (
+    ("__main__", "cli", "main", "demo"),
+    ("review", "timeline", "insights", "web"),
+    ("training", "live"),
+    ("frames",),
+    ("proposals",),
+    (
+        *("jobs", "users", "system", "housekeeping", "queue", "security", "deps", "storage"),
+        *("models", "db", "config", "errors", "bounds", "openapi", "headers", "limits", "logs"),
+        "periodic",
+    ),
+)
+"""The app's packages from the top down (the README's Layout): each imports only from its own
+layer and those below."""
 
 
 def _module_name(path: Path) -> str:
@@ -124,3 +138,19 @@ def test_the_core_library_never_imports_the_service() -> None:
         if t.startswith("app")
     )
     assert wrong == []
+
+
+def test_app_packages_import_only_downwards() -> None:
+    layer = {package: i for i, names in enumerate(LAYERS) for package in names}
+    packages = {p.name for p in (REPO / "app").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    packages |= {p.stem for p in (REPO / "app").glob("*.py") if p.stem != "__init__"}
+    assert packages <= set(layer), sorted(packages - set(layer))  # a new package needs a layer
+    upwards = sorted(
+        f"{module} → {target}"
+        for module, targets in import_graph().items()
+        for target in targets
+        if module.startswith("app.")
+        and target.startswith("app.")
+        and layer[target.split(".")[1]] < layer[module.split(".")[1]]
+    )
+    assert upwards == []
