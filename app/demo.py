@@ -14,7 +14,8 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
-from app.frames.service import IncomingFile, create_sequence, ingest_frames, unique_sequence_name
+from app.frames.ingest import IncomingFile, ingest_frames
+from app.frames.sequences import create_sequence, unique_sequence_name
 from app.jobs.service import create_job
 from app.models import LabelStatus, Role, User
 from app.queue import JobQueue

@@ -29,9 +29,9 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory, migrate
-from app.frames import service
+from app.frames import listing
+from app.frames.listing import ORDERINGS
 from app.frames.schemas import FrameOut, FramePage
-from app.frames.service import _ORDERINGS
 from app.main import create_app
 from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
 from app.security import hash_password, issue_token
@@ -91,7 +91,7 @@ def page_json(
     """What the route does for a page, without HTTP: the list, its rows as JSON."""
     settings = app.state.settings
     with app.state.session_factory() as session:
-        page = service.list_frames(
+        page = listing.list_frames(
             session,
             sequence_id=run_id,
             status=None if status == "all" else "unreviewed",
@@ -114,11 +114,11 @@ def page_json(
 def cursor_before(app: Any, run_id: int, order: str, status: str, offset: int) -> str:
     """The cursor whose next page starts at ``offset`` (the previous row's sort key)."""
     with app.state.session_factory() as session:
-        ordered, _ = service.list_query(
+        ordered, _ = listing.list_query(
             sequence_id=run_id, status=None if status == "all" else "unreviewed", order=order
         )
         row = session.scalars(ordered.offset(offset - 1).limit(1)).one()
-        return service.cursor_after(row, order)
+        return listing.cursor_after(row, order)
 
 
 def median_ms(call: Any, runs: int) -> float:
@@ -195,13 +195,13 @@ def main() -> None:
                             ),
                             args.runs,
                         )
-                        floor_query = sa.select(Frame.id).where(*where).order_by(*_ORDERINGS[order])
+                        floor_query = sa.select(Frame.id).where(*where).order_by(*ORDERINGS[order])
                         if after:
-                            key = service.parse_cursor(after, order)
+                            key = listing.parse_cursor(after, order)
                             assert isinstance(key, list)
                             nulls_first = args.database == "sqlite"
                             floor_query = floor_query.where(
-                                service.after_condition(order, key, nulls_first, run_id)
+                                listing.after_condition(order, key, nulls_first, run_id)
                             ).limit(PAGE)
                         else:
                             floor_query = floor_query.limit(PAGE).offset(offset)

@@ -70,26 +70,26 @@ def import_cmd(
     paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
 ) -> None:
     """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files or directories."""
-    from app.frames import service
+    from app.frames import ingest, sequences, videos
     from app.storage import Storage
     from app.users.service import user_by_name
 
     settings = load_settings()
-    images, videos = _import_sources(paths)
-    if not images and not videos:
+    images, video_paths = _import_sources(paths)
+    if not images and not video_paths:
         raise WeldpoolError("No frames or videos found in the given paths.")
     storage = Storage.of(settings)
     stored = duplicates = 0
     rejected: list[str] = []
     with open_sessions(settings)() as session:
         user = user_by_name(session, username) if username else None
-        sequence = service.sequence_by_name(session, sequence_name, user)
+        sequence = sequences.sequence_by_name(session, sequence_name, user)
         if images:
             with click.progressbar(length=len(images), label="frames", file=sys.stderr) as bar:
                 for start in range(0, len(images), IMPORT_BATCH):
                     chunk = images[start : start + IMPORT_BATCH]
-                    files = [service.IncomingFile(p.name, p.read_bytes()) for p in chunk]
-                    result = service.ingest_frames(
+                    files = [ingest.IncomingFile(p.name, p.read_bytes()) for p in chunk]
+                    result = ingest.ingest_frames(
                         session,
                         storage,
                         files,
@@ -101,9 +101,9 @@ def import_cmd(
                     duplicates += len(result.duplicates)
                     rejected += [f"{r.name}: {r.reason}" for r in result.rejected]
                     bar.update(len(chunk))
-        for video_path in videos:
+        for video_path in video_paths:
             with open(video_path, "rb") as handle:
-                video = service.store_video(
+                video = videos.store_video(
                     session,
                     storage,
                     handle,
@@ -114,7 +114,7 @@ def import_cmd(
                 )
             expected = -(-video.frame_count // every_nth)
             with click.progressbar(length=expected, label=video_path.name, file=sys.stderr) as bar:
-                counts = service.extract_video_frames(
+                counts = videos.extract_video_frames(
                     session, storage, video, user=user, progress=_bar_progress(bar, expected)
                 )
             stored += counts["frames"]

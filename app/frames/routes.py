@@ -14,7 +14,7 @@ from starlette.datastructures import FormData, UploadFile
 from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
-from app.frames import service
+from app.frames import deletion, ingest, listing, sequences, videos
 from app.frames.multipart import StreamedForm, client_file_name
 from app.frames.schemas import (
     DeletionOut,
@@ -87,21 +87,23 @@ def _sequence_out(sequence: Any, count: int) -> SequenceOut:
 @router.post("/sequences", response_model=SequenceOut, status_code=status.HTTP_201_CREATED)
 def create_sequence(body: SequenceIn, session: SessionDep, user: CurrentUser) -> SequenceOut:
     """A named weld run with its process parameters."""
-    return _sequence_out(service.create_sequence(session, body.model_dump(), user), 0)
+    return _sequence_out(sequences.create_sequence(session, body.model_dump(), user), 0)
 
 
 @router.get("/sequences", response_model=list[SequenceOut])
 def list_sequences(session: SessionDep, _user: CurrentUser) -> list[SequenceOut]:
     """Every weld run, newest first, with its number of frames."""
-    sequences = service.list_sequences(session)
-    counts = service.frame_counts(session, [s.id for s in sequences])
-    return [_sequence_out(s, counts.get(s.id, 0)) for s in sequences]
+    runs = sequences.list_sequences(session)
+    counts = sequences.frame_counts(session, [s.id for s in runs])
+    return [_sequence_out(s, counts.get(s.id, 0)) for s in runs]
 
 
 @router.get("/sequences/{sequence_id}", response_model=SequenceOut)
 def get_sequence(sequence_id: IdPath, session: SessionDep, _user: CurrentUser) -> SequenceOut:
-    sequence = service.get_sequence(session, sequence_id)
-    return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
+    sequence = sequences.get_sequence(session, sequence_id)
+    return _sequence_out(
+        sequence, sequences.frame_counts(session, [sequence_id]).get(sequence_id, 0)
+    )
 
 
 @router.patch("/sequences/{sequence_id}", response_model=SequenceOut)
@@ -109,13 +111,15 @@ def update_sequence(
     sequence_id: IdPath, body: SequencePatch, session: SessionDep, _user: CurrentUser
 ) -> SequenceOut:
     """Change a weld run's name, process parameters or notes."""
-    sequence = service.update_sequence(
-        session, service.get_sequence(session, sequence_id), body.model_dump(exclude_unset=True)
+    sequence = sequences.update_sequence(
+        session, sequences.get_sequence(session, sequence_id), body.model_dump(exclude_unset=True)
     )
-    return _sequence_out(sequence, service.frame_counts(session, [sequence_id]).get(sequence_id, 0))
+    return _sequence_out(
+        sequence, sequences.frame_counts(session, [sequence_id]).get(sequence_id, 0)
+    )
 
 
-def _deletion_out(deletion: service.Deletion) -> DeletionOut:
+def _deletion_out(deletion: deletion.Deletion) -> DeletionOut:
     return DeletionOut(
         deleted_frames=deletion.frames,
         deleted_reviewed=deletion.reviewed,
@@ -137,8 +141,8 @@ def delete_sequence(
     force: ForceQuery = False,
 ) -> DeletionOut:
     """Delete a weld run with its frames, videos, proposals and labels (reviewers)."""
-    sequence = service.get_sequence(session, sequence_id)
-    return _deletion_out(service.delete_sequence(session, storage, sequence, force=force))
+    sequence = sequences.get_sequence(session, sequence_id)
+    return _deletion_out(deletion.delete_sequence(session, storage, sequence, force=force))
 
 
 # --- frames ------------------------------------------------------------------------------------
@@ -149,7 +153,7 @@ def delete_frames(
     body: FramesDeleteIn, session: SessionDep, storage: StorageDep, _user: ReviewerUser
 ) -> DeletionOut:
     """Delete several frames at once, in one transaction (reviewers)."""
-    return _deletion_out(service.delete_frames(session, storage, body.frame_ids, force=body.force))
+    return _deletion_out(deletion.delete_frames(session, storage, body.frame_ids, force=body.force))
 
 
 @router.delete("/frames/{frame_id}", response_model=DeletionOut)
@@ -161,7 +165,7 @@ def delete_frame(
     force: ForceQuery = False,
 ) -> DeletionOut:
     """Delete one frame with its proposals and labels (reviewers)."""
-    return _deletion_out(service.delete_frames(session, storage, [frame_id], force=force))
+    return _deletion_out(deletion.delete_frames(session, storage, [frame_id], force=force))
 
 
 @router.post(
@@ -190,11 +194,11 @@ async def upload_frames(
     """Upload one or many frames (PNG, JPEG, TIFF, BMP; 8/16-bit): each is checked once (from
     the moment it has arrived), stored by content hash and recorded; duplicates and refusals
     are listed."""
-    checks = service.FrameChecks(storage, settings.max_image_pixels)
+    checks = ingest.FrameChecks(storage, settings.max_image_pixels)
     try:
         form = StreamedForm(
             lambda field, name, data: (
-                checks.add(service.IncomingFile(name, data)) if field == "files" else None
+                checks.add(ingest.IncomingFile(name, data)) if field == "files" else None
             ),
             max_files=settings.max_files_per_request,
             max_fields=64,
@@ -208,7 +212,7 @@ async def upload_frames(
             await run_in_threadpool(checks.discard)
         raise
     result = await run_in_threadpool(
-        service.record_checked, session, storage, checks, sequence_id=sequence_id, user=user
+        ingest.record_checked, session, storage, checks, sequence_id=sequence_id, user=user
     )
     body = IngestOut(
         stored=[FrameOut.model_validate(f) for f in result.stored],
@@ -262,7 +266,7 @@ def list_frames(
     ] = None,
 ) -> FramePage:
     """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
-    page = service.list_frames(
+    page = listing.list_frames(
         session,
         sequence_id=sequence_id,
         status=None if status == "all" else status,
@@ -280,7 +284,7 @@ def list_frames(
         limit=limit,
         offset=offset,
         next_after=page.next_after,
-        ordering=service.ordering_note(
+        ordering=listing.ordering_note(
             order, settings.queue_diversity, settings.queue_diversity_pool
         ),
     )
@@ -291,9 +295,9 @@ def get_frame(
     frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> FrameDetail:
     """A frame's metadata with its label and the state of the proposal the policy shows."""
-    frame = service.get_frame(session, frame_id)
+    frame = listing.get_frame(session, frame_id)
     return FrameDetail.model_validate(
-        FrameOut.model_validate(frame).model_dump() | service.frame_state(session, storage, frame)
+        FrameOut.model_validate(frame).model_dump() | listing.frame_state(session, storage, frame)
     )
 
 
@@ -317,13 +321,13 @@ def get_frame_image(
     ),
 ) -> Response:
     """The frame's image: the original file, or an 8-bit PNG for display."""
-    frame = service.get_frame(session, frame_id)
+    frame = listing.get_frame(session, frame_id)
     headers = {"Cache-Control": "private, max-age=31536000, immutable"}
     if variant == "original":
         return FileResponse(
             storage.absolute(frame.path), media_type=frame.media_type, headers=headers
         )
-    path = service.display_image(storage, frame, variant)
+    path = listing.display_image(storage, frame, variant)
     return FileResponse(path, media_type="image/png", headers=headers)
 
 
@@ -361,7 +365,7 @@ async def upload_video(
     sequence_id = _optional_int(form, "sequence_id")
     try:
         video = await run_in_threadpool(
-            service.store_video,
+            videos.store_video,
             session,
             storage,
             upload.file,

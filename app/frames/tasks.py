@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from app.db import session_scope
-from app.frames.service import extract_video_frames
+from app.frames.videos import extract_video_frames
 from app.jobs.registry import JobContext, counted, job_handler
 from app.jobs.service import create_job
 from app.models import User, Video

@@ -13,7 +13,8 @@ from fastapi.responses import FileResponse, StreamingResponse
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.frames.service import frames_for_run, get_frame, get_sequence
+from app.frames.listing import frames_for_run, get_frame
+from app.frames.sequences import get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job

@@ -22,7 +22,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.frames.schemas import stored_scale
-from app.frames.service import get_sequence
+from app.frames.sequences import get_sequence
 from app.models import Frame, Label, LabelStatus, Proposal
 from app.proposals import policy
 from app.proposals.files import load_mask

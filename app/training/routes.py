@@ -7,7 +7,7 @@ from fastapi import APIRouter, status
 from app.bounds import IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError
-from app.frames.service import frames_for_run
+from app.frames.listing import frames_for_run
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.security import CurrentUser, ReviewerUser

@@ -15,7 +15,7 @@ from PIL import Image
 
 from app import storage as storage_module
 from app.config import Settings
-from app.frames import service
+from app.frames import deletion, ingest, listing, sequences
 from app.housekeeping import FileCollector, sweep_orphan_files
 from app.main import create_app
 from app.models import Frame, Role
@@ -202,7 +202,7 @@ def test_duplicates_are_reported_not_stored_twice(
 def test_copies_in_one_request_are_checked_once(
     client: TestClient, token: str, monkeypatch
 ) -> None:
-    import app.frames.service as frames_service
+    import app.frames.ingest as frames_service
 
     decoded: list[int] = []
     real = frames_service.check_image
@@ -302,7 +302,7 @@ def test_failed_commit_leaves_no_file_and_no_row(
     settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     storage = Storage(settings.home)
-    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=40 + i)) for i in range(3)]
+    files = [ingest.IncomingFile(f"{i}.png", image_bytes(seed=40 + i)) for i in range(3)]
     with session_factory() as session:
         monkeypatch.setattr(
             session,
@@ -312,7 +312,7 @@ def test_failed_commit_leaves_no_file_and_no_row(
             ),
         )
         with pytest.raises(sa.exc.OperationalError):
-            service.ingest_frames(
+            ingest.ingest_frames(
                 session, storage, files, sequence_id=None, user=None, max_pixels=10**6
             )
     with session_factory() as session:
@@ -328,24 +328,24 @@ def test_a_stored_file_deleted_while_a_request_arrives_is_written_again(
     storage = Storage(settings.home)
     content = image_bytes(seed=95)
     with session_factory() as session:
-        first = service.ingest_frames(
+        first = ingest.ingest_frames(
             session,
             storage,
-            [service.IncomingFile("a.png", content)],
+            [ingest.IncomingFile("a.png", content)],
             sequence_id=None,
             user=None,
             max_pixels=10**6,
         ).stored[0]
-        run = service.create_sequence(session, {"name": "later"}, None)
-        checks = service.FrameChecks(storage, max_pixels=10**6)
-        checks.add(service.IncomingFile("b.png", content))
+        run = sequences.create_sequence(session, {"name": "later"}, None)
+        checks = ingest.FrameChecks(storage, max_pixels=10**6)
+        checks.add(ingest.IncomingFile("b.png", content))
         (checked,) = checks.results()  # checked while the file was there: nothing staged
-        assert isinstance(checked, service.CheckedFrame) and checked.staged is not None
+        assert isinstance(checked, ingest.CheckedFrame) and checked.staged is not None
         assert checked.staged.temporary is None
         age_stored_files(settings.home, storage.grace_s + 1)  # its claim has lapsed
-        service.delete_frames(session, storage, [first.id], force=True)
+        deletion.delete_frames(session, storage, [first.id], force=True)
         assert _stored_files(settings) == []
-        result = service.record_checked(session, storage, checks, sequence_id=run.id, user=None)
+        result = ingest.record_checked(session, storage, checks, sequence_id=run.id, user=None)
         assert storage.absolute(result.stored[0].path).read_bytes() == content
     assert _staged_files(settings) == []
 
@@ -364,11 +364,11 @@ def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
     monkeypatch.setattr(
         storage_module.os, "link", lambda a, b: (events.append("rename"), real_link(a, b))[1]
     )
-    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=60 + i)) for i in range(4)]
+    files = [ingest.IncomingFile(f"{i}.png", image_bytes(seed=60 + i)) for i in range(4)]
     with session_factory() as session:
         real_commit = session.commit
         monkeypatch.setattr(session, "commit", lambda: (events.append("commit"), real_commit())[1])
-        result = service.ingest_frames(
+        result = ingest.ingest_frames(
             session, storage, files, sequence_id=None, user=None, max_pixels=10**6
         )
     assert len(result.stored) == 4 and len(_stored_files(settings)) == 4
@@ -394,11 +394,9 @@ def test_a_failed_flush_leaves_no_file(
         raise OSError(5, "Input/output error")
 
     monkeypatch.setattr(storage_module, "_fsync", broken)
-    files = [service.IncomingFile(f"{i}.png", image_bytes(seed=70 + i)) for i in range(3)]
+    files = [ingest.IncomingFile(f"{i}.png", image_bytes(seed=70 + i)) for i in range(3)]
     with session_factory() as session, pytest.raises(OSError):
-        service.ingest_frames(
-            session, storage, files, sequence_id=None, user=None, max_pixels=10**6
-        )
+        ingest.ingest_frames(session, storage, files, sequence_id=None, user=None, max_pixels=10**6)
     with session_factory() as session:
         assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 0
     assert _stored_files(settings) == [] and list((settings.home / "tmp").glob("*")) == []
@@ -407,10 +405,10 @@ def test_a_failed_flush_leaves_no_file(
 def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) -> None:
     storage = Storage(settings.home)
     with session_factory() as session:
-        kept = service.ingest_frames(
+        kept = ingest.ingest_frames(
             session,
             storage,
-            [service.IncomingFile("k.png", image_bytes(seed=50))],
+            [ingest.IncomingFile("k.png", image_bytes(seed=50))],
             sequence_id=None,
             user=None,
             max_pixels=10**6,
@@ -525,11 +523,11 @@ def test_walking_a_list_by_cursor_gives_the_offset_order_exactly(
             by_offset = [
                 f.id
                 for offset in range(0, 24, 4)
-                for f in service.list_frames(session, offset=offset, **walk).rows
+                for f in listing.list_frames(session, offset=offset, **walk).rows
             ]
             by_cursor, cursor = [], None
             while True:
-                result = service.list_frames(session, after=cursor, **walk)
+                result = listing.list_frames(session, after=cursor, **walk)
                 by_cursor += [f.id for f in result.rows]
                 if (cursor := result.next_after) is None:
                     break
@@ -615,7 +613,7 @@ def test_each_list_order_of_a_run_reads_its_index_instead_of_sorting(
 ) -> None:
     """With a run's worth of frames, the planner walks the list's index in order (no sort of
     the run) on SQLite and PostgreSQL: a page stays as quick at frame 50,000 as at frame 50."""
-    from app.frames.service import list_query
+    from app.frames.listing import list_query
     from app.models import Frame, FrameStatus, Sequence
 
     with session_factory() as session:

@@ -1,5 +1,5 @@
 """The upload's multipart body read as it arrives (app.frames.multipart) and the checks it
-starts (service.FrameChecks): each file is handed on, and its check begun, before the body
+starts (ingest.FrameChecks): each file is handed on, and its check begun, before the body
 has ended."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from app.errors import InvalidInputError
-from app.frames import service
+from app.frames import ingest
 from app.frames.multipart import StreamedForm
 from app.storage import Storage
 from tests.helpers import image_bytes
@@ -116,24 +116,24 @@ def test_a_file_is_checked_and_staged_while_the_caller_goes_on(
     """``FrameChecks.add`` returns at once: the check runs in the pool (here it waits for the
     caller to go on, which it could not if add ran it), and results() has it staged."""
     started, release = threading.Event(), threading.Event()
-    real = service.check_frame_file
+    real = ingest.check_frame_file
 
     def held(*args, **kwargs):  # type: ignore[no-untyped-def]
         started.set()
         assert release.wait(timeout=10), "the caller was blocked by the check"
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(service, "check_frame_file", held)
+    monkeypatch.setattr(ingest, "check_frame_file", held)
     storage = Storage(tmp_path)
-    checks = service.FrameChecks(storage, max_pixels=10**6)
-    checks.add(service.IncomingFile("a.png", image_bytes(seed=5)))
-    checks.add(service.IncomingFile("copy.png", image_bytes(seed=5)))
+    checks = ingest.FrameChecks(storage, max_pixels=10**6)
+    checks.add(ingest.IncomingFile("a.png", image_bytes(seed=5)))
+    checks.add(ingest.IncomingFile("copy.png", image_bytes(seed=5)))
     assert started.wait(timeout=10)  # the check began while add's caller went on…
     release.set()  # …and the caller is free to release it
     first, copy = checks.results()
-    assert isinstance(first, service.CheckedFrame) and first.name == "a.png"
+    assert isinstance(first, ingest.CheckedFrame) and first.name == "a.png"
     assert first.staged is not None and first.staged.temporary is not None
     assert first.staged.temporary.read_bytes() == image_bytes(seed=5)  # on disk already
-    assert isinstance(copy, service.CheckedFrame) and copy.staged is None  # one file a content
+    assert isinstance(copy, ingest.CheckedFrame) and copy.staged is None  # one file a content
     checks.discard()
     assert not first.staged.temporary.exists()

@@ -1,0 +1,134 @@
+"""Deleting frames and weld runs, with the files no other row names."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.errors import ConflictError, NotFoundError
+from app.models import (
+    STORED_PATH_COLUMNS,
+    Frame,
+    FrameStatus,
+    Label,
+    LabelRevision,
+    Proposal,
+    Sequence,
+    ValidationKeypoints,
+    Video,
+)
+from app.storage import Storage
+
+REVIEWED = (FrameStatus.accepted, FrameStatus.corrected, FrameStatus.rejected)
+
+
+@dataclass
+class Deletion:
+    """What a deletion removed."""
+
+    frames: int = 0
+    reviewed: int = 0
+    files: int = 0
+
+
+def _files_of(session: Session, frame_ids: list[int], video_ids: list[int]) -> set[str]:
+    paths: set[str] = set()
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        for column, owner in (
+            (Frame.path, Frame.id),
+            (Proposal.mask_path, Proposal.frame_id),
+            (Proposal.heatmap_path, Proposal.frame_id),
+            (Label.mask_path, Label.frame_id),
+            (LabelRevision.mask_path, LabelRevision.frame_id),
+        ):
+            paths.update(p for p in session.scalars(sa.select(column).where(owner.in_(chunk))) if p)
+    if video_ids:
+        paths.update(session.scalars(sa.select(Video.path).where(Video.id.in_(video_ids))))
+    return paths
+
+
+def _still_used(session: Session, paths: set[str]) -> set[str]:
+    used: set[str] = set()
+    candidates = list(paths)
+    for column in STORED_PATH_COLUMNS:
+        for start in range(0, len(candidates), 500):
+            chunk = candidates[start : start + 500]
+            used.update(p for p in session.scalars(sa.select(column).where(column.in_(chunk))) if p)
+    return used
+
+
+def delete_frames(
+    session: Session,
+    storage: Storage,
+    frame_ids: list[int],
+    *,
+    force: bool,
+    sequence: Sequence | None = None,
+) -> Deletion:
+    """Delete frames (or a whole sequence with its frames and videos) in one transaction.
+
+    Proposals, labels with their history and validation keypoints go with their frame. Frames
+    a person reviewed (accepted, corrected, rejected, or with validation keypoints) are only
+    deleted with ``force``; otherwise ConflictError says how many would be lost. After the
+    commit the collector removes each file no remaining row names (content is shared by hash)
+    unless an upload in flight claimed it; what it leaves, and what a crash in between leaves,
+    the collector sweeps later.
+    """
+    frame_ids = sorted(set(frame_ids))
+    found: set[int] = set()
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
+    if missing := [i for i in frame_ids if i not in found]:
+        raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
+    reviewed = 0
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        reviewed += (
+            session.scalar(
+                sa.select(sa.func.count())
+                .select_from(Frame)
+                .where(
+                    Frame.id.in_(chunk),
+                    Frame.status.in_(REVIEWED)
+                    | Frame.id.in_(
+                        sa.select(ValidationKeypoints.frame_id).where(
+                            ValidationKeypoints.frame_id.in_(chunk)
+                        )
+                    ),
+                )
+            )
+            or 0
+        )
+    if reviewed and not force:
+        what = f"sequence {sequence.name!r}" if sequence else "the selection"
+        raise ConflictError(
+            f"{reviewed} frame{'s' * (reviewed != 1)} of {what} "
+            f"{'have' if reviewed != 1 else 'has'} reviewed labels or validation keypoints "
+            "that would be lost; delete with force=true to remove them too."
+        )
+    video_ids = (
+        list(session.scalars(sa.select(Video.id).where(Video.sequence_id == sequence.id)))
+        if sequence
+        else []
+    )
+    paths = _files_of(session, frame_ids, video_ids)
+    for start in range(0, len(frame_ids), 500):
+        session.execute(sa.delete(Frame).where(Frame.id.in_(frame_ids[start : start + 500])))
+    if sequence is not None:
+        session.execute(sa.delete(Video).where(Video.sequence_id == sequence.id))
+        session.execute(sa.delete(Sequence).where(Sequence.id == sequence.id))
+    session.commit()
+    removed = storage.collect(paths, _still_used(session, paths))
+    return Deletion(frames=len(frame_ids), reviewed=reviewed, files=len(removed))
+
+
+def delete_sequence(
+    session: Session, storage: Storage, sequence: Sequence, *, force: bool
+) -> Deletion:
+    """A weld run with its frames and videos (see ``delete_frames`` for the guard)."""
+    frame_ids = list(session.scalars(sa.select(Frame.id).where(Frame.sequence_id == sequence.id)))
+    return delete_frames(session, storage, frame_ids, force=force, sequence=sequence)

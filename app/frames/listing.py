@@ -1,0 +1,304 @@
+"""Reading frames: the paginated list and the review queue's order, one frame's state and its
+display image, and the frames a run covers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence as Seq
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session, undefer
+
+from app.errors import InvalidInputError, NotFoundError
+from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Label, Split, ValidationKeypoints
+from app.proposals.policy import pick
+from app.proposals.queue import diverse_head
+from app.storage import Storage
+from weldpool_core.io import encode_png, read_image
+
+ORDERINGS: dict[str, tuple[Any, ...]] = {
+    "id": (Frame.id,),
+    "-id": (Frame.id.desc(),),
+    "frame_index": (Frame.sequence_id, Frame.frame_index, Frame.id),
+    # Scores lie in [0, 1]: −1 puts frames without one last, on both databases, in the form
+    # the queue's indexes hold (ix_frames_queue, ix_frames_queue_sequence).
+    "uncertainty": (
+        sa.func.coalesce(Frame.uncertainty, sa.literal_column("-1.0")).desc(),
+        Frame.id,
+    ),
+}
+
+
+def list_query(
+    *,
+    sequence_id: int | None = None,
+    status: FrameStatus | Literal["unreviewed"] | None = None,
+    split: Split | None = None,
+    order: str = "id",
+) -> tuple[sa.Select[Any], sa.Select[Any]]:
+    """The ordered query of a frame list and the query of its count (which reads no row)."""
+    conditions: list[Any] = []
+    if sequence_id is not None:
+        conditions.append(Frame.sequence_id == sequence_id)
+    if status == "unreviewed":
+        conditions.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
+    elif status is not None:
+        conditions.append(Frame.status == status)
+    if split is not None:
+        conditions.append(Frame.split == split)
+    count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
+    return sa.select(Frame).where(*conditions).order_by(*ORDERINGS[order]), count
+
+
+# Keyset pagination: a page after a cursor reads only its own rows through the order's index,
+# where an offset walks every row it skips. The cursor names the order and the sort key of the
+# page's last row: ``<order>~<key>~<key>…`` (``null`` for a NULL), or ``uncertainty~head~<n>``
+# for a position inside the queue's diversity head (which is reordered on every request).
+_KEY_COLUMNS: dict[str, tuple[tuple[Any, bool, bool], ...]] = {
+    # (column or expression, descending, can be NULL)
+    "id": ((Frame.id, False, False),),
+    "-id": ((Frame.id, True, False),),
+    "frame_index": (
+        (Frame.sequence_id, False, True),
+        (Frame.frame_index, False, True),
+        (Frame.id, False, False),
+    ),
+    "uncertainty": ((ORDERINGS["uncertainty"][0].element, True, False), (Frame.id, False, False)),
+}
+_HEAD = "head"
+_CURSOR_PROBLEM = (
+    "`after` is not a cursor of this list's order; pass the `next_after` of the previous page."
+)
+
+
+def _key(frame: Frame, order: str) -> list[Any]:
+    if order in ("id", "-id"):
+        return [frame.id]
+    if order == "frame_index":
+        return [frame.sequence_id, frame.frame_index, frame.id]
+    return [-1.0 if frame.uncertainty is None else float(frame.uncertainty), frame.id]
+
+
+def _cursor(order: str, values: Seq[Any]) -> str:
+    return "~".join([order, *("null" if v is None else repr(v) for v in values)])
+
+
+def cursor_after(frame: Frame, order: str) -> str:
+    """The cursor of the page that follows ``frame`` in ``order``."""
+    return _cursor(order, _key(frame, order))
+
+
+def parse_cursor(after: str, order: str) -> list[Any] | int:
+    """The sort key a cursor holds (or, for the queue's head, a position); a one-sentence 400
+    (``InvalidInputError``) when it is not a cursor of this order."""
+    parts = after.split("~")
+    columns = _KEY_COLUMNS[order]
+    try:
+        if parts[0] != order:
+            raise ValueError
+        if order == "uncertainty" and len(parts) == 3 and parts[1] == _HEAD:
+            return int(parts[2])
+        if len(parts) != len(columns) + 1:
+            raise ValueError
+        floats = order == "uncertainty"
+        values: list[Any] = []
+        for i, text in enumerate(parts[1:]):
+            if text == "null":
+                values.append(None)
+            else:
+                values.append(float(text) if floats and i == 0 else int(text))
+        if values[-1] is None:
+            raise ValueError
+        return values
+    except ValueError:
+        raise InvalidInputError(_CURSOR_PROBLEM) from None
+
+
+def after_condition(
+    order: str, values: list[Any], nulls_first: bool, sequence_id: int | None = None
+) -> Any:
+    """Rows strictly after ``values`` in ``order``: a lexicographic comparison that places
+    NULLs where the database sorts them (first ascending on SQLite, last on PostgreSQL).
+    ``sequence_id``: the list is one run's, which lets a frame-index page start its index
+    range at the cursor's frame index."""
+
+    def equal(column: Any, value: Any) -> Any:
+        return column.is_(None) if value is None else column == value
+
+    def beyond(column: Any, value: Any, descending: bool, nullable: bool) -> Any:
+        if value is None:
+            return column.is_not(None) if nulls_first else sa.false()
+        ahead = column < value if descending else column > value
+        return ahead if nulls_first or not nullable else sa.or_(ahead, column.is_(None))
+
+    columns = _KEY_COLUMNS[order]
+    clauses = []
+    for i, (column, descending, nullable) in enumerate(columns):
+        same = [equal(c, v) for (c, _, _), v in zip(columns[:i], values[:i], strict=True)]
+        clauses.append(sa.and_(*same, beyond(column, values[i], descending, nullable)))
+    condition = sa.or_(*clauses)
+    first, descending, nullable = columns[0]
+    if not nullable and len(columns) > 1:  # a range the index can start from; the OR filters
+        condition = sa.and_(first <= values[0] if descending else first >= values[0], condition)
+    one_run = sequence_id is not None and values[0] == sequence_id
+    if order == "frame_index" and one_run and values[1] is not None:
+        start = Frame.frame_index >= values[1]
+        condition = sa.and_(
+            start if nulls_first else start | Frame.frame_index.is_(None), condition
+        )
+    return condition
+
+
+@dataclass
+class FramePageResult:
+    """A page of a frame list: its rows, the list's total and the cursor of the next page."""
+
+    rows: list[Frame]
+    total: int
+    next_after: str | None
+
+
+def list_frames(
+    session: Session,
+    *,
+    sequence_id: int | None = None,
+    status: FrameStatus | Literal["unreviewed"] | None = None,
+    split: Split | None = None,
+    order: str = "id",
+    limit: int = 50,
+    offset: int = 0,
+    after: str | None = None,
+    diversity: float = 0.0,
+    diversity_pool: int = 50,
+) -> FramePageResult:
+    """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
+    before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
+    frames without a score last), whose first ``diversity_pool`` frames are reordered for
+    diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
+    if after is not None and offset:
+        raise InvalidInputError("Use either `offset` or `after`, not both.")
+    ordered, count = list_query(sequence_id=sequence_id, status=status, split=split, order=order)
+    total = session.scalar(count) or 0
+    position = offset
+    key: list[Any] | None = None
+    if after is not None:
+        parsed = parse_cursor(after, order)
+        if isinstance(parsed, int):
+            position = parsed
+        else:
+            key = parsed
+    diverse = order == "uncertainty" and diversity > 0
+    if diverse and key is None and position < diversity_pool:
+        pool = ordered.options(undefer(Frame.descriptor)).limit(diversity_pool)
+        head = diverse_head(list(session.scalars(pool)), diversity)
+        page = head[position : position + limit]
+        tail: list[Frame] = []
+        if len(page) < limit and len(head) == diversity_pool:
+            tail = list(session.scalars(ordered.offset(diversity_pool).limit(limit - len(page))))
+        end = position + len(page)
+        if end < len(head):
+            return FramePageResult(page, total, f"uncertainty~{_HEAD}~{end}")
+        rows = page + tail
+        if len(head) < diversity_pool or len(rows) < limit:  # the list ends on this page
+            return FramePageResult(rows, total, None)
+        last = tail[-1] if tail else max(head, key=_sort_position)
+        return FramePageResult(rows, total, cursor_after(last, order))
+    if key is not None:
+        nulls_first = session.get_bind().dialect.name == "sqlite"
+        ordered = ordered.where(after_condition(order, key, nulls_first, sequence_id))
+        rows = list(session.scalars(ordered.limit(limit)))
+    else:
+        rows = list(session.scalars(ordered.limit(limit).offset(position)))
+    more = len(rows) == limit
+    return FramePageResult(rows, total, cursor_after(rows[-1], order) if more else None)
+
+
+def _sort_position(frame: Frame) -> tuple[float, int]:
+    """The queue's sort key as a tuple that grows along the list."""
+    score, frame_id = _key(frame, "uncertainty")
+    return -score, frame_id
+
+
+def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:
+    """How a list is ordered, in words, where the order is not evident from the scores shown."""
+    if order != "uncertainty":
+        return None
+    if diversity > 0:
+        return (
+            f"Most uncertain first; among the top {diversity_pool}, frames that look alike are "
+            "spread apart (no near-copies in a row), so a score can be lower than the next one's."
+        )
+    return "Most uncertain first; frames without a score last."
+
+
+def get_frame(session: Session, frame_id: int) -> Frame:
+    frame = session.get(Frame, frame_id)
+    if frame is None:
+        raise NotFoundError(f"There is no frame {frame_id}.")
+    return frame
+
+
+def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, Any]:
+    """The frame's label, the proposal the policy shows and whether it has manual keypoints."""
+    label = session.scalar(sa.select(Label).where(Label.frame_id == frame.id))
+    proposal = pick(session, storage, frame.id)
+    manual = session.scalar(
+        sa.select(ValidationKeypoints.id).where(ValidationKeypoints.frame_id == frame.id)
+    )
+    return {
+        "label": label
+        and {"status": label.status, "revision": label.revision, "updated_at": label.updated_at},
+        "proposal": proposal
+        and {
+            "id": proposal.id,
+            "source": proposal.source,
+            "model_id": proposal.model_id,
+            "created_at": proposal.created_at,
+        },
+        "has_validation_keypoints": manual is not None,
+        "uncertainty_components": frame.uncertainty_components,
+    }
+
+
+def display_image(storage: Storage, frame: Frame, variant: str) -> Path:
+    """An 8-bit PNG of the frame for browsers (``display``: full size; ``thumb``: 256 px),
+    made once from the original by the one reader and cached under ``cache/``."""
+    import cv2
+
+    from weldpool_core.io import to_rgb8
+
+    relative = f"cache/{variant}/{frame.sha256[:2]}/{frame.sha256}.png"
+    if (target := storage.absolute(relative)).exists():
+        return target
+    rgb = to_rgb8(read_image(storage.absolute(frame.path)))
+    pixels: Any = rgb[:, :, 0] if frame.channels == 1 else rgb
+    if variant == "thumb":
+        scale = 256 / max(frame.width, frame.height)
+        if scale < 1:
+            size = (max(1, round(frame.width * scale)), max(1, round(frame.height * scale)))
+            pixels = cv2.resize(pixels, size, interpolation=cv2.INTER_AREA)
+    return storage.write(relative, encode_png(pixels))
+
+
+def frames_for_run(
+    session: Session, frame_ids: list[int] | None, sequence_id: int | None
+) -> list[int]:
+    """The frames a teacher run covers: the given ids (all must exist) or a whole sequence."""
+    if frame_ids:
+        found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(frame_ids))))
+        missing = sorted(set(frame_ids) - found)
+        if missing:
+            raise NotFoundError(f"There is no frame {missing[0]}.")
+        return list(dict.fromkeys(frame_ids))
+    if sequence_id is not None:
+        ids = list(
+            session.scalars(
+                sa.select(Frame.id).where(Frame.sequence_id == sequence_id).order_by(Frame.id)
+            )
+        )
+        if not ids:
+            raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
+        return ids
+    raise InvalidInputError("Give frame_ids or a sequence_id.")
