@@ -25,8 +25,7 @@ from weldpool_core.student.sequential import (
     LatentCell,
     SequentialConfig,
     SequentialStudent,
-    _example,
-    _Window,
+    Window,
     has_sequential,
     load_sequential,
     measure_sequential,
@@ -35,6 +34,7 @@ from weldpool_core.student.sequential import (
     train_sequential,
     unsteadiness,
 )
+from weldpool_core.student.sequential.training import _example
 from weldpool_core.student.train import TrainResult
 
 
@@ -228,7 +228,7 @@ def test_a_window_moves_its_frames_and_their_targets_together() -> None:
     image[24:40, 20:36] = 200
     mask[24:40, 20:36] = True
     prepared = prepare_frame(TrainingFrame(image, mask), 64, "letterbox", HeatmapParams())
-    window = _Window([prepared.image] * 6, prepared)
+    window = Window([prepared.image] * 6, prepared)
     config = SequentialConfig(drift=0.05, augmentation=Augmentation(enabled=False))
     images, masks, heats, drift = _example(window, config, np.random.default_rng(4))
 
@@ -419,7 +419,7 @@ def test_a_clip_kept_at_model_resolution_gives_the_same_windows(tmp_path: Path) 
     """Frames placed on the student's input as they are decoded (what keeps a long video's
     windows small) make exactly the windows the full-resolution frames make."""
     from tests.core.student.common import TINY_STUDENT
-    from weldpool_core.student.sequential import _windows, video_clip
+    from weldpool_core.student.sequential import clip_windows, video_clip
 
     video = write_video(tmp_path / "run.avi", 24)
     capture = cv2.VideoCapture(str(video))
@@ -435,7 +435,10 @@ def test_a_clip_kept_at_model_resolution_gives_the_same_windows(tmp_path: Path) 
     small = video_clip(video, labels, config, unlabelled=[9, 23], student=TINY_STUDENT)
     assert full.placed is None and small.frames(15).shape == (64, 64, 3)
     assert full.frames(15).shape == (64, 96, 3)
-    ours, theirs = _windows([small], config, TINY_STUDENT), _windows([full], config, TINY_STUDENT)
+    ours, theirs = (
+        clip_windows([small], config, TINY_STUDENT),
+        clip_windows([full], config, TINY_STUDENT),
+    )
     assert [w.labelled for w in ours] == [True, True, False, False]
     assert len(ours) == len(theirs)
     for mine, reference in zip(ours, theirs, strict=True):
@@ -444,7 +447,7 @@ def test_a_clip_kept_at_model_resolution_gives_the_same_windows(tmp_path: Path) 
         assert np.array_equal(mine.target.keypoints, reference.target.keypoints)
     other = replace(TINY_STUDENT, input_size=96)
     with pytest.raises(InvalidInputError, match="were kept for a 64² input"):
-        _windows([small], config, other)
+        clip_windows([small], config, other)
     halved = {15: TrainingFrame(np.zeros((32, 48, 3), np.uint8), mask[:32, :48], name="f15")}
     assert video_clip(video, halved, config, student=TINY_STUDENT).placed == small.placed
     wrong = {15: TrainingFrame(np.zeros((64, 64, 3), np.uint8), mask[:, :64], name="f15")}
