@@ -36,6 +36,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,15 +47,15 @@ from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
-from weldpool_core.smoothing import KeypointSmoother
+from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
 from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import INT8_ONNX_FILE, ONNX_FILE, current_record, onnx_session
+from weldpool_core.student.export import ONNX_FILE, ensure_onnx
 from weldpool_core.student.model import StudentConfig
-from weldpool_core.student.predict import frame_keypoints, mask_ambiguity, uncertainty_of
+from weldpool_core.student.predict import frame_keypoints, mask_ambiguity
+from weldpool_core.student.runners import RunnerOptions, open_runner, runner_kind
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
-BACKENDS = ("onnx", "torch")
 OPEN_TIMEOUT_MS = 5000
 """How long opening (or reading) a network stream may take before it counts as unreachable."""
 _END = object()
@@ -267,7 +268,8 @@ def _bgr(frame: NDArray[Any]) -> NDArray[np.uint8]:
 
 
 class StreamStudent:
-    """A trained student for one frame at a time (see the module doc).
+    """A trained student for one frame at a time (see the module doc): the runner of its kind
+    (``student.runners``) and the frame preparation they share.
 
     Args:
         model_dir: the student's folder.
@@ -290,104 +292,18 @@ class StreamStudent:
         sequential: bool = False,
         int8: bool = False,
     ) -> None:
-        if backend not in BACKENDS:
-            raise InvalidInputError(f"Unknown backend {backend!r}; use onnx or torch.")
-        if int8 and (backend != "onnx" or sequential):
-            raise InvalidInputError(
-                "The int8 student runs on ONNX Runtime, per frame: use --backend onnx without "
-                "--sequential."
-            )
+        self.kind = runner_kind(backend, sequential, int8)
         self.model_dir = Path(model_dir)
         self.config: StudentConfig = read_student_config(self.model_dir)
         self.backend = backend
         self.sequential = sequential
         self.int8 = int8
-        self._session: Any = None
-        self._predictor: Any = None
-        self._recurrent: Any = None
-        self._state: Any = None
-        if sequential:
-            self._open_sequential(backend, device, threads, spin)
-        elif backend == "onnx":
-            path = self.model_dir / (INT8_ONNX_FILE if int8 else ONNX_FILE)
-            if not path.is_file():
-                raise InvalidInputError(
-                    f"{self.model_dir} has no {path.name}; export it first "
-                    f"(weldpool export-student {self.model_dir} --format "
-                    + ("onnx-int8 --calibrate FRAMES)" if int8 else "onnx) or use torch.")
-                )
-            if int8 and current_record(self.model_dir) is None:
-                raise InvalidInputError(
-                    f"The {INT8_ONNX_FILE} of {self.model_dir} was made from other weights; make "
-                    f"it again (weldpool export-student {self.model_dir} --format onnx-int8 "
-                    "--calibrate FRAMES)."
-                )
-            self._session = onnx_session(path, threads, spin=spin)
-        else:
-            import torch
-
-            from weldpool_core.student.predict import StudentPredictor
-
-            if threads:
-                torch.set_num_threads(threads)
-            self._predictor = StudentPredictor.load(self.model_dir, device, batch_size=1)
-
-    def _open_sequential(self, backend: str, device: str, threads: int | None, spin: bool) -> None:
-        from weldpool_core.student import sequential
-
-        if not sequential.has_sequential(self.model_dir):
-            raise InvalidInputError(
-                f"{self.model_dir} has no sequential student; train one with "
-                f"`weldpool train-sequential {self.model_dir} DATASET --videos DIR`."
-            )
-        if backend == "onnx":
-            path = sequential.export_sequential_onnx(self.model_dir)
-            self._session = onnx_session(path, threads, spin=spin)
-            return
-        import torch
-
-        from weldpool_core.device import resolve_device
-
-        if threads:
-            torch.set_num_threads(threads)
-        self._recurrent = sequential.load_sequential(self.model_dir, resolve_device(device))
+        options = RunnerOptions(self.model_dir, self.config, backend, device, threads, spin)
+        self._runner = open_runner(options, self.kind)
 
     def reset(self) -> None:
         """Forget the sequential student's state: the next frame starts a new stream."""
-        self._state = None
-
-    def _sequential_step(
-        self, batch: NDArray[np.float32]
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        if self._session is not None:
-            cells = self.config.input_size // 32
-            fresh = self._state is None
-            state = (
-                np.zeros((1, self.config.latent_channels, cells, cells), np.float32)
-                if fresh
-                else self._state
-            )
-            mask, heatmap, self._state = self._session.run(
-                None,
-                {
-                    "image": batch,
-                    "state": state,
-                    "fresh": np.full((1, 1, 1, 1), float(fresh), np.float32),
-                },
-            )
-            return mask[0], heatmap[0]
-        import torch
-
-        model = self._recurrent
-        device = next(model.parameters()).device
-        with torch.inference_mode():
-            mask_logits, heat_logits, self._state = model.step(
-                torch.from_numpy(batch).to(device), self._state
-            )
-        return (
-            torch.sigmoid(mask_logits)[0].float().cpu().numpy(),
-            torch.sigmoid(heat_logits)[0].float().cpu().numpy(),
-        )
+        self._runner.reset()
 
     def prepare(self, bgr: NDArray[np.uint8]) -> tuple[NDArray[np.float32], FrameGeometry]:
         """A BGR frame → the 1×3×S×S RGB input in [0, 1], and its geometry (resized first,
@@ -404,29 +320,7 @@ class StreamStudent:
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], float | None]:
         """Mask probability and heatmap (S×S) of one prepared frame, and its uncertainty with
         ``samples`` > 0 (torch only, per-frame student only)."""
-        if self.sequential:
-            if samples:
-                raise InvalidInputError(
-                    "The uncertainty is the per-frame student's; stream without --sequential "
-                    "to score it."
-                )
-            mask, heatmap = self._sequential_step(batch)
-            return mask, heatmap, None
-        if self._session is not None:
-            if samples:
-                raise InvalidInputError(
-                    "The uncertainty needs the torch backend (--backend torch)."
-                )
-            mask, heatmap = self._session.run(None, {"image": batch})
-            return mask[0], heatmap[0], None
-        import torch
-
-        masks, heatmaps, parts = self._predictor.outputs(
-            torch.from_numpy(batch), samples, [geometry]
-        )
-        part = parts[0]
-        uncertainty = None if part is None else uncertainty_of(part)
-        return masks[0], heatmaps[0], uncertainty
+        return self._runner.run(batch, geometry, samples)
 
 
 @dataclass(frozen=True)
@@ -542,6 +436,87 @@ def run_stream(
         )
         result.record["latency_ms"] = round(1000.0 * (time.perf_counter() - frame.captured), 3)
         yield result
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """How ``open_stream`` runs a student on a source (``weldpool stream`` and the live view).
+
+    ``backend``, ``device``, ``threads``, ``sequential`` and ``int8`` choose the runner
+    (``StreamStudent``); ``smoothing`` the keypoints' One-Euro filter (None: raw keypoints);
+    ``mm_per_px`` and ``travel_deg`` the record's millimetres and travel direction;
+    ``samples`` the uncertainty's latent draws (the per-frame student on PyTorch only);
+    ``realtime``, ``max_frames`` and ``decoder_threads`` how the source is read
+    (``FrameSource``).
+    """
+
+    backend: str = "onnx"
+    device: str = "auto"
+    threads: int | None = None
+    sequential: bool = False
+    int8: bool = False
+    smoothing: SmoothingParams | None = None
+    mm_per_px: float | None = None
+    travel_deg: float | None = None
+    samples: int = 0
+    realtime: bool = False
+    max_frames: int | None = None
+    decoder_threads: int | None = None
+
+
+def _silent(_message: str) -> None:
+    pass
+
+
+@contextmanager
+def open_stream(
+    source: str,
+    model_dir: str | Path,
+    options: StreamOptions,
+    *,
+    status: Callable[[str], None] = _silent,
+    stop: threading.Event | None = None,
+) -> Iterator[Iterator[StreamResult]]:
+    """The whole pipeline, opened: the student's ONNX file exported if it is missing (with a
+    ``status`` message, as is the sequential student's), the runner, the keypoint smoother and
+    the source; yields the results as ``run_stream`` makes them, and closes the source at the
+    end of the block."""
+    root = Path(model_dir)
+    kind = runner_kind(options.backend, options.sequential, options.int8)
+    if options.samples and kind != "torch":
+        raise InvalidInputError("The uncertainty needs the per-frame student on PyTorch.")
+    if kind == "onnx" and not (root / ONNX_FILE).is_file():
+        status(f"exporting {ONNX_FILE} for ONNX Runtime")
+        ensure_onnx(root)
+    if kind == "sequential" and options.backend == "onnx":
+        status("preparing the sequential student for ONNX Runtime")
+    student = StreamStudent(
+        root,
+        options.backend,
+        options.device,
+        options.threads,
+        sequential=options.sequential,
+        int8=options.int8,
+    )
+    smoother = None
+    if options.smoothing is not None:
+        smoother = KeypointSmoother(student.config.k, options.smoothing)
+    with FrameSource(
+        source,
+        realtime=options.realtime,
+        max_frames=options.max_frames,
+        prepare=student.prepare,
+        decoder_threads=options.decoder_threads,
+    ) as frames:
+        yield run_stream(
+            frames,
+            student,
+            smoother=smoother,
+            mm_per_px=options.mm_per_px,
+            travel_deg=options.travel_deg,
+            samples=options.samples,
+            stop=stop,
+        )
 
 
 class Publisher:

@@ -6,6 +6,7 @@ import json
 import sys
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import IO, Any
 
@@ -128,9 +129,8 @@ def stream_cmd(
     before it); a file is read frame by frame unless --realtime. A summary (fps, p50 / p99
     latency) goes to stderr at the end; Ctrl-C stops cleanly.
     """
-    from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
-    from weldpool_core.stream import FrameSource, Publisher, StreamStudent, run_stream, summary
-    from weldpool_core.student.export import ONNX_FILE, ensure_onnx
+    from weldpool_core.smoothing import SmoothingParams
+    from weldpool_core.stream import Publisher, StreamOptions, open_stream, summary
 
     if record_path is not None and not record_path.parent.is_dir():
         fail(f"There is no folder {str(record_path.parent)!r} for --record; create it first.")
@@ -141,16 +141,25 @@ def stream_cmd(
         fail("--samples needs --backend torch (the uncertainty draws the latent in PyTorch).")
     if samples and sequential:
         fail("--samples scores the per-frame student; leave out --sequential to use it.")
-    if backend == "onnx" and not sequential and not int8 and not (model_dir / ONNX_FILE).is_file():
-        click.echo(f"exporting {model_dir / ONNX_FILE} for ONNX Runtime …", err=True)
-        ensure_onnx(model_dir)
-    student = StreamStudent(model_dir, backend, device, threads, sequential=sequential, int8=int8)
-    smoother = None
+    smoothing = None
     if smooth == "one-euro":
         params = SmoothingParams()
         params = replace(params, min_cutoff=params.min_cutoff if min_cutoff is None else min_cutoff)
-        params = replace(params, beta=params.beta if beta is None else beta)
-        smoother = KeypointSmoother(student.config.k, params)
+        smoothing = replace(params, beta=params.beta if beta is None else beta)
+    options = StreamOptions(
+        backend=backend,
+        device=device,
+        threads=threads,
+        sequential=sequential,
+        int8=int8,
+        smoothing=smoothing,
+        mm_per_px=mm_per_px,
+        travel_deg=travel_deg,
+        samples=samples,
+        realtime=realtime,
+        max_frames=max_frames,
+        decoder_threads=decoder_threads or None,
+    )
     publisher = Publisher(publish) if publish else None
     record_file: IO[str] | None = None
     latencies: list[float] = []
@@ -172,22 +181,10 @@ def stream_cmd(
                     f"--record cannot write {str(record_path)!r} ({exc.strerror}); choose "
                     "another file."
                 )
-        with FrameSource(
-            source,
-            realtime=realtime,
-            max_frames=max_frames,
-            prepare=student.prepare,
-            decoder_threads=decoder_threads or None,
-        ) as frames_in:
+        status = partial(_status, model_dir)
+        with open_stream(source, model_dir, options, status=status) as results:
             started = time.perf_counter()
-            for result in run_stream(
-                frames_in,
-                student,
-                smoother=smoother,
-                mm_per_px=mm_per_px,
-                travel_deg=travel_deg,
-                samples=samples,
-            ):
+            for result in results:
                 _emit(result.record, quiet, publisher, record_file)
                 frames += 1
                 dropped += result.record["dropped"]
@@ -206,6 +203,10 @@ def stream_cmd(
         **summary(latencies, frames, dropped, time.perf_counter() - started),
     }
     click.echo(json.dumps(report), err=True)
+
+
+def _status(model_dir: Path, message: str) -> None:
+    click.echo(f"{model_dir}: {message} …", err=True)
 
 
 def _emit(record: dict[str, Any], quiet: bool, publisher: Any, record_file: IO[str] | None) -> None:

@@ -17,6 +17,7 @@ import itertools
 import threading
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -161,33 +162,32 @@ def _set(view: LiveView, **changes: Any) -> None:
         view.changed.notify_all()
 
 
+def _set_message(view: LiveView, message: str) -> None:
+    _set(view, message=message)
+
+
 def _run(view: LiveView) -> None:
     """The view's thread: open, stream, keep the newest overlay and records."""
     try:
-        from weldpool_core.smoothing import KeypointSmoother
-        from weldpool_core.stream import FrameSource, StreamStudent, run_stream
-        from weldpool_core.student.export import ensure_onnx
+        from weldpool_core.smoothing import SmoothingParams
+        from weldpool_core.stream import StreamOptions, open_stream
 
-        if not view.int8 and not (view.model_dir / "model.onnx").is_file():
-            _set(view, message="exporting the student for ONNX Runtime")
-            ensure_onnx(view.model_dir)
-        if view.sequential:
-            _set(view, message="preparing the sequential student for ONNX Runtime")
-        student = StreamStudent(view.model_dir, "onnx", sequential=view.sequential, int8=view.int8)
-        smoother = KeypointSmoother(student.config.k) if view.smooth else None
-        with FrameSource(
-            view.source, realtime=True, prepare=student.prepare, decoder_threads=1
-        ) as source:
+        options = StreamOptions(
+            sequential=view.sequential,
+            int8=view.int8,
+            smoothing=SmoothingParams() if view.smooth else None,
+            mm_per_px=view.mm_per_px,
+            travel_deg=view.travel_deg,
+            realtime=True,
+            decoder_threads=1,
+        )
+        status = partial(_set_message, view)
+        with open_stream(
+            view.source, view.model_dir, options, status=status, stop=view.stop_event
+        ) as results:
             _set(view, state="running", message="")
             drawn = 0.0
-            for result in run_stream(
-                source,
-                student,
-                smoother=smoother,
-                mm_per_px=view.mm_per_px,
-                travel_deg=view.travel_deg,
-                stop=view.stop_event,
-            ):
+            for result in results:
                 record = result.record
                 view.records.append(record)
                 view.latencies.append(record["latency_ms"])

@@ -210,7 +210,7 @@ def test_only_the_newest_ended_views_are_kept(tmp_path: Path) -> None:
     assert min(kept) == 26 - KEEP_ENDED  # the oldest went first
     assert wait_for(lambda: started.state == "failed", timeout=60)  # no such model folder
     assert started.message.endswith(
-        "is not a student model folder (config.json is missing); train one with `weldpool train`."
+        "is not a student model folder (config.json is missing); train a student into it first."
     )
 
 

@@ -75,8 +75,8 @@ def read_json(path: Path) -> Any:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise InvalidInputError(
-            f"{path.parent} is not a student model folder ({path.name} is missing); train one "
-            "with `weldpool train`."
+            f"{path.parent} is not a student model folder ({path.name} is missing); train a "
+            "student into it first."
         ) from None
     except (OSError, ValueError) as exc:
         raise InvalidInputError(f"{path} cannot be read ({exc}).") from None
@@ -188,7 +188,7 @@ def load_state(model_dir: Path) -> dict[str, Any] | None:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError) as exc:
-        raise InvalidInputError(f"{path} cannot be read ({exc}); train without --resume.") from None
+        raise InvalidInputError(f"{path} cannot be read ({exc}); train from the start.") from None
     if not isinstance(state, dict):
-        raise InvalidInputError(f"{path} is not a training state; train without --resume.")
+        raise InvalidInputError(f"{path} is not a training state; train from the start.")
     return state

@@ -82,7 +82,7 @@ def test_an_int8_student_is_kept_when_its_masks_agree_and_streams_like_the_float
     for ours, theirs in zip(masks[True], masks[False], strict=True):
         union = np.count_nonzero(ours | theirs)
         assert union == 0 or np.count_nonzero(ours & theirs) / union >= 0.9
-    with pytest.raises(InvalidInputError, match="per frame"):
+    with pytest.raises(InvalidInputError, match="frame by frame"):
         StreamStudent(model_dir, "torch", int8=True)
 
 

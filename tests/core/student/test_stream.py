@@ -120,7 +120,7 @@ def model_dir(trained: TrainResult, tmp_path: Path) -> Path:
 
 
 def test_onnx_and_torch_streams_give_the_same_records(model_dir: Path, tmp_path: Path) -> None:
-    with pytest.raises(InvalidInputError, match="export it first"):
+    with pytest.raises(InvalidInputError, match="export the student to ONNX first"):
         StreamStudent(model_dir, "onnx")
     export_student(model_dir, ["onnx"])
     video = write_video(tmp_path / "run.avi", 8)
@@ -142,7 +142,7 @@ def test_onnx_and_torch_streams_give_the_same_records(model_dir: Path, tmp_path:
         assert ours["area_px"] == pytest.approx(theirs["area_px"], abs=40)
         assert len(ours["keypoints"]) == len(theirs["keypoints"])
         assert ours["latency_ms"] > 0
-    with pytest.raises(InvalidInputError, match="torch backend"):
+    with pytest.raises(InvalidInputError, match="needs the PyTorch backend"):
         student = StreamStudent(model_dir, "onnx")
         batch, geometry = student.prepare(np.zeros((64, 96, 3), np.uint8))
         student(batch, geometry, samples=2)

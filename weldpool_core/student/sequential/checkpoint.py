@@ -54,7 +54,7 @@ def _matching_record(root: Path) -> Any:
     if record.get("student_sha256") != _student_digest(root):
         raise InvalidInputError(
             f"The sequential cell in {root} was trained for another version of its student; "
-            f"train it again with `weldpool train-sequential {root} …`."
+            "train the cell again."
         )
     return record
 
@@ -71,7 +71,7 @@ def load_sequential(model_dir: str | Path, device: torch.device | None = None) -
     root = Path(model_dir)
     if not has_sequential(root):
         raise InvalidInputError(
-            f"{root} has no sequential cell; train one with `weldpool train-sequential {root} …`."
+            f"{root} has no sequential cell; train one on videos of the camera first."
         )
     record = _matching_record(root)
     student = checkpoint.load_student(root, device)
