@@ -11,6 +11,8 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
+from app.db import utcnow
+from app.jobs.runner import new_worker_id
 from app.main import create_app
 from app.models import Job, JobStatus, ModelVersion, Role
 from tests.helpers import auth, corrected_label, image_bytes
@@ -72,9 +74,10 @@ def test_promotions_queue_one_pending_student_run(
     ]
     assert jobs[0][1]["frame_ids"] == frames and jobs[1][1]["frame_ids"] == frames[:1]
 
-    with session_factory() as session:  # a worker claims the promotion's run
+    with session_factory() as session:  # a live worker (this process) claims the runs
+        claimed = {"status": JobStatus.running, "worker_id": new_worker_id()}
         session.execute(
-            sa.update(Job).where(Job.kind == "student").values(status=JobStatus.running)
+            sa.update(Job).where(Job.kind == "student").values(**claimed, heartbeat_at=utcnow())
         )
         session.commit()
     promote(versions[3])
