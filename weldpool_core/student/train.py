@@ -499,6 +499,187 @@ def _start(
     return saved, state
 
 
+@dataclass
+class _Run:
+    """One training run's state: the model, its optimiser and schedule, the curve so far and
+    the best round (what ``checkpoint.save_state`` keeps to resume)."""
+
+    model: ResNetVAE
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LambdaLR
+    pretrained: bool
+    notes: list[str]
+    curve: list[EpochRecord] = field(default_factory=list)
+    best_score: float = math.inf
+    best_round: int = 0
+    best_metrics: dict[str, Any] = field(default_factory=dict)
+    first_round: int = 0
+
+    def state(self, rounds_done: int) -> dict[str, Any]:
+        return {
+            "epoch": rounds_done,
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "curve": [r.as_dict() for r in self.curve],
+            "best_score": self.best_score,
+            "best_epoch": self.best_round,
+            "best_metrics": self.best_metrics,
+            "pretrained": self.pretrained,
+        }
+
+
+def _open_run(
+    student: StudentConfig,
+    config: TrainConfig,
+    total_steps: int,
+    state: dict[str, Any] | None,
+    device: torch.device,
+) -> _Run:
+    """A fresh run (seeded), or the saved one to resume."""
+    torch.manual_seed(config.seed)
+    built = build_student(student)
+    model = channels_last(built.model.to(device))
+    optimizer = torch.optim.AdamW(
+        model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _schedule(config, total_steps))
+    run = _Run(model, optimizer, scheduler, built.pretrained, built.notes)
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        run.curve = [EpochRecord(**record) for record in state["curve"]]
+        run.best_score, run.best_round = float(state["best_score"]), int(state["best_epoch"])
+        run.best_metrics, run.pretrained = dict(state["best_metrics"]), bool(state["pretrained"])
+        run.first_round = int(state["epoch"])
+    return run
+
+
+def _frame_sets(
+    frames: Iterable[TrainingSample],
+    validation: Iterable[TrainingSample] | None,
+    student: StudentConfig,
+    config: TrainConfig,
+    report: ProgressCallback,
+) -> tuple[list[PreparedFrame], list[PreparedFrame]]:
+    """The prepared training and validation frames (validation split off when not given)."""
+    prepared = _prepare(frames, student, lambda m: report(0.0, m), "training")
+    if not prepared:
+        raise InvalidInputError("There are no frames to train on.")
+    if validation is None:
+        return _split(prepared, config)
+    held_out = _prepare(validation, student, lambda m: report(0.0, m), "validation")
+    if not held_out:
+        raise InvalidInputError("The validation set is empty.")
+    return prepared, held_out
+
+
+def _train_round(
+    run: _Run,
+    dataset: FrameSet,
+    plan: Plan,
+    config: TrainConfig,
+    round_index: int,
+    device: torch.device,
+    report: ProgressCallback,
+) -> tuple[NDArray[np.float64], float]:
+    """One round (an epoch, or a share of the steps) of optimiser steps: the mean losses
+    (total, mask, heatmap, KL) and the last β."""
+    run.model.train()
+    generator = torch.Generator(device=device).manual_seed(_round_seed(config.seed, round_index))
+    first_step = plan.round_ends[round_index - 1] if round_index else 0
+    last_step = plan.round_ends[round_index]
+    unit = "epoch" if config.epochs is not None else "round"
+    sums = np.zeros(4)
+    beta = 0.0
+    for step in range(first_step, last_step):
+        draws = batch_draws(plan, len(dataset), config.batch_size, config.seed, step)
+        batch = _to_device(collate([dataset.draw(index, n) for n, index in draws]), device)
+        beta = _beta(config, step, plan.total_steps)
+        losses = student_loss(run.model, batch, config.losses, beta, generator)
+        run.optimizer.zero_grad(set_to_none=True)
+        losses.total.backward()  # type: ignore[no-untyped-call]
+        run.optimizer.step()
+        run.scheduler.step()
+        parts = (losses.total, losses.mask, losses.heatmap, losses.kl)
+        sums += [float(part.detach()) for part in parts]
+        report(
+            (step + 1) / plan.total_steps,
+            f"{unit} {round_index + 1}/{plan.rounds} loss {sums[0] / (step - first_step + 1):.3g}",
+        )
+    return sums / max(1, last_step - first_step), beta
+
+
+def _to_device(batch: TrainingTargets, device: torch.device) -> TrainingTargets:
+    """A collated batch on ``device``, channels-last; per-pixel weights only where they vary."""
+    weighted = batch.weight is not None and bool((batch.weight != 1).any())
+    return TrainingTargets(
+        batch.image.to(device).contiguous(memory_format=torch.channels_last),
+        batch.mask.to(device),
+        batch.heatmap.to(device),
+        batch.weight.to(device) if weighted and batch.weight is not None else None,
+    )
+
+
+def _round_record(
+    run: _Run,
+    metrics: dict[str, Any],
+    score: float,
+    means: NDArray[np.float64],
+    beta: float,
+    round_index: int,
+    last_step: int,
+    seconds: float,
+) -> EpochRecord:
+    return EpochRecord(
+        epoch=round_index + 1,
+        loss=float(means[0]),
+        mask_loss=float(means[1]),
+        heatmap_loss=float(means[2]),
+        kl=float(means[3]),
+        beta=beta,
+        learning_rate=float(run.scheduler.get_last_lr()[0]),
+        miou=metrics["mIoU"],
+        med=metrics["mED"],
+        med_k=metrics["mED_k"],
+        missed=metrics["missed"],
+        score=score,
+        seconds=seconds,
+        step=last_step,
+    )
+
+
+def _save_round(
+    root: Path,
+    run: _Run,
+    metrics: dict[str, Any],
+    config: TrainConfig,
+    plan: Plan,
+    frames: tuple[list[PreparedFrame], list[PreparedFrame]],
+    round_index: int,
+) -> None:
+    """The checkpoint saver after a round: the metrics, the curve and the state to resume."""
+    train_frames, held_out = frames
+    last_step = plan.round_ends[round_index]
+    summary = {
+        "best_epoch": run.best_round,
+        "best": run.best_metrics,
+        "last": metrics | {"epoch": round_index + 1, "step": last_step},
+        "selection": config.selection,
+        "steps": plan.total_steps,
+        "rounds": plan.rounds,
+        "train_frames": len(train_frames),
+        "validation_frames": len(held_out),
+        "validated_on_training_frames": held_out is train_frames,
+        "pretrained_encoder": run.pretrained,
+        "notes": run.notes,
+    }
+    checkpoint.write_json(root / checkpoint.METRICS_FILE, summary)
+    checkpoint.write_json(root / checkpoint.CURVE_FILE, [r.as_dict() for r in run.curve])
+    checkpoint.save_state(root, run.state(round_index + 1))
+
+
 def train_student(
     frames: Iterable[TrainingSample],
     out_dir: str | Path,
@@ -530,131 +711,31 @@ def train_student(
     student, state = _start(root, student, config, resume)
     report = progress or (lambda fraction, message: None)
     device = resolve_device(config.device)
-    prepared = _prepare(frames, student, lambda m: report(0.0, m), "training")
-    if not prepared:
-        raise InvalidInputError("There are no frames to train on.")
-    if validation is not None:
-        train_frames = prepared
-        held_out = _prepare(validation, student, lambda m: report(0.0, m), "validation")
-        if not held_out:
-            raise InvalidInputError("The validation set is empty.")
-    else:
-        train_frames, held_out = _split(prepared, config)
+    train_frames, held_out = _frame_sets(frames, validation, student, config, report)
     plan = config.plan(len(train_frames))
     if state is not None and int(state["epoch"]) >= plan.rounds:
         raise InvalidInputError(
             f"{root} has already finished its {plan.rounds} rounds ({plan.total_steps} steps); "
             "ask for more steps than that."
         )
-
-    torch.manual_seed(config.seed)
-    built = build_student(student)
-    model = channels_last(built.model.to(device))
-    pretrained = built.pretrained
-    optimizer = torch.optim.AdamW(
-        model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
-    )
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, _schedule(config, plan.total_steps))
-    curve: list[EpochRecord] = []
-    best_score, best_round, best_metrics = math.inf, 0, {}
-    first_round = 0
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        curve = [EpochRecord(**record) for record in state["curve"]]
-        best_score, best_round = float(state["best_score"]), int(state["best_epoch"])
-        best_metrics, pretrained = dict(state["best_metrics"]), bool(state["pretrained"])
-        first_round = int(state["epoch"])
+    run = _open_run(student, config, plan.total_steps, state, device)
     checkpoint.save_config(root, student, config.as_dict())
-
     unit = "epoch" if config.epochs is not None else "round"
     dataset = FrameSet(train_frames, config.heatmap_sigma, config.augmentation, config.seed)
-    for round_index in range(first_round, plan.rounds):
+    for round_index in range(run.first_round, plan.rounds):
         started = time.perf_counter()
-        model.train()
-        generator = torch.Generator(device=device).manual_seed(
-            _round_seed(config.seed, round_index)
-        )
-        first_step = plan.round_ends[round_index - 1] if round_index else 0
-        last_step = plan.round_ends[round_index]
-        sums = np.zeros(4)
-        beta = 0.0
-        for step in range(first_step, last_step):
-            draws = batch_draws(plan, len(dataset), config.batch_size, config.seed, step)
-            batch = collate([dataset.draw(index, pass_index) for pass_index, index in draws])
-            weighted = batch.weight is not None and bool((batch.weight != 1).any())
-            batch = TrainingTargets(
-                batch.image.to(device).contiguous(memory_format=torch.channels_last),
-                batch.mask.to(device),
-                batch.heatmap.to(device),
-                batch.weight.to(device) if weighted and batch.weight is not None else None,
-            )
-            beta = _beta(config, step, plan.total_steps)
-            losses = student_loss(model, batch, config.losses, beta, generator)
-            optimizer.zero_grad(set_to_none=True)
-            losses.total.backward()  # type: ignore[no-untyped-call]
-            optimizer.step()
-            scheduler.step()
-            parts = (losses.total, losses.mask, losses.heatmap, losses.kl)
-            sums += [float(part.detach()) for part in parts]
-            report(
-                (step + 1) / plan.total_steps,
-                f"{unit} {round_index + 1}/{plan.rounds} loss "
-                f"{sums[0] / (step - first_step + 1):.3g}",
-            )
-        metrics = validate(model, held_out, device, config.batch_size)
+        means, beta = _train_round(run, dataset, plan, config, round_index, device, report)
+        metrics = validate(run.model, held_out, device, config.batch_size)
         score = _score(metrics, config.selection)
-        means = sums / max(1, last_step - first_step)
-        record = EpochRecord(
-            epoch=round_index + 1,
-            loss=float(means[0]),
-            mask_loss=float(means[1]),
-            heatmap_loss=float(means[2]),
-            kl=float(means[3]),
-            beta=beta,
-            learning_rate=float(scheduler.get_last_lr()[0]),
-            miou=metrics["mIoU"],
-            med=metrics["mED"],
-            med_k=metrics["mED_k"],
-            missed=metrics["missed"],
-            score=score,
-            seconds=time.perf_counter() - started,
-            step=last_step,
+        last_step = plan.round_ends[round_index]
+        seconds = time.perf_counter() - started
+        run.curve.append(
+            _round_record(run, metrics, score, means, beta, round_index, last_step, seconds)
         )
-        curve.append(record)
-        if score < best_score:
-            best_score, best_round, best_metrics = score, round_index + 1, metrics
-            checkpoint.save_weights(root, model)
-        summary = {
-            "best_epoch": best_round,
-            "best": best_metrics,
-            "last": metrics | {"epoch": round_index + 1, "step": last_step},
-            "selection": config.selection,
-            "steps": plan.total_steps,
-            "rounds": plan.rounds,
-            "train_frames": len(train_frames),
-            "validation_frames": len(held_out),
-            "validated_on_training_frames": held_out is train_frames,
-            "pretrained_encoder": pretrained,
-            "notes": built.notes,
-        }
-        checkpoint.write_json(root / checkpoint.METRICS_FILE, summary)
-        checkpoint.write_json(root / checkpoint.CURVE_FILE, [r.as_dict() for r in curve])
-        checkpoint.save_state(
-            root,
-            {
-                "epoch": round_index + 1,
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-                "curve": [r.as_dict() for r in curve],
-                "best_score": best_score,
-                "best_epoch": best_round,
-                "best_metrics": best_metrics,
-                "pretrained": pretrained,
-            },
-        )
+        if score < run.best_score:
+            run.best_score, run.best_round, run.best_metrics = score, round_index + 1, metrics
+            checkpoint.save_weights(root, run.model)
+        _save_round(root, run, metrics, config, plan, (train_frames, held_out), round_index)
         med = "–" if metrics["mED"] is None else f"{metrics['mED']:.1f} px"
         report(
             last_step / plan.total_steps,
@@ -663,12 +744,12 @@ def train_student(
     save_training_codes(root, train_frames, device, config.batch_size)
     return TrainResult(
         model_dir=root,
-        best_epoch=best_round,
-        metrics=best_metrics,
-        curve=curve,
+        best_epoch=run.best_round,
+        metrics=run.best_metrics,
+        curve=run.curve,
         train_frames=len(train_frames),
         validation_frames=len(held_out),
-        pretrained_encoder=pretrained,
+        pretrained_encoder=run.pretrained,
     )
 
 
