@@ -22,6 +22,7 @@ from app.models import (
     Label,
     LabelRevision,
     LabelStatus,
+    Proposal,
     Role,
     Split,
     User,
@@ -145,6 +146,112 @@ def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[flo
     return [[float(x), float(y)] for x, y in keypoints]
 
 
+def _check_role(status: LabelStatus, user: User) -> None:
+    if (
+        status in (LabelStatus.accepted, LabelStatus.rejected)
+        and user.role.rank < Role.reviewer.rank
+    ):
+        raise PermissionDeniedError(
+            f"Only reviewers may mark a label {status.value}; save it as corrected instead."
+        )
+
+
+def _label_content(
+    frame: Frame,
+    status: LabelStatus,
+    mask_png: bytes | None,
+    keypoints: list[list[float]] | None,
+    proposal: Proposal | None,
+) -> tuple[NDArray[np.bool_] | None, str | None, list[list[float]] | None]:
+    """What the label holds: a new mask (decoded and checked) or the proposal's stored one,
+    and its keypoints (given, else Algorithm 1's on a new mask, else the proposal's); nothing
+    for a rejection."""
+    if status == LabelStatus.rejected:
+        return None, None, None
+    if mask_png is not None:
+        mask = decode_mask_png(mask_png)
+        if mask.shape != (frame.height, frame.width):
+            raise InvalidInputError(
+                f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
+                f"{frame.width}×{frame.height}."
+            )
+        if not mask.any():
+            raise InvalidInputError("The mask is empty; reject the frame instead.")
+        return mask, None, check_keypoints(frame, keypoints) if keypoints else _keypoints_for(mask)
+    if proposal is not None:
+        chosen = check_keypoints(frame, keypoints) if keypoints else proposal.keypoints
+        return None, proposal.mask_path, chosen
+    raise InvalidInputError(
+        "The frame has no proposal to accept; send a mask_png or run the teacher first."
+    )
+
+
+def _mask_fields(
+    storage: Storage,
+    mask: NDArray[np.bool_] | None,
+    mask_path: str | None,
+    proposal: Proposal | None,
+) -> tuple[dict[str, Any], StoredFile | None]:
+    """The label's mask columns (path, COCO RLE, area, box, outlines, whether it differs from
+    the proposal's), storing a new mask's file (returned, to discard on failure)."""
+    stored: StoredFile | None = None
+    coco: CocoMask | None = None
+    outlines: list[Any] | None = None
+    changed: bool | None = None
+    if mask is not None:
+        changed = proposal is None or not np.array_equal(
+            mask, load_mask(storage, proposal.mask_path)
+        )
+        coco, outlines = coco_mask(mask), region_outlines(mask)
+        stored = store_mask_file(storage, mask)
+        mask_path = stored.path
+    elif mask_path is not None:
+        changed = False
+        accepted = load_mask(storage, mask_path)
+        coco, outlines = coco_mask(accepted), region_outlines(accepted)
+    fields = {
+        "mask_path": mask_path,
+        "mask_rle": coco.rle if coco else None,
+        "mask_area": coco.area if coco else None,
+        "mask_bbox": coco.bbox if coco else None,
+        "mask_outlines": outlines,
+        "mask_changed": changed,
+    }
+    return fields, stored
+
+
+def _write_label(
+    session: Session, frame: Frame, label: Label | None, base_revision: int, values: dict[str, Any]
+) -> Label:
+    """The label row (new, or updated only at ``base_revision``) and its history row."""
+    if label is None:
+        label = Label(frame_id=frame.id, revision=1, **values)
+        session.add(label)
+        session.flush()
+    else:
+        updated = session.execute(
+            sa.update(Label)
+            .where(Label.frame_id == frame.id, Label.revision == base_revision)
+            .values(revision=base_revision + 1, **values)
+        )
+        if updated.rowcount != 1:  # type: ignore[attr-defined]
+            raise stale_revision(session, frame.id)
+    session.add(
+        LabelRevision(
+            frame_id=frame.id,
+            revision=base_revision + 1,
+            status=values["status"],
+            mask_path=values["mask_path"],
+            keypoints=values["keypoints"],
+            proposal_id=values["proposal_id"],
+            mask_changed=values["mask_changed"],
+            user_id=values["updated_by_id"],
+        )
+    )
+    frame.status = FrameStatus(values["status"].value)
+    return label
+
+
 def save_label(
     session: Session,
     storage: Storage,
@@ -165,99 +272,24 @@ def save_label(
     the proposal it started from (``proposal_id``, default the one the policy shows) and whether
     its mask differs from that proposal's.
     """
-
     frame_id = frame.id
     lock_frame(session, frame_id)  # a deletion now waits for this save (PostgreSQL)
-    if (
-        status in (LabelStatus.accepted, LabelStatus.rejected)
-        and user.role.rank < Role.reviewer.rank
-    ):
-        raise PermissionDeniedError(
-            f"Only reviewers may mark a label {status.value}; save it as corrected instead."
-        )
+    _check_role(status, user)
     proposal = pick(session, storage, frame.id, proposal_id=proposal_id)
-    mask: NDArray[np.bool_] | None = None
-    mask_path: str | None = None
-    if status == LabelStatus.rejected:
-        keypoints = None
-    elif mask_png is not None:
-        mask = decode_mask_png(mask_png)
-        if mask.shape != (frame.height, frame.width):
-            raise InvalidInputError(
-                f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
-                f"{frame.width}×{frame.height}."
-            )
-        if not mask.any():
-            raise InvalidInputError("The mask is empty; reject the frame instead.")
-        keypoints = check_keypoints(frame, keypoints) if keypoints else _keypoints_for(mask)
-    elif proposal is not None:
-        mask_path = proposal.mask_path
-        keypoints = check_keypoints(frame, keypoints) if keypoints else proposal.keypoints
-    else:
-        raise InvalidInputError(
-            "The frame has no proposal to accept; send a mask_png or run the teacher first."
-        )
-
-    mask_changed: bool | None = None
-    if mask is not None:
-        mask_changed = proposal is None or not np.array_equal(
-            mask, load_mask(storage, proposal.mask_path)
-        )
-    elif mask_path is not None:
-        mask_changed = False
+    mask, mask_path, keypoints = _label_content(frame, status, mask_png, keypoints, proposal)
     label = current_label(session, frame.id)
-    current = label.revision if label else 0
-    if base_revision != current:  # refused before anything is written
+    if base_revision != (label.revision if label else 0):  # refused before anything is written
         raise stale_revision(session, frame.id)
-    stored: StoredFile | None = None
-    coco: CocoMask | None = None
-    outlines: list[Any] | None = None
-    if mask is not None:
-        coco, outlines = coco_mask(mask), region_outlines(mask)
-        stored = store_mask_file(storage, mask)
-        mask_path = stored.path
-    elif mask_path is not None:
-        accepted = load_mask(storage, mask_path)
-        coco, outlines = coco_mask(accepted), region_outlines(accepted)
-    values = {
+    fields, stored = _mask_fields(storage, mask, mask_path, proposal)
+    values = fields | {
         "status": status,
-        "mask_path": mask_path,
-        "mask_rle": coco.rle if coco else None,
-        "mask_area": coco.area if coco else None,
-        "mask_bbox": coco.bbox if coco else None,
-        "mask_outlines": outlines,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
-        "mask_changed": mask_changed,
         "updated_by_id": user.id,
         "updated_at": utcnow(),
     }
     try:
-        if label is None:
-            label = Label(frame_id=frame.id, revision=1, **values)
-            session.add(label)
-            session.flush()
-        else:
-            updated = session.execute(
-                sa.update(Label)
-                .where(Label.frame_id == frame.id, Label.revision == base_revision)
-                .values(revision=base_revision + 1, **values)
-            )
-            if updated.rowcount != 1:  # type: ignore[attr-defined]
-                raise stale_revision(session, frame.id)
-        session.add(
-            LabelRevision(
-                frame_id=frame.id,
-                revision=base_revision + 1,
-                status=status,
-                mask_path=mask_path,
-                keypoints=keypoints,
-                proposal_id=values["proposal_id"],
-                mask_changed=mask_changed,
-                user_id=user.id,
-            )
-        )
-        frame.status = FrameStatus(status.value)
+        label = _write_label(session, frame, label, base_revision, values)
         session.commit()
     except BaseException as exc:
         session.rollback()
