@@ -38,23 +38,9 @@ def _remove_stale_work(models_dir: Any, session: Any) -> None:
             shutil.rmtree(folder, ignore_errors=True)
 
 
-@job_handler("train_student")
-def train_student_version(ctx: JobContext) -> dict[str, Any]:
-    """Train a student on the accepted and corrected labels; validate on the validation split
-    (or, without one, on training frames held out by ``service.held_out_ids``); then the
-    promotion gate measures it against the promoted version and the teacher.
-
-    The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
-    only when training finished: a killed or cancelled job leaves no half-written version.
-    """
-    from weldpool_core.student import checkpoint
-    from weldpool_core.student.model import StudentConfig, student_config
-    from weldpool_core.student.train import TrainConfig, train_student
-
-    settings, storage = ctx.settings, Storage.of(ctx.settings)
-    models_dir = settings.home / "models"
-    models_dir.mkdir(parents=True, exist_ok=True)
-    work = models_dir / f".work-job{ctx.job_id}"
+def _training_split(ctx: JobContext, models_dir: Path) -> tuple[list[int], list[int], list[int]]:
+    """The frames to train on, the validation split's, and (without a validation split) the
+    training frames held out for validation (``service.held_out_ids``)."""
     with ctx.session_factory() as session:
         _remove_stale_work(models_dir, session)
         train_ids = service.training_frame_ids(session)
@@ -63,41 +49,45 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     train_ids = [f for f in train_ids if f not in held_out]
     if not train_ids:
         raise InvalidInputError("There are no accepted or corrected labels to train on.")
-    shutil.rmtree(work, ignore_errors=True)
+    return train_ids, validation_ids, held_out
 
-    config = TrainConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
+
+def _configs(ctx: JobContext) -> tuple[Any, Any]:
+    """The job's training settings and student architecture."""
+    from weldpool_core.student.model import StudentConfig, student_config
+    from weldpool_core.student.train import TrainConfig
+
+    config = TrainConfig(seed=int(ctx.params.get("seed") or 0), device=ctx.settings.device)
     if ctx.params.get("epochs"):
         config = replace(config, epochs=int(ctx.params["epochs"]))
     size = ctx.params.get("size")
-    student = student_config(str(size)) if size else StudentConfig()
-    with ctx.session_factory() as session:
-        training = [
-            (frame_id, (image, mask, keypoints))
-            for frame_id, image, mask, keypoints in service.labelled_samples(
-                session, storage, train_ids
-            )
-            if mask is not None and image is not None
-        ]
-        validation = [
-            (image, mask, keypoints)
-            for _, image, mask, keypoints in service.labelled_samples(
-                session, storage, validation_ids or held_out
-            )
-            if mask is not None and image is not None
-        ]
-        pseudo = _pseudo_labels(ctx, session, storage, len(training))
-        result = train_student(
-            [sample for _, sample in training] + [frame for _, frame in pseudo],
-            work,
-            student,
-            config,
-            progress=lambda fraction, message: ctx.progress(0.95 * fraction, message),
-            validation=validation or None,
-        )
+    return config, student_config(str(size)) if size else StudentConfig()
 
-    # A lost, cancelled or interrupted attempt records no version.
-    ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
-    ctx.check_cancelled()  # progress may skip its write (and check) when the last was recent
+
+def _samples(session: Any, storage: Storage, frame_ids: list[int]) -> list[tuple[int, Any]]:
+    """``(frame id, (image, mask, keypoints))`` of the labelled frames that have both."""
+    return [
+        (frame_id, (image, mask, keypoints))
+        for frame_id, image, mask, keypoints in service.labelled_samples(
+            session, storage, frame_ids
+        )
+        if mask is not None and image is not None
+    ]
+
+
+def _record_version(
+    ctx: JobContext,
+    work: Path,
+    result: Any,
+    configs: tuple[Any, Any],
+    training: list[tuple[int, Any]],
+    pseudo: list[tuple[int, Any]],
+    held_out: list[int],
+) -> tuple[ModelVersion, Path]:
+    """The trained folder renamed into ``models/<name>`` and its ModelVersion row, or neither
+    (every frame it trained on was deleted meanwhile, or the commit failed)."""
+    config, student = configs
+    models_dir = work.parent
     with ctx.session_factory() as session:
         if not service.existing_frame_ids(session, [frame_id for frame_id, _ in training]):
             shutil.rmtree(work, ignore_errors=True)
@@ -132,15 +122,58 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
             session.rollback()
             shutil.rmtree(final, ignore_errors=True)
             raise
+    return version, final
+
+
+@job_handler("train_student")
+def train_student_version(ctx: JobContext) -> dict[str, Any]:
+    """Train a student on the accepted and corrected labels; validate on the validation split
+    (or, without one, on training frames held out by ``service.held_out_ids``); then the
+    promotion gate measures it against the promoted version and the teacher.
+
+    The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
+    only when training finished: a killed or cancelled job leaves no half-written version.
+    """
+    from weldpool_core.student import checkpoint
+    from weldpool_core.student.train import train_student
+
+    storage = Storage.of(ctx.settings)
+    models_dir = ctx.settings.home / "models"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    work = models_dir / f".work-job{ctx.job_id}"
+    train_ids, validation_ids, held_out = _training_split(ctx, models_dir)
+    shutil.rmtree(work, ignore_errors=True)
+    config, student = _configs(ctx)
+    with ctx.session_factory() as session:
+        training = _samples(session, storage, train_ids)
+        validation = [
+            sample for _, sample in _samples(session, storage, validation_ids or held_out)
+        ]
+        pseudo = _pseudo_labels(ctx, session, storage, len(training))
+        result = train_student(
+            [sample for _, sample in training] + [frame for _, frame in pseudo],
+            work,
+            student,
+            config,
+            progress=lambda fraction, message: ctx.progress(0.95 * fraction, message),
+            validation=validation or None,
+        )
+
+    # A lost, cancelled or interrupted attempt records no version.
+    ctx.progress(0.96, "measuring the new version against the promoted one and the teacher")
+    ctx.check_cancelled()  # progress may skip its write (and check) when the last was recent
+    version, final = _record_version(
+        ctx, work, result, (config, student), training, pseudo, held_out
+    )
     checkpoint.prune_state(final)  # a recorded version is never resumed
     verdict = _gate_and_promote(ctx, version.id)
     promoted = verdict["promote"] and ctx.settings.auto_promote
     ctx.summary = _summary(
-        name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
+        final.name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
     )
     return {
         "model_version_id": version.id,
-        "name": name,
+        "name": final.name,
         "metrics": version.metrics,
         "promoted": promoted,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
