@@ -119,6 +119,85 @@ def record(
     )
 
 
+def _prompts(
+    session: Session, storage: Storage, frames: list[Frame], from_frame_ids: list[int]
+) -> dict[int, NDArray[np.bool_]]:
+    """The reviewed masks to start from, by their place in the walk."""
+    position = {frame.id: i for i, frame in enumerate(frames)}
+    labels = {
+        label.frame_id: label
+        for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(from_frame_ids)))
+    }
+    return {
+        position[i]: load_mask(storage, labels[i].mask_path)  # type: ignore[arg-type]
+        for i in from_frame_ids
+    }
+
+
+def _until(indices: list[int | None], until_frame_index: int | None) -> int | None:
+    """The walk's place nearest the frame index a one-way pass stops at (None: to the end)."""
+    if until_frame_index is None:
+        return None
+    order = [index if index is not None else i for i, index in enumerate(indices)]
+    return min(range(len(order)), key=lambda i: abs(order[i] - until_frame_index))
+
+
+class _Walk:
+    """One propagation's bookkeeping: where each pass stopped, what was written, flagged
+    (under the threshold) or found deleted."""
+
+    def __init__(self, session: Session, frames: list[Frame], threshold: float) -> None:
+        self.session, self.frames, self.threshold = session, frames, threshold
+        self.ids = [frame.id for frame in frames]  # read now: a rollback expires the rows
+        self.indices = [frame.frame_index for frame in frames]
+        self.low_streak = {False: 0, True: 0}
+        self.stopped: list[dict[str, Any]] = []
+        self.flagged: list[int] = []
+        self.deleted: list[int] = []
+        self.written = 0
+
+    def keep_going(self, item: Any, reverse: bool) -> bool:
+        """False once ``STOP_AFTER`` frames in a row of this pass fell under the threshold."""
+        low = item.confidence < self.threshold
+        self.low_streak[reverse] = self.low_streak[reverse] + 1 if low else 0
+        if self.low_streak[reverse] < STOP_AFTER:
+            return True
+        self.stopped.append(
+            {
+                "direction": "backward" if reverse else "forward",
+                "frame_id": self.ids[item.index],
+                "frame_index": self.indices[item.index],
+            }
+        )
+        return False
+
+    def embedding_of(self, embedding: Callable[[Frame], Any]) -> Callable[[int], Any]:
+        """The walk's place → the frame's embedding, or a one-sentence error when the frame
+        was deleted meanwhile."""
+
+        def embed(i: int) -> Any:
+            try:
+                return embedding(self.frames[i])
+            except (FileNotFoundError, ObjectDeletedError):
+                if frame_exists(self.session, self.ids[i]):
+                    raise
+                raise InvalidInputError(
+                    f"Frame #{self.ids[i]} of the run was deleted while propagating; "
+                    f"{counted(self.written, 'proposal')} had been recorded. Propagate again."
+                ) from None
+
+        return embed
+
+    def scores(self, item: Any) -> dict[str, Any]:
+        return {
+            "confidence": item.confidence,
+            "object_score": item.object_score,
+            "sam2_iou": item.iou,
+            "from_frame_id": self.ids[item.source_index],
+            "low_confidence": item.confidence < self.threshold,
+        }
+
+
 def propagate_run(
     session: Session,
     storage: Storage,
@@ -138,88 +217,33 @@ def propagate_run(
     """Propagate through the run (module doc); returns what was written and where it stopped."""
     check_prompts(session, sequence_id, from_frame_ids)
     frames = run_frames(session, sequence_id)
-    position = {frame.id: i for i, frame in enumerate(frames)}
-    labels = {
-        label.frame_id: label
-        for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(from_frame_ids)))
-    }
-    prompts = {
-        position[i]: load_mask(storage, labels[i].mask_path)  # type: ignore[arg-type]
-        for i in from_frame_ids
-    }
-    ids = [frame.id for frame in frames]  # read now: a rollback expires the loaded rows
-    indices = [frame.frame_index for frame in frames]
-    until = None
-    if until_frame_index is not None:
-        order = [index if index is not None else i for i, index in enumerate(indices)]
-        until = min(range(len(frames)), key=lambda i: abs(order[i] - until_frame_index))
-    walk = passes(len(frames), prompts, cast(Direction, direction), until)
-    planned = len([i for order, _ in walk for i in order if i not in prompts])
-    low_streak = {False: 0, True: 0}
-    stopped: list[dict[str, Any]] = []
-    flagged: list[int] = []
-    written = 0
-
-    def keep_going(item: Any, reverse: bool) -> bool:
-        low_streak[reverse] = low_streak[reverse] + 1 if item.confidence < threshold else 0
-        if low_streak[reverse] >= STOP_AFTER:
-            stopped.append(
-                {
-                    "direction": "backward" if reverse else "forward",
-                    "frame_id": ids[item.index],
-                    "frame_index": indices[item.index],
-                }
-            )
-            return False
-        return True
-
-    deleted: list[int] = []
-
-    def embed(i: int) -> Any:
-        try:
-            return embedding(frames[i])
-        except (FileNotFoundError, ObjectDeletedError):  # the frame was deleted meanwhile
-            if frame_exists(session, ids[i]):
-                raise
-            raise InvalidInputError(
-                f"Frame #{ids[i]} of the run was deleted while propagating; "
-                f"{counted(written, 'proposal')} had been recorded. Propagate again."
-            ) from None
-
+    prompts = _prompts(session, storage, frames, from_frame_ids)
+    walk = _Walk(session, frames, threshold)
+    until = _until(walk.indices, until_frame_index)
+    plan = passes(len(frames), prompts, cast(Direction, direction), until)
+    planned = len([i for order, _ in plan for i in order if i not in prompts])
+    embed = walk.embedding_of(embedding)
     for item in propagator.propagate(
-        len(frames), prompts, embed, direction, until, keep_going=keep_going
+        len(frames), prompts, embed, direction, until, keep_going=walk.keep_going
     ):
-        frame_id, low = ids[item.index], item.confidence < threshold
+        frame_id, scores = walk.ids[item.index], walk.scores(item)
         try:
             record(
-                session,
-                storage,
-                frames[item.index],
-                item.mask,
-                {
-                    "confidence": item.confidence,
-                    "object_score": item.object_score,
-                    "sam2_iou": item.iou,
-                    "from_frame_id": ids[item.source_index],
-                    "low_confidence": low,
-                },
-                model_id,
-                job_id,
-                weights,
+                session, storage, frames[item.index], item.mask, scores, model_id, job_id, weights
             )
         except (FrameDeleted, ObjectDeletedError):  # gone before, or while, it was written
             session.rollback()
-            deleted.append(frame_id)
+            walk.deleted.append(frame_id)
             continue
-        if low:
-            flagged.append(frame_id)
-        written += 1
-        progress(min(1.0, written / max(1, planned)), f"{written} of {planned} frames")
+        if scores["low_confidence"]:
+            walk.flagged.append(frame_id)
+        walk.written += 1
+        progress(min(1.0, walk.written / max(1, planned)), f"{walk.written} of {planned} frames")
     return {
-        "deleted_frame_ids": deleted,
-        "proposed": written,
-        "low_confidence_frame_ids": flagged,
-        "stopped": stopped,
+        "deleted_frame_ids": walk.deleted,
+        "proposed": walk.written,
+        "low_confidence_frame_ids": walk.flagged,
+        "stopped": walk.stopped,
         "from_frame_ids": from_frame_ids,
         "model_id": model_id,
     }
