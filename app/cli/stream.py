@@ -129,9 +129,51 @@ def stream_cmd(
     before it); a file is read frame by frame unless --realtime. A summary (fps, p50 / p99
     latency) goes to stderr at the end; Ctrl-C stops cleanly.
     """
-    from weldpool_core.smoothing import SmoothingParams
-    from weldpool_core.stream import Publisher, StreamOptions, open_stream, summary
+    from weldpool_core.stream import StreamOptions, open_stream
 
+    model_dir = _checked_model_dir(model, record_path, samples, backend, sequential)
+    options = StreamOptions(
+        backend=backend,
+        device=device,
+        threads=threads,
+        sequential=sequential,
+        int8=int8,
+        smoothing=_smoothing(smooth, min_cutoff, beta),
+        mm_per_px=mm_per_px,
+        travel_deg=travel_deg,
+        samples=samples,
+        realtime=realtime,
+        max_frames=max_frames,
+        decoder_threads=decoder_threads or None,
+    )
+    outputs = _Outputs(quiet)
+    started = time.perf_counter()
+    try:
+        outputs.open(publish, wait_for_subscriber, record_path)
+        status = partial(_status, model_dir)
+        with open_stream(source, model_dir, options, status=status) as results:
+            started = time.perf_counter()
+            for result in results:
+                outputs.emit(result.record)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        outputs.close()
+    report: dict[str, Any] = {
+        "source": source,
+        "model": str(model_dir),
+        "backend": "onnx-int8" if int8 else backend,
+        **summary(
+            outputs.latencies, outputs.frames, outputs.dropped, time.perf_counter() - started
+        ),
+    }
+    click.echo(json.dumps(report), err=True)
+
+
+def _checked_model_dir(
+    model: str, record_path: Path | None, samples: int, backend: str, sequential: bool
+) -> Path:
+    """The student folder to stream, after the options that cannot work together are refused."""
     if record_path is not None and not record_path.parent.is_dir():
         fail(f"There is no folder {str(record_path.parent)!r} for --record; create it first.")
     model_dir = promoted_model_dir() if model == "promoted" else Path(model)
@@ -141,68 +183,66 @@ def stream_cmd(
         fail("--samples needs --backend torch (the uncertainty draws the latent in PyTorch).")
     if samples and sequential:
         fail("--samples scores the per-frame student; leave out --sequential to use it.")
-    smoothing = None
-    if smooth == "one-euro":
-        params = SmoothingParams()
-        params = replace(params, min_cutoff=params.min_cutoff if min_cutoff is None else min_cutoff)
-        smoothing = replace(params, beta=params.beta if beta is None else beta)
-    options = StreamOptions(
-        backend=backend,
-        device=device,
-        threads=threads,
-        sequential=sequential,
-        int8=int8,
-        smoothing=smoothing,
-        mm_per_px=mm_per_px,
-        travel_deg=travel_deg,
-        samples=samples,
-        realtime=realtime,
-        max_frames=max_frames,
-        decoder_threads=decoder_threads or None,
-    )
-    publisher = Publisher(publish) if publish else None
-    record_file: IO[str] | None = None
-    latencies: list[float] = []
-    frames = dropped = 0
-    started = time.perf_counter()
-    try:
-        lonely = (
-            publisher is not None
-            and wait_for_subscriber > 0
-            and not publisher.wait_for_subscriber(wait_for_subscriber)
-        )
-        if lonely:
-            click.echo(f"no subscriber after {wait_for_subscriber:g} s; publishing", err=True)
+    return model_dir
+
+
+def _smoothing(smooth: str, min_cutoff: float | None, beta: float | None) -> Any:
+    """The One-Euro filter's settings (None: raw keypoints)."""
+    from weldpool_core.smoothing import SmoothingParams
+
+    if smooth != "one-euro":
+        return None
+    params = SmoothingParams()
+    params = replace(params, min_cutoff=params.min_cutoff if min_cutoff is None else min_cutoff)
+    return replace(params, beta=params.beta if beta is None else beta)
+
+
+class _Outputs:
+    """Where each record goes (stdout, the ZeroMQ publisher, the record file) and the counts
+    of the summary."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.publisher: Any = None
+        self.record_file: IO[str] | None = None
+        self.latencies: list[float] = []
+        self.frames = self.dropped = 0
+
+    def open(self, publish: str | None, wait_s: float, record_path: Path | None) -> None:
+        from weldpool_core.stream import Publisher
+
+        self.publisher = Publisher(publish) if publish else None
+        if (
+            self.publisher is not None
+            and wait_s > 0
+            and not self.publisher.wait_for_subscriber(wait_s)
+        ):
+            click.echo(f"no subscriber after {wait_s:g} s; publishing", err=True)
         if record_path is not None:
             try:
-                record_file = record_path.open("w", encoding="utf-8")
+                self.record_file = record_path.open("w", encoding="utf-8")
             except OSError as exc:
                 fail(
                     f"--record cannot write {str(record_path)!r} ({exc.strerror}); choose "
                     "another file."
                 )
-        status = partial(_status, model_dir)
-        with open_stream(source, model_dir, options, status=status) as results:
-            started = time.perf_counter()
-            for result in results:
-                _emit(result.record, quiet, publisher, record_file)
-                frames += 1
-                dropped += result.record["dropped"]
-                latencies.append(result.record["latency_ms"])
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if publisher is not None:
-            publisher.close()
-        if record_file is not None:
-            record_file.close()
-    report: dict[str, Any] = {
-        "source": source,
-        "model": str(model_dir),
-        "backend": "onnx-int8" if int8 else backend,
-        **summary(latencies, frames, dropped, time.perf_counter() - started),
-    }
-    click.echo(json.dumps(report), err=True)
+
+    def emit(self, record: dict[str, Any]) -> None:
+        _emit(record, self.quiet, self.publisher, self.record_file)
+        self.frames += 1
+        self.dropped += record["dropped"]
+        self.latencies.append(record["latency_ms"])
+
+    def summary(self, seconds: float) -> dict[str, Any]:
+        from weldpool_core.stream import summary
+
+        return summary(self.latencies, self.frames, self.dropped, seconds)
+
+    def close(self) -> None:
+        if self.publisher is not None:
+            self.publisher.close()
+        if self.record_file is not None:
+            self.record_file.close()
 
 
 def _status(model_dir: Path, message: str) -> None:
