@@ -163,9 +163,7 @@ def stream_cmd(
         "source": source,
         "model": str(model_dir),
         "backend": "onnx-int8" if int8 else backend,
-        **summary(
-            outputs.latencies, outputs.frames, outputs.dropped, time.perf_counter() - started
-        ),
+        **outputs.summary(time.perf_counter() - started),
     }
     click.echo(json.dumps(report), err=True)
 
