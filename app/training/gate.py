@@ -148,6 +148,91 @@ def _fmt(scores: dict[str, Any]) -> str:
     return f"mIoU {scores['mIoU']:.3f}" + ("" if med is None else f", penalised mED {med:.1f} px")
 
 
+def _comparable(
+    storage: Storage, candidate: ModelVersion, incumbent: ModelVersion | None
+) -> ModelVersion | None:
+    """The incumbent to compare with: not the candidate itself, nor one whose files are gone."""
+    if incumbent is None or incumbent.id == candidate.id or incumbent.checkpoint_path is None:
+        return None
+    return incumbent if storage.absolute(incumbent.checkpoint_path).is_dir() else None
+
+
+def _against_teacher(
+    verdict: dict[str, Any],
+    mine: Outputs,
+    truth: dict[int, Any],
+    teacher: Outputs,
+    accepted: list[int],
+) -> list[str]:
+    """Why the candidate is unusable next to the teacher (none: usable): below the floor on
+    labels accepted from the teacher, worse than the teacher on the frames that are fair to
+    both, or below the floor with no teacher proposal to compare with."""
+    reasons = []
+    if accepted and (floor := _score(mine, truth, accepted))["mIoU"] < MIN_MIOU:
+        reasons.append(
+            f"below the minimum quality on {_count(len(accepted))} whose labels were accepted "
+            f"from the teacher unchanged ({_fmt(floor)}; needs mIoU ≥ {MIN_MIOU})"
+        )
+    if teacher:
+        common = sorted(teacher)
+        mine_common, theirs = _score(mine, truth, common), _score(teacher, truth, common)
+        verdict["teacher"] = theirs | {"candidate_on_these": mine_common}
+        if not _no_worse(mine_common, theirs):
+            reasons.append(
+                f"worse than the teacher on {_count(len(common))} "
+                f"({_fmt(mine_common)} vs {_fmt(theirs)})"
+            )
+        return reasons
+    verdict["teacher"] = None
+    own = verdict["candidate"]
+    if own["mIoU"] < MIN_MIOU or own["missed"]:
+        reasons.append(
+            f"below the minimum quality with no teacher proposal to compare with "
+            f"({_fmt(own)}, {own['missed']} keypoints missed; needs mIoU "
+            f"≥ {MIN_MIOU} and none missed)"
+        )
+    return reasons
+
+
+def _against_incumbent(
+    context: tuple[Session, Storage, str],
+    verdict: dict[str, Any],
+    mine: Outputs,
+    truth: dict[int, Any],
+    fair: list[int],
+    incumbent: ModelVersion,
+) -> str | None:
+    """Why the candidate does not beat the incumbent on the labels neither of them proposed
+    (None: it does)."""
+    if not fair:
+        return (
+            f"every held-out label was accepted unchanged from {incumbent.name} or this "
+            "version, so they cannot be compared fairly; draw or correct some held-out labels"
+        )
+    session, storage, device = context
+    theirs = _score(_student_outputs(session, storage, incumbent, fair, device), truth, fair)
+    verdict["incumbent_scores"] = theirs
+    ours = _score(mine, truth, fair)
+    if _better(ours, theirs):
+        return None
+    return (
+        f"not better than {incumbent.name} on {_count(len(fair))} ({_fmt(ours)} vs {_fmt(theirs)})"
+    )
+
+
+def _promotion_reason(
+    verdict: dict[str, Any], incumbent: ModelVersion | None, frames: int, accepted: bool
+) -> str:
+    others = [incumbent.name] if incumbent else []
+    others += ["the teacher"] if verdict["teacher"] else []
+    if others:
+        reason = f"Better than {' and '.join(others)} on {_count(frames)}"
+    else:  # no teacher proposal to compare with on these frames: the floor alone
+        reason = f"Meets the minimum quality on {_count(frames)} (no teacher proposal to "
+        reason += "compare with" + (", those there were accepted unchanged)" if accepted else ")")
+    return reason + f" ({_fmt(verdict['candidate'])})."
+
+
 def measure(
     session: Session,
     storage: Storage,
@@ -157,12 +242,7 @@ def measure(
 ) -> dict[str, Any]:
     """The gate's verdict on ``candidate`` against ``incumbent`` and the teacher (module doc):
     ``usable``, ``promote``, ``reason`` and the scores behind them (JSON-ready)."""
-    if incumbent is not None and (
-        incumbent.id == candidate.id
-        or incumbent.checkpoint_path is None
-        or not storage.absolute(incumbent.checkpoint_path).is_dir()
-    ):  # the candidate itself, or an incumbent whose files are gone: nothing to compare with
-        incumbent = None
+    incumbent = _comparable(storage, candidate, incumbent)
     frame_ids = gate_frames(session, candidate, incumbent)
     truth = _truth(session, storage, frame_ids)
     verdict: dict[str, Any] = {
@@ -180,72 +260,26 @@ def measure(
     ids = sorted(truth)
     mine = _student_outputs(session, storage, candidate, ids, device)
     verdict["candidate"] = _score(mine, truth, ids)
-    teacher = _teacher_outputs(session, storage, ids)
-    usable, reasons = True, []
     taken = taken_from(session, ids)
     accepted = [f for f in ids if taken.get(f, ("",))[0] == "teacher"]
     verdict["accepted_from_teacher"] = accepted
-    if accepted and (floor := _score(mine, truth, accepted))["mIoU"] < MIN_MIOU:
-        usable = False
-        reasons.append(
-            f"below the minimum quality on {_count(len(accepted))} whose labels were accepted "
-            f"from the teacher unchanged ({_fmt(floor)}; needs mIoU ≥ {MIN_MIOU})"
-        )
     from_candidate = {f for f, (_, version) in taken.items() if version == candidate.id}
     teacher = {
-        f: out for f, out in teacher.items() if f not in accepted and f not in from_candidate
+        f: out
+        for f, out in _teacher_outputs(session, storage, ids).items()
+        if f not in accepted and f not in from_candidate
     }
-    if teacher:
-        common = sorted(teacher)
-        mine_common, theirs = _score(mine, truth, common), _score(teacher, truth, common)
-        verdict["teacher"] = theirs | {"candidate_on_these": mine_common}
-        if not _no_worse(mine_common, theirs):
-            usable = False
-            reasons.append(
-                f"worse than the teacher on {_count(len(common))} "
-                f"({_fmt(mine_common)} vs {_fmt(theirs)})"
-            )
-    else:
-        verdict["teacher"] = None
-        own = verdict["candidate"]
-        if own["mIoU"] < MIN_MIOU or own["missed"]:
-            usable = False
-            reasons.append(
-                f"below the minimum quality with no teacher proposal to compare with "
-                f"({_fmt(own)}, {own['missed']} keypoints missed; needs mIoU "
-                f"≥ {MIN_MIOU} and none missed)"
-            )
-    better = usable
+    reasons = _against_teacher(verdict, mine, truth, teacher, accepted)
+    usable = better = not reasons
     if usable and incumbent is not None:
         compared = {candidate.id, incumbent.id}
         fair = [f for f in ids if taken.get(f, ("", None))[1] not in compared]
-        if not fair:
-            better = False
-            reasons.append(
-                f"every held-out label was accepted unchanged from {incumbent.name} or this "
-                "version, so they cannot be compared fairly; draw or correct some held-out labels"
-            )
-        else:
-            incumbent_outputs = _student_outputs(session, storage, incumbent, fair, device)
-            theirs = _score(incumbent_outputs, truth, fair)
-            verdict["incumbent_scores"] = theirs
-            better = _better(_score(mine, truth, fair), theirs)
-            if not better:
-                reasons.append(
-                    f"not better than {incumbent.name} on {_count(len(fair))} "
-                    f"({_fmt(_score(mine, truth, fair))} vs {_fmt(theirs)})"
-                )
+        context = (session, storage, device)
+        worse = _against_incumbent(context, verdict, mine, truth, fair, incumbent)
+        better = worse is None
+        reasons += [worse] if worse else []
     if usable and better:
-        others = [incumbent.name] if incumbent else []
-        others += ["the teacher"] if verdict["teacher"] else []
-        if others:
-            reason = f"Better than {' and '.join(others)} on {_count(len(ids))}"
-        else:  # no teacher proposal to compare with on these frames: the floor alone
-            reason = f"Meets the minimum quality on {_count(len(ids))} (no teacher proposal to "
-            reason += "compare with" + (
-                ", those there were accepted unchanged)" if accepted else ")"
-            )
-        reason += f" ({_fmt(verdict['candidate'])})."
+        reason = _promotion_reason(verdict, incumbent, len(ids), bool(accepted))
     else:
         reason = "Not promoted: " + "; ".join(reasons) + "."
     return verdict | {"usable": usable, "promote": usable and better, "reason": reason}
