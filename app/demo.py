@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import secrets
 from collections.abc import Callable
+from typing import Any
 
 import cv2
 import sqlalchemy as sa
@@ -29,47 +30,29 @@ from weldpool_core.teacher.weights import weights_status
 DEMO_USER = "demo"
 
 
-def fill_demo(
-    session: Session,
-    settings: Settings,
-    *,
-    frames: int,
-    seed: int,
-    progress: Callable[[str], None],
-) -> str:
-    """Add the synthetic run; returns a one-paragraph summary of what was added."""
-    user = session.scalar(sa.select(User).where(User.username == DEMO_USER)) or create_user(
-        session, DEMO_USER, secrets.token_urlsafe(16), Role.reviewer
-    )
-    sequence = create_sequence(
-        session,
-        {
-            "name": unique_sequence_name(session, "demo weld run (synthetic)"),
-            "wire_feed_m_min": 8.0,
-            "voltage_v": 22.5,
-            "current_a": 180.0,
-            "arc_length_correction_pct": 0.0,
-            "robot_speed_cm_min": 40.0,
-            "joint_type": "fillet",
-            "notes": "Synthetic frames from weldpool_core.synth (`weldpool demo`).",
-        },
-        user,
-    )
-    progress(f"drawing {frames} synthetic frames")
-    drawn = synth_sequence(seed=seed, length=frames)
-    files = [
-        IncomingFile(f"demo_{i:04d}.png", cv2.imencode(".png", f.image)[1].tobytes())
-        for i, f in enumerate(drawn)
-    ]
-    storage = Storage.of(settings)
-    stored = ingest_frames(
-        session,
-        storage,
-        files,
-        sequence_id=sequence.id,
-        user=user,
-        max_pixels=settings.max_image_pixels,
-    ).stored
+DEMO_RUN = {
+    "wire_feed_m_min": 8.0,
+    "voltage_v": 22.5,
+    "current_a": 180.0,
+    "arc_length_correction_pct": 0.0,
+    "robot_speed_cm_min": 40.0,
+    "joint_type": "fillet",
+    "notes": "Synthetic frames from weldpool_core.synth (`weldpool demo`).",
+}
+"""The demo run's process parameters."""
+
+
+def _demo_user(session: Session) -> User:
+    found = session.scalar(sa.select(User).where(User.username == DEMO_USER))
+    return found or create_user(session, DEMO_USER, secrets.token_urlsafe(16), Role.reviewer)
+
+
+def _label_frames(
+    session: Session, storage: Storage, user: User, stored: list[Any], drawn: list[Any]
+) -> tuple[int, int, list[int]]:
+    """Three frames in four labelled from the ground truth, one of them held out for
+    validation with its mask (so the gate measures a student on merit); the fourth is left to
+    the teacher. Returns the labelled and validation counts and the unlabelled frames."""
     labelled = validation = 0
     unlabelled = []
     for index, (frame, truth) in enumerate(zip(stored, drawn, strict=True)):
@@ -88,13 +71,15 @@ def fill_demo(
             keypoints=keypoints,
         )
         labelled += 1
-        if index % 4 == 1:  # held out, with its mask, so the gate measures a student on merit
+        if index % 4 == 1:
             save_validation_keypoints(session, frame, user, keypoints)
             validation += 1
-    summary = (
-        f"demo: sequence {sequence.name!r} with {len(stored)} frames; {labelled} labelled "
-        f"from ground truth, {validation} of them held out for validation (mask and keypoints)."
-    )
+    return labelled, validation, unlabelled
+
+
+def _teacher_for(session: Session, settings: Settings, user: User, unlabelled: list[int]) -> str:
+    """The teacher queued for the unlabelled frames where its weights are here; the summary's
+    last sentence either way."""
     ready = all(
         weights_status(ref, var).available
         for ref, var in ((settings.dino, "WELDPOOL_DINO"), (settings.sam2, "WELDPOOL_SAM2"))
@@ -108,10 +93,43 @@ def fill_demo(
             {"frame_ids": unlabelled, "prompts": "heuristic"},
             user,
         )
-        summary += f" Teacher job {job.id} queued for the other {len(unlabelled)} frames."
-    else:
-        summary += (
-            " The teacher's weights are not here: run `weldpool weights fetch` (or set "
-            "WELDPOOL_DINO / WELDPOOL_SAM2), then start the teacher from the UI."
-        )
-    return summary
+        return f" Teacher job {job.id} queued for the other {len(unlabelled)} frames."
+    return (
+        " The teacher's weights are not here: run `weldpool weights fetch` (or set "
+        "WELDPOOL_DINO / WELDPOOL_SAM2), then start the teacher from the UI."
+    )
+
+
+def fill_demo(
+    session: Session,
+    settings: Settings,
+    *,
+    frames: int,
+    seed: int,
+    progress: Callable[[str], None],
+) -> str:
+    """Add the synthetic run; returns a one-paragraph summary of what was added."""
+    user = _demo_user(session)
+    name = unique_sequence_name(session, "demo weld run (synthetic)")
+    sequence = create_sequence(session, {"name": name, **DEMO_RUN}, user)
+    progress(f"drawing {frames} synthetic frames")
+    drawn = synth_sequence(seed=seed, length=frames)
+    files = [
+        IncomingFile(f"demo_{i:04d}.png", cv2.imencode(".png", f.image)[1].tobytes())
+        for i, f in enumerate(drawn)
+    ]
+    storage = Storage.of(settings)
+    stored = ingest_frames(
+        session,
+        storage,
+        files,
+        sequence_id=sequence.id,
+        user=user,
+        max_pixels=settings.max_image_pixels,
+    ).stored
+    labelled, validation, unlabelled = _label_frames(session, storage, user, stored, drawn)
+    summary = (
+        f"demo: sequence {sequence.name!r} with {len(stored)} frames; {labelled} labelled "
+        f"from ground truth, {validation} of them held out for validation (mask and keypoints)."
+    )
+    return summary + _teacher_for(session, settings, user, unlabelled)
