@@ -319,36 +319,29 @@ def _image_side(
     return embedding.derived
 
 
-def decode_masks(
-    model: Any,
-    embedding: ImageEmbedding,
-    image_pe: torch.Tensor,
-    sparse: torch.Tensor,
-    dense: torch.Tensor | None,
-    multimask: bool,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """SAM2's mask decoder for a batch of B prompt sets (``sparse``: 1 × B × T × C).
-
-    Returns low-res logits B × n × 256 × 256, predicted IoU B × n and object-score logits B.
-    ``dense`` is the embedded previous mask (1 × C × 64 × 64) or None for "no mask", in which
-    case the prompt-independent work is taken from the embedding's cache.
-    """
-    decoder = model.mask_decoder
-    transformer = decoder.transformer
-    batch = sparse.shape[1]
-    output_tokens = torch.cat(
-        [decoder.obj_score_token.weight, decoder.iou_token.weight, decoder.mask_tokens.weight]
-    )
-    tokens = torch.cat([output_tokens.expand(batch, -1, -1), sparse[0]], dim=1)  # B × T' × C
+def _image_keys(
+    model: Any, embedding: ImageEmbedding, image_pe: torch.Tensor, dense: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor, tuple[Any, Any], torch.Tensor | None]:
+    """The image side of the two-way transformer: keys, keys with PE, and the first block's
+    projected keys/values and image queries (from the embedding's cache without a mask
+    prompt; None with one, as they depend on it)."""
     if dense is None:
         cached = _image_side(model, embedding, image_pe)
-        keys, keys_pe = cached["keys"], cached["keys_pe"]
-        first_kv: tuple[torch.Tensor | None, torch.Tensor | None] = (cached["k0"], cached["v0"])
-        first_q: torch.Tensor | None = cached["q0"]
-    else:
-        keys = (embedding.features[2] + dense).flatten(2).transpose(1, 2).contiguous()
-        keys_pe, first_kv, first_q = keys + image_pe, (None, None), None
+        return cached["keys"], cached["keys_pe"], (cached["k0"], cached["v0"]), cached["q0"]
+    keys = (embedding.features[2] + dense).flatten(2).transpose(1, 2).contiguous()
+    return keys, keys + image_pe, (None, None), None
 
+
+def _two_way(
+    transformer: Any,
+    tokens: torch.Tensor,
+    image: tuple[torch.Tensor, torch.Tensor, tuple[Any, Any], torch.Tensor | None],
+    image_pe: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """SAM2's two-way transformer over the prompt tokens (B × T' × C) and the image keys:
+    the queries and keys after its last attention."""
+    keys, keys_pe, first_kv, first_q = image
+    batch = tokens.shape[0]
     queries = tokens
     keys = keys.expand(batch, -1, -1)
     for index, layer in enumerate(transformer.layers):
@@ -358,11 +351,7 @@ def decode_masks(
             query = queries + tokens
             queries = queries + _attention(layer.self_attn, query, query, queries)
         queries = layer.layer_norm1(queries)
-        if index == 0:
-            key_pe = keys_pe
-            kv = first_kv
-        else:
-            key_pe, kv = keys + image_pe, (None, None)
+        key_pe, kv = (keys_pe, first_kv) if index == 0 else (keys + image_pe, (None, None))
         queries = layer.layer_norm2(
             queries
             + _attention(layer.cross_attn_token_to_image, queries + tokens, key_pe, keys, kv)
@@ -381,23 +370,55 @@ def decode_masks(
     queries = transformer.layer_norm_final_attn(
         queries + _attention(final, queries + tokens, keys + image_pe, keys)
     )
+    return queries, keys
 
-    iou_token_out = queries[:, 1]
-    mask_tokens_out = queries[:, 2 : 2 + decoder.num_mask_tokens]
+
+def _mask_head(
+    decoder: Any, embedding: ImageEmbedding, queries: torch.Tensor, keys: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The decoder's heads: every mask token's low-res logits (upscaled image features ×
+    hypernetwork), the predicted IoUs and the object-score logits."""
+    batch = queries.shape[0]
     side = int(keys.shape[1] ** 0.5)
     image = keys.transpose(1, 2).reshape(batch, -1, side, side)
     s0, s1 = embedding.features[0], embedding.features[1]
     upscaled = decoder.upscale_conv1(image) + s1
     upscaled = decoder.activation(decoder.upscale_layer_norm(upscaled))
     upscaled = decoder.activation(decoder.upscale_conv2(upscaled) + s0)
+    mask_tokens = queries[:, 2 : 2 + decoder.num_mask_tokens]
     hyper = torch.stack(
-        [mlp(mask_tokens_out[:, i]) for i, mlp in enumerate(decoder.output_hypernetworks_mlps)],
+        [mlp(mask_tokens[:, i]) for i, mlp in enumerate(decoder.output_hypernetworks_mlps)],
         dim=1,
     )  # B × 4 × C/8
     _, channels, height, width = upscaled.shape
     masks = (hyper @ upscaled.view(batch, channels, height * width)).view(batch, -1, height, width)
-    iou = decoder.iou_prediction_head(iou_token_out)
-    object_score = decoder.pred_obj_score_head(queries[:, 0])[:, 0]
+    iou = decoder.iou_prediction_head(queries[:, 1])
+    return masks, iou, decoder.pred_obj_score_head(queries[:, 0])[:, 0]
+
+
+def decode_masks(
+    model: Any,
+    embedding: ImageEmbedding,
+    image_pe: torch.Tensor,
+    sparse: torch.Tensor,
+    dense: torch.Tensor | None,
+    multimask: bool,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """SAM2's mask decoder for a batch of B prompt sets (``sparse``: 1 × B × T × C).
+
+    Returns low-res logits B × n × 256 × 256, predicted IoU B × n and object-score logits B.
+    ``dense`` is the embedded previous mask (1 × C × 64 × 64) or None for "no mask", in which
+    case the prompt-independent work is taken from the embedding's cache.
+    """
+    decoder = model.mask_decoder
+    batch = sparse.shape[1]
+    output_tokens = torch.cat(
+        [decoder.obj_score_token.weight, decoder.iou_token.weight, decoder.mask_tokens.weight]
+    )
+    tokens = torch.cat([output_tokens.expand(batch, -1, -1), sparse[0]], dim=1)  # B × T' × C
+    image = _image_keys(model, embedding, image_pe, dense)
+    queries, keys = _two_way(decoder.transformer, tokens, image, image_pe)
+    masks, iou, object_score = _mask_head(decoder, embedding, queries, keys)
     if multimask:
         return masks[:, 1:], iou[:, 1:], object_score
     if decoder.dynamic_multimask_via_stability:
