@@ -56,6 +56,57 @@ def _confidence(proposal: Proposal) -> float | None:
     return None if value is None else float(value)
 
 
+Source = tuple[Frame, str | None, str | None, Proposal | None]
+"""A frame, where its pool comes from (``label``, a proposal's source key, or None), that
+mask's path, and the proposal it comes from."""
+
+
+def _run_labels(session: Session, ids: list[int]) -> dict[int, Label]:
+    labels: dict[int, Label] = {}
+    for start in range(0, len(ids), 5000):  # bounded IN lists
+        chunk = ids[start : start + 5000]
+        labels.update(
+            (label.frame_id, label)
+            for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(chunk)))
+        )
+    return labels
+
+
+def _source(frame: Frame, label: Label | None, proposal: Proposal | None) -> Source:
+    """A reviewed mask first (a rejected frame has no usable pool), else the proposal the
+    policy shows."""
+    if label is not None and label.status == LabelStatus.rejected:
+        return frame, "label", None, None
+    if label is not None and label.mask_path:
+        return frame, "label", label.mask_path, None
+    if proposal is not None:
+        return frame, policy.source_key(proposal), proposal.mask_path, proposal
+    return frame, None, None, None
+
+
+def _row(source: Source, label: Label | None, geometry: Any, scale: float | None) -> dict[str, Any]:
+    frame, key, _, proposal = source
+    if key == "label" and label:
+        keypoints = label.keypoints
+    else:
+        keypoints = proposal.keypoints if proposal else []
+    row: dict[str, Any] = {
+        "frame_id": frame.id,
+        "frame_index": frame.frame_index,
+        "timestamp_s": frame.timestamp_s,
+        "status": frame.status.value,
+        "source": key,
+        "confidence": _confidence(proposal) if proposal is not None else None,
+        "area_px": geometry.area_px if geometry else None,
+        "length_px": geometry.length_px if geometry else None,
+        "width_px": geometry.width_px if geometry else None,
+        "centroid": list(geometry.centroid) if geometry and geometry.centroid else None,
+        "keypoints": keypoints or [],
+    }
+    none = {"area_mm2": None, "length_mm": None, "width_mm": None}
+    return row | (geometry.in_mm(scale) if geometry else none)
+
+
 def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> dict[str, Any]:
     """Every frame of the run in frame order, with its geometry, source and confidence."""
     sequence = get_sequence(session, sequence_id)
@@ -67,61 +118,16 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
         )
     )
     ids = [f.id for f in frames]
-    labels: dict[int, Label] = {}
-    for start in range(0, len(ids), 5000):
-        chunk = ids[start : start + 5000]
-        labels.update(
-            (label.frame_id, label)
-            for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(chunk)))
-        )
+    labels = _run_labels(session, ids)
     proposals = policy.pick_many(session, storage, ids)
-
-    sources: list[tuple[Frame, str | None, str | None, Proposal | None]] = []
-    for frame in frames:
-        label = labels.get(frame.id)
-        proposal = proposals.get(frame.id)
-        if label is not None and label.status == LabelStatus.rejected:
-            sources.append((frame, "label", None, None))  # reviewed: no usable pool
-        elif label is not None and label.mask_path:
-            sources.append((frame, "label", label.mask_path, None))
-        elif proposal is not None:
-            sources.append((frame, policy.source_key(proposal), proposal.mask_path, proposal))
-        else:
-            sources.append((frame, None, None, None))
-
+    sources = [_source(f, labels.get(f.id), proposals.get(f.id)) for f in frames]
     scale = stored_scale(sequence.mm_per_px)  # one outside the physical range: no mm at all
     shapes = {path: _shape(storage, path) for _, _, path, _ in sources if path is not None}
     travel = _median_axis([s.major_deg for s in shapes.values() if s.major_deg is not None])
-    rows = []
-    for frame, source, path, proposal in sources:
-        geometry = shapes[path].measure(travel) if path is not None else None
-        label = labels.get(frame.id)
-        keypoints = (
-            label.keypoints
-            if source == "label" and label
-            else proposal.keypoints
-            if proposal
-            else []
-        )
-        row: dict[str, Any] = {
-            "frame_id": frame.id,
-            "frame_index": frame.frame_index,
-            "timestamp_s": frame.timestamp_s,
-            "status": frame.status.value,
-            "source": source,
-            "confidence": _confidence(proposal) if proposal is not None else None,
-            "area_px": geometry.area_px if geometry else None,
-            "length_px": geometry.length_px if geometry else None,
-            "width_px": geometry.width_px if geometry else None,
-            "centroid": list(geometry.centroid) if geometry and geometry.centroid else None,
-            "keypoints": keypoints or [],
-        }
-        row |= (
-            geometry.in_mm(scale)
-            if geometry
-            else {"area_mm2": None, "length_mm": None, "width_mm": None}
-        )
-        rows.append(row)
+    rows = [
+        _row(source, labels.get(source[0].id), _measured(shapes, source[2], travel), scale)
+        for source in sources
+    ]
     return {
         "sequence_id": sequence.id,
         "name": sequence.name,
@@ -139,6 +145,10 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
         },
         "frames": rows,
     }
+
+
+def _measured(shapes: dict[str, Any], path: str | None, travel: float | None) -> Any:
+    return shapes[path].measure(travel) if path is not None else None
 
 
 def _median_axis(degrees: list[float]) -> float | None:
