@@ -48,15 +48,11 @@ def _finish(context: JobContext, **values: object) -> bool:
         return done.rowcount == 1  # type: ignore[attr-defined]
 
 
-def execute_job(
-    job_id: int,
-    settings: Settings,
-    session_factory: sessionmaker[Session],
-    worker_id: str,
-    stopping: threading.Event | None = None,
-    queue: Any = None,
-) -> None:
-    """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
+def _claim(
+    session_factory: sessionmaker[Session], job_id: int, worker_id: str
+) -> tuple[str, dict[str, Any], int] | None:
+    """Take the job if it is still queued: its kind, parameters and attempt (None: it was
+    cancelled or another worker took it)."""
     with session_factory() as session:
         claimed = session.execute(
             sa.update(Job)
@@ -73,34 +69,20 @@ def execute_job(
         )
         session.commit()
         if claimed.rowcount != 1:  # type: ignore[attr-defined]
-            log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
-            return
+            return None
         job = session.get_one(Job, job_id)
-        kind, params, attempt = job.kind, dict(job.params or {}), job.attempts
+        return job.kind, dict(job.params or {}), job.attempts
 
-    log.info("job.started", job_id=job_id, kind=kind, worker=worker_id, attempt=attempt)
-    context = JobContext(
-        job_id,
-        params,
-        settings,
-        session_factory,
-        worker_id,
-        stopping or threading.Event(),
-        queue,
-        attempt=attempt,
-    )
-    spec = job_spec(kind)
-    if spec is None:
-        _finish(
-            context,
-            status=JobStatus.failed,
-            error=f"This worker does not know job kind {kind!r}; update the worker.",
-        )
-        return
+
+def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queue: Any) -> None:
+    """The handler, and its outcome in the job's row: succeeded with its result, queued again
+    after a worker shutdown, cancelled, failed (one sentence), or left alone when the lease
+    was lost to another worker."""
+    job_id = context.job_id
     try:
-        result = spec.handler(context)
+        result = handler(context)
     except JobLost:
-        log.warning("job.lost_lease", job_id=job_id, attempt=attempt)
+        log.warning("job.lost_lease", job_id=job_id, attempt=context.attempt)
     except JobInterrupted:
         requeued = _finish(
             context,
@@ -131,6 +113,42 @@ def execute_job(
             **({"message": context.summary[:500]} if context.summary else {}),
         )
         log.info("job.succeeded" if finished else "job.lost_lease", job_id=job_id)
+
+
+def execute_job(
+    job_id: int,
+    settings: Settings,
+    session_factory: sessionmaker[Session],
+    worker_id: str,
+    stopping: threading.Event | None = None,
+    queue: Any = None,
+) -> None:
+    """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
+    claimed = _claim(session_factory, job_id, worker_id)
+    if claimed is None:
+        log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
+        return
+    kind, params, attempt = claimed
+    log.info("job.started", job_id=job_id, kind=kind, worker=worker_id, attempt=attempt)
+    context = JobContext(
+        job_id,
+        params,
+        settings,
+        session_factory,
+        worker_id,
+        stopping or threading.Event(),
+        queue,
+        attempt=attempt,
+    )
+    spec = job_spec(kind)
+    if spec is None:
+        _finish(
+            context,
+            status=JobStatus.failed,
+            error=f"This worker does not know job kind {kind!r}; update the worker.",
+        )
+        return
+    _run_handler(context, spec.handler, queue)
 
 
 def _pid_is_dead(worker_id: str) -> bool:
