@@ -4,7 +4,7 @@
 them (format by content, pixel limit before decoding, truncation) and decodes them once.
 ``to_rgb8`` turns any decoded frame into what the models take: RGB ``uint8``.
 ``check_image`` checks a file without keeping its pixels (ingest): a plain PNG is decompressed in
-full and verified, any other file is decoded by ``read_image``.
+full and verified (``pngcheck``), any other file is decoded by ``read_image``.
 
 16-bit → 8-bit mapping (``stretch_to_uint8``): a linear stretch between the 0.5th percentile
 (the background) and the 99.99th percentile of the frame (so that a few hot pixels do not set
@@ -15,19 +15,18 @@ clipped flat). Frames whose values span less than 1 grey level map to black.
 from __future__ import annotations
 
 import io
-import re
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
-import deflate
 import numpy as np
 from numpy.typing import NDArray
 from PIL import Image, UnidentifiedImageError
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.pngcheck import CORRUPT as _CORRUPT
+from weldpool_core.pngcheck import PNG_SIGNATURE, plain_png, verify_stream
 
 cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # errors are raised as ours
 Image.MAX_IMAGE_PIXELS = None  # our own limit (max_pixels) applies, before any decoding
@@ -136,127 +135,30 @@ def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXE
     return DecodedImage(pixels, info)
 
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_CHANNELS = {0: 1, 2: 3, 6: 4}
-"""Colour types whose decoded channels follow from the header alone (gray, RGB, RGBA); the
-others (palette, gray + alpha) and any ``tRNS`` chunk change what OpenCV returns, so they are
-decoded."""
-_PNG_CHUNK = struct.Struct(">I4s")
-_PNG_MAX_SIDE = 1_000_000
-"""libpng's default limit on a side (OpenCV's decoder refuses larger)."""
-_PNG_MAX_CHUNK = 8_000_000
-"""libpng's default limit on a chunk other than IDAT."""
-_PNG_NAME = re.compile(rb"[A-Za-z]{2}[A-Z][A-Za-z]")
-"""A valid chunk name: four letters, the third (reserved bit) upper case."""
-_PNG_ANCILLARY = {
-    b"tEXt",
-    b"iTXt",
-    b"pHYs",
-    b"gAMA",
-    b"sRGB",
-    b"cHRM",
-    b"sBIT",
-    b"tIME",
-    b"eXIf",
-}
-"""Public ancillary chunks that change nothing OpenCV returns and that Pillow's header checks
-(``_probe``) read; any other public one (iCCP, zTXt, APNG's acTL / fcTL / fdAT, tRNS…) is
-decoded; so is bKGD, which OpenCV reads itself (an empty one fails there). Private chunks
-(second letter lower case) are skipped by both libraries."""
-_APNG = {b"acTL", b"fcTL", b"fdAT"}
-
-
-def _plain_chunk(kind: bytes, length: int) -> bool:
-    """Whether a chunk leaves a PNG plain (see ``check_image``)."""
-    if kind in (b"IHDR", b"IDAT", b"IEND"):
-        return True
-    private = kind[1:2].islower() and kind not in _APNG
-    named = _PNG_NAME.fullmatch(kind) is not None
-    return named and length <= _PNG_MAX_CHUNK and (kind in _PNG_ANCILLARY or private)
-
-
-_CORRUPT = "The image is truncated or corrupt and cannot be decoded."
-
-
 def check_image(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> ImageInfo:
     """What ``read_image(data).info`` says, checked as strictly, without keeping the pixels.
 
-    A plain PNG (8- or 16-bit gray, RGB or RGBA, not interlaced, no ``tRNS``, only chunks both
-    OpenCV and Pillow read alike: ``_plain_chunk``) is verified down to its last byte instead,
-    after Pillow's header checks: every chunk's CRC-32, the whole image stream inflated (libdeflate,
-    2× zlib's speed) with its Adler-32, exactly the header's number of bytes, and a valid filter
-    type on every row. Only undoing the row filters is left out: it cannot fail, and ingest
-    needs no pixel. Any other file is decoded by ``read_image``.
+    A plain PNG (``pngcheck.plain_png``: 8- or 16-bit gray, RGB or RGBA, not interlaced, no
+    ``tRNS``, only chunks both OpenCV and Pillow read alike) is verified down to its last byte
+    instead (``pngcheck``), after Pillow's header checks and the pixel limit, before anything
+    is inflated. Any other file is decoded by ``read_image``.
 
     Raises InvalidInputError with one sentence, as ``read_image`` does.
     """
-    info = _check_plain_png(data, max_pixels) if data.startswith(PNG_SIGNATURE) else None
-    return info if info is not None else read_image(data, max_pixels=max_pixels).info
-
-
-def _check_plain_png(data: bytes, max_pixels: int) -> ImageInfo | None:
-    """The info of a verified plain PNG (see ``check_image``); None for any other PNG."""
-    view = memoryview(data)
-    chunks: list[tuple[bytes, memoryview]] = []
-    position = len(PNG_SIGNATURE)
-    while True:
-        if position + 12 > len(data):
-            raise InvalidInputError(_CORRUPT)  # truncated before IEND
-        length, kind = _PNG_CHUNK.unpack_from(data, position)
-        end = position + 8 + length
-        if length > 2**31 - 1 or end + 4 > len(data):
-            raise InvalidInputError(_CORRUPT)
-        body = view[position + 8 : end]
-        if deflate.crc32(view[position + 4 : end]) != int.from_bytes(view[end : end + 4], "big"):
-            raise InvalidInputError(_CORRUPT)
-        chunks.append((kind, body))
-        position = end + 4
-        if kind == b"IEND":
-            break
-    kinds = [kind for kind, _ in chunks]
-    if kinds[0] != b"IHDR" or len(chunks[0][1]) != 13:
-        return None  # let the decoder say what is wrong
-    width, height, depth, colour, compression, filtering, interlace = struct.unpack(
-        ">IIBBBBB", chunks[0][1]
-    )
-    idat = [index for index, kind in enumerate(kinds) if kind == b"IDAT"]
-    plain = (
-        0 < width <= _PNG_MAX_SIDE
-        and 0 < height <= _PNG_MAX_SIDE
-        and colour in _PNG_CHANNELS
-        and depth in (8, 16)
-        and (compression, filtering, interlace) == (0, 0, 0)
-        and kinds.count(b"IHDR") == 1
-        and all(_plain_chunk(kind, len(body)) for kind, body in chunks)
-        and bool(idat)
-        and idat == list(range(idat[0], idat[-1] + 1))  # consecutive, as PNG requires
-    )
-    if not plain:
-        return None  # the decoder says what it makes of it
-    _probe(data, max_pixels)  # Pillow's header checks and the pixel limit, as read_image
-    compressed = b"".join(chunks[i][1] for i in idat)
-    row = 1 + width * _PNG_CHANNELS[colour] * depth // 8
-    if compressed[:1] != b"\x78" and (
-        not compressed or row * height > 1 << (compressed[0] // 16 + 8)
-    ):
-        return None  # a zlib window under 32 KiB, which libdeflate does not enforce and zlib does
-    try:
-        stream = deflate.zlib_decompress(compressed, row * height)
-    except deflate.DeflateError:
-        raise InvalidInputError(_CORRUPT) from None
-    if len(stream) != row * height:
-        raise InvalidInputError(_CORRUPT)
-    if int(np.frombuffer(stream, np.uint8)[::row].max()) > 4:
-        raise InvalidInputError(_CORRUPT)  # a row filter type PNG does not have
-    return ImageInfo(
-        format="PNG",
-        media_type=MEDIA_TYPES["PNG"],
-        extension=EXTENSIONS["PNG"],
-        width=width,
-        height=height,
-        channels=_PNG_CHANNELS[colour],
-        bit_depth=depth,
-    )
+    png = plain_png(data) if data.startswith(PNG_SIGNATURE) else None
+    if png is not None:
+        _probe(data, max_pixels)  # Pillow's header checks and the pixel limit, as read_image
+        if verify_stream(png):
+            return ImageInfo(
+                format="PNG",
+                media_type=MEDIA_TYPES["PNG"],
+                extension=EXTENSIONS["PNG"],
+                width=png.width,
+                height=png.height,
+                channels=png.channels,
+                bit_depth=png.depth,
+            )
+    return read_image(data, max_pixels=max_pixels).info
 
 
 def stretch_to_uint8(
@@ -334,13 +236,24 @@ def decode_mask_png(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> NDA
     image = read_image(data, max_pixels=max_pixels)
     if image.info.format != "PNG":
         raise InvalidInputError(f"A mask must be a PNG file, not {image.info.format}.")
-    pixels = image.pixels
+    pixels = mask_gray(image.pixels)
+    return pixels > mask_level(pixels)
+
+
+def mask_gray(pixels: ImageArray) -> NDArray[np.uint8]:
+    """A mask image's one gray channel: the max of its colour channels, 16-bit scaled to 8."""
     if pixels.ndim == 3:
         pixels = pixels[:, :, :3].max(axis=2)
     if pixels.dtype == np.uint16:
         pixels = (pixels >> 8).astype(np.uint8)
-    peak = int(pixels.max()) if pixels.size else 0
-    return pixels > 0 if peak <= 1 else pixels >= 128
+    return np.asarray(pixels, np.uint8)
+
+
+def mask_level(gray: NDArray[np.uint8]) -> int:
+    """The gray level above which a mask pixel is pool: 0 for a mask of 0 and 1 only, else 127
+    (values ≥ 128 are foreground). The one rule of every mask reader."""
+    peak = int(gray.max()) if gray.size else 0
+    return 0 if peak <= 1 else 127
 
 
 def read_mask(path: str | Path) -> NDArray[np.bool_]:

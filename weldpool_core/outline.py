@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.io import mask_gray, mask_level
 
 MAX_VERTICES = 10_000
 """Most vertices an outline may have in all. The polygon tool sends tens (a pool traced at
@@ -72,14 +73,14 @@ def coco_mask(mask: NDArray[Any]) -> CocoMask:
 
 
 def coco_mask_png(data: bytes) -> CocoMask:
-    """``CocoMask`` of a mask PNG (0/1 or 0/255 gray), decoded to gray, transposed and
-    thresholded by OpenCV straight into the column-major 0/1 array pycocotools encodes (a third
-    faster than decoding to a boolean mask and copying it to column order)."""
-    gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
+    """``CocoMask`` of a mask PNG (the mask ``io.decode_mask_png`` reads from it), decoded,
+    transposed and thresholded by OpenCV straight into the column-major 0/1 array pycocotools
+    encodes (a third faster than decoding to a boolean mask and copying it to column order)."""
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if decoded is None:
         raise InvalidInputError("The mask is not a readable PNG image.")
-    level = 0 if int(gray.max()) <= 1 else 127
-    _, columns = cv2.threshold(cv2.transpose(gray), level, 1, cv2.THRESH_BINARY)
+    gray = mask_gray(decoded)  # the readers' one rule (io.mask_level)
+    _, columns = cv2.threshold(cv2.transpose(gray), mask_level(gray), 1, cv2.THRESH_BINARY)
     return _coco_encoded(columns.T)
 
 

@@ -243,7 +243,7 @@ def test_the_export_streams_frame_by_frame_without_a_temporary_file(
 def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does() -> None:
     """COCO's RLE of a mask PNG read the short way (OpenCV, transposed) equals the RLE of the
     mask as the service reads it, for 0/255 and 0/1 PNGs, holes and edges included."""
-    from weldpool_core.io import encode_png
+    from weldpool_core.io import decode_mask_png, encode_png
     from weldpool_core.outline import coco_mask, coco_mask_png
 
     mask = np.zeros((37, 53), bool)
@@ -252,6 +252,15 @@ def test_the_short_mask_reader_encodes_exactly_what_the_mask_reader_does() -> No
     mask[36, 52] = True  # a corner pixel
     for scale in (255, 1):
         assert coco_mask_png(encode_png(mask.astype(np.uint8) * scale)) == coco_mask(mask)
+    # colour and 16-bit masks, and gray levels either side of the threshold: one rule for both
+    rng = np.random.default_rng(5)
+    for pixels in (
+        rng.integers(0, 256, (37, 53, 3), dtype=np.uint8),  # channel max, not luminance
+        rng.integers(0, 65536, (37, 53), dtype=np.uint16),
+        rng.choice(np.array([0, 127, 128, 255], np.uint8), (37, 53)),
+    ):
+        data = encode_png(pixels)
+        assert coco_mask_png(data) == coco_mask(decode_mask_png(data))
     coco = coco_mask(mask)
     assert coco.area == int(mask.sum()) and coco.bbox == [0, 5, 53, 32]
     assert coco_mask(mask.T).rle != coco.rle
