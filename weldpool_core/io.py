@@ -105,11 +105,17 @@ def _probe(data: bytes, max_pixels: int) -> str:
 def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> DecodedImage:
     """Check and decode a frame file (bytes or a path); the original values are kept.
 
-    Raises InvalidInputError with one sentence for empty, truncated, corrupt, oversized or
-    unsupported files.
+    A PNG is verified as ``check_image`` verifies it (``pngcheck``) before it is decoded, so the
+    two refuse the same files: libpng alone passes over a wrong CRC after the image data and
+    does not read the stream's Adler-32. Raises InvalidInputError with one sentence for empty,
+    truncated, corrupt, oversized or unsupported files.
     """
     data = source if isinstance(source, bytes) else Path(source).read_bytes()
     fmt = _probe(data, max_pixels)
+    if fmt == "PNG":  # as strict as check_image: every chunk's CRC, a plain PNG's stream
+        png = plain_png(data)
+        if png is not None:
+            verify_stream(png)
     pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None:
         raise InvalidInputError(_CORRUPT)
