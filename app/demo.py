@@ -25,6 +25,7 @@ from app.storage import Storage
 from app.users.service import create_user
 from weldpool_core.io import encode_mask_png
 from weldpool_core.synth import synth_sequence
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 from weldpool_core.teacher.weights import weights_status
 
 DEMO_USER = "demo"
@@ -90,7 +91,7 @@ def _teacher_for(session: Session, settings: Settings, user: User, unlabelled: l
             session,
             JobQueue(settings, factory),
             "teacher",
-            {"frame_ids": unlabelled, "prompts": "heuristic"},
+            {"frame_ids": unlabelled, "prompts": DEFAULT_PROMPTS},
             user,
         )
         return f" Teacher job {job.id} queued for the other {len(unlabelled)} frames."

@@ -10,6 +10,7 @@ from typing import Any
 import click
 
 from app.cli.base import fail, friendly_errors, image_files, load_settings, main, named_files
+from weldpool_core.teacher.prompt_names import PromptName
 
 # Masks are PNG files (0 / 255). A file `<stem>_mask.png` (what `teacher` and `predict` write)
 # counts as the mask of `<stem>`, so outputs and ground truth line up by stem. A folder holding a
@@ -172,7 +173,7 @@ def eval_keypoints(pred_dir: Path, gt_dir: Path, matching: str) -> None:
     click.echo(json.dumps(scores.as_dict() | {"missing": missing}, indent=2))
 
 
-PAPER_MIOU = {"none": 35.37, "center": 34.82, "heuristic": 75.26}
+PAPER_MIOU: dict[PromptName, float] = {"none": 35.37, "center": 34.82, "heuristic": 75.26}
 
 
 @eval_group.command("teacher")
@@ -188,9 +189,10 @@ def eval_teacher(images_dir: Path, masks_dir: Path, as_json: bool) -> None:
     """
     import hashlib
 
-    from app.cli.teacher import load_teacher
+    from app.review import runtime
     from weldpool_core.io import read_image, read_mask, to_rgb8
     from weldpool_core.metrics import iou, segmentation_scores
+    from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 
     settings = load_settings()
     truth_dir = _part(masks_dir, "masks")
@@ -201,8 +203,8 @@ def eval_teacher(images_dir: Path, masks_dir: Path, as_json: bool) -> None:
     ]
     if not files:
         fail(f"No image in {images_dir} has a mask <stem>.png in {truth_dir}.")
-    teacher = load_teacher(settings, "heuristic")
-    per_config: dict[str, dict[str, float]] = {name: {} for name in PAPER_MIOU}
+    teacher = runtime.teacher(settings, DEFAULT_PROMPTS)
+    per_config: dict[PromptName, dict[str, float]] = {name: {} for name in PAPER_MIOU}
     with click.progressbar(files, label="eval teacher", file=sys.stderr) as bar:
         for path in bar:
             data = path.read_bytes()

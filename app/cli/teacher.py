@@ -5,13 +5,14 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 import click
 
 from app.cli.base import fail, friendly_errors, image_files, load_settings, main
 from app.config import Settings
 from app.errors import WeldpoolError
+from app.review import runtime
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PROMPT_NAMES, PromptName
 
 
 @main.group()
@@ -65,21 +66,7 @@ def weights_convert_dino(checkpoint: Path, out_dir: Path) -> None:
     )
 
 
-def load_teacher(settings: Settings, prompts: str) -> Any:
-    """The teacher as the settings name it, with the embedding cache under WELDPOOL_HOME."""
-    from weldpool_core.teacher.teacher import Teacher, TeacherConfig
-
-    return Teacher.load(
-        settings.dino,
-        settings.sam2,
-        device=settings.device,
-        cache_dir=settings.home / "cache" / "embeddings",
-        config=TeacherConfig(prompts=prompts),
-        dino_input_size=settings.dino_input_size,
-    )
-
-
-PROMPT_CHOICE = click.Choice(["none", "center", "heuristic"])
+PROMPT_CHOICE = click.Choice(PROMPT_NAMES)
 
 
 @main.command("teacher")
@@ -88,12 +75,12 @@ PROMPT_CHOICE = click.Choice(["none", "center", "heuristic"])
 @click.option(
     "--prompts",
     type=PROMPT_CHOICE,
-    default="heuristic",
+    default=DEFAULT_PROMPTS,
     show_default=True,
     help="Prompt configuration (the paper's ablation).",
 )
 @friendly_errors
-def teacher_cmd(images: tuple[str, ...], out_dir: Path, prompts: str) -> None:
+def teacher_cmd(images: tuple[str, ...], out_dir: Path, prompts: PromptName) -> None:
     """Run the teacher offline on images (files or folders).
 
     Writes per image <stem>_mask.png (0 / 255), <stem>_heatmap.npy (H×W×2: heatmap, mask) and
@@ -107,7 +94,7 @@ def teacher_cmd(images: tuple[str, ...], out_dir: Path, prompts: str) -> None:
 
     settings = load_settings()
     files = image_files(images)
-    teacher = load_teacher(settings, prompts)
+    teacher = runtime.teacher(settings, prompts)
     out_dir.mkdir(parents=True, exist_ok=True)
     with click.progressbar(files, label="teacher", file=sys.stderr) as bar:
         for path in bar:

@@ -119,11 +119,9 @@ def update_sequence(
     )
 
 
-def _deletion_out(deletion: deletion.Deletion) -> DeletionOut:
+def _deletion_out(done: deletion.Deletion) -> DeletionOut:
     return DeletionOut(
-        deleted_frames=deletion.frames,
-        deleted_reviewed=deletion.reviewed,
-        removed_files=deletion.files,
+        deleted_frames=done.frames, deleted_reviewed=done.reviewed, removed_files=done.files
     )
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from app.config import Settings
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 if TYPE_CHECKING:
     from weldpool_core.teacher.cache import EmbeddingCache
@@ -71,7 +72,7 @@ def propagator(settings: Settings) -> Sam2Propagator:
         return _sam2_video(settings.sam2, settings.device)
 
 
-def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
+def teacher(settings: Settings, prompts: PromptName = DEFAULT_PROMPTS) -> Teacher:
     """The teacher as the settings name it, sharing this process's SAM2 and cache."""
     from weldpool_core.teacher.teacher import Teacher, TeacherConfig
 
@@ -86,9 +87,3 @@ def teacher(settings: Settings, prompts: str = "heuristic") -> Teacher:
         TeacherConfig(prompts=prompts),
         settings.dino,
     )
-
-
-def forget_models() -> None:
-    """Drop loaded models (tests that switch weights between apps in one process)."""
-    for cached in (_sam2, _sam2_video, _dino, _cache):
-        cached.cache_clear()

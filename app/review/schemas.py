@@ -10,6 +10,7 @@ from pydantic import BaseModel, Field, model_validator
 from app.bounds import MAX_ID, XY, Id, InputModel
 from app.models import LabelStatus, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 MAX_KEYPOINTS = 64
 """Most keypoints a label or a validation set of one frame may hold."""
@@ -20,7 +21,7 @@ class TeacherRunIn(InputModel):
 
     frame_ids: list[Id] | None = Field(default=None, max_length=100_000)
     sequence_id: Id | None = None
-    prompts: Literal["none", "center", "heuristic"] = "heuristic"
+    prompts: PromptName = DEFAULT_PROMPTS
     force: bool = Field(default=False, description="Propose again for frames already seen.")
 
 

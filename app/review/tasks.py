@@ -25,6 +25,7 @@ from app.review import propagation, runtime
 from app.review.export import build_export, export_path
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 
 log = structlog.get_logger(__name__)
 
@@ -41,7 +42,7 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame; frames the
     same teacher already saw are skipped, so a lost run is simply re-run."""
     frame_ids: list[int] = [int(i) for i in ctx.params["frame_ids"]]
-    prompts = str(ctx.params.get("prompts", "heuristic"))
+    prompts = ctx.params.get("prompts", DEFAULT_PROMPTS)
     force = bool(ctx.params.get("force", False))
     ctx.progress(0.0, "loading the teacher")
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here

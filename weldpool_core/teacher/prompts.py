@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 
 from weldpool_core.teacher.dino import AttentionMaps
+from weldpool_core.teacher.prompt_names import PromptName
 from weldpool_core.teacher.sam2 import Prompts
 
 
@@ -140,7 +141,7 @@ def heuristic_prompts(attention: AttentionMaps, params: HeuristicParams | None =
 
 PromptStrategy = Callable[[AttentionMaps, HeuristicParams | None], Prompts]
 
-PROMPT_STRATEGIES: dict[str, PromptStrategy] = {
+PROMPT_STRATEGIES: dict[PromptName, PromptStrategy] = {
     "none": none_prompts,
     "center": center_prompts,
     "heuristic": heuristic_prompts,

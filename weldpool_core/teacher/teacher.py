@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding
 from weldpool_core.teacher.dino import AttentionMaps, DinoAttention
+from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 from weldpool_core.teacher.prompts import PROMPT_STRATEGIES, HeuristicParams
 from weldpool_core.teacher.sam2 import (
     ImageEmbedding,
@@ -43,7 +44,7 @@ class TeacherConfig:
             side (points move, box corners move).
     """
 
-    prompts: str = "heuristic"
+    prompts: PromptName = DEFAULT_PROMPTS
     heuristic: HeuristicParams = field(default_factory=HeuristicParams)
     grid_points: int = 8
     grid_batch: int = 16
@@ -181,7 +182,7 @@ class Teacher:
         self,
         attention: AttentionMaps,
         embedding: ImageEmbedding,
-        prompt_config: str,
+        prompt_config: PromptName,
         timings: dict[str, float] | None = None,
     ) -> TeacherResult:
         """The prompt → mask → heatmap part, on attention and an embedding already computed
@@ -227,13 +228,6 @@ class Teacher:
             warning=warning,
             prompt_stability=stability,
         )
-
-    def run_batch(
-        self, frames: Iterable[tuple[NDArray[np.uint8], str | None]]
-    ) -> Iterator[TeacherResult]:
-        """``run`` over (image, sha256) pairs, one at a time (memory stays flat)."""
-        for image, sha256 in frames:
-            yield self.run(image, sha256)
 
     def _prompt_stability(
         self, embedding: ImageEmbedding, prompts: Prompts, prediction: MaskPrediction
