@@ -1,0 +1,76 @@
+// Undo and redo between immutable editing states, what is unsaved, and the refresh after any
+// change of the state.
+
+import { renderKeypointList, renderManualCount } from "./keypoints.js";
+import { $, HISTORY_LIMIT } from "./page.js";
+import { renderVerdictNote } from "./review.js";
+import { S } from "./state.js";
+import { showOutline } from "./tools.js";
+
+// --- state and history ----------------------------------------------------------------------
+
+export function commit(next) {
+  S.past.push(S.edit);
+  if (S.past.length > HISTORY_LIMIT) S.past.shift();
+  S.future.length = 0;
+  S.edit = next;
+  changed();
+}
+
+export function undo() {
+  if (!S.past.length) return;
+  S.future.push(S.edit);
+  S.edit = S.past.pop();
+  changed();
+}
+
+export function redo() {
+  if (!S.future.length) return;
+  S.past.push(S.edit);
+  S.edit = S.future.pop();
+  changed();
+}
+
+export const labelDirty = () => S.edit && (S.edit.mask !== S.labelClean.mask || S.edit.keypoints !== S.labelClean.keypoints);
+export const manualDirty = () => S.edit && S.edit.manual !== S.manualClean;
+
+export function sameKeypoints(a, b) {
+  return a.length === b.length && a.every(([x, y], i) => Math.abs(x - b[i][0]) < 1e-6 && Math.abs(y - b[i][1]) < 1e-6);
+}
+
+/** Whether the shown label is the newest proposal, untouched (Accept then stores "accepted"). */
+export function isProposal() {
+  return S.proposal !== null && S.edit.mask.equals(S.proposal.mask) && sameKeypoints(S.edit.keypoints, S.proposal.keypoints);
+}
+
+/** Refresh the canvas and the side panel after any change of `state`. */
+export function changed() {
+  if (S.overlay.mask !== S.edit.mask) S.overlay.paint(S.edit.mask);
+  showOutline();
+  exposeState();
+  S.stage.keypoints = S.validation ? S.edit.manual : S.edit.keypoints;
+  S.stage.keypointStyle = S.validation ? "manual" : "keypoint";
+  S.stage.dimKeypoints = !S.validation && S.edit.maskEdited && !S.edit.kpEdited;
+  if (S.stage.selected >= S.stage.keypoints.length) S.stage.selected = -1;
+  S.stage.points = S.edit.session?.points ?? [];
+  S.stage.box = S.edit.session?.box ?? null;
+  S.stage.requestRender();
+  $("undo").disabled = !S.past.length;
+  $("redo").disabled = !S.future.length;
+  $("dirty").hidden = !labelDirty() && !manualDirty();
+  renderKeypointList();
+  renderManualCount();
+  renderVerdictNote();
+}
+
+/** What the canvas shows, as data attributes: for people inspecting the page and for tests. */
+export function exposeState() {
+  const data = S.stage.canvas.dataset;
+  data.maskArea = String(S.edit.mask.area());
+  data.keypoints = JSON.stringify(S.edit.keypoints.map(([x, y]) => [Math.round(x * 10) / 10, Math.round(y * 10) / 10]));
+  data.manual = JSON.stringify(S.edit.manual.map(([x, y]) => [Math.round(x * 10) / 10, Math.round(y * 10) / 10]));
+  data.clicks = String(S.edit.session?.points.length ?? 0);
+  data.revision = String(S.revision);
+  data.pending = String(S.inflight.size);
+  data.outline = JSON.stringify(S.stage.polygons ?? []);
+}

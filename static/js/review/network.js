@@ -1,0 +1,228 @@
+// What the page sends and fetches: verdicts with revision checks and the conflict dialog,
+// the queue's next frame, proposals, the teacher, propagation, the label's history.
+
+import { ApiError, api, jobFromButton, waitForJob } from "../api.js";
+import { badge, formatDate, h, toast } from "../ui.js";
+import { setHeatmapVisible } from "./display.js";
+import { changed, commit, isProposal, labelDirty, manualDirty } from "./history.js";
+import { toggleValidation } from "./keypoints.js";
+import { Mask, MaskOverlay } from "./mask.js";
+import { $, CONTEXT, FRAME_ID } from "./page.js";
+import { renderFrameInfo, renderPropagate, renderProposals } from "./review.js";
+import { S } from "./state.js";
+
+export async function loadHistory() {
+  try {
+    const rows = await api(`/frames/${FRAME_ID}/label/history`);
+    const list = $("history");
+    list.replaceChildren(...rows.slice().reverse().slice(0, 8).map((r) =>
+      h("li", {}, `rev ${r.revision} · `, badge(r.status), ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`)));
+    if (!rows.length) list.append(h("li", {}, "no label yet"));
+  } catch { /* the history is a convenience */ }
+}
+
+// --- verdicts -------------------------------------------------------------------------------
+
+export async function verdictBody(kind, baseRevision) {
+  const from = S.proposal ? { proposal_id: S.proposal.id } : {};
+  if (kind === "reject") return { status: "rejected", base_revision: baseRevision, ...from };
+  if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision, ...from };
+  const body = { status: "corrected", base_revision: baseRevision, mask_png: await S.edit.mask.toPng(), ...from };
+  const stale = S.edit.maskEdited && !S.edit.kpEdited;
+  if (!stale && S.edit.keypoints.length) body.keypoints = S.edit.keypoints;
+  return body;
+}
+
+export async function saveLabel(kind, baseRevision = S.revision) {
+  if (S.validation) toggleValidation();
+  await Promise.allSettled([...S.inflight]);
+  const body = await verdictBody(kind, baseRevision);
+  let label;
+  try {
+    label = await api(`/frames/${FRAME_ID}/label`, { method: "PUT", json: body });
+  } catch (error) {
+    if (error instanceof ApiError && error.status === 409) return showConflict(kind, error);
+    toast(error.message, "error");
+    return;
+  }
+  S.revision = label.revision;
+  S.labelStatus = label.status;
+  S.frame.status = label.status;
+  const keypoints = label.keypoints ?? S.edit.keypoints;
+  S.edit = { ...S.edit, keypoints, maskEdited: false, kpEdited: false, session: null };
+  S.labelClean = S.edit;
+  changed();
+  renderFrameInfo();
+  renderPropagate();
+  loadHistory();
+  toast(`Saved as ${label.status} (revision ${label.revision}).`, "ok");
+  if ($("advance").checked) await goNext({ afterSave: true });
+}
+
+/** Someone saved first: say who and when, show their label beside mine, let the reviewer pick. */
+export async function showConflict(kind, error) {
+  const current = error.body?.revision ?? 0;
+  const by = error.body?.updated_by ?? "someone else";
+  $("conflict-text").textContent = `${by} saved this frame's label while you were working on it (it is now at revision ${current}). Reload to take theirs (your changes are dropped), or overwrite it with yours.`;
+  const dialog = $("conflict");
+  $("conflict-overwrite").onclick = () => { dialog.close(); saveLabel(kind, current); };
+  $("conflict-reload").onclick = () => { dialog.close(); S.leaving = true; location.reload(); };
+  $("conflict-cancel").onclick = () => dialog.close();
+  const mine = kind === "reject" ? null : S.edit.mask;
+  drawPreview($("conflict-mine"), mine, "#00e6ff");
+  $("conflict-mine-text").textContent = kind === "reject" ? "Yours: rejected (no pool)" : `Yours: ${kind === "accept" && isProposal() ? "accepted" : "corrected"} · ${mine.area()} px`;
+  $("conflict-theirs-text").textContent = "Theirs: loading…";
+  dialog.showModal();
+  try {
+    const theirs = await api(`/frames/${FRAME_ID}/label`);
+    const mask = theirs.mask_png ? await Mask.fromPng(theirs.mask_png, S.frame.width, S.frame.height) : null;
+    drawPreview($("conflict-theirs"), mask, "#ff922b");
+    let differs = "";
+    if (mask && mine) {
+      let n = 0;
+      for (let i = 0; i < mask.data.length; i++) n += mask.data[i] !== mine.data[i];
+      differs = ` · differs from yours in ${n} px`;
+    }
+    $("conflict-theirs-text").textContent = `Theirs: ${theirs.status} by ${theirs.updated_by ?? "?"}, ${formatDate(theirs.updated_at)}${mask ? ` · ${mask.area()} px` : ""}${differs}`;
+  } catch (problem) {
+    $("conflict-theirs-text").textContent = `Theirs could not be loaded: ${problem.message}`;
+  }
+}
+
+/** The frame with a mask's outline and a light fill, scaled into a small canvas. */
+export function drawPreview(canvas, mask, colour) {
+  const scale = Math.min(canvas.width / S.frame.width, canvas.height / S.frame.height);
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.drawImage(S.stage.image, 0, 0, S.frame.width * scale, S.frame.height * scale);
+  if (!mask) return;
+  const layer = new MaskOverlay(S.frame.width, S.frame.height);
+  layer.paint(mask);
+  ctx.globalAlpha = 0.9;
+  ctx.drawImage(layer.canvas, 0, 0, S.frame.width * scale, S.frame.height * scale);
+  ctx.globalAlpha = 1;
+  ctx.strokeStyle = colour;
+  ctx.lineWidth = 3;
+  ctx.strokeRect(1.5, 1.5, S.frame.width * scale - 3, S.frame.height * scale - 3);
+}
+
+// --- the queue ------------------------------------------------------------------------------
+
+export const SKIPPED_KEY = "weldpool.skipped";
+export const skipped = () => new Set(JSON.parse(sessionStorage.getItem(SKIPPED_KEY) ?? "[]"));
+
+export async function queueIds() {
+  const params = new URLSearchParams(CONTEXT);
+  params.set("limit", "500");
+  params.delete("offset");
+  const page = await api(`/frames?${params}`);
+  return { ids: page.items.map((f) => f.id), total: page.total, ordering: page.ordering };
+}
+
+export async function goNext({ afterSave = false } = {}) {
+  if (!afterSave && (labelDirty() || manualDirty())
+      && !window.confirm("This frame has unsaved changes. Leave it without saving?")) return;
+  let ids;
+  try {
+    ({ ids } = await queueIds());
+  } catch (error) {
+    toast(error.message, "error");
+    return;
+  }
+  if (!afterSave) sessionStorage.setItem(SKIPPED_KEY, JSON.stringify([...skipped(), FRAME_ID].slice(-500)));
+  const here = ids.indexOf(FRAME_ID);
+  const seen = skipped();
+  const next = here >= 0
+    ? ids[here + 1]
+    : ids.find((id) => id !== FRAME_ID && !seen.has(id)) ?? ids.find((id) => id !== FRAME_ID);
+  if (next === undefined) {
+    toast("That was the last frame of this queue.", "info");
+    $("queue-position").textContent = "End of the queue — back to the frame list to pick another.";
+    return;
+  }
+  S.leaving = true;
+  location.href = `/frames/${next}?${CONTEXT}`;
+}
+
+export async function showQueuePosition() {
+  try {
+    const { ids, total, ordering } = await queueIds();
+    const here = ids.indexOf(FRAME_ID);
+    $("queue-position").title = ordering ?? "";
+    const order = CONTEXT.get("order") === "uncertainty" ? "most uncertain first" : `order ${CONTEXT.get("order")}`;
+    $("queue-position").textContent = here >= 0 ? `${here + 1} of ${total} in this queue (${order})` : `not in this queue (${order})`;
+    const next = here >= 0 ? ids[here + 1] : ids[0];
+    if (next !== undefined && next !== FRAME_ID) {
+      document.head.append(h("link", { rel: "prefetch", as: "image", href: `/api/v1/frames/${next}/image?variant=display` }));
+    }
+  } catch { /* the position is a convenience */ }
+}
+
+/** Show another proposal of the frame: it replaces the working mask (undoable once edited). */
+export async function switchProposal(id) {
+  if (S.proposal && S.proposal.id === id) return;
+  let body;
+  try {
+    body = await api(`/frames/${FRAME_ID}/proposal?proposal_id=${id}`);
+  } catch (error) { toast(error.message, "error"); return; }
+  const mask = await Mask.fromPng(body.mask_png, S.frame.width, S.frame.height);
+  S.proposal = { ...body, mask };
+  S.stage.heatmap = null;
+  if (S.stage.showHeatmap) setHeatmapVisible(true);
+  const next = { ...S.edit, mask, keypoints: (body.keypoints ?? []).map((p) => [...p]), maskEdited: false, kpEdited: false, session: null };
+  if (S.revision === 0 && !labelDirty()) { S.edit = next; S.labelClean = next; changed(); }
+  else commit(next);
+  renderProposals();
+  renderFrameInfo();
+  S.stage.requestRender();
+}
+
+// --- loading --------------------------------------------------------------------------------
+
+export async function optional(path) {
+  try { return await api(path); } catch (error) {
+    if (error instanceof ApiError && error.status === 404) return null;
+    throw error;
+  }
+}
+
+export function loadImage(url) {
+  const image = new Image();
+  image.src = url;
+  return image.decode().then(() => image);
+}
+
+export async function propagateFromHere() {
+  const threshold = Math.min(1, Math.max(0, Number($("propagate-threshold").value) || 0));
+  const direction = $("propagate-direction").value;
+  const body = { from_frame_ids: [FRAME_ID], direction, threshold };
+  const until = $("propagate-until").value.trim();
+  if (direction !== "both" && until !== "") body.until_frame_index = Math.max(0, Math.round(Number(until)));
+  try {
+    const job = await jobFromButton($("propagate"), () => api(`/sequences/${S.frame.sequence_id}/propagate`, { method: "POST", json: body }), "Propagating");
+    if (job.status !== "succeeded") throw new Error(`The propagation job ${job.status}: ${job.error ?? job.message ?? ""}`);
+    $("propagate-note").replaceChildren(`${job.message}. `, h("a", { href: `/sequences/${S.frame.sequence_id}`, "data-testid": "timeline-link" }, "Open the run's timeline"), ".");
+    toast(`Propagation done: ${job.message}.`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    renderPropagate();
+  }
+}
+
+export async function runTeacher(force) {
+  const button = $(force ? "rerun-teacher" : "run-teacher");
+  const text = button.textContent;
+  button.disabled = true;
+  try {
+    const { job_id: jobId } = await api("/teacher/runs", { method: "POST", json: { frame_ids: [FRAME_ID], force } });
+    const job = await waitForJob(jobId, (j) => { button.textContent = `Teacher: ${Math.round(j.progress * 100)} %`; });
+    if (job.status !== "succeeded") throw new Error(`The teacher job ${job.status}: ${job.error ?? ""}`);
+    if (labelDirty() || manualDirty()) toast("The proposal is ready; save or undo your changes, then reload.", "info");
+    else { S.leaving = true; location.reload(); }
+  } catch (error) {
+    toast(error.message, "error");
+    button.disabled = false;
+    button.textContent = text;
+  }
+}

@@ -1,0 +1,29 @@
+// The review page's state: one object every module reads and writes (see review.js for
+// what each part holds). `edit` is the immutable editing state ({mask, keypoints, manual,
+// session, outline, maskEdited, kpEdited}); undo and redo move between them.
+
+export const S = {
+  frame: null,
+  proposal: null, // the proposal shown: {id, mask, keypoints, scores, source, source_key, model_id, chosen}
+  proposals: [], // every proposal of the frame, newest first (GET /proposals items)
+  policyReason: "",
+  revision: 0,
+  labelStatus: null,
+  stage: null,
+  ruler: null, // measuring the run's scale: two ends of a known length
+  overlay: null,
+  edit: null,
+  labelClean: null,
+  manualClean: null,
+  past: [],
+  future: [],
+  tool: "positive",
+  toolBeforeValidation: "positive",
+  maskBeforeValidation: true,
+  validation: false,
+  leaving: false,
+  spaceHeld: false,
+  gesture: null,
+  inflight: new Set(),
+  pngCache: new WeakMap(),
+};
