@@ -40,8 +40,8 @@ import numpy as np
 
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
 from weldpool_core.stream import FrameSource, StreamStudent, run_stream, summary
-from weldpool_core.student.checkpoint import save_config, save_weights
-from weldpool_core.student.export import INT8_ONNX_FILE, ONNX_FILE, export_student
+from weldpool_core.student.checkpoint import INT8_ONNX_FILE, ONNX_FILE, save_config, save_weights
+from weldpool_core.student.export import export_student
 from weldpool_core.student.model import STUDENT_SIZES, build_student
 from weldpool_core.student.predict import frames_to_batch
 from weldpool_core.student.quantize import quantize_onnx, quantize_student

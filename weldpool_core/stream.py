@@ -48,9 +48,9 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
-from weldpool_core.student.checkpoint import read_student_config
+from weldpool_core.student.checkpoint import ONNX_FILE, read_student_config
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import ONNX_FILE, ensure_onnx
+from weldpool_core.student.export import ensure_onnx
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import frame_keypoints, mask_ambiguity
 from weldpool_core.student.runners import RunnerOptions, open_runner, runner_kind

@@ -498,7 +498,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     spread over the project and checked against the float student on others; the version
     records the check and both speeds. A job that fails after the file was written puts the
     previous int8 file (or none) back, so the file and the record always agree."""
-    from weldpool_core.student.export import EXPORT_FILE, INT8_ONNX_FILE
+    from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
     from weldpool_core.student.quantize import quantize_student, remove_leftovers
 
     storage = Storage.of(ctx.settings)

@@ -348,7 +348,7 @@ def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live
     float student, recorded on the version with both speeds; a failed record puts the earlier
     file back; the live view runs it, only for a version that has one and not with sequential."""
     from tests.helpers import wait_for_job
-    from weldpool_core.student.export import INT8_ONNX_FILE
+    from weldpool_core.student.checkpoint import INT8_ONNX_FILE
     from weldpool_core.synth import SynthParams, synth_frame
 
     crisp = tmp_path / "crisp"  # trained long enough for crisp masks: int8 can match it

@@ -23,6 +23,7 @@ torch and safetensors are imported by the functions that need them, so the layou
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -38,6 +39,13 @@ if TYPE_CHECKING:
     from weldpool_core.student.model import ResNetVAE, StudentConfig
 
 FORMAT = "weldpool-student"
+ONNX_FILE = "model.onnx"
+"""The exported student for ONNX Runtime (``export``)."""
+EXPORT_FILE = "export.json"
+"""What the exports record: each file's difference from PyTorch, and the int8 student's record."""
+INT8_ONNX_FILE = "model.int8.onnx"
+"""The int8 student ``quantize`` makes beside the float ONNX file; its record is
+``export.json["int8"]``."""
 VERSION = 1
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
@@ -192,3 +200,26 @@ def load_state(model_dir: Path) -> dict[str, Any] | None:
     if not isinstance(state, dict):
         raise InvalidInputError(f"{path} is not a training state; train from the start.")
     return state
+
+
+def weights_digest(model_dir: str | Path) -> str:
+    """SHA-256 of a folder's float weights (``model.safetensors``), which an int8 file names."""
+    digest = hashlib.sha256()
+    with open(Path(model_dir) / WEIGHTS_FILE, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def current_record(model_dir: str | Path) -> dict[str, Any] | None:
+    """The folder's int8 record (``export.json["int8"]``) when its ``model.int8.onnx`` exists
+    and was made from the float weights as they are now; None otherwise (none made, or the
+    folder was trained further since and the int8 file is stale)."""
+    root = Path(model_dir)
+    if not (root / INT8_ONNX_FILE).is_file() or not (root / EXPORT_FILE).is_file():
+        return None
+    data = read_json(root / EXPORT_FILE)
+    record = data.get("int8") if isinstance(data, dict) else None
+    if not isinstance(record, dict) or record.get("weights_sha256") != weights_digest(root):
+        return None
+    return record

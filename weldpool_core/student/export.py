@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import hashlib
 import logging
 import warnings
 from collections.abc import Iterator, Sequence
@@ -31,14 +30,15 @@ from torch import nn
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.student import checkpoint
+from weldpool_core.student.checkpoint import (
+    EXPORT_FILE,
+    INT8_ONNX_FILE,
+    ONNX_FILE,
+    current_record,
+)
 from weldpool_core.student.model import ResNetVAE, fuse_batchnorm
 
-ONNX_FILE = "model.onnx"
 TORCHSCRIPT_FILE = "model.torchscript.pt"
-EXPORT_FILE = "export.json"
-INT8_ONNX_FILE = "model.int8.onnx"
-"""The int8 student ``quantize`` makes beside the float ONNX file; its record is
-``export.json["int8"]``."""
 FORMATS = ("onnx", "torchscript")
 TOLERANCE = 1e-4
 """Largest absolute difference allowed between an exported model and PyTorch."""
@@ -164,29 +164,6 @@ def _difference(model: ResNetVAE, outputs: Sequence[Any], images: torch.Tensor) 
         float(np.abs(np.asarray(ours) - theirs.numpy()).max())
         for ours, theirs in zip(outputs, reference, strict=True)
     )
-
-
-def weights_digest(model_dir: str | Path) -> str:
-    """SHA-256 of a folder's float weights (``model.safetensors``), which an int8 file names."""
-    digest = hashlib.sha256()
-    with open(Path(model_dir) / checkpoint.WEIGHTS_FILE, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def current_record(model_dir: str | Path) -> dict[str, Any] | None:
-    """The folder's int8 record (``export.json["int8"]``) when its ``model.int8.onnx`` exists
-    and was made from the float weights as they are now; None otherwise (none made, or the
-    folder was trained further since and the int8 file is stale)."""
-    root = Path(model_dir)
-    if not (root / INT8_ONNX_FILE).is_file() or not (root / EXPORT_FILE).is_file():
-        return None
-    data = checkpoint.read_json(root / EXPORT_FILE)
-    record = data.get("int8") if isinstance(data, dict) else None
-    if not isinstance(record, dict) or record.get("weights_sha256") != weights_digest(root):
-        return None
-    return record
 
 
 @dataclass(frozen=True)

@@ -36,12 +36,10 @@ from numpy.typing import NDArray
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.metrics import iou
 from weldpool_core.student import checkpoint
-from weldpool_core.student.export import (
+from weldpool_core.student.checkpoint import (
     EXPORT_FILE,
     INT8_ONNX_FILE,
     ONNX_FILE,
-    ensure_onnx,
-    onnx_session,
     weights_digest,
 )
 
@@ -82,6 +80,8 @@ def remove_leftovers(model_dir: str | Path) -> list[str]:
 
 def _frame_ms(path: Path, frame: NDArray[np.float32]) -> float:
     """Median milliseconds of one frame through ``path`` on one thread."""
+    from weldpool_core.student.export import onnx_session  # torch: loaded only when used
+
     session = onnx_session(path, threads=1)
     session.run(None, {"image": frame})
     times = []
@@ -255,6 +255,8 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
         )
     root = Path(model_dir)
     config = checkpoint.read_student_config(root)
+    from weldpool_core.student.export import ensure_onnx, onnx_session  # torch, when used
+
     ensure_onnx(root)
     batch_tensor, geometries = frames_to_batch(images, config)
     batch = batch_tensor.numpy()

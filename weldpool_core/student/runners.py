@@ -24,8 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.checkpoint import INT8_ONNX_FILE, ONNX_FILE, current_record
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import INT8_ONNX_FILE, ONNX_FILE, current_record, onnx_session
+from weldpool_core.student.export import onnx_session
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import uncertainty_of
 

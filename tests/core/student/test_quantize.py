@@ -16,8 +16,9 @@ from tests.helpers import run_cli, write_video
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import heatmap_from_mask
 from weldpool_core.stream import FrameSource, StreamStudent, run_stream
+from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.export import EXPORT_FILE, INT8_ONNX_FILE, export_student
+from weldpool_core.student.export import export_student
 from weldpool_core.student.quantize import compare, quantize_student
 from weldpool_core.student.train import TrainResult
 from weldpool_core.synth import synth_frame
