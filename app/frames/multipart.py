@@ -2,20 +2,25 @@
 
 Starlette's ``request.form()`` returns only once the whole body is in, each file spooled to a
 temporary file; frame upload instead hands every file to its checks while the rest of the body
-is still arriving, so receiving and checking overlap. The parsing itself is python-multipart's
-(Starlette's parser too); this module keeps Starlette's limits and adds the file names exactly
-as the client sent them.
+is still arriving, so receiving and checking overlap. A video upload asks for its file spooled
+(``spool``): held in memory up to that size, then written to a temporary file off the event
+loop, and handed on as a file object. Both uploads read their forms here; the parsing itself is
+python-multipart's (Starlette's parser too); this module keeps Starlette's limits and adds the
+file names exactly as the client sent them.
 """
 
 from __future__ import annotations
 
 import codecs
 import email.message
+import tempfile
 from collections.abc import AsyncIterable, Callable
 from dataclasses import dataclass, field
+from typing import IO, Any
 
 from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
+from starlette.concurrency import run_in_threadpool
 
 from app.errors import InvalidInputError
 
@@ -45,18 +50,25 @@ class _Part:
     file_name: str | None = None
     data: list[bytes] = field(default_factory=list)
     size: int = 0
+    spool: Any = None  # a spooled part's SpooledTemporaryFile
+    written: int = 0  # bytes of it written to its spool so far
 
 
 class StreamedForm:
-    """Plain fields of a multipart body; its files go to ``on_file(field, name, data)``."""
+    """Plain fields of a multipart body; its files go to ``on_file(field, name, data)``: the
+    bytes, or with ``spool`` a file object (rewound; ``close`` closes them all).
+
+    ``limit_hint`` ends the too-many-files sentence (the setting that sets ``max_files``)."""
 
     def __init__(
         self,
-        on_file: Callable[[str, str, bytes], None],
+        on_file: Callable[[str, str, Any], None],
         *,
         max_files: int,
         max_fields: int,
         charset: str = "utf-8",
+        spool: int | None = None,
+        limit_hint: str = " (WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests",
     ) -> None:
         self.fields: dict[str, str] = {}
         self._on_file = on_file
@@ -64,6 +76,10 @@ class StreamedForm:
         self._files = self._field_count = 0
         self._charset = charset
         self._part = _Part()
+        self._spool_size, self._limit_hint = spool, limit_hint
+        self._spools: list[IO[bytes]] = []
+        self._pending: list[tuple[_Part, bytes]] = []  # spooled data not yet written
+        self._finished: list[_Part] = []  # spooled parts whole, to hand on once written
 
     async def read(self, content_type: str, body: AsyncIterable[bytes]) -> None:
         """Parse ``body``; one-sentence InvalidInputError for a malformed or oversized form."""
@@ -93,11 +109,33 @@ class StreamedForm:
         try:
             async for chunk in body:
                 parser.write(chunk)
+                await self._write_spooled()
             parser.finalize()
+            await self._write_spooled()
         except MultipartParseError as exc:
             raise InvalidInputError(f"The multipart body is malformed ({exc}).") from None
         if parser.state != MultipartState.END:
             raise InvalidInputError("The multipart body ends before its closing boundary.")
+
+    async def _write_spooled(self) -> None:
+        """Spooled data into its files (in a worker thread once a file is on disk), then the
+        parts that are whole handed on."""
+        pending, self._pending = self._pending, []
+        for part, data in pending:
+            part.written += len(data)
+            if part.written > (self._spool_size or 0):  # on disk by now: a thread waits for it
+                await run_in_threadpool(part.spool.write, data)
+            else:
+                part.spool.write(data)
+        finished, self._finished = self._finished, []
+        for part in finished:
+            part.spool.seek(0)
+            self._on_file(part.field_name, part.file_name or "", part.spool)
+
+    def close(self) -> None:
+        """Close every spooled file this form made."""
+        for spool in self._spools:
+            spool.close()
 
     def _decode(self, value: bytes) -> str:
         try:
@@ -130,10 +168,12 @@ class StreamedForm:
             self._files += 1
             if self._files > self._max_files:
                 raise InvalidInputError(
-                    f"Too many files in one request: at most {self._max_files} "
-                    "(WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests."
+                    f"Too many files in one request: at most {self._max_files}{self._limit_hint}."
                 )
             part.file_name = raw_name if raw_name is not None else ""
+            if self._spool_size is not None:
+                part.spool = tempfile.SpooledTemporaryFile(max_size=self._spool_size)  # noqa: SIM115 (closed by close())
+                self._spools.append(part.spool)
         else:
             self._field_count += 1
             if self._field_count > self._max_fields:
@@ -144,10 +184,16 @@ class StreamedForm:
         part.size += end - start
         if part.file_name is None and part.size > MAX_FIELD_BYTES:
             raise InvalidInputError(f"The form field {part.field_name!r} is larger than 1 MB.")
-        part.data.append(data[start:end])
+        if part.spool is not None:
+            self._pending.append((part, bytes(data[start:end])))
+        else:
+            part.data.append(data[start:end])
 
     def _end(self) -> None:
         part = self._part
+        if part.spool is not None:
+            self._finished.append(part)
+            return
         data = b"".join(part.data)
         if part.file_name is None:
             self.fields[part.field_name] = self._decode(data)

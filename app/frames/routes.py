@@ -9,13 +9,12 @@ import anyio
 from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
-from starlette.datastructures import FormData, UploadFile
 
 from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames import deletion, ingest, listing, sequences, videos
-from app.frames.multipart import StreamedForm, client_file_name
+from app.frames.multipart import StreamedForm
 from app.frames.schemas import (
     DeletionOut,
     Duplicate,
@@ -52,19 +51,6 @@ def _multipart(fields: dict[str, Any], required: list[str]) -> dict[str, Any]:
     }
 
 
-async def _form(request: Request, max_files: int) -> FormData:
-    if not request.headers.get("content-type", "").startswith("multipart/form-data"):
-        raise InvalidInputError("Send the upload as multipart/form-data.")
-    return await request.form(max_files=max_files, max_fields=64)
-
-
-def _client_name(upload: UploadFile) -> str:
-    """The file name exactly as the client sent it (``multipart.client_file_name``)."""
-    raw = upload.headers.get("content-disposition")
-    name = client_file_name(raw) if raw else None
-    return name if name is not None else upload.filename or ""
-
-
 def _optional_int(form: Mapping[str, Any], name: str, default: int | None = None) -> int | None:
     value = form.get(name)
     if value is None or value == "":
@@ -75,6 +61,10 @@ def _optional_int(form: Mapping[str, Any], name: str, default: int | None = None
     if abs(number) > MAX_ID:
         raise InvalidInputError(f"{name} must be at most {MAX_ID}.")
     return number
+
+
+VIDEO_SPOOL_BYTES = 1024 * 1024
+"""A video part is held in memory up to this size, then spooled to a temporary file."""
 
 
 # --- sequences ---------------------------------------------------------------------------------
@@ -355,25 +345,34 @@ async def upload_video(
 ) -> VideoAccepted:
     """Upload an MP4 or AVI video; a job extracts every n-th frame into the sequence (a new
     sequence named after the file when none is given)."""
-    form = await _form(request, 1)
-    upload = form.get("file")
-    if not isinstance(upload, UploadFile):
-        raise InvalidInputError("The request has no `file` part; attach one video.")
-    every_nth = _optional_int(form, "every_nth", 1) or 0
-    sequence_id = _optional_int(form, "sequence_id")
+    uploads: list[tuple[str, Any]] = []
+    form = StreamedForm(
+        lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
+        max_files=1,
+        max_fields=64,
+        spool=VIDEO_SPOOL_BYTES,
+        limit_hint="; send one video per request",
+    )
     try:
+        await form.read(request.headers.get("content-type", ""), request.stream())
+        if not uploads:
+            raise InvalidInputError("The request has no `file` part; attach one video.")
+        every_nth = _optional_int(form.fields, "every_nth", 1) or 0
+        sequence_id = _optional_int(form.fields, "sequence_id")
+        name, upload = uploads[0]
         video = await run_in_threadpool(
             videos.store_video,
             session,
             storage,
-            upload.file,
-            name=_client_name(upload),
+            upload,
+            name=name,
             every_nth=every_nth,
             sequence_id=sequence_id,
             user=user,
         )
     finally:
-        await form.close()
+        with anyio.CancelScope(shield=True):  # a cancelled request still removes its spool
+            await run_in_threadpool(form.close)
     job = create_job(session, queue, "extract_video", {"video_id": video.id}, user)
     video.job_id = job.id
     session.commit()

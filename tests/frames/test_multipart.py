@@ -137,3 +137,40 @@ def test_a_file_is_checked_and_staged_while_the_caller_goes_on(
     assert isinstance(copy, ingest.CheckedFrame) and copy.staged is None  # one file a content
     checks.discard()
     assert not first.staged.temporary.exists()
+
+
+def test_a_spooled_file_arrives_whole_as_a_file_on_disk_and_closes_with_the_form() -> None:
+    """A video's part (spool): held in memory up to the spool size, then on disk; handed on
+    rewound, byte for byte, with its exact name; the form's fields beside it; closed by
+    ``close``. Data split at every chunk boundary, the boundary itself split too."""
+    video = bytes(range(256)) * 4096  # 1 MiB, four times the spool
+    body = _part("every_nth", b"3") + _part("file", video, "C:\\runs\\a b.mp4") + b"--b--\r\n"
+    files: list[tuple[str, str, object]] = []
+    form = StreamedForm(lambda *file: files.append(file), max_files=1, max_fields=4, spool=2**18)
+
+    async def chunks() -> AsyncIterator[bytes]:
+        for start in range(0, len(body), 65_537):  # odd sizes: parts straddle the chunks
+            yield body[start : start + 65_537]
+
+    asyncio.run(form.read("multipart/form-data; boundary=b", chunks()))
+    ((field, name, spooled),) = files
+    assert (field, name, form.fields) == ("file", "C:\\runs\\a b.mp4", {"every_nth": "3"})
+    assert spooled.read() == video  # type: ignore[attr-defined]
+    assert spooled._rolled  # type: ignore[attr-defined]  # on disk, not in memory
+    form.close()
+    assert spooled.closed  # type: ignore[attr-defined]
+    with pytest.raises(InvalidInputError, match="at most 1; send one video per request"):
+        two = body[:-7] + _part("file", b"x", "b.mp4") + b"--b--\r\n"
+        asyncio.run(
+            StreamedForm(
+                lambda *file: None,
+                max_files=1,
+                max_fields=4,
+                spool=2**18,
+                limit_hint="; send one video per request",
+            ).read("multipart/form-data; boundary=b", _once(two))
+        )
+
+
+async def _once(data: bytes) -> AsyncIterator[bytes]:
+    yield data
