@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import tempfile
 import time
@@ -141,6 +142,7 @@ def cached_fold(
     ``bench-done.json`` marker): then its student is only scored again."""
     done = folder / "bench-done.json"
     if not done.is_file():
+        shutil.rmtree(folder, ignore_errors=True)  # what a killed run left half-trained
         fold = train_and_score(train, test, folder, student, config, samples)
         marker = {"seconds": fold.seconds, "best_epoch": fold.result.best_epoch}
         done.write_text(json.dumps(marker))
