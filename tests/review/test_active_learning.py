@@ -78,7 +78,7 @@ def test_an_untrained_new_model_is_not_promoted(
     client: TestClient, settings, session_factory, make_user
 ):
     """One epoch on three frames: the gate measures it on the held-out frame and refuses it
-    (tests/review/test_gate_and_policy.py covers each rule of the gate). A model folder left by
+    (tests/training/test_gate.py covers each rule of the gate). A model folder left by
     a crash does not block the new version's name."""
     from app.models import ModelVersion
     from tests.helpers import wait_for_job

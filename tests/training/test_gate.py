@@ -1,4 +1,4 @@
-"""The promotion gate and the proposal policy: a worse student is never promoted nor shown.
+"""The promotion gate (``app.training.gate``): a worse student is never promoted.
 
 Student versions here are real checkpoints (a light student trained briefly on synthetic
 frames) whose output heads are then biased on purpose: mask bias −30 draws no pool (mIoU 0),
@@ -22,10 +22,10 @@ from app.proposals.files import store_mask
 from app.storage import Storage
 from app.training import gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
-from tests.helpers import auth, corrected_label, image_bytes, wait_for_job
+from tests.helpers import auth, corrected_label, wait_for_job
+from tests.proposals.common import H, W, box, propose, upload
 from weldpool_core.student.train import train_student
 
-W, H = 96, 64
 KEYPOINTS = [[20.0, 20.0], [76.0, 20.0], [76.0, 44.0], [20.0, 44.0]]
 
 
@@ -77,17 +77,8 @@ def _shrunk() -> np.ndarray:
     return mask
 
 
-def _upload(client: TestClient, token: str, first_seed: int, count: int) -> list[int]:
-    files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=first_seed + i), "image/png"))
-        for i in range(count)
-    ]
-    stored = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    return [f["id"] for f in stored]
-
-
 def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
-    ids = _upload(client, token, 300, 3)
+    ids = upload(client, token, 300, 3)
     storage = Storage(settings.home)
     with session_factory() as session:
         for frame_id in ids:
@@ -178,161 +169,6 @@ def test_a_usable_first_version_is_promoted_and_an_equal_one_is_not(
     assert verdict["frames"] == [] and not verdict["usable"]  # never judged on its own training
 
 
-def _propose(
-    session_factory, storage: Storage, frame_id: int, source: str, model_id: str, mask: np.ndarray
-) -> int:
-    with session_factory() as session:
-        proposal = Proposal(
-            frame_id=frame_id,
-            source=source,
-            model_id=model_id,
-            mask_path=store_mask(storage, mask),
-            keypoints=[],
-        )
-        session.add(proposal)
-        session.commit()
-        return proposal.id
-
-
-def _box(x0: int, x1: int) -> np.ndarray:
-    mask = np.zeros((H, W), bool)
-    mask[10:50, x0:x1] = True
-    return mask
-
-
-def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
-    client: TestClient, settings, session_factory, make_user
-) -> None:
-    _, token = make_user("policy", Role.reviewer)
-    storage = Storage(settings.home)
-    ids = _upload(client, token, 400, 5)
-    with session_factory() as session:
-        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
-        session.commit()
-    truth = _box(20, 60)
-    for frame_id in ids:
-        _propose(session_factory, storage, frame_id, "teacher", "t", _box(30, 70))  # IoU 0.6
-        _propose(session_factory, storage, frame_id, "student", "student-v1", _box(22, 62))
-
-    def shown(frame_id: int) -> str:
-        body = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
-        return body["source_key"]
-
-    assert shown(ids[4]) == "teacher"  # nothing measured yet: the teacher
-    for count, frame_id in enumerate(ids[:3], start=1):
-        response = client.put(
-            f"/api/v1/frames/{frame_id}/label", json=corrected_label(truth), headers=auth(token)
-        )
-        assert response.status_code == 200, response.text
-        assert response.json()["mask_changed"] is True
-        expected = "student:student-v1" if count >= 3 else "teacher"
-        assert shown(ids[4]) == expected, count  # two frames are not enough evidence
-
-    listing = client.get(f"/api/v1/frames/{ids[4]}/proposals", headers=auth(token)).json()
-    assert [p["source"] for p in listing["items"]] == ["student", "teacher"]
-    assert [p["chosen"] for p in listing["items"]] == [True, False]
-    scores = {s["key"]: s for s in listing["policy"]["sources"]}
-    assert scores["teacher"]["mIoU"] == pytest.approx(0.6)
-    assert scores["student:student-v1"]["mIoU_common"] == pytest.approx(38 / 42)
-    assert listing["policy"]["chosen"] == "student:student-v1"
-    other = client.get(
-        f"/api/v1/frames/{ids[4]}/proposal", params={"source": "teacher"}, headers=auth(token)
-    ).json()
-    assert other["source"] == "teacher" and not other["chosen"]
-
-    # Deleting an older reviewed frame leaves two frames of evidence: the teacher again (the
-    # policy is measured anew, not served from a cache keyed by the newest label only).
-    deleted = client.delete(
-        f"/api/v1/frames/{ids[0]}", params={"force": "true"}, headers=auth(token)
-    )
-    assert deleted.status_code == 200 and deleted.json()["deleted_reviewed"] == 1
-    assert shown(ids[4]) == "teacher"
-    assert (
-        client.get(
-            f"/api/v1/frames/{ids[4]}/proposal",
-            params={"source": "student:nope"},
-            headers=auth(token),
-        ).status_code
-        == 400
-    )
-
-    # a gate that found the version worse than the teacher keeps it out of the review
-    with session_factory() as session:
-        version = session.query(ModelVersion).filter_by(name="student-v1").one()
-        version.gate = {"usable": False}
-        version.promoted_at = None
-        session.commit()
-    # a new label revision changes the policy's fingerprint
-    client.put(f"/api/v1/frames/{ids[3]}/label", json=corrected_label(truth), headers=auth(token))
-    assert shown(ids[4]) == "teacher"
-    with session_factory() as session:
-        version = session.query(ModelVersion).filter_by(name="student-v1").one()
-        version.gate = None
-        version.train_frame_ids = ids[:3]  # frames it trained on do not count
-        session.commit()
-    label = client.get(f"/api/v1/frames/{ids[3]}/label", headers=auth(token)).json()
-    client.put(
-        f"/api/v1/frames/{ids[3]}/label",
-        json=corrected_label(truth, base_revision=label["revision"]),
-        headers=auth(token),
-    )
-    assert shown(ids[4]) == "teacher"
-
-
-def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
-    client: TestClient, settings, session_factory, make_user
-) -> None:
-    _, token = make_user("provenance", Role.reviewer)
-    storage = Storage(settings.home)
-    ids = _upload(client, token, 500, 2)
-    teacher = _propose(session_factory, storage, ids[0], "teacher", "t", _box(30, 70))
-    student = _propose(session_factory, storage, ids[0], "student", "student-v9", _box(22, 62))
-    second = _propose(session_factory, storage, ids[1], "teacher", "t", _box(30, 70))
-    accepted = client.put(
-        f"/api/v1/frames/{ids[0]}/label",
-        json={"status": "accepted", "base_revision": 0, "proposal_id": student},
-        headers=auth(token),
-    ).json()
-    assert accepted["proposal_id"] == student and accepted["mask_changed"] is False
-    same = client.put(  # the teacher's mask, sent back as it was: unchanged
-        f"/api/v1/frames/{ids[1]}/label",
-        json=corrected_label(_box(30, 70)),
-        headers=auth(token),
-    ).json()
-    assert same["mask_changed"] is False and same["proposal_id"] == second
-    wrong = client.put(
-        f"/api/v1/frames/{ids[1]}/label",
-        json={"status": "accepted", "base_revision": 1, "proposal_id": teacher},
-        headers=auth(token),
-    )
-    assert wrong.status_code == 404 and "no proposal" in wrong.json()["detail"]
-    review = client.get("/api/v1/metrics", headers=auth(token)).json()["review"]
-    by_source = {s["source"]: s for s in review["by_source"]}
-    assert by_source["student:student-v9"]["accepted"] == 1
-    assert by_source["student:student-v9"]["acceptance_rate"] == 1.0
-    assert by_source["teacher"]["corrected"] == 1 and by_source["teacher"]["unchanged"] == 1
-    with session_factory() as session:
-        assert session.get_one(Frame, ids[0]).status.value == "accepted"
-
-
-def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
-    client: TestClient, settings, session_factory, make_user
-) -> None:
-    from tests.review.test_review import _teacher, _upload_synthetic
-
-    _, token = make_user("skipper", Role.reviewer)
-    storage = Storage(settings.home)
-    first, second = _upload_synthetic(client, token, 2)
-    _propose(session_factory, storage, first, "student", "student-v3", _box(20, 60))
-    result = _teacher(client, token, [first, second])["result"]
-    assert result["proposed"] == 2 and result["skipped"] == 0  # a student's proposal is no reason
-    again = _teacher(client, token, [first, second])["result"]
-    assert again["proposed"] == 0 and again["skipped"] == 2
-    listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
-    assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
-    assert listing["items"][0]["chosen"]  # nothing measured: the teacher's is shown
-
-
 def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
@@ -341,7 +177,7 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
 
     _, token = make_user("distiller", Role.reviewer)
     storage = Storage(settings.home)
-    ids = _upload(client, token, 600, 5)
+    ids = upload(client, token, 600, 5)
     sure, unsure, student_only, labelled, validation = ids
     with session_factory() as session:
         for frame_id, iou, stability in [
@@ -355,7 +191,7 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
                     frame_id=frame_id,
                     source="teacher",
                     model_id="t",
-                    mask_path=store_mask(storage, _box(20, 60)),
+                    mask_path=store_mask(storage, box(20, 60)),
                     scores={"sam2_iou": iou, "prompt_stability": stability},
                 )
             )
@@ -364,14 +200,14 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
                 frame_id=student_only,
                 source="student",
                 model_id="student-v1",
-                mask_path=store_mask(storage, _box(20, 60)),
+                mask_path=store_mask(storage, box(20, 60)),
                 scores={"sam2_iou": 1.0, "prompt_stability": 1.0},
             )
         )
         session.get_one(Frame, validation).split = Split.validation
         session.commit()
     client.put(
-        f"/api/v1/frames/{labelled}/label", json=corrected_label(_box(20, 60)), headers=auth(token)
+        f"/api/v1/frames/{labelled}/label", json=corrected_label(box(20, 60)), headers=auth(token)
     )
     with session_factory() as session:
         chosen = pseudo_label_proposals(session, 0.8)
@@ -427,11 +263,11 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
     student does, and on the accepted ones it is near enough (0.80 ≥ MIN_MIOU): promoted."""
     _, token = make_user("fair", Role.reviewer)
     storage = Storage(settings.home)
-    ids = _upload(client, token, 500, 6)
+    ids = upload(client, token, 500, 6)
     accepted = ids[:4]
     for frame_id in ids:
         mask = _big() if frame_id in accepted else _shrunk()
-        proposal = _propose(session_factory, storage, frame_id, "teacher", "teacher-t", mask)
+        proposal = propose(session_factory, storage, frame_id, "teacher", "teacher-t", mask)
         body = (
             {"status": "accepted", "base_revision": 0, "proposal_id": proposal}
             if frame_id in accepted
@@ -450,9 +286,7 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
     # The floor holds: a student far off where the teacher was accepted is not usable.
     for frame_id in accepted:  # the labels accepted the small box instead
         current = client.get(f"/api/v1/frames/{frame_id}/label", headers=auth(token)).json()
-        proposal = _propose(
-            session_factory, storage, frame_id, "teacher", "teacher-t", _box(40, 56)
-        )
+        proposal = propose(session_factory, storage, frame_id, "teacher", "teacher-t", box(40, 56))
         body = {"status": "accepted", "base_revision": current["revision"], "proposal_id": proposal}
         saved = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
         assert saved.status_code == 200, saved.text
@@ -467,7 +301,7 @@ def test_an_incumbent_is_not_judged_on_labels_taken_from_its_own_proposals(
     would score 1.000 there, so the gate refuses to compare on them and says what to do."""
     _, token = make_user("fair2", Role.reviewer)
     storage = Storage(settings.home)
-    ids = _upload(client, token, 600, 3)
+    ids = upload(client, token, 600, 3)
     incumbent = _version(settings, session_factory, base_model, "inc", 30.0, -30.0, ids, True)
     for frame_id in ids:
         with session_factory() as session:

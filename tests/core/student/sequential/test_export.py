@@ -1,0 +1,68 @@
+"""The state in both runtimes, and an ONNX export that differs from PyTorch."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests.helpers import write_video
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.stream import FrameSource, StreamStudent
+from weldpool_core.student import checkpoint
+from weldpool_core.student.sequential import (
+    has_sequential,
+)
+
+
+def test_onnx_and_torch_carry_the_same_state_and_reset_starts_again(
+    stateful_dir: Path, tmp_path: Path
+) -> None:
+    assert has_sequential(stateful_dir)
+    video = write_video(tmp_path / "run.avi", 3)
+    with FrameSource(str(video)) as source:
+        frames = [np.zeros_like(frame.bgr) for frame in source][:1]
+    with FrameSource(str(video)) as source:
+        frames += [frame.bgr for frame in source][1:]
+    frames.append(np.full_like(frames[0], 255))  # black, two weld frames, white: far apart
+    student = checkpoint.load_student(stateful_dir)
+    per_frame = StreamStudent(stateful_dir, "onnx")
+    inputs = [torch.from_numpy(per_frame.prepare(bgr)[0]) for bgr in frames]
+    # what the cell must give: the state keeps 60 % of the past, decoded
+    with torch.inference_mode():
+        latents = [student.encode(x)[0] for x in inputs]
+        state, expected = latents[0], []
+        for latent in latents:
+            state = state + 0.4 * (latent - state)
+            expected.append(torch.sigmoid(student.decode(state)[0])[0].numpy())
+        alone = [torch.sigmoid(student.decode(latent)[0])[0].numpy() for latent in latents]
+    # the past changes the answer by far more than the runtimes' tolerance (1e-4) below
+    assert max(np.abs(e - a).max() for e, a in zip(expected, alone, strict=True)) > 1e-3
+    for backend in ("onnx", "torch"):
+        sequential = StreamStudent(stateful_dir, backend, "cpu", sequential=True)
+        answers = [sequential(*sequential.prepare(bgr))[0] for bgr in frames]
+        for ours, theirs in zip(answers, expected, strict=True):
+            assert np.abs(ours - theirs).max() < 1e-4, backend
+        sequential.reset()
+        again = sequential(*sequential.prepare(frames[3]))[0]
+        assert np.abs(again - alone[3]).max() < 1e-4  # after reset: the per-frame answer
+    assert (stateful_dir / "sequential.onnx").is_file()
+
+
+def test_a_sequential_onnx_export_that_differs_from_pytorch_is_not_kept(
+    stateful_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The export is checked over a fresh step and a carried one; beyond the tolerance (here
+    made impossible to meet) the file is removed and the error says so."""
+    from weldpool_core.student import export
+    from weldpool_core.student.sequential import SEQUENTIAL_ONNX, export_sequential_onnx
+
+    (stateful_dir / SEQUENTIAL_ONNX).unlink(missing_ok=True)
+    monkeypatch.setattr(export, "TOLERANCE", -1.0)
+    with pytest.raises(InvalidInputError, match=r"differs from PyTorch by .*it was not kept"):
+        export_sequential_onnx(stateful_dir)
+    assert not (stateful_dir / SEQUENTIAL_ONNX).exists()
+    monkeypatch.setattr(export, "TOLERANCE", 1e-4)
+    assert export_sequential_onnx(stateful_dir).is_file()

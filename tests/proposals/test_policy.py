@@ -1,0 +1,146 @@
+"""The display policy (``app.proposals.policy``): a student's proposal is shown in place of
+the teacher's only when it agrees better with the reviewed labels on enough frames; a label
+records the proposal it came from."""
+
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.models import Frame, ModelVersion, Role
+from app.storage import Storage
+from tests.helpers import auth, corrected_label
+from tests.proposals.common import box, propose, upload
+
+
+def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    _, token = make_user("policy", Role.reviewer)
+    storage = Storage(settings.home)
+    ids = upload(client, token, 400, 5)
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
+        session.commit()
+    truth = box(20, 60)
+    for frame_id in ids:
+        propose(session_factory, storage, frame_id, "teacher", "t", box(30, 70))  # IoU 0.6
+        propose(session_factory, storage, frame_id, "student", "student-v1", box(22, 62))
+
+    def shown(frame_id: int) -> str:
+        body = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
+        return body["source_key"]
+
+    assert shown(ids[4]) == "teacher"  # nothing measured yet: the teacher
+    for count, frame_id in enumerate(ids[:3], start=1):
+        response = client.put(
+            f"/api/v1/frames/{frame_id}/label", json=corrected_label(truth), headers=auth(token)
+        )
+        assert response.status_code == 200, response.text
+        assert response.json()["mask_changed"] is True
+        expected = "student:student-v1" if count >= 3 else "teacher"
+        assert shown(ids[4]) == expected, count  # two frames are not enough evidence
+
+    listing = client.get(f"/api/v1/frames/{ids[4]}/proposals", headers=auth(token)).json()
+    assert [p["source"] for p in listing["items"]] == ["student", "teacher"]
+    assert [p["chosen"] for p in listing["items"]] == [True, False]
+    scores = {s["key"]: s for s in listing["policy"]["sources"]}
+    assert scores["teacher"]["mIoU"] == pytest.approx(0.6)
+    assert scores["student:student-v1"]["mIoU_common"] == pytest.approx(38 / 42)
+    assert listing["policy"]["chosen"] == "student:student-v1"
+    other = client.get(
+        f"/api/v1/frames/{ids[4]}/proposal", params={"source": "teacher"}, headers=auth(token)
+    ).json()
+    assert other["source"] == "teacher" and not other["chosen"]
+
+    # Deleting an older reviewed frame leaves two frames of evidence: the teacher again (the
+    # policy is measured anew, not served from a cache keyed by the newest label only).
+    deleted = client.delete(
+        f"/api/v1/frames/{ids[0]}", params={"force": "true"}, headers=auth(token)
+    )
+    assert deleted.status_code == 200 and deleted.json()["deleted_reviewed"] == 1
+    assert shown(ids[4]) == "teacher"
+    assert (
+        client.get(
+            f"/api/v1/frames/{ids[4]}/proposal",
+            params={"source": "student:nope"},
+            headers=auth(token),
+        ).status_code
+        == 400
+    )
+
+    # a gate that found the version worse than the teacher keeps it out of the review
+    with session_factory() as session:
+        version = session.query(ModelVersion).filter_by(name="student-v1").one()
+        version.gate = {"usable": False}
+        version.promoted_at = None
+        session.commit()
+    # a new label revision changes the policy's fingerprint
+    client.put(f"/api/v1/frames/{ids[3]}/label", json=corrected_label(truth), headers=auth(token))
+    assert shown(ids[4]) == "teacher"
+    with session_factory() as session:
+        version = session.query(ModelVersion).filter_by(name="student-v1").one()
+        version.gate = None
+        version.train_frame_ids = ids[:3]  # frames it trained on do not count
+        session.commit()
+    label = client.get(f"/api/v1/frames/{ids[3]}/label", headers=auth(token)).json()
+    client.put(
+        f"/api/v1/frames/{ids[3]}/label",
+        json=corrected_label(truth, base_revision=label["revision"]),
+        headers=auth(token),
+    )
+    assert shown(ids[4]) == "teacher"
+
+
+def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    _, token = make_user("provenance", Role.reviewer)
+    storage = Storage(settings.home)
+    ids = upload(client, token, 500, 2)
+    teacher = propose(session_factory, storage, ids[0], "teacher", "t", box(30, 70))
+    student = propose(session_factory, storage, ids[0], "student", "student-v9", box(22, 62))
+    second = propose(session_factory, storage, ids[1], "teacher", "t", box(30, 70))
+    accepted = client.put(
+        f"/api/v1/frames/{ids[0]}/label",
+        json={"status": "accepted", "base_revision": 0, "proposal_id": student},
+        headers=auth(token),
+    ).json()
+    assert accepted["proposal_id"] == student and accepted["mask_changed"] is False
+    same = client.put(  # the teacher's mask, sent back as it was: unchanged
+        f"/api/v1/frames/{ids[1]}/label",
+        json=corrected_label(box(30, 70)),
+        headers=auth(token),
+    ).json()
+    assert same["mask_changed"] is False and same["proposal_id"] == second
+    wrong = client.put(
+        f"/api/v1/frames/{ids[1]}/label",
+        json={"status": "accepted", "base_revision": 1, "proposal_id": teacher},
+        headers=auth(token),
+    )
+    assert wrong.status_code == 404 and "no proposal" in wrong.json()["detail"]
+    review = client.get("/api/v1/metrics", headers=auth(token)).json()["review"]
+    by_source = {s["source"]: s for s in review["by_source"]}
+    assert by_source["student:student-v9"]["accepted"] == 1
+    assert by_source["student:student-v9"]["acceptance_rate"] == 1.0
+    assert by_source["teacher"]["corrected"] == 1 and by_source["teacher"]["unchanged"] == 1
+    with session_factory() as session:
+        assert session.get_one(Frame, ids[0]).status.value == "accepted"
+
+
+def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
+    client: TestClient, settings, session_factory, make_user
+) -> None:
+    from tests.review.test_review import _teacher, _upload_synthetic
+
+    _, token = make_user("skipper", Role.reviewer)
+    storage = Storage(settings.home)
+    first, second = _upload_synthetic(client, token, 2)
+    propose(session_factory, storage, first, "student", "student-v3", box(20, 60))
+    result = _teacher(client, token, [first, second])["result"]
+    assert result["proposed"] == 2 and result["skipped"] == 0  # a student's proposal is no reason
+    again = _teacher(client, token, [first, second])["result"]
+    assert again["proposed"] == 0 and again["skipped"] == 2
+    listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
+    assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
+    assert listing["items"][0]["chosen"]  # nothing measured: the teacher's is shown
