@@ -59,13 +59,19 @@ def prune_training_state(session: Session, home: Path) -> int:
     return freed
 
 
-def prune_exports(home: Path, older_than_s: float = 86_400.0) -> int:
-    """Remove export zips older than a day (an export job's download is kept that long)."""
+def prune_old_files(folder: Path, older_than_s: float = 86_400.0, pattern: str = "*") -> int:
+    """Remove the files in ``folder`` older than a day: export zips (an export job's download
+    is kept that long) and uploaded imports a dead worker left."""
     import time
 
     removed = 0
-    for path in (home / EXPORTS_DIR).glob("*.zip"):
-        if time.time() - path.stat().st_mtime > older_than_s:
+    for path in folder.glob(pattern):
+        if path.is_file() and time.time() - path.stat().st_mtime > older_than_s:
             path.unlink(missing_ok=True)
             removed += 1
     return removed
+
+
+def prune_exports(home: Path, older_than_s: float = 86_400.0) -> int:
+    """Remove export zips older than a day (an export job's download is kept that long)."""
+    return prune_old_files(home / EXPORTS_DIR, older_than_s, "*.zip")

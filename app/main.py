@@ -27,6 +27,7 @@ from app.errors import (
 from app.frames.routes import router as frames_router
 from app.headers import SecurityHeaders
 from app.housekeeping import FileCollector
+from app.imports.routes import router as imports_router
 from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
@@ -170,6 +171,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     api.include_router(jobs_router, dependencies=protected)
     api.include_router(frames_router, dependencies=protected)
     api.include_router(review_router, dependencies=protected)
+    api.include_router(imports_router, dependencies=protected)
     api.include_router(training_router, dependencies=protected)
     api.include_router(insights_router, dependencies=protected)
     api.include_router(timeline_router, dependencies=protected)

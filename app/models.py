@@ -308,6 +308,9 @@ class Label(Base):
     # Its regions' outer outlines as the YOLO export writes them (``outline.region_outlines``):
     # [[[x, y], …], …] in frame pixels.
     mask_outlines: Mapped[list[Any] | None] = mapped_column(JSONType)
+    # Where a label made elsewhere came from ({"kind": "imported", "format", "file"}); NULL
+    # for one drawn here.
+    source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
     updated_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
@@ -332,6 +335,7 @@ class LabelRevision(Base):
         sa.ForeignKey("proposals.id", ondelete="SET NULL")
     )
     mask_changed: Mapped[bool | None]
+    source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 

@@ -13,6 +13,7 @@ BELOW_REVIEW = ("frames", "training", "proposals")
 """App domains that ``app.review`` sits above: they never import it."""
 LAYERS = (
     ("__main__", "cli", "main", "demo"),
+    ("imports",),
     ("review", "timeline", "insights", "web"),
     ("training", "live"),
     ("frames",),

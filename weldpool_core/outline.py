@@ -99,6 +99,15 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
     return rows
 
 
+def coco_rle(rle: dict[str, Any]) -> CocoMask:
+    """``CocoMask`` of a compressed RLE as it is (area and box read from the runs)."""
+    from pycocotools import mask as coco
+
+    encoded = {"size": list(rle["size"]), "counts": rle["counts"].encode("ascii")}
+    box = [round(v) for v in coco.toBbox(encoded).tolist()]
+    return CocoMask(dict(rle), int(coco.area(encoded)), box)
+
+
 def _coco_encoded(fortran: NDArray[Any]) -> CocoMask:
     from pycocotools import mask as coco
 

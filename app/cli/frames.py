@@ -128,3 +128,70 @@ def import_cmd(
     )
     if rejected and not stored and not duplicates:
         sys.exit(2)
+
+
+@main.command("import-labels")
+@click.argument("path", type=click.Path(exists=True))
+@click.option(
+    "--format",
+    "fmt",
+    required=True,
+    type=click.Choice(["coco", "yolo", "masks", "labelme", "cvat"]),
+)
+@click.option(
+    "--sequence",
+    "sequence_name",
+    default=None,
+    help="Weld run for the new frames (created when missing); default: the runs the file "
+    "names, else a new one named after PATH.",
+)
+@click.option("--overwrite", is_flag=True, help="Add a revision to frames that have a label.")
+@click.option("--category", default=None, help="The pool's category name in the file.")
+@click.option("--user", "username", default=None, help="Import as this user (default: an admin).")
+@friendly_errors
+def import_labels_cmd(
+    path: str,
+    fmt: str,
+    sequence_name: str | None,
+    overwrite: bool,
+    category: str | None,
+    username: str | None,
+) -> None:
+    """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images."""
+    from app.frames import sequences
+    from app.imports.service import ImportOptions, import_labels
+    from app.storage import Storage
+    from app.users.service import importing_user
+    from weldpool_core.annotations import open_source
+
+    settings = load_settings()
+    with open_sessions(settings)() as session:
+        user = importing_user(session, username)
+        sequence = (
+            sequences.sequence_by_name(session, sequence_name, user) if sequence_name else None
+        )
+        options = ImportOptions(
+            format=fmt,
+            sequence_id=sequence.id if sequence else None,
+            overwrite=overwrite,
+            category=category,
+            max_pixels=settings.max_image_pixels,
+        )
+        source = open_source(path)
+        try:
+            with click.progressbar(length=100, label="labels", file=sys.stderr) as bar:
+                report = import_labels(
+                    session, Storage.of(settings), source, options, user, _bar_progress(bar, 100)
+                )
+        finally:
+            source.close()
+    for kind, items in (("skipped", report.skipped), ("refused", report.refused)):
+        for item in items:
+            click.echo(f"{kind} {item.item}: {item.reason}", err=True)
+    click.echo(
+        f"{report.labels} labels and {report.keypoints} keypoint sets imported, "
+        f"{report.frames} new frames; {len(report.skipped)} skipped, {len(report.refused)} refused",
+        err=True,
+    )
+    if not report.labels and not report.keypoints and report.refused:
+        sys.exit(2)

@@ -16,7 +16,7 @@ from app.errors import WeldpoolError
 @click.option(
     "--format",
     "fmt",
-    type=click.Choice(["coco", "masks", "yolo"]),
+    type=click.Choice(["coco", "masks", "yolo", "cvat"]),
     default="masks",
     show_default=True,
     help="COCO, or the DATASET layout `weldpool train` reads.",

@@ -14,7 +14,7 @@ from __future__ import annotations
 import codecs
 import email.message
 import tempfile
-from collections.abc import AsyncIterable, Callable
+from collections.abc import AsyncIterable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any
 
@@ -22,6 +22,7 @@ from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 from starlette.concurrency import run_in_threadpool
 
+from app.bounds import MAX_ID
 from app.errors import InvalidInputError
 
 MAX_FIELD_BYTES = 1024 * 1024
@@ -199,3 +200,29 @@ class StreamedForm:
             self.fields[part.field_name] = self._decode(data)
         else:
             self._on_file(part.field_name, part.file_name, data)
+
+
+def openapi_form(fields: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    """An OpenAPI request body for a multipart form parsed by hand (to set its limits)."""
+    return {
+        "requestBody": {
+            "required": True,
+            "content": {
+                "multipart/form-data": {
+                    "schema": {"type": "object", "properties": fields, "required": required}
+                }
+            },
+        }
+    }
+
+
+def optional_int(form: Mapping[str, Any], name: str, default: int | None = None) -> int | None:
+    value = form.get(name)
+    if value is None or value == "":
+        return default
+    if not isinstance(value, str) or not value.strip().lstrip("-").isdigit():
+        raise InvalidInputError(f"{name} must be an integer.")
+    number = int(value)
+    if abs(number) > MAX_ID:
+        raise InvalidInputError(f"{name} must be at most {MAX_ID}.")
+    return number

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 import anyio
@@ -14,7 +13,7 @@ from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames import deletion, ingest, listing, sequences, videos
-from app.frames.multipart import StreamedForm
+from app.frames.multipart import StreamedForm, openapi_form, optional_int
 from app.frames.schemas import (
     DeletionOut,
     Duplicate,
@@ -35,32 +34,6 @@ from app.models import FrameStatus, Split
 from app.security import CurrentUser, ReviewerUser
 
 router = APIRouter(tags=["frames"])
-
-
-def _multipart(fields: dict[str, Any], required: list[str]) -> dict[str, Any]:
-    """An OpenAPI request body for a multipart form parsed by hand (to set its limits)."""
-    return {
-        "requestBody": {
-            "required": True,
-            "content": {
-                "multipart/form-data": {
-                    "schema": {"type": "object", "properties": fields, "required": required}
-                }
-            },
-        }
-    }
-
-
-def _optional_int(form: Mapping[str, Any], name: str, default: int | None = None) -> int | None:
-    value = form.get(name)
-    if value is None or value == "":
-        return default
-    if not isinstance(value, str) or not value.strip().lstrip("-").isdigit():
-        raise InvalidInputError(f"{name} must be an integer.")
-    number = int(value)
-    if abs(number) > MAX_ID:
-        raise InvalidInputError(f"{name} must be at most {MAX_ID}.")
-    return number
 
 
 VIDEO_SPOOL_BYTES = 1024 * 1024
@@ -160,7 +133,7 @@ def delete_frame(
     "/frames",
     response_model=IngestOut,
     status_code=status.HTTP_201_CREATED,
-    openapi_extra=_multipart(
+    openapi_extra=openapi_form(
         {
             "files": {"type": "array", "items": {"type": "string", "format": "binary"}},
             "sequence_id": {"type": "integer"},
@@ -192,7 +165,7 @@ async def upload_frames(
             max_fields=64,
         )
         await form.read(request.headers.get("content-type", ""), request.stream())
-        sequence_id = _optional_int(form.fields, "sequence_id")
+        sequence_id = optional_int(form.fields, "sequence_id")
         if not len(checks):
             raise InvalidInputError("The request has no `files` part; attach one or more frames.")
     except BaseException:
@@ -326,7 +299,7 @@ def get_frame_image(
     "/videos",
     response_model=VideoAccepted,
     status_code=status.HTTP_202_ACCEPTED,
-    openapi_extra=_multipart(
+    openapi_extra=openapi_form(
         {
             "file": {"type": "string", "format": "binary"},
             "every_nth": {"type": "integer", "default": 1},
@@ -357,8 +330,8 @@ async def upload_video(
         await form.read(request.headers.get("content-type", ""), request.stream())
         if not uploads:
             raise InvalidInputError("The request has no `file` part; attach one video.")
-        every_nth = _optional_int(form.fields, "every_nth", 1) or 0
-        sequence_id = _optional_int(form.fields, "sequence_id")
+        every_nth = optional_int(form.fields, "every_nth", 1) or 0
+        sequence_id = optional_int(form.fields, "sequence_id")
         name, upload = uploads[0]
         video = await run_in_threadpool(
             videos.store_video,

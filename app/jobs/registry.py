@@ -22,6 +22,7 @@ HANDLER_MODULES = (
     "app.frames.tasks",
     "app.review.tasks",
     "app.training.tasks",
+    "app.imports.tasks",
 )
 
 

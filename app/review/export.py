@@ -46,7 +46,7 @@ from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
 
-ExportFormat = Literal["coco", "masks", "yolo"]
+ExportFormat = Literal["coco", "masks", "yolo", "cvat"]
 YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}
 Progress = Callable[[float, str], None]
 PROCESS_FIELDS = (
@@ -248,6 +248,7 @@ def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) ->
                 "revision": label.revision,
                 "frame_index": frame.frame_index,
                 "timestamp_s": frame.timestamp_s,
+                "process": process_parameters(sequence) if sequence else None,
             }
         )
         yield done
@@ -349,4 +350,33 @@ def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n  0: weld_pool\n")
 
 
-WRITERS: dict[str, Writer] = {"masks": _write_masks, "coco": _write_coco, "yolo": _write_yolo}
+def _write_cvat(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
+    """CVAT for images 1.1: ``annotations.xml`` (each label one RLE ``<mask>``, holes kept;
+    its keypoints and validation keypoints as ``<points>``) with the images beside it."""
+    from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
+
+    elements = []
+    masks = _ahead(lambda row: _stored_mask(storage, row[1]), rows)
+    for done, ((frame, label, _, manual), mask) in enumerate(zip(rows, masks, strict=True), 1):
+        name = f"images/{_stem(frame)}{_extension(frame)}"
+        archive.write(storage.absolute(frame.path), name)
+        image = CvatImage(
+            id=done - 1,
+            name=name,
+            width=frame.width,
+            height=frame.height,
+            mask=mask,
+            keypoints=label.keypoints or None,
+            validation_keypoints=manual.keypoints if manual is not None else None,
+        )
+        elements.append(cvat_image(image))
+        yield done
+    archive.writestr("annotations.xml", cvat_document(elements, len(rows)))
+
+
+WRITERS: dict[str, Writer] = {
+    "masks": _write_masks,
+    "coco": _write_coco,
+    "yolo": _write_yolo,
+    "cvat": _write_cvat,
+}

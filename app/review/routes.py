@@ -274,6 +274,7 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
         mask_changed=label.mask_changed,
         mask_png=mask,
         keypoints=label.keypoints,
+        source=label.source,
         updated_by=user.username if user else None,
         updated_at=label.updated_at,
     )
@@ -336,6 +337,7 @@ def get_label_history(
             status=r.status,
             keypoints=r.keypoints,
             has_mask=r.mask_path is not None,
+            source=r.source,
             user=name,
             created_at=r.created_at,
         )
@@ -372,7 +374,7 @@ def export(
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
-    format: Literal["coco", "masks", "yolo"] = "masks",
+    format: Literal["coco", "masks", "yolo", "cvat"] = "masks",
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     split: Split | None = None,
 ) -> StreamingResponse:

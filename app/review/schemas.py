@@ -105,7 +105,7 @@ class PropagateIn(InputModel):
 class ExportIn(InputModel):
     """Which labels to export and how; run as a job for big sets."""
 
-    format: Literal["coco", "masks", "yolo"] = "coco"
+    format: Literal["coco", "masks", "yolo", "cvat"] = "coco"
     sequence_id: Id | None = None
     split: Split | None = None
 
@@ -184,6 +184,8 @@ class LabelOut(BaseModel):
     mask_changed: bool | None = None
     mask_png: str | None
     keypoints: list[list[float]] | None
+    source: dict[str, Any] | None = None
+    """Where a label made elsewhere came from: ``{"kind": "imported", "format", "file"}``."""
     updated_by: str | None
     updated_at: dt.datetime
 
@@ -193,6 +195,7 @@ class LabelRevisionOut(BaseModel):
     status: LabelStatus
     keypoints: list[list[float]] | None
     has_mask: bool
+    source: dict[str, Any] | None = None
     user: str | None
     created_at: dt.datetime
 

@@ -41,7 +41,7 @@ from app.proposals.policy import pick
 from app.review import runtime
 from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png
-from weldpool_core.outline import CocoMask, coco_mask, region_outlines
+from weldpool_core.outline import CocoMask, coco_mask, coco_rle, region_outlines
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
@@ -121,7 +121,7 @@ def current_label(session: Session, frame_id: int) -> Label | None:
     return session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
 
 
-def _keypoints_for(mask: NDArray[np.bool_]) -> list[list[float]]:
+def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
     from weldpool_core.heatmap import heatmap_from_mask
 
     try:
@@ -177,7 +177,7 @@ def _label_content(
             )
         if not mask.any():
             raise InvalidInputError("The mask is empty; reject the frame instead.")
-        return mask, None, check_keypoints(frame, keypoints) if keypoints else _keypoints_for(mask)
+        return mask, None, check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)
     if proposal is not None:
         chosen = check_keypoints(frame, keypoints) if keypoints else proposal.keypoints
         return None, proposal.mask_path, chosen
@@ -186,14 +186,16 @@ def _label_content(
     )
 
 
-def _mask_fields(
+def mask_fields(
     storage: Storage,
     mask: NDArray[np.bool_] | None,
     mask_path: str | None,
     proposal: Proposal | None,
+    rle: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], StoredFile | None]:
     """The label's mask columns (path, COCO RLE, area, box, outlines, whether it differs from
-    the proposal's), storing a new mask's file (returned, to discard on failure)."""
+    the proposal's), storing a new mask's file (returned, to discard on failure). ``rle``: the
+    new mask's compressed RLE when the caller has it already (an imported COCO label)."""
     stored: StoredFile | None = None
     coco: CocoMask | None = None
     outlines: list[Any] | None = None
@@ -202,7 +204,8 @@ def _mask_fields(
         changed = proposal is None or not np.array_equal(
             mask, load_mask(storage, proposal.mask_path)
         )
-        coco, outlines = coco_mask(mask), region_outlines(mask)
+        coco = coco_rle(rle) if rle is not None else coco_mask(mask)
+        outlines = region_outlines(mask)
         stored = store_mask_file(storage, mask)
         mask_path = stored.path
     elif mask_path is not None:
@@ -220,7 +223,7 @@ def _mask_fields(
     return fields, stored
 
 
-def _write_label(
+def write_label(
     session: Session, frame: Frame, label: Label | None, base_revision: int, values: dict[str, Any]
 ) -> Label:
     """The label row (new, or updated only at ``base_revision``) and its history row."""
@@ -245,6 +248,7 @@ def _write_label(
             keypoints=values["keypoints"],
             proposal_id=values["proposal_id"],
             mask_changed=values["mask_changed"],
+            source=values.get("source"),
             user_id=values["updated_by_id"],
         )
     )
@@ -280,16 +284,17 @@ def save_label(
     label = current_label(session, frame.id)
     if base_revision != (label.revision if label else 0):  # refused before anything is written
         raise stale_revision(session, frame.id)
-    fields, stored = _mask_fields(storage, mask, mask_path, proposal)
+    fields, stored = mask_fields(storage, mask, mask_path, proposal)
     values = fields | {
         "status": status,
         "keypoints": keypoints,
         "proposal_id": proposal.id if proposal else None,
+        "source": None,  # drawn here, whatever an earlier revision was imported from
         "updated_by_id": user.id,
         "updated_at": utcnow(),
     }
     try:
-        label = _write_label(session, frame, label, base_revision, values)
+        label = write_label(session, frame, label, base_revision, values)
         session.commit()
     except BaseException as exc:
         session.rollback()
@@ -357,6 +362,20 @@ def save_validation_keypoints(
         raise InvalidInputError("Give at least one keypoint.")
     points = check_keypoints(frame, keypoints)
     lock_frame(session, frame.id)
+    row = set_validation_keypoints(session, frame, user, points)
+    commit_or_conflict(
+        session,
+        f"Someone else saved validation keypoints of frame {frame.id} at the same moment; "
+        "reload them and save again.",
+    )
+    return row
+
+
+def set_validation_keypoints(
+    session: Session, frame: Frame, user: User, points: list[list[float]]
+) -> ValidationKeypoints:
+    """The frame's validation keypoints row, written (not committed), and its split moved to
+    validation. ``points`` are checked already (``check_keypoints``)."""
     row = session.scalar(
         sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
     )
@@ -366,11 +385,6 @@ def save_validation_keypoints(
     else:
         row.keypoints, row.user_id, row.updated_at = points, user.id, utcnow()
     frame.split = Split.validation
-    commit_or_conflict(
-        session,
-        f"Someone else saved validation keypoints of frame {frame.id} at the same moment; "
-        "reload them and save again.",
-    )
     return row
 
 

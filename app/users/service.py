@@ -145,3 +145,16 @@ def ensure_initial_admin(session: Session, home: Path) -> Path | None:
     with os.fdopen(descriptor, "w") as handle:
         handle.write(password + "\n")
     return path
+
+
+def importing_user(session: Session, username: str | None) -> User:
+    """Who a command-line import records as the labels' author: the user named, else the
+    first admin."""
+    if username:
+        return user_by_name(session, username)
+    admin = session.scalar(
+        sa.select(User).where(User.role == Role.admin, User.is_active).order_by(User.id)
+    )
+    if admin is None:
+        raise NotFoundError("There is no admin to import as; name one with --user.")
+    return admin

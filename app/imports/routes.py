@@ -1,0 +1,110 @@
+"""/api/v1/labels/import: labels made elsewhere (COCO, YOLO, mask folders, LabelMe, CVAT)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import anyio
+from fastapi import APIRouter, Request, status
+from fastapi.concurrency import run_in_threadpool
+
+from app.deps import QueueDep, SessionDep, SettingsDep
+from app.errors import InvalidInputError
+from app.frames.multipart import StreamedForm, openapi_form, optional_int
+from app.frames.sequences import get_sequence
+from app.housekeeping import prune_old_files
+from app.imports.service import IMPORTS_DIR, keep_upload
+from app.jobs.schemas import JobCreated
+from app.jobs.service import create_job
+from app.security import CurrentUser
+from weldpool_core.annotations import ARCHIVE_ONLY, READERS
+
+router = APIRouter(tags=["labels"])
+SPOOL_BYTES = 1024 * 1024
+"""An upload is held in memory up to this size, then spooled to a temporary file."""
+
+
+def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
+    fmt = (form.get("format") or "").strip().lower()
+    if fmt not in READERS:
+        raise InvalidInputError(f"format must be one of {', '.join(READERS)}.")
+    overwrite = (form.get("overwrite") or "false").strip().lower()
+    if overwrite not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+        raise InvalidInputError("overwrite must be true or false.")
+    category = (form.get("category") or "").strip() or None
+    if category is not None and len(category) > 200:
+        raise InvalidInputError("category is at most 200 characters.")
+    return {
+        "format": fmt,
+        "name": Path(name.replace("\\", "/")).name[:255] or "labels",
+        "overwrite": overwrite in ("true", "1", "yes", "on"),
+        "category": category,
+        "sequence_id": optional_int(form, "sequence_id"),
+    }
+
+
+def _is_zip(head: bytes) -> bool:
+    return head.startswith(b"PK\x03\x04") or head == b"PK\x05\x06"
+
+
+@router.post(
+    "/labels/import",
+    response_model=JobCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+    openapi_extra=openapi_form(
+        {
+            "file": {"type": "string", "format": "binary"},
+            "format": {"type": "string", "enum": list(READERS)},
+            "sequence_id": {"type": "integer"},
+            "overwrite": {"type": "boolean", "default": False},
+            "category": {"type": "string"},
+        },
+        ["file", "format"],
+    ),
+)
+async def import_labels(
+    request: Request,
+    session: SessionDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: CurrentUser,
+) -> JobCreated:
+    """Import labels made elsewhere: a zip (annotations with their images, or a mask folder),
+    or one COCO, LabelMe or CVAT file whose images are already stored. A job reads it; its
+    result counts `frames`, `labels` and `keypoints` and lists every `skipped` and `refused`
+    item with its reason."""
+    uploads: list[tuple[str, Any]] = []
+    form = StreamedForm(
+        lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
+        max_files=1,
+        max_fields=16,
+        spool=SPOOL_BYTES,
+        limit_hint="; send one file per import",
+    )
+    try:
+        await form.read(request.headers.get("content-type", ""), request.stream())
+        if not uploads:
+            raise InvalidInputError("The request has no `file` part; attach a zip or a file.")
+        name, upload = uploads[0]
+        params = _checked(form.fields, name)
+        if params["sequence_id"] is not None:
+            get_sequence(session, params["sequence_id"])
+        head = upload.read(4)
+        if not head:
+            raise InvalidInputError("The file is empty.")
+        if params["format"] in ARCHIVE_ONLY and not _is_zip(head):
+            raise InvalidInputError(
+                f"A {params['format']} import is a zip of its folders; the file is not a zip."
+            )
+        upload.seek(0)
+        suffix = ".zip" if _is_zip(head) else Path(params["name"]).suffix[:8]
+        await run_in_threadpool(prune_old_files, settings.home / IMPORTS_DIR)
+        kept = await run_in_threadpool(keep_upload, settings.home, upload, suffix)
+    finally:
+        with anyio.CancelScope(shield=True):  # a cancelled request still removes its spool
+            await run_in_threadpool(form.close)
+    job = create_job(
+        session, queue, "import_labels", params | {"upload": kept, "user_id": user.id}, user
+    )
+    return JobCreated(job_id=job.id)

@@ -1,0 +1,48 @@
+"""Background work of the imports domain: a label import runs as a job with progress."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from app.db import session_scope
+from app.imports.service import ImportOptions, import_labels, upload_path
+from app.jobs.registry import JobContext, counted, job_handler
+from app.models import User
+from app.storage import Storage
+from weldpool_core.annotations import open_upload
+from weldpool_core.errors import InvalidInputError
+
+
+@job_handler("import_labels", max_attempts=1)
+def import_labels_job(ctx: JobContext) -> dict[str, Any]:
+    """Import the uploaded file's labels; the upload is removed when the job ends, whatever
+    its outcome (a job that is not retried has no further use for it)."""
+    params = ctx.params
+    path = upload_path(ctx.settings.home, params["upload"])
+    options = ImportOptions(
+        format=params["format"],
+        sequence_id=params.get("sequence_id"),
+        overwrite=bool(params.get("overwrite")),
+        category=params.get("category"),
+        max_pixels=ctx.settings.max_image_pixels,
+    )
+    try:
+        with session_scope(ctx.session_factory) as session:
+            user = session.get(User, int(params["user_id"]))
+            if user is None:
+                raise InvalidInputError("The user who started the import no longer exists.")
+            source = open_upload(path, params["name"])
+            try:
+                report = import_labels(
+                    session, Storage.of(ctx.settings), source, options, user, ctx.progress
+                )
+            finally:
+                source.close()
+    finally:
+        path.unlink(missing_ok=True)
+    ctx.summary = (
+        f"{counted(report.labels, 'label')} and {counted(report.keypoints, 'keypoint set')} "
+        f"imported, {counted(report.frames, 'new frame')}; {len(report.skipped)} skipped, "
+        f"{len(report.refused)} refused"
+    )
+    return report.as_result()

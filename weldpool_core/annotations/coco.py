@@ -1,0 +1,197 @@
+"""COCO instance (and keypoint) files: polygons, compressed and uncompressed RLE, ``iscrowd``.
+
+Every pool annotation of an image joins its mask (a crowd region too: for a pool, ``iscrowd``
+only says the region is given as RLE). Keypoints: in a weldpool export (``info.description``)
+``keypoints`` are the label's own and ``validation_keypoints`` the hand-placed ones; in any
+other COCO file the pool's keypoints were placed by hand in another tool, so they become
+validation keypoints.
+"""
+
+from __future__ import annotations
+
+import json
+import posixpath
+from typing import Any
+
+from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.shapes import CocoPolygons, CocoRle, ImportedLabel, Parsed, Shape
+from weldpool_core.annotations.source import Source
+from weldpool_core.errors import InvalidInputError
+
+WELDPOOL_EXPORT = "weldpool reviewed labels"
+"""``info.description`` of the COCO files weldpool exports."""
+_SKIP_FOLDERS = ("keypoints/", "validation_keypoints/")
+
+
+def coco_files(source: Source) -> list[str]:
+    """The annotation files of a COCO import: the one named, else ``annotations.json``, else
+    every JSON file under ``annotations/``, else every JSON file at the top."""
+    if source.primary:
+        return [source.primary]
+    names = [n for n in source.names if n.lower().endswith(".json")]
+    if "annotations.json" in names:
+        return ["annotations.json"]
+    nested = [n for n in names if n.startswith("annotations/")]
+    return nested or [n for n in names if "/" not in n and not n.startswith(_SKIP_FOLDERS)]
+
+
+def read_coco(source: Source, category: str | None = None) -> Parsed:
+    parsed = Parsed()
+    files = coco_files(source)
+    if not files:
+        raise InvalidInputError("No COCO annotation file (a JSON file) was found.")
+    for name in files:
+        try:
+            document = json.loads(source.read(name))
+        except (ValueError, UnicodeDecodeError):
+            parsed.refuse(name, "The file is not valid JSON.")
+            continue
+        except InvalidInputError as exc:
+            parsed.refuse(name, exc.message)
+            continue
+        if not (
+            isinstance(document, dict)
+            and isinstance(document.get("images"), list)
+            and isinstance(document.get("annotations"), list)
+        ):
+            parsed.refuse(name, "The file is not COCO: it needs `images` and `annotations` lists.")
+            continue
+        _read_document(document, name, category, parsed)
+    return parsed
+
+
+def _images(document: dict[str, Any], name: str, parsed: Parsed) -> dict[Any, dict[str, Any]]:
+    images: dict[Any, dict[str, Any]] = {}
+    for image in document["images"]:
+        if not (
+            isinstance(image, dict)
+            and isinstance(image.get("file_name"), str)
+            and isinstance(image.get("id"), int | str)
+        ):
+            parsed.refuse(
+                f"{name}: image {str(image)[:60]}", "An image needs an id and a file_name."
+            )
+            continue
+        images[image["id"]] = image
+    return images
+
+
+def _categories(document: dict[str, Any]) -> dict[Any, str]:
+    return {
+        c["id"]: str(c.get("name", c["id"]))
+        for c in document.get("categories") or []
+        if isinstance(c, dict) and "id" in c
+    }
+
+
+def _read_document(
+    document: dict[str, Any], name: str, category: str | None, parsed: Parsed
+) -> None:
+    own = (document.get("info") or {}).get("description") == WELDPOOL_EXPORT
+    images = _images(document, name, parsed)
+    categories = _categories(document)
+    pool = pool_names(categories.values(), category)
+    labels: dict[Any, ImportedLabel] = {}
+    for annotation in document["annotations"]:
+        number = annotation.get("id", "?") if isinstance(annotation, dict) else "?"
+        item = f"{name}: annotation {number}"
+        if not isinstance(annotation, dict):
+            parsed.refuse(item, "An annotation must be a JSON object.")
+            continue
+        image = images.get(annotation.get("image_id"))
+        if image is None:
+            parsed.refuse(
+                item,
+                f"It names image {annotation.get('image_id')!r}, which the file does not list.",
+            )
+            continue
+        category_name = categories.get(annotation.get("category_id"), annotation.get("category_id"))
+        if category_name not in pool:
+            parsed.refuse(item, not_the_pool(category_name, pool))
+            continue
+        try:
+            shape = _shape(annotation.get("segmentation"))
+            points = _keypoints(annotation.get("keypoints"))
+            manual = _points(annotation.get("validation_keypoints")) if own else None
+        except InvalidInputError as exc:
+            parsed.refuse(item, exc.message)
+            continue
+        label = labels.get(image["id"])
+        if label is None:
+            label = labels[image["id"]] = _label(image, name, own)
+        if shape is not None:
+            label.shapes.append(shape)
+        if own:
+            label.keypoints = points or label.keypoints
+            label.validation_keypoints = manual or label.validation_keypoints
+        elif points:
+            label.validation_keypoints = points
+    parsed.labels.extend(labels.values())
+
+
+def _label(image: dict[str, Any], name: str, own: bool) -> ImportedLabel:
+    height, width = image.get("height"), image.get("width")
+    size = (height, width) if isinstance(height, int) and isinstance(width, int) else None
+    label = ImportedLabel(
+        item=f"{name}: {image['file_name']}", image=image["file_name"], size=size, beside=name
+    )
+    if own:
+        label.sequence = image.get("sequence")
+        label.process = image.get("process") or None
+        label.original_name = image.get("original_name")
+    else:
+        label.original_name = posixpath.basename(image["file_name"])
+    return label
+
+
+def _shape(segmentation: Any) -> Shape | None:
+    if segmentation is None or segmentation == []:
+        return None
+    if isinstance(segmentation, dict):
+        size, counts = segmentation.get("size"), segmentation.get("counts")
+        if not (
+            isinstance(size, list)
+            and len(size) == 2
+            and all(isinstance(v, int) and v > 0 for v in size)
+            and (
+                isinstance(counts, str)
+                or (isinstance(counts, list) and all(isinstance(c, int) for c in counts))
+            )
+        ):
+            raise InvalidInputError("The RLE segmentation needs `size` [h, w] and `counts`.")
+        return CocoRle({"size": size, "counts": counts})
+    if isinstance(segmentation, list) and all(
+        isinstance(p, list) and len(p) >= 6 and len(p) % 2 == 0 and all(_number(v) for v in p)
+        for p in segmentation
+    ):
+        return CocoPolygons(segmentation)
+    raise InvalidInputError(
+        "The segmentation is neither RLE nor polygons (lists of 3 or more x, y pairs)."
+    )
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and value == value
+
+
+def _keypoints(flat: Any) -> list[list[float]] | None:
+    """COCO's ``[x1, y1, v1, …]``: the labelled ones (v > 0)."""
+    if not flat:
+        return None
+    if not (isinstance(flat, list) and len(flat) % 3 == 0 and all(_number(v) for v in flat)):
+        raise InvalidInputError("The keypoints are not a list of x, y, visibility triples.")
+    points = [
+        [float(flat[i]), float(flat[i + 1])] for i in range(0, len(flat), 3) if flat[i + 2] > 0
+    ]
+    return points or None
+
+
+def _points(points: Any) -> list[list[float]] | None:
+    if not points:
+        return None
+    if not (
+        isinstance(points, list)
+        and all(isinstance(p, list) and len(p) == 2 and all(_number(v) for v in p) for p in points)
+    ):
+        raise InvalidInputError("The validation keypoints are not a list of [x, y].")
+    return [[float(x), float(y)] for x, y in points]

@@ -1,0 +1,233 @@
+"""CVAT for images 1.1 XML, both ways.
+
+Read: each ``<image>``'s pool ``<polygon>``s, ``<box>``es, ``<mask>``s (CVAT's RLE over the box,
+row by row, starting with a run of 0s) and ``<points>`` (keypoints: the label's own when their
+``kind`` attribute says ``label``, as our export writes them, else placed by hand: validation
+keypoints). The XML is parsed by defusedxml (no entity expansion, no external entities).
+
+Write (``cvat_document``): one ``<mask>`` per label (so its holes survive), its keypoints and
+its validation keypoints as ``<points>``.
+"""
+
+from __future__ import annotations
+
+import posixpath
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from defusedxml import ElementTree as SafeET
+from numpy.typing import NDArray
+
+from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.shapes import (
+    ImportedLabel,
+    Parsed,
+    PartialMask,
+    Polygons,
+    Shape,
+    cvat_rle,
+    to_cvat_rle,
+)
+from weldpool_core.annotations.source import Source
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.outline import Polygon
+
+POOL_LABEL = "weld_pool"
+KIND = "kind"  # the attribute telling a label's keypoints from validation keypoints
+
+
+def cvat_files(source: Source) -> list[str]:
+    if source.primary:
+        return [source.primary]
+    if "annotations.xml" in source:
+        return ["annotations.xml"]
+    return [n for n in source.names if n.lower().endswith(".xml")]
+
+
+def read_cvat(source: Source, category: str | None = None) -> Parsed:
+    parsed = Parsed()
+    files = cvat_files(source)
+    if not files:
+        raise InvalidInputError("No CVAT annotation file (annotations.xml) was found.")
+    for name in files:
+        try:
+            root = SafeET.fromstring(source.read(name))
+        except (ET.ParseError, ValueError) as exc:
+            parsed.refuse(name, f"The file is not well-formed XML ({exc}).")
+            continue
+        except Exception as exc:  # defusedxml's refusals (entities, DTDs) share no base class
+            parsed.refuse(name, f"The XML is refused: {type(exc).__name__}.")
+            continue
+        if root.tag != "annotations":
+            parsed.refuse(name, "The file is not CVAT for images XML (no <annotations> root).")
+            continue
+        declared = [e.text or "" for e in root.iterfind("./meta//labels/label/name")]
+        used = [e.get("label", "") for e in root.iterfind("./image/*")]
+        pool = pool_names(declared or used, category)
+        for image in root.iterfind("image"):
+            label = _image(name, image, pool, parsed)
+            if label is not None:
+                parsed.labels.append(label)
+    return parsed
+
+
+def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLabel | None:
+    file_name = image.get("name") or ""
+    item = f"{name}: {file_name}"
+    try:
+        size = (int(image.get("height")), int(image.get("width")))
+    except (TypeError, ValueError):
+        size = None
+    label = ImportedLabel(
+        item=item,
+        image=file_name,
+        size=size,
+        beside=name,
+        original_name=posixpath.basename(file_name),
+    )
+    for element in image:
+        if element.tag == "tag":
+            continue
+        if element.get("label") not in pool:
+            parsed.refuse(f"{item} <{element.tag}>", not_the_pool(element.get("label"), pool))
+            continue
+        try:
+            if element.tag == "points":
+                points = [list(p) for p in _points(element.get("points"))]
+                if _attribute(element, KIND) == "label":
+                    label.keypoints = points
+                else:
+                    label.validation_keypoints = points
+            else:
+                label.shapes.append(_shape(element))
+        except InvalidInputError as exc:
+            parsed.refuse(f"{item} <{element.tag}>", exc.message)
+            return None
+    return label if label.shapes or label.keypoints or label.validation_keypoints else None
+
+
+def _attribute(element: Any, name: str) -> str | None:
+    for attribute in element.iterfind("attribute"):
+        if attribute.get("name") == name:
+            return (attribute.text or "").strip()
+    return None
+
+
+def _points(text: str | None) -> list[tuple[float, float]]:
+    try:
+        pairs = [pair.split(",") for pair in (text or "").split(";") if pair.strip()]
+        points = [(float(x), float(y)) for x, y in pairs]
+    except ValueError:
+        raise InvalidInputError("The points are not 'x,y;x,y;…'.") from None
+    if not points or not bool(np.isfinite(points).all()):
+        raise InvalidInputError("The points are not 'x,y;x,y;…'.")
+    return points
+
+
+def _number(element: Any, name: str) -> float:
+    try:
+        return float(element.get(name))
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"The <{element.tag}> has no number {name}.") from None
+
+
+def _shape(element: Any) -> Shape:
+    if element.tag == "polygon":
+        points = _points(element.get("points"))
+        if len(points) < 3:
+            raise InvalidInputError("A polygon needs 3 or more points.")
+        return Polygons([Polygon(points)])
+    if element.tag == "box":
+        if _number(element, "rotation") if element.get("rotation") else 0.0:
+            raise InvalidInputError("A rotated box cannot be imported as a pool.")
+        x0, y0 = _number(element, "xtl"), _number(element, "ytl")
+        x1, y1 = _number(element, "xbr"), _number(element, "ybr")
+        return Polygons([Polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])])
+    if element.tag == "mask":
+        try:
+            counts = [int(c) for c in (element.get("rle") or "").split(",") if c.strip()]
+        except ValueError:
+            raise InvalidInputError("The mask's rle is not comma-separated counts.") from None
+        width, height = int(_number(element, "width")), int(_number(element, "height"))
+        pixels = cvat_rle(counts, width, height)
+        return PartialMask(pixels, int(_number(element, "left")), int(_number(element, "top")))
+    raise InvalidInputError(f"A <{element.tag}> has no pool area to import.")
+
+
+@dataclass(frozen=True)
+class CvatImage:
+    """One frame of a CVAT export: its file in the zip, size, mask and keypoints."""
+
+    id: int
+    name: str
+    width: int
+    height: int
+    mask: NDArray[np.bool_]
+    keypoints: list[list[float]] | None
+    validation_keypoints: list[list[float]] | None
+
+
+def _points_element(parent: Any, points: list[list[float]], kind: str) -> None:
+    element = ET.SubElement(
+        parent,
+        "points",
+        label=POOL_LABEL,
+        source="manual" if kind == "validation" else "auto",
+        occluded="0",
+        points=";".join(f"{x:.2f},{y:.2f}" for x, y in points),
+        z_order="0",
+    )
+    ET.SubElement(element, "attribute", name=KIND).text = kind
+
+
+def cvat_image(image: CvatImage) -> ET.Element:
+    element = ET.Element(
+        "image", id=str(image.id), name=image.name, width=str(image.width), height=str(image.height)
+    )
+    rows, columns = np.flatnonzero(image.mask.any(axis=1)), np.flatnonzero(image.mask.any(axis=0))
+    if rows.size:
+        top, bottom, left, right = rows[0], rows[-1] + 1, columns[0], columns[-1] + 1
+        box = image.mask[top:bottom, left:right]
+        ET.SubElement(
+            element,
+            "mask",
+            label=POOL_LABEL,
+            source="manual",
+            occluded="0",
+            rle=", ".join(map(str, to_cvat_rle(box))),
+            left=str(left),
+            top=str(top),
+            width=str(right - left),
+            height=str(bottom - top),
+            z_order="0",
+        )
+    if image.keypoints:
+        _points_element(element, image.keypoints, "label")
+    if image.validation_keypoints:
+        _points_element(element, image.validation_keypoints, "validation")
+    return element
+
+
+def cvat_document(images: Iterable[ET.Element], count: int) -> bytes:
+    """The whole ``annotations.xml`` around already written ``<image>`` elements."""
+    root = ET.Element("annotations")
+    ET.SubElement(root, "version").text = "1.1"
+    task = ET.SubElement(ET.SubElement(root, "meta"), "task")
+    ET.SubElement(task, "name").text = "weldpool reviewed labels"
+    ET.SubElement(task, "size").text = str(count)
+    ET.SubElement(task, "mode").text = "annotation"
+    label = ET.SubElement(ET.SubElement(task, "labels"), "label")
+    ET.SubElement(label, "name").text = POOL_LABEL
+    ET.SubElement(label, "type").text = "any"
+    attribute = ET.SubElement(ET.SubElement(label, "attributes"), "attribute")
+    ET.SubElement(attribute, "name").text = KIND
+    ET.SubElement(attribute, "mutable").text = "False"
+    ET.SubElement(attribute, "input_type").text = "select"
+    ET.SubElement(attribute, "default_value").text = "validation"
+    ET.SubElement(attribute, "values").text = "label\nvalidation"
+    root.extend(images)
+    document: bytes = ET.tostring(root, encoding="utf-8", xml_declaration=True)
+    return document

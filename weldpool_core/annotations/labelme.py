@@ -1,0 +1,139 @@
+"""LabelMe JSON, one file per image: ``shapes`` of type ``polygon``, ``rectangle``, ``circle``,
+``mask`` (a PNG of the box between its two points) and ``point`` (a keypoint placed by hand:
+validation keypoints); the image beside the file (``imagePath``) or inside it (``imageData``)."""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import math
+import posixpath
+from typing import Any
+
+import numpy as np
+
+from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.shapes import ImportedLabel, Parsed, PartialMask, Polygons, Shape
+from weldpool_core.annotations.source import Source
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.io import decode_mask_png
+from weldpool_core.outline import Polygon
+
+CIRCLE_VERTICES = 64
+
+
+def labelme_files(source: Source) -> list[str]:
+    if source.primary:
+        return [source.primary]
+    return [n for n in source.names if n.lower().endswith(".json") and n != "manifest.json"]
+
+
+def read_labelme(source: Source, category: str | None = None) -> Parsed:
+    parsed = Parsed()
+    documents = []
+    for name in labelme_files(source):
+        try:
+            document = json.loads(source.read(name))
+        except (ValueError, UnicodeDecodeError):
+            parsed.refuse(name, "The file is not valid JSON.")
+            continue
+        if not isinstance(document, dict) or not isinstance(document.get("shapes"), list):
+            parsed.refuse(name, "The file is not LabelMe JSON: it needs a `shapes` list.")
+            continue
+        documents.append((name, document))
+    if not documents and not parsed.refused:
+        raise InvalidInputError("No LabelMe files (JSON with shapes) were found.")
+    every = [str(s.get("label")) for _, d in documents for s in d["shapes"] if isinstance(s, dict)]
+    pool = pool_names(every, category)
+    for name, document in documents:
+        label = _label(name, document, pool, parsed)
+        if label is not None:
+            parsed.labels.append(label)
+    return parsed
+
+
+def _label(
+    name: str, document: dict[str, Any], pool: set[str], parsed: Parsed
+) -> ImportedLabel | None:
+    image = document.get("imagePath")
+    data = document.get("imageData")
+    if not isinstance(image, str) or not image:
+        image = posixpath.splitext(posixpath.basename(name))[0] + ".png"
+    embedded = None
+    if isinstance(data, str) and data:
+        try:
+            embedded = base64.b64decode(data, validate=True)
+        except (binascii.Error, ValueError):
+            parsed.refuse(name, "Its imageData is not base64.")
+            return None
+    height, width = document.get("imageHeight"), document.get("imageWidth")
+    label = ImportedLabel(
+        item=name,
+        image=posixpath.basename(image.replace("\\", "/")),
+        size=(height, width) if isinstance(height, int) and isinstance(width, int) else None,
+        image_data=embedded,
+        beside=posixpath.join(posixpath.dirname(name), image.replace("\\", "/")),
+        original_name=posixpath.basename(image.replace("\\", "/")),
+    )
+    points: list[list[float]] = []
+    for index, shape in enumerate(document["shapes"]):
+        item = f"{name}: shape {index + 1}"
+        if not isinstance(shape, dict):
+            parsed.refuse(item, "A shape must be a JSON object.")
+            return None
+        if shape.get("label") not in pool:
+            parsed.refuse(item, not_the_pool(shape.get("label"), pool))
+            continue
+        try:
+            kind = shape.get("shape_type") or "polygon"
+            xy = _xy(shape.get("points"))
+            if kind == "point":
+                points += [[float(x), float(y)] for x, y in xy]
+            else:
+                label.shapes.append(_shape(kind, xy, shape.get("mask")))
+        except InvalidInputError as exc:
+            parsed.refuse(item, exc.message)
+            return None
+    label.validation_keypoints = points or None
+    return label if label.shapes or points else None
+
+
+def _xy(points: Any) -> list[tuple[float, float]]:
+    if not (
+        isinstance(points, list)
+        and points
+        and all(
+            isinstance(p, list)
+            and len(p) == 2
+            and all(isinstance(v, int | float) and math.isfinite(v) for v in p)
+            for p in points
+        )
+    ):
+        raise InvalidInputError("The shape's points are not a list of [x, y].")
+    return [(float(x), float(y)) for x, y in points]
+
+
+def _shape(kind: str, xy: list[tuple[float, float]], mask: Any) -> Shape:
+    if kind == "polygon":
+        if len(xy) < 3:
+            raise InvalidInputError("A polygon needs 3 or more points.")
+        return Polygons([Polygon(xy)])
+    if kind == "rectangle" and len(xy) == 2:
+        (x0, y0), (x1, y1) = xy
+        return Polygons([Polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])])
+    if kind == "circle" and len(xy) == 2:
+        (cx, cy), (px, py) = xy
+        radius = math.hypot(px - cx, py - cy)
+        angles = np.linspace(0, 2 * np.pi, CIRCLE_VERTICES, endpoint=False)
+        ring = [(cx + radius * math.cos(a), cy + radius * math.sin(a)) for a in angles]
+        return Polygons([Polygon(ring)])
+    if kind == "mask" and len(xy) == 2 and isinstance(mask, str):
+        try:
+            pixels = decode_mask_png(base64.b64decode(mask, validate=True))
+        except (binascii.Error, ValueError):
+            raise InvalidInputError("The mask shape's data is not base64.") from None
+        return PartialMask(
+            pixels, left=round(min(xy[0][0], xy[1][0])), top=round(min(xy[0][1], xy[1][1]))
+        )
+    raise InvalidInputError(f"A {kind} shape has no pool area to import.")

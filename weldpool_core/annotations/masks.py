@@ -1,0 +1,87 @@
+"""Mask folders: ``masks/<stem>.png`` (0/255 or 0/1) beside ``images/<stem>.<ext>``, the layout
+``weldpool train`` reads and the ``masks`` export writes; ``keypoints/<stem>.json`` and
+``validation_keypoints/<stem>.json`` (``{"keypoints": [[x, y], …]}``) and ``manifest.json``
+(each frame's original name, run and process parameters) are read when present. A mask whose
+image is not in the source is matched to a stored frame by its stem."""
+
+from __future__ import annotations
+
+import json
+import posixpath
+from typing import Any
+
+from weldpool_core.annotations.shapes import ImportedLabel, MaskImage, Parsed
+from weldpool_core.annotations.source import Source
+from weldpool_core.annotations.yolo import IMAGE_SUFFIXES
+from weldpool_core.errors import InvalidInputError
+
+
+def _manifest(source: Source, parsed: Parsed) -> dict[str, dict[str, Any]]:
+    if "manifest.json" not in source:
+        return {}
+    try:
+        frames = json.loads(source.read("manifest.json")).get("frames", [])
+        return {str(f["stem"]): f for f in frames if isinstance(f, dict) and "stem" in f}
+    except (ValueError, AttributeError, UnicodeDecodeError):
+        parsed.refuse(
+            "manifest.json", "The manifest is not valid JSON; names and runs are not read."
+        )
+        return {}
+
+
+def _points(source: Source, path: str) -> list[list[float]] | None:
+    if path not in source:
+        return None
+    try:
+        points = json.loads(source.read(path)).get("keypoints")
+    except (ValueError, AttributeError, UnicodeDecodeError):
+        raise InvalidInputError(f"{path} is not valid JSON.") from None
+    if not points:
+        return None
+    if not all(isinstance(p, list) and len(p) == 2 for p in points):
+        raise InvalidInputError(f"{path}'s keypoints are not a list of [x, y].")
+    return [[float(x), float(y)] for x, y in points]
+
+
+def _images_by_stem(source: Source) -> dict[str, str]:
+    return {
+        posixpath.splitext(n[len("images/") :])[0]: n
+        for n in source.names
+        if n.startswith("images/") and n.lower().endswith(IMAGE_SUFFIXES)
+    }
+
+
+def read_masks(source: Source, category: str | None = None) -> Parsed:
+    del category  # a mask folder holds the pool only
+    parsed = Parsed()
+    manifest = _manifest(source, parsed)
+    images = _images_by_stem(source)
+    masks = [n for n in source.names if n.startswith("masks/") and n.lower().endswith(".png")]
+    if not masks:
+        raise InvalidInputError("No masks (masks/<stem>.png) were found.")
+    for path in masks:
+        stem = posixpath.splitext(path[len("masks/") :])[0]
+        entry = manifest.get(stem, {})
+        try:
+            keypoints = _points(source, f"keypoints/{stem}.json")
+            manual = _points(source, f"validation_keypoints/{stem}.json")
+            data = source.read(path)
+        except InvalidInputError as exc:
+            parsed.refuse(path, exc.message)
+            continue
+        image = images.get(stem)
+        parsed.labels.append(
+            ImportedLabel(
+                item=path,
+                image=posixpath.basename(image) if image else entry.get("original_name") or stem,
+                shapes=[MaskImage(data)],
+                keypoints=keypoints,
+                validation_keypoints=manual,
+                sequence=entry.get("sequence"),
+                process=entry.get("process"),
+                original_name=entry.get("original_name")
+                or (posixpath.basename(image) if image else None),
+                beside=image or "",
+            )
+        )
+    return parsed
