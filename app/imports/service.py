@@ -43,7 +43,7 @@ from app.review.service import (
     write_label,
 )
 from app.storage import CHUNK, Storage, StoredFile
-from weldpool_core.annotations import READERS, ImportedLabel, Refusal, Source
+from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
 
 IMPORTS_DIR = "imports"
 """Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
@@ -126,7 +126,12 @@ def import_labels(
         )
     if options.sequence_id is not None:
         sequences.get_sequence(session, options.sequence_id)
-    parsed = reader(source, options.category)
+    try:
+        parsed = reader(source, options.category)
+    except InvalidInputError as exc:
+        if not source.refused:
+            raise
+        parsed = Parsed([], [Refusal(source.name, exc.message)])  # nothing left to read
     report = ImportReport(refused=[*source.refused, *parsed.refused])
     runs = _Runs(session, source.name, options.sequence_id, user, report)
     total = len(parsed.labels)

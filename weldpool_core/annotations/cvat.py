@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as SafeET
 from numpy.typing import NDArray
 
@@ -55,11 +56,13 @@ def read_cvat(source: Source, category: str | None = None) -> Parsed:
     for name in files:
         try:
             root = SafeET.fromstring(source.read(name))
+        except DefusedXmlException:
+            parsed.refuse(
+                name, "The XML declares entities, which a CVAT file never does; it is not read."
+            )
+            continue
         except (ET.ParseError, ValueError) as exc:
             parsed.refuse(name, f"The file is not well-formed XML ({exc}).")
-            continue
-        except Exception as exc:  # defusedxml's refusals (entities, DTDs) share no base class
-            parsed.refuse(name, f"The XML is refused: {type(exc).__name__}.")
             continue
         if root.tag != "annotations":
             parsed.refuse(name, "The file is not CVAT for images XML (no <annotations> root).")
