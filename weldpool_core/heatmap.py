@@ -424,13 +424,19 @@ def _render(
         heatmap[rows, columns] += gaussian * np.minimum(pool + pool, np.float32(1))
 
 
-def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:
-    """Algorithm 1 on a mask (H×W; bool, nonzero integers or floats ≥ 0.5 are the pool).
+@dataclass(frozen=True)
+class _Placed:
+    """Algorithm 1 up to its keypoints (what the heatmap is then rendered from)."""
 
-    Returns the H×W×2 (heatmap, mask) array, the k keypoints in the order rule and which rule
-    placed each. Raises InvalidInputError for an empty, tiny or too-thin mask.
-    """
-    params = params or HeatmapParams()
+    foreground: NDArray[np.bool_]
+    smoothed: _Smoothed
+    points: NDArray[np.float64]
+    spread: NDArray[np.float64]
+    rules: tuple[str, ...]
+    contour: NDArray[np.float64]
+
+
+def _placed(mask: NDArray[Any], params: HeatmapParams) -> _Placed:
     foreground = _foreground(mask)
     smoothed = _smoothed(foreground, params.blur_size)
     local = _outer_contour(smoothed.values, params.min_area)
@@ -438,19 +444,43 @@ def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -
     centre = _centroid(local)
     keypoints, covariances, rules = _select_keypoints(local, turns, centre, params)
     origin = np.array(smoothed.origin, np.float64)
-    contour = local.astype(np.float64) + origin
     points = np.array(keypoints) + origin
     order = order_by_angle(
         points, (centre[0] + origin[0], centre[1] + origin[1]), params.order_start_deg
     )
-    points, spread = points[order], np.array(covariances)[order]
-    heat = np.zeros(foreground.shape, np.float32)
-    _render(heat, smoothed, points, spread, params.window_sigmas)
-    heatmap = np.asarray(cv2.merge([heat, foreground.astype(np.float32)]), np.float32)
+    return _Placed(
+        foreground=foreground,
+        smoothed=smoothed,
+        points=points[order],
+        spread=np.array(covariances)[order],
+        rules=tuple(rules[i] for i in order),
+        contour=local.astype(np.float64) + origin,
+    )
+
+
+def keypoints_from_mask(
+    mask: NDArray[Any], params: HeatmapParams | None = None
+) -> NDArray[np.float64]:
+    """Algorithm 1's k×2 keypoints of a mask, without rendering the heatmap (a sixth of
+    ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores."""
+    return _placed(mask, params or HeatmapParams()).points
+
+
+def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:
+    """Algorithm 1 on a mask (H×W; bool, nonzero integers or floats ≥ 0.5 are the pool).
+
+    Returns the H×W×2 (heatmap, mask) array, the k keypoints in the order rule and which rule
+    placed each. Raises InvalidInputError for an empty, tiny or too-thin mask.
+    """
+    params = params or HeatmapParams()
+    placed = _placed(mask, params)
+    heat = np.zeros(placed.foreground.shape, np.float32)
+    _render(heat, placed.smoothed, placed.points, placed.spread, params.window_sigmas)
+    heatmap = np.asarray(cv2.merge([heat, placed.foreground.astype(np.float32)]), np.float32)
     return HeatmapResult(
         heatmap=heatmap,
-        keypoints=points,
-        rules=tuple(rules[i] for i in order),
-        covariances=spread,
-        contour=contour,
+        keypoints=placed.points,
+        rules=placed.rules,
+        covariances=placed.spread,
+        contour=placed.contour,
     )

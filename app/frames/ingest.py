@@ -25,7 +25,7 @@ _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
 INGEST_POOL = ThreadPoolExecutor(
     max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="ingest"
 )
-_DISK = ThreadPoolExecutor(max_workers=8, thread_name_prefix="ingest-disk")
+DISK_POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="ingest-disk")
 """Writes and fsyncs wait on the disk, not a core: their own threads keep the checks going
 and let the disk queue several flushes at once."""
 
@@ -140,7 +140,11 @@ class FrameChecks:
         if isinstance(verdict, Rejection):
             return digest, verdict, None
         extension = verdict.info.extension
-        return digest, verdict, _DISK.submit(self._storage.stage, incoming.data, digest, extension)
+        return (
+            digest,
+            verdict,
+            DISK_POOL.submit(self._storage.stage, incoming.data, digest, extension),
+        )
 
     def _settle(self) -> tuple[list[_Check], list[BaseException]]:
         """Wait for every check and staging; what they gave, and what they raised."""
@@ -264,11 +268,11 @@ def _record_staged(
             staged.update(
                 zip(
                     [f.sha256 for f in unstaged],
-                    storage.stage_many(items, executor=_DISK),
+                    storage.stage_many(items, executor=DISK_POOL),
                     strict=True,
                 )
             )
-            written = storage.install_many([staged.pop(f.sha256) for f in new.values()], _DISK)
+            written = storage.install_many([staged.pop(f.sha256) for f in new.values()], DISK_POOL)
             rows = [
                 _frame_row(frame, stored.path, sequence_id, user, video_id)
                 for frame, stored in zip(new.values(), written, strict=True)

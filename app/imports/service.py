@@ -25,25 +25,26 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError
 from app.frames import ingest, sequences
+from app.frames.ingest import DISK_POOL, INGEST_POOL
 from app.frames.schemas import SequenceIn
 from app.models import Frame, Label, LabelStatus, Sequence, User
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
-    mask_fields,
+    mask_columns,
     mask_keypoints,
     set_validation_keypoints,
     write_label,
 )
 from app.storage import CHUNK, Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
+from weldpool_core.io import encode_mask_png
 
 IMPORTS_DIR = "imports"
 """Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
@@ -317,32 +318,29 @@ class _Batch:
     # --- labels --------------------------------------------------------------------------
 
     def _write_labels(self, targets: list[_Target]) -> None:
-        session, written = self.session, []
+        session = self.session
         ids = sorted({t.frame_id for t in targets if t.frame_id is not None})
         frames = {f.id: f for f in session.scalars(sa.select(Frame).where(Frame.id.in_(ids)))}
         labels = {
             label.frame_id: label
             for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(ids)))
         }
-        counts = [0, 0]
-        seen: set[int] = set()
+        written: list[StoredFile] = []
         try:
             for frame_id in ids:
                 try:
                     lock_frame(session, frame_id)  # a deletion waits for this batch (PostgreSQL)
                 except FrameDeleted:
                     frames.pop(frame_id, None)
-            for target in targets:
-                frame = frames.get(target.frame_id or -1)
-                if frame is None:
-                    self.refuse(target.label, "Its frame was deleted while it was imported.")
-                    continue
-                if frame.id in seen:
-                    self.refuse(target.label, "Another item of the import labels this frame.")
-                    continue
-                seen.add(frame.id)
-                stored = self._write_one(target.label, frame, labels.get(frame.id), counts)
-                written += stored
+            work = self._placed(targets, frames, labels)
+            sizes = [(frame.height, frame.width) for _, frame, _ in work]  # read here, not there
+            contents = list(
+                INGEST_POOL.map(lambda job, size: _content(job[0].label, size, job[2]), work, sizes)
+            )
+            written = self._store_masks(contents)
+            counts = [0, 0]
+            for (target, frame, _), content in zip(work, contents, strict=True):
+                self._write_one(target.label, frame, labels.get(frame.id), content, counts)
             session.commit()
         except BaseException:
             session.rollback()
@@ -352,60 +350,109 @@ class _Batch:
         self.report.labels += counts[0]
         self.report.keypoints += counts[1]
 
-    def _write_one(
-        self, item: ImportedLabel, frame: Frame, current: Label | None, counts: list[int]
-    ) -> list[StoredFile]:
-        """The label and validation keypoints of one frame (not committed); its new files."""
-        try:
-            mask = item.mask(frame.height, frame.width)
-            item.checked_points(frame.height, frame.width)
-            keypoints = check_keypoints(frame, item.keypoints) if item.keypoints else None
-            if mask is not None and keypoints is None:
-                keypoints = mask_keypoints(mask)  # Algorithm 1, as for a mask drawn here
-            manual = (
-                check_keypoints(frame, item.validation_keypoints)
-                if item.validation_keypoints
-                else None
-            )
-        except InvalidInputError as exc:
-            self.refuse(item, exc.message)
-            return []
-        files: list[StoredFile] = []
-        if mask is not None:
-            if current is not None and not self.options.overwrite:
-                self.report.skipped.append(
-                    Refusal(
-                        item.item,
-                        f"Frame {frame.id} already has a label (revision {current.revision}); "
-                        "import with overwrite to add a revision.",
-                    )
-                )
+    def _placed(
+        self, targets: list[_Target], frames: dict[int, Frame], labels: dict[int, Label]
+    ) -> list[tuple[_Target, Frame, bool]]:
+        """Each target with its frame and whether its label is to be written (else it is
+        skipped: the frame has one and the import does not overwrite)."""
+        placed, seen = [], set()
+        for target in targets:
+            frame = frames.get(target.frame_id or -1)
+            if frame is None:
+                self.refuse(target.label, "Its frame was deleted while it was imported.")
+            elif frame.id in seen:
+                self.refuse(target.label, "Another item of the import labels this frame.")
             else:
-                files += self._label(item, frame, current, mask, keypoints or [])
-                counts[0] += 1
-        if manual is not None:
-            set_validation_keypoints(self.session, frame, self.user, manual)
-            counts[1] += 1
-        return files
+                seen.add(frame.id)
+                current = labels.get(frame.id)
+                wants = bool(target.label.shapes) and (current is None or self.options.overwrite)
+                if target.label.shapes and not wants and current is not None:
+                    self.report.skipped.append(
+                        Refusal(
+                            target.label.item,
+                            f"Frame {frame.id} already has a label (revision "
+                            f"{current.revision}); import with overwrite to add a revision.",
+                        )
+                    )
+                placed.append((target, frame, wants))
+        return placed
 
-    def _label(
+    def _store_masks(self, contents: list[_Content]) -> list[StoredFile]:
+        """Every new mask PNG staged in the disk threads, then installed (flushed)."""
+        new = [c for c in contents if c.mask_png is not None]
+        items = [(c.mask_png or b"", c.sha256, ".png") for c in new]
+        staged = self.storage.stage_many(items, area="artefacts", executor=DISK_POOL)
+        written = self.storage.install_many(staged, DISK_POOL)
+        for content, stored in zip(new, written, strict=True):
+            content.mask_path = stored.path
+        return [w for w in written if w.created]
+
+    def _write_one(
         self,
         item: ImportedLabel,
         frame: Frame,
         current: Label | None,
-        mask: NDArray[Any],
-        keypoints: list[list[float]],
-    ) -> list[StoredFile]:
-        fields, stored = mask_fields(self.storage, mask, None, None, rle=item.stored_rle())
-        values = fields | {
-            "status": LabelStatus.corrected,
-            "keypoints": keypoints,
-            "proposal_id": None,
-            "mask_changed": None,
-            "source": {"kind": "imported", "format": self.options.format, "file": item.item},
-            "updated_by_id": self.user.id,
-            "updated_at": utcnow(),
-        }
-        base = current.revision if current is not None else 0
-        write_label(self.session, frame, current, base, values)
-        return [stored] if stored is not None else []
+        content: _Content,
+        counts: list[int],
+    ) -> None:
+        """The label and validation keypoints of one frame (not committed)."""
+        try:
+            if content.problem:
+                raise InvalidInputError(content.problem)
+            keypoints = check_keypoints(frame, content.keypoints or [])
+            manual = check_keypoints(frame, content.manual) if content.manual else None
+        except InvalidInputError as exc:
+            self.refuse(item, exc.message)
+            return
+        if content.mask_path is not None:
+            values = content.columns | {
+                "mask_path": content.mask_path,
+                "status": LabelStatus.corrected,
+                "keypoints": keypoints,
+                "proposal_id": None,
+                "mask_changed": None,
+                "source": {"kind": "imported", "format": self.options.format, "file": item.item},
+                "updated_by_id": self.user.id,
+                "updated_at": utcnow(),
+            }
+            base = current.revision if current is not None else 0
+            write_label(self.session, frame, current, base, values, flush=False)
+            counts[0] += 1
+        if manual is not None:
+            set_validation_keypoints(self.session, frame, self.user, manual)
+            counts[1] += 1
+
+
+@dataclass
+class _Content:
+    """One label's content, computed in the ingest pool, off the session: its mask's PNG (to
+    store), stored columns and keypoints, or why it is refused."""
+
+    mask_png: bytes | None = None
+    sha256: str = ""
+    columns: dict[str, Any] = field(default_factory=dict)
+    keypoints: list[list[float]] | None = None
+    manual: list[list[float]] | None = None
+    problem: str | None = None
+    mask_path: str | None = None  # set once the PNG is stored
+
+
+def _content(item: ImportedLabel, size: tuple[int, int], wants_label: bool) -> _Content:
+    """Rasterise, check, encode and measure one label on a frame of ``size`` (height, width);
+    thread-safe. The label's keypoints are Algorithm 1's on the mask unless it has its own."""
+    height, width = size
+    content = _Content(manual=item.validation_keypoints)
+    try:
+        item.checked_points(height, width)
+        if not wants_label:
+            return content
+        mask = item.mask(height, width)
+        if mask is None:
+            return content
+        content.keypoints = item.keypoints or mask_keypoints(mask)
+        content.columns = mask_columns(mask, rle=item.stored_rle())
+        content.mask_png = encode_mask_png(mask)
+        content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
+    except InvalidInputError as exc:
+        content.problem = exc.message
+    return content

@@ -41,7 +41,7 @@ from app.proposals.policy import pick
 from app.review import runtime
 from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png
-from weldpool_core.outline import CocoMask, coco_mask, coco_rle, region_outlines
+from weldpool_core.outline import coco_mask, coco_rle, region_outlines
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
@@ -122,15 +122,16 @@ def current_label(session: Session, frame_id: int) -> Label | None:
 
 
 def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
-    from weldpool_core.heatmap import heatmap_from_mask
+    """Algorithm 1's keypoints of a label's mask (those of a mask drawn or imported)."""
+    from weldpool_core.heatmap import keypoints_from_mask
 
     try:
-        result = heatmap_from_mask(mask)
+        points = keypoints_from_mask(mask)
     except InvalidInputError as exc:
         raise InvalidInputError(
             f"Keypoints cannot be computed for this mask: {exc.message}"
         ) from None
-    return [[float(x), float(y)] for x, y in np.asarray(result.keypoints)]
+    return [[float(x), float(y)] for x, y in np.asarray(points)]
 
 
 def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[float]]:
@@ -186,51 +187,59 @@ def _label_content(
     )
 
 
+def mask_columns(mask: NDArray[np.bool_], rle: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a label stores of its mask besides the file: COCO RLE, area and box (from ``rle``
+    when the caller has the mask's compressed RLE already), and its region outlines."""
+    coco = coco_rle(rle) if rle is not None else coco_mask(mask)
+    return {
+        "mask_rle": coco.rle,
+        "mask_area": coco.area,
+        "mask_bbox": coco.bbox,
+        "mask_outlines": region_outlines(mask),
+    }
+
+
 def mask_fields(
     storage: Storage,
     mask: NDArray[np.bool_] | None,
     mask_path: str | None,
     proposal: Proposal | None,
-    rle: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], StoredFile | None]:
-    """The label's mask columns (path, COCO RLE, area, box, outlines, whether it differs from
-    the proposal's), storing a new mask's file (returned, to discard on failure). ``rle``: the
-    new mask's compressed RLE when the caller has it already (an imported COCO label)."""
+    """The label's mask columns (path, ``mask_columns``, whether it differs from the
+    proposal's), storing a new mask's file (returned, to discard on failure)."""
     stored: StoredFile | None = None
-    coco: CocoMask | None = None
-    outlines: list[Any] | None = None
+    columns: dict[str, Any] = dict.fromkeys(("mask_rle", "mask_area", "mask_bbox", "mask_outlines"))
     changed: bool | None = None
     if mask is not None:
         changed = proposal is None or not np.array_equal(
             mask, load_mask(storage, proposal.mask_path)
         )
-        coco = coco_rle(rle) if rle is not None else coco_mask(mask)
-        outlines = region_outlines(mask)
+        columns = mask_columns(mask)
         stored = store_mask_file(storage, mask)
         mask_path = stored.path
     elif mask_path is not None:
         changed = False
-        accepted = load_mask(storage, mask_path)
-        coco, outlines = coco_mask(accepted), region_outlines(accepted)
-    fields = {
-        "mask_path": mask_path,
-        "mask_rle": coco.rle if coco else None,
-        "mask_area": coco.area if coco else None,
-        "mask_bbox": coco.bbox if coco else None,
-        "mask_outlines": outlines,
-        "mask_changed": changed,
-    }
-    return fields, stored
+        columns = mask_columns(load_mask(storage, mask_path))
+    return {"mask_path": mask_path, **columns, "mask_changed": changed}, stored
 
 
 def write_label(
-    session: Session, frame: Frame, label: Label | None, base_revision: int, values: dict[str, Any]
+    session: Session,
+    frame: Frame,
+    label: Label | None,
+    base_revision: int,
+    values: dict[str, Any],
+    *,
+    flush: bool = True,
 ) -> Label:
-    """The label row (new, or updated only at ``base_revision``) and its history row."""
+    """The label row (new, or updated only at ``base_revision``) and its history row. A new
+    row is flushed at once (a concurrent first label fails here) unless ``flush`` is False (a
+    batch flushes all of its rows at its commit)."""
     if label is None:
         label = Label(frame_id=frame.id, revision=1, **values)
         session.add(label)
-        session.flush()
+        if flush:
+            session.flush()
     else:
         updated = session.execute(
             sa.update(Label)

@@ -227,6 +227,8 @@ document.getElementById("export").addEventListener("click", async (event) => {
   }
 });
 
+document.addEventListener("labels-imported", async () => { await loadSequences(); await refresh(); }); // imports.js: new labels and runs
+
 // --- a weld run's name, process parameters (the paper's Table I), scale and notes ---------------
 
 const NUMBERS = ["wire_feed_m_min", "voltage_v", "current_a", "arc_length_correction_pct", "robot_speed_cm_min", "mm_per_px"];

@@ -293,3 +293,13 @@ def test_on_real_pools_keypoints_mark_the_same_corners_in_every_frame_of_a_clip(
         f"nudged: mean {np.mean(nudges):.1f}, largest {np.max(nudges):.1f}"
     )
     assert np.mean(moves) <= 15.0 and np.mean(nudges) <= 10.0 and np.max(nudges) <= 30.0
+
+
+def test_keypoints_from_mask_are_the_heatmaps_keypoints() -> None:
+    """The keypoint-only path (what a saved label stores) and the full Algorithm 1 agree."""
+    from weldpool_core.heatmap import heatmap_from_mask, keypoints_from_mask
+    from weldpool_core.synth import SynthParams, synth_frame
+
+    for seed in range(6):
+        mask = synth_frame(seed=seed, params=SynthParams(320, 200)).mask
+        assert np.array_equal(keypoints_from_mask(mask), heatmap_from_mask(mask).keypoints)
