@@ -2,10 +2,11 @@
 and CVAT for images 1.1 (``READERS``); each reader gives ``ImportedLabel``s and the items it
 refused, and rasterises a label only against the frame it belongs to (``ImportedLabel.mask``).
 
-Converters considered: Datumaro (CVAT's own) reads all five, but pulls in ~40 packages and
-imports in seconds; supervision reads COCO and YOLO only and decodes every mask eagerly. Each
-format here is a page of code over pycocotools (COCO's reference RLE and polygons), OpenCV and
-the one polygon filler (``outline.fill_polygons``), with the refusals this service needs.
+Converters considered: Datumaro 1.13 (CVAT's own) reads all five, but requires 18 packages
+(pandas, pyarrow, shapely, lxml…) and pins Pillow 12; supervision 0.31 reads COCO and YOLO
+only. Each format here is a page of code over pycocotools (COCO's reference RLE and polygons),
+OpenCV and the one polygon filler (``outline.fill_polygons``), with the refusals this service
+needs.
 """
 
 from __future__ import annotations
