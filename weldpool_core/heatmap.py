@@ -432,7 +432,7 @@ class _Placed:
     smoothed: _Smoothed
     points: NDArray[np.float64]
     spread: NDArray[np.float64]
-    rules: tuple[str, ...]
+    rules: tuple[KeypointRule, ...]
     contour: NDArray[np.float64]
 
 

@@ -446,11 +446,11 @@ def _content(item: ImportedLabel, size: tuple[int, int], wants_label: bool) -> _
         item.checked_points(height, width)
         if not wants_label:
             return content
-        mask = item.mask(height, width)
+        mask, rle = item.rasterised(height, width)
         if mask is None:
             return content
         content.keypoints = item.keypoints or mask_keypoints(mask)
-        content.columns = mask_columns(mask, rle=item.stored_rle())
+        content.columns = mask_columns(mask, rle=rle)
         content.mask_png = encode_mask_png(mask)
         content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
     except InvalidInputError as exc:

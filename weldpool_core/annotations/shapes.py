@@ -67,27 +67,31 @@ class CocoPolygons:
 
     polygons: list[list[float]]
 
-    def mask(self, height: int, width: int) -> NDArray[np.bool_]:
+    def rle(self, height: int, width: int) -> dict[str, Any]:
+        """The polygons' union as compressed RLE on a ``height``×``width`` frame."""
         from pycocotools import mask as coco
 
         for flat in self.polygons:
             _check_inside(np.asarray(flat, np.float64).reshape(-1, 2), height, width, "polygon's")
         rles = coco.frPyObjects([list(map(float, p)) for p in self.polygons], height, width)
         merged = coco.merge(rles)
-        return rle_mask({"size": merged["size"], "counts": merged["counts"]})
+        return {"size": [height, width], "counts": merged["counts"].decode("ascii")}
+
+    def mask(self, height: int, width: int) -> NDArray[np.bool_]:
+        return rle_mask(self.rle(height, width))
 
 
 @dataclass(frozen=True)
 class CocoRle:
     """A COCO RLE, compressed ``{"size", "counts": str}`` or uncompressed (``counts`` a list)."""
 
-    rle: dict[str, Any]
+    encoded: dict[str, Any]
 
     def compressed(self) -> dict[str, Any]:
         from pycocotools import mask as coco
 
-        size = [int(v) for v in self.rle["size"]]
-        counts = self.rle["counts"]
+        size = [int(v) for v in self.encoded["size"]]
+        counts = self.encoded["counts"]
         if isinstance(counts, list):
             if sum(counts) != size[0] * size[1]:
                 raise InvalidInputError(
@@ -98,14 +102,19 @@ class CocoRle:
             counts = encoded["counts"].decode("ascii")
         return {"size": size, "counts": counts}
 
-    def mask(self, height: int, width: int) -> NDArray[np.bool_]:
-        size = [int(v) for v in self.rle["size"]]
+    def rle(self, height: int, width: int) -> dict[str, Any]:
+        """The compressed RLE, checked against a ``height``×``width`` frame."""
+        size = [int(v) for v in self.encoded["size"]]
         if size != [height, width]:
             raise InvalidInputError(
                 f"The mask is {size[1]}×{size[0]}; the frame is {width}×{height}."
             )
+        return self.compressed()
+
+    def mask(self, height: int, width: int) -> NDArray[np.bool_]:
+        rle = self.rle(height, width)
         try:
-            return rle_mask(self.compressed())
+            return rle_mask(rle)
         except (ValueError, TypeError) as exc:
             raise InvalidInputError(f"The RLE mask cannot be decoded ({exc}).") from None
 
@@ -187,11 +196,7 @@ class ImportedLabel:
     def mask(self, height: int, width: int) -> NDArray[np.bool_] | None:
         """The pool mask on a ``height``×``width`` frame (None when the label has only
         keypoints); refused (InvalidInputError) when a shape does not fit the frame."""
-        if self.size is not None and tuple(self.size) != (height, width):
-            raise InvalidInputError(
-                f"The annotation is for a {self.size[1]}×{self.size[0]} image; the frame is "
-                f"{width}×{height}."
-            )
+        self._check_size(height, width)
         if not self.shapes:
             return None
         union = self.shapes[0].mask(height, width)
@@ -201,16 +206,35 @@ class ImportedLabel:
             raise InvalidInputError("The mask is empty.")
         return union
 
+    def _check_size(self, height: int, width: int) -> None:
+        if self.size is not None and tuple(self.size) != (height, width):
+            raise InvalidInputError(
+                f"The annotation is for a {self.size[1]}×{self.size[0]} image; the frame is "
+                f"{width}×{height}."
+            )
+
     def checked_points(self, height: int, width: int) -> None:
         for points in (self.keypoints, self.validation_keypoints):
             if points:
                 _check_inside(np.asarray(points, np.float64).reshape(-1, 2), height, width, "key")
 
-    def stored_rle(self) -> dict[str, Any] | None:
-        """The compressed RLE to store as it is, when the label is exactly one COCO RLE."""
-        if len(self.shapes) == 1 and isinstance(self.shapes[0], CocoRle):
-            return self.shapes[0].compressed()
-        return None
+    def rasterised(
+        self, height: int, width: int
+    ) -> tuple[NDArray[np.bool_] | None, dict[str, Any] | None]:
+        """``mask``, and its compressed RLE when the label is one COCO shape (RLE already:
+        stored as it is instead of encoded again)."""
+        shape = self.shapes[0] if len(self.shapes) == 1 else None
+        if not isinstance(shape, CocoRle | CocoPolygons):
+            return self.mask(height, width), None
+        self._check_size(height, width)
+        rle = shape.rle(height, width)
+        try:
+            mask = rle_mask(rle)
+        except (ValueError, TypeError) as exc:
+            raise InvalidInputError(f"The RLE mask cannot be decoded ({exc}).") from None
+        if not mask.any():
+            raise InvalidInputError("The mask is empty.")
+        return mask, rle
 
 
 @dataclass
