@@ -176,9 +176,18 @@ class _Runs:
                 self._by_name[label.sequence] = self._named(label.sequence, label.process)
             return self._by_name[label.sequence]
         if self._default is None:
-            name = sequences.unique_sequence_name(self._session, self._name)
-            self._default = sequences.create_sequence(self._session, {"name": name}, self._user).id
+            self._default = self._new_run()
         return self._default
+
+    def _new_run(self) -> int:
+        """A new run named after the import (``name (2)``… when taken, also meanwhile)."""
+        for _ in range(5):
+            name = sequences.unique_sequence_name(self._session, self._name)
+            try:
+                return sequences.create_sequence(self._session, {"name": name}, self._user).id
+            except ConflictError:  # another import took the name meanwhile
+                self._session.rollback()
+        raise ConflictError("Other imports kept taking the new run's name; import again.")
 
     def _named(self, name: str, process: dict[str, Any] | None) -> int:
         found = self._session.scalar(sa.select(Sequence).where(Sequence.name == name))

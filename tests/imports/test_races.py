@@ -1,0 +1,114 @@
+"""Two imports of the same labels at once, and an import racing a reviewer: each frame ends with
+one label and one frame row, nothing fails with a server error, on SQLite and PostgreSQL."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import sqlalchemy as sa
+
+from app.frames.sequences import create_sequence
+from app.imports.service import ImportOptions, import_labels
+from app.models import Frame, Label, LabelRevision, Role, Sequence, User
+from app.storage import Storage
+from tests.helpers import image_bytes
+from tests.imports.common import H, W, zipped
+from weldpool_core.annotations import open_source
+from weldpool_core.io import encode_mask_png
+
+
+def _archive(tmp_path: Path, count: int) -> Path:
+    files = {}
+    for i in range(count):
+        mask = np.zeros((H, W), bool)
+        mask[5 + i % 10 : 40, 10:60] = True
+        files[f"images/{i}.png"] = image_bytes(W, H, seed=300 + i)
+        files[f"masks/{i}.png"] = encode_mask_png(mask)
+    path = tmp_path / "labels.zip"
+    path.write_bytes(zipped(files))
+    return path
+
+
+def test_two_imports_of_the_same_labels_at_once_write_each_frame_once(
+    settings, session_factory, make_user, tmp_path: Path
+) -> None:
+    user, _ = make_user("twins", Role.annotator)
+    archive = _archive(tmp_path, 70)  # two batches each
+    with session_factory() as session:
+        run_id = create_sequence(session, {"name": "one run"}, None).id
+    reports, errors = [], []
+    barrier = threading.Barrier(2)
+
+    def run() -> None:
+        try:
+            with session_factory() as session:
+                source = open_source(archive)
+                barrier.wait()
+                reports.append(
+                    import_labels(
+                        session,
+                        Storage.of(settings),
+                        source,
+                        ImportOptions("masks", sequence_id=run_id),
+                        session.get_one(User, user.id),
+                    )
+                )
+                source.close()
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(120)
+    assert errors == []
+    assert sum(r.labels for r in reports) == 70  # each frame labelled by one of them
+    assert sum(len(r.skipped) for r in reports) == 70  # and skipped by the other
+    with session_factory() as session:
+        labels = session.scalar(sa.select(sa.func.count()).select_from(Label))
+        revisions = session.scalar(sa.select(sa.func.count()).select_from(LabelRevision))
+        names = session.scalars(sa.select(Frame.original_name)).all()
+    assert labels == 70 and revisions == 70
+    assert len(names) == len(set(names))  # no frame twice in its run
+
+
+def test_two_imports_without_a_run_each_make_their_own(
+    settings, session_factory, make_user, tmp_path: Path
+) -> None:
+    user, _ = make_user("pair", Role.annotator)
+    archive = _archive(tmp_path, 3)
+    barrier, errors = threading.Barrier(2), []
+
+    def run(index: int) -> None:
+        try:
+            with session_factory() as session:
+                source = open_source(archive, name="import-0.zip")
+                barrier.wait()
+                import_labels(
+                    session,
+                    Storage.of(settings),
+                    source,
+                    ImportOptions("masks"),
+                    session.get_one(User, user.id),
+                )
+                source.close()
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert errors == []
+    with session_factory() as session:
+        names = sorted(session.scalars(sa.select(Sequence.name)))
+        labels = session.scalar(sa.select(sa.func.count()).select_from(Label))
+        frames = session.scalar(sa.select(sa.func.count()).select_from(Frame))
+    # The second finds the first's frames by content if they were committed when it looked;
+    # else it makes its own run, never the same name twice.
+    assert names in (["import-0"], ["import-0", "import-0 (2)"])
+    assert labels == frames == 3 * len(names)
