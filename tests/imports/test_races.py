@@ -108,7 +108,7 @@ def test_two_imports_without_a_run_each_make_their_own(
         names = sorted(session.scalars(sa.select(Sequence.name)))
         labels = session.scalar(sa.select(sa.func.count()).select_from(Label))
         frames = session.scalar(sa.select(sa.func.count()).select_from(Frame))
-    # The second finds the first's frames by content if they were committed when it looked;
-    # else it makes its own run, never the same name twice.
+    # The second finds those of the first's frames committed when it looked (by content) and
+    # stores the others in a run of its own, never of the same name; every frame one label.
     assert names in (["import-0"], ["import-0", "import-0 (2)"])
-    assert labels == frames == 3 * len(names)
+    assert labels == frames and 3 <= frames <= 3 * len(names)
