@@ -14,13 +14,16 @@ from __future__ import annotations
 import codecs
 import email.message
 import tempfile
-from collections.abc import AsyncIterable, Callable, Mapping
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Mapping
+from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from typing import IO, Any
 
+import anyio
 from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
 
 from app.bounds import MAX_ID
 from app.errors import InvalidInputError
@@ -226,3 +229,33 @@ def optional_int(form: Mapping[str, Any], name: str, default: int | None = None)
     if abs(number) > MAX_ID:
         raise InvalidInputError(f"{name} must be at most {MAX_ID}.")
     return number
+
+
+SPOOL_BYTES = 1024 * 1024
+"""A spooled file part is held in memory up to this size, then written to a temporary file."""
+
+
+@asynccontextmanager
+async def one_spooled_file(
+    request: Request, what: str, max_fields: int = 16
+) -> AsyncIterator[tuple[dict[str, str], str, Any]]:
+    """A form of one file part (``file``, spooled) and some fields, read from ``request``:
+    yields the fields, the file's client name and the file; the spool is removed on the way
+    out, also when the request is cancelled. ``what`` names the file in the errors."""
+    uploads: list[tuple[str, Any]] = []
+    form = StreamedForm(
+        lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
+        max_files=1,
+        max_fields=max_fields,
+        spool=SPOOL_BYTES,
+        limit_hint=f"; send one {what} per request",
+    )
+    try:
+        await form.read(request.headers.get("content-type", ""), request.stream())
+        if not uploads:
+            raise InvalidInputError(f"The request has no `file` part; attach one {what}.")
+        name, upload = uploads[0]
+        yield form.fields, name, upload
+    finally:
+        with anyio.CancelScope(shield=True):
+            await run_in_threadpool(form.close)

@@ -13,7 +13,7 @@ from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames import deletion, ingest, listing, sequences, videos
-from app.frames.multipart import StreamedForm, openapi_form, optional_int
+from app.frames.multipart import StreamedForm, one_spooled_file, openapi_form, optional_int
 from app.frames.schemas import (
     DeletionOut,
     Duplicate,
@@ -34,10 +34,6 @@ from app.models import FrameStatus, Split
 from app.security import CurrentUser, ReviewerUser
 
 router = APIRouter(tags=["frames"])
-
-
-VIDEO_SPOOL_BYTES = 1024 * 1024
-"""A video part is held in memory up to this size, then spooled to a temporary file."""
 
 
 # --- sequences ---------------------------------------------------------------------------------
@@ -318,21 +314,9 @@ async def upload_video(
 ) -> VideoAccepted:
     """Upload an MP4 or AVI video; a job extracts every n-th frame into the sequence (a new
     sequence named after the file when none is given)."""
-    uploads: list[tuple[str, Any]] = []
-    form = StreamedForm(
-        lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
-        max_files=1,
-        max_fields=64,
-        spool=VIDEO_SPOOL_BYTES,
-        limit_hint="; send one video per request",
-    )
-    try:
-        await form.read(request.headers.get("content-type", ""), request.stream())
-        if not uploads:
-            raise InvalidInputError("The request has no `file` part; attach one video.")
-        every_nth = optional_int(form.fields, "every_nth", 1) or 0
-        sequence_id = optional_int(form.fields, "sequence_id")
-        name, upload = uploads[0]
+    async with one_spooled_file(request, "video", max_fields=64) as (fields, name, upload):
+        every_nth = optional_int(fields, "every_nth", 1) or 0
+        sequence_id = optional_int(fields, "sequence_id")
         video = await run_in_threadpool(
             videos.store_video,
             session,
@@ -343,9 +327,6 @@ async def upload_video(
             sequence_id=sequence_id,
             user=user,
         )
-    finally:
-        with anyio.CancelScope(shield=True):  # a cancelled request still removes its spool
-            await run_in_threadpool(form.close)
     job = create_job(session, queue, "extract_video", {"video_id": video.id}, user)
     video.job_id = job.id
     session.commit()

@@ -5,13 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import anyio
 from fastapi import APIRouter, Request, status
 from fastapi.concurrency import run_in_threadpool
 
 from app.deps import QueueDep, SessionDep, SettingsDep
 from app.errors import InvalidInputError
-from app.frames.multipart import StreamedForm, openapi_form, optional_int
+from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
 from app.housekeeping import prune_old_files
 from app.imports.service import IMPORTS_DIR, keep_upload
@@ -21,8 +20,6 @@ from app.security import CurrentUser
 from weldpool_core.annotations import ARCHIVE_ONLY, READERS
 
 router = APIRouter(tags=["labels"])
-SPOOL_BYTES = 1024 * 1024
-"""An upload is held in memory up to this size, then spooled to a temporary file."""
 
 
 def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
@@ -74,20 +71,8 @@ async def import_labels(
     or one COCO, LabelMe or CVAT file whose images are already stored. A job reads it; its
     result counts `frames`, `labels` and `keypoints` and lists every `skipped` and `refused`
     item with its reason."""
-    uploads: list[tuple[str, Any]] = []
-    form = StreamedForm(
-        lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
-        max_files=1,
-        max_fields=16,
-        spool=SPOOL_BYTES,
-        limit_hint="; send one file per import",
-    )
-    try:
-        await form.read(request.headers.get("content-type", ""), request.stream())
-        if not uploads:
-            raise InvalidInputError("The request has no `file` part; attach a zip or a file.")
-        name, upload = uploads[0]
-        params = _checked(form.fields, name)
+    async with one_spooled_file(request, "zip or annotation file") as (fields, name, upload):
+        params = _checked(fields, name)
         if params["sequence_id"] is not None:
             get_sequence(session, params["sequence_id"])
         head = upload.read(4)
@@ -101,9 +86,6 @@ async def import_labels(
         suffix = ".zip" if _is_zip(head) else Path(params["name"]).suffix[:8]
         await run_in_threadpool(prune_old_files, settings.home / IMPORTS_DIR)
         kept = await run_in_threadpool(keep_upload, settings.home, upload, suffix)
-    finally:
-        with anyio.CancelScope(shield=True):  # a cancelled request still removes its spool
-            await run_in_threadpool(form.close)
     job = create_job(
         session, queue, "import_labels", params | {"upload": kept, "user_id": user.id}, user
     )

@@ -248,7 +248,12 @@ def test_a_zip_bomb_entry_is_not_read(client, make_user) -> None:
         ({"format": "coco"}, b"", 400, "The file is empty."),
         ({"format": "coco", "sequence_id": "12345"}, b"{}", 404, "There is no sequence 12345."),
         ({"format": "coco", "overwrite": "maybe"}, b"{}", 400, "overwrite must be true or false."),
-        ({"format": "coco"}, None, 400, "The request has no `file` part; attach a zip or a file."),
+        (
+            {"format": "coco"},
+            None,
+            400,
+            "The request has no `file` part; attach one zip or annotation file.",
+        ),
     ],
 )
 def test_an_import_that_cannot_start_is_a_clear_4xx(
