@@ -125,3 +125,11 @@ def test_mask_codec_round_trip() -> None:
     assert np.array_equal(decode_mask_png(encode_png(mask.astype(np.uint8))), mask)  # 0/1
     with pytest.raises(InvalidInputError, match="must be a PNG"):
         decode_mask_png(image_bytes(fmt=".bmp"))
+
+
+def test_a_mask_of_any_dtype_and_layout_encodes_to_its_foreground() -> None:
+    from weldpool_core.io import decode_mask_png, encode_mask_png
+
+    mask = np.random.default_rng(0).random((40, 50)) > 0.5
+    for variant in (mask, mask.astype(np.uint8), mask * 0.7, mask[:, ::2], np.asfortranarray(mask)):
+        assert np.array_equal(decode_mask_png(encode_mask_png(variant)), np.asarray(variant) > 0)
