@@ -302,3 +302,56 @@ def test_a_batch_that_fails_leaves_no_label_and_no_mask_file(
     masks = settings.home / "masks"
     assert not masks.exists() or not any(p.is_file() for p in masks.rglob("*"))
     assert not any((settings.home / "imports").iterdir())  # the upload is gone too
+
+
+def test_one_annotation_file_labels_the_frames_already_stored_by_name(client, make_user) -> None:
+    """The contract's single-file import: a COCO file alone, whose images were uploaded before;
+    a name is matched within the run given, or anywhere when only one frame has it."""
+    _, token = make_user("later", Role.annotator)
+    runs = [
+        client.post("/api/v1/sequences", json={"name": n}, headers=auth(token)).json()["id"]
+        for n in ("left", "right")
+    ]
+    for seed, run in enumerate(runs):
+        files = [
+            ("files", ("shared.png", image_bytes(W, H, seed=500 + seed), "image/png")),
+            ("files", (f"only-{seed}.png", image_bytes(W, H, seed=510 + seed), "image/png")),
+        ]
+        stored = client.post(
+            "/api/v1/frames", data={"sequence_id": run}, files=files, headers=auth(token)
+        )
+        assert stored.status_code == 201, stored.text
+    box = [[10, 10, 40, 10, 40, 30, 10, 30]]
+    names = ["shared.png", "only-1.png", "missing.png"]
+    coco = {
+        "images": [{"id": i, "file_name": n, "width": W, "height": H} for i, n in enumerate(names)],
+        "annotations": [
+            {"id": i, "image_id": i, "category_id": 7, "segmentation": box}
+            for i in range(len(names))
+        ],
+        "categories": [{"id": 7, "name": "pool"}],
+    }
+    data = json.dumps(coco).encode()
+    anywhere = start_import(client, token, data, "coco", name="later.json")["result"]
+    assert _reasons(anywhere) == {
+        "later.json: shared.png": "More than one stored frame is named 'shared.png'; import "
+        "into one sequence.",
+        "later.json: missing.png": "The image 'missing.png' is neither in the import nor "
+        "stored here.",
+    }
+    assert anywhere["labels"] == 1 and anywhere["frames"] == 0  # only-1.png, in "right"
+    within = start_import(client, token, data, "coco", name="later.json", sequence_id=runs[0])
+    result = within["result"]
+    assert result["labels"] == 1  # shared.png of "left"
+    assert _reasons(result) == {
+        "later.json: only-1.png": f"The image 'only-1.png' is neither in the import nor stored "
+        f"here in sequence {runs[0]}.",
+        "later.json: missing.png": f"The image 'missing.png' is neither in the import nor "
+        f"stored here in sequence {runs[0]}.",
+    }
+    left = client.get(
+        "/api/v1/frames",
+        params={"sequence_id": runs[0], "status": "corrected"},
+        headers=auth(token),
+    ).json()["items"]
+    assert [f["original_name"] for f in left] == ["shared.png"]
