@@ -136,7 +136,7 @@ def import_cmd(
     "--format",
     "fmt",
     required=True,
-    type=click.Choice(["coco", "yolo", "masks", "labelme", "cvat"]),
+    help="coco, yolo, masks, labelme or cvat (weldpool_core.annotations.READERS).",
 )
 @click.option(
     "--sequence",
@@ -159,12 +159,13 @@ def import_labels_cmd(
 ) -> None:
     """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images."""
     from app.frames import sequences
-    from app.imports.service import ImportOptions, import_labels
+    from app.imports.service import ImportOptions, checked_format, import_labels
     from app.storage import Storage
     from app.users.service import importing_user
     from weldpool_core.annotations import open_source
 
     settings = load_settings()
+    checked_format(fmt)
     with open_sessions(settings)() as session:
         user = importing_user(session, username)
         sequence = (

@@ -111,6 +111,15 @@ class ImportReport:
         }
 
 
+def checked_format(name: str) -> str:
+    """``name`` when it is a label format, else a one-sentence error."""
+    if name not in READERS:
+        raise InvalidInputError(
+            f"There is no label format {name!r}; use one of {', '.join(READERS)}."
+        )
+    return name
+
+
 def import_labels(
     session: Session,
     storage: Storage,
@@ -120,11 +129,7 @@ def import_labels(
     progress: Progress | None = None,
 ) -> ImportReport:
     """Read ``source`` in ``options.format`` and import its labels batch by batch."""
-    reader = READERS.get(options.format)
-    if reader is None:
-        raise InvalidInputError(
-            f"There is no label format {options.format!r}; use one of {', '.join(READERS)}."
-        )
+    reader = READERS[checked_format(options.format)]
     if options.sequence_id is not None:
         sequences.get_sequence(session, options.sequence_id)
     try:

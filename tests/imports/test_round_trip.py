@@ -120,3 +120,13 @@ def test_the_command_line_imports_a_folder(exported, tmp_path: Path) -> None:
     assert "0 labels" in again.stderr and "3 skipped" in again.stderr
     wrong = run_cli("import-labels", folder / "masks", "--format", "coco", env=env)
     assert wrong.returncode == 2 and "No COCO annotation file" in wrong.stderr
+
+
+def test_the_command_line_names_the_formats_when_one_is_unknown(tmp_path: Path) -> None:
+    env = {"WELDPOOL_HOME": str(tmp_path / "home")}
+    assert run_cli("migrate", env=env).returncode == 0
+    done = run_cli("import-labels", tmp_path, "--format", "pascal", env=env)
+    assert done.returncode == 2
+    assert "There is no label format 'pascal'; use one of coco, yolo, masks, labelme, cvat." in (
+        done.stderr
+    )
