@@ -147,6 +147,15 @@ def import_cmd(
 )
 @click.option("--overwrite", is_flag=True, help="Add a revision to frames that have a label.")
 @click.option("--category", default=None, help="The pool's category name in the file.")
+@click.option(
+    "--keypoints",
+    "keypoint_role",
+    type=click.Choice(["validation", "label"]),
+    default="validation",
+    show_default=True,
+    help="What the file's hand-placed pool keypoints become (validation: the frame does not "
+    "train).",
+)
 @click.option("--user", "username", default=None, help="Import as this user (default: an admin).")
 @friendly_errors
 def import_labels_cmd(
@@ -155,6 +164,7 @@ def import_labels_cmd(
     sequence_name: str | None,
     overwrite: bool,
     category: str | None,
+    keypoint_role: str,
     username: str | None,
 ) -> None:
     """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images."""
@@ -177,6 +187,7 @@ def import_labels_cmd(
             overwrite=overwrite,
             category=category,
             max_pixels=settings.max_image_pixels,
+            keypoints=keypoint_role,
         )
         source = open_source(path)
         try:

@@ -13,7 +13,7 @@ from app.errors import InvalidInputError
 from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
 from app.housekeeping import prune_old_files
-from app.imports.service import IMPORTS_DIR, keep_upload
+from app.imports.service import IMPORTS_DIR, KEYPOINT_ROLES, keep_upload
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.security import CurrentUser
@@ -29,6 +29,9 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
     overwrite = (form.get("overwrite") or "false").strip().lower()
     if overwrite not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
         raise InvalidInputError("overwrite must be true or false.")
+    keypoints = (form.get("keypoints") or "validation").strip().lower()
+    if keypoints not in KEYPOINT_ROLES:
+        raise InvalidInputError(f"keypoints must be one of {', '.join(KEYPOINT_ROLES)}.")
     category = (form.get("category") or "").strip() or None
     if category is not None and len(category) > 200:
         raise InvalidInputError("category is at most 200 characters.")
@@ -38,6 +41,7 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
         "overwrite": overwrite in ("true", "1", "yes", "on"),
         "category": category,
         "sequence_id": optional_int(form, "sequence_id"),
+        "keypoints": keypoints,
     }
 
 
@@ -56,6 +60,11 @@ def _is_zip(head: bytes) -> bool:
             "sequence_id": {"type": "integer"},
             "overwrite": {"type": "boolean", "default": False},
             "category": {"type": "string"},
+            "keypoints": {
+                "type": "string",
+                "enum": ["validation", "label"],
+                "default": "validation",
+            },
         },
         ["file", "format"],
     ),
@@ -68,7 +77,9 @@ async def import_labels(
     user: CurrentUser,
 ) -> JobCreated:
     """Import labels made elsewhere: a zip (annotations with their images, or a mask folder),
-    or one COCO, LabelMe or CVAT file whose images are already stored. A job reads it; its
+    or one COCO, LabelMe or CVAT file whose images are already stored. Hand-placed pool
+    keypoints become validation keypoints (`keypoints=validation`, the frame joins the
+    validation split) or the label's own (`keypoints=label`). A job reads it; its
     result counts `frames`, `labels` and `keypoints` and lists every `skipped` and `refused`
     item with its reason."""
     async with one_spooled_file(request, "zip or annotation file") as (fields, name, upload):

@@ -76,6 +76,11 @@ def keep_upload(home: Path, source: BinaryIO, suffix: str) -> str:
     return name
 
 
+KEYPOINT_ROLES = ("validation", "label")
+"""What a file's hand-placed pool keypoints become: validation keypoints (the frame joins the
+validation split and does not train), or the label's own keypoints (it trains on them)."""
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     format: str
@@ -83,6 +88,7 @@ class ImportOptions:
     overwrite: bool = False
     category: str | None = None
     max_pixels: int = 25_000_000
+    keypoints: str = "validation"  # KEYPOINT_ROLES
 
 
 @dataclass
@@ -242,6 +248,10 @@ class _Batch:
         self.report.refused.append(Refusal(label.item, reason))
 
     def run(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+        if self.options.keypoints == "label":
+            for label in labels:  # the file's hand-placed keypoints are the label's own
+                if label.validation_keypoints and not label.keypoints and label.shapes:
+                    label.keypoints, label.validation_keypoints = label.validation_keypoints, None
         targets = [t for t in (self._target(label, runs) for label in labels) if t is not None]
         self._store_frames(targets)
         placed = [t for t in targets if t.frame_id is not None]

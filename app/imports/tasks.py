@@ -24,6 +24,7 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
         sequence_id=params.get("sequence_id"),
         overwrite=bool(params.get("overwrite")),
         category=params.get("category"),
+        keypoints=params.get("keypoints", "validation"),
         max_pixels=ctx.settings.max_image_pixels,
     )
     try:
