@@ -274,7 +274,11 @@ class _Batch:
         data = label.image_data
         if data is None:
             path = self.source.find(label.image, label.beside)
-            data = self.source.read(path) if path is not None else None
+            try:
+                data = self.source.read(path) if path is not None else None
+            except InvalidInputError as exc:  # a damaged zip entry: this item, not the import
+                self.refuse(label, f"The image cannot be read: {exc.message}")
+                return None
         if data is not None:
             name = label.original_name or posixpath.basename(label.image) or "frame"
             digest = hashlib.sha256(data).hexdigest()

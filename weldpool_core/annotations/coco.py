@@ -14,7 +14,14 @@ import posixpath
 from typing import Any
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
-from weldpool_core.annotations.shapes import CocoPolygons, CocoRle, ImportedLabel, Parsed, Shape
+from weldpool_core.annotations.shapes import (
+    CocoPolygons,
+    CocoRle,
+    ImportedLabel,
+    Parsed,
+    Shape,
+    text_or_none,
+)
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
 
@@ -66,7 +73,7 @@ def _images(document: dict[str, Any], name: str, parsed: Parsed) -> dict[Any, di
         if not (
             isinstance(image, dict)
             and isinstance(image.get("file_name"), str)
-            and isinstance(image.get("id"), int | str)
+            and _key(image.get("id")) is not None
         ):
             parsed.refuse(
                 f"{name}: image {str(image)[:60]}", "An image needs an id and a file_name."
@@ -76,11 +83,17 @@ def _images(document: dict[str, Any], name: str, parsed: Parsed) -> dict[Any, di
     return images
 
 
+def _key(value: Any) -> int | str | None:
+    """An id as a dict key: ints and strings (a bool is not an id)."""
+    return value if isinstance(value, int | str) and not isinstance(value, bool) else None
+
+
 def _categories(document: dict[str, Any]) -> dict[Any, str]:
+    categories = document.get("categories")
     return {
         c["id"]: str(c.get("name", c["id"]))
-        for c in document.get("categories") or []
-        if isinstance(c, dict) and "id" in c
+        for c in (categories if isinstance(categories, list) else [])
+        if isinstance(c, dict) and _key(c.get("id")) is not None
     }
 
 
@@ -98,15 +111,16 @@ def _read_document(
         if not isinstance(annotation, dict):
             parsed.refuse(item, "An annotation must be a JSON object.")
             continue
-        image = images.get(annotation.get("image_id"))
+        image = images.get(_key(annotation.get("image_id")))
         if image is None:
             parsed.refuse(
                 item,
                 f"It names image {annotation.get('image_id')!r}, which the file does not list.",
             )
             continue
-        category_name = categories.get(annotation.get("category_id"), annotation.get("category_id"))
-        if category_name not in pool:
+        category = annotation.get("category_id")
+        category_name = categories.get(_key(category), category)
+        if not isinstance(category_name, str) or category_name not in pool:
             parsed.refuse(item, not_the_pool(category_name, pool))
             continue
         try:
@@ -136,9 +150,9 @@ def _label(image: dict[str, Any], name: str, own: bool) -> ImportedLabel:
         item=f"{name}: {image['file_name']}", image=image["file_name"], size=size, beside=name
     )
     if own:
-        label.sequence = image.get("sequence")
-        label.process = image.get("process") or None
-        label.original_name = image.get("original_name")
+        label.sequence = text_or_none(image.get("sequence"))
+        label.process = image.get("process") if isinstance(image.get("process"), dict) else None
+        label.original_name = text_or_none(image.get("original_name"))
     else:
         label.original_name = posixpath.basename(image["file_name"])
     return label

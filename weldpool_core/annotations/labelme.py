@@ -82,7 +82,7 @@ def _label(
         if not isinstance(shape, dict):
             parsed.refuse(item, "A shape must be a JSON object.")
             return None
-        if shape.get("label") not in pool:
+        if not isinstance(shape.get("label"), str) or shape.get("label") not in pool:
             parsed.refuse(item, not_the_pool(shape.get("label"), pool))
             continue
         try:

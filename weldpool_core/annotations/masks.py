@@ -10,7 +10,7 @@ import json
 import posixpath
 from typing import Any
 
-from weldpool_core.annotations.shapes import ImportedLabel, MaskImage, Parsed
+from weldpool_core.annotations.shapes import ImportedLabel, MaskImage, Parsed, text_or_none
 from weldpool_core.annotations.source import Source
 from weldpool_core.annotations.yolo import IMAGE_SUFFIXES
 from weldpool_core.errors import InvalidInputError
@@ -70,17 +70,18 @@ def read_masks(source: Source, category: str | None = None) -> Parsed:
             parsed.refuse(path, exc.message)
             continue
         image = images.get(stem)
+        original = text_or_none(entry.get("original_name"))
+        process = entry.get("process")
         parsed.labels.append(
             ImportedLabel(
                 item=path,
-                image=posixpath.basename(image) if image else entry.get("original_name") or stem,
+                image=posixpath.basename(image) if image else original or stem,
                 shapes=[MaskImage(data)],
                 keypoints=keypoints,
                 validation_keypoints=manual,
-                sequence=entry.get("sequence"),
-                process=entry.get("process"),
-                original_name=entry.get("original_name")
-                or (posixpath.basename(image) if image else None),
+                sequence=text_or_none(entry.get("sequence")),
+                process=process if isinstance(process, dict) else None,
+                original_name=original or (posixpath.basename(image) if image else None),
                 beside=image or "",
             )
         )

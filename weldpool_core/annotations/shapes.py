@@ -93,7 +93,7 @@ class CocoRle:
         size = [int(v) for v in self.encoded["size"]]
         counts = self.encoded["counts"]
         if isinstance(counts, list):
-            if sum(counts) != size[0] * size[1]:
+            if any(c < 0 for c in counts) or sum(counts) != size[0] * size[1]:
                 raise InvalidInputError(
                     f"The RLE counts cover {sum(counts)} pixels, not the {size[1]}×{size[0]} "
                     "it states."
@@ -235,6 +235,11 @@ class ImportedLabel:
         if not mask.any():
             raise InvalidInputError("The mask is empty.")
         return mask, rle
+
+
+def text_or_none(value: Any) -> str | None:
+    """A name a file gives (a run, an original file name), when it is a non-empty string."""
+    return value[:255] if isinstance(value, str) and value.strip() else None
 
 
 @dataclass
