@@ -160,7 +160,7 @@ async function loadFrames() {
     : [h("tr", {}, h("td", { colspan: "7", class: "empty", "data-testid": "frames-empty" },
         filters().status === "unreviewed"
           ? "Nothing left to review here. Status “all” shows the frames already reviewed; drop frames above to add more."
-          : "No frames match. Drop frames above to start."))]));
+          : "No frames match. Drop frames above, or import labels made elsewhere, to start."))]));
   const note = document.getElementById("order-note");
   note.textContent = lastPage.ordering ?? "";
   note.hidden = !lastPage.ordering || !lastPage.items.length;

@@ -49,6 +49,7 @@ def test_import_labels_from_the_frames_page_lists_what_it_refused(
     login(page, server, "anna")
     page.goto(f"{server.url}/?status=all")
     page.wait_for_selector("body[data-ready]")
+    shoot(page, "frames-import-button")  # Import labels beside Export
     page.click("[data-testid=import-open]")
     page.set_input_files("[data-testid=import-file]", str(archive))
     page.select_option("[data-testid=import-format]", "coco")
