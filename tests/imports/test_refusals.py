@@ -181,6 +181,10 @@ def test_cvat_and_yolo_refusals_are_one_sentence_each(client, make_user) -> None
       </image>
       <image id="2" name="z.png" width="96" height="64">
         <box label="weld_pool" xtl="10" ytl="10" xbr="20" ybr="30"/>
+        <skeleton label="weld_pool">
+          <points label="front" points="12.5,15"/><points label="back" points="18,25"/>
+          <points label="gone" outside="1" points="0,0"/>
+        </skeleton>
       </image></annotations>"""
     bomb = b"""<?xml version="1.0"?><!DOCTYPE a [<!ENTITY a "aaaaaaaaaa">
       <!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">]><annotations>&b;</annotations>"""
@@ -191,7 +195,10 @@ def test_cvat_and_yolo_refusals_are_one_sentence_each(client, make_user) -> None
         "annotations.xml: x.png <polyline>": "A <polyline> has no pool area to import.",
         "annotations.xml: y.png <mask>": "The mask's runs cover 7 pixels, not its 3×3 box.",
     }
-    assert result["labels"] == 1
+    assert result["labels"] == 1 and result["keypoints"] == 1
+    frame = next(f for f, _ in stored_labels(client, token) if f["original_name"] == "z.png")
+    manual = client.get(f"/api/v1/frames/{frame['id']}/validation-keypoints", headers=auth(token))
+    assert manual.json()["keypoints"] == [[12.5, 15.0], [18.0, 25.0]]  # the skeleton's, in order
     entity = start_import(client, token, bomb, "cvat", name="bomb.xml")["result"]
     assert entity["refused"] == [
         {

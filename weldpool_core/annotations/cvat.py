@@ -1,9 +1,10 @@
 """CVAT for images 1.1 XML, both ways.
 
 Read: each ``<image>``'s pool ``<polygon>``s, ``<box>``es, ``<mask>``s (CVAT's RLE over the box,
-row by row, starting with a run of 0s) and ``<points>`` (keypoints: the label's own when their
-``kind`` attribute says ``label``, as our export writes them, else placed by hand: validation
-keypoints). The XML is parsed by defusedxml (no entity expansion, no external entities).
+row by row, starting with a run of 0s) and ``<points>`` or CVAT 2 ``<skeleton>``s (keypoints:
+the label's own when their ``kind`` attribute says ``label``, as our export writes them, else
+placed by hand: validation keypoints). The XML is parsed by defusedxml (no entity expansion,
+no external entities).
 
 Write (``cvat_document``): one ``<mask>`` per label (so its holes survive), its keypoints and
 its validation keypoints as ``<points>``.
@@ -98,8 +99,8 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
             parsed.refuse(f"{item} <{element.tag}>", not_the_pool(element.get("label"), pool))
             continue
         try:
-            if element.tag == "points":
-                points = [list(p) for p in _points(element.get("points"))]
+            if element.tag in ("points", "skeleton"):
+                points = [list(p) for p in _element_points(element)]
                 if _attribute(element, KIND) == "label":
                     label.keypoints = points
                 else:
@@ -110,6 +111,19 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
             parsed.refuse(f"{item} <{element.tag}>", exc.message)
             return None
     return label if label.shapes or label.keypoints or label.validation_keypoints else None
+
+
+def _element_points(element: Any) -> list[tuple[float, float]]:
+    """A ``<points>``' points, or those of a CVAT 2 ``<skeleton>``: one ``<points>`` child per
+    keypoint, in the skeleton's order (``outside="1"`` ones were not placed)."""
+    if element.tag == "points":
+        return _points(element.get("points"))
+    return [
+        point
+        for child in element.iterfind("points")
+        if child.get("outside", "0") != "1"
+        for point in _points(child.get("points"))
+    ]
 
 
 def _attribute(element: Any, name: str) -> str | None:
