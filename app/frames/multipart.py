@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import codecs
 import email.message
+import re
 import tempfile
 from collections.abc import AsyncIterable, AsyncIterator, Callable, Mapping
 from contextlib import asynccontextmanager
@@ -223,7 +224,7 @@ def optional_int(form: Mapping[str, Any], name: str, default: int | None = None)
     value = form.get(name)
     if value is None or value == "":
         return default
-    if not isinstance(value, str) or not value.strip().lstrip("-").isdigit():
+    if not isinstance(value, str) or not re.fullmatch(r"\s*-?[0-9]+\s*", value):
         raise InvalidInputError(f"{name} must be an integer.")
     number = int(value)
     if abs(number) > MAX_ID:

@@ -33,7 +33,7 @@ from app.errors import ConflictError, InvalidInputError
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
 from app.frames.schemas import SequenceIn
-from app.models import Frame, Label, LabelStatus, Sequence, User
+from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeypoints
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
@@ -44,11 +44,14 @@ from app.review.service import (
 )
 from app.storage import CHUNK, Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
+from weldpool_core.annotations.shapes import DAMAGED, inside_frame
 from weldpool_core.io import encode_mask_png
 
 IMPORTS_DIR = "imports"
 """Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
 BATCH = 64
+RUN_NAME = 190
+"""Longest run name an import makes (runs hold 200 characters; ``name (2)`` needs room)."""
 MAX_LISTED = 1000
 """Most skipped or refused items a job's result lists one by one (the rest are counted)."""
 Progress = Callable[[float, str], None]
@@ -170,7 +173,7 @@ class _Runs:
         report: ImportReport,
     ) -> None:
         self._session, self._user, self._report = session, user, report
-        self._name = posixpath.splitext(posixpath.basename(name))[0] or "import"
+        self._name = posixpath.splitext(posixpath.basename(name))[0][:RUN_NAME] or "import"
         self._fixed = sequence_id
         self._by_name: dict[str, int] = {}
         self._default: int | None = None
@@ -201,14 +204,14 @@ class _Runs:
         raise ConflictError("Other imports kept taking the new run's name; import again.")
 
     def _named(self, name: str, process: dict[str, Any] | None) -> int:
+        name = name[:RUN_NAME]
         found = self._session.scalar(sa.select(Sequence).where(Sequence.name == name))
         if found is not None:
             return found.id
-        values: dict[str, Any] = {"name": name[:200]}
+        values: dict[str, Any] = {"name": name}
+        parameters = {k: v for k, v in (process or {}).items() if k != "name"}
         try:
-            values = SequenceIn.model_validate(values | (process or {})).model_dump(
-                exclude_unset=True
-            )
+            values = SequenceIn.model_validate(values | parameters).model_dump(exclude_unset=True)
         except ValidationError:
             self._report.refused.append(
                 Refusal(name, "Its process parameters are not valid; the run is made without.")
@@ -243,6 +246,7 @@ class _Batch:
     ) -> None:
         self.session, self.storage, self.source = session, storage, source
         self.options, self.user, self.report = options, user, report
+        self.has_manual: set[int] = set()
 
     def refuse(self, label: ImportedLabel, reason: str) -> None:
         self.report.refused.append(Refusal(label.item, reason))
@@ -353,6 +357,11 @@ class _Batch:
             label.frame_id: label
             for label in session.scalars(sa.select(Label).where(Label.frame_id.in_(ids)))
         }
+        self.has_manual = set(  # a reviewer's validation keypoints stay unless overwritten
+            session.scalars(
+                sa.select(ValidationKeypoints.frame_id).where(ValidationKeypoints.frame_id.in_(ids))
+            )
+        )
         written: list[StoredFile] = []
         try:
             for frame_id in ids:
@@ -427,8 +436,13 @@ class _Batch:
         try:
             if content.problem:
                 raise InvalidInputError(content.problem)
-            keypoints = check_keypoints(frame, content.keypoints or [])
-            manual = check_keypoints(frame, content.manual) if content.manual else None
+            size = (frame.height, frame.width)
+            keypoints = check_keypoints(frame, inside_frame(content.keypoints or [], *size))
+            manual = (
+                check_keypoints(frame, inside_frame(content.manual, *size))
+                if content.manual
+                else None
+            )
         except InvalidInputError as exc:
             self.refuse(item, exc.message)
             return
@@ -446,7 +460,7 @@ class _Batch:
             base = current.revision if current is not None else 0
             write_label(self.session, frame, current, base, values, flush=False)
             counts[0] += 1
-        if manual is not None:
+        if manual is not None and (frame.id not in self.has_manual or self.options.overwrite):
             set_validation_keypoints(self.session, frame, self.user, manual)
             counts[1] += 1
 
@@ -483,4 +497,6 @@ def _content(item: ImportedLabel, size: tuple[int, int], wants_label: bool) -> _
         content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
     except InvalidInputError as exc:
         content.problem = exc.message
+    except DAMAGED:
+        content.problem = "The annotation holds values of the wrong type or size."
     return content

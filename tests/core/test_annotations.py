@@ -26,6 +26,7 @@ ODD = st.one_of(
     st.dictionaries(st.text(max_size=4), st.integers(), max_size=3),
 )
 COCO = {
+    "info": {"description": "from another tool"},
     "images": [{"id": 1, "file_name": "a.png", "width": W, "height": H}],
     "annotations": [
         {
@@ -119,7 +120,10 @@ ATTRIBUTES = st.sampled_from(
 @settings(max_examples=300, deadline=None, derandomize=True, database=None)
 @given(
     attribute=ATTRIBUTES,
-    value=st.text(alphabet="0123456789,;.-e ", max_size=12),
+    value=st.one_of(
+        st.text(alphabet="0123456789,;.-e ", max_size=12),
+        st.sampled_from(["nan", "inf", "1e999", "0,10000000000"]),
+    ),
     tag=st.sampled_from(["polygon", "mask", "points", "box", "polyline"]),
 )
 def test_a_damaged_cvat_file_gives_refusals_never_another_error(
@@ -148,3 +152,21 @@ def test_the_undamaged_files_give_their_masks() -> None:
         ).labels
         mask = label.mask(H, W)
         assert mask is not None and mask.sum() > 100 and np.asarray(label.validation_keypoints).size
+
+
+def test_a_yolo_vertex_is_the_pixel_it_falls_in() -> None:
+    """Squares from another tool at integer corners 10–20 and 11–21 stay one pixel apart (a
+    half-pixel shift with round-half-even would fill both at 10–20), and our export's pixel
+    centres read back exactly."""
+    from weldpool_core.annotations.yolo import NormalisedPolygons
+
+    def square(a: int, b: int) -> np.ndarray:
+        xy = np.array([[a, a], [b, a], [b, b], [a, b]], np.float64) / np.array([W, H])
+        return NormalisedPolygons([xy]).mask(H, W)
+
+    left, right = square(10, 20), square(11, 21)
+    assert np.flatnonzero(left.any(axis=0)).tolist() == list(range(10, 21))
+    assert np.flatnonzero(right.any(axis=0)).tolist() == list(range(11, 22))
+    centres = np.array([[3.5, 4.5], [9.5, 4.5], [9.5, 8.5], [3.5, 8.5]]) / np.array([W, H])
+    exact = NormalisedPolygons([centres]).mask(H, W)
+    assert exact[4:9, 3:10].all() and exact.sum() == 5 * 7

@@ -199,6 +199,8 @@ def test_cvat_and_yolo_refusals_are_one_sentence_each(client, make_user) -> None
     frame = next(f for f, _ in stored_labels(client, token) if f["original_name"] == "z.png")
     manual = client.get(f"/api/v1/frames/{frame['id']}/validation-keypoints", headers=auth(token))
     assert manual.json()["keypoints"] == [[12.5, 15.0], [18.0, 25.0]]  # the skeleton's, in order
+    box = label_mask(_by_name(client, token)["z.png"])
+    assert box.sum() == 10 * 20 and box[10:30, 10:20].all()  # CVAT's corners, as CVAT fills
     entity = start_import(client, token, bomb, "cvat", name="bomb.xml")["result"]
     assert entity["refused"] == [
         {
@@ -306,7 +308,7 @@ def test_a_batch_that_fails_leaves_no_label_and_no_mask_file(
         assert session.scalar(sa.select(sa.func.count()).select_from(Label)) == 0
         assert session.scalar(sa.select(sa.func.count()).select_from(LabelRevision)) == 0
         assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 3  # an upload's
-    masks = settings.home / "masks"
+    masks = settings.home / "artefacts"  # where mask PNGs are stored
     assert not masks.exists() or not any(p.is_file() for p in masks.rglob("*"))
     assert not any((settings.home / "imports").iterdir())  # the upload is gone too
 

@@ -86,6 +86,7 @@ def test_an_export_imported_into_a_fresh_instance_gives_back_its_labels(
     # Again: every frame is there with its label; nothing new, each listed as skipped.
     again = start_import(client, token, exported.archive[fmt], fmt)["result"]
     assert again["frames"] == 0 and again["labels"] == 0 and again["skipped_count"] == 3
+    assert again["keypoints"] == 0  # a frame's validation keypoints stay too
     assert all("already has a label (revision 1)" in s["reason"] for s in again["skipped"])
     # Asked to overwrite: a second revision each, the first kept in the history.
     over = start_import(client, token, exported.archive[fmt], fmt, overwrite=True)["result"]

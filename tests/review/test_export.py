@@ -102,7 +102,7 @@ def test_nothing_to_export_is_a_clear_400(client: TestClient, make_user) -> None
     response = client.get("/api/v1/export", headers=auth(token))
     assert response.status_code == 400
     assert response.json()["detail"] == "There are no accepted or corrected labels to export."
-    bad = client.get("/api/v1/export", params={"format": "cvat"}, headers=auth(token))
+    bad = client.get("/api/v1/export", params={"format": "pascal"}, headers=auth(token))
     assert bad.status_code == 422
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
 from weldpool_core.annotations.shapes import (
+    DAMAGED,
     CocoPolygons,
     CocoRle,
     ImportedLabel,
@@ -63,7 +64,10 @@ def read_coco(source: Source, category: str | None = None) -> Parsed:
         ):
             parsed.refuse(name, "The file is not COCO: it needs `images` and `annotations` lists.")
             continue
-        _read_document(document, name, category, parsed)
+        try:
+            _read_document(document, name, category, parsed)
+        except DAMAGED:
+            parsed.refuse(name, "The file holds values of the wrong type or size.")
     return parsed
 
 
@@ -100,7 +104,8 @@ def _categories(document: dict[str, Any]) -> dict[Any, str]:
 def _read_document(
     document: dict[str, Any], name: str, category: str | None, parsed: Parsed
 ) -> None:
-    own = (document.get("info") or {}).get("description") == WELDPOOL_EXPORT
+    info = document.get("info")
+    own = isinstance(info, dict) and info.get("description") == WELDPOOL_EXPORT
     images = _images(document, name, parsed)
     categories = _categories(document)
     pool = pool_names(categories.values(), category)
@@ -130,6 +135,9 @@ def _read_document(
         except InvalidInputError as exc:
             parsed.refuse(item, exc.message)
             continue
+        except DAMAGED:
+            parsed.refuse(item, "It holds values of the wrong type or size.")
+            continue
         label = labels.get(image["id"])
         if label is None:
             label = labels[image["id"]] = _label(image, name, own)
@@ -138,8 +146,8 @@ def _read_document(
         if own:
             label.keypoints = points or label.keypoints
             label.validation_keypoints = manual or label.validation_keypoints
-        elif points:
-            label.validation_keypoints = points
+        elif points:  # several annotations' keypoints on one image: all of them
+            label.validation_keypoints = (label.validation_keypoints or []) + points
     parsed.labels.extend(labels.values())
 
 

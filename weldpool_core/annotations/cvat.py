@@ -25,17 +25,17 @@ from numpy.typing import NDArray
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
 from weldpool_core.annotations.shapes import (
+    DAMAGED,
+    CocoPolygons,
     ImportedLabel,
     Parsed,
     PartialMask,
-    Polygons,
     Shape,
     cvat_rle,
     to_cvat_rle,
 )
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outline import Polygon
 
 POOL_LABEL = "weld_pool"
 KIND = "kind"  # the attribute telling a label's keypoints from validation keypoints
@@ -102,13 +102,16 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
             if element.tag in ("points", "skeleton"):
                 points = [list(p) for p in _element_points(element)]
                 if _attribute(element, KIND) == "label":
-                    label.keypoints = points
+                    label.keypoints = (label.keypoints or []) + points
                 else:
-                    label.validation_keypoints = points
+                    label.validation_keypoints = (label.validation_keypoints or []) + points
             else:
                 label.shapes.append(_shape(element))
         except InvalidInputError as exc:
             parsed.refuse(f"{item} <{element.tag}>", exc.message)
+            return None
+        except DAMAGED:
+            parsed.refuse(f"{item} <{element.tag}>", "Its attributes cannot be read as numbers.")
             return None
     return label if label.shapes or label.keypoints or label.validation_keypoints else None
 
@@ -156,13 +159,13 @@ def _shape(element: Any) -> Shape:
         points = _points(element.get("points"))
         if len(points) < 3:
             raise InvalidInputError("A polygon needs 3 or more points.")
-        return Polygons([Polygon(points)])
+        return CocoPolygons([[v for point in points for v in point]])  # CVAT: pixel corners
     if element.tag == "box":
         if _number(element, "rotation") if element.get("rotation") else 0.0:
             raise InvalidInputError("A rotated box cannot be imported as a pool.")
         x0, y0 = _number(element, "xtl"), _number(element, "ytl")
         x1, y1 = _number(element, "xbr"), _number(element, "ybr")
-        return Polygons([Polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])])
+        return CocoPolygons([[x0, y0, x1, y0, x1, y1, x0, y1]])
     if element.tag == "mask":
         try:
             counts = [int(c) for c in (element.get("rle") or "").split(",") if c.strip()]

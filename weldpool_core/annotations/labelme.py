@@ -14,7 +14,14 @@ from typing import Any
 import numpy as np
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
-from weldpool_core.annotations.shapes import ImportedLabel, Parsed, PartialMask, Polygons, Shape
+from weldpool_core.annotations.shapes import (
+    DAMAGED,
+    ImportedLabel,
+    Parsed,
+    PartialMask,
+    Polygons,
+    Shape,
+)
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
@@ -47,7 +54,11 @@ def read_labelme(source: Source, category: str | None = None) -> Parsed:
     every = [str(s.get("label")) for _, d in documents for s in d["shapes"] if isinstance(s, dict)]
     pool = pool_names(every, category)
     for name, document in documents:
-        label = _label(name, document, pool, parsed)
+        try:
+            label = _label(name, document, pool, parsed)
+        except DAMAGED:
+            parsed.refuse(name, "It holds values of the wrong type or size.")
+            continue
         if label is not None:
             parsed.labels.append(label)
     return parsed

@@ -10,7 +10,13 @@ import json
 import posixpath
 from typing import Any
 
-from weldpool_core.annotations.shapes import ImportedLabel, MaskImage, Parsed, text_or_none
+from weldpool_core.annotations.shapes import (
+    DAMAGED,
+    ImportedLabel,
+    MaskImage,
+    Parsed,
+    text_or_none,
+)
 from weldpool_core.annotations.source import Source
 from weldpool_core.annotations.yolo import IMAGE_SUFFIXES
 from weldpool_core.errors import InvalidInputError
@@ -22,7 +28,7 @@ def _manifest(source: Source, parsed: Parsed) -> dict[str, dict[str, Any]]:
     try:
         frames = json.loads(source.read("manifest.json")).get("frames", [])
         return {str(f["stem"]): f for f in frames if isinstance(f, dict) and "stem" in f}
-    except (ValueError, AttributeError, UnicodeDecodeError):
+    except (*DAMAGED, UnicodeDecodeError):
         parsed.refuse(
             "manifest.json", "The manifest is not valid JSON; names and runs are not read."
         )
@@ -68,6 +74,9 @@ def read_masks(source: Source, category: str | None = None) -> Parsed:
             data = source.read(path)
         except InvalidInputError as exc:
             parsed.refuse(path, exc.message)
+            continue
+        except (*DAMAGED, UnicodeDecodeError):
+            parsed.refuse(path, "Its keypoints are not a list of [x, y] numbers.")
             continue
         image = images.get(stem)
         original = text_or_none(entry.get("original_name"))

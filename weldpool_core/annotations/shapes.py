@@ -23,6 +23,10 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import Polygon, fill_polygons, rle_mask
 
+MAX_MASK_PIXELS = 25_000_000
+"""Largest mask box a file may declare (the largest frame ingest takes)."""
+DAMAGED = (ValueError, TypeError, OverflowError, KeyError, IndexError, AttributeError)
+"""What Python raises on a value of the wrong type or size in a file: readers refuse the item."""
 EDGE_TOLERANCE = 1.0
 """How far (px) a vertex or keypoint may lie outside the frame before the item is refused
 (tools round or clip at the border; farther out means the annotation is for another image)."""
@@ -155,10 +159,17 @@ class MaskImage:
         return decoded
 
 
+def inside_frame(points: list[list[float]], height: int, width: int) -> list[list[float]]:
+    """Keypoints within ``EDGE_TOLERANCE`` of the frame (checked on reading) moved onto it."""
+    return [[min(max(float(x), 0.0), width), min(max(float(y), 0.0), height)] for x, y in points]
+
+
 def cvat_rle(counts: list[int], width: int, height: int) -> NDArray[np.bool_]:
     """CVAT's mask RLE: run lengths over the box, row by row, starting with a run of 0s."""
     if width <= 0 or height <= 0:
         raise InvalidInputError("The mask's box is empty.")
+    if width * height > MAX_MASK_PIXELS:
+        raise InvalidInputError(f"The mask's {width}×{height} box is larger than any frame.")
     if any(c < 0 for c in counts) or sum(counts) != width * height:
         raise InvalidInputError(
             f"The mask's runs cover {sum(counts)} pixels, not its {width}×{height} box."

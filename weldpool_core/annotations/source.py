@@ -153,7 +153,7 @@ def _entry_reader(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> Callable[[
         try:
             with archive.open(info) as handle:
                 data = handle.read(info.file_size + 1)
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        except Exception as exc:  # zlib.error, RuntimeError (encrypted), NotImplementedError…
             raise InvalidInputError(f"The archive entry cannot be read ({exc}).") from None
         if len(data) != info.file_size:
             raise InvalidInputError("The archive entry is not the size its header says.")

@@ -1,7 +1,7 @@
 """Ultralytics YOLO segmentation: ``labels/<split>/<stem>.txt`` beside ``images/<split>/``,
-one line ``class x1 y1 x2 y2 …`` per region, coordinates 0–1 of the frame (pixel centres, as our
-export writes them); class names from ``data.yaml``. A region's holes cannot be written in this
-format, so none are read."""
+one line ``class x1 y1 x2 y2 …`` per region, coordinates 0–1 of the frame; a vertex is the pixel
+it falls in (our export writes pixel centres, which this reads back exactly); class names from
+``data.yaml``. A region's holes cannot be written in this format, so none are read."""
 
 from __future__ import annotations
 
@@ -14,7 +14,13 @@ import yaml
 from numpy.typing import NDArray
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
-from weldpool_core.annotations.shapes import EDGE_TOLERANCE, ImportedLabel, Parsed, Polygons
+from weldpool_core.annotations.shapes import (
+    DAMAGED,
+    EDGE_TOLERANCE,
+    ImportedLabel,
+    Parsed,
+    Polygons,
+)
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.outline import Polygon
@@ -37,7 +43,7 @@ class NormalisedPolygons:
                 x, y = xy[int(np.argmax(outside))]
                 raise InvalidInputError(f"The polygon's point ({x:g}, {y:g}) lies outside 0–1.")
         pixels = [
-            Polygon([(float(x), float(y)) for x, y in np.clip(xy * scale - 0.5, 0, scale - 1)])
+            Polygon([(float(x), float(y)) for x, y in np.clip(np.floor(xy * scale), 0, scale - 1)])
             for xy in self.polygons
         ]
         return Polygons(pixels).mask(height, width)
@@ -54,7 +60,11 @@ def _names(source: Source) -> dict[int, str]:
             if isinstance(names, list):
                 return {i: str(n) for i, n in enumerate(names)}
             if isinstance(names, dict):
-                return {int(k): str(v) for k, v in names.items() if str(k).isdigit()}
+                return {
+                    int(k): str(v)
+                    for k, v in names.items()
+                    if str(k).isascii() and str(k).isdigit()
+                }
     return {}
 
 
@@ -90,8 +100,10 @@ def read_yolo(source: Source, category: str | None = None) -> Parsed:
         try:
             text = source.read(path).decode("utf-8")
             polygons = _lines(text, pool_ids, names, pool)
-        except (UnicodeDecodeError, InvalidInputError) as exc:
-            reason = exc.message if isinstance(exc, InvalidInputError) else "It is not text."
+        except (UnicodeDecodeError, InvalidInputError, *DAMAGED) as exc:
+            reason = (
+                exc.message if isinstance(exc, InvalidInputError) else "It is not text of numbers."
+            )
             parsed.refuse(path, reason)
             continue
         if not polygons:
