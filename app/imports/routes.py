@@ -18,6 +18,7 @@ from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.security import CurrentUser
 from weldpool_core.annotations import ARCHIVE_ONLY, READERS
+from weldpool_core.annotations.source import is_zip
 
 router = APIRouter(tags=["labels"])
 
@@ -43,10 +44,6 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
         "sequence_id": optional_int(form, "sequence_id"),
         "keypoints": keypoints,
     }
-
-
-def _is_zip(head: bytes) -> bool:
-    return head.startswith(b"PK\x03\x04") or head == b"PK\x05\x06"
 
 
 @router.post(
@@ -89,12 +86,12 @@ async def import_labels(
         head = upload.read(4)
         if not head:
             raise InvalidInputError("The file is empty.")
-        if params["format"] in ARCHIVE_ONLY and not _is_zip(head):
+        if params["format"] in ARCHIVE_ONLY and not is_zip(head):
             raise InvalidInputError(
                 f"A {params['format']} import is a zip of its folders; the file is not a zip."
             )
         upload.seek(0)
-        suffix = ".zip" if _is_zip(head) else Path(params["name"]).suffix[:8]
+        suffix = ".zip" if is_zip(head) else Path(params["name"]).suffix[:8]
         await run_in_threadpool(prune_old_files, settings.home / IMPORTS_DIR)
         kept = await run_in_threadpool(keep_upload, settings.home, upload, suffix)
     job = create_job(

@@ -170,3 +170,37 @@ def test_a_yolo_vertex_is_the_pixel_it_falls_in() -> None:
     centres = np.array([[3.5, 4.5], [9.5, 4.5], [9.5, 8.5], [3.5, 8.5]]) / np.array([W, H])
     exact = NormalisedPolygons([centres]).mask(H, W)
     assert exact[4:9, 3:10].all() and exact.sum() == 5 * 7
+
+
+def test_a_damaged_zip_entry_is_one_sentence_and_too_many_keypoints_are_refused(
+    tmp_path,
+) -> None:
+    import io
+    import zipfile
+
+    from weldpool_core.annotations import open_source
+    from weldpool_core.annotations.shapes import ImportedLabel
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("images/a.png", b"x" * 5000)
+    data = bytearray(buffer.getvalue())
+    data[44:50] = b"\xff" * 6  # inside the deflate stream (the entry starts at byte 42)
+    path = tmp_path / "damaged.zip"
+    path.write_bytes(bytes(data))
+    source = open_source(path)
+    try:
+        source.read("images/a.png")
+    except InvalidInputError as exc:
+        assert exc.message.startswith("The archive entry cannot be read")
+    else:
+        raise AssertionError("a damaged entry was read")
+    finally:
+        source.close()
+    label = ImportedLabel("a", "a.png", validation_keypoints=[[1.0, 1.0]] * 65)
+    try:
+        label.checked_points(H, W)
+    except InvalidInputError as exc:
+        assert exc.message == "A label has at most 64 keypoints."
+    else:
+        raise AssertionError("65 keypoints were accepted")

@@ -23,6 +23,8 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import Polygon, fill_polygons, rle_mask
 
+MAX_KEYPOINTS = 64
+"""Most keypoints one imported label may carry (as many as a reviewer may place)."""
 MAX_MASK_PIXELS = 25_000_000
 """Largest mask box a file may declare (the largest frame ingest takes)."""
 DAMAGED = (ValueError, TypeError, OverflowError, KeyError, IndexError, AttributeError)
@@ -226,6 +228,8 @@ class ImportedLabel:
 
     def checked_points(self, height: int, width: int) -> None:
         for points in (self.keypoints, self.validation_keypoints):
+            if points and len(points) > MAX_KEYPOINTS:
+                raise InvalidInputError(f"A label has at most {MAX_KEYPOINTS} keypoints.")
             if points:
                 _check_inside(np.asarray(points, np.float64).reshape(-1, 2), height, width, "key")
 

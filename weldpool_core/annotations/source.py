@@ -12,6 +12,7 @@ from __future__ import annotations
 import posixpath
 import re
 import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -27,6 +28,16 @@ MAX_TOTAL_BYTES = 64 * 1024**3
 MAX_RATIO = 200
 """Largest compression ratio a zip entry over 1 MiB may declare: PNG and JPEG frames barely
 compress, JSON compresses ~10×; a bomb's entries compress 1000× and more."""
+ENTRY_ERRORS = (
+    zipfile.BadZipFile,  # a bad CRC or header
+    zlib.error,  # a damaged deflate stream
+    RuntimeError,  # an encrypted entry (zipfile asks for a password)
+    NotImplementedError,  # a compression method zipfile lacks
+    OSError,
+    EOFError,
+    ValueError,
+)
+"""What reading one damaged zip entry raises: that entry is refused, the rest is read."""
 _DRIVE = re.compile(r"^[A-Za-z]:")
 
 
@@ -153,7 +164,7 @@ def _entry_reader(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> Callable[[
         try:
             with archive.open(info) as handle:
                 data = handle.read(info.file_size + 1)
-        except Exception as exc:  # zlib.error, RuntimeError (encrypted), NotImplementedError…
+        except ENTRY_ERRORS as exc:
             raise InvalidInputError(f"The archive entry cannot be read ({exc}).") from None
         if len(data) != info.file_size:
             raise InvalidInputError("The archive entry is not the size its header says.")
@@ -195,10 +206,14 @@ def open_source(path: str | Path, name: str | None = None) -> Source:
     return _folder_source(path.parent, label, primary=path.name)
 
 
+def is_zip(head: bytes) -> bool:
+    """Whether a file's first 4 bytes open a zip archive (an empty one too)."""
+    return head.startswith(b"PK\x03\x04") or head == b"PK\x05\x06"
+
+
 def _is_zip(path: Path) -> bool:
     with open(path, "rb") as handle:
-        head = handle.read(4)
-    return head.startswith(b"PK\x03\x04") or head == b"PK\x05\x06"
+        return is_zip(handle.read(4))
 
 
 def open_upload(path: str | Path, name: str) -> Source:
