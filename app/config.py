@@ -33,6 +33,22 @@ class Settings(BaseSettings):
         default=None,
         description="redis://… for workers on other machines; default: SQLite queue file in home.",
     )
+    storage_url: str | None = Field(
+        default=None,
+        description="s3://bucket/prefix to keep frames, masks, models and exports in an "
+        "S3-compatible object store (home is then a bounded cache); default: the home folder.",
+    )
+    s3_endpoint_url: str | None = Field(
+        default=None,
+        description="The object store's endpoint for a store other than AWS S3 (MinIO, Ceph), "
+        "e.g. http://minio:9000; credentials come from AWS_ACCESS_KEY_ID and friends.",
+    )
+    storage_cache_mb: float = Field(
+        default=10240.0,
+        gt=0,
+        description="With an object store: how much of it this machine keeps cached in home "
+        "(least recently used files go first).",
+    )
     queue_name: str = Field(
         default="weldpool",
         description="Queue name; instances sharing one Redis need distinct names.",
@@ -119,6 +135,19 @@ class Settings(BaseSettings):
     def _queue_scheme(cls, value: str | None) -> str | None:
         if value and not value.startswith(("redis://", "rediss://", "unix://")):
             raise ValueError("WELDPOOL_QUEUE_URL must be empty (embedded queue) or a redis://… URL")
+        return value or None
+
+    @field_validator("storage_url")
+    @classmethod
+    def _storage_scheme(cls, value: str | None) -> str | None:
+        if value:
+            from urllib.parse import urlparse
+
+            parsed = urlparse(value)
+            if parsed.scheme != "s3" or not parsed.netloc:
+                raise ValueError(
+                    "WELDPOOL_STORAGE_URL must be empty (the home folder) or s3://bucket/prefix"
+                )
         return value or None
 
     @field_validator("trusted_proxies")

@@ -88,6 +88,19 @@ def _install_error_handlers(app: FastAPI) -> None:
             status_code=409,
         )
 
+    if app.state.settings.storage_url:
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        @app.exception_handler(BotoCoreError)
+        @app.exception_handler(ClientError)
+        async def storage_error(request: Request, exc: Exception) -> Response:
+            log.warning("storage.unavailable", path=request.url.path, error=str(exc))
+            return JSONResponse(
+                {"detail": "The object store did not answer as expected; try again shortly."},
+                status_code=503,
+                headers={"Retry-After": "5"},
+            )
+
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, exc: RequestValidationError) -> Response:
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]

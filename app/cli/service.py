@@ -28,7 +28,10 @@ def prepare_instance(settings: Settings) -> Path | None:
     """
     from app.users.service import ensure_initial_admin
 
+    from app.storage import Storage
+
     settings.ensure_home()
+    Storage.of(settings).check()
     engine = create_db_engine(settings.resolved_database_url)
     try:
         migrate(engine)
@@ -103,6 +106,10 @@ def worker(threads: int | None) -> None:
     """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM)."""
     from app.queue import JobQueue, run_standalone_worker
 
+    from app.storage import Storage
+
     settings = load_settings()
+    settings.ensure_home()
+    Storage.of(settings).check()
     queue = JobQueue(settings, open_sessions(settings))
     run_standalone_worker(queue, threads or settings.workers)

@@ -19,7 +19,7 @@ from app.errors import WeldpoolError
 def promoted_model_dir() -> Path:
     """The promoted student's folder in this home's database."""
     from app.storage import Storage
-    from app.training.service import promoted_model
+    from app.training.service import model_folder, promoted_model
 
     settings = load_settings()
     with open_sessions(settings)() as session:
@@ -28,7 +28,7 @@ def promoted_model_dir() -> Path:
             raise WeldpoolError(
                 "No student is promoted yet; train and promote one, or give --model MODEL_DIR."
             )
-        return Storage.of(settings).absolute(model.checkpoint_path)
+        return model_folder(Storage.of(settings), model)
 
 
 @main.command("stream")

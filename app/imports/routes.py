@@ -8,11 +8,11 @@ from typing import Any
 from fastapi import APIRouter, Request, status
 from fastapi.concurrency import run_in_threadpool
 
-from app.deps import QueueDep, SessionDep, SettingsDep
+from app.deps import QueueDep, SessionDep, StorageDep
 from app.errors import InvalidInputError
 from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
-from app.housekeeping import prune_old_files
+from app.housekeeping import prune_shared
 from app.imports.service import IMPORTS_DIR, KEYPOINT_ROLES, keep_upload
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
@@ -69,7 +69,7 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
 async def import_labels(
     request: Request,
     session: SessionDep,
-    settings: SettingsDep,
+    storage: StorageDep,
     queue: QueueDep,
     user: CurrentUser,
 ) -> JobCreated:
@@ -92,8 +92,8 @@ async def import_labels(
             )
         upload.seek(0)
         suffix = ".zip" if is_zip(head) else Path(params["name"]).suffix[:8]
-        await run_in_threadpool(prune_old_files, settings.home / IMPORTS_DIR)
-        kept = await run_in_threadpool(keep_upload, settings.home, upload, suffix)
+        await run_in_threadpool(prune_shared, storage, IMPORTS_DIR)
+        kept = await run_in_threadpool(keep_upload, storage, upload, suffix)
     job = create_job(
         session, queue, "import_labels", params | {"upload": kept, "user_id": user.id}, user
     )

@@ -57,14 +57,16 @@ MAX_LISTED = 1000
 Progress = Callable[[float, str], None]
 
 
-def upload_path(home: Path, name: str) -> Path:
-    """The file an import job reads (``name`` is the job's, never a client's)."""
-    return home / IMPORTS_DIR / Path(name).name
+def upload_name(name: str) -> str:
+    """Where the file an import job reads is stored (``name`` is the job's, never a
+    client's)."""
+    return f"{IMPORTS_DIR}/{Path(name).name}"
 
 
-def keep_upload(home: Path, source: BinaryIO, suffix: str) -> str:
-    """Copy an uploaded file (a spooled part) under ``imports/``, flushed; its name."""
-    folder = home / IMPORTS_DIR
+def keep_upload(storage: Storage, source: BinaryIO, suffix: str) -> str:
+    """Copy an uploaded file (a spooled part) under ``imports/``, flushed and published to
+    every machine (a worker elsewhere reads it); its name."""
+    folder = storage.home / IMPORTS_DIR
     folder.mkdir(parents=True, exist_ok=True)
     name = f"{uuid.uuid4().hex}{suffix}"
     target = folder / name
@@ -73,6 +75,7 @@ def keep_upload(home: Path, source: BinaryIO, suffix: str) -> str:
             shutil.copyfileobj(source, handle, CHUNK)
             handle.flush()
             os.fsync(handle.fileno())
+        storage.publish(upload_name(name))
     except BaseException:
         target.unlink(missing_ok=True)
         raise

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from app.db import session_scope
-from app.imports.service import ImportOptions, import_labels, upload_path
+from app.imports.service import ImportOptions, import_labels, upload_name
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import User
 from app.storage import Storage
@@ -17,8 +17,8 @@ from weldpool_core.errors import InvalidInputError
 def import_labels_job(ctx: JobContext) -> dict[str, Any]:
     """Import the uploaded file's labels; the upload is removed when the job ends, whatever
     its outcome (a job that is not retried has no further use for it)."""
-    params = ctx.params
-    path = upload_path(ctx.settings.home, params["upload"])
+    params, storage = ctx.params, Storage.of(ctx.settings)
+    name = upload_name(params["upload"])
     options = ImportOptions(
         format=params["format"],
         sequence_id=params.get("sequence_id"),
@@ -28,19 +28,19 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
         max_pixels=ctx.settings.max_image_pixels,
     )
     try:
+        path = storage.fetch(name)  # from the object store when the web process is elsewhere
         with session_scope(ctx.session_factory) as session:
             user = session.get(User, int(params["user_id"]))
             if user is None:
                 raise InvalidInputError("The user who started the import no longer exists.")
             source = open_upload(path, params["name"])
             try:
-                report = import_labels(
-                    session, Storage.of(ctx.settings), source, options, user, ctx.progress
-                )
+                report = import_labels(session, storage, source, options, user, ctx.progress)
             finally:
                 source.close()
     finally:
-        path.unlink(missing_ok=True)
+        storage.home.joinpath(name).unlink(missing_ok=True)
+        storage.unpublish(name)
     ctx.summary = (
         f"{counted(report.labels, 'label')} and {counted(report.keypoints, 'keypoint set')} "
         f"imported, {counted(report.frames, 'new frame')}; {len(report.skipped)} skipped, "

@@ -15,7 +15,7 @@ from app.live.schemas import LiveIn, LiveOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews
 from app.models import ModelVersion
 from app.security import CurrentUser, ReviewerUser
-from app.training.service import promoted_model
+from app.training.service import model_folder, promoted_model
 
 router = APIRouter(prefix="/live", tags=["live"])
 BOUNDARY = "weldpool-frame"
@@ -62,9 +62,7 @@ def start_live(
         model = session.get(ModelVersion, body.model_id)
         if model is None:
             raise NotFoundError(f"There is no model version {body.model_id}.")
-    folder = storage.absolute(model.checkpoint_path) if model.checkpoint_path else None
-    if folder is None or not folder.is_dir():
-        raise ConflictError(f"{model.name} has no weights on this server.")
+    folder = model_folder(storage, model)
     if body.int8 and body.sequential:
         raise InvalidInputError("The int8 student runs frame by frame; choose int8 or sequential.")
     if body.sequential and not model.sequential:

@@ -73,8 +73,9 @@ def process_parameters(sequence: Sequence) -> dict[str, Any]:
     return values
 
 
-def export_path(home: Path, job_id: int) -> Path:
-    return home / EXPORTS_DIR / f"{job_id}.zip"
+def export_name(job_id: int) -> str:
+    """Where an export job's zip is stored (relative to the store)."""
+    return f"{EXPORTS_DIR}/{job_id}.zip"
 
 
 def _stem(frame: Frame) -> str:

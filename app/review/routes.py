@@ -22,7 +22,7 @@ from app.models import Job, JobStatus, Proposal, Split, User
 from app.proposals import policy
 from app.proposals.files import load_heatmap
 from app.review import service
-from app.review.export import export_path, export_rows, export_size, stream_export
+from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
     ExportIn,
@@ -393,14 +393,14 @@ def export(
 def start_export(
     body: ExportIn,
     session: SessionDep,
-    settings: SettingsDep,
+    storage: StorageDep,
     queue: QueueDep,
     user: CurrentUser,
 ) -> JobCreated:
     """Export as a job with progress (big sets); download the zip from `GET /exports/{job_id}`."""
     if export_size(session, body.sequence_id, body.split) == 0:
         raise InvalidInputError("There are no accepted or corrected labels to export.")
-    prune_exports(settings.home)
+    prune_exports(storage)
     job = create_job(session, queue, "export", body.model_dump(mode="json"), user)
     return JobCreated(job_id=job.id)
 
@@ -411,7 +411,7 @@ def start_export(
     responses={200: {"content": {"application/zip": {}}}},
 )
 def download_export(
-    job_id: IdPath, session: SessionDep, settings: SettingsDep, _user: CurrentUser
+    job_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> FileResponse:
     """The zip an export job wrote (kept for a day)."""
     job = session.get(Job, job_id)
@@ -421,7 +421,7 @@ def download_export(
         raise ConflictError(
             f"Export job {job_id} is {job.status.value}; download it once it has succeeded."
         )
-    path = export_path(settings.home, job_id)
+    path = storage.fetch(export_name(job_id))  # from the object store once, streamed to disk
     if not path.is_file():
         raise NotFoundError(f"The export of job {job_id} is no longer kept; export again.")
     return FileResponse(

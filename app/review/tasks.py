@@ -22,7 +22,7 @@ from app.models import Frame
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
 from app.proposals.record import has_proposal, record_teacher_proposal
 from app.review import propagation, runtime
-from app.review.export import build_export, export_path
+from app.review.export import build_export, export_name
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
@@ -150,9 +150,10 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
             split=ctx.params.get("split"),
             progress=ctx.progress,
         )
-    target = export_path(ctx.settings.home, ctx.job_id)
+    target = storage.home / export_name(ctx.job_id)
     target.parent.mkdir(parents=True, exist_ok=True)
     os.replace(written, target)
+    storage.publish(export_name(ctx.job_id))  # streamed to the object store, if there is one
     ctx.summary = f"{ctx.params['format']} export ready: {target.stat().st_size / 1e6:.1f} MB"
     return {"format": ctx.params["format"], "size_bytes": target.stat().st_size}
 

@@ -97,7 +97,10 @@ def _student_outputs(
     if version.checkpoint_path is None:
         raise InvalidInputError(f"{version.name} has no checkpoint to measure.")
     try:
-        predictor = StudentPredictor.load(storage.absolute(version.checkpoint_path), device)
+        folder = storage.folder(version.checkpoint_path)
+        if folder is None:
+            raise FileNotFoundError(version.checkpoint_path)
+        predictor = StudentPredictor.load(folder, device)
         images = [frame_rgb(storage, session.get_one(Frame, f)) for f in frame_ids]
     except (FileNotFoundError, sa.exc.NoResultFound, ObjectDeletedError):
         if len(service.existing_frame_ids(session, frame_ids)) == len(frame_ids):
@@ -154,7 +157,7 @@ def _comparable(
     """The incumbent to compare with: not the candidate itself, nor one whose files are gone."""
     if incumbent is None or incumbent.id == candidate.id or incumbent.checkpoint_path is None:
         return None
-    return incumbent if storage.absolute(incumbent.checkpoint_path).is_dir() else None
+    return incumbent if storage.has_folder(incumbent.checkpoint_path) else None
 
 
 def _against_teacher(

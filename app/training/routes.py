@@ -70,7 +70,7 @@ def train_sequential(
     model_id: IdPath,
     body: SequentialIn,
     session: SessionDep,
-    settings: SettingsDep,
+    storage: StorageDep,
     queue: QueueDep,
     user: ReviewerUser,
 ) -> JobCreated:
@@ -78,7 +78,7 @@ def train_sequential(
     frames of imported videos, in a worker job; the job measures it against the per-frame
     student and the version records the measurement (`sequential`)."""
     model = service.get_model(session, model_id)
-    service.model_folder(settings.home, model)
+    service.require_weights(storage, model)
     if not service.has_video_labels(session):
         raise InvalidInputError(
             "No reviewed frame of the training split comes from an imported video; label frames "
@@ -108,7 +108,7 @@ def train_sequential(
 def make_int8(
     model_id: IdPath,
     session: SessionDep,
-    settings: SettingsDep,
+    storage: StorageDep,
     queue: QueueDep,
     user: ReviewerUser,
 ) -> JobCreated:
@@ -117,7 +117,7 @@ def make_int8(
     only when its masks agree with the float student's on others; the version records the
     agreement and both speeds (`int8`), and live views can run it."""
     model = service.get_model(session, model_id)
-    service.model_folder(settings.home, model)
+    service.require_weights(storage, model)
     frames = service.calibration_frame_ids(session)
     if len(frames) < MIN_FRAMES:
         raise InvalidInputError(

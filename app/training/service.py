@@ -250,13 +250,19 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
     return sorted(row.id for row in ranked[:count])
 
 
-def model_folder(home: Path, model: ModelVersion) -> Path:
-    """A version's folder of weights, or a 409 when it has none on this server."""
-
-    folder = home / model.checkpoint_path if model.checkpoint_path else None
-    if folder is None or not folder.is_dir():
+def model_folder(storage: Storage, model: ModelVersion) -> Path:
+    """A version's folder of weights, complete on this machine (fetched from the object store
+    when it has not seen it), or a 409 when the instance has none."""
+    folder = storage.folder(model.checkpoint_path) if model.checkpoint_path else None
+    if folder is None:
         raise ConflictError(f"{model.name} has no weights on this server.")
     return folder
+
+
+def require_weights(storage: Storage, model: ModelVersion) -> None:
+    """A 409 when a version has no weights, looked up without fetching them."""
+    if not (model.checkpoint_path and storage.has_folder(model.checkpoint_path)):
+        raise ConflictError(f"{model.name} has no weights on this server.")
 
 
 def has_video_labels(session: Session) -> bool:

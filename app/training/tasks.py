@@ -86,8 +86,10 @@ def _record_version(
 ) -> tuple[ModelVersion, Path]:
     """The trained folder renamed into ``models/<name>`` and its ModelVersion row, or neither
     (every frame it trained on was deleted meanwhile, or the commit failed)."""
+    from weldpool_core.student import checkpoint
+
     config, student = configs
-    models_dir = work.parent
+    models_dir, storage = work.parent, Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         if not service.existing_frame_ids(session, [frame_id for frame_id, _ in training]):
             shutil.rmtree(work, ignore_errors=True)
@@ -99,6 +101,8 @@ def _record_version(
         final = models_dir / name
         work.rename(final)
         try:
+            checkpoint.prune_state(final)  # a recorded version is never resumed
+            storage.publish(f"models/{name}")  # every machine can read it once its row is in
             version = ModelVersion(
                 name=name,
                 checkpoint_path=f"models/{name}",
@@ -120,6 +124,7 @@ def _record_version(
             session.commit()
         except BaseException:
             session.rollback()
+            storage.unpublish(f"models/{name}")
             shutil.rmtree(final, ignore_errors=True)
             raise
     return version, final
@@ -134,7 +139,6 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     The model is written to a work folder and becomes ``models/<name>`` and a ModelVersion row
     only when training finished: a killed or cancelled job leaves no half-written version.
     """
-    from weldpool_core.student import checkpoint
     from weldpool_core.student.train import train_student
 
     storage = Storage.of(ctx.settings)
@@ -165,7 +169,6 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     version, final = _record_version(
         ctx, work, result, (config, student), training, pseudo, held_out
     )
-    checkpoint.prune_state(final)  # a recorded version is never resumed
     verdict = _gate_and_promote(ctx, version.id)
     promoted = verdict["promote"] and ctx.settings.auto_promote
     ctx.summary = _summary(
@@ -185,6 +188,7 @@ def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
     with ctx.session_factory() as session:
         session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
         session.commit()
+    Storage.of(ctx.settings).unpublish(folder.relative_to(ctx.settings.home).as_posix())
     shutil.rmtree(folder, ignore_errors=True)
 
 
@@ -214,7 +218,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         version = session.get(ModelVersion, model_id)
         if version is None:
             raise InvalidInputError(f"Model version {model_id} no longer exists.")
-        root = service.model_folder(settings.home, version)
+        root = service.model_folder(storage, version)
         name, trained = version.name, set(version.train_frame_ids or [])
         ctx.progress(0.0, "reading the labelled videos")
         student = read_student_config(root)
@@ -243,6 +247,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
             "seconds": round(result.seconds, 1),
             "measured": measured,
         }
+        storage.publish(_stored(storage, root))  # the cell, on every machine, before its record
         with ctx.session_factory() as session:
             version = session.get(ModelVersion, model_id)
             if version is None:  # deleted while training: its folder went with it
@@ -251,11 +256,17 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
             session.commit()
     except BaseException:
         _restore_cell_files(root, previous)
+        storage.publish(_stored(storage, root))
         raise
     ctx.summary = f"{name}: sequential cell trained on {counted(result.windows, 'window')}; " + (
         _sequential_verdict(measured)
     )
     return {"model_version_id": model_id, "sequential": record}
+
+
+def _stored(storage: Storage, folder: Path) -> str:
+    """A version folder's path as the store names it."""
+    return folder.relative_to(storage.home).as_posix()
 
 
 def _files(root: Path, names: tuple[str, ...]) -> dict[str, bytes]:
@@ -429,7 +440,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
         version = session.get(ModelVersion, int(ctx.params["model_version_id"]))
         if version is None or version.checkpoint_path is None:
             raise InvalidInputError("The model version of this run no longer exists.")
-        name, path = version.name, storage.absolute(version.checkpoint_path)
+        name, path = version.name, service.model_folder(storage, version)
         version_id = version.id
     predictor = StudentPredictor.load(path, ctx.settings.device)
     proposed = 0
@@ -507,7 +518,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
         version = session.get(ModelVersion, model_id)
         if version is None:
             raise InvalidInputError(f"Model version {model_id} no longer exists.")
-        root = service.model_folder(ctx.settings.home, version)
+        root = service.model_folder(storage, version)
         name = version.name
         frame_ids = service.calibration_frame_ids(session)
         ctx.progress(0.0, f"reading {counted(len(frame_ids), 'frame')} to calibrate on")
@@ -521,6 +532,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     try:
         result = quantize_student(root, images)
         record = {"made_at": utcnow().isoformat(), "job_id": ctx.job_id, **result.as_dict()}
+        storage.publish(_stored(storage, root))  # the int8 file, before its record
         with ctx.session_factory() as session:
             version = session.get(ModelVersion, model_id)
             if version is None:  # deleted meanwhile: its folder went with it
@@ -529,6 +541,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
             session.commit()
     except BaseException:
         _put_back(root, previous, files)
+        storage.publish(_stored(storage, root))
         raise
     ctx.summary = (
         f"{name}: int8 student made; masks agree with the float student's at IoU "

@@ -13,7 +13,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app import storage as storage_module
+from app.storage import local as storage_module
 from app.config import Settings
 from app.frames import deletion, ingest, listing, sequences
 from app.housekeeping import FileCollector, sweep_orphan_files

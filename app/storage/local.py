@@ -38,6 +38,10 @@ if TYPE_CHECKING:
     from app.config import Settings
 
 CHUNK = 1024 * 1024
+SHARED_AREAS = ("frames", "videos", "artefacts", "models", "exports", "imports")
+"""What every process of an instance must see alike: content-addressed files (frames, videos,
+masks and heatmaps), model folders, export zips and uploaded imports. The rest of home
+(``cache/``, ``tmp/``, the embedded database and queue) belongs to one machine."""
 EXPORTS_DIR = "exports"
 """Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
 DEFAULT_GRACE_S = 900.0
@@ -57,6 +61,7 @@ class StagedFile:
 
     relative: str
     temporary: Path | None  # None: the store holds this content already (and it is claimed)
+    uploaded_ns: int = 0  # an object store's: uploaded already, with this claim time
 
 
 @dataclass(frozen=True)
@@ -77,10 +82,55 @@ class Storage:
         self.tmp = self.home / "tmp"
         self.grace_s = grace_s
 
+    _flush_local = True
+    """Whether home's files are the durable copy (flushed before their rows commit)."""
+    remote: str | None = None
+    """Where shared files live besides home (``s3://bucket/prefix``); None: home alone."""
+
     @classmethod
     def of(cls, settings: Settings) -> Storage:
-        """The store of an instance, with its grace period."""
+        """The store of an instance (WELDPOOL_STORAGE_URL), with its grace period."""
+        if settings.storage_url:
+            from app.storage.s3 import ObjectStorage
+
+            return ObjectStorage.for_settings(settings)
         return cls(settings.home, settings.file_grace_s)
+
+    def check(self) -> None:
+        """Raise ConfigurationError when the store cannot be used (home alone: always can)."""
+
+    # --- shared files that are not content-addressed: model folders, exports, imports ------
+    # In home alone these are plain files; ``ObjectStorage`` keeps them in the bucket too.
+
+    def fetch(self, relative: str) -> Path:
+        """The local path of a stored file, read from the shared store first when this
+        machine does not have it (here: it is home's)."""
+        return self.absolute(relative)
+
+    def folder(self, relative: str) -> Path | None:
+        """A stored folder (a model version's), complete on this machine; None when absent."""
+        path = self.absolute(relative)
+        return path if path.is_dir() else None
+
+    def has_folder(self, relative: str) -> bool:
+        """Whether a stored folder exists, without fetching it."""
+        return self.absolute(relative).is_dir()
+
+    def publish(self, relative: str) -> None:
+        """Make a file or folder written under home visible to every process of the instance
+        (a no-op here: they share home); called before the row that names it is committed."""
+
+    def unpublish(self, relative: str) -> None:
+        """Withdraw what ``publish`` shared (a no-op here; the caller removes the local copy)."""
+
+    def prune_published(self, area: str, older_than_s: float) -> int:
+        """Remove shared files of ``area`` older than ``older_than_s`` (none here: home's own
+        pruning covers them); returns how many went."""
+        return 0
+
+    def _claimed(self, relative: str) -> bool:
+        """Claim stored content (``_claim``); False when it is not there."""
+        return self._claim(self.home / relative)
 
     def absolute(self, relative: str) -> Path:
         """The file behind a stored relative path (never outside home)."""
@@ -136,7 +186,7 @@ class Storage:
     def put(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StoredFile:
         """Store ``data`` (whose hash the caller computed) unless the same content is there."""
         relative = self.relative_path(area, sha256, extension)
-        if self._claim(self.home / relative):
+        if self._claimed(relative):
             return StoredFile(relative, created=False)
         return self._install(self._write_temporary(data), relative)
 
@@ -146,12 +196,13 @@ class Storage:
         (fsync releases the GIL), so a request's files reach the disk while the rest of it is
         still being checked."""
         relative = self.relative_path(area, sha256, extension)
-        if self._claim(self.home / relative):
+        if self._claimed(relative):
             return StagedFile(relative, None)
         temporary = self._temporary()
         try:
             temporary.write_bytes(data)
-            _fsync(temporary)
+            if self._flush_local:
+                _fsync(temporary)
         except BaseException:
             temporary.unlink(missing_ok=True)
             raise
@@ -227,8 +278,9 @@ class Storage:
         temporary = self._temporary()
         with open(temporary, "wb") as handle:
             handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
+            if self._flush_local:
+                handle.flush()
+                os.fsync(handle.fileno())
         return temporary
 
     def put_stream(
@@ -243,8 +295,9 @@ class Storage:
                     digest.update(chunk)
                     size += len(chunk)
                     handle.write(chunk)
-                handle.flush()
-                os.fsync(handle.fileno())
+                if self._flush_local:
+                    handle.flush()
+                    os.fsync(handle.fileno())
         except BaseException:
             temporary.unlink(missing_ok=True)
             raise

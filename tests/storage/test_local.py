@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-import app.storage as storage_module
+from app.storage import local as storage_module
 from app.storage import Storage
 
 

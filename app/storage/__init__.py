@@ -1,0 +1,23 @@
+"""The storage seam: content-addressed files under WELDPOOL_HOME (``local``), or in an
+S3-compatible object store with the home folder as a bounded read cache (``s3``), chosen by
+WELDPOOL_STORAGE_URL. Callers see one ``Storage``; ``Storage.of(settings)`` picks the backend."""
+
+from app.storage.local import (
+    CHUNK,
+    DEFAULT_GRACE_S,
+    EXPORTS_DIR,
+    SHARED_AREAS,
+    StagedFile,
+    Storage,
+    StoredFile,
+)
+
+__all__ = [
+    "CHUNK",
+    "DEFAULT_GRACE_S",
+    "EXPORTS_DIR",
+    "SHARED_AREAS",
+    "StagedFile",
+    "Storage",
+    "StoredFile",
+]

@@ -1,0 +1,526 @@
+"""Shared files in an S3-compatible object store (AWS S3, MinIO, Ceph), with home as this
+machine's bounded read cache: ``WELDPOOL_STORAGE_URL=s3://bucket/prefix``.
+
+Every object's key is ``<prefix>/<relative path>``, the same relative path the database
+holds, so a row means the same file on every machine. The promises of ``app.storage.local``
+hold on this backend too:
+
+- **Written whole before its row is committed.** ``stage``/``put``/``put_stream`` upload before
+  they return (one PUT, or a multipart upload that S3 makes visible only once complete), in the
+  caller's threads: the ingest's disk threads upload while the rest of the request is checked.
+- **Content-addressed and claimed.** A claim is a copy of the object onto itself that sets its
+  ``claimed`` metadata (and so its LastModified) to now; a missing key means not stored.
+- **Removed only by the collector, never from under a claim.** The collector moves an object
+  to ``trash/<relative>`` (a copy, then a delete) when nobody claimed it within the grace
+  period. A claim can land between its look and its delete (S3 has no atomic rename); the row
+  committed then names a trashed object, so a reader that misses the key puts the trashed copy
+  back, and every sweep restores the trashed objects that a committed row names before it
+  purges the others a grace period after they were trashed.
+- **A bounded local cache.** Files written or fetched land under home at their relative path
+  and are read from there; past WELDPOOL_STORAGE_CACHE_MB the least recently used go (they
+  are in the bucket). Reads and writes stream through files: no whole video or export in memory.
+
+The client is boto3 (``bench/storage.py`` measures it beside obstore): the AWS SDK itself,
+thread-safe, with managed multipart transfers and the standard credential chain.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import threading
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+from urllib.parse import urlparse
+
+from app.storage.local import (
+    CHUNK,
+    PART_LIFETIME_S,
+    SHARED_AREAS,
+    StagedFile,
+    Storage,
+    StoredFile,
+)
+
+if TYPE_CHECKING:
+    from app.config import Settings
+
+CONTENT_AREAS = ("frames", "videos", "artefacts")
+"""Content-addressed areas: read through the cache by ``absolute`` and bounded by it."""
+TRASH = "trash"
+MULTIPART_BYTES = 64 * 1024 * 1024
+"""Uploads and downloads above this go in parts (videos, exports); frames in one request."""
+TOUCH_EVERY_S = 60.0
+"""A cached file read again is marked recent at most once a minute (the cache's LRU order)."""
+_PUBLISH_POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="storage-publish")
+
+
+def parse_url(url: str) -> tuple[str, str]:
+    """``s3://bucket/prefix`` → (bucket, prefix without slashes); a clear error otherwise."""
+    parsed = urlparse(url)
+    if parsed.scheme != "s3" or not parsed.netloc:
+        raise ValueError(
+            f"WELDPOOL_STORAGE_URL must be empty (the home folder) or s3://bucket/prefix, "
+            f"not {url!r}"
+        )
+    return parsed.netloc, parsed.path.strip("/")
+
+
+@lru_cache(maxsize=8)
+def _client(endpoint_url: str | None, region: str | None) -> Any:
+    """One boto3 client per endpoint and process (making one costs ~50 ms; it is thread-safe)."""
+    import boto3
+    from botocore.config import Config
+
+    config = Config(
+        max_pool_connections=16,
+        retries={"mode": "standard", "max_attempts": 5},
+        connect_timeout=10,
+        read_timeout=60,
+    )
+    return boto3.client(
+        "s3", endpoint_url=endpoint_url or None, region_name=region or None, config=config
+    )
+
+
+def _missing(error: Exception) -> bool:
+    """Whether a botocore error says the key (or bucket) is not there."""
+    response = getattr(error, "response", None) or {}
+    code = str(response.get("Error", {}).get("Code", ""))
+    status = response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+    return code in {"NoSuchKey", "404", "NotFound"} or status == 404
+
+
+class ObjectStorage(Storage):
+    """``Storage`` whose shared files live in a bucket; home caches them."""
+
+    _flush_local = False  # the bucket holds the durable copy; home's files are a cache
+
+    def __init__(
+        self,
+        home: Path,
+        url: str,
+        grace_s: float,
+        endpoint_url: str | None = None,
+        cache_bytes: int = 10 * 1024**3,
+        region: str | None = None,
+    ) -> None:
+        super().__init__(home, grace_s)
+        self.remote = url
+        self.bucket, self.prefix = parse_url(url)
+        self.client = _client(endpoint_url, region or os.environ.get("AWS_REGION"))
+        self.cache_bytes = cache_bytes
+        self.reads = 0
+        """Objects read from the bucket by this store (``bench/storage.py`` counts a click's)."""
+        self._since_trim = 0
+        self._lock = threading.Lock()
+
+    @classmethod
+    def for_settings(cls, settings: Settings) -> ObjectStorage:
+        assert settings.storage_url
+        return _store(
+            settings.home.resolve(),
+            settings.storage_url,
+            settings.file_grace_s,
+            settings.s3_endpoint_url,
+            int(settings.storage_cache_mb * 1024 * 1024),
+        )
+
+    def key(self, relative: str) -> str:
+        return f"{self.prefix}/{relative}" if self.prefix else relative
+
+    def relative_of(self, key: str) -> str:
+        return key.removeprefix(f"{self.prefix}/") if self.prefix else key
+
+    def check(self) -> None:
+        """Raise a clear error when the bucket cannot be reached (at start-up)."""
+        from app.errors import ConfigurationError
+
+        try:
+            self.client.head_bucket(Bucket=self.bucket)
+        except Exception as exc:
+            raise ConfigurationError(
+                f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
+                "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."
+            ) from None
+
+    # --- claims and writes --------------------------------------------------------------
+
+    def _claimed(self, relative: str) -> bool:
+        """Claim an object: copy it onto itself with ``claimed`` = now (LastModified moves)."""
+        from botocore.exceptions import ClientError
+
+        key = self.key(relative)
+        try:
+            self.client.copy_object(
+                Bucket=self.bucket,
+                Key=key,
+                CopySource={"Bucket": self.bucket, "Key": key},
+                MetadataDirective="REPLACE",
+                Metadata={"claimed": str(time.time_ns())},
+            )
+        except ClientError as exc:
+            if _missing(exc):
+                return False
+            raise
+        return True
+
+    def _upload_file(self, path: Path, relative: str, claimed_ns: int) -> None:
+        from boto3.s3.transfer import TransferConfig
+
+        self.client.upload_file(
+            str(path),
+            self.bucket,
+            self.key(relative),
+            ExtraArgs={"Metadata": {"claimed": str(claimed_ns)}},
+            Config=TransferConfig(multipart_threshold=MULTIPART_BYTES, max_concurrency=4),
+        )
+
+    def _cache_place(self, temporary: Path, relative: str) -> None:
+        """Keep a written temporary as the cached copy of ``relative``."""
+        final = self.home / relative
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(temporary, final)
+        self._count(final.stat().st_size)
+
+    def _install(self, temporary: Path, relative: str) -> StoredFile:
+        """Upload a written temporary unless the same content is stored (then claim it); the
+        temporary becomes the cached copy either way."""
+        try:
+            if self._claimed(relative):
+                self._cache_place(temporary, relative)
+                return StoredFile(relative, created=False)
+            claimed = time.time_ns()
+            self._upload_file(temporary, relative, claimed)
+            self._cache_place(temporary, relative)
+        except BaseException:
+            temporary.unlink(missing_ok=True)
+            raise
+        return StoredFile(relative, created=True, claimed_ns=claimed)
+
+    def put(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StoredFile:
+        relative = self.relative_path(area, sha256, extension)
+        if self._claimed(relative):
+            return StoredFile(relative, created=False)
+        claimed = self._put_bytes(data, relative)
+        self._cache_place(self._write_temporary(data), relative)
+        return StoredFile(relative, created=True, claimed_ns=claimed)
+
+    def _put_bytes(self, data: bytes, relative: str) -> int:
+        claimed = time.time_ns()
+        self.client.put_object(
+            Bucket=self.bucket,
+            Key=self.key(relative),
+            Body=data,
+            Metadata={"claimed": str(claimed)},
+        )
+        return claimed
+
+    def stage(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StagedFile:
+        """Upload new content now (in the caller's thread) and keep a cache copy aside;
+        ``install_many`` only puts the copy in place, ``unstage`` withdraws the upload."""
+        relative = self.relative_path(area, sha256, extension)
+        if self._claimed(relative):
+            return StagedFile(relative, None)
+        temporary = self._write_temporary(data)
+        try:
+            claimed = self._put_bytes(data, relative)
+        except BaseException:
+            temporary.unlink(missing_ok=True)
+            raise
+        return StagedFile(relative, temporary, uploaded_ns=claimed)
+
+    def unstage(self, staged: Iterable[StagedFile]) -> None:
+        items = list(staged)
+        super().unstage(items)
+        self.discard(
+            StoredFile(s.relative, created=True, claimed_ns=s.uploaded_ns)
+            for s in items
+            if s.uploaded_ns
+        )
+
+    def install_many(
+        self, staged: Sequence[StagedFile], executor: Executor | None = None
+    ) -> list[StoredFile]:
+        results: list[StoredFile] = []
+        try:
+            for item in staged:
+                if item.temporary is None:
+                    results.append(StoredFile(item.relative, created=False))
+                elif item.uploaded_ns:
+                    self._cache_place(item.temporary, item.relative)
+                    results.append(StoredFile(item.relative, True, item.uploaded_ns))
+                else:
+                    results.append(self._install(item.temporary, item.relative))
+        except BaseException:
+            self.discard(results)
+            self.unstage(staged[len(results) :])
+            raise
+        return results
+
+    # --- reads through the cache ---------------------------------------------------------
+
+    def absolute(self, relative: str) -> Path:
+        """The cached copy of a stored file, fetched from the bucket when this machine has
+        none (content areas; other paths are this machine's own)."""
+        path = super().absolute(relative)
+        if relative.split("/", 1)[0] in CONTENT_AREAS:
+            self._ensure(relative, path)
+        return path
+
+    def fetch(self, relative: str) -> Path:
+        path = super().absolute(relative)
+        if relative.split("/", 1)[0] in SHARED_AREAS:
+            self._ensure(relative, path)
+        return path
+
+    def _ensure(self, relative: str, path: Path) -> None:
+        try:
+            changed = path.stat().st_mtime
+        except FileNotFoundError:
+            self._download(relative, path)
+            return
+        if time.time() - changed > TOUCH_EVERY_S:
+            with contextlib.suppress(FileNotFoundError):
+                os.utime(path)
+
+    def _download(self, relative: str, path: Path, restore: bool = True) -> bool:
+        """Stream an object into the cache (one GET); a key found only in the trash is put
+        back first. False when neither holds it (the caller then sees no file)."""
+        from botocore.exceptions import ClientError
+
+        key = self.key(relative)
+        try:
+            response = self.client.get_object(Bucket=self.bucket, Key=key)
+        except ClientError as exc:
+            if not (_missing(exc) and restore and self._restore(relative)):
+                if _missing(exc):
+                    return False
+                raise
+            return self._download(relative, path, restore=False)
+        self.reads += 1
+        temporary = self._temporary()
+        try:
+            with response["Body"] as body, open(temporary, "wb") as handle:
+                shutil.copyfileobj(body, handle, CHUNK)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(temporary, path)
+        except BaseException:
+            temporary.unlink(missing_ok=True)
+            raise
+        self._count(path.stat().st_size)
+        return True
+
+    def _restore(self, relative: str) -> bool:
+        """Put a trashed object back under its key; False when the trash has none."""
+        from botocore.exceptions import ClientError
+
+        try:
+            self.client.copy_object(
+                Bucket=self.bucket,
+                Key=self.key(relative),
+                CopySource={"Bucket": self.bucket, "Key": self.key(f"{TRASH}/{relative}")},
+                MetadataDirective="REPLACE",
+                Metadata={"claimed": str(time.time_ns())},
+            )
+        except ClientError as exc:
+            if _missing(exc):
+                return False
+            raise
+        return True
+
+    def _count(self, size: int) -> None:
+        with self._lock:
+            self._since_trim += size
+            due = self._since_trim > self.cache_bytes // 10
+            if due:
+                self._since_trim = 0
+        if due:
+            self.trim_cache()
+
+    def trim_cache(self) -> int:
+        """Remove the least recently used cached content files until the cache holds at
+        most 80 % of its bound; returns the bytes freed."""
+        files = []
+        for area in CONTENT_AREAS:
+            root = self.home / area
+            for path in root.rglob("*") if root.is_dir() else ():
+                try:
+                    info = path.stat()
+                except FileNotFoundError:
+                    continue
+                if path.is_file():
+                    files.append((info.st_mtime, info.st_size, path))
+        total = sum(size for _, size, _ in files)
+        if total <= self.cache_bytes:
+            return 0
+        freed = 0
+        for _, size, path in sorted(files):
+            if total - freed <= 0.8 * self.cache_bytes:
+                break
+            path.unlink(missing_ok=True)
+            freed += size
+        return freed
+
+    # --- shared files that are not content-addressed -----------------------------------
+
+    def _objects(self, relative: str) -> Iterator[dict[str, Any]]:
+        """The bucket's objects under ``relative`` (a prefix), with their keys and sizes."""
+        paginator = self.client.get_paginator("list_objects_v2")
+        for page in paginator.paginate(Bucket=self.bucket, Prefix=self.key(relative)):
+            yield from page.get("Contents", [])
+
+    def folder(self, relative: str) -> Path | None:
+        """A published folder, made complete on this machine: files it lacks (or holds at
+        another size) are fetched, files the bucket no longer has are removed."""
+        path = super().absolute(relative)
+        objects = {
+            self.relative_of(o["Key"]): int(o["Size"]) for o in self._objects(f"{relative}/")
+        }
+        if not objects:
+            return path if path.is_dir() else None
+        for name, size in objects.items():
+            local = self.home / name
+            if not local.is_file() or local.stat().st_size != size:
+                self._download(name, local, restore=False)
+        for local in list(path.rglob("*")):
+            name = local.relative_to(self.home).as_posix()
+            if local.is_file() and name not in objects:
+                local.unlink(missing_ok=True)
+        return path
+
+    def has_folder(self, relative: str) -> bool:
+        response = self.client.list_objects_v2(
+            Bucket=self.bucket, Prefix=self.key(f"{relative}/"), MaxKeys=1
+        )
+        return bool(response.get("KeyCount")) or super().has_folder(relative)
+
+    def publish(self, relative: str) -> None:
+        """Upload a file, or a folder's files (and withdraw what the folder no longer has),
+        under their relative paths; returns once every upload is complete."""
+        path = super().absolute(relative)
+        now = time.time_ns()
+        if path.is_file():
+            self._upload_file(path, relative, now)
+            return
+        files = {p.relative_to(self.home).as_posix(): p for p in path.rglob("*") if p.is_file()}
+        list(_PUBLISH_POOL.map(lambda i: self._upload_file(i[1], i[0], now), files.items()))
+        stale = [o["Key"] for o in self._objects(f"{relative}/")]
+        self._delete_keys(k for k in stale if self.relative_of(k) not in files)
+
+    def unpublish(self, relative: str) -> None:
+        keys = [o["Key"] for o in self._objects(f"{relative}/")]
+        self._delete_keys([*keys, self.key(relative)])
+
+    def _delete_keys(self, keys: Iterable[str]) -> None:
+        batch = list(keys)
+        for start in range(0, len(batch), 1000):  # S3's limit per request
+            chunk = batch[start : start + 1000]
+            if chunk:
+                self.client.delete_objects(
+                    Bucket=self.bucket,
+                    Delete={"Objects": [{"Key": k} for k in chunk], "Quiet": True},
+                )
+
+    def prune_published(self, area: str, older_than_s: float) -> int:
+        cutoff = time.time() - older_than_s
+        old = [
+            o["Key"] for o in self._objects(f"{area}/") if o["LastModified"].timestamp() < cutoff
+        ]
+        self._delete_keys(old)
+        return len(old)
+
+    # --- removal: the one collector, through the trash -----------------------------------
+
+    def _claim_ns(self, relative: str) -> int | None:
+        """An object's claim time (its ``claimed`` metadata, else LastModified); None when
+        it is not there."""
+        from botocore.exceptions import ClientError
+
+        try:
+            head = self.client.head_object(Bucket=self.bucket, Key=self.key(relative))
+        except ClientError as exc:
+            if _missing(exc):
+                return None
+            raise
+        claimed = head.get("Metadata", {}).get("claimed")
+        if claimed and claimed.isdigit():
+            return int(claimed)
+        return int(head["LastModified"].timestamp() * 1e9)
+
+    def _remove_if(self, relative: str, unclaimed: Any) -> bool:
+        """Move an object to the trash when its claim time says nobody claimed it (and drop
+        the cached copy); a claim made meanwhile is covered by the trash's restore."""
+        try:
+            super().absolute(relative)
+        except ValueError:  # a row naming a path outside the store: never touched
+            return False
+        claimed = self._claim_ns(relative)
+        if claimed is None or not unclaimed(claimed):
+            return False
+        key = self.key(relative)
+        self.client.copy_object(
+            Bucket=self.bucket,
+            Key=self.key(f"{TRASH}/{relative}"),
+            CopySource={"Bucket": self.bucket, "Key": key},
+        )
+        self.client.delete_object(Bucket=self.bucket, Key=key)
+        (self.home / relative).unlink(missing_ok=True)
+        return True
+
+    def sweep_orphans(
+        self, areas: Iterable[str], known: set[str], older_than_s: float | None = None
+    ) -> list[str]:
+        """The bucket's sweep: trashed objects a committed row names go back, the others are
+        purged a grace period after they were trashed; then objects of ``areas`` no row names
+        and nobody claimed for ``older_than_s`` (the grace period by default) are trashed.
+        ``known`` must be read before the sweep starts."""
+        grace = self.grace_s if older_than_s is None else older_than_s
+        purge_before = time.time() - self.grace_s
+        purged = []
+        for item in self._objects(f"{TRASH}/"):
+            relative = self.relative_of(item["Key"]).removeprefix(f"{TRASH}/")
+            if relative in known:
+                self._restore(relative)
+            elif item["LastModified"].timestamp() >= purge_before:
+                continue
+            purged.append(item["Key"])
+        self._delete_keys(purged)
+        cutoff_ns = int((time.time() - grace) * 1e9)
+        removed = []
+        for area in areas:
+            for item in self._objects(f"{area}/"):
+                relative = self.relative_of(item["Key"])
+                if relative in known:  # the others are few: each is looked at (HEAD)
+                    continue
+                if self._remove_if(relative, lambda ns: ns < cutoff_ns):
+                    removed.append(relative)
+        parts_cutoff = time.time() - max(PART_LIFETIME_S, self.grace_s)
+        for stale in self.tmp.glob("*.part") if self.tmp.is_dir() else ():
+            try:
+                if stale.stat().st_mtime < parts_cutoff:
+                    stale.unlink(missing_ok=True)
+            except FileNotFoundError:
+                continue
+        return removed
+
+
+@lru_cache(maxsize=8)
+def _store(
+    home: Path, url: str, grace_s: float, endpoint_url: str | None, cache_bytes: int
+) -> ObjectStorage:
+    """One store per process and configuration, so its cache accounting is shared."""
+    return ObjectStorage(home, url, grace_s, endpoint_url, cache_bytes)
+
+
+def _reason(exc: Exception) -> str:
+    response = getattr(exc, "response", None)
+    if response:
+        error = response.get("Error", {})
+        return f"{error.get('Code', '')} {error.get('Message', '')}".strip() or str(exc)
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -1,0 +1,240 @@
+"""The object-store backend against a real S3-protocol server (moto's, on 127.0.0.1): the
+storage seam's promises (content-addressed, written before its row, claims, one collector
+through the trash, a bounded cache, streamed files) hold as they do in home."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import time
+from pathlib import Path
+
+import boto3
+import pytest
+
+from app.storage import Storage
+from app.storage.s3 import TRASH, ObjectStorage
+from tests.s3 import bucket_keys
+
+
+def store(tmp_path: Path, name: str, url: str, endpoint: str, **kwargs: object) -> ObjectStorage:
+    return ObjectStorage(tmp_path / name, url, 60.0, endpoint, **kwargs)  # type: ignore[arg-type]
+
+
+def content(seed: int, size: int = 10_000) -> tuple[bytes, str]:
+    data = hashlib.sha256(str(seed).encode()).digest() * (size // 32)
+    return data, hashlib.sha256(data).hexdigest()
+
+
+def age(endpoint: str, url: str, relative: str, seconds: float) -> None:
+    """Make an object look claimed ``seconds`` ago (time passing, for the collector)."""
+    from app.storage.s3 import parse_url
+
+    bucket, prefix = parse_url(url)
+    then = str(time.time_ns() - int(seconds * 1e9))
+    key = f"{prefix}/{relative}"
+    boto3.client("s3", endpoint_url=endpoint).copy_object(
+        Bucket=bucket,
+        Key=key,
+        CopySource={"Bucket": bucket, "Key": key},
+        MetadataDirective="REPLACE",
+        Metadata={"claimed": then},
+    )
+
+
+def test_a_file_written_on_one_machine_is_read_on_another(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    web, worker = (
+        store(tmp_path, "web", s3_url, s3_endpoint),
+        store(tmp_path, "worker", s3_url, s3_endpoint),
+    )
+    data, sha = content(1)
+    stored = web.put(data, sha, ".png")
+    assert stored.created and bucket_keys(s3_endpoint, s3_url) == {stored.path: len(data)}
+    assert (web.home / stored.path).read_bytes() == data  # written through the cache
+
+    assert worker.reads == 0
+    assert worker.absolute(stored.path).read_bytes() == data  # fetched once …
+    assert worker.absolute(stored.path).read_bytes() == data  # … then read from the cache
+    assert worker.reads == 1
+    assert not worker.put(data, sha, ".png").created  # the same content: claimed, not written
+    missing = worker.absolute("frames/00/00/none.png")
+    assert not missing.exists()  # a key nobody stored: no file, as in home
+
+
+def test_staged_files_are_in_the_bucket_before_install_and_withdrawn_by_unstage(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    web = store(tmp_path, "web", s3_url, s3_endpoint)
+    (a, sha_a), (b, sha_b) = content(2), content(3)
+    staged = [web.stage(a, sha_a, ".png"), web.stage(b, sha_b, ".png")]
+    assert set(bucket_keys(s3_endpoint, s3_url)) == {s.relative for s in staged}
+    installed = web.install_many(staged[:1])
+    assert installed[0].created and (web.home / installed[0].path).read_bytes() == a
+    web.unstage(staged[1:])  # a duplicate, not installed: its upload goes (to the trash)
+    assert set(bucket_keys(s3_endpoint, s3_url, "frames/")) == {installed[0].path}
+    assert not list(web.tmp.glob("*.part"))
+
+
+def test_discard_spares_content_another_writer_claimed_since(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    first, second = (
+        store(tmp_path, "a", s3_url, s3_endpoint),
+        store(tmp_path, "b", s3_url, s3_endpoint),
+    )
+    data, sha = content(4)
+    written = first.put(data, sha, ".png")
+    assert not second.put(data, sha, ".png").created  # claimed by another writer
+    assert first.discard([written]) == 0  # its commit failed, but the other one's row names it
+    assert written.path in bucket_keys(s3_endpoint, s3_url)
+    other, sha_o = content(5)
+    lone = first.put(other, sha_o, ".png")
+    assert first.discard([lone]) == 1 and lone.path not in bucket_keys(s3_endpoint, s3_url)
+    assert not (first.home / lone.path).exists()  # the cached copy went with it
+
+
+def test_the_collector_takes_only_unnamed_files_past_their_grace(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    web = store(tmp_path, "web", s3_url, s3_endpoint)
+    old, named, fresh = (web.put(*content(10 + i), ".png") for i in range(3))
+    age(s3_endpoint, s3_url, old.path, 120)
+    age(s3_endpoint, s3_url, named.path, 120)
+    removed = web.collect([old.path, named.path, fresh.path], in_use={named.path})
+    assert removed == [old.path]
+    keys = bucket_keys(s3_endpoint, s3_url)
+    assert old.path not in keys and f"{TRASH}/{old.path}" in keys
+    assert {named.path, fresh.path} <= set(keys)
+
+    # The sweep: unnamed and old → trashed; fresh ones wait; the trash is purged after a grace.
+    orphan = web.put(*content(20), ".png")
+    age(s3_endpoint, s3_url, orphan.path, 120)
+    swept = web.sweep_orphans(["frames"], known={named.path, fresh.path})
+    assert swept == [orphan.path]
+    assert {f"{TRASH}/{orphan.path}", f"{TRASH}/{old.path}"} <= set(
+        bucket_keys(s3_endpoint, s3_url, f"{TRASH}/")
+    )
+    web.grace_s = 0.0  # a grace period later
+    time.sleep(1.1)  # LastModified counts whole seconds
+    web.sweep_orphans(["frames"], known={named.path, fresh.path})
+    assert bucket_keys(s3_endpoint, s3_url, f"{TRASH}/") == {}
+    assert set(bucket_keys(s3_endpoint, s3_url, "frames/")) == {named.path, fresh.path}
+
+
+def test_a_claim_that_lands_while_the_collector_removes_is_not_lost(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    """S3 has no rename: the collector's look and its delete are two requests, and a writer's
+    claim can fall between them. Its row then names a trashed object: a reader puts it back,
+    and so does the sweep, before the trash is ever purged."""
+    web, worker = (
+        store(tmp_path, "web", s3_url, s3_endpoint),
+        store(tmp_path, "worker", s3_url, s3_endpoint),
+    )
+    data, sha = content(30)
+    stored = web.put(data, sha, ".png")
+    age(s3_endpoint, s3_url, stored.path, 120)
+    looked = web._claim_ns(stored.path)  # the collector looks: unclaimed for two minutes
+    assert not worker.put(data, sha, ".png").created  # a writer claims it, then commits
+    assert web._remove_if(stored.path, lambda ns: looked is not None)  # the collector deletes
+    assert stored.path not in bucket_keys(s3_endpoint, s3_url)
+
+    assert worker.absolute(stored.path).read_bytes() == data  # the cache has it
+    reader = store(tmp_path, "reader", s3_url, s3_endpoint)
+    assert reader.absolute(stored.path).read_bytes() == data  # fetched: put back from the trash
+    assert stored.path in bucket_keys(s3_endpoint, s3_url)
+
+    web._remove_if(stored.path, lambda ns: True)  # the same race again, and no reader comes
+    web.grace_s = 0.0
+    time.sleep(1.1)
+    web.sweep_orphans(["frames"], known={stored.path})  # the row names it: restored, not purged
+    keys = bucket_keys(s3_endpoint, s3_url)
+    assert stored.path in keys and f"{TRASH}/{stored.path}" not in keys
+
+
+def test_the_cache_keeps_to_its_bound_least_recently_used_out(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    writer = store(tmp_path, "writer", s3_url, s3_endpoint)
+    files = [writer.put(*content(40 + i, 20_000), ".png") for i in range(6)]
+    reader = store(tmp_path, "reader", s3_url, s3_endpoint, cache_bytes=70_000)
+    for index, stored in enumerate(files):
+        path = reader.absolute(stored.path)
+        then = time.time() - 1000 + index  # read one after another, the first longest ago
+        os.utime(path, (then, then))
+    reader.trim_cache()
+    cached = [(reader.home / f.path).exists() for f in files]
+    total = sum(
+        (reader.home / f.path).stat().st_size for f in files if (reader.home / f.path).exists()
+    )
+    assert total <= 0.8 * 70_000
+    assert cached == [False] * (6 - sum(cached)) + [True] * sum(cached)  # the oldest went
+    assert sum(cached) >= 2
+    assert reader.absolute(files[0].path).read_bytes() == content(40, 20_000)[0]  # refetched
+
+
+def test_videos_stream_in_parts_and_folders_are_published_whole(
+    tmp_path: Path, s3_url: str, s3_endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import app.storage.s3 as s3
+
+    monkeypatch.setattr(s3, "MULTIPART_BYTES", 5 * 1024 * 1024)  # S3's smallest part
+    web, worker = (
+        store(tmp_path, "web", s3_url, s3_endpoint),
+        store(tmp_path, "worker", s3_url, s3_endpoint),
+    )
+    video = os.urandom(12 * 1024 * 1024)
+    stored, sha, size = web.put_stream(io.BytesIO(video), ".mp4", "videos")
+    assert size == len(video) and sha == hashlib.sha256(video).hexdigest()
+    head = web.client.head_object(Bucket=web.bucket, Key=web.key(stored.path))
+    assert "-" in head["ETag"]  # a multipart upload: sent in parts, never one body in memory
+    assert hashlib.sha256(worker.absolute(stored.path).read_bytes()).hexdigest() == sha
+
+    folder = web.home / "models" / "student-v1"
+    (folder / "sub").mkdir(parents=True)
+    (folder / "model.safetensors").write_bytes(b"w" * 100)
+    (folder / "sub" / "cell.json").write_text("{}")
+    assert worker.folder("models/student-v1") is None and not worker.has_folder("models/student-v1")
+    web.publish("models/student-v1")
+    assert worker.has_folder("models/student-v1")
+    fetched = worker.folder("models/student-v1")
+    assert fetched is not None and (fetched / "sub" / "cell.json").read_text() == "{}"
+    (folder / "sub" / "cell.json").unlink()  # a job put the version's previous files back
+    (folder / "int8.onnx").write_bytes(b"q")
+    web.publish("models/student-v1")
+    fetched = worker.folder("models/student-v1")
+    assert fetched is not None
+    assert sorted(p.name for p in fetched.rglob("*") if p.is_file()) == [
+        "int8.onnx",
+        "model.safetensors",
+    ]
+    web.unpublish("models/student-v1")
+    assert bucket_keys(s3_endpoint, s3_url, "models/") == {}
+
+
+def test_settings_choose_the_backend_and_a_bad_store_is_one_sentence(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    from pydantic import ValidationError
+
+    from app.errors import ConfigurationError
+    from tests.helpers import make_settings
+
+    assert type(Storage.of(make_settings(tmp_path / "a"))) is Storage
+    remote = Storage.of(
+        make_settings(tmp_path / "b", storage_url=s3_url, s3_endpoint_url=s3_endpoint)
+    )
+    assert isinstance(remote, ObjectStorage) and remote.remote == s3_url
+    remote.check()
+    with pytest.raises(ValidationError, match="s3://bucket/prefix"):
+        make_settings(tmp_path / "c", storage_url="gs://bucket")
+    absent = Storage.of(
+        make_settings(
+            tmp_path / "d", storage_url="s3://no-such-bucket-wp", s3_endpoint_url=s3_endpoint
+        )
+    )
+    with pytest.raises(ConfigurationError, match="cannot be used"):
+        absent.check()
