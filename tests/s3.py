@@ -93,7 +93,7 @@ def s3_url(s3_endpoint: str) -> str:
 
 
 def bucket_keys(endpoint: str, url: str, prefix: str = "") -> dict[str, int]:
-    """Every key of the bucket of ``url`` under ``prefix`` (relative to the store), with its size."""
+    """Every key under ``prefix`` in the bucket of ``url`` (relative to the store): its size."""
     import boto3
 
     from app.storage.s3 import parse_url

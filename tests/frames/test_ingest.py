@@ -13,13 +13,13 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.storage import local as storage_module
 from app.config import Settings
 from app.frames import deletion, ingest, listing, sequences
 from app.housekeeping import FileCollector, sweep_orphan_files
 from app.main import create_app
 from app.models import Frame, Role
 from app.storage import Storage
+from app.storage import local as storage_module
 from tests.helpers import age_stored_files, auth, image_bytes
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from app.storage import local as storage_module
 from app.storage import Storage
+from app.storage import local as storage_module
 
 
 def _stored(storage: Storage, data: bytes) -> str:

@@ -1,0 +1,1 @@
+from tests.teacher_app import teacher_weights  # noqa: F401
