@@ -24,7 +24,9 @@ SERVICES = COMPOSE["services"]
 def test_compose_file_follows_the_compose_specification() -> None:
     resolved = {k: v for k, v in COMPOSE.items() if not k.startswith("x-")}
     parsed = PyCompose.from_yaml(yaml.safe_dump(resolved))
-    assert set(parsed.service_names()) == {"postgres", "redis", "api", "worker", "worker-gpu"}
+    assert set(parsed.service_names()) == {
+        *("postgres", "redis", "minio", "minio-bucket", "api", "worker", "worker-gpu")
+    }
 
 
 def test_services_depend_on_services_that_exist_and_become_healthy() -> None:
@@ -65,3 +67,22 @@ def test_commands_and_variables_exist_in_this_project() -> None:
         "postgresql+psycopg://"
     )
     assert SERVICES["worker"]["environment"]["WELDPOOL_QUEUE_URL"].startswith("redis://")
+
+
+def test_workers_share_no_volume_only_the_three_urls() -> None:
+    """Files go through MinIO's bucket: no weldpool container mounts a volume another one does,
+    and every one names the same database, queue and storage."""
+    mounts: dict[str, str] = {}
+    for name in ("api", "worker", "worker-gpu"):
+        service = SERVICES[name]
+        for volume in service.get("volumes") or []:
+            source = volume.split(":")[0]
+            assert source not in mounts, (name, mounts[source])
+            mounts[source] = name
+        env = service["environment"]
+        assert env["WELDPOOL_STORAGE_URL"] == "s3://weldpool/lab"
+        assert env["WELDPOOL_S3_ENDPOINT_URL"] == "http://minio:9000"
+        assert SERVICES[name]["depends_on"]["minio-bucket"]["condition"] == (
+            "service_completed_successfully"
+        )
+    assert "healthcheck" in SERVICES["minio"]

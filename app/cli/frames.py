@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
-from collections.abc import Callable
+import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +36,31 @@ def _import_sources(paths: tuple[str, ...]) -> tuple[list[Any], list[Any]]:
             elif candidate.suffix.lower() in IMAGE_SUFFIXES or not path.is_dir():
                 images.append(candidate)
     return images, videos
+
+
+@contextlib.contextmanager
+def _local(paths: tuple[str, ...], settings: Any) -> Iterator[tuple[str, ...]]:
+    """The arguments with ``s3://bucket/prefix`` ones copied to a temporary folder first
+    (streamed to disk, with WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials)."""
+    if not any(p.startswith("s3://") for p in paths):
+        yield paths
+        return
+    from app.storage.s3 import download_prefix, parse_url
+
+    with tempfile.TemporaryDirectory(prefix="weldpool-bucket-", dir=settings.home / "tmp") as tmp:
+        local = []
+        for index, path in enumerate(paths):
+            if path.startswith("s3://"):
+                try:
+                    parse_url(path)
+                except ValueError as exc:
+                    raise WeldpoolError(str(exc).replace("WELDPOOL_STORAGE_URL", path)) from None
+                click.echo(f"reading {path}", err=True)
+                folder = Path(tmp) / str(index)
+                folder.mkdir()
+                path = str(download_prefix(path, folder, settings.s3_endpoint_url))
+            local.append(path)
+        yield tuple(local)
 
 
 def _bar_progress(bar: Any, total: int) -> Callable[[float, str], None]:
@@ -69,12 +96,21 @@ def _bar_progress(bar: Any, total: int) -> Callable[[float, str], None]:
 def import_cmd(
     paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
 ) -> None:
-    """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files or directories."""
+    """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files, directories, or
+    a bucket (s3://bucket/prefix: every object under it)."""
+    settings = load_settings()
+    settings.ensure_home()
+    with _local(paths, settings) as local:
+        _import_frames(settings, local, sequence_name, every_nth, username)
+
+
+def _import_frames(
+    settings: Any, paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
+) -> None:
     from app.frames import ingest, sequences, videos
     from app.storage import Storage
     from app.users.service import user_by_name
 
-    settings = load_settings()
     images, video_paths = _import_sources(paths)
     if not images and not video_paths:
         raise WeldpoolError("No frames or videos found in the given paths.")
@@ -131,7 +167,7 @@ def import_cmd(
 
 
 @main.command("import-labels")
-@click.argument("path", type=click.Path(exists=True))
+@click.argument("path")
 @click.option(
     "--format",
     "fmt",
@@ -167,15 +203,37 @@ def import_labels_cmd(
     keypoint_role: str,
     username: str | None,
 ) -> None:
-    """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images."""
+    """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images,
+    here or in a bucket (s3://bucket/prefix)."""
+    from app.imports.service import checked_format
+
+    settings = load_settings()
+    checked_format(fmt)
+    settings.ensure_home()
+    with _local((path,), settings) as (local,):
+        if not Path(local).exists():
+            raise WeldpoolError(f"{path} does not exist.")
+        _import_labels(
+            settings, local, fmt, sequence_name, overwrite, category, keypoint_role, username
+        )
+
+
+def _import_labels(
+    settings: Any,
+    path: str,
+    fmt: str,
+    sequence_name: str | None,
+    overwrite: bool,
+    category: str | None,
+    keypoint_role: str,
+    username: str | None,
+) -> None:
     from app.frames import sequences
-    from app.imports.service import ImportOptions, checked_format, import_labels
+    from app.imports.service import ImportOptions, import_labels
     from app.storage import Storage
     from app.users.service import importing_user
     from weldpool_core.annotations import open_source
 
-    settings = load_settings()
-    checked_format(fmt)
     with open_sessions(settings)() as session:
         user = importing_user(session, username)
         sequence = (

@@ -26,9 +26,8 @@ def prepare_instance(settings: Settings) -> Path | None:
 
     Returns the file holding the new admin's password, or None when users already existed.
     """
-    from app.users.service import ensure_initial_admin
-
     from app.storage import Storage
+    from app.users.service import ensure_initial_admin
 
     settings.ensure_home()
     Storage.of(settings).check()
@@ -105,7 +104,6 @@ def serve(host: str, port: int, no_worker: bool) -> None:
 def worker(threads: int | None) -> None:
     """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM)."""
     from app.queue import JobQueue, run_standalone_worker
-
     from app.storage import Storage
 
     settings = load_settings()

@@ -524,3 +524,53 @@ def _reason(exc: Exception) -> str:
         error = response.get("Error", {})
         return f"{error.get('Code', '')} {error.get('Message', '')}".strip() or str(exc)
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def download_prefix(url: str, folder: Path, endpoint_url: str | None = None) -> Path:
+    """Copy ``s3://bucket/key`` (one object) or ``s3://bucket/prefix`` (every object under it,
+    its folders kept) into ``folder``, streamed to disk; returns the local file or folder
+    (named like the key's last part). For ``weldpool import`` and ``import-labels`` from a
+    bucket a camera rig or another tool fills, with the store's endpoint and credentials."""
+    import posixpath
+
+    from botocore.exceptions import BotoCoreError, ClientError
+
+    from app.errors import InvalidInputError
+
+    bucket, key = parse_url(url)
+    client = _client(endpoint_url, os.environ.get("AWS_REGION"))
+    target = folder / (posixpath.basename(key) or bucket)
+    try:
+        listed = [
+            item["Key"]
+            for page in client.get_paginator("list_objects_v2").paginate(
+                Bucket=bucket, Prefix=f"{key}/" if key else ""
+            )
+            for item in page.get("Contents", [])
+            if not item["Key"].endswith("/")
+        ]
+        if not listed and key:  # one object
+            _get_to(client, bucket, key, target)
+            return target
+        if not listed:
+            raise InvalidInputError(f"{url} holds no objects.")
+        for name in listed:
+            relative = posixpath.normpath(name.removeprefix(f"{key}/" if key else ""))
+            if relative.startswith(("../", "/")) or relative == "..":
+                continue  # a key that would land outside the folder
+            _get_to(client, bucket, name, target / relative)
+    except ClientError as exc:
+        if _missing(exc):
+            raise InvalidInputError(f"{url} does not exist.") from None
+        raise InvalidInputError(f"{url} cannot be read ({_reason(exc)}).") from None
+    except BotoCoreError as exc:
+        raise InvalidInputError(f"{url} cannot be read ({_reason(exc)}).") from None
+    return target
+
+
+def _get_to(client: Any, bucket: str, key: str, path: Path) -> None:
+    """Stream one object to ``path``."""
+    response = client.get_object(Bucket=bucket, Key=key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with response["Body"] as body, open(path, "wb") as handle:
+        shutil.copyfileobj(body, handle, CHUNK)
