@@ -376,22 +376,23 @@ class ObjectStorage(Storage):
             yield from page.get("Contents", [])
 
     def folder(self, relative: str) -> Path | None:
-        """A published folder, made complete on this machine: files it lacks (or holds at
-        another size) are fetched, files the bucket no longer has are removed."""
+        """A published folder, made complete on this machine: files it lacks, or holds older
+        than the bucket's (a job replaced them), are fetched. Files only this machine has stay
+        (an ONNX export a live view made from the weights)."""
         path = super().absolute(relative)
-        objects = {
-            self.relative_of(o["Key"]): int(o["Size"]) for o in self._objects(f"{relative}/")
-        }
+        objects = {self.relative_of(o["Key"]): o for o in self._objects(f"{relative}/")}
         if not objects:
             return path if path.is_dir() else None
-        for name, size in objects.items():
+        for name, item in objects.items():
             local = self.home / name
-            if not local.is_file() or local.stat().st_size != size:
-                self._download(name, local, restore=False)
-        for local in list(path.rglob("*")):
-            name = local.relative_to(self.home).as_posix()
-            if local.is_file() and name not in objects:
-                local.unlink(missing_ok=True)
+            stamp = item["LastModified"].timestamp()
+            try:
+                info = local.stat()
+                current = info.st_size == item["Size"] and info.st_mtime >= stamp - 1
+            except FileNotFoundError:
+                current = False
+            if not current and self._download(name, local, restore=False):
+                os.utime(local, (stamp, stamp))
         return path
 
     def has_folder(self, relative: str) -> bool:

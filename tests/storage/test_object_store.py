@@ -196,15 +196,20 @@ def test_videos_stream_in_parts_and_folders_are_published_whole(
     assert worker.has_folder("models/student-v1")
     fetched = worker.folder("models/student-v1")
     assert fetched is not None and (fetched / "sub" / "cell.json").read_text() == "{}"
-    (folder / "sub" / "cell.json").unlink()  # a job put the version's previous files back
+    (fetched / "student.onnx").write_bytes(b"made here from the weights")  # this machine's own
+    time.sleep(1.1)  # LastModified counts whole seconds
+    (folder / "sub" / "cell.json").write_text("[]")  # a job replaced a file (same size)
     (folder / "int8.onnx").write_bytes(b"q")
     web.publish("models/student-v1")
     fetched = worker.folder("models/student-v1")
     assert fetched is not None
     assert sorted(p.name for p in fetched.rglob("*") if p.is_file()) == [
+        "cell.json",
         "int8.onnx",
         "model.safetensors",
+        "student.onnx",
     ]
+    assert (fetched / "sub" / "cell.json").read_text() == "[]"  # the newer one
     web.unpublish("models/student-v1")
     assert bucket_keys(s3_endpoint, s3_url, "models/") == {}
 

@@ -1,0 +1,232 @@
+"""Object storage: ingest into an S3-protocol store against home, the S3 clients, and the
+object reads of a click from a cold cache.
+
+Starts moto's standalone S3 server on loopback (the one the tests use; MinIO or AWS are
+faster), then:
+
+1. ``POST /api/v1/frames`` of the 62 real WAAM frames (a throw-away `weldpool serve`, SQLite, no
+   worker) on the home folder and on ``WELDPOOL_STORAGE_URL=s3://…``: frames/s, median of
+   ``--runs``, and the ratio (goal ≥ 0.7×).
+2. The same 62 frames put straight into a bucket from 8 threads with boto3 (what the store
+   uses) and with obstore (when installed): the client's share of the time.
+3. A click on a frame in a web process whose cache is cold (a fresh home, the frame written by
+   another process): the object reads it makes (goal ≤ 1), and the second click's.
+
+    .venv/bin/python bench/storage.py [--runs 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+from common import SHARED_DATA, free_port, local_server
+from ingest import _salted, generated_frames, upload_run
+
+REAL_FRAMES = SHARED_DATA / "waam" / "frames"
+os.environ.setdefault("AWS_ACCESS_KEY_ID", "bench")
+os.environ.setdefault("AWS_SECRET_ACCESS_KEY", "bench")
+os.environ.setdefault("AWS_REGION", "us-east-1")
+
+
+@contextmanager
+def moto_server() -> Iterator[str]:
+    port = free_port()
+    server = Path(sys.executable).with_name("moto_server")
+    process = subprocess.Popen(
+        [str(server), "-H", "127.0.0.1", "-p", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    endpoint = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            try:
+                httpx.get(endpoint, timeout=1)
+                break
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        yield endpoint
+    finally:
+        process.terminate()
+        process.wait(timeout=20)
+
+
+def bucket(endpoint: str) -> str:
+    import boto3
+
+    name = f"bench-{time.time_ns()}"
+    boto3.client("s3", endpoint_url=endpoint).create_bucket(Bucket=name)
+    return name
+
+
+def ingest_rates(
+    frames: list[tuple[str, bytes]], env: dict[str, str], runs: int, salt: int
+) -> dict[tuple[int, int], float]:
+    """frames/s for (files per request, clients): all in one request, half on each of two."""
+    rates: dict[tuple[int, int], list[float]] = {}
+    configs = ((len(frames), 1), (-(-len(frames) // 2), 2))
+    with local_server(env, worker=False) as (url, token):
+        for run in range(runs):
+            for batch, clients in configs:
+                salted = _salted(frames, salt + run * 10 + clients)
+                rate = upload_run(url, token, salted, batch, clients, f"b-{time.time_ns()}")
+                rates.setdefault((batch, clients), []).append(rate)
+    return {config: statistics.median(values) for config, values in rates.items()}
+
+
+def client_put_ms(frames: list[tuple[str, bytes]], endpoint: str, runs: int) -> dict[str, float]:
+    """ms to put every frame into a bucket from 8 threads, per client, median of runs."""
+    import boto3
+    from botocore.config import Config
+
+    name = bucket(endpoint)
+    boto = boto3.client("s3", endpoint_url=endpoint, config=Config(max_pool_connections=16))
+    clients = {
+        "boto3": lambda key, data: boto.put_object(Bucket=name, Key=key, Body=data),
+    }
+    try:
+        import obstore
+        from obstore.store import S3Store
+
+        store = S3Store(
+            name,
+            endpoint=endpoint,
+            region="us-east-1",
+            access_key_id="bench",
+            secret_access_key="bench",
+            client_options={"allow_http": True},
+        )
+        clients["obstore"] = lambda key, data: obstore.put(store, key, data)
+    except ImportError:
+        print("(obstore is not installed: pip install obstore to compare it)")
+    timings: dict[str, list[float]] = {}
+    with ThreadPoolExecutor(8) as pool:
+        for run in range(runs):
+            for label, put in clients.items():
+                start = time.perf_counter()
+                keys = [(f"{label}/{run}/{n}", d) for n, d in frames]
+                list(pool.map(lambda item, p=put: p(*item), keys))
+                timings.setdefault(label, []).append((time.perf_counter() - start) * 1000)
+    return {label: statistics.median(values) for label, values in timings.items()}
+
+
+def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
+    """Object reads of clicks in a web process with a cold cache (the frame stored by another)."""
+    import torch
+    from fastapi.testclient import TestClient
+    from transformers import Sam2Config, Sam2Model
+
+    from app.config import Settings
+    from app.db import create_db_engine, create_session_factory, migrate
+    from app.main import create_app
+    from app.models import Role, User
+    from app.security import issue_token
+    from app.storage import Storage
+
+    url = f"s3://{bucket(endpoint)}/lab"
+    rows = []
+    with tempfile.TemporaryDirectory() as root:
+        torch.manual_seed(0)
+        Sam2Model(Sam2Config()).save_pretrained(Path(root) / "sam2")
+        database = f"sqlite:///{Path(root) / 'shared.sqlite3'}"
+        common = {
+            "database_url": database,
+            "storage_url": url,
+            "s3_endpoint_url": endpoint,
+            "sam2": str(Path(root) / "sam2"),
+            "device": "cpu",
+            "log_level": "WARNING",
+        }
+        writer = Settings(_env_file=None, home=Path(root) / "writer", **common)  # type: ignore[call-arg]
+        reader = Settings(_env_file=None, home=Path(root) / "reader", **common)  # type: ignore[call-arg]
+        engine = create_db_engine(database)
+        migrate(engine)
+        with create_session_factory(engine)() as session:
+            user = User(username="bench", password_hash="x", role=Role.admin)
+            session.add(user)
+            session.flush()
+            _, token = issue_token(session, user, "bench")
+            session.commit()
+        headers = {"Authorization": f"Bearer {token}"}
+        with TestClient(create_app(writer)) as http:
+            upload = [("files", ("frame.png", frame, "image/png"))]
+            frame_id = http.post("/api/v1/frames", files=upload, headers=headers).json()["stored"][
+                0
+            ]["id"]
+        store = Storage.of(reader)
+        with TestClient(create_app(reader)) as http:
+            for label in ("first click, cold cache", "second click"):
+                before = store.reads  # type: ignore[attr-defined]
+                start = time.perf_counter()
+                answer = http.post(
+                    f"/api/v1/frames/{frame_id}/segment",
+                    json={"points": [{"x": 640, "y": 400}]},
+                    headers=headers,
+                )
+                answer.raise_for_status()
+                elapsed = (time.perf_counter() - start) * 1000
+                rows.append((label, store.reads - before, elapsed))  # type: ignore[attr-defined]
+        engine.dispose()
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args()
+    if REAL_FRAMES.is_dir():
+        frames = [(p.name, p.read_bytes()) for p in sorted(REAL_FRAMES.glob("*.png"))]
+        name = "62 real WAAM frames"
+    else:
+        print(f"({REAL_FRAMES} is absent: 62 generated frames instead)")
+        frames, name = generated_frames(62), "62 generated frames"
+    size = sum(len(d) for _, d in frames) / len(frames) / 1024
+    with moto_server() as endpoint:
+        local = ingest_rates(frames, {}, args.runs, 1000)
+        s3_env = {
+            "WELDPOOL_STORAGE_URL": f"s3://{bucket(endpoint)}/lab",
+            "WELDPOOL_S3_ENDPOINT_URL": endpoint,
+        }
+        remote = ingest_rates(frames, s3_env, args.runs, 2000)
+        print(
+            f"\nPOST /api/v1/frames, {name} ({size:.0f} KiB each), median of {args.runs} runs; "
+            "S3: moto's server on loopback"
+        )
+        print(
+            f"{'files/request':>13} {'clients':>7} {'home frames/s':>14} {'S3 frames/s':>12} "
+            f"{'S3 / home':>10}"
+        )
+        for (batch, clients), rate in local.items():
+            other = remote[(batch, clients)]
+            print(f"{batch:>13} {clients:>7} {rate:>14.1f} {other:>12.1f} {other / rate:>9.2f}x")
+
+        puts = client_put_ms(frames, endpoint, args.runs)
+        print(f"\n{len(frames)} frames put into a bucket from 8 threads, median of {args.runs}")
+        print(f"{'client':<8} {'ms':>8} {'frames/s':>9}")
+        for label, ms in puts.items():
+            print(f"{label:<8} {ms:>8.1f} {len(frames) / ms * 1000:>9.1f}")
+
+        frame = frames[len(frames) // 2][1]
+        print(
+            "\nA click in a web process with a cold cache (the frame stored by another process; "
+            f"sha {hashlib.sha256(frame).hexdigest()[:8]}, full-size random SAM2)"
+        )
+        print(f"{'click':<26} {'object reads':>12} {'ms':>8}")
+        for label, reads, ms in click_reads(endpoint, frame):
+            print(f"{label:<26} {reads:>12} {ms:>8.0f}")
+
+
+if __name__ == "__main__":
+    main()
