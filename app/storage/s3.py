@@ -388,7 +388,7 @@ class ObjectStorage(Storage):
             stamp = item["LastModified"].timestamp()
             try:
                 info = local.stat()
-                current = info.st_size == item["Size"] and info.st_mtime >= stamp - 1
+                current = info.st_size == item["Size"] and info.st_mtime >= stamp
             except FileNotFoundError:
                 current = False
             if not current and self._download(name, local, restore=False):
