@@ -237,3 +237,61 @@ def test_settings_choose_the_backend_and_a_bad_store_is_one_sentence(
     )
     with pytest.raises(ConfigurationError, match="cannot be used"):
         absent.check()
+
+
+def test_serve_and_worker_refuse_a_store_they_cannot_use_in_one_line(
+    tmp_path: Path, s3_endpoint: str
+) -> None:
+    from tests.helpers import run_cli
+
+    env = {
+        "WELDPOOL_HOME": str(tmp_path / "home"),
+        "WELDPOOL_STORAGE_URL": "s3://no-such-bucket-weldpool/lab",
+        "WELDPOOL_S3_ENDPOINT_URL": s3_endpoint,
+    }
+    for command in (("worker",), ("serve", "--port", "1")):
+        done = run_cli(*command, env=env, timeout=60)
+        assert done.returncode == 2, done.stderr
+        last = done.stderr.strip().splitlines()[-1]
+        assert last.startswith("weldpool: The object store s3://no-such-bucket-weldpool/lab")
+        assert "Traceback" not in done.stderr
+    bad = run_cli("worker", env={**env, "WELDPOOL_STORAGE_URL": "ftp://x"}, timeout=60)
+    assert bad.returncode == 2 and "s3://bucket/prefix" in bad.stderr
+
+
+def test_a_store_that_stops_answering_is_a_503_and_stores_nothing(
+    tmp_path: Path, session_factory: object, settings: object
+) -> None:
+    import cv2
+    import numpy as np
+    import sqlalchemy as sa
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+    from app.models import Frame, Role, User
+    from app.security import issue_token
+    from tests.helpers import auth, make_settings
+    from tests.web.server import free_port
+
+    dead = f"http://127.0.0.1:{free_port()}"  # nothing listens there
+    broken = make_settings(
+        tmp_path / "web",
+        database_url=settings.resolved_database_url,  # type: ignore[attr-defined]
+        storage_url="s3://gone/lab",
+        s3_endpoint_url=dead,
+    )
+    with session_factory() as session:  # type: ignore[operator]
+        user = User(username="lead", password_hash="x", role=Role.admin)
+        session.add(user)
+        session.flush()
+        _, token = issue_token(session, user, "t")
+        session.commit()
+    png = cv2.imencode(".png", np.full((32, 48), 90, np.uint8))[1].tobytes()
+    with TestClient(create_app(broken)) as client:
+        answer = client.post(
+            "/api/v1/frames", files=[("files", ("a.png", png, "image/png"))], headers=auth(token)
+        )
+    assert answer.status_code == 503, answer.text
+    assert answer.json()["detail"].startswith("The object store did not answer")
+    with session_factory() as session:  # type: ignore[operator]
+        assert session.scalar(sa.select(sa.func.count(Frame.id))) == 0
