@@ -205,35 +205,44 @@ class ObjectStorage(Storage):
 
     def put(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StoredFile:
         relative = self.relative_path(area, sha256, extension)
-        if self._claimed(relative):
+        claimed = self._create_or_claim(data, relative)
+        if claimed is None:
             return StoredFile(relative, created=False)
-        claimed = self._put_bytes(data, relative)
         self._cache_place(self._write_temporary(data), relative)
         return StoredFile(relative, created=True, claimed_ns=claimed)
 
-    def _put_bytes(self, data: bytes, relative: str) -> int:
-        claimed = time.time_ns()
-        self.client.put_object(
-            Bucket=self.bucket,
-            Key=self.key(relative),
-            Body=data,
-            Metadata={"claimed": str(claimed)},
-        )
-        return claimed
+    def _create_or_claim(self, data: bytes, relative: str) -> int | None:
+        """Upload content unless its key exists (one conditional PUT, ``If-None-Match: *``);
+        returns the new object's claim time, or None when the stored one was claimed."""
+        from botocore.exceptions import ClientError
+
+        for _ in range(8):  # another writer's object can appear (or go) between two requests
+            claimed = time.time_ns()
+            try:
+                self.client.put_object(
+                    Bucket=self.bucket,
+                    Key=self.key(relative),
+                    Body=data,
+                    Metadata={"claimed": str(claimed)},
+                    IfNoneMatch="*",
+                )
+                return claimed
+            except ClientError as exc:
+                code = str(exc.response.get("Error", {}).get("Code", ""))
+                if code not in {"PreconditionFailed", "ConditionalRequestConflict", "412"}:
+                    raise
+            if self._claimed(relative):
+                return None
+        raise OSError(f"{relative} could neither be claimed nor written; check the store.")
 
     def stage(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StagedFile:
         """Upload new content now (in the caller's thread) and keep a cache copy aside;
         ``install_many`` only puts the copy in place, ``unstage`` withdraws the upload."""
         relative = self.relative_path(area, sha256, extension)
-        if self._claimed(relative):
+        claimed = self._create_or_claim(data, relative)
+        if claimed is None:
             return StagedFile(relative, None)
-        temporary = self._write_temporary(data)
-        try:
-            claimed = self._put_bytes(data, relative)
-        except BaseException:
-            temporary.unlink(missing_ok=True)
-            raise
-        return StagedFile(relative, temporary, uploaded_ns=claimed)
+        return StagedFile(relative, self._write_temporary(data), uploaded_ns=claimed)
 
     def unstage(self, staged: Iterable[StagedFile]) -> None:
         items = list(staged)
