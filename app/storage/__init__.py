@@ -11,12 +11,14 @@ from app.storage.local import (
     Storage,
     StoredFile,
 )
+from app.storage.s3 import ObjectStorage  # registers the s3:// backend (boto3 loads on first use)
 
 __all__ = [
     "CHUNK",
     "DEFAULT_GRACE_S",
     "EXPORTS_DIR",
     "SHARED_AREAS",
+    "ObjectStorage",
     "StagedFile",
     "Storage",
     "StoredFile",

@@ -55,6 +55,11 @@ many files may hold its first ones long before it commits."""
 _ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
 
 
+REMOTE_BACKENDS: dict[str, Callable[[Settings], Storage]] = {}
+"""URL scheme → the store of an instance whose WELDPOOL_STORAGE_URL has it (``app.storage.s3``
+registers ``s3``; the package imports it, so it is there whenever this module is)."""
+
+
 @dataclass(frozen=True)
 class StagedFile:
     """Content written and flushed under a temporary name, not yet in the store."""
@@ -90,10 +95,8 @@ class Storage:
     @classmethod
     def of(cls, settings: Settings) -> Storage:
         """The store of an instance (WELDPOOL_STORAGE_URL), with its grace period."""
-        if settings.storage_url:
-            from app.storage.s3 import ObjectStorage
-
-            return ObjectStorage.for_settings(settings)
+        if settings.storage_url:  # s3://… (the settings allow no other scheme)
+            return REMOTE_BACKENDS[settings.storage_url.split("://", 1)[0]](settings)
         return cls(settings.home, settings.file_grace_s)
 
     def check(self) -> None:

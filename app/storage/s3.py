@@ -41,6 +41,7 @@ from urllib.parse import urlparse
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
+    REMOTE_BACKENDS,
     SHARED_AREAS,
     StagedFile,
     Storage,
@@ -518,6 +519,13 @@ class ObjectStorage(Storage):
             except FileNotFoundError:
                 continue
         return removed
+
+
+def _for_settings(settings: Settings) -> Storage:
+    return ObjectStorage.for_settings(settings)
+
+
+REMOTE_BACKENDS["s3"] = _for_settings
 
 
 @lru_cache(maxsize=8)
