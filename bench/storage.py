@@ -40,8 +40,18 @@ os.environ.setdefault("AWS_SECRET_ACCESS_KEY", "bench")
 os.environ.setdefault("AWS_REGION", "us-east-1")
 
 
+SERVER_PID = 0
+
+
+def server_cpu_s() -> float:
+    """CPU seconds the S3 server process has used (it shares this machine's two cores)."""
+    fields = Path(f"/proc/{SERVER_PID}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @contextmanager
 def moto_server() -> Iterator[str]:
+    global SERVER_PID
     port = free_port()
     server = Path(sys.executable).with_name("moto_server")
     process = subprocess.Popen(
@@ -49,6 +59,7 @@ def moto_server() -> Iterator[str]:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+    SERVER_PID = process.pid
     endpoint = f"http://127.0.0.1:{port}"
     try:
         for _ in range(300):
@@ -86,8 +97,11 @@ def ingest_rates(
     return {config: statistics.median(values) for config, values in rates.items()}
 
 
-def client_put_ms(frames: list[tuple[str, bytes]], endpoint: str, runs: int) -> dict[str, float]:
-    """ms to put every frame into a bucket from 8 threads, per client, median of runs."""
+def client_put_ms(
+    frames: list[tuple[str, bytes]], endpoint: str, runs: int
+) -> dict[str, tuple[float, float, float]]:
+    """(wall ms, client CPU ms, server CPU ms) to put every frame into a bucket from 8 threads,
+    per client, medians of runs."""
     import boto3
     from botocore.config import Config
 
@@ -111,15 +125,21 @@ def client_put_ms(frames: list[tuple[str, bytes]], endpoint: str, runs: int) -> 
         clients["obstore"] = lambda key, data: obstore.put(store, key, data)
     except ImportError:
         print("(obstore is not installed: pip install obstore to compare it)")
-    timings: dict[str, list[float]] = {}
+    timings: dict[str, list[tuple[float, float, float]]] = {}
     with ThreadPoolExecutor(8) as pool:
         for run in range(runs):
             for label, put in clients.items():
+                server, client = server_cpu_s(), time.process_time()
                 start = time.perf_counter()
                 keys = [(f"{label}/{run}/{n}", d) for n, d in frames]
                 list(pool.map(lambda item, p=put: p(*item), keys))
-                timings.setdefault(label, []).append((time.perf_counter() - start) * 1000)
-    return {label: statistics.median(values) for label, values in timings.items()}
+                wall = (time.perf_counter() - start) * 1000
+                used = ((time.process_time() - client) * 1000, (server_cpu_s() - server) * 1000)
+                timings.setdefault(label, []).append((wall, *used))
+    return {
+        label: tuple(statistics.median(v[i] for v in values) for i in range(3))  # type: ignore[misc]
+        for label, values in timings.items()
+    }
 
 
 def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
@@ -214,9 +234,14 @@ def main() -> None:
 
         puts = client_put_ms(frames, endpoint, args.runs)
         print(f"\n{len(frames)} frames put into a bucket from 8 threads, median of {args.runs}")
-        print(f"{'client':<8} {'ms':>8} {'frames/s':>9}")
-        for label, ms in puts.items():
-            print(f"{label:<8} {ms:>8.1f} {len(frames) / ms * 1000:>9.1f}")
+        print(
+            f"{'client':<8} {'ms':>8} {'frames/s':>9} {'client CPU ms':>14} {'server CPU ms':>14}"
+        )
+        for label, (ms, client_cpu, server_cpu) in puts.items():
+            print(
+                f"{label:<8} {ms:>8.1f} {len(frames) / ms * 1000:>9.1f} {client_cpu:>14.0f} "
+                f"{server_cpu:>14.0f}"
+            )
 
         frame = frames[len(frames) // 2][1]
         print(
