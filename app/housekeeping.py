@@ -72,13 +72,15 @@ def prune_old_files(folder: Path, older_than_s: float = 86_400.0, pattern: str =
     return removed
 
 
-def prune_shared(storage: Storage, area: str, older_than_s: float = 86_400.0) -> int:
+def prune_shared(
+    storage: Storage, area: str, older_than_s: float = 86_400.0, pattern: str = "*"
+) -> int:
     """Remove the files of a shared area (export zips, uploaded imports) older than a day,
     here and in the object store."""
-    removed = prune_old_files(storage.home / area, older_than_s)
+    removed = prune_old_files(storage.home / area, older_than_s, pattern)
     return removed + storage.prune_published(area, older_than_s)
 
 
 def prune_exports(storage: Storage, older_than_s: float = 86_400.0) -> int:
     """Remove export zips older than a day (an export job's download is kept that long)."""
-    return prune_shared(storage, EXPORTS_DIR, older_than_s)
+    return prune_shared(storage, EXPORTS_DIR, older_than_s, "*.zip")

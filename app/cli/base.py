@@ -41,6 +41,14 @@ def friendly_errors(func: F) -> F:
                 f"The database is unreachable ({str(exc.orig).strip().splitlines()[0]}); "
                 "check WELDPOOL_DATABASE_URL."
             )
+        except Exception as exc:
+            if not type(exc).__module__.startswith(("botocore", "boto3", "s3transfer")):
+                raise
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            fail(
+                f"The object store did not answer as expected ({first}); check "
+                "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."
+            )
 
     return wrapper  # type: ignore[return-value]
 

@@ -9,6 +9,7 @@ import click
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory, migrate
+from app.errors import WeldpoolError
 
 
 @main.command("migrate")
@@ -111,3 +112,28 @@ def worker(threads: int | None) -> None:
     Storage.of(settings).check()
     queue = JobQueue(settings, open_sessions(settings))
     run_standalone_worker(queue, threads or settings.workers)
+
+
+@main.group("storage")
+def storage_group() -> None:
+    """The object store (WELDPOOL_STORAGE_URL)."""
+
+
+@storage_group.command("push")
+@friendly_errors
+def storage_push() -> None:
+    """Upload what WELDPOOL_HOME holds (frames, videos, masks, models, exports) to the object
+    store, so an instance that kept its files in home can move to it."""
+    from app.storage import ObjectStorage, Storage
+
+    settings = load_settings()
+    storage = Storage.of(settings)
+    if not isinstance(storage, ObjectStorage):
+        raise WeldpoolError("WELDPOOL_STORAGE_URL is not set: there is no store to push to.")
+    click.echo(f"uploading {settings.home}'s files to {storage.remote}", err=True)
+    uploaded, present = storage.push()
+    click.echo(
+        f"{uploaded} files uploaded to {storage.remote}, {present} were there already; "
+        f"{settings.home} is now its cache",
+        err=True,
+    )

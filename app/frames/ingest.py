@@ -10,6 +10,7 @@ import threading
 from collections.abc import Sequence as Seq
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import sqlalchemy as sa
@@ -18,7 +19,7 @@ from sqlalchemy.orm import Session
 from app.errors import InvalidInputError
 from app.frames.sequences import get_sequence
 from app.models import Frame, FrameStatus, Split, User
-from app.storage import StagedFile, Storage, StoredFile
+from app.storage import StagedFile, Storage, StoredFile, best_effort
 from weldpool_core.io import ImageInfo, check_image
 
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
@@ -236,7 +237,7 @@ def record_frames(
     try:
         return _record_staged(session, storage, frames, staged, sequence_id, user, video_id)
     finally:
-        storage.unstage(staged.values())
+        best_effort("unstage", partial(storage.unstage, list(staged.values())))
 
 
 def _record_staged(

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 from app.db import session_scope
 from app.imports.service import ImportOptions, import_labels, upload_name
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import User
-from app.storage import Storage
+from app.storage import Storage, best_effort
 from weldpool_core.annotations import open_upload
 from weldpool_core.errors import InvalidInputError
 
@@ -40,7 +41,7 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
                 source.close()
     finally:
         storage.home.joinpath(name).unlink(missing_ok=True)
-        storage.unpublish(name)
+        best_effort("unpublish", partial(storage.unpublish, name))
     ctx.summary = (
         f"{counted(report.labels, 'label')} and {counted(report.keypoints, 'keypoint set')} "
         f"imported, {counted(report.frames, 'new frame')}; {len(report.skipped)} skipped, "

@@ -154,8 +154,11 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
     target.parent.mkdir(parents=True, exist_ok=True)
     os.replace(written, target)
     storage.publish(export_name(ctx.job_id))  # streamed to the object store, if there is one
-    ctx.summary = f"{ctx.params['format']} export ready: {target.stat().st_size / 1e6:.1f} MB"
-    return {"format": ctx.params["format"], "size_bytes": target.stat().st_size}
+    size = target.stat().st_size
+    if storage.remote:  # the web process serves it from the bucket: this machine keeps none
+        target.unlink()
+    ctx.summary = f"{ctx.params['format']} export ready: {size / 1e6:.1f} MB"
+    return {"format": ctx.params["format"], "size_bytes": size}
 
 
 @job_handler("propagate", max_attempts=1)

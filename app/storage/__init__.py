@@ -10,6 +10,7 @@ from app.storage.local import (
     StagedFile,
     Storage,
     StoredFile,
+    best_effort,
 )
 from app.storage.s3 import ObjectStorage  # registers the s3:// backend (boto3 loads on first use)
 
@@ -22,4 +23,5 @@ __all__ = [
     "StagedFile",
     "Storage",
     "StoredFile",
+    "best_effort",
 ]

@@ -55,6 +55,18 @@ many files may hold its first ones long before it commits."""
 _ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
 
 
+def best_effort(what: str, action: Callable[[], object]) -> None:
+    """Tidying after the outcome is settled (a commit made, or an error being raised): a
+    failure is logged, never raised, so it neither fails what succeeded nor hides the first
+    error; the collector or the day's pruning finishes it."""
+    try:
+        action()
+    except Exception as exc:
+        import structlog
+
+        structlog.get_logger(__name__).warning("storage.tidy_failed", what=what, error=str(exc))
+
+
 REMOTE_BACKENDS: dict[str, Callable[[Settings], Storage]] = {}
 """URL scheme → the store of an instance whose WELDPOOL_STORAGE_URL has it (``app.storage.s3``
 registers ``s3``; the package imports it, so it is there whenever this module is)."""
@@ -119,9 +131,10 @@ class Storage:
         """Whether a stored folder exists, without fetching it."""
         return self.absolute(relative).is_dir()
 
-    def publish(self, relative: str) -> None:
+    def publish(self, relative: str, names: Iterable[str] | None = None) -> None:
         """Make a file or folder written under home visible to every process of the instance
-        (a no-op here: they share home); called before the row that names it is committed."""
+        (a no-op here: they share home); called before the row that names it is committed.
+        ``names``: only those files of the folder changed."""
 
     def unpublish(self, relative: str) -> None:
         """Withdraw what ``publish`` shared (a no-op here; the caller removes the local copy)."""

@@ -38,6 +38,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
+import structlog
+
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
@@ -51,13 +53,20 @@ from app.storage.local import (
 if TYPE_CHECKING:
     from app.config import Settings
 
+log = structlog.get_logger(__name__)
 CONTENT_AREAS = ("frames", "videos", "artefacts")
 """Content-addressed areas: read through the cache by ``absolute`` and bounded by it."""
 TRASH = "trash"
+MARKER = "cache/storage-url"
+"""In a home that is a store's cache: the store's URL (``check`` refuses a home holding files of
+its own, which the cache would evict before any other machine saw them)."""
 MULTIPART_BYTES = 64 * 1024 * 1024
 """Uploads and downloads above this go in parts (videos, exports); frames in one request."""
 TOUCH_EVERY_S = 60.0
 """A cached file read again is marked recent at most once a minute (the cache's LRU order)."""
+IN_USE_S = 600.0
+"""The cache never evicts a file written, fetched or read within this long: a request or job
+that was just handed its path is still reading it (the bound may be passed meanwhile)."""
 _PUBLISH_POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="storage-publish")
 
 
@@ -120,6 +129,7 @@ class ObjectStorage(Storage):
         """Objects read from the bucket by this store (``bench/storage.py`` counts a click's)."""
         self._since_trim = 0
         self._lock = threading.Lock()
+        self._is_cache()  # marks a fresh home as this store's cache
 
     @classmethod
     def for_settings(cls, settings: Settings) -> ObjectStorage:
@@ -149,6 +159,40 @@ class ObjectStorage(Storage):
                 f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
                 "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."
             ) from None
+        if not self._is_cache():
+            own = next((a for a in SHARED_AREAS if any(_files(self.home / a))), "files")
+            raise ConfigurationError(
+                f"WELDPOOL_HOME ({self.home}) holds {own} of its own that {self.remote} may "
+                "lack; upload them first with `weldpool storage push`, or give this machine an "
+                "empty home."
+            )
+
+    def _is_cache(self) -> bool:
+        """Whether home is this store's cache: marked so, or marked now when it holds no
+        shared files of its own (a fresh home)."""
+        marker = self.home / MARKER
+        with contextlib.suppress(FileNotFoundError):
+            return marker.read_text().strip() == self.remote
+        if any(any(_files(self.home / area)) for area in SHARED_AREAS):
+            return False
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text(f"{self.remote}\n")
+        return True
+
+    def push(self) -> tuple[int, int]:
+        """Upload every shared file of home the bucket lacks (an instance that kept its files
+        in home, moving to the store); returns (uploaded, already there). Home is then this
+        store's cache."""
+        present = {self.relative_of(o["Key"]) for a in SHARED_AREAS for o in self._objects(f"{a}/")}
+        local = [
+            p.relative_to(self.home).as_posix() for a in SHARED_AREAS for p in _files(self.home / a)
+        ]
+        missing = [r for r in local if r not in present and not r.startswith("models/.work")]
+        now = time.time_ns()
+        list(_PUBLISH_POOL.map(lambda r: self._upload_file(self.home / r, r, now), missing))
+        (self.home / MARKER).parent.mkdir(parents=True, exist_ok=True)
+        (self.home / MARKER).write_text(f"{self.remote}\n")
+        return len(missing), len(local) - len(missing)
 
     # --- claims and writes --------------------------------------------------------------
 
@@ -262,9 +306,11 @@ class ObjectStorage(Storage):
             for item in staged:
                 if item.temporary is None:
                     results.append(StoredFile(item.relative, created=False))
-                elif item.uploaded_ns:
+                elif item.uploaded_ns and time.time_ns() - item.uploaded_ns < self.grace_s * 5e8:
                     self._cache_place(item.temporary, item.relative)
                     results.append(StoredFile(item.relative, True, item.uploaded_ns))
+                elif item.uploaded_ns:  # uploaded more than half a grace period ago: claim anew
+                    results.append(self._install(item.temporary, item.relative))
                 else:
                     results.append(self._install(item.temporary, item.relative))
         except BaseException:
@@ -355,7 +401,7 @@ class ObjectStorage(Storage):
 
     def trim_cache(self) -> int:
         """Remove the least recently used cached content files until the cache holds at
-        most 80 % of its bound; returns the bytes freed."""
+        most 80 % of its bound, never one used within ``IN_USE_S``; returns the bytes freed."""
         files = []
         for area in CONTENT_AREAS:
             root = self.home / area
@@ -369,9 +415,9 @@ class ObjectStorage(Storage):
         total = sum(size for _, size, _ in files)
         if total <= self.cache_bytes:
             return 0
-        freed = 0
-        for _, size, path in sorted(files):
-            if total - freed <= 0.8 * self.cache_bytes:
+        freed, recent = 0, time.time() - IN_USE_S
+        for changed, size, path in sorted(files):
+            if total - freed <= 0.8 * self.cache_bytes or changed > recent:
                 break
             path.unlink(missing_ok=True)
             freed += size
@@ -411,18 +457,39 @@ class ObjectStorage(Storage):
         )
         return bool(response.get("KeyCount")) or super().has_folder(relative)
 
-    def publish(self, relative: str) -> None:
-        """Upload a file, or a folder's files (and withdraw what the folder no longer has),
-        under their relative paths; returns once every upload is complete."""
+    def publish(self, relative: str, names: Iterable[str] | None = None) -> None:
+        """Upload a file, or a folder's files, under their relative paths; returns once every
+        upload is complete. A folder is made to match this machine's copy (keys it lacks are
+        withdrawn) — unless ``names`` are given: then only those files of it are uploaded, or
+        withdrawn where this copy has none (another job may be changing the folder's others).
+        Each uploaded file's modification time becomes its object's, so ``folder`` knows it
+        current."""
         path = super().absolute(relative)
         now = time.time_ns()
         if path.is_file():
             self._upload_file(path, relative, now)
             return
-        files = {p.relative_to(self.home).as_posix(): p for p in path.rglob("*") if p.is_file()}
+        if not path.is_dir():
+            raise FileNotFoundError(f"{relative} is not on this machine; nothing to publish.")
+        if names is None:
+            files = {p.relative_to(self.home).as_posix(): p for p in path.rglob("*") if p.is_file()}
+            gone = [
+                o["Key"]
+                for o in self._objects(f"{relative}/")
+                if self.relative_of(o["Key"]) not in files
+            ]
+        else:
+            chosen = {f"{relative}/{name}": path / name for name in names}
+            files = {key: local for key, local in chosen.items() if local.is_file()}
+            gone = [self.key(key) for key in chosen if key not in files]
         list(_PUBLISH_POOL.map(lambda i: self._upload_file(i[1], i[0], now), files.items()))
-        stale = [o["Key"] for o in self._objects(f"{relative}/")]
-        self._delete_keys(k for k in stale if self.relative_of(k) not in files)
+        self._delete_keys(gone)
+        for item in self._objects(f"{relative}/"):  # local times := the bucket's
+            local = files.get(self.relative_of(item["Key"]))
+            if local is not None:
+                stamp = item["LastModified"].timestamp()
+                with contextlib.suppress(FileNotFoundError):
+                    os.utime(local, (stamp, stamp))
 
     def unpublish(self, relative: str) -> None:
         keys = [o["Key"] for o in self._objects(f"{relative}/")]
@@ -474,12 +541,19 @@ class ObjectStorage(Storage):
         claimed = self._claim_ns(relative)
         if claimed is None or not unclaimed(claimed):
             return False
+        from botocore.exceptions import ClientError
+
         key = self.key(relative)
-        self.client.copy_object(
-            Bucket=self.bucket,
-            Key=self.key(f"{TRASH}/{relative}"),
-            CopySource={"Bucket": self.bucket, "Key": key},
-        )
+        try:
+            self.client.copy_object(
+                Bucket=self.bucket,
+                Key=self.key(f"{TRASH}/{relative}"),
+                CopySource={"Bucket": self.bucket, "Key": key},
+            )
+        except ClientError as exc:
+            if _missing(exc):  # another collector (or deletion) took it meanwhile
+                return False
+            raise
         self.client.delete_object(Bucket=self.bucket, Key=key)
         (self.home / relative).unlink(missing_ok=True)
         return True
@@ -491,14 +565,20 @@ class ObjectStorage(Storage):
         purged a grace period after they were trashed; then objects of ``areas`` no row names
         and nobody claimed for ``older_than_s`` (the grace period by default) are trashed.
         ``known`` must be read before the sweep starts."""
+        from botocore.exceptions import BotoCoreError, ClientError
+
         grace = self.grace_s if older_than_s is None else older_than_s
         purge_before = time.time() - self.grace_s
         purged = []
         for item in self._objects(f"{TRASH}/"):
             relative = self.relative_of(item["Key"]).removeprefix(f"{TRASH}/")
-            if relative in known:
-                self._restore(relative)
-            elif item["LastModified"].timestamp() >= purge_before:
+            try:
+                if relative in known:
+                    self._restore(relative)
+                elif item["LastModified"].timestamp() >= purge_before:
+                    continue
+            except (BotoCoreError, ClientError) as exc:  # this object waits for the next sweep
+                log.warning("storage.sweep_failed", path=relative, error=str(exc))
                 continue
             purged.append(item["Key"])
         self._delete_keys(purged)
@@ -509,8 +589,11 @@ class ObjectStorage(Storage):
                 relative = self.relative_of(item["Key"])
                 if relative in known:  # the others are few: each is looked at (HEAD)
                     continue
-                if self._remove_if(relative, lambda ns: ns < cutoff_ns):
-                    removed.append(relative)
+                try:
+                    if self._remove_if(relative, lambda ns: ns < cutoff_ns):
+                        removed.append(relative)
+                except (BotoCoreError, ClientError) as exc:
+                    log.warning("storage.sweep_failed", path=relative, error=str(exc))
         parts_cutoff = time.time() - max(PART_LIFETIME_S, self.grace_s)
         for stale in self.tmp.glob("*.part") if self.tmp.is_dir() else ():
             try:
@@ -534,6 +617,11 @@ def _store(
 ) -> ObjectStorage:
     """One store per process and configuration, so its cache accounting is shared."""
     return ObjectStorage(home, url, grace_s, endpoint_url, cache_bytes)
+
+
+def _files(root: Path) -> Iterator[Path]:
+    """The files under ``root`` (none when it is absent)."""
+    return (p for p in root.rglob("*") if p.is_file()) if root.is_dir() else iter(())
 
 
 def _reason(exc: Exception) -> str:

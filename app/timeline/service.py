@@ -36,7 +36,7 @@ _cache: OrderedDict[str, PoolShape] = OrderedDict()
 
 def _shape(storage: Storage, mask_path: str) -> PoolShape:
     """A mask file's shape (area, centroid, axis, hull), decoded once per process."""
-    key = str(storage.absolute(mask_path))
+    key = f"{storage.home}:{mask_path}"  # never a fetch: the shape may be cached
     with _cache_lock:
         if key in _cache:
             _cache.move_to_end(key)

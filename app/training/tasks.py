@@ -19,7 +19,7 @@ from app.models import Frame, Job, ModelVersion
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.queue import latest_teacher_proposal
 from app.proposals.record import STUDENT, record_proposal
-from app.storage import Storage
+from app.storage import Storage, best_effort
 from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
@@ -124,8 +124,8 @@ def _record_version(
             session.commit()
         except BaseException:
             session.rollback()
-            storage.unpublish(f"models/{name}")
             shutil.rmtree(final, ignore_errors=True)
+            best_effort("unpublish", partial(storage.unpublish, f"models/{name}"))
             raise
     return version, final
 
@@ -188,8 +188,9 @@ def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
     with ctx.session_factory() as session:
         session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
         session.commit()
-    Storage.of(ctx.settings).unpublish(folder.relative_to(ctx.settings.home).as_posix())
     shutil.rmtree(folder, ignore_errors=True)
+    relative = folder.relative_to(ctx.settings.home).as_posix()
+    best_effort("unpublish", partial(Storage.of(ctx.settings).unpublish, relative))
 
 
 @job_handler(service.SEQUENTIAL_KIND)
@@ -247,7 +248,9 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
             "seconds": round(result.seconds, 1),
             "measured": measured,
         }
-        storage.publish(_stored(storage, root))  # the cell, on every machine, before its record
+        # The cell, on every machine, before its record (its files only: an int8 job may be
+        # changing the version's others).
+        storage.publish(_stored(storage, root), _cell_names())
         with ctx.session_factory() as session:
             version = session.get(ModelVersion, model_id)
             if version is None:  # deleted while training: its folder went with it
@@ -256,12 +259,23 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
             session.commit()
     except BaseException:
         _restore_cell_files(root, previous)
-        storage.publish(_stored(storage, root))
+        best_effort("publish", partial(storage.publish, _stored(storage, root), _cell_names()))
         raise
     ctx.summary = f"{name}: sequential cell trained on {counted(result.windows, 'window')}; " + (
         _sequential_verdict(measured)
     )
     return {"model_version_id": model_id, "sequential": record}
+
+
+def _cell_names() -> tuple[str, ...]:
+    """The files of a version's sequential cell."""
+    from weldpool_core.student.sequential import (
+        SEQUENTIAL_CONFIG,
+        SEQUENTIAL_ONNX,
+        SEQUENTIAL_WEIGHTS,
+    )
+
+    return (SEQUENTIAL_WEIGHTS, SEQUENTIAL_CONFIG, SEQUENTIAL_ONNX)
 
 
 def _stored(storage: Storage, folder: Path) -> str:
@@ -532,7 +546,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     try:
         result = quantize_student(root, images)
         record = {"made_at": utcnow().isoformat(), "job_id": ctx.job_id, **result.as_dict()}
-        storage.publish(_stored(storage, root))  # the int8 file, before its record
+        storage.publish(_stored(storage, root), files)  # the int8 file, before its record
         with ctx.session_factory() as session:
             version = session.get(ModelVersion, model_id)
             if version is None:  # deleted meanwhile: its folder went with it
@@ -541,7 +555,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
             session.commit()
     except BaseException:
         _put_back(root, previous, files)
-        storage.publish(_stored(storage, root))
+        best_effort("publish", partial(storage.publish, _stored(storage, root), files))
         raise
     ctx.summary = (
         f"{name}: int8 student made; masks agree with the float student's at IoU "

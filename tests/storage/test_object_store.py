@@ -142,7 +142,6 @@ def test_a_claim_that_lands_while_the_collector_removes_is_not_lost(
     assert web._remove_if(stored.path, lambda ns: looked is not None)  # the collector deletes
     assert stored.path not in bucket_keys(s3_endpoint, s3_url)
 
-    assert worker.absolute(stored.path).read_bytes() == data  # the cache has it
     reader = store(tmp_path, "reader", s3_url, s3_endpoint)
     assert reader.absolute(stored.path).read_bytes() == data  # fetched: put back from the trash
     assert stored.path in bucket_keys(s3_endpoint, s3_url)
@@ -158,16 +157,31 @@ def test_a_claim_that_lands_while_the_collector_removes_is_not_lost(
 def test_the_cache_keeps_to_its_bound_least_recently_used_out(
     tmp_path: Path, s3_url: str, s3_endpoint: str
 ) -> None:
+    from app.storage.s3 import IN_USE_S
+
     writer = store(tmp_path, "writer", s3_url, s3_endpoint)
-    files = [writer.put(*content(40 + i, 20_000), ".png") for i in range(6)]
+    files = [writer.put(*content(40 + i, 20_000), ".png") for i in range(7)]
     reader = store(tmp_path, "reader", s3_url, s3_endpoint, cache_bytes=70_000)
-    for stored in files:  # each read fetches; the cache trims itself as it fills
-        assert reader.absolute(stored.path).is_file()
+    for index, stored in enumerate(files[:6]):  # read one after another, long ago
+        path = reader.absolute(stored.path)
+        then = time.time() - IN_USE_S - 1000 + index
+        os.utime(path, (then, then))
+    assert reader.absolute(files[6].path).is_file()  # this fetch passes the bound: a trim
     cached = [(reader.home / f.path).exists() for f in files]
-    total = sum(20_000 for present in cached if present)
-    assert total <= 70_000 and cached[-1]  # within its bound, the newest kept
-    assert cached == [False] * (6 - sum(cached)) + [True] * sum(cached)  # the oldest went first
-    assert reader.absolute(files[0].path).read_bytes() == content(40, 20_000)[0]  # refetched
+    assert sum(cached) * 20_000 <= 0.8 * 70_000 + 20_000 and cached[-1]
+    assert cached == [False] * (7 - sum(cached)) + [True] * sum(cached)  # the oldest went first
+    assert not cached[0] and reader.absolute(files[0].path).read_bytes() == content(40, 20_000)[0]
+
+
+def test_the_cache_never_evicts_a_file_just_handed_out(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    writer = store(tmp_path, "writer", s3_url, s3_endpoint)
+    big, small = writer.put(*content(50, 60_000), ".png"), writer.put(*content(51), ".png")
+    reader = store(tmp_path, "reader", s3_url, s3_endpoint, cache_bytes=50_000)
+    path = reader.absolute(big.path)  # larger than the whole bound
+    assert path.is_file() and reader.absolute(small.path).is_file()
+    assert reader.trim_cache() == 0 and path.is_file()  # in use: kept past the bound
 
 
 def test_videos_stream_in_parts_and_folders_are_published_whole(
@@ -295,3 +309,59 @@ def test_a_store_that_stops_answering_is_a_503_and_stores_nothing(
     assert answer.json()["detail"].startswith("The object store did not answer")
     with session_factory() as session:  # type: ignore[operator]
         assert session.scalar(sa.select(sa.func.count(Frame.id))) == 0
+
+
+def test_two_jobs_publishing_one_model_folder_keep_each_others_files(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    """An int8 job and a sequential job on two workers, each from its own copy of a version's
+    folder: each publishes only the files it changed."""
+    trainer, a, b = (store(tmp_path, n, s3_url, s3_endpoint) for n in ("t", "a", "b"))
+    (trainer.home / "models" / "v1").mkdir(parents=True)
+    (trainer.home / "models" / "v1" / "model.safetensors").write_bytes(b"weights")
+    trainer.publish("models/v1")
+    first, second = a.folder("models/v1"), b.folder("models/v1")
+    assert first is not None and second is not None
+    (first / "sequential.json").write_text("{}")  # worker a trains a cell
+    a.publish("models/v1", ("sequential.json", "sequential.onnx"))
+    (second / "int8.onnx").write_bytes(b"q")  # worker b, whose copy has no cell, makes int8
+    b.publish("models/v1", ("int8.onnx", "student.onnx"))
+    assert set(bucket_keys(s3_endpoint, s3_url, "models/")) == {
+        "models/v1/model.safetensors",
+        "models/v1/sequential.json",
+        "models/v1/int8.onnx",
+    }
+    (first / "sequential.json").unlink()  # a's job failed after all: its cell withdrawn
+    a.publish("models/v1", ("sequential.json", "sequential.onnx"))
+    assert "models/v1/int8.onnx" in bucket_keys(s3_endpoint, s3_url, "models/")
+    assert "models/v1/sequential.json" not in bucket_keys(s3_endpoint, s3_url, "models/")
+    with pytest.raises(FileNotFoundError):
+        a.publish("models/v2")  # nothing here to publish: never a withdrawal of the bucket's
+
+
+def test_a_home_with_files_of_its_own_is_pushed_before_it_becomes_a_cache(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    from app.errors import ConfigurationError
+    from tests.helpers import make_settings, run_cli
+
+    home = tmp_path / "home"
+    local = Storage(home)  # an instance that kept its files in home
+    data, sha = content(60)
+    kept = local.put(data, sha, ".png")
+    (home / "models" / "v1").mkdir(parents=True)
+    (home / "models" / "v1" / "model.safetensors").write_bytes(b"w")
+    remote = Storage.of(make_settings(home, storage_url=s3_url, s3_endpoint_url=s3_endpoint))
+    with pytest.raises(ConfigurationError, match="weldpool storage push"):
+        remote.check()  # its cache would evict files no other machine has seen
+    env = {"WELDPOOL_HOME": str(home), "WELDPOOL_STORAGE_URL": s3_url}
+    pushed = run_cli("storage", "push", env={**env, "WELDPOOL_S3_ENDPOINT_URL": s3_endpoint})
+    assert pushed.returncode == 0, pushed.stderr
+    assert "2 files uploaded" in pushed.stderr
+    assert set(bucket_keys(s3_endpoint, s3_url)) >= {kept.path, "models/v1/model.safetensors"}
+    remote.check()
+    other = store(tmp_path, "other", s3_url, s3_endpoint)
+    assert other.absolute(kept.path).read_bytes() == data
+    dead = run_cli("storage", "push", env={**env, "WELDPOOL_S3_ENDPOINT_URL": "http://127.0.0.1:9"})
+    assert dead.returncode == 2 and "Traceback" not in dead.stderr
+    assert dead.stderr.strip().splitlines()[-1].startswith("weldpool: The object store")
