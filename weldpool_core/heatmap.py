@@ -484,3 +484,14 @@ def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -
         covariances=placed.spread,
         contour=placed.contour,
     )
+
+
+def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
+    """Algorithm 1's keypoints of a label's mask (one drawn or imported), as [[x, y], …]."""
+    try:
+        points = keypoints_from_mask(mask)
+    except InvalidInputError as exc:
+        raise InvalidInputError(
+            f"Keypoints cannot be computed for this mask: {exc.message}"
+        ) from None
+    return [[float(x), float(y)] for x, y in np.asarray(points)]

@@ -305,3 +305,15 @@ def normalised(
     points = polygon.points if isinstance(polygon, Polygon) else polygon
     xy = (np.asarray(points, dtype=np.float64) + 0.5) / np.array([width, height])
     return [round(float(v), 6) for v in np.clip(xy, 0.0, 1.0).reshape(-1)]
+
+
+def mask_record(mask: NDArray[np.bool_], rle: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a label stores of its mask besides the file: COCO RLE, area and box (from ``rle``
+    when the caller has the mask's compressed RLE already), and its region outlines."""
+    coco = coco_rle(rle) if rle is not None else coco_mask(mask)
+    return {
+        "mask_rle": coco.rle,
+        "mask_area": coco.area,
+        "mask_bbox": coco.bbox,
+        "mask_outlines": region_outlines(mask),
+    }

@@ -15,11 +15,15 @@ import asks to ``overwrite``, which adds a revision.
 from __future__ import annotations
 
 import hashlib
+import multiprocessing
 import os
 import posixpath
 import shutil
+import threading
 import uuid
 from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -37,19 +41,23 @@ from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeyp
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
-    mask_columns,
-    mask_keypoints,
     set_validation_keypoints,
     write_label,
 )
 from app.storage import CHUNK, Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
-from weldpool_core.annotations.shapes import DAMAGED, inside_frame
-from weldpool_core.io import encode_mask_png
+from weldpool_core.annotations.content import LabelContent, label_content, many_contents, shipped
+from weldpool_core.annotations.shapes import inside_frame
 
 IMPORTS_DIR = "imports"
 """Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
 BATCH = 64
+PROCESS_MIN = 256
+"""Labels in an import from which their work (rasterise, encode, Algorithm 1) runs in processes,
+one per core, instead of the ingest threads, whose Python parts share one GIL: starting the
+processes costs about a second, which a few hundred labels repay."""
+PROCESS_CHUNK = 8
+"""Labels per task sent to a process (fewer round trips)."""
 RUN_NAME = 190
 """Longest run name an import makes (runs hold 200 characters; ``name (2)`` needs room)."""
 MAX_LISTED = 1000
@@ -153,13 +161,75 @@ def import_labels(
     report = ImportReport(refused=[*source.refused, *parsed.refused])
     runs = _Runs(session, source.name, options.sequence_id, user, report)
     total = len(parsed.labels)
+    processes = total >= PROCESS_MIN
+    # A pipeline of two batches: the next one's frames are stored while this one's labels
+    # are computed (in processes for a large import); each batch's labels in one transaction.
+    pending: tuple[_Batch, int] | None = None
     for start in range(0, total, BATCH):
-        batch = parsed.labels[start : start + BATCH]
-        _Batch(session, storage, source, options, user, report).run(batch, runs)
-        if progress is not None:
-            done = min(start + BATCH, total)
-            progress(done / total, f"{done} of {total} labels read")
+        batch = _Batch(session, storage, source, options, user, report, processes)
+        try:
+            batch.prepare(parsed.labels[start : start + BATCH], runs)
+        finally:
+            if pending is not None:
+                _finish(*pending, total, progress)
+        pending = batch, min(start + BATCH, total)
+    if pending is not None:
+        _finish(*pending, total, progress)
     return report
+
+
+def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> None:
+    batch.finish()
+    if progress is not None:
+        progress(done / total, f"{done} of {total} labels read")
+
+
+_pool_lock = threading.Lock()
+_processes: ProcessPoolExecutor | None = None
+
+
+def _process_pool() -> ProcessPoolExecutor:
+    """The processes label work runs in, started on the first large import (``spawn``: the
+    worker has threads, so never ``fork``) and kept for the process's life."""
+    global _processes
+    with _pool_lock:
+        if _processes is None:
+            _processes = ProcessPoolExecutor(
+                max_workers=max(2, os.cpu_count() or 2),
+                mp_context=multiprocessing.get_context("spawn"),
+            )
+        return _processes
+
+
+class _Contents:
+    """The contents of a batch's labels being computed: in the processes (``shipped`` labels,
+    a few per task) or in the ingest threads; a broken process pool falls back to threads."""
+
+    def __init__(self, jobs: list[tuple[ImportedLabel, tuple[int, int], bool]], processes: bool):
+        self.jobs = jobs
+        self.futures: list[Future[list[LabelContent]]] = []
+        if processes and jobs:
+            try:
+                pool = _process_pool()
+                self.futures = [
+                    pool.submit(
+                        many_contents,
+                        [(shipped(i), size, w) for i, size, w in jobs[at : at + PROCESS_CHUNK]],
+                    )
+                    for at in range(0, len(jobs), PROCESS_CHUNK)
+                ]
+            except (BrokenProcessPool, OSError, RuntimeError):
+                self.futures = []
+
+    def results(self) -> list[LabelContent]:
+        try:
+            if self.futures:
+                return [c for f in self.futures for c in f.result()]
+        except BrokenProcessPool:  # a process was killed: start afresh next time
+            global _processes
+            with _pool_lock:
+                _processes = None
+        return list(INGEST_POOL.map(lambda job: label_content(*job), self.jobs))
 
 
 class _Runs:
@@ -236,7 +306,8 @@ class _Target:
 
 
 class _Batch:
-    """One batch: its frames found or stored, then its labels written in one transaction."""
+    """One batch: its frames found or stored and its labels' contents started (``prepare``),
+    then its labels written in one transaction (``finish``)."""
 
     def __init__(
         self,
@@ -246,26 +317,73 @@ class _Batch:
         options: ImportOptions,
         user: User,
         report: ImportReport,
+        processes: bool = False,
     ) -> None:
         self.session, self.storage, self.source = session, storage, source
         self.options, self.user, self.report = options, user, report
+        self.processes = processes
         self.has_manual: set[int] = set()
+        self.placed: list[_Target] = []
+        self.early: dict[int, tuple[int, tuple[int, int], bool]] = {}
+        self.contents: _Contents | None = None
 
     def refuse(self, label: ImportedLabel, reason: str) -> None:
         self.report.refused.append(Refusal(label.item, reason))
 
     def run(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+        self.prepare(labels, runs)
+        self.finish()
+
+    def prepare(self, labels: list[ImportedLabel], runs: _Runs) -> None:
         if self.options.keypoints == "label":
             for label in labels:  # the file's hand-placed keypoints are the label's own
                 if label.validation_keypoints and not label.keypoints and label.shapes:
                     label.keypoints, label.validation_keypoints = label.validation_keypoints, None
-        targets = [t for t in (self._target(label, runs) for label in labels) if t is not None]
+        images = [self._image(label) for label in labels]
+        digests = list(  # hashlib lets go of the GIL: the pool hashes a batch at once
+            INGEST_POOL.map(
+                lambda d: hashlib.sha256(d).hexdigest() if isinstance(d, bytes) else "", images
+            )
+        )
+        stored = self._stored_with(digests, runs.fixed)
+        targets = [
+            t
+            for label, data, digest in zip(labels, images, digests, strict=True)
+            if (t := self._target(label, data, digest, stored, runs)) is not None
+        ]
         self._store_frames(targets)
-        placed = [t for t in targets if t.frame_id is not None]
+        self.placed = [t for t in targets if t.frame_id is not None]
+        self._start_contents()
+
+    def _start_contents(self) -> None:
+        """Start computing the labels' contents on their frames' sizes, as they will be
+        written unless the frames change meanwhile (``_write_labels`` looks again)."""
+        ids = {t.frame_id for t in self.placed if t.frame_id is not None}
+        sizes = {
+            frame_id: (height, width)
+            for frame_id, height, width in self.session.execute(
+                sa.select(Frame.id, Frame.height, Frame.width).where(Frame.id.in_(ids))
+            )
+        }
+        labelled = set(
+            self.session.scalars(sa.select(Label.frame_id).where(Label.frame_id.in_(ids)))
+        )
+        jobs: list[tuple[ImportedLabel, tuple[int, int], bool]] = []
+        for target in self.placed:
+            if target.frame_id in sizes:
+                size = sizes[target.frame_id]
+                wants = bool(target.label.shapes) and (
+                    target.frame_id not in labelled or self.options.overwrite
+                )
+                self.early[id(target)] = (len(jobs), size, wants)
+                jobs.append((target.label, size, wants))
+        self.contents = _Contents(jobs, self.processes)
+
+    def finish(self) -> None:
         listed = len(self.report.skipped), len(self.report.refused)
         for attempt in (1, 2):
             try:
-                self._write_labels(placed)
+                self._write_labels(self.placed)
                 return
             except (ConflictError, sa.exc.IntegrityError):
                 if attempt == 2:
@@ -277,20 +395,32 @@ class _Batch:
 
     # --- frames --------------------------------------------------------------------------
 
-    def _target(self, label: ImportedLabel, runs: _Runs) -> _Target | None:
-        data = label.image_data
-        if data is None:
-            path = self.source.find(label.image, label.beside)
-            try:
-                data = self.source.read(path) if path is not None else None
-            except InvalidInputError as exc:  # a damaged zip entry: this item, not the import
-                self.refuse(label, f"The image cannot be read: {exc.message}")
-                return None
+    def _image(self, label: ImportedLabel) -> bytes | InvalidInputError | None:
+        """The label's image from the file: None when it is not in it, the error (already
+        listed as the item's refusal) when its entry is damaged."""
+        if label.image_data is not None:
+            return label.image_data
+        path = self.source.find(label.image, label.beside)
+        try:
+            return self.source.read(path) if path is not None else None
+        except InvalidInputError as exc:  # a damaged zip entry: this item, not the import
+            self.refuse(label, f"The image cannot be read: {exc.message}")
+            return exc
+
+    def _target(
+        self,
+        label: ImportedLabel,
+        data: bytes | InvalidInputError | None,
+        digest: str,
+        stored: dict[str, int],
+        runs: _Runs,
+    ) -> _Target | None:
+        if isinstance(data, InvalidInputError):
+            return None  # refused in ``_image``
         if data is not None:
             name = label.original_name or posixpath.basename(label.image) or "frame"
-            digest = hashlib.sha256(data).hexdigest()
             target = _Target(label, incoming=ingest.IncomingFile(name, data), sha256=digest)
-            target.frame_id = self._stored_with(digest, runs.fixed)
+            target.frame_id = stored.get(digest)
             if target.frame_id is None:
                 target.sequence_id = runs.for_label(label)
             return target
@@ -300,11 +430,19 @@ class _Batch:
             return None
         return _Target(label, frame_id=frame_id)
 
-    def _stored_with(self, digest: str, sequence_id: int | None) -> int | None:
-        query = sa.select(Frame.id).where(Frame.sha256 == digest).order_by(Frame.id).limit(1)
+    def _stored_with(self, digests: list[str], sequence_id: int | None) -> dict[str, int]:
+        """The first stored frame of each content (in ``sequence_id`` when given): one query."""
+        wanted = {d for d in digests if d}
+        if not wanted:
+            return {}
+        query = (
+            sa.select(Frame.sha256, sa.func.min(Frame.id))
+            .where(Frame.sha256.in_(wanted))
+            .group_by(Frame.sha256)
+        )
         if sequence_id is not None:
             query = query.where(Frame.sequence_id == sequence_id)
-        return self.session.scalar(query)
+        return {sha: frame_id for sha, frame_id in self.session.execute(query)}
 
     def _stored_named(
         self, label: ImportedLabel, sequence_id: int | None
@@ -373,14 +511,12 @@ class _Batch:
                 except FrameDeleted:
                     frames.pop(frame_id, None)
             work = self._placed(targets, frames, labels)
-            sizes = [(frame.height, frame.width) for _, frame, _ in work]  # read here, not there
-            contents = list(
-                INGEST_POOL.map(lambda job, size: _content(job[0].label, size, job[2]), work, sizes)
-            )
-            written = self._store_masks(contents)
+            contents = self._contents(work)
+            written, mask_paths = self._store_masks(contents)
             counts = [0, 0]
-            for (target, frame, _), content in zip(work, contents, strict=True):
-                self._write_one(target.label, frame, labels.get(frame.id), content, counts)
+            for (target, frame, _), content, path in zip(work, contents, mask_paths, strict=True):
+                current = labels.get(frame.id)
+                self._write_one(target.label, frame, current, content, path, counts)
             session.commit()
         except BaseException:
             session.rollback()
@@ -417,22 +553,43 @@ class _Batch:
                 placed.append((target, frame, wants))
         return placed
 
-    def _store_masks(self, contents: list[_Content]) -> list[StoredFile]:
-        """Every new mask PNG staged in the disk threads, then installed (flushed)."""
-        new = [c for c in contents if c.mask_png is not None]
-        items = [(c.mask_png or b"", c.sha256, ".png") for c in new]
+    def _contents(self, work: list[tuple[_Target, Frame, bool]]) -> list[LabelContent]:
+        """Each placed label's content: the one started in ``prepare`` when its frame and
+        whether it is written are as they were then, else computed now."""
+        early = self.contents.results() if self.contents is not None else []
+        found: list[LabelContent | None] = []
+        late = []
+        for target, frame, wants in work:
+            started = self.early.get(id(target))
+            if started is not None and started[1:] == ((frame.height, frame.width), wants):
+                found.append(early[started[0]])
+            else:
+                found.append(None)
+                late.append((target.label, (frame.height, frame.width), wants))
+        computed = iter(INGEST_POOL.map(lambda job: label_content(*job), late))
+        return [c if c is not None else next(computed) for c in found]
+
+    def _store_masks(
+        self, contents: list[LabelContent]
+    ) -> tuple[list[StoredFile], list[str | None]]:
+        """Every new mask PNG staged in the disk threads, then installed (flushed); the files
+        this created, and each content's stored path."""
+        new = [i for i, c in enumerate(contents) if c.mask_png is not None]
+        items = [(contents[i].mask_png or b"", contents[i].sha256, ".png") for i in new]
         staged = self.storage.stage_many(items, area="artefacts", executor=DISK_POOL)
         written = self.storage.install_many(staged, DISK_POOL)
-        for content, stored in zip(new, written, strict=True):
-            content.mask_path = stored.path
-        return [w for w in written if w.created]
+        paths: list[str | None] = [None] * len(contents)
+        for index, stored in zip(new, written, strict=True):
+            paths[index] = stored.path
+        return [w for w in written if w.created], paths
 
     def _write_one(
         self,
         item: ImportedLabel,
         frame: Frame,
         current: Label | None,
-        content: _Content,
+        content: LabelContent,
+        mask_path: str | None,
         counts: list[int],
     ) -> None:
         """The label and validation keypoints of one frame (not committed)."""
@@ -449,9 +606,9 @@ class _Batch:
         except InvalidInputError as exc:
             self.refuse(item, exc.message)
             return
-        if content.mask_path is not None:
+        if mask_path is not None:
             values = content.columns | {
-                "mask_path": content.mask_path,
+                "mask_path": mask_path,
                 "status": LabelStatus.corrected,
                 "keypoints": keypoints,
                 "proposal_id": None,
@@ -466,40 +623,3 @@ class _Batch:
         if manual is not None and (frame.id not in self.has_manual or self.options.overwrite):
             set_validation_keypoints(self.session, frame, self.user, manual)
             counts[1] += 1
-
-
-@dataclass
-class _Content:
-    """One label's content, computed in the ingest pool, off the session: its mask's PNG (to
-    store), stored columns and keypoints, or why it is refused."""
-
-    mask_png: bytes | None = None
-    sha256: str = ""
-    columns: dict[str, Any] = field(default_factory=dict)
-    keypoints: list[list[float]] | None = None
-    manual: list[list[float]] | None = None
-    problem: str | None = None
-    mask_path: str | None = None  # set once the PNG is stored
-
-
-def _content(item: ImportedLabel, size: tuple[int, int], wants_label: bool) -> _Content:
-    """Rasterise, check, encode and measure one label on a frame of ``size`` (height, width);
-    thread-safe. The label's keypoints are Algorithm 1's on the mask unless it has its own."""
-    height, width = size
-    content = _Content(manual=item.validation_keypoints)
-    try:
-        item.checked_points(height, width)
-        if not wants_label:
-            return content
-        mask, rle = item.rasterised(height, width)
-        if mask is None:
-            return content
-        content.keypoints = item.keypoints or mask_keypoints(mask)
-        content.columns = mask_columns(mask, rle=rle)
-        content.mask_png = encode_mask_png(mask)
-        content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
-    except InvalidInputError as exc:
-        content.problem = exc.message
-    except DAMAGED:
-        content.problem = "The annotation holds values of the wrong type or size."
-    return content

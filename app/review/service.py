@@ -40,8 +40,9 @@ from app.proposals.files import (
 from app.proposals.policy import pick
 from app.review import runtime
 from app.storage import Storage, StoredFile
+from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import decode_mask_png
-from weldpool_core.outline import coco_mask, coco_rle, region_outlines
+from weldpool_core.outline import mask_record
 
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
@@ -121,19 +122,6 @@ def current_label(session: Session, frame_id: int) -> Label | None:
     return session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
 
 
-def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
-    """Algorithm 1's keypoints of a label's mask (those of a mask drawn or imported)."""
-    from weldpool_core.heatmap import keypoints_from_mask
-
-    try:
-        points = keypoints_from_mask(mask)
-    except InvalidInputError as exc:
-        raise InvalidInputError(
-            f"Keypoints cannot be computed for this mask: {exc.message}"
-        ) from None
-    return [[float(x), float(y)] for x, y in np.asarray(points)]
-
-
 def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[float]]:
     """Keypoints as [[x, y], …] inside the frame, or a clear error."""
     for point in keypoints:
@@ -187,25 +175,13 @@ def _label_content(
     )
 
 
-def mask_columns(mask: NDArray[np.bool_], rle: dict[str, Any] | None = None) -> dict[str, Any]:
-    """What a label stores of its mask besides the file: COCO RLE, area and box (from ``rle``
-    when the caller has the mask's compressed RLE already), and its region outlines."""
-    coco = coco_rle(rle) if rle is not None else coco_mask(mask)
-    return {
-        "mask_rle": coco.rle,
-        "mask_area": coco.area,
-        "mask_bbox": coco.bbox,
-        "mask_outlines": region_outlines(mask),
-    }
-
-
 def mask_fields(
     storage: Storage,
     mask: NDArray[np.bool_] | None,
     mask_path: str | None,
     proposal: Proposal | None,
 ) -> tuple[dict[str, Any], StoredFile | None]:
-    """The label's mask columns (path, ``mask_columns``, whether it differs from the
+    """The label's mask columns (path, ``outline.mask_record``, whether it differs from the
     proposal's), storing a new mask's file (returned, to discard on failure)."""
     stored: StoredFile | None = None
     columns: dict[str, Any] = dict.fromkeys(("mask_rle", "mask_area", "mask_bbox", "mask_outlines"))
@@ -214,12 +190,12 @@ def mask_fields(
         changed = proposal is None or not np.array_equal(
             mask, load_mask(storage, proposal.mask_path)
         )
-        columns = mask_columns(mask)
+        columns = mask_record(mask)
         stored = store_mask_file(storage, mask)
         mask_path = stored.path
     elif mask_path is not None:
         changed = False
-        columns = mask_columns(load_mask(storage, mask_path))
+        columns = mask_record(load_mask(storage, mask_path))
     return {"mask_path": mask_path, **columns, "mask_changed": changed}, stored
 
 

@@ -1,0 +1,64 @@
+"""One imported label's content, computed away from any database: rasterised on its frame,
+checked, encoded as the mask PNG the store keeps, with its stored columns (``outline``) and
+Algorithm 1's keypoints unless it has its own. Pure and picklable, so an import can compute
+many in worker processes (the Python parts of Algorithm 1 and the RLE decode hold the GIL)."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+from weldpool_core.annotations.shapes import DAMAGED, ImportedLabel
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import mask_keypoints
+from weldpool_core.io import encode_mask_png
+from weldpool_core.outline import mask_record
+
+
+@dataclass
+class LabelContent:
+    """A label's mask PNG (to store) and its sha256, stored columns and keypoints, the file's
+    validation keypoints, or why it is refused."""
+
+    mask_png: bytes | None = None
+    sha256: str = ""
+    columns: dict[str, Any] = field(default_factory=dict)
+    keypoints: list[list[float]] | None = None
+    manual: list[list[float]] | None = None
+    problem: str | None = None
+
+
+def label_content(item: ImportedLabel, size: tuple[int, int], wants_label: bool) -> LabelContent:
+    """Rasterise, check, encode and measure one label on a frame of ``size`` (height, width)."""
+    height, width = size
+    content = LabelContent(manual=item.validation_keypoints)
+    try:
+        item.checked_points(height, width)
+        if not wants_label:
+            return content
+        mask, rle = item.rasterised(height, width)
+        if mask is None:
+            return content
+        content.keypoints = item.keypoints or mask_keypoints(mask)
+        content.columns = mask_record(mask, rle=rle)
+        content.mask_png = encode_mask_png(mask)
+        content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
+    except InvalidInputError as exc:
+        content.problem = exc.message
+    except DAMAGED:
+        content.problem = "The annotation holds values of the wrong type or size."
+    return content
+
+
+def shipped(item: ImportedLabel) -> ImportedLabel:
+    """The label as another process needs it: without its image's bytes."""
+    return dataclasses.replace(item, image_data=None) if item.image_data is not None else item
+
+
+def many_contents(
+    jobs: list[tuple[ImportedLabel, tuple[int, int], bool]],
+) -> list[LabelContent]:
+    """``label_content`` of several labels (one task of a process pool: fewer round trips)."""
+    return [label_content(item, size, wants) for item, size, wants in jobs]
