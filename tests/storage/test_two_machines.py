@@ -240,13 +240,12 @@ def test_a_web_process_killed_mid_upload_leaves_no_row_without_its_object(
     assert len(answered) < len(bodies) // 4  # it died before the upload finished
     engine = create_db_engine(settings.resolved_database_url)
     with create_session_factory(engine)() as session:
-        paths = set(session.scalars(sa.select(Frame.path)))
+        sizes = dict(session.execute(sa.select(Frame.path, Frame.size_bytes)).all())
     engine.dispose()
-    assert len(paths) >= 12
+    assert len(sizes) >= 12
     objects = bucket_keys(s3_endpoint, s3_url, "frames/")
-    assert paths <= set(objects)  # every row's object is there, whole
-    for path in paths:
-        assert objects[path] > 0
+    assert set(sizes) <= set(objects)  # every row's object is there …
+    assert all(objects[path] == size for path, size in sizes.items())  # … whole
 
 
 def _up(base: str) -> bool:
