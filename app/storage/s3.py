@@ -198,14 +198,18 @@ class ObjectStorage(Storage):
 
     def _claimed(self, relative: str) -> bool:
         """Claim an object: copy it onto itself with ``claimed`` = now (LastModified moves)."""
+        return self._stamped_copy(relative, relative)
+
+    def _stamped_copy(self, source: str, target: str) -> bool:
+        """Copy ``source`` to ``target`` (both relative) with ``claimed`` = now; False when
+        ``source`` is not there."""
         from botocore.exceptions import ClientError
 
-        key = self.key(relative)
         try:
             self.client.copy_object(
                 Bucket=self.bucket,
-                Key=key,
-                CopySource={"Bucket": self.bucket, "Key": key},
+                Key=self.key(target),
+                CopySource={"Bucket": self.bucket, "Key": self.key(source)},
                 MetadataDirective="REPLACE",
                 Metadata={"claimed": str(time.time_ns())},
             )
@@ -374,21 +378,7 @@ class ObjectStorage(Storage):
 
     def _restore(self, relative: str) -> bool:
         """Put a trashed object back under its key; False when the trash has none."""
-        from botocore.exceptions import ClientError
-
-        try:
-            self.client.copy_object(
-                Bucket=self.bucket,
-                Key=self.key(relative),
-                CopySource={"Bucket": self.bucket, "Key": self.key(f"{TRASH}/{relative}")},
-                MetadataDirective="REPLACE",
-                Metadata={"claimed": str(time.time_ns())},
-            )
-        except ClientError as exc:
-            if _missing(exc):
-                return False
-            raise
-        return True
+        return self._stamped_copy(f"{TRASH}/{relative}", relative)
 
     def _count(self, size: int) -> None:
         with self._lock:
