@@ -195,7 +195,8 @@ def _process_pool() -> ProcessPoolExecutor:
     with _pool_lock:
         if _processes is None:
             _processes = ProcessPoolExecutor(
-                max_workers=max(2, os.cpu_count() or 2),
+                # one per core, no more than a batch has tasks (not 64 × ~150 MB on a big worker)
+                max_workers=min(max(2, os.cpu_count() or 2), -(-BATCH // PROCESS_CHUNK)),
                 mp_context=multiprocessing.get_context("spawn"),
             )
         return _processes
