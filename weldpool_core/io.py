@@ -15,6 +15,8 @@ clipped flat). Frames whose values span less than 1 grey level map to black.
 from __future__ import annotations
 
 import io
+import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from isal import isal_zlib
 from PIL import Image, UnidentifiedImageError
 
 from weldpool_core.errors import InvalidInputError
@@ -210,29 +213,42 @@ def encode_png(pixels: ImageArray, compression: int = 1) -> bytes:
     return buffer.tobytes()
 
 
-MASK_PNG_FLAGS = [
-    cv2.IMWRITE_PNG_COMPRESSION,
-    1,
-    cv2.IMWRITE_PNG_FILTER,
-    cv2.IMWRITE_PNG_FILTER_NONE,
-    cv2.IMWRITE_PNG_STRATEGY,
-    cv2.IMWRITE_PNG_STRATEGY_RLE,
-]
-"""A mask is long runs of 0 and 255: no row filter and run-length deflate encode a 1280×800
-mask 5× faster than the adaptive filters at level 3, and the file is smaller (every click in
-the review page returns one)."""
+MASK_PNG_LEVEL = 1
+"""ISA-L's deflate level for a mask PNG's one image stream (levels 1 and 2 give the same file
+on a pool mask; 0 is five times larger)."""
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
 
 def encode_mask_png(mask: ImageArray) -> bytes:
-    """A mask as a single-channel 8-bit PNG with values 0 and 255."""
+    """A mask as a single-channel 8-bit PNG with values 0 and 255.
+
+    The file is framed here (header, one image stream, end) because its cost is the deflate:
+    ISA-L's (``isal``) compresses a 1280×800 mask's rows 17× faster than the zlib OpenCV
+    and Pillow use (0.09 against 1.56 ms, and a smaller file: every click in the review page
+    and every imported label makes one). Rows are unfiltered: a mask is long runs of 0 and
+    255, which the filters do not shorten. Any PNG reader reads it (tests: OpenCV, Pillow and
+    the ingest's own verifier)."""
     if mask.ndim != 2:
         raise InvalidInputError(f"A mask must be a 2-D array, not of shape {mask.shape}.")
+    height, width = mask.shape
+    if height == 0 or width == 0:
+        raise InvalidInputError("The mask cannot be encoded as PNG: it has no pixels.")
     binary = mask if mask.dtype == np.bool_ else mask > 0
-    pixels = binary.view(np.uint8) * np.uint8(255)  # 0/1 bytes → 0/255: 35× np.where's speed
-    ok, buffer = cv2.imencode(".png", pixels, MASK_PNG_FLAGS)
-    if not ok:
-        raise InvalidInputError("The mask cannot be encoded as PNG.")
-    return buffer.tobytes()
+    rows = np.zeros((height, width + 1), np.uint8)  # each row: filter type 0, then its pixels
+    np.multiply(binary.view(np.uint8), np.uint8(255), out=rows[:, 1:])
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)  # 8-bit gray, plain
+    stream = isal_zlib.compress(rows, MASK_PNG_LEVEL)
+    return b"".join(
+        (
+            PNG_SIGNATURE,
+            _png_chunk(b"IHDR", header),
+            _png_chunk(b"IDAT", stream),
+            _png_chunk(b"IEND", b""),
+        )
+    )
 
 
 def decode_mask_png(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> NDArray[np.bool_]:

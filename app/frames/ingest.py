@@ -33,10 +33,12 @@ and let the disk queue several flushes at once."""
 
 @dataclass(frozen=True)
 class IncomingFile:
-    """An uploaded or imported file: the client's name (metadata only) and its bytes."""
+    """An uploaded or imported file: the client's name (metadata only), its bytes, and their
+    SHA-256 when the caller has hashed them already (an import, to find stored frames)."""
 
     name: str
     data: bytes
+    sha256: str | None = None
 
 
 @dataclass(frozen=True)
@@ -132,7 +134,7 @@ class FrameChecks:
         return len(self._files)
 
     def _check(self, incoming: IncomingFile) -> _Check:
-        digest = hashlib.sha256(incoming.data).hexdigest()
+        digest = incoming.sha256 or hashlib.sha256(incoming.data).hexdigest()
         with self._lock:
             if digest in self._started:
                 return digest, None, None

@@ -46,7 +46,13 @@ from app.review.service import (
 )
 from app.storage import CHUNK, Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
-from weldpool_core.annotations.content import LabelContent, label_content, many_contents, shipped
+from weldpool_core.annotations.content import (
+    LabelContent,
+    label_content,
+    many_contents,
+    shipped,
+    start_process,
+)
 from weldpool_core.annotations.shapes import inside_frame
 
 IMPORTS_DIR = "imports"
@@ -198,6 +204,7 @@ def _process_pool() -> ProcessPoolExecutor:
                 # one per core, no more than a batch has tasks (not 64 × ~150 MB on a big worker)
                 max_workers=min(max(2, os.cpu_count() or 2), -(-BATCH // PROCESS_CHUNK)),
                 mp_context=multiprocessing.get_context("spawn"),
+                initializer=start_process,
             )
         return _processes
 
@@ -420,7 +427,8 @@ class _Batch:
             return None  # refused in ``_image``
         if data is not None:
             name = label.original_name or posixpath.basename(label.image) or "frame"
-            target = _Target(label, incoming=ingest.IncomingFile(name, data), sha256=digest)
+            incoming = ingest.IncomingFile(name, data, sha256=digest)
+            target = _Target(label, incoming=incoming, sha256=digest)
             target.frame_id = stored.get(digest)
             if target.frame_id is None:
                 target.sequence_id = runs.for_label(label)

@@ -133,3 +133,22 @@ def test_a_mask_of_any_dtype_and_layout_encodes_to_its_foreground() -> None:
     mask = np.random.default_rng(0).random((40, 50)) > 0.5
     for variant in (mask, mask.astype(np.uint8), mask * 0.7, mask[:, ::2], np.asfortranarray(mask)):
         assert np.array_equal(decode_mask_png(encode_mask_png(variant)), np.asarray(variant) > 0)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (800, 1280), (3, 1281), (257, 2)])
+def test_a_mask_png_reads_the_same_in_every_reader(shape: tuple[int, int]) -> None:
+    """The mask PNG is framed by us (ISA-L's deflate): OpenCV, Pillow, zlib and the ingest's
+    verifier all read it as the 8-bit gray 0/255 image of the mask."""
+    import cv2
+
+    mask = np.random.default_rng(shape[1]).random(shape) > 0.4
+    data = encode_mask_png(mask)
+    expected = mask.astype(np.uint8) * 255
+    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), expected)
+    with Image.open(io.BytesIO(data)) as image:
+        assert image.mode == "L" and np.array_equal(np.asarray(image), expected)
+    info = check_image(data)  # a plain PNG: every CRC, the whole stream inflated and checked
+    assert (info.width, info.height, info.channels, info.bit_depth) == (shape[1], shape[0], 1, 8)
+    assert np.array_equal(read_image(data).pixels, expected)
+    with pytest.raises(InvalidInputError, match="no pixels"):
+        encode_mask_png(np.zeros((0, 4), bool))
