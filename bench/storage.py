@@ -82,19 +82,35 @@ def bucket(endpoint: str) -> str:
     return name
 
 
+def machine_cpu_s() -> float:
+    """CPU seconds every process on this machine has used (``/proc/stat``: all but idle and
+    I/O wait), to put a rate against what the two cores can give."""
+    values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(values[:8]) - values[3] - values[4]) / os.sysconf("SC_CLK_TCK")
+
+
 def ingest_rates(
     frames: list[tuple[str, bytes]], env: dict[str, str], runs: int, salt: int
-) -> dict[tuple[int, int], float]:
-    """frames/s for (files per request, clients): all in one request, half on each of two."""
-    rates: dict[tuple[int, int], list[float]] = {}
+) -> dict[tuple[int, int], tuple[float, float, float]]:
+    """(frames/s, machine CPU ms a frame, the S3 server's CPU ms a frame) for (files per
+    request, clients): all in one request, half on each of two; medians of runs."""
+    rates: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
     configs = ((len(frames), 1), (-(-len(frames) // 2), 2))
     with local_server(env, worker=False) as (url, token):
         for run in range(runs):
             for batch, clients in configs:
                 salted = _salted(frames, salt + run * 10 + clients)
+                machine, server = machine_cpu_s(), server_cpu_s()
                 rate = upload_run(url, token, salted, batch, clients, f"b-{time.time_ns()}")
-                rates.setdefault((batch, clients), []).append(rate)
-    return {config: statistics.median(values) for config, values in rates.items()}
+                used = [
+                    (f() - s) * 1000 / len(frames)
+                    for f, s in ((machine_cpu_s, machine), (server_cpu_s, server))
+                ]
+                rates.setdefault((batch, clients), []).append((rate, *used))
+    return {
+        config: tuple(statistics.median(v[i] for v in values) for i in range(3))  # type: ignore[misc]
+        for config, values in rates.items()
+    }
 
 
 def client_put_ms(
@@ -224,13 +240,24 @@ def main() -> None:
             f"\nPOST /api/v1/frames, {name} ({size:.0f} KiB each), median of {args.runs} runs; "
             "S3: moto's server on loopback"
         )
+        cores = os.cpu_count() or 1
+        print(
+            f"CPU: ms a frame of every process on this machine ({cores} cores: the web process, "
+            "the uploader, and for S3 the S3 server, whose share is given); ceiling: the S3 rate "
+            "with every core busy, against home"
+        )
         print(
             f"{'files/request':>13} {'clients':>7} {'home frames/s':>14} {'S3 frames/s':>12} "
-            f"{'S3 / home':>10}"
+            f"{'S3 / home':>10} {'home CPU':>9} {'S3 CPU':>7} {'of it S3 server':>16} "
+            f"{'ceiling':>8}"
         )
-        for (batch, clients), rate in local.items():
-            other = remote[(batch, clients)]
-            print(f"{batch:>13} {clients:>7} {rate:>14.1f} {other:>12.1f} {other / rate:>9.2f}x")
+        for (batch, clients), (rate, cpu, _) in local.items():
+            other, other_cpu, server_cpu = remote[(batch, clients)]
+            ceiling = cores * 1000 / other_cpu / rate
+            print(
+                f"{batch:>13} {clients:>7} {rate:>14.1f} {other:>12.1f} {other / rate:>9.2f}x "
+                f"{cpu:>9.1f} {other_cpu:>7.1f} {server_cpu:>16.1f} {ceiling:>7.2f}x"
+            )
 
         puts = client_put_ms(frames, endpoint, args.runs)
         print(f"\n{len(frames)} frames put into a bucket from 8 threads, median of {args.runs}")
