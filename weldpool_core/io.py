@@ -23,8 +23,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 from isal import isal_zlib
+from numpy.typing import NDArray
 from PIL import Image, UnidentifiedImageError
 
 from weldpool_core.errors import InvalidInputError

@@ -144,7 +144,9 @@ def test_a_mask_png_reads_the_same_in_every_reader(shape: tuple[int, int]) -> No
     mask = np.random.default_rng(shape[1]).random(shape) > 0.4
     data = encode_mask_png(mask)
     expected = mask.astype(np.uint8) * 255
-    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), expected)
+    assert np.array_equal(
+        cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), expected
+    )
     with Image.open(io.BytesIO(data)) as image:
         assert image.mode == "L" and np.array_equal(np.asarray(image), expected)
     info = check_image(data)  # a plain PNG: every CRC, the whole stream inflated and checked

@@ -20,7 +20,6 @@ from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import encode_mask_png
 from weldpool_core.outline import mask_record
 
-
 HEAP_BYTES = 64 << 20
 """Blocks up to this size a label process takes from its heap instead of fresh pages."""
 
