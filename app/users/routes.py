@@ -7,12 +7,22 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Request, status
 
 from app.bounds import IdPath
+from app.db import utcnow
 from app.deps import SessionDep
-from app.errors import AuthenticationError
+from app.errors import AuthenticationError, PermissionDeniedError
 from app.models import User
 from app.security import AdminUser, CurrentUser, authenticate_throttled, optional_user
 from app.users import service
-from app.users.schemas import TokenCreated, TokenIn, TokenOut, UserIn, UserOut, UserPatch
+from app.users.schemas import (
+    PasswordChange,
+    PasswordChanged,
+    TokenCreated,
+    TokenIn,
+    TokenOut,
+    UserIn,
+    UserOut,
+    UserPatch,
+)
 
 router = APIRouter(tags=["users"])
 
@@ -21,6 +31,23 @@ router = APIRouter(tags=["users"])
 def me(user: CurrentUser) -> UserOut:
     """The caller."""
     return UserOut.model_validate(user)
+
+
+@router.post("/users/me/password", response_model=PasswordChanged)
+def change_my_password(
+    request: Request, body: PasswordChange, session: SessionDep, user: CurrentUser
+) -> PasswordChanged:
+    """Change one's own password: the current one is checked under the login throttle (a wrong
+    one: 403, then 429). One's other browser sessions end; this one and one's API tokens stay."""
+    try:
+        authenticate_throttled(request, session, user.username, body.current)
+    except AuthenticationError:
+        raise PermissionDeniedError("The current password is not right.") from None
+    web_session = getattr(request.state, "web_session", None)
+    ended, active = service.change_own_password(
+        session, user, body.new, web_session.id if web_session is not None else None
+    )
+    return PasswordChanged(sessions_ended=ended, tokens_active=active)
 
 
 @router.get("/users", response_model=list[UserOut])
@@ -75,6 +102,7 @@ def create_token(
     body = body or TokenIn()
     if body.username is not None or body.password is not None:  # the credentials decide
         caller = authenticate_throttled(request, session, body.username or "", body.password or "")
+        caller.last_login_at = utcnow()
     if caller is None:
         raise AuthenticationError(
             "Send 'Authorization: Bearer <token>', log in, or give username and password."

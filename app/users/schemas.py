@@ -20,6 +20,9 @@ class UserOut(BaseModel):
     role: Role
     is_active: bool
     created_at: dt.datetime
+    last_login_at: dt.datetime | None = Field(
+        default=None, description="The last login with the form or a password (never: null)."
+    )
 
 
 class UserIn(InputModel):
@@ -32,6 +35,18 @@ class UserPatch(InputModel):
     role: Role | None = None
     is_active: bool | None = None
     password: str | None = Field(default=None, min_length=8, max_length=1024)
+
+
+class PasswordChange(InputModel):
+    current: str = Field(max_length=1024, description="The password in use now.")
+    new: str = Field(min_length=8, max_length=1024)
+
+
+class PasswordChanged(BaseModel):
+    sessions_ended: int = Field(description="The caller's other browser sessions, now logged out.")
+    tokens_active: int = Field(
+        description="The caller's API tokens, still valid (revoke any you did not make)."
+    )
 
 
 class TokenOut(BaseModel):

@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from app.db import commit_or_conflict, utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import ApiToken, Role, User, WebSession
-from app.security import hash_password, issue_token
+from app.security import hash_password, issue_token, verify_password
 from app.users.schemas import USERNAME_PATTERN
 
 MIN_PASSWORD_LENGTH = 8
@@ -96,6 +96,30 @@ def update_user(
         raise ConflictError("This would leave no active admin; promote another user first.")
     session.commit()
     return user
+
+
+def change_own_password(
+    session: Session, user: User, new: str, keep_session_id: int | None
+) -> tuple[int, int]:
+    """A user's own new password (the current one checked by the caller, under the login
+    throttle). Their other browser sessions end, the one making the change stays (``keep``);
+    their API tokens stay, listed beside the form to revoke. Returns (sessions ended, tokens
+    still active)."""
+    _check_password(new)
+    if verify_password(user.password_hash, new):
+        raise InvalidInputError("The new password is the one in use; choose another.")
+    user.password_hash = hash_password(new)
+    others = sa.delete(WebSession).where(WebSession.user_id == user.id)
+    if keep_session_id is not None:
+        others = others.where(WebSession.id != keep_session_id)
+    ended = session.execute(others).rowcount or 0
+    active = session.scalar(
+        sa.select(sa.func.count())
+        .select_from(ApiToken)
+        .where(ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None))
+    )
+    session.commit()
+    return ended, int(active or 0)
 
 
 def create_token(session: Session, user: User, name: str = "") -> tuple[ApiToken, str]:

@@ -14,9 +14,10 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
 from app.bounds import IdPath
+from app.db import utcnow
 from app.deps import SessionDep, SettingsDep
 from app.errors import AuthenticationError, TooManyAttemptsError
-from app.models import User
+from app.models import Role, User
 from app.security import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
@@ -94,6 +95,7 @@ def login(
     except AuthenticationError as exc:
         return _login_page(request, _safe_next(next), exc.message, 401)
     _, cookie = open_web_session(session, user, settings.session_ttl_hours)
+    user.last_login_at = utcnow()
     session.commit()
     response = RedirectResponse(_safe_next(next), status_code=303)
     response.set_cookie(
@@ -153,6 +155,20 @@ def jobs(request: Request, _user: LoggedIn) -> Response:
 def tokens(request: Request, _user: LoggedIn) -> Response:
     """The caller's API tokens: create (shown once), list, revoke."""
     return render(request, "tokens.html", page="tokens")
+
+
+@router.get("/account")
+def account(request: Request, _user: LoggedIn) -> Response:
+    """One's own account: change the password, one's API tokens."""
+    return render(request, "account.html", page="account")
+
+
+@router.get("/users")
+def users(request: Request, user: LoggedIn) -> Response:
+    """The lab's users (admins): add, change role, deactivate, set a new password."""
+    if user.role != Role.admin:
+        return render(request, "forbidden.html", 403, page="users", what="manage users")
+    return render(request, "users.html", page="users")
 
 
 @router.get("/models")

@@ -666,13 +666,13 @@ def test_review_switches_between_proposals_and_records_the_one_accepted(
 
 
 def test_token_page_creates_shows_once_and_revokes(page: Any, server: LiveServer) -> None:
-    """From the user name in the header: create a token (shown once, and it works), see it
-    listed, revoke it after confirming (then it no longer works)."""
+    """From the user name in the header (the account page): create a token (shown once, and it
+    works), see it listed, revoke it after confirming (then it no longer works)."""
     import httpx
 
     login(page, server, "anna")
     page.click("[data-testid=current-user]")
-    page.wait_for_url(f"{server.url}/tokens")
+    page.wait_for_url(f"{server.url}/account")
     page.wait_for_selector("body[data-ready]")
     page.fill("[data-testid=token-name]", "robot cell 3")
     page.click("[data-testid=create-token]")

@@ -1,0 +1,133 @@
+"""The team in the browser: the users page (admins) and one's own account page."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from tests.web.conftest import shoot
+from tests.web.server import PASSWORD, LiveServer, accept_dialogs, login
+
+
+def _row(page: Any, name: str) -> Any:
+    return page.locator(f"[data-testid=user-row][data-username='{name}']")
+
+
+def _toast(page: Any, kind: str, text: str) -> str:
+    toast = page.locator(f"[data-testid=toast-{kind}]", has_text=text).last
+    toast.wait_for()
+    return str(toast.inner_text())
+
+
+def _login_as(browser: Any, server: LiveServer, name: str, password: str) -> Any:
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    tab = context.new_page()
+    tab.goto(f"{server.url}/login")
+    tab.fill("input[name=username]", name)
+    tab.fill("input[name=password]", password)
+    tab.click("[data-testid=login-submit]")
+    return tab
+
+
+def test_an_admin_adds_a_user_changes_role_password_and_activity(
+    page: Any, browser: Any, server: LiveServer
+) -> None:
+    """From the Users link: add a user, make them a reviewer, give them a new password (they
+    log in with it, not the old one), deactivate (they cannot log in) and reactivate them; the
+    last admin's demotion is refused with the server's sentence and the role shown stays."""
+    dialogs = accept_dialogs(page)
+    login(page, server, "ada")
+    page.click("[data-testid=nav-users]")
+    page.wait_for_url(f"{server.url}/users")
+    page.wait_for_selector("body[data-ready]")
+    page.fill("[data-testid=new-username]", "tess")
+    page.select_option("[data-testid=new-role]", "annotator")
+    page.fill("[data-testid=new-user-password]", "first-password")
+    page.click("[data-testid=add-user]")
+    _toast(page, "ok", "tess added as annotator")
+    tess = _row(page, "tess")
+    tess.wait_for()
+    assert "never" in tess.locator("[data-testid=last-login]").inner_text()
+
+    tess.locator("[data-testid=user-role]").select_option("reviewer")
+    _toast(page, "ok", "tess is now reviewer")
+    users = {u["username"]: u for u in server.api("GET", "/users", user="ada").json()}
+    assert users["tess"]["role"] == "reviewer" and users["tess"]["is_active"]
+
+    _row(page, "tess").locator("[data-testid=set-password]").click()
+    page.fill("[data-testid=set-password-input]", "second-password")
+    page.click("[data-testid=set-password-save]")
+    _toast(page, "ok", "tess has a new password")
+    old = _login_as(browser, server, "tess", "first-password")
+    assert "Wrong user name or password" in old.inner_text("body")
+    old.context.close()
+    new = _login_as(browser, server, "tess", "second-password")
+    new.wait_for_url(f"{server.url}/")
+    new.context.close()
+    page.reload()
+    page.wait_for_selector("body[data-ready]")
+    assert "never" not in _row(page, "tess").locator("[data-testid=last-login]").inner_text()
+
+    _row(page, "tess").locator("[data-testid=deactivate-user]").click()
+    _toast(page, "ok", "tess is deactivated")
+    assert dialogs and "Deactivate tess?" in dialogs[-1]
+    _row(page, "tess").locator(".badge.deactivated").wait_for()
+    shoot(page, "users")
+    locked = _login_as(browser, server, "tess", "second-password")
+    assert "Wrong user name or password" in locked.inner_text("body")
+    locked.context.close()
+    _row(page, "tess").locator("[data-testid=reactivate-user]").click()
+    _toast(page, "ok", "tess is active again")
+    _row(page, "tess").locator(".badge.active").wait_for()
+
+    # the instance's first admin out of the way for a moment: ada is the last active admin
+    first = {u["username"]: u for u in server.api("GET", "/users", user="ada").json()}["admin"]
+    server.api("PATCH", f"/users/{first['id']}", user="ada", json={"is_active": False})
+    try:
+        page.reload()
+        page.wait_for_selector("body[data-ready]")
+        _row(page, "ada").locator("[data-testid=user-role]").select_option("reviewer")
+        refusal = _toast(page, "error", "no active admin")
+        assert refusal == "This would leave no active admin; promote another user first."
+        page.wait_for_timeout(300)  # the list is read again after the refusal
+        assert _row(page, "ada").locator("[data-testid=user-role]").input_value() == "admin"
+        assert server.api("GET", "/users/me", user="ada").json()["role"] == "admin"
+    finally:
+        server.api("PATCH", f"/users/{first['id']}", user="ada", json={"is_active": True})
+
+
+def test_a_user_changes_their_own_password_on_the_account_page(
+    page: Any, browser: Any, server: LiveServer
+) -> None:
+    """From one's name in the header: a wrong current password is refused in one sentence,
+    two different new ones are caught before sending, then the change works: another browser
+    of the same user is logged out, this one stays, the new password logs in."""
+    server.api("POST", "/users", user="ada", json={"username": "uwe", "password": PASSWORD})
+    elsewhere = _login_as(browser, server, "uwe", PASSWORD)
+    elsewhere.wait_for_url(f"{server.url}/")
+    login(page, server, "uwe")
+    page.click("[data-testid=current-user]")
+    page.wait_for_url(f"{server.url}/account")
+    page.wait_for_selector("body[data-ready]")  # the token list beside the form
+    page.fill("[data-testid=current-password]", "not-my-password")
+    page.fill("[data-testid=new-password]", "uwe-new-password")
+    page.fill("[data-testid=repeat-password]", "uwe-new-password")
+    page.click("[data-testid=change-password]")
+    assert _toast(page, "error", "current password") == "The current password is not right."
+    page.fill("[data-testid=current-password]", PASSWORD)
+    page.fill("[data-testid=repeat-password]", "uwe-other-password")
+    page.click("[data-testid=change-password]")
+    _toast(page, "error", "two new passwords differ")
+    page.fill("[data-testid=repeat-password]", "uwe-new-password")
+    page.click("[data-testid=change-password]")
+    result = page.locator("[data-testid=password-result]")
+    result.wait_for()
+    assert "1 other browser session was logged out" in result.inner_text()
+    shoot(page, "account")
+    elsewhere.goto(f"{server.url}/jobs")
+    assert "/login" in elsewhere.url  # that browser's session ended
+    elsewhere.context.close()
+    page.goto(f"{server.url}/jobs")
+    assert page.url == f"{server.url}/jobs"  # this one stays
+    again = _login_as(browser, server, "uwe", "uwe-new-password")
+    again.wait_for_url(f"{server.url}/")
+    again.context.close()
