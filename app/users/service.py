@@ -109,17 +109,18 @@ def change_own_password(
     if verify_password(user.password_hash, new):
         raise InvalidInputError("The new password is the one in use; choose another.")
     user.password_hash = hash_password(new)
-    others = sa.delete(WebSession).where(WebSession.user_id == user.id)
+    others = [WebSession.user_id == user.id]
     if keep_session_id is not None:
-        others = others.where(WebSession.id != keep_session_id)
-    ended = session.execute(others).rowcount or 0
+        others.append(WebSession.id != keep_session_id)
+    ended = session.scalar(sa.select(sa.func.count()).select_from(WebSession).where(*others))
+    session.execute(sa.delete(WebSession).where(*others))
     active = session.scalar(
         sa.select(sa.func.count())
         .select_from(ApiToken)
         .where(ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None))
     )
     session.commit()
-    return ended, int(active or 0)
+    return int(ended or 0), int(active or 0)
 
 
 def create_token(session: Session, user: User, name: str = "") -> tuple[ApiToken, str]:
