@@ -44,6 +44,7 @@ from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
 from app.users.routes import tokens_router
+from app.web.routes import render
 from app.web.routes import router as web_router
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -199,9 +200,10 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
         return JSONResponse(app.openapi())
 
     @app.get("/docs", include_in_schema=False, dependencies=protected)
-    def docs() -> HTMLResponse:
-        """Swagger UI from the vendored copy under static/ (works offline)."""
-        return HTMLResponse((ROOT / "templates" / "docs.html").read_text(encoding="utf-8"))
+    def docs(request: Request) -> HTMLResponse:
+        """Swagger UI from the vendored copy under static/ (works offline); "Try it out" sends
+        the session's CSRF token, or the token given under Authorize."""
+        return render(request, "docs.html")
 
     app.mount("/static", StaticFiles(directory=ROOT / "static"), name="static")
     return app

@@ -102,6 +102,20 @@ def openapi_schema(app: FastAPI) -> dict[str, Any]:
                 if path in PUBLIC and code != "503":
                     continue
                 responses.setdefault(code, _error(description, "Error"))
+    components_root = schema["components"]
+    components_root["securitySchemes"] = {
+        "bearer": {
+            "type": "http",
+            "scheme": "bearer",
+            "description": "An API token (the account page, `weldpool token NAME`, or "
+            "`POST /api/v1/tokens` with a name and password). A logged-in browser may instead "
+            "send its session cookie and, on writes, its `X-CSRF-Token`: the API page does.",
+        },
+    }  # the session cookie is not a scheme here: Swagger UI cannot set one, the browser does
+    schema["security"] = [{"bearer": []}]
+    for path in PUBLIC:
+        for operation in schema.get("paths", {}).get(path, {}).values():
+            operation["security"] = []
     token = schema.get("paths", {}).get("/api/v1/tokens", {}).get("post")
     if token is not None:  # a token by password counts towards the login lockout
         token["responses"]["429"] = _error("Too many wrong passwords; see Retry-After.", "Error")

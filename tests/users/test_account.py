@@ -115,3 +115,18 @@ def test_the_users_page_is_for_admins_and_the_account_page_for_everyone(
     page = admin.get("/users")
     assert page.status_code == 200 and 'data-testid="user-table"' in page.text
     assert 'data-testid="nav-users"' in admin.get("/").text
+
+
+def test_the_schema_offers_a_bearer_token_to_every_operation_but_health(
+    client: TestClient, make_user
+) -> None:
+    _, token = make_user("pia")
+    schema = client.get("/api/v1/openapi.json", headers=auth(token)).json()
+    assert schema["components"]["securitySchemes"]["bearer"] == {
+        "type": "http",
+        "scheme": "bearer",
+        "description": schema["components"]["securitySchemes"]["bearer"]["description"],
+    }
+    assert schema["security"] == [{"bearer": []}]
+    assert schema["paths"]["/api/v1/health"]["get"]["security"] == []
+    assert "security" not in schema["paths"]["/api/v1/frames"]["get"]  # the global one holds
