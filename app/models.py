@@ -256,6 +256,13 @@ class Frame(Base):
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    assignee_id: Mapped[int | None] = mapped_column(
+        sa.ForeignKey("users.id", ondelete="SET NULL"), index=True
+    )
+    """The person the frame is handed to (``POST /frames/assign``); None: anyone's."""
+    assigned_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+
+    assignee: Mapped[User | None] = relationship(foreign_keys=[assignee_id], lazy="selectin")
 
 
 class Proposal(Base):

@@ -37,9 +37,15 @@ def list_query(
     status: FrameStatus | Literal["unreviewed"] | None = None,
     split: Split | None = None,
     order: str = "id",
+    assignee: int | Literal["none"] | None = None,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
-    """The ordered query of a frame list and the query of its count (which reads no row)."""
+    """The ordered query of a frame list and the query of its count (which reads no row);
+    ``assignee``: the frames handed to that user, or (``none``) to nobody."""
     conditions: list[Any] = []
+    if assignee == "none":
+        conditions.append(Frame.assignee_id.is_(None))
+    elif assignee is not None:
+        conditions.append(Frame.assignee_id == assignee)
     if sequence_id is not None:
         conditions.append(Frame.sequence_id == sequence_id)
     if status == "unreviewed":
@@ -172,6 +178,7 @@ def list_frames(
     after: str | None = None,
     diversity: float = 0.0,
     diversity_pool: int = 50,
+    assignee: int | Literal["none"] | None = None,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
@@ -179,7 +186,9 @@ def list_frames(
     diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
     if after is not None and offset:
         raise InvalidInputError("Use either `offset` or `after`, not both.")
-    ordered, count = list_query(sequence_id=sequence_id, status=status, split=split, order=order)
+    ordered, count = list_query(
+        sequence_id=sequence_id, status=status, split=split, order=order, assignee=assignee
+    )
     total = session.scalar(count) or 0
     position = offset
     key: list[Any] | None = None

@@ -12,9 +12,11 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from app.bounds import MAX_ID, IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import InvalidInputError
-from app.frames import deletion, ingest, listing, sequences, videos
+from app.frames import assignments, deletion, ingest, listing, sequences, videos
 from app.frames.multipart import StreamedForm, one_spooled_file, openapi_form, optional_int
 from app.frames.schemas import (
+    AssignIn,
+    AssignOut,
     DeletionOut,
     Duplicate,
     FrameDetail,
@@ -103,6 +105,22 @@ def delete_sequence(
 
 
 # --- frames ------------------------------------------------------------------------------------
+
+
+@router.post("/frames/assign", response_model=AssignOut)
+def assign_frames(body: AssignIn, session: SessionDep, _user: ReviewerUser) -> AssignOut:
+    """Hand frames to a person (reviewers): the `frame_ids` given, or the `next` N frames of
+    the queue nobody has yet; `assignee_id` null takes them back. Anyone may still review an
+    assigned frame; the assignee's queue is `GET /frames?assignee=me`."""
+    ids = assignments.assign_frames(
+        session,
+        body.assignee_id,
+        frame_ids=body.frame_ids,
+        next_count=body.next,
+        sequence_id=body.sequence_id,
+    )
+    person = assignments.assignee(session, body.assignee_id)
+    return AssignOut(assigned=len(ids), frame_ids=ids, assignee=person.username if person else None)
 
 
 @router.post("/frames/delete", response_model=DeletionOut)
@@ -196,7 +214,7 @@ async def upload_frames(
 def list_frames(
     session: SessionDep,
     settings: SettingsDep,
-    _user: CurrentUser,
+    user: CurrentUser,
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: Annotated[
         FrameStatus | Literal["unreviewed", "all"] | None,
@@ -211,6 +229,13 @@ def list_frames(
         pattern="^(id|-id|frame_index|uncertainty)$",
         description="`uncertainty`: the active-learning queue, most unsure first.",
     ),
+    assignee: Annotated[
+        str | None,
+        Query(
+            pattern=r"^(me|none|[1-9][0-9]{0,8})$",
+            description="`me`: the frames handed to the caller; `none`: to nobody; a user id.",
+        ),
+    ] = None,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -234,6 +259,15 @@ def list_frames(
         after=after,
         diversity=settings.queue_diversity,
         diversity_pool=settings.queue_diversity_pool,
+        assignee=(
+            None
+            if assignee is None
+            else user.id
+            if assignee == "me"
+            else "none"
+            if assignee == "none"
+            else int(assignee)
+        ),
     )
     return FramePage(
         items=[FrameOut.model_validate(r) for r in page.rows],

@@ -172,6 +172,15 @@ class FrameOut(BaseModel):
         default=None, description="The component that puts the frame high in the queue."
     )
     created_at: dt.datetime
+    assignee_id: int | None = Field(
+        default=None, description="The user the frame is handed to (`POST /frames/assign`)."
+    )
+    assignee: str | None = Field(default=None, description="That user's name.")
+
+    @field_validator("assignee", mode="before")
+    @classmethod
+    def _assignee_name(cls, value: Any) -> Any:
+        return getattr(value, "username", value)
 
 
 class LabelState(BaseModel):
@@ -256,6 +265,27 @@ class DeletionOut(BaseModel):
     deleted_frames: int
     deleted_reviewed: int = Field(description="Of them, frames with reviewed labels.")
     removed_files: int = Field(description="Stored files no other row named.")
+
+
+class AssignIn(InputModel):
+    """Frames to hand to a person: a selection, or the next frames of the review queue."""
+
+    frame_ids: list[Id] | None = Field(default=None, min_length=1, max_length=10_000)
+    next: int | None = Field(
+        default=None,
+        ge=1,
+        le=1000,
+        description="Instead of frame_ids: the next N frames of the queue (still to review, "
+        "most uncertain first) that nobody has yet.",
+    )
+    sequence_id: Id | None = Field(default=None, description="With next: that run's queue.")
+    assignee_id: Id | None = Field(description="The user; null takes the frames back.")
+
+
+class AssignOut(BaseModel):
+    assigned: int
+    frame_ids: list[int]
+    assignee: str | None
 
 
 class FramesDeleteIn(InputModel):

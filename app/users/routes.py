@@ -11,7 +11,13 @@ from app.db import utcnow
 from app.deps import SessionDep
 from app.errors import AuthenticationError, PermissionDeniedError
 from app.models import User
-from app.security import AdminUser, CurrentUser, authenticate_throttled, optional_user
+from app.security import (
+    AdminUser,
+    CurrentUser,
+    ReviewerUser,
+    authenticate_throttled,
+    optional_user,
+)
 from app.users import service
 from app.users.schemas import (
     PasswordChange,
@@ -19,6 +25,7 @@ from app.users.schemas import (
     TokenCreated,
     TokenIn,
     TokenOut,
+    UserBrief,
     UserIn,
     UserOut,
     UserPatch,
@@ -48,6 +55,12 @@ def change_my_password(
         session, user, body.new, web_session.id if web_session is not None else None
     )
     return PasswordChanged(sessions_ended=ended, tokens_active=active)
+
+
+@router.get("/users/assignable", response_model=list[UserBrief])
+def assignable_users(session: SessionDep, _reviewer: ReviewerUser) -> list[UserBrief]:
+    """The active users frames can be handed to (reviewers; names and roles only)."""
+    return [UserBrief.model_validate(u) for u in service.list_users(session) if u.is_active]
 
 
 @router.get("/users", response_model=list[UserOut])

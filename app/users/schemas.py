@@ -25,6 +25,14 @@ class UserOut(BaseModel):
     )
 
 
+class UserBrief(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    username: str
+    role: Role
+
+
 class UserIn(InputModel):
     username: str = Field(pattern=USERNAME_PATTERN)
     password: str = Field(min_length=8, max_length=1024)
