@@ -1,14 +1,14 @@
 // The frames page: sequences, the filtered frame list (the review queue by default), uploads
 // of frames and videos with per-file progress, and teacher runs on a sequence or a selection.
 
-import { api, ApiError, isReviewer, jobFromButton, query, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
+import { api, ApiError, isReviewer, jobFromButton, query, ROLE, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
 import { count, decimal, everyNth, mmPerPx, score } from "./format.js";
 import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
 import { probeVideo } from "./video.js";
 
 const PAGE_SIZE = 50;
 const VIDEO = /\.(mp4|avi)$/i;
-const FILTERS = ["sequence_id", "status", "split", "order"];
+const FILTERS = ["sequence_id", "status", "split", "assignee", "order"];
 
 const filterForm = document.getElementById("filters");
 const rows = document.getElementById("frame-rows");
@@ -138,6 +138,7 @@ function frameRow(frame) {
     h("td", { class: "muted" }, `${frame.width}×${frame.height}`, frame.bit_depth === 16 ? " · 16-bit" : "", h("br"), formatBytes(frame.size_bytes)),
     h("td", {}, badge(frame.status)),
     h("td", {}, frame.split),
+    h("td", { "data-testid": "frame-assignee" }, frame.assignee ?? h("span", { class: "muted" }, "—")),
     h("td", { class: "num" }, uncertainty),
   );
 }
@@ -148,7 +149,7 @@ async function loadFrames() {
   try {
     lastPage = await api(`/frames${query(params)}`);
   } catch (error) {
-    rows.replaceChildren(h("tr", {}, h("td", { colspan: "7", class: "error" }, error.message)));
+    rows.replaceChildren(h("tr", {}, h("td", { colspan: "8", class: "error" }, error.message)));
     return;
   }
   if (!lastPage.items.length && offset > 0) {
@@ -157,7 +158,7 @@ async function loadFrames() {
   }
   rows.replaceChildren(...(lastPage.items.length
     ? lastPage.items.map(frameRow)
-    : [h("tr", {}, h("td", { colspan: "7", class: "empty", "data-testid": "frames-empty" },
+    : [h("tr", {}, h("td", { colspan: "8", class: "empty", "data-testid": "frames-empty" },
         filters().status === "unreviewed"
           ? "Nothing left to review here. Status “all” shows the frames already reviewed; drop frames above to add more."
           : "No frames match. Drop frames above, or import labels made elsewhere, to start."))]));
@@ -174,6 +175,7 @@ async function loadFrames() {
 
 function updateSelection() {
   document.getElementById("selection-count").textContent = `${selected.size} selected`;
+  document.getElementById("assign-selection").disabled = selected.size === 0;
   document.getElementById("delete-selection").disabled = selected.size === 0;
   const teacherButton = document.getElementById("teacher-selection");
   teacherButton.disabled = selected.size === 0 || Boolean(TEACHER_PROBLEM);
@@ -309,6 +311,7 @@ async function deleteWork(path, options, question) {
     }
     toast(`Deleted ${count(result.deleted_frames, "frame")}.`, "ok");
     selected.clear();
+    updateSelection();
     await loadSequences();
     await loadFrames();
   } catch (error) {
@@ -483,9 +486,58 @@ dropzone.addEventListener("drop", (event) => {
   if (event.dataTransfer?.files?.length) uploadAll(event.dataTransfer.files);
 });
 
+// --- assignments ------------------------------------------------------------------------------
+
+const assignTo = document.getElementById("assign-to");
+
+/** Reviewers hand frames out: the people to pick, in the bar and as list filters. */
+async function loadAssignees() {
+  if (!isReviewer()) return;
+  const users = await api("/users/assignable");
+  assignTo.replaceChildren(
+    ...users.map((user) => h("option", { value: String(user.id) }, `${user.username} (${user.role})`)),
+    h("option", { value: "" }, "nobody (take them back)"));
+  const filter = document.getElementById("filter-assignee");
+  for (const user of users) filter.append(h("option", { value: String(user.id) }, `to ${user.username}`));
+  document.getElementById("assign-controls").hidden = false;
+}
+
+async function assign(body) {
+  const assigneeId = assignTo.value ? Number(assignTo.value) : null;
+  try {
+    const result = await api("/frames/assign", { method: "POST", json: { ...body, assignee_id: assigneeId } });
+    if (!result.assigned) toast("Nobody's frames are left in this queue to hand out.", "info");
+    else toast(`${count(result.assigned, "frame")} ${result.assignee ? `assigned to ${result.assignee}` : "taken back: nobody's now"}.`, "ok");
+    selected.clear();
+    updateSelection();
+  } catch (error) {
+    toast(error.message, "error");
+  }
+  loadFrames();
+}
+
+document.getElementById("assign-selection").addEventListener("click", () => assign({ frame_ids: [...selected] }));
+document.getElementById("assign-next").addEventListener("click", () => {
+  const next = Math.min(1000, Math.max(1, Math.round(Number(document.getElementById("assign-count").value) || 1)));
+  const sequenceId = filters().sequence_id;
+  assign({ next, ...(sequenceId ? { sequence_id: Number(sequenceId) } : {}) });
+});
+
+/** An annotator with frames handed to them starts on those (unless the URL says otherwise). */
+async function assignedFirst() {
+  if (ROLE !== "annotator" || new URLSearchParams(location.search).has("assignee")) return;
+  const mine = await api("/frames?assignee=me&status=unreviewed&limit=1").catch(() => null);
+  if (mine?.total) {
+    filterForm.elements.assignee.value = "me";
+    toast(`${count(mine.total, "frame")} to review ${mine.total > 1 ? "are" : "is"} assigned to you: shown first. “Assigned: to anyone” shows all.`, "info", 6000);
+  }
+}
+
 // --- start ------------------------------------------------------------------------------------
 
+await loadAssignees().catch((error) => toast(error.message, "error"));
 restoreFilters();
+await assignedFirst();
 await loadSequences().catch((error) => toast(error.message, "error"));
 restoreFilters();
 await refresh();

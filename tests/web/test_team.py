@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from tests.web.conftest import shoot
-from tests.web.server import PASSWORD, LiveServer, accept_dialogs, login
+from tests.web.conftest import shoot, synthetic_png
+from tests.web.server import PASSWORD, LiveServer, accept_dialogs, login, wait_for_js
 
 
 def _row(page: Any, name: str) -> Any:
@@ -181,3 +181,56 @@ def test_the_api_page_writes_with_the_session_and_with_an_authorized_token(
     assert status == "200" and '"username": "anna"' in body  # still authorized
     page.click("[data-testid=back-to-app]")
     page.wait_for_url(f"{server.url}/")
+
+
+def test_a_reviewer_hands_frames_to_an_annotator_who_starts_on_them(
+    page: Any, server: LiveServer
+) -> None:
+    """A reviewer assigns a selection and the next frame of a run's queue to anna; the list
+    names her; anna's frames page opens on "assigned to me", the review page names her as the
+    assignee, and its Next stays within her frames."""
+    sequence = server.api("POST", "/sequences", json={"name": "Handed-out run"}).json()
+    files = [("files", (f"h{i}.png", synthetic_png(700 + i), "image/png")) for i in range(5)]
+    stored = server.api("POST", "/frames", files=files, data={"sequence_id": sequence["id"]})
+    ids = [f["id"] for f in stored.json()["stored"]]
+    anna = next(u for u in server.api("GET", "/users/assignable").json() if u["username"] == "anna")
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/?sequence_id={sequence['id']}&status=all&order=id")
+    page.wait_for_selector("body[data-ready]")
+    page.select_option("[data-testid=assign-to]", str(anna["id"]))
+    for frame_id in ids[:2]:
+        page.check(f"[data-testid=frame-row][data-frame-id='{frame_id}'] input[type=checkbox]")
+    page.click("[data-testid=assign-selection]")
+    page.locator("[data-testid=toast-ok]", has_text="2 frames assigned to anna").wait_for()
+    assert page.inner_text("#selection-count") == "0 selected"
+    page.fill("[data-testid=assign-count]", "1")
+    page.click("[data-testid=assign-next]")
+    page.locator("[data-testid=toast-ok]", has_text="1 frame assigned to anna").wait_for()
+    wait_for_js(
+        page,
+        "[...document.querySelectorAll('[data-testid=frame-assignee]')]"
+        ".filter((cell) => cell.textContent === 'anna').length === 3",
+    )
+    shoot(page, "frames-assigned")
+    mine = [f for f in ids if server.api("GET", f"/frames/{f}").json()["assignee"] == "anna"]
+    assert len(mine) == 3 and set(ids[:2]) <= set(mine)
+
+    page.context.clear_cookies()
+    login(page, server, "anna")
+    page.wait_for_selector("body[data-ready]")
+    assert page.input_value("[data-testid=filter-assignee]") == "me"
+    page.locator("[data-testid=toast-info]", has_text="assigned to you").wait_for()
+    wait_for_js(page, "document.querySelectorAll('[data-testid=frame-row]').length > 0")
+    listed = [
+        int(row.get_attribute("data-frame-id"))
+        for row in page.locator("[data-testid=frame-row]").all()
+    ]
+    assert sorted(listed) == sorted(mine)
+    page.click("[data-testid=start-review]")
+    page.wait_for_selector("[data-testid=frame-canvas]")
+    wait_for_js(page, "document.getElementById('frame-meta').textContent.includes('assigned to')")
+    assert "assigned to anna" in page.inner_text("#frame-meta")
+    wait_for_js(
+        page, "document.getElementById('queue-position').textContent.includes('of 3 in this queue')"
+    )

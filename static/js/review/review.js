@@ -47,6 +47,7 @@ export function renderFrameInfo() {
   $("frame-title").textContent = `Frame #${S.frame.id}`;
   const parts = [S.frame.original_name, `${S.frame.width}×${S.frame.height}`, `${S.frame.bit_depth}-bit`, `${S.frame.split} split`];
   if (S.frame.frame_index !== null) parts.push(`index ${S.frame.frame_index}`);
+  if (S.frame.assignee) parts.push(`assigned to ${S.frame.assignee}`);
   $("frame-meta").textContent = parts.filter(Boolean).join(" · ");
   const pieces = [badge(S.frame.status)];
   if (S.revision) pieces.push(h("span", { class: "muted" }, ` revision ${S.revision}`));
