@@ -61,6 +61,11 @@ class Settings(BaseSettings):
         default=480, ge=64, description="DINO sees frames resized to this square (multiple of 8)."
     )
     device: str = Field(default="auto", description="cpu, cuda, cuda:N, mps or auto.")
+    review_stage: bool = Field(
+        default=False,
+        description="Labels annotators save await a reviewer's approval (or are sent back with "
+        "a comment) and train only once approved; off: every saved label counts at once.",
+    )
     retrain_every: int = Field(
         default=20,
         ge=0,

@@ -70,6 +70,15 @@ class JobStatus(enum.StrEnum):
         return self in (JobStatus.succeeded, JobStatus.failed, JobStatus.cancelled)
 
 
+class ReviewState(enum.StrEnum):
+    """Where an annotator's label stands in the review stage (``WELDPOOL_REVIEW_STAGE``);
+    a label without one (the stage off, or saved before it was on) counts as approved."""
+
+    awaiting = "awaiting"
+    approved = "approved"
+    returned = "returned"
+
+
 def _enum(cls: type[enum.StrEnum], name: str) -> sa.Enum:
     # Stored as plain strings with a CHECK constraint: portable and easy to extend by migration.
     return sa.Enum(
@@ -323,6 +332,10 @@ class Label(Base):
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    # The review stage (off: all NULL): awaiting a reviewer, approved, or returned with a
+    # comment; who decided last (``updated_by`` of that revision) is in the history.
+    review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
+    review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
 
 
 class LabelRevision(Base):
@@ -344,6 +357,8 @@ class LabelRevision(Base):
     )
     mask_changed: Mapped[bool | None]
     source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
+    review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
+    review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 

@@ -12,7 +12,15 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session, undefer
 
 from app.errors import InvalidInputError, NotFoundError
-from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Label, Split, ValidationKeypoints
+from app.models import (
+    UNREVIEWED_SQL,
+    Frame,
+    FrameStatus,
+    Label,
+    ReviewState,
+    Split,
+    ValidationKeypoints,
+)
 from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
@@ -38,10 +46,17 @@ def list_query(
     split: Split | None = None,
     order: str = "id",
     assignee: int | Literal["none"] | None = None,
+    review: ReviewState | None = None,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
-    ``assignee``: the frames handed to that user, or (``none``) to nobody."""
+    ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
+    frames whose label is in that state of the review stage (approved: NULL too)."""
     conditions: list[Any] = []
+    if review is not None:
+        state = Label.review == review
+        if review == ReviewState.approved:
+            state = sa.or_(state, Label.review.is_(None))
+        conditions.append(Frame.id.in_(sa.select(Label.frame_id).where(state)))
     if assignee == "none":
         conditions.append(Frame.assignee_id.is_(None))
     elif assignee is not None:
@@ -179,6 +194,7 @@ def list_frames(
     diversity: float = 0.0,
     diversity_pool: int = 50,
     assignee: int | Literal["none"] | None = None,
+    review: ReviewState | None = None,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
@@ -187,7 +203,12 @@ def list_frames(
     if after is not None and offset:
         raise InvalidInputError("Use either `offset` or `after`, not both.")
     ordered, count = list_query(
-        sequence_id=sequence_id, status=status, split=split, order=order, assignee=assignee
+        sequence_id=sequence_id,
+        status=status,
+        split=split,
+        order=order,
+        assignee=assignee,
+        review=review,
     )
     total = session.scalar(count) or 0
     position = offset
@@ -258,7 +279,12 @@ def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, A
     )
     return {
         "label": label
-        and {"status": label.status, "revision": label.revision, "updated_at": label.updated_at},
+        and {
+            "status": label.status,
+            "revision": label.revision,
+            "updated_at": label.updated_at,
+            "review": label.review,
+        },
         "proposal": proposal
         and {
             "id": proposal.id,

@@ -32,7 +32,7 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
-from app.models import FrameStatus, Split
+from app.models import FrameStatus, ReviewState, Split
 from app.security import CurrentUser, ReviewerUser
 
 router = APIRouter(tags=["frames"])
@@ -236,6 +236,13 @@ def list_frames(
             description="`me`: the frames handed to the caller; `none`: to nobody; a user id.",
         ),
     ] = None,
+    review: Annotated[
+        ReviewState | None,
+        Query(
+            description="The review stage: frames whose label awaits a reviewer, was sent back, "
+            "or is approved (labels saved with the stage off count as approved)."
+        ),
+    ] = None,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -268,6 +275,7 @@ def list_frames(
             if assignee == "none"
             else int(assignee)
         ),
+        review=review,
     )
     return FramePage(
         items=[FrameOut.model_validate(r) for r in page.rows],

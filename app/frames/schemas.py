@@ -11,7 +11,7 @@ from pydantic_core import PydanticCustomError
 
 from app.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX, XY, Id, InputModel
 from app.errors import InvalidInputError
-from app.models import FrameStatus, LabelStatus, Split
+from app.models import FrameStatus, LabelStatus, ReviewState, Split
 from weldpool_core.geometry import scale_from_points
 
 
@@ -187,6 +187,9 @@ class LabelState(BaseModel):
     status: LabelStatus
     revision: int
     updated_at: dt.datetime
+    review: ReviewState | None = Field(
+        default=None, description="The review stage's state of the label (null: stage off)."
+    )
 
 
 class ProposalState(BaseModel):

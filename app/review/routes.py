@@ -40,6 +40,7 @@ from app.review.schemas import (
     ProposalList,
     ProposalOut,
     ProposalSummary,
+    ReviewIn,
     SegmentIn,
     SegmentOut,
     TeacherRunIn,
@@ -277,6 +278,8 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
         source=label.source,
         updated_by=user.username if user else None,
         updated_at=label.updated_at,
+        review=label.review,
+        review_comment=label.review_comment,
     )
 
 
@@ -320,8 +323,41 @@ def put_label(
         mask_png=mask_png,
         keypoints=body.keypoints,
         proposal_id=body.proposal_id,
+        review_stage=settings.review_stage,
     )
     maybe_retrain(session, queue, settings.retrain_every, user)
+    return _label_out(storage, label, user)
+
+
+@router.post(
+    "/frames/{frame_id}/label/review",
+    response_model=LabelOut,
+    responses={409: {"description": "base_revision is stale, or the decision is made already."}},
+)
+def review_label(
+    frame_id: IdPath,
+    body: ReviewIn,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    queue: QueueDep,
+    user: ReviewerUser,
+) -> LabelOut:
+    """The review stage (`WELDPOOL_REVIEW_STAGE`): approve an annotator's label (it trains
+    from now on) or send it back with a `comment` (reviewers); a new revision by the reviewer,
+    so the history shows who decided."""
+    frame = get_frame(session, frame_id)
+    label = service.review_label(
+        session,
+        frame,
+        user,
+        approve=body.decision == "approve",
+        base_revision=body.base_revision,
+        comment=body.comment,
+        review_stage=settings.review_stage,
+    )
+    if body.decision == "approve":
+        maybe_retrain(session, queue, settings.retrain_every, user)
     return _label_out(storage, label, user)
 
 
@@ -338,6 +374,8 @@ def get_label_history(
             keypoints=r.keypoints,
             has_mask=r.mask_path is not None,
             source=r.source,
+            review=r.review,
+            review_comment=r.review_comment,
             user=name,
             created_at=r.created_at,
         )

@@ -8,7 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field, model_validator
 
 from app.bounds import MAX_ID, XY, Id, InputModel
-from app.models import LabelStatus, Split
+from app.models import LabelStatus, ReviewState, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
@@ -188,6 +188,24 @@ class LabelOut(BaseModel):
     """Where a label made elsewhere came from: ``{"kind": "imported", "format", "file"}``."""
     updated_by: str | None
     updated_at: dt.datetime
+    review: ReviewState | None = Field(
+        default=None,
+        description="The review stage's state (`awaiting`, `approved`, `returned`); null: "
+        "the stage was off when it was saved (counts as approved).",
+    )
+    review_comment: str | None = Field(
+        default=None, description="Why a reviewer sent it back (or a note on approval)."
+    )
+
+
+class ReviewIn(InputModel):
+    """A reviewer's decision on an annotator's label (the review stage)."""
+
+    decision: Literal["approve", "return"]
+    base_revision: int = Field(ge=1, le=MAX_ID)
+    comment: str | None = Field(
+        default=None, max_length=1000, description="What to change (needed to send it back)."
+    )
 
 
 class LabelRevisionOut(BaseModel):
@@ -196,6 +214,8 @@ class LabelRevisionOut(BaseModel):
     keypoints: list[list[float]] | None
     has_mask: bool
     source: dict[str, Any] | None = None
+    review: ReviewState | None = None
+    review_comment: str | None = None
     user: str | None
     created_at: dt.datetime
 

@@ -23,6 +23,7 @@ from app.models import (
     LabelRevision,
     LabelStatus,
     Proposal,
+    ReviewState,
     Role,
     Split,
     User,
@@ -234,6 +235,8 @@ def write_label(
             proposal_id=values["proposal_id"],
             mask_changed=values["mask_changed"],
             source=values.get("source"),
+            review=values.get("review"),
+            review_comment=values.get("review_comment"),
             user_id=values["updated_by_id"],
         )
     )
@@ -252,8 +255,12 @@ def save_label(
     mask_png: bytes | None,
     keypoints: list[list[float]] | None,
     proposal_id: int | None = None,
+    review_stage: bool = False,
 ) -> Label:
     """Accept, correct or reject a frame's proposal, guarded by the label's revision.
+
+    With the review stage on, an annotator's label awaits a reviewer (``review_label``) and a
+    reviewer's own is approved as it is saved; off, ``review`` stays NULL (counts as approved).
 
     ``base_revision`` is the revision the client saw (0 when there was no label); a stale one
     raises ConflictError with the current revision. Every change is kept in the history.
@@ -277,6 +284,8 @@ def save_label(
         "source": None,  # drawn here, whatever an earlier revision was imported from
         "updated_by_id": user.id,
         "updated_at": utcnow(),
+        "review": saved_review(user, review_stage),
+        "review_comment": None,
     }
     try:
         label = write_label(session, frame, label, base_revision, values)
@@ -294,6 +303,67 @@ def save_label(
         session.refresh(label)
     except sa.exc.InvalidRequestError:  # saved, then deleted with its frame at once
         raise FrameDeleted(frame_id) from None
+    return label
+
+
+def saved_review(user: User, review_stage: bool) -> ReviewState | None:
+    """The review state of a label ``user`` saves: the stage's one rule."""
+    if not review_stage:
+        return None
+    return ReviewState.approved if user.role.rank >= Role.reviewer.rank else ReviewState.awaiting
+
+
+def review_label(
+    session: Session,
+    frame: Frame,
+    user: User,
+    *,
+    approve: bool,
+    base_revision: int,
+    comment: str | None,
+    review_stage: bool,
+) -> Label:
+    """A reviewer approves an annotator's label, or sends it back with a comment: a new
+    revision with the same content, by the reviewer (the history shows who decided)."""
+    if not review_stage:
+        raise InvalidInputError(
+            "The review stage is off (WELDPOOL_REVIEW_STAGE): saved labels count at once."
+        )
+    if user.role.rank < Role.reviewer.rank:
+        raise PermissionDeniedError("Only reviewers approve labels or send them back.")
+    lock_frame(session, frame.id)
+    label = current_label(session, frame.id)
+    if label is None:
+        raise NotFoundError(f"Frame {frame.id} has no label to review.")
+    if base_revision != label.revision:
+        raise stale_revision(session, frame.id)
+    wanted = ReviewState.approved if approve else ReviewState.returned
+    if label.review in (None, ReviewState.approved) and approve:
+        raise ConflictError("This label is approved already.")
+    if label.review == ReviewState.returned and not approve:
+        raise ConflictError("This label was sent back already; it waits for its annotator.")
+    text = (comment or "").strip()
+    if not approve and not text:
+        raise InvalidInputError("Say what to change: sending a label back needs a comment.")
+    values = {
+        "status": label.status,
+        "mask_path": label.mask_path,
+        "keypoints": label.keypoints,
+        "proposal_id": label.proposal_id,
+        "mask_changed": label.mask_changed,
+        "source": label.source,
+        "updated_by_id": user.id,
+        "updated_at": utcnow(),
+        "review": wanted,
+        "review_comment": text or None,
+    }
+    try:
+        label = write_label(session, frame, label, base_revision, values)
+        session.commit()
+    except sa.exc.IntegrityError:
+        session.rollback()
+        raise stale_revision(session, frame.id) from None
+    session.refresh(label)
     return label
 
 

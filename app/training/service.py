@@ -24,6 +24,7 @@ from app.models import (
     LabelStatus,
     ModelVersion,
     Proposal,
+    ReviewState,
     Split,
     ValidationKeypoints,
     Video,
@@ -32,6 +33,23 @@ from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
+TRAINABLE_LABEL = sa.and_(
+    Label.status.in_(TRAINABLE),
+    sa.or_(Label.review.is_(None), Label.review == ReviewState.approved),
+)
+"""A label the student learns from: accepted or corrected, and approved when the review stage
+asked for it (awaiting or returned ones wait)."""
+
+
+def trainable(label: Label | None) -> bool:
+    """``TRAINABLE_LABEL`` of one loaded label."""
+    return (
+        label is not None
+        and label.status in TRAINABLE
+        and label.review in (None, ReviewState.approved)
+    )
+
+
 TRAIN_KIND = "train_student"
 SEQUENTIAL_KIND = "train_sequential"
 QUANTIZE_KIND = "quantize_student"
@@ -76,12 +94,12 @@ def next_name(session: Session) -> str:
 
 
 def training_frame_ids(session: Session) -> list[int]:
-    """Frames with an accepted or corrected label, outside the validation split."""
+    """Frames with a trainable label (``TRAINABLE_LABEL``), outside the validation split."""
     return list(
         session.scalars(
             sa.select(Frame.id)
             .join(Label, Label.frame_id == Frame.id)
-            .where(Label.status.in_(TRAINABLE), Frame.split != Split.validation)
+            .where(TRAINABLE_LABEL, Frame.split != Split.validation)
             .order_by(Frame.id)
         )
     )
@@ -89,7 +107,7 @@ def training_frame_ids(session: Session) -> list[int]:
 
 def validation_frame_ids(session: Session) -> list[int]:
     """Validation frames that have a reviewed mask or manual keypoints."""
-    labelled = sa.select(Label.frame_id).where(Label.status.in_(TRAINABLE))
+    labelled = sa.select(Label.frame_id).where(TRAINABLE_LABEL)
     manual = sa.select(ValidationKeypoints.frame_id)
     return list(
         session.scalars(
@@ -127,7 +145,7 @@ def labelled_samples(
         )
         mask = None
         try:
-            if label is not None and label.status in TRAINABLE and label.mask_path:
+            if label is not None and trainable(label) and label.mask_path:
                 mask = load_mask(storage, label.mask_path)
             image = frame_rgb(storage, frame) if with_images else None
         except FileNotFoundError:  # its files went with the frame, deleted meanwhile
