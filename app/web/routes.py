@@ -47,6 +47,7 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
     web_session = getattr(request.state, "web_session", None)
     context.setdefault("user", web_session.user if web_session else None)
     context.setdefault("csrf_token", web_session.csrf_token if web_session else "")
+    context.setdefault("review_stage", request.app.state.settings.review_stage)
     if web_session is not None:
         context.setdefault("teacher_problem", teacher_problem(request.app.state.settings))
         context.setdefault("sam2_problem", sam2_problem(request.app.state.settings))

@@ -7,6 +7,8 @@ export const ROLE = document.querySelector('meta[name="user-role"]')?.content ??
 export const TEACHER_PROBLEM = document.querySelector('meta[name="teacher-problem"]')?.content ?? "";
 /** Why SAM2 alone cannot run (clicks, boxes, embeddings, propagation), or "" when it can. */
 export const SAM2_PROBLEM = document.querySelector('meta[name="sam2-problem"]')?.content ?? "";
+/** Whether annotators' labels await a reviewer's approval (WELDPOOL_REVIEW_STAGE). */
+export const REVIEW_STAGE = document.querySelector('meta[name="review-stage"]')?.content === "on";
 const RANK = { annotator: 1, reviewer: 2, admin: 3 };
 
 /** Whether the logged-in user is a reviewer or admin. */

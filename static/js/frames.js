@@ -8,7 +8,7 @@ import { probeVideo } from "./video.js";
 
 const PAGE_SIZE = 50;
 const VIDEO = /\.(mp4|avi)$/i;
-const FILTERS = ["sequence_id", "status", "split", "assignee", "order"];
+const FILTERS = ["sequence_id", "status", "split", "review", "assignee", "order"];
 
 const filterForm = document.getElementById("filters");
 const rows = document.getElementById("frame-rows");

@@ -63,6 +63,7 @@ class LiveServer:
     port: int = field(default_factory=free_port)
     process: subprocess.Popen[bytes] | None = None
     tokens: dict[str, str] = field(default_factory=dict)
+    env: dict[str, str] = field(default_factory=dict)  # more settings (WELDPOOL_…) for this one
 
     @property
     def url(self) -> str:
@@ -84,6 +85,7 @@ class LiveServer:
             WELDPOOL_JOB_HEARTBEAT_S="0.5",
             WELDPOOL_LOG_LEVEL="WARNING",
         )
+        env.update(self.env)
         log = (self.home.parent / "serve.log").open("wb")
         self.process = subprocess.Popen(
             [sys.executable, "-m", "app", "serve", "--port", str(self.port)],

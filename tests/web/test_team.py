@@ -234,3 +234,76 @@ def test_a_reviewer_hands_frames_to_an_annotator_who_starts_on_them(
     wait_for_js(
         page, "document.getElementById('queue-position').textContent.includes('of 3 in this queue')"
     )
+
+
+def test_the_review_stage_from_awaiting_to_sent_back_to_approved(
+    browser: Any, tmp_path: Any
+) -> None:
+    """With WELDPOOL_REVIEW_STAGE on: an annotator's saved label waits; the reviewer finds it
+    under "Review: awaiting review", sends it back with a comment the annotator then reads on
+    the page, and approves the corrected one; the history names who decided."""
+    from tests.helpers import corrected_label
+    from weldpool_core.synth import SynthParams, synth_frame
+
+    server = LiveServer(tmp_path / "home", env={"WELDPOOL_REVIEW_STAGE": "true"}).start()
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    try:
+        files = [("files", (f"s{i}.png", synthetic_png(800 + i), "image/png")) for i in range(2)]
+        ids = [f["id"] for f in server.api("POST", "/frames", files=files).json()["stored"]]
+        mask = synth_frame(seed=800, params=SynthParams(1280, 800)).mask
+        saved = server.api(
+            "PUT", f"/frames/{ids[0]}/label", user="anna", json=corrected_label(mask)
+        )
+        assert saved.json()["review"] == "awaiting"
+
+        login(page, server, "rita")
+        page.goto(f"{server.url}/?status=all&review=awaiting")
+        page.wait_for_selector("body[data-ready]")
+        rows = page.locator("[data-testid=frame-row]")
+        wait_for_js(page, "document.querySelectorAll('[data-testid=frame-row]').length === 1")
+        assert rows.first.get_attribute("data-frame-id") == str(ids[0])
+        rows.first.locator("a.frame-link").click()
+        page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        assert "Awaiting a reviewer's approval" in page.inner_text("[data-testid=review-state]")
+        page.click("[data-testid=send-back]")
+        page.fill("[data-testid=review-comment]", "The wire tip is inside the mask.")
+        page.click("[data-testid=send-back-submit]")
+        page.locator("[data-testid=toast-ok]", has_text="Sent back").wait_for()
+        state = page.inner_text("[data-testid=review-state]")
+        assert "Sent back by rita" in state and "The wire tip is inside the mask." in state
+        shoot(page, "review-sent-back")
+
+        anna = browser.new_context(viewport={"width": 1280, "height": 800}).new_page()
+        login(anna, server, "anna")
+        anna.goto(f"{server.url}/frames/{ids[0]}")
+        anna.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        assert "The wire tip is inside the mask." in anna.inner_text("[data-testid=review-state]")
+        assert anna.is_hidden("[data-testid=approve]")  # annotators do not approve
+        anna.context.close()
+        again = server.api(
+            "PUT",
+            f"/frames/{ids[0]}/label",
+            user="anna",
+            json=corrected_label(mask, base_revision=2),
+        )
+        assert again.json()["review"] == "awaiting"
+
+        page.reload()
+        page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        page.click("[data-testid=approve]")
+        page.locator("[data-testid=toast-ok]", has_text="Approved").wait_for()
+        assert "Approved by rita" in page.inner_text("[data-testid=review-state]")
+        assert page.is_hidden("[data-testid=approve]")
+        history = page.locator("#history")
+        history.locator("li", has_text="approved").first.wait_for()
+        assert "sent back" in history.inner_text()
+        shoot(page, "review-approved")
+        label = server.api("GET", f"/frames/{ids[0]}/label").json()
+        assert label["review"] == "approved" and label["updated_by"] == "rita"
+    finally:
+        context.close()
+        server.stop()
+    assert not errors, errors

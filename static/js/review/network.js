@@ -1,7 +1,7 @@
 // What the page sends and fetches: verdicts with revision checks and the conflict dialog,
 // the queue's next frame, proposals, the teacher, propagation, the label's history.
 
-import { ApiError, api, jobFromButton, waitForJob } from "../api.js";
+import { ApiError, REVIEW_STAGE, api, isReviewer, jobFromButton, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
 import { setHeatmapVisible } from "./display.js";
 import { changed, commit, isProposal, labelDirty, manualDirty } from "./history.js";
@@ -16,9 +16,62 @@ export async function loadHistory() {
     const rows = await api(`/frames/${FRAME_ID}/label/history`);
     const list = $("history");
     list.replaceChildren(...rows.slice().reverse().slice(0, 8).map((r) =>
-      h("li", {}, `rev ${r.revision} · `, badge(r.status), ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`)));
+      h("li", {}, `rev ${r.revision} · `, badge(r.status), r.review ? ` · ${REVIEW_WORDS[r.review]}` : "",
+        ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`, r.review_comment ? h("br") : "",
+        r.review_comment ? h("span", { class: "muted" }, `“${r.review_comment}”`) : "")));
     if (!rows.length) list.append(h("li", {}, "no label yet"));
   } catch { /* the history is a convenience */ }
+}
+
+// --- the review stage ---------------------------------------------------------------------
+
+const REVIEW_WORDS = { awaiting: "awaiting review", approved: "approved", returned: "sent back" };
+
+/** The label's review state and its reviewer's decision, when the stage is on. */
+export function reviewOf(label) {
+  return label?.review ? { state: label.review, comment: label.review_comment, by: label.updated_by } : null;
+}
+
+export function renderReview() {
+  const box = $("review-stage");
+  const review = S.review;
+  box.hidden = !REVIEW_STAGE || !review;
+  if (box.hidden) return;
+  box.dataset.state = review.state;
+  const text = {
+    awaiting: "Awaiting a reviewer's approval: it trains once approved.",
+    approved: `Approved${review.by ? ` by ${review.by}` : ""}: the student learns from it.`,
+    returned: `Sent back${review.by ? ` by ${review.by}` : ""}: “${review.comment ?? ""}” — correct it and save again.`,
+  }[review.state];
+  $("review-state").textContent = text;
+  $("review-actions").hidden = !isReviewer() || review.state === "approved";
+  $("send-back").hidden = review.state === "returned";
+}
+
+async function decide(decision, comment) {
+  try {
+    const label = await api(`/frames/${FRAME_ID}/label/review`, { method: "POST", json: { decision, comment, base_revision: S.revision } });
+    S.revision = label.revision;
+    S.review = reviewOf(label);
+    $("send-back-form").hidden = true;
+    renderReview();
+    renderFrameInfo();
+    loadHistory();
+    toast(decision === "approve" ? "Approved: it trains from now on." : "Sent back to its annotator.", "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  }
+}
+
+export function bindReview() {
+  $("approve").addEventListener("click", () => decide("approve"));
+  $("send-back").addEventListener("click", () => { $("send-back-form").hidden = false; $("send-back-form").elements.comment.focus(); });
+  $("send-back-cancel").addEventListener("click", () => { $("send-back-form").hidden = true; });
+  $("send-back-form").addEventListener("submit", (event) => {
+    event.preventDefault();
+    decide("return", event.target.elements.comment.value.trim());
+  });
+  renderReview();
 }
 
 // --- verdicts -------------------------------------------------------------------------------
@@ -47,6 +100,8 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   }
   S.revision = label.revision;
   S.labelStatus = label.status;
+  S.review = reviewOf(label);
+  renderReview();
   S.frame.status = label.status;
   const keypoints = label.keypoints ?? S.edit.keypoints;
   S.edit = { ...S.edit, keypoints, maskEdited: false, kpEdited: false, session: null };

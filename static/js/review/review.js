@@ -15,7 +15,7 @@ import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
 import { Mask, MaskOverlay } from "./mask.js";
-import { goNext, loadHistory, loadImage, optional, propagateFromHere, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
+import { bindReview, goNext, loadHistory, loadImage, optional, propagateFromHere, reviewOf, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
@@ -269,6 +269,7 @@ export async function start() {
   S.policyReason = listing?.policy?.reason ?? "";
   S.revision = label?.revision ?? 0;
   S.labelStatus = label?.status ?? null;
+  S.review = reviewOf(label);
 
   S.stage = new Stage($("frame-canvas"), width, height);
   S.stage.image = picture;
@@ -295,6 +296,7 @@ export async function start() {
   S.ruler = new ScaleRuler(S.stage, S.frame);
   S.ruler.load();
   bindControls();
+  bindReview();
   renderProposals();
   renderPropagate();
   timelineNote();

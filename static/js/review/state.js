@@ -9,6 +9,7 @@ export const S = {
   policyReason: "",
   revision: 0,
   labelStatus: null,
+  review: null, // the review stage: { state, comment, by } of the label, or null
   stage: null,
   ruler: null, // measuring the run's scale: two ends of a known length
   overlay: null,
