@@ -289,7 +289,7 @@ def has_video_labels(session: Session) -> bool:
         sa.select(Frame.id)
         .join(Label, Label.frame_id == Frame.id)
         .where(
-            Label.status.in_(TRAINABLE),
+            TRAINABLE_LABEL,
             Frame.video_id.is_not(None),
             Frame.split != Split.validation,
         )
@@ -354,7 +354,7 @@ def video_clips(
     rows = session.execute(
         sa.select(Frame.id, Frame.video_id, Frame.frame_index, Frame.split)
         .join(Label, Label.frame_id == Frame.id)
-        .where(Label.status.in_(TRAINABLE), Frame.video_id.is_not(None))
+        .where(TRAINABLE_LABEL, Frame.video_id.is_not(None))
         .order_by(Frame.video_id, Frame.frame_index)
     ).all()
     by_video: dict[int, list[Any]] = {}
