@@ -131,4 +131,9 @@ def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
 
 def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
     """The frame as the models see it (RGB uint8, 16-bit stretched)."""
-    return to_rgb8(read_image(storage.absolute(frame.path)))
+    return stored_rgb(storage, frame.path)
+
+
+def stored_rgb(storage: Storage, path: str) -> NDArray[np.uint8]:
+    """``frame_rgb`` of the frame file at ``path`` (for a thread that holds no row)."""
+    return to_rgb8(read_image(storage.absolute(path)))

@@ -21,10 +21,11 @@ from app.jobs.service import create_job
 from app.models import Job, JobStatus, Proposal, Split, User
 from app.proposals import policy
 from app.proposals.files import load_heatmap
-from app.review import service
+from app.review import service, warm
 from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
+    EmbeddingOut,
     ExportIn,
     KeypointsIn,
     KeypointsOut,
@@ -201,6 +202,34 @@ def get_proposal_heatmap_npy(
     return Response(buffer.getvalue(), media_type="application/octet-stream")
 
 
+@router.post("/frames/{frame_id}/embedding", response_model=EmbeddingOut)
+def warm_embedding(
+    frame_id: IdPath,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    _user: CurrentUser,
+) -> EmbeddingOut:
+    """Start computing the frame's SAM2 embedding in this web process (the review page asks
+    when it opens, then for the next frames of its queue), so its first click is as fast as
+    the later ones; at most a few at once (`busy`: ask again)."""
+    frame = get_frame(session, frame_id)
+    return EmbeddingOut(**vars(warm.warmth(storage, settings, frame, start=True)))
+
+
+@router.get("/frames/{frame_id}/embedding", response_model=EmbeddingOut)
+def embedding_state(
+    frame_id: IdPath,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    _user: CurrentUser,
+) -> EmbeddingOut:
+    """Where the frame's embedding stands (nothing is started)."""
+    frame = get_frame(session, frame_id)
+    return EmbeddingOut(**vars(warm.warmth(storage, settings, frame, start=False)))
+
+
 @router.post("/frames/{frame_id}/segment", response_model=SegmentOut)
 def segment(
     frame_id: IdPath,
@@ -219,6 +248,14 @@ def segment(
     previous = None
     if body.mask_png:
         previous = decode_mask_png(_png_bytes(body.mask_png, "mask_png"))
+    elif body.mask_from is not None:
+        previous = service.stored_mask(
+            session,
+            storage,
+            frame,
+            label_revision=body.mask_from.label_revision,
+            proposal_id=body.mask_from.proposal_id,
+        )
     result = service.segment(
         storage,
         settings,

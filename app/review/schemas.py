@@ -64,6 +64,30 @@ class Point(InputModel):
     positive: bool = True
 
 
+class MaskFrom(InputModel):
+    """A stored mask of the frame: its label at ``label_revision``, or proposal ``proposal_id``."""
+
+    label_revision: int | None = Field(default=None, ge=1, le=MAX_ID)
+    proposal_id: Id | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> MaskFrom:
+        if (self.label_revision is None) == (self.proposal_id is None):
+            raise ValueError("mask_from names either label_revision or proposal_id")
+        return self
+
+
+class EmbeddingOut(BaseModel):
+    state: Literal["ready", "computing", "busy", "cold"] = Field(
+        description="ready: the next click reads it from memory; computing: on its way; busy: "
+        "not started, as many are being made as the budget allows (ask again); cold: neither."
+    )
+    elapsed_ms: float | None = Field(default=None, description="Since it was asked for.")
+    expected_ms: float | None = Field(
+        default=None, description="The median of the last embeddings' times here."
+    )
+
+
 class SegmentIn(InputModel):
     """Clicks and/or a box in frame pixels, optionally refining a previous mask."""
 
@@ -74,6 +98,17 @@ class SegmentIn(InputModel):
     mask_png: str | None = Field(
         default=None, description="A previous mask to refine (base64 PNG)."
     )
+    mask_from: MaskFrom | None = Field(
+        default=None,
+        description="Instead of mask_png, a mask the server has: the frame's label at a "
+        "revision, or one of its proposals (the review page's first click sends no PNG).",
+    )
+
+    @model_validator(mode="after")
+    def _one_previous_mask(self) -> SegmentIn:
+        if self.mask_png is not None and self.mask_from is not None:
+            raise ValueError("give mask_png or mask_from, not both")
+        return self
 
 
 class SegmentOut(BaseModel):

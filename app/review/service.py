@@ -116,6 +116,27 @@ def segment(
     )
 
 
+def stored_mask(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    *,
+    label_revision: int | None = None,
+    proposal_id: int | None = None,
+) -> NDArray[np.bool_]:
+    """A mask of ``frame`` the server has: its label at ``label_revision`` (409 when the label
+    has moved on: the page then sends what it shows), or its proposal ``proposal_id``."""
+    if label_revision is not None:
+        label = current_label(session, frame.id)
+        if label is None or label.revision != label_revision or label.mask_path is None:
+            raise StaleRevision(label.revision if label else 0)
+        return load_mask(storage, label.mask_path)
+    proposal = session.get(Proposal, proposal_id)
+    if proposal is None or proposal.frame_id != frame.id:
+        raise NotFoundError(f"Frame {frame.id} has no proposal {proposal_id}.")
+    return load_mask(storage, proposal.mask_path)
+
+
 # --- labels ------------------------------------------------------------------------------------
 
 

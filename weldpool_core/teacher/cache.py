@@ -72,6 +72,11 @@ class EmbeddingCache:
         assert self.directory is not None
         return self.directory / key[:2] / f"{key}.safetensors"
 
+    def in_memory(self, key: str) -> bool:
+        """Whether ``key`` is held in memory now (a fetch would not read or compute it)."""
+        with self._lock:
+            return key in self._memory
+
     def get(
         self, key: str, device: torch.device | None = None, dtype: torch.dtype | None = None
     ) -> ImageEmbedding | None:

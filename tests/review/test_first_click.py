@@ -1,0 +1,120 @@
+"""The first click on a frame: its embedding made when the review page opens (bounded), and a
+previous mask the server already has named instead of sent."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.review import warm
+from tests.helpers import auth, corrected_label, wait_for
+from tests.review.test_review import _mask, _teacher, _upload_synthetic, people  # noqa: F401
+
+
+def test_an_embedding_asked_for_first_is_in_memory_for_the_first_click(
+    client: TestClient,
+    people,  # noqa: F811
+) -> None:
+    token = people["annotator"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    before = client.get(f"/api/v1/frames/{frame_id}/embedding", headers=auth(token)).json()
+    assert before["state"] == "cold"  # a look starts nothing
+    asked = client.post(f"/api/v1/frames/{frame_id}/embedding", headers=auth(token))
+    assert asked.status_code == 200 and asked.json()["state"] in ("computing", "ready")
+
+    def state() -> dict:
+        return client.get(f"/api/v1/frames/{frame_id}/embedding", headers=auth(token)).json()
+
+    ready = wait_for(lambda: (found := state())["state"] == "ready" and found, timeout=60)
+    assert ready["expected_ms"] > 0  # measured on this computation
+    click = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={"points": [{"x": 80, "y": 50, "positive": True}]},
+        headers=auth(token),
+    )
+    assert (
+        click.json()["embedding"] == "memory"
+    )  # not "computed": the first click waits for nothing
+
+
+def test_the_warming_budget_is_bounded(client: TestClient, people, monkeypatch) -> None:  # noqa: F811
+    token = people["annotator"]
+    frame_ids = _upload_synthetic(client, token, 3)
+    monkeypatch.setattr(warm, "MAX_PENDING", 1)
+    gate = __import__("threading").Event()
+    real = warm._compute
+    monkeypatch.setattr(warm, "_compute", lambda *a: (gate.wait(30), real(*a)))
+    try:
+        states = [
+            client.post(f"/api/v1/frames/{f}/embedding", headers=auth(token)).json()["state"]
+            for f in frame_ids
+        ]
+        assert states == ["computing", "busy", "busy"]
+    finally:
+        gate.set()
+
+
+def test_a_click_names_the_mask_the_server_has_instead_of_sending_it(
+    client: TestClient,
+    people,  # noqa: F811
+) -> None:
+    token = people["reviewer"]
+    frame_ids = _upload_synthetic(client, token, 2)
+    _teacher(client, token, frame_ids)
+    frame_id = frame_ids[0]
+    proposal = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
+    mask = np.zeros((100, 160), bool)
+    mask[30:70, 40:120] = True
+    saved = client.put(
+        f"/api/v1/frames/{frame_id}/label", json=corrected_label(mask), headers=auth(token)
+    )
+    assert saved.status_code == 200
+    points = [{"x": 60, "y": 50, "positive": True}]
+
+    def click(**extra: object) -> dict:
+        answer = client.post(
+            f"/api/v1/frames/{frame_id}/segment",
+            json={"points": points, **extra},
+            headers=auth(token),
+        )
+        assert answer.status_code == 200, answer.text
+        return answer.json()
+
+    sent = click(mask_png=saved.json()["mask_png"])
+    named = click(mask_from={"label_revision": 1})
+    assert np.array_equal(_mask(named["mask_png"]), _mask(sent["mask_png"]))
+    by_proposal = click(mask_from={"proposal_id": proposal["id"]})
+    assert np.array_equal(
+        _mask(by_proposal["mask_png"]), _mask(click(mask_png=proposal["mask_png"])["mask_png"])
+    )
+
+    stale = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={"points": points, "mask_from": {"label_revision": 7}},
+        headers=auth(token),
+    )
+    assert stale.status_code == 409 and stale.json()["revision"] == 1
+    other = client.get(f"/api/v1/frames/{frame_ids[1]}/proposal", headers=auth(token)).json()
+    foreign = client.post(
+        f"/api/v1/frames/{frame_id}/segment",
+        json={"points": points, "mask_from": {"proposal_id": other["id"]}},
+        headers=auth(token),
+    )
+    assert foreign.status_code == 404
+    for bad in (
+        {"mask_png": sent["mask_png"], "mask_from": {"label_revision": 1}},
+        {"mask_from": {}},
+        {"mask_from": {"label_revision": 1, "proposal_id": 1}},
+    ):
+        refused = client.post(
+            f"/api/v1/frames/{frame_id}/segment",
+            json={"points": points, **bad},
+            headers=auth(token),
+        )
+        assert refused.status_code in (400, 422), bad
+
+
+@pytest.fixture(autouse=True)
+def _no_leftover_warming() -> None:
+    warm._pending.clear()
