@@ -1,11 +1,17 @@
-"""The team in the browser: the users page (admins) and one's own account page."""
+"""The team in the browser: the users and account pages, the API page, assignments, the review
+stage, and the first click on a frame."""
 
 from __future__ import annotations
 
+import json
 from typing import Any
+
+import pytest
 
 from tests.web.conftest import shoot, synthetic_png
 from tests.web.server import PASSWORD, LiveServer, accept_dialogs, login, wait_for_js
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
 def _row(page: Any, name: str) -> Any:
@@ -307,3 +313,34 @@ def test_the_review_stage_from_awaiting_to_sent_back_to_approved(
         context.close()
         server.stop()
     assert not errors, errors
+
+
+def test_the_first_click_after_the_page_prepared_it_reads_the_embedding_from_memory(
+    page: Any, server: LiveServer
+) -> None:
+    """The review page asks for its frame's embedding as it opens and shows it being made;
+    once "clicks ready", the first click is answered from memory and names the proposal's
+    mask instead of sending a PNG of it."""
+    from tests.web.test_pages import add_frame
+    from tests.web.test_review_flow import CANVAS, to_page
+
+    frame_id = add_frame(server, 901)
+    login(page, server)
+    sent: list[dict[str, Any]] = []
+    page.on(
+        "request",
+        lambda request: (
+            sent.append(json.loads(request.post_data or "{}"))
+            if request.url.endswith(f"/frames/{frame_id}/segment")
+            else None
+        ),
+    )
+    page.goto(f"{server.url}/frames/{frame_id}")
+    page.wait_for_selector(f"{CANVAS}[data-ready]")
+    page.wait_for_selector("[data-testid=embed-state][data-state=ready]", timeout=60_000)
+    with page.expect_response(lambda r: r.url.endswith(f"/frames/{frame_id}/segment")) as answer:
+        page.mouse.click(*to_page(page, 640, 420))
+    body = answer.value.json()
+    assert body["embedding"] == "memory"
+    assert len(sent) == 1 and "mask_png" not in sent[0]
+    assert sent[0]["mask_from"]["proposal_id"] > 0

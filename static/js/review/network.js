@@ -23,6 +23,39 @@ export async function loadHistory() {
   } catch { /* the history is a convenience */ }
 }
 
+// --- the first click: the embedding made while the page is open ----------------------------
+
+const pause = (ms) => new Promise((resolve) => { setTimeout(resolve, ms); });
+
+/** Ask the server to compute this frame's SAM2 embedding now, show how far it is, then ask
+ *  for the next two frames of the queue (the server bounds how many it makes at once). */
+export async function warmEmbedding() {
+  const box = $("embed-state");
+  const ask = (method, id = FRAME_ID) => api(`/frames/${id}/embedding`, { method });
+  let answer;
+  try { answer = await ask("POST"); } catch { return; } // clicks then compute it themselves
+  const started = performance.now() - (answer.elapsed_ms ?? 0);
+  while (answer.state !== "ready" && performance.now() - started < 120_000) {
+    const seconds = (performance.now() - started) / 1000;
+    const expected = answer.expected_ms ? ` of ~${(answer.expected_ms / 1000).toFixed(1)} s` : "";
+    box.hidden = false;
+    box.dataset.state = "computing";
+    box.textContent = `preparing clicks… ${seconds.toFixed(1)} s${expected}`;
+    await pause(400);
+    try { answer = await ask(answer.state === "computing" ? "GET" : "POST"); } catch { box.hidden = true; return; }
+  }
+  if (answer.state !== "ready") { box.hidden = true; return; }
+  box.hidden = false;
+  box.dataset.state = "ready";
+  box.textContent = "clicks ready";
+  setTimeout(() => { box.hidden = true; }, 3000);
+  try {
+    const { ids } = await queueIds();
+    const here = ids.indexOf(FRAME_ID);
+    for (const id of ids.slice(here + 1, here + 3)) ask("POST", id).catch(() => {});
+  } catch { /* the next frames are a convenience */ }
+}
+
 // --- the review stage ---------------------------------------------------------------------
 
 const REVIEW_WORDS = { awaiting: "awaiting review", approved: "approved", returned: "sent back" };
@@ -102,6 +135,7 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   S.labelStatus = label.status;
   S.review = reviewOf(label);
   renderReview();
+  S.loadedLabel = label.status === "rejected" ? null : { mask: S.edit.mask, revision: label.revision };
   S.frame.status = label.status;
   const keypoints = label.keypoints ?? S.edit.keypoints;
   S.edit = { ...S.edit, keypoints, maskEdited: false, kpEdited: false, session: null };

@@ -15,7 +15,7 @@ import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
 import { Mask, MaskOverlay } from "./mask.js";
-import { bindReview, goNext, loadHistory, loadImage, optional, propagateFromHere, reviewOf, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
+import { bindReview, warmEmbedding, goNext, loadHistory, loadImage, optional, propagateFromHere, reviewOf, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
@@ -270,6 +270,7 @@ export async function start() {
   S.revision = label?.revision ?? 0;
   S.labelStatus = label?.status ?? null;
   S.review = reviewOf(label);
+  S.loadedLabel = labelMask ? { mask: labelMask, revision: S.revision } : null;
 
   S.stage = new Stage($("frame-canvas"), width, height);
   S.stage.image = picture;
@@ -314,6 +315,7 @@ export async function start() {
   performance.mark("weldpool:interactive");
   showQueuePosition();
   loadHistory();
+  if (!SAM2_PROBLEM) warmEmbedding();
 }
 
 start();

@@ -9,6 +9,7 @@ export const S = {
   policyReason: "",
   revision: 0,
   labelStatus: null,
+  loadedLabel: null, // { mask, revision } of the label as loaded: clicks on it name it, not send it
   review: null, // the review stage: { state, comment, by } of the label, or null
   stage: null,
   ruler: null, // measuring the run's scale: two ends of a known length

@@ -1,7 +1,7 @@
 // The editing tools: SAM2 clicks and boxes through the segment endpoint, brush and eraser,
 // the outline as polygons, and the pointer gestures on the canvas.
 
-import { SAM2_PROBLEM, api } from "../api.js";
+import { ApiError, SAM2_PROBLEM, api } from "../api.js";
 import { score } from "../format.js";
 import { toast } from "../ui.js";
 import { remember } from "./display.js";
@@ -70,14 +70,33 @@ export function pngOf(mask) {
   return S.pngCache.get(mask);
 }
 
+/** The stored mask `mask` is, named as the server knows it (the proposal shown, or the label
+ *  as loaded): a click then sends no PNG. Null for a mask drawn here. */
+function storedMask(mask) {
+  if (S.proposal && mask === S.proposal.mask) return { proposal_id: S.proposal.id };
+  if (S.loadedLabel && mask === S.loadedLabel.mask) return { label_revision: S.loadedLabel.revision };
+  return null;
+}
+
 /** Ask the segment endpoint for `target`'s click session; the answer becomes its mask. */
 export function segment(target) {
   const run = (async () => {
     const { points, box, base } = target.session;
     const body = { points: points.map((p) => ({ x: p.x, y: p.y, positive: p.positive })) };
     if (box) body.box = box;
-    if (base) body.mask_png = await pngOf(base);
-    const answer = await api(`/frames/${FRAME_ID}/segment`, { method: "POST", json: body });
+    const named = base ? storedMask(base) : null;
+    if (named) body.mask_from = named;
+    else if (base) body.mask_png = await pngOf(base);
+    let answer;
+    try {
+      answer = await api(`/frames/${FRAME_ID}/segment`, { method: "POST", json: body });
+    } catch (error) {
+      if (!named || !(error instanceof ApiError && error.status === 409)) throw error;
+      S.loadedLabel = null; // the label moved on meanwhile: send what this page shows
+      delete body.mask_from;
+      body.mask_png = await pngOf(base);
+      answer = await api(`/frames/${FRAME_ID}/segment`, { method: "POST", json: body });
+    }
     const mask = await Mask.fromPng(answer.mask_png, S.frame.width, S.frame.height);
     target.mask = mask;
     target.maskEdited = true;
