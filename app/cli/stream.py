@@ -28,6 +28,19 @@ def promoted_model_dir() -> Path:
             raise WeldpoolError(
                 "No student is promoted yet; train and promote one, or give --model MODEL_DIR."
             )
+        gate = model.gate or {}
+        if gate.get("usable") is False:  # as the live view says it: promoted by force
+            click.echo(
+                f"weldpool: warning: {model.name} is not usable by the promotion gate "
+                f"({gate.get('reason') or 'worse than the teacher'}); its masks may be worse "
+                "than the teacher's.",
+                err=True,
+            )
+        elif not gate:
+            click.echo(
+                f"weldpool: warning: {model.name} was not measured by the promotion gate.",
+                err=True,
+            )
         return model_folder(Storage.of(settings), model)
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
@@ -164,8 +165,19 @@ def test_weldpool_stream_runs_this_homes_promoted_student(
         "weldpool: No student is promoted yet; train and promote one, or give --model MODEL_DIR."
     )
     _promote(session_factory, student_dir, settings.home)
+    with session_factory() as session:  # promoted by force over the gate's verdict
+        session.execute(
+            sa.update(ModelVersion).values(
+                gate={"usable": False, "reason": "worse than the teacher on 3 held-out frames"}
+            )
+        )
+        session.commit()
     ran = run_cli("stream", video, "--max-frames", "3", "--smooth", "none", env=env)
     assert ran.returncode == 0, ran.stderr
+    assert ran.stderr.splitlines()[0] == (
+        "weldpool: warning: student-v1 is not usable by the promotion gate (worse than the "
+        "teacher on 3 held-out frames); its masks may be worse than the teacher's."
+    )
     records = [json.loads(line) for line in ran.stdout.splitlines()]
     assert [r["frame"] for r in records] == [0, 1, 2]
     assert all(r["keypoints_raw"] is None for r in records)  # no smoothing asked for
