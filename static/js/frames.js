@@ -83,7 +83,10 @@ async function loadSequences() {
           type: "button", class: "danger small", "data-testid": "delete-sequence",
           title: "Delete this weld run with its frames, videos and labels",
           onclick: () => deleteWork(`/sequences/${sequence.id}`, { method: "DELETE" },
-            `Delete the weld run “${sequence.name}” with its ${count(sequence.frame_count, "frame")}, their proposals and labels? This cannot be undone.`),
+            sequence.frame_count
+              ? `Delete the weld run “${sequence.name}” with its ${count(sequence.frame_count, "frame")}, their proposals and labels? This cannot be undone.`
+              : `Delete the empty weld run “${sequence.name}”?`,
+            (r) => `Deleted the weld run “${sequence.name}”${r.deleted_frames ? ` with its ${count(r.deleted_frames, "frame")}` : ""}.`),
         }, "Delete") : ""),
       ),
     );
@@ -295,7 +298,7 @@ sequenceForm.addEventListener("submit", async (event) => {
 
 /** Delete after asking; when reviewed work would be lost the server says how much, and the
  *  user is asked once more before it goes too (force). */
-async function deleteWork(path, options, question) {
+async function deleteWork(path, options, question, done = (r) => `Deleted ${count(r.deleted_frames, "frame")}.`) {
   if (!confirm(question)) return;
   const force = (url) => `${url}${url.includes("?") ? "&" : "?"}force=true`;
   try {
@@ -309,7 +312,7 @@ async function deleteWork(path, options, question) {
         ? await api(path, { ...options, json: { ...options.json, force: true } })
         : await api(force(path), options);
     }
-    toast(`Deleted ${count(result.deleted_frames, "frame")}.`, "ok");
+    toast(done(result), "ok");
     selected.clear();
     updateSelection();
     await loadSequences();

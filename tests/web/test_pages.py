@@ -833,10 +833,21 @@ def test_delete_selected_frames_and_a_weld_run_after_confirming(
     wait_for_js(
         page, "document.querySelector('[data-testid=page-info]').textContent === '1–1 of 1'"
     )
+    assert page.inner_text("#selection-count") == "0 selected"  # the deleted are not selected
     page.click(f"li[data-sequence-id='{sequence['id']}'] [data-testid=delete-sequence]")
     wait_until(page, lambda: server.api("GET", f"/sequences/{sequence['id']}").status_code == 404)
     assert asked[2].startswith("Delete the weld run “Oops run” with its 1 frame,")
     assert server.api("GET", f"/frames/{ids[2]}").status_code == 404
+    page.locator(
+        "[data-testid=toast-ok]", has_text="Deleted the weld run “Oops run” with its 1 frame."
+    ).wait_for()
+
+    empty = server.api("POST", "/sequences", json={"name": "Empty run"}).json()
+    page.reload()
+    page.wait_for_selector("body[data-ready]")
+    page.click(f"li[data-sequence-id='{empty['id']}'] [data-testid=delete-sequence]")
+    page.locator("[data-testid=toast-ok]", has_text="Deleted the weld run “Empty run”.").wait_for()
+    assert asked[3] == "Delete the empty weld run “Empty run”?"  # no "0 frames"
 
 
 def test_a_new_weld_run_asks_for_its_process_parameters(page: Any, server: LiveServer) -> None:
