@@ -43,6 +43,12 @@ class Settings(BaseSettings):
         description="The object store's endpoint for a store other than AWS S3 (MinIO, Ceph), "
         "e.g. http://minio:9000; credentials come from AWS_ACCESS_KEY_ID and friends.",
     )
+    embedding_cache_mb: float = Field(
+        default=20480.0,
+        gt=0,
+        description="SAM2 embeddings kept on disk under WELDPOOL_HOME/cache/embeddings (about "
+        "4 MB a 1280×800 frame in fp16; least recently used out): the clicks' cache.",
+    )
     storage_cache_mb: float = Field(
         default=10240.0,
         gt=0,

@@ -82,6 +82,12 @@ def load_job_handlers() -> None:
         _loaded = True
 
 
+def job_kinds() -> list[str]:
+    """Every registered job kind, sorted (the jobs page's Kind filter)."""
+    load_job_handlers()
+    return sorted(_HANDLERS)
+
+
 def job_spec(kind: str) -> JobSpec | None:
     """The registered spec of a job kind."""
     load_job_handlers()

@@ -49,15 +49,16 @@ def _dino(ref: str, device: str, input_size: int) -> DinoAttention:
 
 
 @lru_cache(maxsize=4)
-def _cache(directory: Path) -> EmbeddingCache:
+def _cache(directory: Path, limit_bytes: int) -> EmbeddingCache:
     from weldpool_core.teacher.cache import EmbeddingCache
 
-    return EmbeddingCache(directory)
+    return EmbeddingCache(directory, disk_limit_bytes=limit_bytes)
 
 
 def embedding_cache(settings: Settings) -> EmbeddingCache:
     """The process's embedding cache (memory + WELDPOOL_HOME/cache/embeddings)."""
-    return _cache((settings.home / "cache" / "embeddings").resolve())
+    limit = int(settings.embedding_cache_mb * 2**20)
+    return _cache((settings.home / "cache" / "embeddings").resolve(), limit)
 
 
 def sam2_predictor(settings: Settings) -> Sam2Predictor:

@@ -149,7 +149,9 @@ def timeline(request: Request, sequence_id: IdPath, _user: LoggedIn) -> Response
 @router.get("/jobs")
 def jobs(request: Request, _user: LoggedIn) -> Response:
     """Background jobs with live progress."""
-    return render(request, "jobs.html", page="jobs")
+    from app.jobs.registry import job_kinds
+
+    return render(request, "jobs.html", page="jobs", kinds=job_kinds())
 
 
 @router.get("/tokens")

@@ -3,7 +3,7 @@
 
 import { api, query } from "./api.js";
 import { count } from "./format.js";
-import { badge, formatDate, h, progressBar, toast } from "./ui.js";
+import { badge, formatBytes, formatDate, h, progressBar, toast } from "./ui.js";
 
 const ACTIVE = new Set(["queued", "running"]);
 const form = document.getElementById("job-filters");
@@ -99,3 +99,28 @@ async function load() {
 form.addEventListener("change", load);
 document.addEventListener("visibilitychange", () => { if (!document.hidden) load(); });
 load();
+
+// --- the embedding cache: its size, and (admins) a Clear button ----------------------------
+
+async function showCache() {
+  try {
+    const cache = await api("/system/embedding-cache");
+    document.getElementById("cache-size").textContent =
+      `${count(cache.files, "frame")}, ${formatBytes(cache.bytes)} of ${formatBytes(cache.limit_bytes)} (WELDPOOL_EMBEDDING_CACHE_MB; least recently used out)`;
+  } catch (error) {
+    document.getElementById("cache-size").textContent = error.message;
+  }
+}
+
+document.getElementById("cache-clear")?.addEventListener("click", async () => {
+  if (!confirm("Clear the embedding cache? The next click on each frame computes its embedding again (seconds on a CPU).")) return;
+  try {
+    const cleared = await api("/system/embedding-cache", { method: "DELETE" });
+    toast(`Cleared ${count(cleared.removed_files, "embedding")} (${formatBytes(cleared.removed_bytes)}).`, "ok");
+  } catch (error) {
+    toast(error.message, "error");
+  }
+  showCache();
+});
+
+showCache();

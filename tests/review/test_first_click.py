@@ -118,3 +118,42 @@ def test_a_click_names_the_mask_the_server_has_instead_of_sending_it(
 @pytest.fixture(autouse=True)
 def _no_leftover_warming() -> None:
     warm._pending.clear()
+
+
+def test_the_embedding_cache_is_sized_listed_and_cleared_by_admins(
+    client: TestClient,
+    people,  # noqa: F811
+    make_user,
+) -> None:
+    from app.models import Role
+
+    _, admin = make_user("ada", Role.admin)
+    token = people["annotator"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    click = {"points": [{"x": 80, "y": 50, "positive": True}]}
+    segment = f"/api/v1/frames/{frame_id}/segment"
+    assert client.post(segment, json=click, headers=auth(token)).json()["embedding"] == "computed"
+    cache = client.get("/api/v1/system/embedding-cache", headers=auth(token)).json()
+    assert cache["files"] == 1 and cache["bytes"] > 0
+    assert cache["limit_bytes"] == int(client.app.state.settings.embedding_cache_mb * 2**20)  # type: ignore[attr-defined]
+    refused = client.delete("/api/v1/system/embedding-cache", headers=auth(token))
+    assert refused.status_code == 403
+    cleared = client.delete("/api/v1/system/embedding-cache", headers=auth(admin)).json()
+    assert cleared == {"removed_files": 1, "removed_bytes": cache["bytes"]}
+    assert client.get("/api/v1/system/embedding-cache", headers=auth(token)).json()["files"] == 0
+    assert client.post(segment, json=click, headers=auth(token)).json()["embedding"] == "computed"
+
+
+def test_the_jobs_page_filters_by_every_job_kind(client: TestClient, make_user) -> None:
+    from app.jobs.registry import job_kinds
+    from tests.users.test_auth import _login
+
+    make_user("kai", password="kai-password")
+    assert _login(client, "kai", "kai-password").status_code == 303
+    page = client.get("/jobs").text
+    kinds = job_kinds()
+    assert {"teacher", "train_student", "import_labels", "export", "propagate", "embed"} <= set(
+        kinds
+    )
+    for kind in kinds:
+        assert f"<option>{kind}</option>" in page

@@ -344,3 +344,30 @@ def test_the_first_click_after_the_page_prepared_it_reads_the_embedding_from_mem
     assert body["embedding"] == "memory"
     assert len(sent) == 1 and "mask_png" not in sent[0]
     assert sent[0]["mask_from"]["proposal_id"] > 0
+
+
+def test_the_jobs_page_shows_the_embedding_cache_and_an_admin_clears_it(
+    page: Any, server: LiveServer
+) -> None:
+    """The cache line names its size and limit; Clear (admins only) empties it after asking."""
+    from tests.web.test_pages import add_frame
+
+    frame_id = add_frame(server, 902, teacher=False)
+    click = {"points": [{"x": 640, "y": 400, "positive": True}]}
+    assert server.api("POST", f"/frames/{frame_id}/segment", json=click).status_code == 200
+    login(page, server, "anna")
+    page.goto(f"{server.url}/jobs")
+    line = page.locator("[data-testid=embedding-cache]")
+    line.locator("text=/\\d+ frames?, /").wait_for()
+    assert page.locator("[data-testid=cache-clear]").count() == 0  # not an annotator's to clear
+    page.context.clear_cookies()
+    dialogs = accept_dialogs(page)
+    login(page, server, "ada")
+    page.goto(f"{server.url}/jobs")
+    line.locator("text=/\\d+ frames?, /").wait_for()
+    shoot(page, "jobs-cache")
+    page.click("[data-testid=cache-clear]")
+    page.locator("[data-testid=toast-ok]", has_text="Cleared").wait_for()
+    assert dialogs and dialogs[-1].startswith("Clear the embedding cache?")
+    line.locator("text=0 frames,").wait_for()
+    assert server.api("GET", "/system/embedding-cache").json()["files"] == 0

@@ -158,6 +158,30 @@ class EmbeddingCache:
             while len(self._memory) > self.memory_items:
                 self._memory.popitem(last=False)
 
+    def usage(self) -> tuple[int, int]:
+        """(files, bytes) the disk part holds now."""
+        if self.directory is None:
+            return 0, 0
+        sizes = [p.stat().st_size for p in self.directory.glob("*/*.safetensors")]
+        return len(sizes), sum(sizes)
+
+    def clear(self) -> tuple[int, int]:
+        """Forget every embedding, in memory and on disk; the (files, bytes) removed. The next
+        click on each frame computes its embedding again."""
+        with self._lock:
+            self._memory.clear()
+        if self.directory is None:
+            return 0, 0
+        files = removed = 0
+        for path in self.directory.glob("*/*.safetensors"):
+            try:
+                size = path.stat().st_size
+                path.unlink()
+            except FileNotFoundError:  # another process removed it meanwhile
+                continue
+            files, removed = files + 1, removed + size
+        return files, removed
+
     def _enforce_limit(self) -> None:
         assert self.directory is not None
         files = [
