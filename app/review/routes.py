@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Response, status
@@ -71,7 +71,9 @@ def start_teacher_run(
 ) -> JobCreated:
     """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
     frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
-    params = {"frame_ids": frame_ids, "prompts": body.prompts, "force": body.force}
+    params: dict[str, Any] = {"frame_ids": frame_ids, "prompts": body.prompts, "force": body.force}
+    if body.sequence_id is not None and not body.frame_ids:  # the jobs page names the run
+        params["sequence_id"] = body.sequence_id
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
 
 

@@ -10,6 +10,7 @@ const form = document.getElementById("job-filters");
 const rows = document.getElementById("job-rows");
 const highlight = Number(new URLSearchParams(location.search).get("job") ?? 0);
 let timer = null;
+let runs = new Map(); // sequence id → name, for the scope column
 
 /** The job's message: its progress while it runs, the sentence its handler summed up with once
  * it succeeded (every kind writes one), its error when it failed. */
@@ -31,13 +32,16 @@ async function cancel(job) {
   load();
 }
 
+/** A weld run by its name (its number when it is gone). */
+const run = (id) => (runs.has(id) ? `run “${runs.get(id)}”` : `run #${id}`);
+
 /** What a job works on, in words, from its parameters. */
 function scope(job) {
   const p = job.params ?? {};
-  if (job.kind === "export") return `${p.format ?? ""} export${p.sequence_id ? ` of sequence #${p.sequence_id}` : ""}${p.split ? `, ${p.split}` : ""}`;
-  if (job.kind === "propagate") return `sequence #${p.sequence_id} from ${count(p.from_frame_ids?.length ?? 0, "frame")}, ${p.direction ?? "both"}`;
-  if (Array.isArray(p.frame_ids)) return count(p.frame_ids.length, "frame");
-  if (p.sequence_id) return `sequence #${p.sequence_id}`;
+  if (job.kind === "export") return `${p.format ?? ""} export${p.sequence_id ? ` of ${run(p.sequence_id)}` : ""}${p.split ? `, ${p.split}` : ""}`;
+  if (job.kind === "propagate") return `${run(p.sequence_id)} from ${count(p.from_frame_ids?.length ?? 0, "frame")}, ${p.direction ?? "both"}`;
+  if (Array.isArray(p.frame_ids)) return `${p.sequence_id ? `${run(p.sequence_id)}, ` : ""}${count(p.frame_ids.length, "frame")}`;
+  if (p.sequence_id) return run(p.sequence_id);
   if (p.video_id) return `video #${p.video_id}`;
   if (job.kind === "train_sequential") return `sequential cell of model #${p.model_version_id}`;
   if (job.kind === "quantize_student") return `int8 student of model #${p.model_version_id}`;
@@ -72,6 +76,27 @@ function jobRow(job) {
   );
 }
 
+/** Update the table in place: a row stays the same element while its job is listed, and only
+ *  its cells that changed are replaced, so a button under the pointer (Cancel) is not swapped
+ *  out between two polls. */
+function render(jobs) {
+  const existing = new Map([...rows.querySelectorAll("tr[data-job-id]")].map((tr) => [tr.dataset.jobId, tr]));
+  const wanted = jobs.map((job) => {
+    const fresh = jobRow(job);
+    const old = existing.get(String(job.id));
+    if (!old) return fresh;
+    for (const name of ["data-status", "class"]) {
+      if (old.getAttribute(name) !== fresh.getAttribute(name)) old.setAttribute(name, fresh.getAttribute(name) ?? "");
+    }
+    [...fresh.children].forEach((cell, i) => {
+      if (old.children[i].outerHTML !== cell.outerHTML) old.children[i].replaceWith(cell);
+    });
+    return old;
+  });
+  const same = wanted.length === rows.children.length && wanted.every((tr, i) => rows.children[i] === tr);
+  if (!same) rows.replaceChildren(...wanted);
+}
+
 async function load() {
   clearTimeout(timer);
   let page;
@@ -82,13 +107,12 @@ async function load() {
     timer = setTimeout(load, 5000);
     return;
   }
-  const kinds = form.elements.kind;
-  for (const kind of new Set(page.items.map((j) => j.kind))) {
-    if (![...kinds.options].some((o) => o.value === kind)) kinds.append(h("option", {}, kind));
+  const named = page.items.map((j) => j.params?.sequence_id).filter((id) => id && !runs.has(id));
+  if (named.length) {
+    runs = new Map((await api("/sequences").catch(() => [])).map((s) => [s.id, s.name]));
   }
-  rows.replaceChildren(...(page.items.length
-    ? page.items.map(jobRow)
-    : [h("tr", {}, h("td", { colspan: "9", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here."))]));
+  if (page.items.length) render(page.items);
+  else rows.replaceChildren(h("tr", {}, h("td", { colspan: "9", class: "empty" }, "No jobs yet. Teacher runs, video extraction and training appear here.")));
   const active = page.items.some((j) => ACTIVE.has(j.status));
   document.getElementById("poll-state").textContent =
     `${count(page.total, "job")} · updated ${new Date().toLocaleTimeString()} · ${active ? "live" : "idle"}`;

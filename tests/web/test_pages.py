@@ -386,6 +386,16 @@ def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> No
         arg=job["job_id"],
     )
     assert "live" in page.inner_text("[data-testid=poll-state]")
+    # the table is updated in place: the Cancel button stays the same element across polls
+    button = row.locator("[data-testid=cancel-job]").element_handle()
+    shown = row.locator("[role=progressbar]").get_attribute("aria-valuenow")
+    wait_for_js(
+        page,
+        "([id, shown]) => document.querySelector(`[data-job-id='${id}'] [role=progressbar]`)"
+        ".getAttribute('aria-valuenow') !== shown",
+        arg=[job["job_id"], shown],
+    )
+    assert button.evaluate("(b) => b.isConnected")
     assert row.locator("[data-testid=job-owner]").inner_text() == "ada"
     assert re.fullmatch(r"\d+ s", row.locator("[data-testid=job-duration]").inner_text())
     asked: list[str] = []
@@ -398,6 +408,14 @@ def test_jobs_page_live_progress_and_cancel(page: Any, server: LiveServer) -> No
     row.locator("[data-testid=cancel-job]").click()
     page.locator(f"[data-job-id='{job['job_id']}'][data-status=cancelled]").wait_for(timeout=20_000)
     assert server.api("GET", f"/jobs/{job['job_id']}").json()["status"] == "cancelled"
+
+    run = server.api("POST", "/sequences", json={"name": "Scope run"}).json()
+    files = [("files", ("scope.png", synthetic_png(671), "image/png"))]
+    server.api("POST", "/frames", files=files, data={"sequence_id": run["id"]})
+    teacher = server.api("POST", "/teacher/runs", json={"sequence_id": run["id"]}).json()
+    scope = page.locator(f"[data-job-id='{teacher['job_id']}'] [data-testid=job-scope]")
+    scope.wait_for(timeout=20_000)
+    assert scope.inner_text() == "run “Scope run”, 1 frame"  # its name, not its number
 
 
 def test_box_negative_click_and_keypoint_removal(page: Any, server: LiveServer) -> None:
