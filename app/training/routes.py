@@ -161,11 +161,13 @@ def promote(
     model.gate = verdict
     session.commit()
     if not verdict["usable"] and not force:
-        raise ConflictError(
+        refused = ConflictError(
             f"{model.name} was not promoted: {verdict['reason'].removeprefix('Not promoted: ')} "
             "Promote with force=true to use it anyway; the review keeps showing the teacher's "
             "proposals while they agree better with the labels."
         )
+        refused.extra = {"reason": verdict["reason"].removeprefix("Not promoted: ")}  # type: ignore[attr-defined]
+        raise refused
     model = service.promote(session, model)
     service.queue_promoted_run(session, queue, model, user)
     return ModelVersionOut.model_validate(model)

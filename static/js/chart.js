@@ -19,9 +19,20 @@ export function ticks(low, high, count = 4) {
   return out;
 }
 
-function format(value) {
+/** A tick's label, with as many decimals as the step between ticks needs: ticks 0.0005 apart
+ *  never read "0.981, 0.981, 0.981". */
+export function format(value, step = 0) {
+  if (value === 0) return "0";
   const abs = Math.abs(value);
-  if (abs !== 0 && (abs < 0.01 || abs >= 1e4)) return value.toExponential(1);
+  if (abs !== 0 && (abs < 0.01 || abs >= 1e4) && !(step > 0 && abs >= 0.01)) {
+    const digits = step > 0 ? Math.max(1, Math.ceil(Math.log10(abs / step))) : 1;
+    return value.toExponential(Math.min(6, digits));
+  }
+  if (step > 0) {
+    let decimals = 0; // the fewest that write the step exactly (0.25 needs 2, 0.0005 needs 4)
+    while (decimals < 8 && Math.abs(Math.round(step * 10 ** decimals) - step * 10 ** decimals) > 1e-6) decimals += 1;
+    return value.toFixed(decimals);
+  }
   return String(Number(value.toPrecision(3)));
 }
 
@@ -47,9 +58,11 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   const sx = (x) => pad.left + ((x - x0) / (x1 - x0)) * (width - pad.left - pad.right);
   const sy = (y) => height - pad.bottom - ((y - y0) / (y1 - y0)) * (height - pad.top - pad.bottom);
   const grid = svg("g", { class: "grid" });
-  for (const t of ticks(y0, y1)) {
+  const yTicks = ticks(y0, y1);
+  const yStep = yTicks.length > 1 ? yTicks[1] - yTicks[0] : 0;
+  for (const t of yTicks) {
     grid.append(svg("line", { x1: pad.left, x2: width - pad.right, y1: sy(t), y2: sy(t) }));
-    grid.append(svg("text", { x: pad.left - 6, y: sy(t) + 4, "text-anchor": "end" }, format(t)));
+    grid.append(svg("text", { x: pad.left - 6, y: sy(t) + 4, "text-anchor": "end", class: "y-tick" }, format(t, yStep)));
   }
   // x counts epochs or labels: whole numbers only, never "1.2 epochs".
   for (const t of ticks(x0, x1, Math.min(5, Math.max(1, x1 - x0))).filter(Number.isInteger)) {

@@ -29,6 +29,7 @@ export function curveCharts(curve) {
       colour: PALETTE[i % PALETTE.length],
       points: curve.filter((row) => typeof row[key] === "number").map((row) => [row.epoch, row[key]]),
     })),
+    xLabel: "round", // as the training job says it ("keeps round 3 of 5"): one pass over the labels
   }));
 }
 
@@ -78,7 +79,11 @@ async function promote(model) {
     toast(`${model.name} is promoted: it scores the review queue; the review shows it where it beats the teacher.`, "ok");
   } catch (error) {
     if (error instanceof ApiError && error.status === 409) {
-      if (confirm(`${error.message}\n\nPromote it anyway?`)) {
+      const reason = error.body?.reason ?? error.message;
+      if (confirm(`${model.name} did not pass the promotion gate: ${reason.replace(/\.$/, "")}.\n\n`
+        + "Promote it anyway? It will then order the review queue and be the student the live view and "
+        + "weldpool stream run by default (both say it did not pass); the review keeps showing the "
+        + "teacher's proposals wherever they agree better with the reviewed labels.")) {
         try {
           await api(`/models/${model.id}/promote?force=true`, { method: "POST" });
           toast(`${model.name} is promoted by hand; the review keeps the teacher's proposals where they agree better.`, "info");

@@ -134,6 +134,7 @@ def test_a_student_with_no_pool_or_no_keypoints_is_not_promoted_and_the_teacher_
 
     refused = client.post(f"/api/v1/models/{empty}/promote", headers=auth(token))
     assert refused.status_code == 409 and "teacher" in refused.json()["detail"]
+    assert refused.json()["reason"].startswith("worse than the teacher")  # the page's words
     models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
     assert not models["empty"]["is_promoted"] and models["empty"]["gate"]["usable"] is False
     proposal = client.get(f"/api/v1/frames/{ids[0]}/proposal", headers=auth(token)).json()

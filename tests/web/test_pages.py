@@ -149,13 +149,24 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
     assert newest["name"] in text and f"trained on {newest['train_label_count']} labels" in text
     assert f"{fixed(newest['metrics']['mIoU'], 3)}" in text
     assert card.locator("svg.chart").count() >= 2  # loss and mIoU curves at least
-    # One way to write numbers: no long decimals, counts as integers, mED_k in px, whole epochs.
-    assert not re.search(r"\d\.\d{4,}", text), text
+    # One way to write numbers: no long decimals, counts as integers, mED_k in px, whole epochs
+    # (a chart's tick labels carry what their step needs: distinct, checked below).
+    words = card.evaluate(
+        "(c) => { const k = c.cloneNode(true);"
+        " k.querySelectorAll('svg').forEach((s) => s.remove()); return k.textContent; }"
+    )
+    assert not re.search(r"\d\.\d{4,}", words), words
     assert re.search(r"missed\s+\d+\n", text) and re.search(r"mED_k\s+[\d.]+ px ·", text)
     ticks = card.locator("svg.chart .grid text[text-anchor=middle]").evaluate_all(
         "nodes => nodes.map((n) => n.textContent)"
     )
     assert ticks and all(t.isdigit() for t in ticks), ticks
+    svg_texts = "(nodes) => nodes.map((n) => n.textContent)"
+    axis = card.locator("svg.chart .axis-label").evaluate_all(svg_texts)
+    assert axis and set(axis) == {"round"}  # as the training job says it
+    for chart in card.locator("svg.chart").all():  # every score axis: distinct labels
+        labels = chart.locator(".y-tick").evaluate_all(svg_texts)
+        assert len(labels) == len(set(labels)), labels
     page.goto(f"{server.url}/metrics")
     student_row = page.locator("[data-testid=student-table] tr", has_text=newest["name"])
     assert f"{fixed(newest['metrics']['mIoU'], 3)}" in student_row.inner_text()
@@ -177,6 +188,9 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
     )
     assert dialogs[0].startswith(f"Promote {newest['name']}?")
     assert len(dialogs) == (1 if newest["gate"]["usable"] else 2)  # a refusal asks to force
+    if not newest["gate"]["usable"]:  # in words for people, not the API's force=true
+        assert dialogs[1].startswith(f"{newest['name']} did not pass the promotion gate: ")
+        assert "force=true" not in dialogs[1] and "Promote it anyway?" in dialogs[1]
     page.wait_for_selector(
         f"[data-testid=model-card][data-model-id='{newest['id']}'] .badge.promoted"
     )

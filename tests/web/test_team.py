@@ -371,3 +371,24 @@ def test_the_jobs_page_shows_the_embedding_cache_and_an_admin_clears_it(
     assert dialogs and dialogs[-1].startswith("Clear the embedding cache?")
     line.locator("text=0 frames,").wait_for()
     assert server.api("GET", "/system/embedding-cache").json()["files"] == 0
+
+
+@pytest.mark.parametrize(
+    ("low", "high"), [(0.9812, 0.9815), (0.0, 1.0), (12.0, 12.4), (1e-4, 5e-4), (0.5, 0.5004)]
+)
+def test_a_charts_score_axis_labels_its_ticks_distinctly(
+    page: Any, server: LiveServer, low: float, high: float
+) -> None:
+    """The charts' tick labels carry the decimals their step needs (a close mIoU range read
+    "0.981" on every tick), and read back as the ticks' values."""
+    login(page, server)
+    labels = page.evaluate(
+        "async ([low, high]) => { const m = await import('/static/js/chart.js');"
+        " const t = m.ticks(low, high); return t.map((v) => [v, m.format(v, t[1] - t[0])]); }",
+        [low, high],
+    )
+    texts = [text for _, text in labels]
+    assert len(labels) >= 2 and len(set(texts)) == len(texts), labels
+    step = labels[1][0] - labels[0][0]
+    for value, text in labels:
+        assert abs(float(text) - value) < step / 100, (value, text)
