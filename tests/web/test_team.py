@@ -392,3 +392,21 @@ def test_a_charts_score_axis_labels_its_ticks_distinctly(
     step = labels[1][0] - labels[0][0]
     for value, text in labels:
         assert abs(float(text) - value) < step / 100, (value, text)
+
+
+def test_a_rejected_frame_shows_no_proposal(page: Any, server: LiveServer) -> None:
+    """A frame rejected as "no pool" opens empty: the teacher's mask and keypoints it rejected
+    are not drawn over it again."""
+    from tests.web.test_pages import add_frame
+    from tests.web.test_review_flow import CANVAS, canvas_data
+
+    frame_id = add_frame(server, 903)
+    rejected = server.api(
+        "PUT", f"/frames/{frame_id}/label", json={"status": "rejected", "base_revision": 0}
+    )
+    assert rejected.status_code == 200, rejected.text
+    login(page, server)
+    page.goto(f"{server.url}/frames/{frame_id}")
+    page.wait_for_selector(f"{CANVAS}[data-ready]")
+    assert canvas_data(page, "mask-area") == 0
+    assert page.locator("#keypoint-list li:not(.plain)").count() == 0

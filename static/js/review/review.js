@@ -276,9 +276,10 @@ export async function start() {
   S.stage.image = picture;
   S.overlay = new MaskOverlay(width, height);
   S.stage.overlay = S.overlay;
-  const keypoints = (labelMask ? label.keypoints : S.proposal?.keypoints) ?? [];
+  const rejected = label?.status === "rejected"; // "no pool here": nothing is drawn over it
+  const keypoints = (labelMask ? label.keypoints : rejected ? [] : S.proposal?.keypoints) ?? [];
   S.edit = {
-    mask: labelMask ?? S.proposal?.mask ?? new Mask(width, height),
+    mask: labelMask ?? (rejected ? null : S.proposal?.mask) ?? new Mask(width, height),
     keypoints: keypoints.map((p) => [...p]),
     manual: (manual?.keypoints ?? []).map((p) => [...p]),
     session: null,
