@@ -337,3 +337,23 @@ def frames_for_run(
             raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
         return ids
     raise InvalidInputError("Give frame_ids or a sequence_id.")
+
+
+def also_in(session: Session, frames: list[Frame]) -> list[tuple[int, int, int | None, str | None]]:
+    """For each of ``frames`` whose content another frame holds (in another run, or in none):
+    (frame id, the first such other frame's id, its run's id and name). One query."""
+    from app.models import Sequence
+
+    if not frames:
+        return []
+    by_sha = {f.sha256: f.id for f in frames}
+    rows = session.execute(
+        sa.select(Frame.sha256, Frame.id, Frame.sequence_id, Sequence.name)
+        .outerjoin(Sequence, Sequence.id == Frame.sequence_id)
+        .where(Frame.sha256.in_(list(by_sha)), Frame.id.not_in(list(by_sha.values())))
+        .order_by(Frame.id)
+    ).all()
+    found: dict[str, tuple[int, int, int | None, str | None]] = {}
+    for sha, other, sequence_id, name in rows:
+        found.setdefault(sha, (by_sha[sha], other, sequence_id, name))
+    return sorted(found.values())

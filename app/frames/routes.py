@@ -15,6 +15,7 @@ from app.errors import InvalidInputError
 from app.frames import assignments, deletion, ingest, listing, sequences, videos
 from app.frames.multipart import StreamedForm, one_spooled_file, openapi_form, optional_int
 from app.frames.schemas import (
+    AlsoIn,
     AssignIn,
     AssignOut,
     DeletionOut,
@@ -195,6 +196,10 @@ async def upload_frames(
             Duplicate(name=d.name, sha256=d.sha256, frame_id=d.frame_id) for d in result.duplicates
         ],
         rejected=[Rejected(name=r.name, reason=r.reason) for r in result.rejected],
+        also_in=[
+            AlsoIn(frame_id=f, other_frame_id=o, sequence_id=s, sequence_name=n)
+            for f, o, s, n in listing.also_in(session, result.stored)
+        ],
     )
     if result.stored:
         code = status.HTTP_201_CREATED

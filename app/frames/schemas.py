@@ -233,12 +233,26 @@ class Duplicate(BaseModel):
     frame_id: int = Field(description="The frame that already holds this content.")
 
 
+class AlsoIn(BaseModel):
+    """A stored frame whose content another run (or no run) holds too."""
+
+    frame_id: int = Field(description="The frame just stored.")
+    other_frame_id: int
+    sequence_id: int | None
+    sequence_name: str | None = Field(description="That run's name; null: a frame of no run.")
+
+
 class IngestOut(BaseModel):
     """What became of each uploaded file."""
 
     stored: list[FrameOut]
     duplicates: list[Duplicate]
     rejected: list[Rejected]
+    also_in: list[AlsoIn] = Field(
+        default_factory=list,
+        description="Frames stored here whose content is in another run too (a run holds a "
+        "content once; the same image in two runs is two frames): the first other frame of each.",
+    )
 
 
 class VideoOut(BaseModel):

@@ -16,6 +16,7 @@ const selected = new Set();
 let sequences = [];
 let offset = Number(new URLSearchParams(location.search).get("offset") ?? 0) || 0;
 let lastPage = { items: [], total: 0 };
+let filteredRun = null; // the Sequence filter the upload target last followed
 // "Next" follows the server's cursor (a deep page then reads only its own rows); a reload or
 // "previous" uses the offset in the URL.
 let nextAfter = null;
@@ -104,7 +105,12 @@ function pickSequence(id) {
 function updateUploadTarget() {
   const id = filterForm.elements.sequence_id.value;
   const sequence = sequences.find((s) => String(s.id) === id);
-  document.getElementById("upload-target").textContent = sequence ? `into sequence “${sequence.name}”` : "without a sequence";
+  const target = document.getElementById("upload-sequence");
+  const chosen = id !== filteredRun ? (sequence ? id : "") : target.value; // follows a new filter only
+  filteredRun = id;
+  target.replaceChildren(h("option", { value: "" }, "no sequence"),
+    ...sequences.map((s) => h("option", { value: String(s.id) }, s.name)));
+  target.value = sequences.some((s) => String(s.id) === chosen) ? chosen : "";
   for (const item of document.querySelectorAll("#sequence-list li")) item.classList.toggle("active", item.dataset.sequenceId === id);
 }
 
@@ -376,8 +382,9 @@ function uploadItem(file) {
   };
 }
 
+/** The run an upload goes to: the dropzone's own choice (set from the list's filter, shown). */
 function targetSequence() {
-  return filterForm.elements.sequence_id.value;
+  return document.getElementById("upload-sequence").value;
 }
 
 const BATCH_FILES = 8;
@@ -394,8 +401,13 @@ async function uploadFrames(batch) {
   const stored = new Map((body?.stored ?? []).map((f) => [f.original_name, f]));
   const duplicates = new Map((body?.duplicates ?? []).map((d) => [d.name, d]));
   const rejected = new Map((body?.rejected ?? []).map((r) => [r.name, r]));
+  const elsewhere = new Map((body?.also_in ?? []).map((a) => [a.frame_id, a]));
+  const where = (a) => (a.sequence_name ? `run “${a.sequence_name}”` : "no run");
   for (const { file, item } of batch) {
-    if (stored.has(file.name)) item.done(`stored as frame #${stored.get(file.name).id}`, "ok");
+    const frame = stored.get(file.name);
+    const also = frame && elsewhere.get(frame.id);
+    if (also) item.done(`stored as frame #${frame.id}; also in ${where(also)} as frame #${also.other_frame_id}`, "ok");
+    else if (frame) item.done(`stored as frame #${frame.id}`, "ok");
     else if (duplicates.has(file.name)) item.done(`already stored as frame #${duplicates.get(file.name).frame_id}`, "duplicate");
     else if (rejected.has(file.name)) item.done(`refused: ${rejected.get(file.name).reason}`, "refused");
     else item.done(`refused: ${body?.detail ?? `the server answered ${status}`}`, "refused");

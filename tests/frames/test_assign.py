@@ -8,7 +8,7 @@ from fastapi.testclient import TestClient
 
 from app.models import Frame, Role
 from tests.frames.test_delete import _upload
-from tests.helpers import auth
+from tests.helpers import auth, image_bytes
 
 
 def _ids(client: TestClient, token: str, **params: str) -> list[int]:
@@ -108,3 +108,40 @@ def test_only_reviewers_hand_out_and_refusals_change_nothing(
     names = client.get("/api/v1/users/assignable", headers=auth(reviewer)).json()
     assert [u["username"] for u in names] == ["ann", "boss", "rev"]  # not the deactivated
     assert client.get("/api/v1/users/assignable", headers=auth(annotator)).status_code == 403
+
+
+def test_an_upload_names_the_other_runs_that_hold_its_content(
+    client: TestClient, make_user
+) -> None:
+    _, token = make_user("rev", Role.reviewer)
+    one = client.post("/api/v1/sequences", json={"name": "one"}, headers=auth(token)).json()
+    two = client.post("/api/v1/sequences", json={"name": "two"}, headers=auth(token)).json()
+    (first,) = _upload(client, token, [("a.png", 1)], one["id"])
+    fresh = client.post(
+        "/api/v1/frames",
+        files=[
+            (
+                "files",
+                (
+                    "a-again.png",
+                    image_bytes(seed=1),
+                    "image/png",
+                ),
+            ),
+            (
+                "files",
+                ("new.png", image_bytes(seed=9), "image/png"),
+            ),
+        ],
+        data={"sequence_id": str(two["id"])},
+        headers=auth(token),
+    ).json()
+    copy = next(f for f in fresh["stored"] if f["original_name"] == "a-again.png")
+    assert fresh["also_in"] == [
+        {
+            "frame_id": copy["id"],
+            "other_frame_id": first["id"],
+            "sequence_id": one["id"],
+            "sequence_name": "one",
+        }
+    ]  # the new image is in no other run: not listed

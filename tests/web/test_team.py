@@ -410,3 +410,33 @@ def test_a_rejected_frame_shows_no_proposal(page: Any, server: LiveServer) -> No
     page.wait_for_selector(f"{CANVAS}[data-ready]")
     assert canvas_data(page, "mask-area") == 0
     assert page.locator("#keypoint-list li:not(.plain)").count() == 0
+
+
+def test_the_upload_target_is_explicit_and_a_copy_in_another_run_is_named(
+    page: Any, server: LiveServer
+) -> None:
+    """The dropzone's own run select follows the list's Sequence filter, and can be set apart
+    from it; a frame whose content another run holds is stored and says where else it is."""
+    first = server.api("POST", "/sequences", json={"name": "Upload run A"}).json()
+    second = server.api("POST", "/sequences", json={"name": "Upload run B"}).json()
+    image = synthetic_png(904)
+    files = [("files", ("pool.png", image, "image/png"))]
+    original = server.api("POST", "/frames", files=files, data={"sequence_id": first["id"]})
+    original_id = original.json()["stored"][0]["id"]
+
+    login(page, server)
+    page.goto(f"{server.url}/?sequence_id={first['id']}")
+    page.wait_for_selector("body[data-ready]")
+    assert page.input_value("[data-testid=upload-sequence]") == str(first["id"])  # followed
+    page.select_option("[data-testid=upload-sequence]", str(second["id"]))
+    page.set_input_files(
+        "[data-testid=upload-input]",
+        files=[{"name": "pool-again.png", "mimeType": "image/png", "buffer": image}],
+    )
+    item = page.locator("[data-testid=upload-item][data-name='pool-again.png'][data-state=ok]")
+    item.wait_for()
+    assert f"also in run “Upload run A” as frame #{original_id}" in item.inner_text()
+    shoot(page, "upload-also-in")
+    stored = server.api("GET", "/frames", params={"sequence_id": second["id"]}).json()["items"]
+    assert [f["original_name"] for f in stored] == ["pool-again.png"]
+    assert page.input_value("[data-testid=upload-sequence]") == str(second["id"])  # kept
