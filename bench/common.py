@@ -56,3 +56,23 @@ def local_server(
         finally:
             server.terminate()
             server.wait(timeout=60)
+
+
+def admin_token(database_url: str) -> str:
+    """A migrated database at ``database_url`` with an admin ``bench``; its API token."""
+    from app.db import create_db_engine, create_session_factory, migrate
+    from app.models import Role, User
+    from app.security import issue_token
+
+    engine = create_db_engine(database_url)
+    migrate(engine)
+    try:
+        with create_session_factory(engine)() as session:
+            user = User(username="bench", password_hash="x", role=Role.admin)
+            session.add(user)
+            session.flush()
+            _, token = issue_token(session, user, "bench")
+            session.commit()
+    finally:
+        engine.dispose()
+    return token

@@ -35,10 +35,8 @@ def main() -> None:
     from transformers import Sam2Config, Sam2Model
 
     from app.config import Settings
-    from app.db import create_db_engine, create_session_factory, migrate
     from app.main import create_app
-    from app.models import Role, User
-    from app.security import issue_token
+    from bench.common import admin_token
     from tests.helpers import corrected_label
     from weldpool_core.synth import SynthParams, synth_frame
 
@@ -54,15 +52,7 @@ def main() -> None:
             log_level="WARNING",
             retrain_every=0,
         )
-        engine = create_db_engine(settings.resolved_database_url)
-        migrate(engine)
-        with create_session_factory(engine)() as session:
-            user = User(username="bench", password_hash="x", role=Role.admin)
-            session.add(user)
-            session.flush()
-            _, token = issue_token(session, user, "bench")
-            session.commit()
-        headers = {"Authorization": f"Bearer {token}"}
+        headers = {"Authorization": f"Bearer {admin_token(settings.resolved_database_url)}"}
         click = {"points": [{"x": 640, "y": 400, "positive": True}]}
 
         def timed(http: TestClient, method: str, path: str, **kwargs: object) -> float:

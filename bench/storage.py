@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
-from common import SHARED_DATA, free_port, local_server
+from common import SHARED_DATA, admin_token, free_port, local_server
 from ingest import _salted, generated_frames, upload_run
 
 REAL_FRAMES = SHARED_DATA / "waam" / "frames"
@@ -165,10 +165,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
     from transformers import Sam2Config, Sam2Model
 
     from app.config import Settings
-    from app.db import create_db_engine, create_session_factory, migrate
     from app.main import create_app
-    from app.models import Role, User
-    from app.security import issue_token
     from app.storage import Storage
 
     url = f"s3://{bucket(endpoint)}/lab"
@@ -187,15 +184,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
         }
         writer = Settings(_env_file=None, home=Path(root) / "writer", **common)  # type: ignore[call-arg]
         reader = Settings(_env_file=None, home=Path(root) / "reader", **common)  # type: ignore[call-arg]
-        engine = create_db_engine(database)
-        migrate(engine)
-        with create_session_factory(engine)() as session:
-            user = User(username="bench", password_hash="x", role=Role.admin)
-            session.add(user)
-            session.flush()
-            _, token = issue_token(session, user, "bench")
-            session.commit()
-        headers = {"Authorization": f"Bearer {token}"}
+        headers = {"Authorization": f"Bearer {admin_token(database)}"}
         with TestClient(create_app(writer)) as http:
             upload = [("files", ("frame.png", frame, "image/png"))]
             frame_id = http.post("/api/v1/frames", files=upload, headers=headers).json()["stored"][
@@ -214,7 +203,6 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
                 answer.raise_for_status()
                 elapsed = (time.perf_counter() - start) * 1000
                 rows.append((label, store.reads - before, elapsed))  # type: ignore[attr-defined]
-        engine.dispose()
     return rows
 
 
