@@ -440,3 +440,36 @@ def test_the_upload_target_is_explicit_and_a_copy_in_another_run_is_named(
     stored = server.api("GET", "/frames", params={"sequence_id": second["id"]}).json()["items"]
     assert [f["original_name"] for f in stored] == ["pool-again.png"]
     assert page.input_value("[data-testid=upload-sequence]") == str(second["id"])  # kept
+
+
+def test_a_keypoint_added_takes_its_place_in_the_order_and_a_deletion_renumbers_nothing(
+    page: Any, server: LiveServer
+) -> None:
+    """Delete keypoint 2 of the teacher's four: the others stay 1, 3, 4; a click where it was
+    adds number 2 back (its place in the order rule), second in the list the label saves."""
+    from tests.web.test_pages import add_frame
+    from tests.web.test_review_flow import CANVAS, canvas_data, to_page
+
+    frame_id = add_frame(server, 905)
+    login(page, server)
+    page.goto(f"{server.url}/frames/{frame_id}")
+    page.wait_for_selector(f"{CANVAS}[data-ready]")
+    before = canvas_data(page, "keypoints")
+    assert len(before) == 4
+
+    def numbers() -> list[str]:
+        items = page.locator("#keypoint-list li[data-number]")
+        return [str(item.get_attribute("data-number")) for item in items.all()]
+
+    assert numbers() == ["1", "2", "3", "4"]
+    page.locator("#keypoint-list li[data-number='2'] button").click()
+    wait_for_js(page, "document.querySelectorAll('#keypoint-list li[data-number]').length === 3")
+    assert numbers() == ["1", "3", "4"]  # nothing renumbered
+    page.click("[data-testid=tool-keypoint]")
+    x, y = before[1]
+    page.mouse.click(*to_page(page, x + 3, y + 3))
+    wait_for_js(page, "document.querySelectorAll('#keypoint-list li[data-number]').length === 4")
+    assert numbers() == ["1", "2", "3", "4"]
+    after = canvas_data(page, "keypoints")
+    assert abs(after[1][0] - (x + 3)) < 2 and abs(after[1][1] - (y + 3)) < 2  # second in order
+    assert after[0] == before[0] and after[2:] == before[2:]

@@ -1,7 +1,7 @@
 // Undo and redo between immutable editing states, what is unsaved, and the refresh after any
 // change of the state.
 
-import { renderKeypointList, renderManualCount } from "./keypoints.js";
+import { numbersOf, renderKeypointList, renderManualCount } from "./keypoints.js";
 import { $, HISTORY_LIMIT } from "./page.js";
 import { renderVerdictNote } from "./review.js";
 import { S } from "./state.js";
@@ -49,6 +49,7 @@ export function changed() {
   showOutline();
   exposeState();
   S.stage.keypoints = S.validation ? S.edit.manual : S.edit.keypoints;
+  S.stage.keypointNumbers = numbersOf(S.stage.keypoints);
   S.stage.keypointStyle = S.validation ? "manual" : "keypoint";
   S.stage.dimKeypoints = !S.validation && S.edit.maskEdited && !S.edit.kpEdited;
   if (S.stage.selected >= S.stage.keypoints.length) S.stage.selected = -1;

@@ -12,6 +12,16 @@ export class Mask {
     return new Mask(this.width, this.height, this.data.slice());
   }
 
+  /** The centre of the mask's pixels [x, y], or null when it is empty. */
+  centroid() {
+    let n = 0, sx = 0, sy = 0;
+    const { width } = this;
+    for (let i = 0; i < this.data.length; i++) {
+      if (this.data[i]) { n += 1; sx += i % width; sy += Math.floor(i / width); }
+    }
+    return n ? [sx / n, sy / n] : null;
+  }
+
   any() {
     return this.data.some((v) => v !== 0);
   }

@@ -285,7 +285,7 @@ export class Stage {
       ctx.strokeStyle = i === this.selected ? "#fff" : "#1d232b";
       ctx.stroke();
       ctx.fillStyle = "#1d232b";
-      ctx.fillText(String(i + 1), x, y + 0.5);
+      ctx.fillText(String(this.keypointNumbers?.[i] ?? i + 1), x, y + 0.5);
     });
     ctx.restore();
   }

@@ -6,7 +6,7 @@ import { score } from "../format.js";
 import { toast } from "../ui.js";
 import { remember } from "./display.js";
 import { changed, commit, exposeState, undo } from "./history.js";
-import { deleteKeypoint } from "./keypoints.js";
+import { copyPoints, deleteKeypoint, orderCentre, withPoint } from "./keypoints.js";
 import { Mask } from "./mask.js";
 import { $, FRAME_ID, K, OUTLINE_TOLERANCE } from "./page.js";
 import { S } from "./state.js";
@@ -219,9 +219,12 @@ export function onPointerDown(event) {
         S.gesture = null;
         return;
       }
-      commit({ ...S.edit, [key]: [...S.edit[key].map((p) => [...p]), [x, y]], kpEdited: S.edit.kpEdited || !S.validation });
+      const added = withPoint(S.edit[key], [x, y], orderCentre(S.edit[key]));
+      commit({ ...S.edit, [key]: added.points, kpEdited: S.edit.kpEdited || !S.validation });
+      S.stage.selected = added.index;
+    } else {
+      S.stage.selected = index;
     }
-    S.stage.selected = index >= 0 ? index : S.edit[key].length - 1;
     // Selecting an existing keypoint is no edit; moving it is (committed on the first move).
     S.gesture = { kind: "keypoint", key, index: S.stage.selected, committed: index < 0 };
     changed();
@@ -310,7 +313,7 @@ export function onPointerMove(event) {
   } else if (S.gesture.kind === "keypoint") {
     if (!S.gesture.committed) {
       S.gesture.committed = true;
-      commit({ ...S.edit, [S.gesture.key]: S.edit[S.gesture.key].map((p) => [...p]), kpEdited: S.edit.kpEdited || !S.validation });
+      commit({ ...S.edit, [S.gesture.key]: copyPoints(S.edit[S.gesture.key]), kpEdited: S.edit.kpEdited || !S.validation });
     }
     S.edit[S.gesture.key][S.gesture.index] = clampToFrame([x, y]);
     S.stage.requestRender();
