@@ -39,9 +39,10 @@ export function format(value, step = 0) {
 /**
  * A line chart of `series` ([{name, colour, points: [[x, y], …], dots?}]) as an <svg> element;
  * a series with `dots` is drawn as markers only.
- * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data.
+ * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data; `xDomain` fixes
+ * the x range (charts of one run side by side).
  */
-export function lineChart({ title, series, width = 300, height = 160, domain = null, unit = "", xLabel = "epoch", onPick = null }) {
+export function lineChart({ title, series, width = 300, height = 160, domain = null, xDomain = null, unit = "", xLabel = "epoch", onPick = null }) {
   const pad = { left: 44, right: 12, top: 22, bottom: 26 };
   const all = series.flatMap((s) => s.points).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
   const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, width, height, class: "chart", role: "img", "aria-label": title });
@@ -52,7 +53,8 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   }
   const xs = all.map(([x]) => x);
   const ys = all.map(([, y]) => y);
-  const [x0, x1] = [Math.min(...xs), Math.max(...xs) === Math.min(...xs) ? Math.min(...xs) + 1 : Math.max(...xs)];
+  const [xLow, xHigh] = xDomain ?? [Math.min(...xs), Math.max(...xs)]; // xDomain: shared with other charts
+  const [x0, x1] = [xLow, xHigh === xLow ? xLow + 1 : xHigh];
   let [y0, y1] = domain ?? [Math.min(...ys), Math.max(...ys)];
   if (y1 - y0 < 1e-12) { y0 -= 0.5 * (Math.abs(y0) || 1); y1 += 0.5 * (Math.abs(y1) || 1); }
   const sx = (x) => pad.left + ((x - x0) / (x1 - x0)) * (width - pad.left - pad.right);

@@ -27,7 +27,9 @@ function renderStrip() {
   strip.replaceChildren(...timeline.frames.map((row, i) => {
     const reviewed = REVIEWED[row.status];
     const cell = h("a", {
-      class: `cell ${reviewed ?? (row.confidence === null ? "none" : "proposed")}`,
+      // a frame the charts count (a proposal shown, with a confidence or not: a student's has
+      // none) looks proposed; only a frame with no proposal at all is grey
+      class: `cell ${reviewed ?? (row.source ? "proposed" : "none")}`,
       href: reviewUrl(row.frame_id),
       "data-testid": "strip-cell",
       "data-frame-id": String(row.frame_id),
@@ -52,8 +54,10 @@ function renderCharts() {
     rows.forEach((row, i) => { if (Math.abs(x(row, i) - value) < Math.abs(x(rows[best], best) - value)) best = i; });
     location.href = reviewUrl(rows[best].frame_id);
   };
+  const xs = rows.map((r, i) => x(r, i)).filter(Number.isFinite);
+  const xDomain = xs.length ? [Math.min(...xs), Math.max(...xs)] : null; // every chart: one x range
   const quantity = (title, key, unit) => lineChart({
-    title, unit, xLabel, width: 420, height: 180, onPick,
+    title, unit, xLabel, xDomain, width: 420, height: 180, onPick,
     series: [
       { name: "every frame", colour: "#1c7ed6", points: rows.map((r, i) => [x(r, i), r[key] ?? NaN]) },
       { name: "reviewed", colour: "#2f9e44", dots: true, points: rows.map((r, i) => [x(r, i), r.source === "label" ? r[key] ?? NaN : NaN]) },
@@ -63,7 +67,7 @@ function renderCharts() {
     ? [quantity("Pool area", "area_mm2", "mm²"), quantity("Length along travel", "length_mm", "mm"), quantity("Width across travel", "width_mm", "mm")]
     : [quantity("Pool area", "area_px", "px²"), quantity("Length along travel", "length_px", "px"), quantity("Width across travel", "width_px", "px")];
   const confidence = lineChart({
-    title: "Proposal confidence", xLabel, width: 420, height: 180, domain: [0, 1], onPick,
+    title: "Proposal confidence", xLabel, xDomain, width: 420, height: 180, domain: [0, 1], onPick,
     series: [{ name: "confidence", colour: "#e8590c", points: rows.map((r, i) => [x(r, i), r.confidence ?? NaN]) }],
   });
   $("charts").replaceChildren(...[...charts, confidence].map((chart) => h("figure", { class: "chart-box" }, chart)));
@@ -84,6 +88,7 @@ function renderHead() {
     p.arc_length_correction_pct !== null ? `arc length ${p.arc_length_correction_pct} %` : "",
     p.robot_speed_cm_min !== null ? `travel ${p.robot_speed_cm_min} cm/min` : "",
     p.synergic_law ?? "", p.joint_type ?? "",
+    timeline.mm_per_px !== null ? `scale ${mmPerPx(timeline.mm_per_px)} mm/px` : "",
   ].filter(Boolean);
   $("run-process").textContent = `${count(timeline.frames.length, "frame")}` + (parts.length ? ` · ${parts.join(" · ")}` : " · no process parameters yet");
   const reviewed = timeline.frames.filter((r) => r.source === "label" && r.area_px !== null);

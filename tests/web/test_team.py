@@ -473,3 +473,41 @@ def test_a_keypoint_added_takes_its_place_in_the_order_and_a_deletion_renumbers_
     after = canvas_data(page, "keypoints")
     assert abs(after[1][0] - (x + 3)) < 2 and abs(after[1][1] - (y + 3)) < 2  # second in order
     assert after[0] == before[0] and after[2:] == before[2:]
+
+
+def test_the_timeline_colours_what_its_charts_count_on_one_x_range(
+    page: Any, server: LiveServer
+) -> None:
+    """A frame whose proposal has no confidence (a student's) is coloured as proposed, as the
+    geometry charts count it; every chart shares one x range; a run with only a scale set
+    says so in its header instead of "no process parameters"."""
+    sequence = server.api("POST", "/sequences", json={"name": "Timeline run"}).json()
+    server.api("PATCH", f"/sequences/{sequence['id']}", json={"mm_per_px": 0.05})
+    files = [("files", (f"t{i}.png", synthetic_png(910 + i), "image/png")) for i in range(3)]
+    stored = server.api("POST", "/frames", files=files, data={"sequence_id": sequence["id"]})
+    ids = [f["id"] for f in stored.json()["stored"]]
+    job = server.api("POST", "/teacher/runs", json={"frame_ids": ids[:2]}).json()
+    assert server.wait_for_job(job["job_id"])["status"] == "succeeded"
+
+    def as_a_student_proposal(route: Any) -> None:  # the second frame's proposal: a student's
+        body = route.fetch().json()
+        for row in body["frames"]:
+            if row["frame_id"] == ids[1]:
+                row["source"], row["confidence"] = "student", None
+        route.fulfill(json=body)
+
+    page.route(f"**/api/v1/sequences/{sequence['id']}/geometry*", as_a_student_proposal)
+    login(page, server)
+    page.goto(f"{server.url}/sequences/{sequence['id']}")
+    cells = page.locator("[data-testid=strip-cell]")
+    cells.nth(2).wait_for()
+    classes = [str(cells.nth(i).get_attribute("class")) for i in range(3)]
+    assert "proposed" in classes[0] and "proposed" in classes[1] and "none" in classes[2]
+    header = page.inner_text("#run-process")
+    assert "scale 0.05 mm/px" in header and "no process parameters" not in header
+    ranges = page.locator("#charts svg.chart").evaluate_all(
+        "(charts) => charts.map((c) => [...c.querySelectorAll('.grid text[text-anchor=middle]')]"
+        ".map((t) => t.textContent).join(' '))"
+    )
+    assert len(ranges) == 4 and len(set(ranges)) == 1, ranges  # the confidence chart too
+    shoot(page, "timeline-one-range")
