@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import BaseModel
 
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
@@ -21,7 +22,7 @@ from app.jobs.service import create_job
 from app.models import Job, JobStatus, Proposal, Split, User
 from app.proposals import policy
 from app.proposals.files import load_heatmap
-from app.review import service, warm
+from app.review import runtime, service, warm
 from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
@@ -46,7 +47,7 @@ from app.review.schemas import (
     SegmentOut,
     TeacherRunIn,
 )
-from app.security import CurrentUser, ReviewerUser
+from app.security import AdminUser, CurrentUser, ReviewerUser
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
 from weldpool_core.outline import Polygon, fill_polygons, mask_polygons
@@ -202,6 +203,34 @@ def get_proposal_heatmap_npy(
     buffer = io.BytesIO()
     np.save(buffer, load_heatmap(storage, proposal))
     return Response(buffer.getvalue(), media_type="application/octet-stream")
+
+
+class EmbeddingCacheOut(BaseModel):
+    files: int
+    bytes: int
+    limit_bytes: int
+
+
+class EmbeddingCacheCleared(BaseModel):
+    removed_files: int
+    removed_bytes: int
+
+
+@router.get("/system/embedding-cache", response_model=EmbeddingCacheOut, tags=["system"])
+def embedding_cache(settings: SettingsDep, _user: CurrentUser) -> EmbeddingCacheOut:
+    """The SAM2 embeddings cached on disk for clicks and propagation, and the size limit
+    (`WELDPOOL_EMBEDDING_CACHE_MB`; least recently used out)."""
+    files, size = runtime.embedding_cache_usage(settings)
+    return EmbeddingCacheOut(
+        files=files, bytes=size, limit_bytes=runtime.embedding_cache_limit(settings)
+    )
+
+
+@router.delete("/system/embedding-cache", response_model=EmbeddingCacheCleared, tags=["system"])
+def clear_embedding_cache(settings: SettingsDep, _admin: AdminUser) -> EmbeddingCacheCleared:
+    """Empty the embedding cache (admins): the next click on each frame computes it again."""
+    files, size = runtime.clear_embedding_cache(settings)
+    return EmbeddingCacheCleared(removed_files=files, removed_bytes=size)
 
 
 @router.post("/frames/{frame_id}/embedding", response_model=EmbeddingOut)

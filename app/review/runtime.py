@@ -55,10 +55,40 @@ def _cache(directory: Path, limit_bytes: int) -> EmbeddingCache:
     return EmbeddingCache(directory, disk_limit_bytes=limit_bytes)
 
 
+def embedding_cache_limit(settings: Settings) -> int:
+    """The disk part's size limit in bytes (``WELDPOOL_EMBEDDING_CACHE_MB``)."""
+    return int(settings.embedding_cache_mb * 2**20)
+
+
+def _embedding_dir(settings: Settings) -> Path:
+    return (settings.home / "cache" / "embeddings").resolve()
+
+
+def embedding_cache_usage(settings: Settings) -> tuple[int, int]:
+    """(files, bytes) of the embeddings on disk, read without loading the ML stack."""
+    sizes = [p.stat().st_size for p in _embedding_dir(settings).glob("*/*.safetensors")]
+    return len(sizes), sum(sizes)
+
+
+def clear_embedding_cache(settings: Settings) -> tuple[int, int]:
+    """Forget every cached embedding: this process's memory (when its cache is loaded) and the
+    files on disk; the (files, bytes) removed. Loads no ML library that is not loaded yet."""
+    if _cache.cache_info().currsize:
+        return embedding_cache(settings).clear()
+    files = removed = 0
+    for path in _embedding_dir(settings).glob("*/*.safetensors"):
+        try:
+            size = path.stat().st_size
+            path.unlink()
+        except FileNotFoundError:
+            continue
+        files, removed = files + 1, removed + size
+    return files, removed
+
+
 def embedding_cache(settings: Settings) -> EmbeddingCache:
     """The process's embedding cache (memory + WELDPOOL_HOME/cache/embeddings)."""
-    limit = int(settings.embedding_cache_mb * 2**20)
-    return _cache((settings.home / "cache" / "embeddings").resolve(), limit)
+    return _cache(_embedding_dir(settings), embedding_cache_limit(settings))
 
 
 def sam2_predictor(settings: Settings) -> Sam2Predictor:

@@ -24,7 +24,6 @@ from app.models import Frame
 from app.proposals.files import stored_rgb
 from app.review import runtime
 from app.storage import Storage
-from weldpool_core.teacher.cache import cached_embedding, embedding_key
 
 MAX_PENDING = 3
 """Embeddings waiting or computing at once: the frame open and the next two of its queue."""
@@ -52,6 +51,8 @@ def _expected() -> float | None:
 def _compute(
     storage: Storage, settings: Settings, sha256: str, path: str, size: tuple[int, int]
 ) -> None:
+    from weldpool_core.teacher.cache import cached_embedding  # the ML stack: on first use
+
     start = time.perf_counter()
     predictor = runtime.sam2_predictor(settings)
     _, tier = cached_embedding(
@@ -68,6 +69,8 @@ def _compute(
 def warmth(storage: Storage, settings: Settings, frame: Frame, *, start: bool) -> Warmth:
     """Where the frame's embedding stands; ``start`` begins computing it when it is neither in
     memory nor on its way (unless the budget is spent: ``busy``)."""
+    from weldpool_core.teacher.cache import embedding_key
+
     predictor = runtime.sam2_predictor(settings)  # WeightsUnavailableError: 503, as a click
     key = embedding_key(frame.sha256, predictor.cache_identity)
     if runtime.embedding_cache(settings).in_memory(key):

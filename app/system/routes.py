@@ -7,28 +7,14 @@ from typing import Any
 import sqlalchemy as sa
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel
 
 from app.db import schema_revision
-from app.deps import SettingsDep
 from app.jobs.runner import live_workers
 from app.queue import describe
-from app.security import AdminUser, CurrentUser
 from app.system.status import teacher_problem
 from weldpool_core.teacher.weights import weights_status
 
 router = APIRouter(tags=["system"])
-
-
-class EmbeddingCacheOut(BaseModel):
-    files: int
-    bytes: int
-    limit_bytes: int
-
-
-class EmbeddingCacheCleared(BaseModel):
-    removed_files: int
-    removed_bytes: int
 
 
 def _database(request: Request) -> dict[str, Any]:
@@ -55,26 +41,6 @@ def _workers(request: Request) -> dict[str, Any]:
         }
     except sa.exc.SQLAlchemyError:
         return {"alive": None}
-
-
-@router.get("/system/embedding-cache", response_model=EmbeddingCacheOut)
-def embedding_cache(settings: SettingsDep, _user: CurrentUser) -> EmbeddingCacheOut:
-    """The SAM2 embeddings cached on disk for clicks and propagation, and the size limit
-    (`WELDPOOL_EMBEDDING_CACHE_MB`; least recently used out)."""
-    from app.review import runtime
-
-    cache = runtime.embedding_cache(settings)
-    files, size = cache.usage()
-    return EmbeddingCacheOut(files=files, bytes=size, limit_bytes=cache.disk_limit_bytes)
-
-
-@router.delete("/system/embedding-cache", response_model=EmbeddingCacheCleared)
-def clear_embedding_cache(settings: SettingsDep, _admin: AdminUser) -> EmbeddingCacheCleared:
-    """Empty the embedding cache (admins): the next click on each frame computes it again."""
-    from app.review import runtime
-
-    files, size = runtime.embedding_cache(settings).clear()
-    return EmbeddingCacheCleared(removed_files=files, removed_bytes=size)
 
 
 @router.get("/health")

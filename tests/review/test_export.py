@@ -44,6 +44,8 @@ def test_demo_then_masks_export_in_the_dataset_layout(
         assert len(json.loads(archive.read(f"keypoints/{stem}.json"))["keypoints"]) == 4
     manifest = json.loads(archive.read("manifest.json"))["frames"]
     assert {m["label"] for m in manifest} == {"accepted"}
+    process = manifest[0]["process"]  # the weld run's parameters travel with the masks too
+    assert process["voltage_v"] == 22.5 and process["joint_type"] == "fillet"
     leftovers = [p for p in (settings.home / "tmp").glob("*.zip")]
     assert leftovers == []  # the temporary zip is removed after sending
 
