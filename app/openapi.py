@@ -116,9 +116,12 @@ def openapi_schema(app: FastAPI) -> dict[str, Any]:
     for path in PUBLIC:
         for operation in schema.get("paths", {}).get(path, {}).values():
             operation["security"] = []
-    token = schema.get("paths", {}).get("/api/v1/tokens", {}).get("post")
-    if token is not None:  # a token by password counts towards the login lockout
-        token["responses"]["429"] = _error("Too many wrong passwords; see Retry-After.", "Error")
+    for locked in ("/api/v1/tokens", "/api/v1/users/me/password"):  # wrong passwords count
+        operation = schema.get("paths", {}).get(locked, {}).get("post")  # towards the lockout
+        if operation is not None:
+            operation["responses"]["429"] = _error(
+                "Too many wrong passwords; see Retry-After.", "Error"
+            )
     _no_nul_strings(schema.get("paths", {}))
     for name, component in components.items():
         if name not in ("Error", "HTTPValidationError") and not name.endswith("Out"):
