@@ -10,8 +10,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from weldpool_core.active import DEFAULT_WEIGHTS
-from weldpool_core.io import DEFAULT_MAX_PIXELS
+from weldpool_core.defaults import DEFAULT_MAX_PIXELS, DEFAULT_WEIGHTS
 
 
 class Settings(BaseSettings):

@@ -3,20 +3,21 @@
 from __future__ import annotations
 
 import datetime as dt
+import functools
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
-from alembic import command
-from alembic.config import Config
-from alembic.runtime.migration import MigrationContext
-from alembic.script import ScriptDirectory
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 
 from app.errors import ConfigurationError, ConflictError
+
+if TYPE_CHECKING:  # alembic is imported only when a schema must change (0.1–0.2 s at start-up)
+    from alembic.config import Config
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 
@@ -118,23 +119,57 @@ def session_scope(factory: sessionmaker[Session]) -> Iterator[Session]:
 
 
 def _alembic_config(engine: Engine) -> Config:
+    from alembic.config import Config
+
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     config.attributes["engine"] = engine
     return config
 
 
+_REVISION = re.compile(r"^(down_revision|revision)\s*(?::[^=]*)?=\s*(.+)$", re.MULTILINE)
+_QUOTED = re.compile(r"'([^']+)'|\"([^\"]+)\"")
+
+
+@functools.cache
+def head_revision() -> str:
+    """The newest revision the code knows, read from the migration files' ``revision`` and
+    ``down_revision`` lines (alembic's ScriptDirectory gives the same: a test checks), so a
+    process whose database is current never imports alembic."""
+    revisions: set[str] = set()
+    parents: set[str] = set()
+    for path in (MIGRATIONS_DIR / "versions").glob("*.py"):
+        for name, value in _REVISION.findall(path.read_text(encoding="utf-8")):
+            named = {a or b for a, b in _QUOTED.findall(value)}  # None, 'x' or ('x', 'y')
+            (revisions if name == "revision" else parents).update(named)
+    heads = revisions - parents
+    if len(heads) != 1:  # a branch point (or an unreadable file): alembic decides
+        from alembic.script import ScriptDirectory
+
+        return ScriptDirectory(str(MIGRATIONS_DIR)).get_current_head() or ""
+    return heads.pop()
+
+
+def current_revision(engine: Engine) -> str | None:
+    """The database's revision (alembic's version table), None before the first migration."""
+    if not sa.inspect(engine).has_table("alembic_version"):
+        return None
+    with engine.connect() as connection:
+        return connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar()
+
+
 def migrate(engine: Engine, revision: str = "head") -> None:
-    """Bring the schema to ``revision`` (default: the newest)."""
+    """Bring the schema to ``revision`` (default: the newest); nothing to do costs one query."""
+    if revision == "head" and current_revision(engine) == head_revision():
+        return
+    from alembic import command
+
     command.upgrade(_alembic_config(engine), revision)
 
 
 def schema_revision(engine: Engine) -> tuple[str | None, str]:
     """(the database's current revision, the newest revision the code knows)."""
-    head = ScriptDirectory.from_config(_alembic_config(engine)).get_current_head()
-    with engine.connect() as connection:
-        current = MigrationContext.configure(connection).get_current_revision()
-    return current, head or ""
+    return current_revision(engine), head_revision()
 
 
 def require_current_schema(engine: Engine) -> None:

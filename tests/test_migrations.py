@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 
-from app.db import Base, create_db_engine, migrate, schema_revision
+from app.db import MIGRATIONS_DIR, Base, create_db_engine, head_revision, migrate, schema_revision
 
 CORE_TABLES = {
     "users",
@@ -32,6 +33,33 @@ def test_upgrade_empty_database_to_head(database_url: str) -> None:
     assert current == head and head
     assert set(sa.inspect(engine).get_table_names()) >= CORE_TABLES
     migrate(engine)  # idempotent
+    engine.dispose()
+
+
+def test_the_head_read_from_the_files_is_alembics() -> None:
+    """The start-up's head (read without importing alembic) is the one alembic computes."""
+    from alembic.script import ScriptDirectory
+
+    assert head_revision() == ScriptDirectory(str(MIGRATIONS_DIR)).get_current_head()
+    assert head_revision() == max(p.name[:4] for p in (MIGRATIONS_DIR / "versions").glob("0*.py"))
+
+
+def test_a_current_database_is_not_migrated_again(
+    database_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Serving a current database skips alembic; one a revision behind is brought to head."""
+    import alembic.command
+
+    engine = create_db_engine(database_url)
+    migrate(engine, "0014")
+    assert schema_revision(engine)[0] == "0014"
+    migrate(engine)
+    assert schema_revision(engine)[0] == head_revision()
+    def refuse(*args: object) -> None:
+        raise AssertionError("a current database was migrated again")
+
+    monkeypatch.setattr(alembic.command, "upgrade", refuse)
+    migrate(engine)  # current: no upgrade
     engine.dispose()
 
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from weldpool_core.defaults import DEFAULT_WEIGHTS
 from weldpool_core.metrics import iou, match_keypoints
 
 COMPONENTS = (
@@ -38,14 +39,6 @@ COMPONENTS = (
     "propagation_doubt",
 )
 KEYPOINT_SCALE = 10.0  # a mean error of a tenth of the diagonal counts as full disagreement
-DEFAULT_WEIGHTS = {
-    "teacher_iou": 1.0,
-    "instability": 1.0,
-    "disagreement": 1.0,
-    "student_uncertainty": 1.0,
-    "propagation_doubt": 1.0,
-}
-"""The components' weights when the settings give none (``WELDPOOL_UNCERTAINTY_WEIGHTS``)."""
 
 
 def _clip(value: float) -> float:

@@ -27,6 +27,7 @@ from isal import isal_zlib
 from numpy.typing import NDArray
 from PIL import Image, UnidentifiedImageError
 
+from weldpool_core.defaults import DEFAULT_MAX_PIXELS
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.pngcheck import CORRUPT as _CORRUPT
 from weldpool_core.pngcheck import PNG_SIGNATURE, plain_png, verify_stream
@@ -36,9 +37,6 @@ Image.MAX_IMAGE_PIXELS = None  # our own limit (max_pixels) applies, before any 
 
 MEDIA_TYPES = {"PNG": "image/png", "JPEG": "image/jpeg", "TIFF": "image/tiff", "BMP": "image/bmp"}
 EXTENSIONS = {"PNG": ".png", "JPEG": ".jpg", "TIFF": ".tif", "BMP": ".bmp"}
-DEFAULT_MAX_PIXELS = 25_000_000
-"""Largest frame read by default (5000×5000; weld cameras are far smaller): a guard against
-decompression bombs, checked from the header before decoding."""
 LOW_PERCENTILE = 0.5
 HIGH_PERCENTILE = 99.99
 _SUPPORTED = "upload PNG, JPEG, TIFF or BMP"

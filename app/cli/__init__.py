@@ -1,17 +1,7 @@
 """The ``weldpool`` command line (``app.cli:main``): one module per domain registers its
-commands on the group defined in ``base``."""
+commands on the group defined in ``base``, imported when one of its commands runs
+(``base.COMMANDS``)."""
 
-from app.cli import evaluation, frames, review, service, stream, student, teacher, users
 from app.cli.base import main
 
-__all__ = [
-    "evaluation",
-    "frames",
-    "main",
-    "review",
-    "service",
-    "stream",
-    "student",
-    "teacher",
-    "users",
-]
+__all__ = ["main"]

@@ -5,6 +5,7 @@ database, one-line errors with exit status 2). Commands live beside it, one modu
 from __future__ import annotations
 
 import functools
+import importlib
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -69,7 +70,46 @@ def open_sessions(settings: Settings, *, migrated: bool = True) -> Any:
     return create_session_factory(engine)
 
 
-@click.group()
+COMMANDS = {
+    "serve": "service",
+    "worker": "service",
+    "migrate": "service",
+    "storage": "service",
+    "import": "frames",
+    "import-labels": "frames",
+    "export": "review",
+    "demo": "review",
+    "teacher": "teacher",
+    "weights": "teacher",
+    "train": "student",
+    "train-sequential": "student",
+    "predict": "student",
+    "export-student": "student",
+    "stream": "stream",
+    "heatmap": "evaluation",
+    "eval": "evaluation",
+    "user": "users",
+    "token": "users",
+    "tokens": "users",
+}
+"""Each command's module in ``app.cli``: a command imports only its own module, so ``serve``
+does not load what ``eval`` or ``train`` need (a test checks this list against the modules)."""
+
+
+class LazyGroup(click.Group):
+    """The ``weldpool`` group, whose commands' modules are imported when a command is asked for
+    (``--help`` lists them all, and so imports them all)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in COMMANDS and cmd_name not in self.commands:
+            importlib.import_module(f"app.cli.{COMMANDS[cmd_name]}")  # registers on `main`
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group(cls=LazyGroup)
 @click.version_option(package_name="weldpool")
 def main() -> None:
     """weldpool: learn the shape of a molten weld pool from camera frames."""
