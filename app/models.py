@@ -14,6 +14,37 @@ from app.db import Base, UTCDateTime, utcnow
 JSONType = sa.JSON()
 
 
+class Float32Vector(sa.types.TypeDecorator[Any]):
+    """A vector of floats as little-endian float32 bytes, read back as a NumPy array: a DINO
+    descriptor of 384 floats is 1.5 KB and decodes in microseconds (as JSON it was ~3.4 KB and
+    took the queue's first page 4 ms to parse for 50 frames)."""
+
+    impl = sa.LargeBinary
+    cache_ok = True
+
+    def process_bind_param(self, value: Any, dialect: Any) -> bytes | None:
+        if value is None:
+            return None
+        import numpy as np  # the web process needs NumPy only once it reads or writes one
+
+        return np.asarray(value, "<f4").tobytes()
+
+    def process_result_value(self, value: bytes | None, dialect: Any) -> Any:
+        if value is None:
+            return None
+        import numpy as np
+
+        return np.frombuffer(value, "<f4")
+
+    def compare_values(self, x: Any, y: Any) -> bool:  # arrays: not ``==``, which is elementwise
+        import numpy as np
+
+        vectors = (list, tuple, np.ndarray)
+        if isinstance(x, vectors) and isinstance(y, vectors):
+            return bool(np.array_equal(np.asarray(x, "<f4"), np.asarray(y, "<f4")))
+        return x is y  # None, or the ORM's "not loaded"
+
+
 class Role(enum.StrEnum):
     """What a user may do: annotators label; reviewers also accept, reject and train; admins
     also manage users."""
@@ -256,9 +287,12 @@ class Frame(Base):
     uncertainty: Mapped[float | None] = mapped_column(sa.Float, index=True)
     uncertainty_components: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
     uncertainty_reason: Mapped[str | None] = mapped_column(sa.String(32))
-    descriptor: Mapped[list[float] | None] = mapped_column(JSONType, deferred=True)
-    """The frame's DINO descriptor (384 floats): loaded only where it is asked for (the
-    queue's diversity pick), never with list rows."""
+    descriptor: Mapped[Any] = mapped_column(
+        "descriptor_f32", Float32Vector, nullable=True, deferred=True
+    )
+    """The frame's DINO descriptor (384 floats, a read-only float32 array; a list may be
+    assigned): loaded only where it is asked for (the queue's diversity pick), never with list
+    rows."""
     teacher_error: Mapped[str | None] = mapped_column(sa.String(500))
     """Why the teacher's last run failed on this frame; cleared by its next proposal."""
     uploaded_by_id: Mapped[int | None] = mapped_column(

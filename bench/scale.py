@@ -166,6 +166,7 @@ def main() -> None:
             print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
             print("| list | page | API ms | server ms | SQL floor ms |")
             print("|---|---|---:|---:|---:|")
+            firsts: dict[str, float] = {}
             with TestClient(app) as client, engine.connect() as connection:
                 for order in ORDERS:
                     status = "unreviewed" if order == "uncertainty" else "all"
@@ -209,12 +210,19 @@ def main() -> None:
                             lambda q=floor_query: connection.execute(q).all(), args.runs
                         )
                         how = "cursor" if after else f"offset {offset}"
+                        if name == "first":
+                            firsts[order] = server
                         print(
                             f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
                             f"{server:.1f} | {floor:.2f} |",
                             flush=True,
                         )
-            print(f"\nRSS of this process: {rss_mb():.0f} MB")
+            others = statistics.median(firsts[o] for o in ORDERS if o != "uncertainty")
+            print(
+                f"\nthe queue's first page (its diversity pick included) ÷ the other lists' first "
+                f"pages, server time: {firsts['uncertainty'] / others:.2f}×"
+            )
+            print(f"RSS of this process: {rss_mb():.0f} MB")
             engine.dispose()
         finally:
             if args.database == "postgresql":

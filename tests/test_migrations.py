@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import sqlalchemy as sa
+from sqlalchemy.orm import Session
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 
@@ -55,6 +56,7 @@ def test_a_current_database_is_not_migrated_again(
     assert schema_revision(engine)[0] == "0014"
     migrate(engine)
     assert schema_revision(engine)[0] == head_revision()
+
     def refuse(*args: object) -> None:
         raise AssertionError("a current database was migrated again")
 
@@ -101,4 +103,51 @@ def test_sqlite_runs_in_wal_mode_with_foreign_keys(tmp_path) -> None:
             pass
         else:
             raise AssertionError("a token of a missing user was stored: foreign keys are off")
+    engine.dispose()
+
+
+def test_descriptors_stored_as_json_become_float32_and_back(database_url: str) -> None:
+    """0016's downgrade writes each frame's float32 descriptor as JSON, and its upgrade turns
+    that JSON into float32 bytes again (frames without one stay empty)."""
+    import numpy as np
+    from alembic import command
+
+    from app.db import _alembic_config
+    from app.models import Frame, Sequence
+
+    engine = create_db_engine(database_url)
+    migrate(engine)
+    vector = [0.125, -1.5, 3.0e-3, 0.333333]
+    with Session(engine) as session:
+        run = Sequence(name="r")
+        session.add(run)
+        session.flush()
+        for index, descriptor in enumerate([vector, None]):
+            session.add(
+                Frame(
+                    sequence_id=run.id,
+                    sha256=f"{index:064d}",
+                    path=f"frames/{index}.png",
+                    original_name=f"{index}.png",
+                    media_type="image/png",
+                    size_bytes=1,
+                    width=2,
+                    height=2,
+                    channels=3,
+                    descriptor=descriptor,
+                )
+            )
+        session.commit()
+    command.downgrade(_alembic_config(engine), "0015")
+    json_column = sa.column("descriptor", sa.JSON())
+    with engine.connect() as connection:
+        query = sa.text("SELECT descriptor FROM frames ORDER BY id").columns(json_column)
+        stored = connection.execute(query).scalars().all()
+    assert stored[0] == pytest.approx(vector, abs=1e-5) and stored[1] is None
+    migrate(engine)
+    with Session(engine) as session:
+        frames = session.scalars(sa.select(Frame).order_by(Frame.id)).all()
+        assert frames[0].descriptor.dtype == np.float32
+        np.testing.assert_allclose(frames[0].descriptor, np.float32(vector), atol=1e-5)
+        assert frames[1].descriptor is None
     engine.dispose()

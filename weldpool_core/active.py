@@ -114,18 +114,17 @@ def diverse_order(
     if count <= 2:
         return list(np.argsort(-scores, kind="stable"))
     vectors = descriptors / np.maximum(np.linalg.norm(descriptors, axis=1, keepdims=True), 1e-12)
+    distances = 1.0 - vectors @ vectors.T  # every pair at once: one product, not one per pick
     span = float(scores.max() - scores.min()) or 1.0
-    normalised = (scores - scores.min()) / span
+    weighted = (1 - trade_off) * (scores - scores.min()) / span
     order = [int(np.argmax(scores))]
-    nearest = 1.0 - vectors @ vectors[order[0]]  # distance to the closest picked frame
-    chosen = np.zeros(count, bool)
-    chosen[order[0]] = True
-    while len(order) < count:
-        spread = nearest / max(float(nearest[~chosen].max()), 1e-12)
-        value = (1 - trade_off) * normalised + trade_off * spread
-        value[chosen] = -np.inf
+    nearest = distances[order[0]].copy()  # distance to the closest picked frame (0 if picked)
+    picked = np.zeros(count)  # -inf once picked
+    picked[order[0]] = -np.inf
+    for _ in range(count - 1):
+        value = weighted + nearest * (trade_off / max(float(nearest.max()), 1e-12)) + picked
         pick = int(np.argmax(value))
         order.append(pick)
-        chosen[pick] = True
-        nearest = np.minimum(nearest, 1.0 - vectors @ vectors[pick])
+        picked[pick] = -np.inf
+        np.minimum(nearest, distances[pick], out=nearest)
     return order

@@ -114,7 +114,7 @@ def record_teacher_proposal(
 ) -> Proposal:
     """A TeacherResult as the frame's newest proposal; the frame keeps its DINO descriptor
     (the queue's diversity) and loses its last teacher error."""
-    descriptor = [round(float(v), 5) for v in result.attention.cls]
+    descriptor = np.asarray(result.attention.cls, np.float32)
     return record_proposal(
         session,
         storage,
