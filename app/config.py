@@ -94,6 +94,36 @@ class Settings(BaseSettings):
         default=True, description="Promote a newly trained student when it beats the promoted one."
     )
     workers: int = Field(default=1, ge=1, description="Worker threads of one worker process.")
+    interactive_threads: int | None = Field(
+        default=None,
+        ge=1,
+        le=256,
+        description="Threads of a click, a box or an embedding a reviewer waits for while a "
+        "job runs on this machine (default: half the cores, at least 1: under contention a "
+        "second thread buys a click nothing); with no job running a click uses every core.",
+    )
+    batch_threads: int | None = Field(
+        default=None,
+        ge=1,
+        le=256,
+        description="Threads of a worker's jobs (teacher runs, embeddings in bulk, training, "
+        "propagation, export); default: every core.",
+    )
+    batch_nice: int = Field(
+        default=10,
+        ge=0,
+        le=19,
+        description="How much lower the worker's job threads run than the web process's "
+        "(Linux nice), so a reviewer's click is never queued behind a job for the CPU.",
+    )
+    reviewer_active_s: float = Field(
+        default=0.0,
+        ge=0,
+        description="If set, for this long after a reviewer's last click jobs on this machine "
+        "also give up threads (batch threads minus interactive threads); 0 (default): jobs "
+        "yield by priority alone, which measured as fast for clicks and costs training nothing "
+        "(bench/interactive.py).",
+    )
     job_heartbeat_s: float = Field(
         default=5.0, gt=0, description="How often a worker reports that it is alive."
     )

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -26,13 +26,20 @@ def free_port() -> int:
 
 @contextmanager
 def local_server(
-    env: dict[str, str] | None = None, worker: bool = True
+    env: dict[str, str] | None = None,
+    worker: bool = True,
+    setup: Sequence[Sequence[str]] = (),
 ) -> Iterator[tuple[str, str]]:
-    """`weldpool serve` on a temporary home (SQLite); yields (url, the first admin's token)."""
+    """`weldpool serve` on a temporary home (SQLite); yields (url, the first admin's token).
+    ``setup``: weldpool commands run on that home first (e.g. ``[("demo",)]``)."""
     with tempfile.TemporaryDirectory() as home:
         environment = dict(os.environ, WELDPOOL_HOME=home, WELDPOOL_LOG_LEVEL="WARNING")
         environment.update(env or {})
         weldpool = [sys.executable, "-m", "app"]
+        for command in setup:
+            subprocess.run(
+                [*weldpool, *command], env=environment, cwd=REPO, check=True, capture_output=True
+            )
         port = free_port()
         command = [*weldpool, "serve", "--port", str(port)] + ([] if worker else ["--no-worker"])
         server = subprocess.Popen(command, env=environment, cwd=REPO, stderr=subprocess.DEVNULL)

@@ -21,7 +21,7 @@ LAYERS = (
     (
         *("jobs", "users", "system", "housekeeping", "queue", "security", "deps", "storage"),
         *("models", "db", "config", "errors", "bounds", "openapi", "headers", "limits", "logs"),
-        "periodic",
+        *("periodic", "budgets"),
     ),
 )
 """The app's packages from the top down (the README's Layout): each imports only from its own

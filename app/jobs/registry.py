@@ -12,6 +12,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
+from app import budgets
 from app.config import Settings
 from app.db import utcnow
 from app.models import Job, JobStatus
@@ -119,6 +120,7 @@ class JobContext:
         longer holds the job."""
         if self.stopping.is_set():
             raise JobInterrupted()
+        budgets.batch_checkpoint(self.settings)  # fewer threads while a reviewer clicks
         now = time.monotonic()
         if now - self._last_write < self.min_interval_s and fraction < 1.0:
             return

@@ -16,6 +16,7 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
+from app import budgets
 from app.config import Settings
 from app.db import utcnow
 from app.errors import without_server_paths
@@ -141,6 +142,7 @@ def execute_job(
         attempt=attempt,
     )
     spec = job_spec(kind)
+    budgets.start_batch(settings)  # this thread now runs below the web process's clicks
     if spec is None:
         _finish(
             context,

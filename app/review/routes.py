@@ -11,6 +11,7 @@ from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel
 
+from app import budgets
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
@@ -287,14 +288,15 @@ def segment(
             label_revision=body.mask_from.label_revision,
             proposal_id=body.mask_from.proposal_id,
         )
-    result = service.segment(
-        storage,
-        settings,
-        frame,
-        [(p.x, p.y, p.positive) for p in body.points],
-        body.box,
-        previous,
-    )
+    with budgets.interactive(settings):  # never behind a job's threads for the CPU
+        result = service.segment(
+            storage,
+            settings,
+            frame,
+            [(p.x, p.y, p.positive) for p in body.points],
+            body.box,
+            previous,
+        )
     return SegmentOut(
         mask_png=_b64(encode_mask_png(result.mask)),
         score=result.score,

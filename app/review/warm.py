@@ -19,6 +19,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Literal
 
+from app import budgets
 from app.config import Settings
 from app.models import Frame
 from app.proposals.files import stored_rgb
@@ -55,13 +56,14 @@ def _compute(
 
     start = time.perf_counter()
     predictor = runtime.sam2_predictor(settings)
-    _, tier = cached_embedding(
-        predictor,
-        runtime.embedding_cache(settings),
-        sha256,
-        lambda: stored_rgb(storage, path),
-        size,
-    )
+    with budgets.interactive(settings):  # a reviewer waits for it: the click's budget
+        _, tier = cached_embedding(
+            predictor,
+            runtime.embedding_cache(settings),
+            sha256,
+            lambda: stored_rgb(storage, path),
+            size,
+        )
     if tier == "computed":
         _durations.append((time.perf_counter() - start) * 1000)
 
