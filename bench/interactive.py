@@ -3,11 +3,12 @@
 Run: ``PYTHONPATH=. .venv/bin/python bench/interactive.py [--clicks 40] [--epochs 30]`` (about
 10 minutes on 2 cores; run it alone: it measures contention, so nothing else may compete).
 
-For each budget — ``on`` (the defaults: interactive threads, job threads niced and fewer while a
-reviewer is active) and ``off`` (every thread for everyone at one priority, as before the
-budgets) — a throw-away ``weldpool serve`` with its embedded worker (one job at a time, the
-default) and full-size random-weight SAM2 and DINO gets ``weldpool demo``'s synthetic run and a
-real 1280×800 WAAM frame to click on (its embedding made first). Then:
+For each budget — ``nice`` (the defaults: a click's own threads, job threads niced), ``on`` (also
+fewer job threads while a reviewer is active) and ``off`` (every thread for everyone at one
+priority, as before the budgets) — a throw-away ``weldpool serve`` with its embedded worker (one
+job at a time, the default; ``--workers 2`` runs both jobs at once) and full-size random-weight
+SAM2 and DINO gets ``weldpool demo``'s synthetic run and a real 1280×800 WAAM frame to click on
+(its embedding made first). Then:
 
 1. **quiet**: clicks, one at a time, with a reviewer's pause (``--think`` s) between them;
 2. **training alone**: a training job (``--epochs``), no clicks: its wall time (the job's
@@ -35,8 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import SHARED_DATA, local_server
 
 BUDGETS = {
-    "on": {},
-    "nice": {"WELDPOOL_REVIEWER_ACTIVE_S": "0"},
+    "nice": {},  # the defaults: interactive threads, job threads niced
+    "on": {"WELDPOOL_REVIEWER_ACTIVE_S": "20"},  # and jobs give up threads while a reviewer clicks
     "off": {
         "WELDPOOL_INTERACTIVE_THREADS": "2",
         "WELDPOOL_BATCH_NICE": "0",
@@ -165,11 +166,10 @@ def main() -> None:
     parser.add_argument("--think", type=float, default=1.0)
     parser.add_argument("--epochs", type=int, default=120)
     parser.add_argument("--teacher-frames", type=int, default=6)
+    parser.add_argument("--workers", type=int, default=1, help="2: both jobs at once")
     parser.add_argument(
-        "--workers", type=int, default=1, help="the embedded worker's threads (2: both jobs at once)"
+        "--budgets", nargs="+", default=["off", "nice", "on"], choices=list(BUDGETS)
     )
-    parser.add_argument("--budgets", nargs="+", default=["off", "nice", "on"], choices=list(BUDGETS))
-    # "nice": the defaults, except that jobs keep their threads while a reviewer clicks
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as root:
         weights = _weights(Path(root))
