@@ -15,20 +15,29 @@ Each side gets its own budget from the settings:
   marks itself running the same way (a file's time), which is how a click knows.
 
 torch's thread count is per calling thread (OpenMP's ``nthreads`` ICV, MKL's local count), so
-the two budgets hold side by side in one process. Nothing here imports torch: a thread count is
-applied only where torch is already loaded, as it is for any model work.
+the two budgets hold side by side in one process; a click's count is put back when it is done,
+as threads started later copy the last count set. A job applies its count only once torch is
+loaded (a job without models never loads it); a click loads it, as its model needs it anyway.
+Budgets are advice: nothing here raises into a job or a request. Threads inherit the priority
+of the thread that starts them, so the thread pools that requests and jobs share are started
+from the process's own priority (``shared_pool``), never from a job's.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import structlog
 
 from app.config import Settings
 
@@ -40,19 +49,16 @@ TOUCH_EVERY_S = 1.0  # a file's time is refreshed at most this often
 LOOK_EVERY_S = 0.5  # a job reads the reviewer's at most this often
 BATCH_FRESH_S = 5.0  # a job that reported this recently is running (reports come every batch)
 
+log = structlog.get_logger(__name__)
 _local = threading.local()
 _touched: dict[Path, float] = {}
 
 
-_default: list[int] = []  # torch's own thread count in this process, read once
-
-
+@functools.cache
 def default_threads() -> int:
     """torch's thread count before any budget set one: the machine's physical cores, or
     ``OMP_NUM_THREADS`` when the user set it (torch must be loaded)."""
-    if not _default:
-        _default.append(max(1, int(sys.modules["torch"].get_num_threads())))
-    return _default[0]
+    return max(1, int(sys.modules["torch"].get_num_threads()))
 
 
 def interactive_threads(settings: Settings, *, job_running: bool = True) -> int:
@@ -71,14 +77,18 @@ def batch_threads(settings: Settings, *, reviewer_active: bool = False) -> int:
     return full
 
 
-def _set_torch_threads(count: Callable[[], int]) -> None:
+def _loaded_torch() -> Any:
+    """torch if its import has finished (another thread may be importing it), else None."""
     torch = sys.modules.get("torch")
-    if torch is None:  # no model work in this thread yet; set once it has some
-        return
-    threads = count()
-    if getattr(_local, "threads", None) != threads:
-        torch.set_num_threads(threads)
-        _local.threads = threads
+    if torch is None or getattr(getattr(torch, "__spec__", None), "_initializing", False):
+        return None
+    return torch
+
+
+def _set_torch_threads(count: Callable[[], int]) -> None:
+    torch = _loaded_torch()
+    if torch is not None:
+        torch.set_num_threads(count())
 
 
 def _touch(path: Path) -> None:
@@ -116,14 +126,17 @@ def job_running(settings: Settings) -> bool:
 
 @contextmanager
 def interactive(settings: Settings) -> Iterator[None]:
-    """Run a reviewer's request on the interactive budget (this thread's torch threads)."""
+    """Run a reviewer's request on the interactive budget (this thread's torch threads, put
+    back afterwards)."""
     mark_reviewer_active(settings)
     import torch  # the request runs a model: torch is needed now anyway
 
-    del torch
-    running = job_running(settings)
-    _set_torch_threads(lambda: interactive_threads(settings, job_running=running))
-    yield
+    before = torch.get_num_threads()
+    torch.set_num_threads(interactive_threads(settings, job_running=job_running(settings)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _lower_priority(nice: int) -> None:
@@ -142,22 +155,36 @@ def _lower_priority(nice: int) -> None:
 
 def start_batch(settings: Settings) -> None:
     """A job starts in this thread: lower its priority, give it the batch budget."""
-    _lower_priority(settings.batch_nice)
-    _local.looked = 0.0
+    try:
+        _lower_priority(settings.batch_nice)
+        _local.looked = 0.0
+    except Exception:  # advice, never a failed job
+        log.warning("budgets.start_failed", exc_info=True)
     batch_checkpoint(settings, force=True)
 
 
 def batch_checkpoint(settings: Settings, *, force: bool = False) -> None:
     """Between two chunks of a job: fewer threads while a reviewer is active, all again after."""
-    _touch(settings.home / BATCH_FILE)
-    now = time.monotonic()
-    if not force and now - getattr(_local, "looked", 0.0) < LOOK_EVERY_S:
-        return
-    _local.looked = now
-    active = reviewer_active(settings)
-    _set_torch_threads(lambda: batch_threads(settings, reviewer_active=active))
+    try:
+        _touch(settings.home / BATCH_FILE)
+        now = time.monotonic()
+        if not force and now - getattr(_local, "looked", 0.0) < LOOK_EVERY_S:
+            return
+        _local.looked = now
+        active = reviewer_active(settings)
+        _set_torch_threads(lambda: batch_threads(settings, reviewer_active=active))
+    except Exception:  # advice, never a failed job
+        log.warning("budgets.checkpoint_failed", exc_info=True)
 
 
-def current_threads() -> int | None:
-    """The torch threads this thread was last given (None: none yet), for tests and logs."""
-    return getattr(_local, "threads", None)
+def shared_pool(workers: int, prefix: str) -> ThreadPoolExecutor:
+    """A thread pool that requests and jobs share, its threads all started now, from this
+    thread: a thread takes the priority of the thread that starts it, and a pool whose threads
+    a niced job started would serve later uploads at the job's priority."""
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=prefix)
+    started = threading.Barrier(workers + 1)
+    for _ in range(workers):  # each waits until all are running: every submit starts a thread
+        pool.submit(started.wait, 10)
+    with contextlib.suppress(threading.BrokenBarrierError):
+        started.wait(10)
+    return pool

@@ -88,7 +88,11 @@ class Settings(BaseSettings):
         description="0: the queue is the pure uncertainty ranking; up to 1: more diverse frames.",
     )
     queue_diversity_pool: int = Field(
-        default=50, ge=1, description="How many top-ranked frames the diversity pick reorders."
+        default=50,
+        ge=1,
+        le=2000,
+        description="How many top-ranked frames the diversity pick reorders (it compares every "
+        "pair of them: 2,000 is 32 MB a request).",
     )
     auto_promote: bool = Field(
         default=True, description="Promote a newly trained student when it beats the promoted one."

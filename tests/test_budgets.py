@@ -55,9 +55,14 @@ def _age(path: Path, seconds: float) -> None:
 
 
 def _click_threads(settings: Settings) -> int:
+    """A click's torch threads (in a pool-like thread, whose own count comes back after)."""
+
     def click() -> int:
+        torch.set_num_threads(3)
         with budgets.interactive(settings):
-            return torch.get_num_threads()
+            inside = torch.get_num_threads()
+        assert torch.get_num_threads() == 3
+        return inside
 
     return int(_in_thread(click))
 
@@ -136,3 +141,24 @@ def test_jobs_of_the_embedded_worker_run_on_the_batch_budget(
     assert len(calls) >= 2  # the start, then each progress report
     assert {nice for _, nice in calls} == {min(19, base + settings.batch_nice)}
     assert threading.get_native_id() not in {tid for tid, _ in calls}
+
+
+def test_a_shared_pool_s_threads_do_not_take_a_job_s_priority(tmp_path: Path) -> None:
+    """Threads inherit the nice of the thread that starts them: a pool shared by uploads and
+    jobs has all its threads started where it is made, so a job's submit starts none."""
+    settings = _settings(tmp_path, batch_nice=5)
+    base = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    pool = budgets.shared_pool(3, "test-shared")
+
+    def from_a_job() -> set[int]:
+        budgets.start_batch(settings)
+        barrier = threading.Barrier(3)
+
+        def nice() -> int:
+            barrier.wait(5)  # three tasks at once: each on its own thread
+            return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+        return {future.result() for future in [pool.submit(nice) for _ in range(3)]}
+
+    assert _in_thread(from_a_job) == {base}
+    pool.shutdown()

@@ -8,7 +8,7 @@ import os
 import re
 import threading
 from collections.abc import Sequence as Seq
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future, wait
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
@@ -16,6 +16,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.budgets import shared_pool
 from app.errors import InvalidInputError
 from app.frames.sequences import get_sequence
 from app.models import Frame, FrameStatus, Split, User
@@ -23,10 +24,8 @@ from app.storage import StagedFile, Storage, StoredFile, best_effort
 from weldpool_core.io import ImageInfo, check_image
 
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
-INGEST_POOL = ThreadPoolExecutor(
-    max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="ingest"
-)
-DISK_POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="ingest-disk")
+INGEST_POOL = shared_pool(max(2, os.cpu_count() or 2), "ingest")  # uploads', imports', videos'
+DISK_POOL = shared_pool(8, "ingest-disk")
 """Writes and fsyncs wait on the disk, not a core: their own threads keep the checks going
 and let the disk queue several flushes at once."""
 

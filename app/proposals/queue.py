@@ -56,7 +56,11 @@ def rescore_frame(session: Session, frame: Frame, weights: Mapping[str, float]) 
 def diverse_head(frames: list[Frame], trade_off: float) -> list[Frame]:
     """The queue's head reordered so that near-identical frames do not follow each other;
     frames without a DINO descriptor keep their place after those with one."""
-    described = [f for f in frames if f.descriptor is not None and f.uncertainty is not None]
+    described = [
+        f
+        for f in frames
+        if f.descriptor is not None and f.descriptor.size and f.uncertainty is not None
+    ]
     if trade_off <= 0 or len(described) < 3:
         return frames
     scores = np.array([f.uncertainty for f in described], np.float64)

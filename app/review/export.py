@@ -30,7 +30,6 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
@@ -39,6 +38,7 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
+from app.budgets import shared_pool
 from app.errors import InvalidInputError
 from app.frames.schemas import stored_scale
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
@@ -212,7 +212,7 @@ def stream_export(storage: Storage, fmt: ExportFormat, rows: list[Any]) -> Itera
 
 
 Writer = Callable[[zipfile.ZipFile, Storage, list[Any]], Iterator[int]]
-_ENCODERS = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="rle")
+_ENCODERS = shared_pool(max(2, os.cpu_count() or 2), "rle")  # the route's and the job's
 _AHEAD = 8
 
 

@@ -32,7 +32,7 @@ import shutil
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -40,6 +40,7 @@ from urllib.parse import urlparse
 
 import structlog
 
+from app.budgets import shared_pool
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
@@ -67,7 +68,7 @@ TOUCH_EVERY_S = 60.0
 IN_USE_S = 600.0
 """The cache never evicts a file written, fetched or read within this long: a request or job
 that was just handed its path is still reading it (the bound may be passed meanwhile)."""
-_PUBLISH_POOL = ThreadPoolExecutor(max_workers=8, thread_name_prefix="storage-publish")
+_PUBLISH_POOL = shared_pool(8, "storage-publish")
 
 
 def parse_url(url: str) -> tuple[str, str]:

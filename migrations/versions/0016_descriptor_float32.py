@@ -13,6 +13,7 @@ column without copying the table, so the queue's expression indexes stay.
 from __future__ import annotations
 
 import json
+import sqlite3
 from array import array
 
 import sqlalchemy as sa
@@ -55,15 +56,37 @@ def _convert(source: str, target: str, encode) -> None:  # type: ignore[no-untyp
         last = rows[-1][0]
 
 
+UNREVIEWED = sa.text("status IN ('new', 'proposed')")
+QUEUE_INDEXES = {  # as 0014 made them
+    'ix_frames_queue_sequence': ['sequence_id', sa.text('coalesce(uncertainty, -1.0) DESC'), 'id'],
+    'ix_frames_queue': [sa.text('coalesce(uncertainty, -1.0) DESC'), 'id'],
+}
+
+
+def _drop_column(name: str) -> None:
+    """In place where the database can (PostgreSQL, SQLite ≥ 3.35); an older SQLite copies
+    the table, which loses the queue's expression indexes: they are made again."""
+    bind = op.get_bind()
+    if bind.dialect.name != 'sqlite' or sqlite3.sqlite_version_info >= (3, 35):
+        op.execute(f'ALTER TABLE frames DROP COLUMN {name}')
+        return
+    for index in QUEUE_INDEXES:
+        op.drop_index(index, table_name='frames')
+    with op.batch_alter_table('frames') as batch_op:
+        batch_op.drop_column(name)
+    for index, columns in QUEUE_INDEXES.items():
+        op.create_index(index, 'frames', columns, sqlite_where=UNREVIEWED, postgresql_where=UNREVIEWED)
+
+
 def upgrade() -> None:
     op.add_column('frames', sa.Column('descriptor_f32', sa.LargeBinary(), nullable=True))
 
     def encode(value):  # type: ignore[no-untyped-def]
         values = json.loads(value) if isinstance(value, str) else value
-        return _float32([float(v) for v in values])
+        return _float32([float(v) for v in values]) if values else None  # JSON null, []
 
     _convert('descriptor', 'descriptor_f32', encode)
-    op.execute('ALTER TABLE frames DROP COLUMN descriptor')
+    _drop_column('descriptor')
 
 
 def downgrade() -> None:
@@ -77,4 +100,4 @@ def downgrade() -> None:
         return json.dumps([round(v, 5) for v in packed])
 
     _convert('descriptor_f32', 'descriptor', decode)
-    op.execute('ALTER TABLE frames DROP COLUMN descriptor_f32')
+    _drop_column('descriptor_f32')
