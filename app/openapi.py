@@ -116,6 +116,9 @@ def openapi_schema(app: FastAPI) -> dict[str, Any]:
     for path in PUBLIC:
         for operation in schema.get("paths", {}).get(path, {}).values():
             operation["security"] = []
+    token = schema.get("paths", {}).get("/api/v1/tokens", {}).get("post")
+    if token is not None:  # a script with no token yet sends a username and password instead
+        token["security"] = [{"bearer": []}, {}]
     for locked in ("/api/v1/tokens", "/api/v1/users/me/password"):  # wrong passwords count
         operation = schema.get("paths", {}).get(locked, {}).get("post")  # towards the lockout
         if operation is not None:
