@@ -110,8 +110,9 @@ def _within(path: Path, seconds: float) -> bool:
 
 
 def mark_reviewer_active(settings: Settings) -> None:
-    """A reviewer just asked for interactive work."""
-    _touch(settings.home / ACTIVE_FILE)
+    """A reviewer just asked for interactive work (recorded only where jobs look at it)."""
+    if settings.reviewer_active_s > 0:
+        _touch(settings.home / ACTIVE_FILE)
 
 
 def reviewer_active(settings: Settings) -> bool:
@@ -157,7 +158,6 @@ def start_batch(settings: Settings) -> None:
     """A job starts in this thread: lower its priority, give it the batch budget."""
     try:
         _lower_priority(settings.batch_nice)
-        _local.looked = 0.0
     except Exception:  # advice, never a failed job
         log.warning("budgets.start_failed", exc_info=True)
     batch_checkpoint(settings, force=True)
