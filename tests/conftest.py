@@ -24,6 +24,7 @@ from app.main import create_app
 from app.models import Role, User
 from app.security import hash_password, issue_token
 from tests.helpers import POSTGRES_URL, REDIS_URL, make_settings
+from tests.mqtt import mqtt_broker  # noqa: F401 (the broker fixture for every test)
 from tests.s3 import s3_endpoint, s3_url  # noqa: F401 (fixtures for every test)
 
 

@@ -24,13 +24,12 @@ probability in doubt, Σ 2·min(p, 1 − p), relative to the pool's area (0 for 
 where the student hesitates about the boundary; ``predict.mask_ambiguity``, the rule the
 uncertainty's ambiguity part uses on the latent draws' mean).
 
-``Publisher`` sends each record as one JSON message on a ZeroMQ XPUB socket (subscribers use a
-SUB socket and subscribe to ""; see the README for a five-line subscriber).
+The records go to a controller through ``weldpool_core.outputs``: ZeroMQ (``Publisher``), OPC UA
+and MQTT.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import queue
 import threading
@@ -517,41 +516,6 @@ def open_stream(
             samples=options.samples,
             stop=stop,
         )
-
-
-class Publisher:
-    """Records as JSON messages on a ZeroMQ XPUB socket bound to ``address``.
-
-    ``wait_for_subscriber(seconds)`` blocks until a subscriber has joined (XPUB sees its
-    subscription), so that a controller started first misses no frame.
-    """
-
-    def __init__(self, address: str) -> None:
-        import zmq
-
-        self._zmq = zmq
-        self._context: Any = zmq.Context.instance()
-        self._socket = self._context.socket(zmq.XPUB)
-        self._socket.setsockopt(zmq.LINGER, 500)
-        try:
-            self._socket.bind(address)
-        except zmq.ZMQError as exc:
-            self._socket.close()
-            raise InvalidInputError(f"Cannot publish on {address!r}: {exc}.") from exc
-        self.address = address
-
-    def wait_for_subscriber(self, seconds: float) -> bool:
-        """True once a subscriber has subscribed; False after ``seconds`` without one."""
-        if self._socket.poll(int(seconds * 1000), self._zmq.POLLIN):
-            self._socket.recv()
-            return True
-        return False
-
-    def send(self, record: dict[str, Any]) -> None:
-        self._socket.send(json.dumps(record, separators=(",", ":")).encode())
-
-    def close(self) -> None:
-        self._socket.close()
 
 
 def summary(latencies_ms: list[float], frames: int, dropped: int, seconds: float) -> dict[str, Any]:

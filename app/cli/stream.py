@@ -16,8 +16,9 @@ from app.cli.base import fail, friendly_errors, load_settings, main, open_sessio
 from app.errors import WeldpoolError
 
 
-def promoted_model_dir() -> Path:
-    """The promoted student's folder in this home's database."""
+def promoted_model_dir() -> tuple[Path, bool]:
+    """The promoted student's folder in this home's database, and whether the promotion gate
+    found it usable (False: promoted by force; the outputs then say the stream is not healthy)."""
     from app.storage import Storage
     from app.training.service import model_folder, promoted_model
 
@@ -41,7 +42,7 @@ def promoted_model_dir() -> Path:
                 f"weldpool: warning: {model.name} was not measured by the promotion gate.",
                 err=True,
             )
-        return model_folder(Storage.of(settings), model)
+        return model_folder(Storage.of(settings), model), gate.get("usable") is not False
 
 
 @main.command("stream")
@@ -60,11 +61,65 @@ def promoted_model_dir() -> Path:
     "--publish", metavar="ADDRESS", help="ZeroMQ address to publish on, e.g. tcp://127.0.0.1:5556."
 )
 @click.option(
+    "--opcua",
+    metavar="URL",
+    help="Serve the values over OPC UA for PLCs, e.g. opc.tcp://0.0.0.0:4840 (read-only).",
+)
+@click.option(
+    "--opcua-security",
+    type=click.Choice(["none", "sign-encrypt"]),
+    default="none",
+    show_default=True,
+    help="none for a lab bench; sign-encrypt (Basic256Sha256) for the cell, with a certificate.",
+)
+@click.option(
+    "--opcua-cert",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The server's certificate (DER or PEM).",
+)
+@click.option(
+    "--opcua-key", type=click.Path(dir_okay=False, path_type=Path), help="Its private key (PEM)."
+)
+@click.option(
+    "--opcua-trust",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="With sign-encrypt: accept only client certificates found in this folder.",
+)
+@click.option(
+    "--mqtt",
+    metavar="URL",
+    help="Publish one JSON message per frame, e.g. mqtt://broker:1883/cell1/pool (mqtts:// TLS).",
+)
+@click.option("--mqtt-qos", type=click.IntRange(0, 1), default=0, show_default=True)
+@click.option("--mqtt-retain", is_flag=True, help="Retain the newest message on the broker.")
+@click.option(
+    "--mqtt-rate",
+    type=click.FloatRange(min=0.1),
+    help="At most this many messages a second (the newest frame each time); default: every frame.",
+)
+@click.option(
+    "--mqtt-username",
+    help="Broker user (the password from WELDPOOL_MQTT_PASSWORD, never on the command line).",
+)
+@click.option("--mqtt-ca", type=click.Path(dir_okay=False, path_type=Path), help="TLS CA file.")
+@click.option(
+    "--mqtt-cert", type=click.Path(dir_okay=False, path_type=Path), help="TLS client certificate."
+)
+@click.option("--mqtt-key", type=click.Path(dir_okay=False, path_type=Path), help="TLS client key.")
+@click.option(
+    "--stale-ms",
+    type=click.FloatRange(min=10),
+    default=500.0,
+    show_default=True,
+    help="No frame for this long: OPC UA's Healthy turns false, MQTT's status says stale.",
+)
+@click.option(
     "--wait-for-subscriber",
     type=click.FloatRange(min=0),
     default=0.0,
     show_default=True,
-    help="With --publish: seconds to wait for a subscriber before the first frame.",
+    help="Seconds to wait for a ZeroMQ subscriber, an OPC UA subscription and the MQTT broker "
+    "before the first frame.",
 )
 @click.option(
     "--record",
@@ -120,6 +175,20 @@ def stream_cmd(
     device: str,
     threads: int | None,
     publish: str | None,
+    opcua: str | None,
+    opcua_security: str,
+    opcua_cert: Path | None,
+    opcua_key: Path | None,
+    opcua_trust: Path | None,
+    mqtt: str | None,
+    mqtt_qos: int,
+    mqtt_retain: bool,
+    mqtt_rate: float | None,
+    mqtt_username: str | None,
+    mqtt_ca: Path | None,
+    mqtt_cert: Path | None,
+    mqtt_key: Path | None,
+    stale_ms: float,
     wait_for_subscriber: float,
     record_path: Path | None,
     quiet: bool,
@@ -137,6 +206,7 @@ def stream_cmd(
 ) -> None:
     """Run a student on SOURCE (a video file, a camera index such as 0, or an RTSP/HTTP URL) and
     emit one JSON line per frame: keypoints, pool area / length / width, ambiguity, latency.
+    --publish (ZeroMQ), --opcua and --mqtt send the same values to a controller.
 
     A live source keeps up by dropping stale frames (each record says how many were dropped
     before it); a file is read frame by frame unless --realtime. A summary (fps, p50 / p99
@@ -144,7 +214,23 @@ def stream_cmd(
     """
     from weldpool_core.stream import StreamOptions, open_stream
 
-    model_dir = _checked_model_dir(model, record_path, samples, backend, sequential)
+    model_dir, usable = _checked_model_dir(model, record_path, samples, backend, sequential)
+    from weldpool_core.outputs import CellInfo, OutputsConfig
+
+    config = OutputsConfig(
+        zeromq=publish,
+        opcua=_opcua_options(opcua, opcua_security, opcua_cert, opcua_key, opcua_trust),
+        mqtt=_mqtt_options(
+            mqtt, mqtt_qos, mqtt_retain, mqtt_rate, mqtt_username, mqtt_ca, mqtt_cert, mqtt_key
+        ),
+    )
+    info = CellInfo(
+        model=model_dir.name,
+        keypoints=_keypoint_count(model_dir),
+        mm_per_px=mm_per_px,
+        model_usable=usable,
+        stale_ms=stale_ms,
+    )
     options = StreamOptions(
         backend=backend,
         device=device,
@@ -162,7 +248,7 @@ def stream_cmd(
     outputs = _Outputs(quiet)
     started = time.perf_counter()
     try:
-        outputs.open(publish, wait_for_subscriber, record_path)
+        outputs.open(config, info, wait_for_subscriber, record_path)
         status = partial(_status, model_dir)
         with open_stream(source, model_dir, options, status=status) as results:
             started = time.perf_counter()
@@ -183,18 +269,76 @@ def stream_cmd(
 
 def _checked_model_dir(
     model: str, record_path: Path | None, samples: int, backend: str, sequential: bool
-) -> Path:
-    """The student folder to stream, after the options that cannot work together are refused."""
+) -> tuple[Path, bool]:
+    """The student folder to stream, and whether the promotion gate found it usable, after the
+    options that cannot work together are refused."""
     if record_path is not None and not record_path.parent.is_dir():
         fail(f"There is no folder {str(record_path.parent)!r} for --record; create it first.")
-    model_dir = promoted_model_dir() if model == "promoted" else Path(model)
+    usable = True
+    if model == "promoted":
+        model_dir, usable = promoted_model_dir()
+    else:
+        model_dir = Path(model)
     if not model_dir.is_dir():
         fail(f"There is no student folder {str(model_dir)!r}.")
     if samples and backend != "torch":
         fail("--samples needs --backend torch (the uncertainty draws the latent in PyTorch).")
     if samples and sequential:
         fail("--samples scores the per-frame student; leave out --sequential to use it.")
-    return model_dir
+    return model_dir, usable
+
+
+def _keypoint_count(model_dir: Path) -> int:
+    from weldpool_core.student.checkpoint import read_student_config
+
+    return read_student_config(model_dir).k
+
+
+def _opcua_options(
+    url: str | None,
+    security: str,
+    certificate: Path | None,
+    key: Path | None,
+    trust: Path | None,
+) -> Any:
+    if url is None:
+        if certificate or key or trust or security != "none":
+            fail("--opcua-security, --opcua-cert, --opcua-key and --opcua-trust need --opcua URL.")
+        return None
+    from weldpool_core.outputs.opcua import OpcUaOptions
+
+    return OpcUaOptions(url, security, certificate, key, trust)
+
+
+def _mqtt_options(
+    url: str | None,
+    qos: int,
+    retain: bool,
+    rate: float | None,
+    username: str | None,
+    ca_file: Path | None,
+    cert_file: Path | None,
+    key_file: Path | None,
+) -> Any:
+    if url is None:
+        if qos or retain or rate or username or ca_file or cert_file or key_file:
+            fail("The --mqtt-… options need --mqtt URL.")
+        return None
+    import os
+
+    from weldpool_core.outputs.mqtt import MqttOptions
+
+    return MqttOptions(
+        url,
+        qos,
+        retain,
+        rate,
+        username,
+        os.environ.get("WELDPOOL_MQTT_PASSWORD"),
+        ca_file,
+        cert_file,
+        key_file,
+    )
 
 
 def _smoothing(smooth: str, min_cutoff: float | None, beta: float | None) -> Any:
@@ -209,26 +353,19 @@ def _smoothing(smooth: str, min_cutoff: float | None, beta: float | None) -> Any
 
 
 class _Outputs:
-    """Where each record goes (stdout, the ZeroMQ publisher, the record file) and the counts
-    of the summary."""
+    """Where each record goes (stdout, the ZeroMQ / OPC UA / MQTT outputs, the record file) and
+    the counts of the summary."""
 
     def __init__(self, quiet: bool) -> None:
         self.quiet = quiet
-        self.publisher: Any = None
+        self.sinks: Any = None
         self.record_file: IO[str] | None = None
         self.latencies: list[float] = []
         self.frames = self.dropped = 0
 
-    def open(self, publish: str | None, wait_s: float, record_path: Path | None) -> None:
-        from weldpool_core.stream import Publisher
+    def open(self, config: Any, info: Any, wait_s: float, record_path: Path | None) -> None:
+        from weldpool_core.outputs import open_outputs
 
-        self.publisher = Publisher(publish) if publish else None
-        if (
-            self.publisher is not None
-            and wait_s > 0
-            and not self.publisher.wait_for_subscriber(wait_s)
-        ):
-            click.echo(f"no subscriber after {wait_s:g} s; publishing", err=True)
         if record_path is not None:
             try:
                 self.record_file = record_path.open("w", encoding="utf-8")
@@ -237,35 +374,64 @@ class _Outputs:
                     f"--record cannot write {str(record_path)!r} ({exc.strerror}); choose "
                     "another file."
                 )
+        if config.any():
+            _log_to_stderr()
+            self.sinks = open_outputs(config, info)
+        for output in self.sinks.outputs if self.sinks else []:
+            name = _OUTPUT_NAMES[output.kind]
+            click.echo(f"{name} on {output.address}", err=True)
+            if output.kind == "mqtt":  # the first frames are not lost to the connection
+                if not output.wait_for_subscriber(max(wait_s, MQTT_CONNECT_WAIT_S)):
+                    click.echo(f"{name}: no broker answers yet; publishing when it does", err=True)
+            elif wait_s > 0 and not output.wait_for_subscriber(wait_s):
+                click.echo(f"{name}: no subscriber after {wait_s:g} s; publishing", err=True)
 
     def emit(self, record: dict[str, Any]) -> None:
-        _emit(record, self.quiet, self.publisher, self.record_file)
+        line = json.dumps(record, separators=(",", ":"))
+        if not self.quiet:
+            sys.stdout.write(line + "\n")
+            sys.stdout.flush()
+        if self.sinks is not None:
+            self.sinks.send(record)
+        if self.record_file is not None:
+            self.record_file.write(line + "\n")
         self.frames += 1
         self.dropped += record["dropped"]
         self.latencies.append(record["latency_ms"])
 
     def summary(self, seconds: float) -> dict[str, Any]:
+        from dataclasses import asdict
+
         from weldpool_core.stream import summary
 
-        return summary(self.latencies, self.frames, self.dropped, seconds)
+        report = summary(self.latencies, self.frames, self.dropped, seconds)
+        if self.sinks is not None:
+            report["outputs"] = [asdict(status) for status in self.sinks.statuses()]
+        return report
 
     def close(self) -> None:
-        if self.publisher is not None:
-            self.publisher.close()
+        if self.sinks is not None:
+            self.sinks.close()
         if self.record_file is not None:
             self.record_file.close()
 
 
+MQTT_CONNECT_WAIT_S = 5.0
+_OUTPUT_NAMES = {"zeromq": "ZeroMQ", "opcua": "OPC UA", "mqtt": "MQTT"}
+
+
+def _log_to_stderr() -> None:
+    """The outputs' problems (a broker gone, a server behind) as one line each on stderr."""
+    import logging
+
+    logger = logging.getLogger("weldpool.outputs")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("weldpool: %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+
+
 def _status(model_dir: Path, message: str) -> None:
     click.echo(f"{model_dir}: {message} …", err=True)
-
-
-def _emit(record: dict[str, Any], quiet: bool, publisher: Any, record_file: IO[str] | None) -> None:
-    line = json.dumps(record, separators=(",", ":"))
-    if not quiet:
-        sys.stdout.write(line + "\n")
-        sys.stdout.flush()
-    if publisher is not None:
-        publisher.send(record)
-    if record_file is not None:
-        record_file.write(line + "\n")

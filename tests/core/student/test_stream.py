@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import http.server
 import itertools
 import json
@@ -14,6 +15,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -265,3 +267,110 @@ def test_a_failure_on_the_reader_thread_reaches_the_consumer(tmp_path: Path) -> 
         pytest.raises(InvalidInputError, match="cannot be prepared"),
     ):
         list(source)
+
+
+def test_the_cli_serves_opcua_and_publishes_mqtt_to_real_clients(
+    model_dir: Path, tmp_path: Path, mqtt_broker: tuple[str, int]
+) -> None:
+    """`weldpool stream VIDEO --opcua … --mqtt …`: an asyncua client subscribed first sees the
+    frame counter reach the last frame, a subscriber on mosquitto receives every frame, both in
+    millimetres with a scale; the summary lists both outputs."""
+    import asyncio
+
+    from asyncua import Client, ua
+
+    from tests.core.outputs.test_mqtt import Listener
+    from tests.mqtt import free_port
+
+    host, port = mqtt_broker
+    opc_port = free_port()
+    listener = Listener(host, port, "cell/cli")
+    video = write_video(tmp_path / "run.avi", 8)
+    command = [sys.executable, "-m", "app", "stream", str(video), "--model", str(model_dir)]
+    command += [
+        "--opcua",
+        f"opc.tcp://127.0.0.1:{opc_port}",
+        "--mqtt",
+        f"mqtt://{host}:{port}/cell/cli",
+    ]
+    command += ["--mqtt-qos", "1", "--mm-per-px", "0.1", "--quiet", "--wait-for-subscriber", "60"]
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WELDPOOL_HOME": str(tmp_path / "home")}
+    process = subprocess.Popen(
+        command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    counters: list[int] = []
+    widths: list[float] = []
+
+    class Handler:
+        def datachange_notification(self, node: Any, value: Any, _data: object) -> None:
+            name = node.nodeid.Identifier
+            (counters if name == "WeldPool.FrameCounter" else widths).append(value)
+
+    async def watch() -> float:
+        url = f"opc.tcp://127.0.0.1:{opc_port}/weldpool/"
+        for _ in range(600):  # the CLI starts (imports, ONNX export) before it serves
+            try:
+                client = Client(url)
+                await client.connect()
+                break
+            except (TimeoutError, OSError):
+                await asyncio.sleep(0.2)
+        try:
+            index = await client.get_namespace_index("urn:weldpool:stream")
+            subscription = await client.create_subscription(10, Handler())
+            await subscription.subscribe_data_change(
+                [
+                    client.get_node(ua.NodeId(f"WeldPool.{n}", index))
+                    for n in ("Width", "FrameCounter")
+                ]
+            )
+            while 7 not in counters and process.poll() is None:
+                await asyncio.sleep(0.05)
+            return float(widths[-1])
+        finally:
+            with contextlib.suppress(ConnectionError):  # the stream ended and closed it first
+                await client.disconnect()
+
+    try:
+        opc_width = asyncio.run(watch())
+        stdout, stderr = process.communicate(timeout=60)
+        listener.wait_for(lambda: len(listener.frames("cell/cli")) == 8)
+    finally:
+        process.kill()
+        listener.close()
+    assert process.returncode == 0, stderr
+    assert stdout == ""
+    frames = listener.frames("cell/cli")
+    assert [m["frame"] for m in frames] == list(range(8))
+    assert counters[-1] == 7 and counters == sorted(counters)
+    assert opc_width == pytest.approx(frames[-1]["width"], abs=1e-3)
+    summary = json.loads(stderr.strip().splitlines()[-1])
+    kinds = {o["kind"]: o for o in summary["outputs"]}
+    assert kinds["mqtt"]["sent"] == 8 and kinds["opcua"]["sent"] + kinds["opcua"]["skipped"] == 8
+
+
+def test_the_cli_refuses_a_port_in_use_and_bad_addresses_in_one_line(
+    model_dir: Path, tmp_path: Path
+) -> None:
+    video = write_video(tmp_path / "run.avi", 2)
+    base = ("stream", str(video), "--model", str(model_dir), "--quiet")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        busy = run_cli(*base, "--opcua", f"opc.tcp://127.0.0.1:{port}")
+    assert busy.returncode == 2
+    assert busy.stderr.strip().splitlines()[-1] == (
+        f"weldpool: Cannot serve OPC UA on 'opc.tcp://127.0.0.1:{port}': the port is in use; "
+        "choose another port."
+    )
+    for option, value, words in (
+        ("--opcua", "tcp://0.0.0.0:4840", "is not an OPC UA endpoint"),
+        ("--mqtt", "mqtt://127.0.0.1:1883", "needs a topic"),
+        ("--mqtt", "mqtt://no-such-broker.invalid/t", "does not resolve"),
+    ):
+        result = run_cli(*base, option, value)
+        assert result.returncode == 2, result.stderr
+        assert words in result.stderr and "Traceback" not in result.stderr
+    lonely = run_cli(*base, "--mqtt-qos", "1")
+    assert lonely.returncode == 2 and "need --mqtt URL" in lonely.stderr

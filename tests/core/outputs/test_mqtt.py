@@ -1,0 +1,163 @@
+"""MQTT against a real mosquitto: one message per frame, the rate limit, the status topic and a
+broker that goes away and comes back while frames keep coming."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+import pytest
+
+from tests.core.outputs.common import record
+from tests.mqtt import start_broker
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.outputs import CellInfo, OutputsConfig, open_outputs
+from weldpool_core.outputs.mqtt import MqttOptions, MqttPublisher, parse_mqtt_url
+
+
+class Listener:
+    """A subscriber on ``topic/#`` that keeps what it receives."""
+
+    def __init__(self, host: str, port: int, topic: str) -> None:
+        self.messages: list[tuple[str, Any]] = []
+        self.ready = threading.Event()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        self.client.on_message = lambda _c, _u, m: self.messages.append(
+            (m.topic, json.loads(m.payload))
+        )
+        self.client.on_subscribe = lambda *_args: self.ready.set()
+        self.client.on_connect = lambda c, *_args: c.subscribe(f"{topic}/#", qos=1)
+        self.client.connect(host, port)
+        self.client.loop_start()
+        assert self.ready.wait(10)
+
+    def frames(self, topic: str) -> list[dict[str, Any]]:
+        return [payload for name, payload in self.messages if name == topic]
+
+    def wait_for(self, predicate: Any, seconds: float = 10) -> None:
+        deadline = time.monotonic() + seconds
+        while not predicate() and time.monotonic() < deadline:
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+@pytest.fixture
+def listener(mqtt_broker: tuple[str, int], request: pytest.FixtureRequest) -> Iterator[Listener]:
+    topic = f"cell/{request.node.name[:40]}"
+    found = Listener(*mqtt_broker, topic)
+    found.topic = topic  # type: ignore[attr-defined]
+    yield found
+    found.close()
+
+
+def test_every_frame_is_one_compact_message_and_the_status_is_retained(
+    mqtt_broker: tuple[str, int],
+    listener: Listener,
+) -> None:
+    host, port = mqtt_broker
+    topic = listener.topic  # type: ignore[attr-defined]
+    publisher = MqttPublisher(
+        MqttOptions(f"mqtt://{host}:{port}/{topic}", qos=1), CellInfo("tiny", 2, 0.1)
+    )
+    assert publisher.wait_for_subscriber(10)
+    for frame in range(20):
+        publisher.send(record(frame, width_px=40.0 + frame, scaled=True))
+    listener.wait_for(lambda: len(listener.frames(topic)) == 20)
+    publisher.close()
+    listener.wait_for(
+        lambda: (
+            listener.frames(f"{topic}/status")[-1:] != []
+            and listener.frames(f"{topic}/status")[-1]["state"] == "offline"
+        )
+    )
+    frames = listener.frames(topic)
+    assert [m["frame"] for m in frames] == list(range(20))
+    assert frames[5]["width"] == pytest.approx(4.5) and frames[5]["keypoints"][1] is None
+    states = [m["state"] for m in listener.frames(f"{topic}/status")]
+    assert states[0] == "online" and states[-1] == "offline"
+    status = publisher.status()
+    assert (status.sent, status.skipped, status.subscribers) == (20, 0, None)
+
+
+def test_a_rate_sends_the_newest_frame_at_most_that_often(
+    mqtt_broker: tuple[str, int],
+    listener: Listener,
+) -> None:
+    host, port = mqtt_broker
+    topic = listener.topic  # type: ignore[attr-defined]
+    publisher = MqttPublisher(
+        MqttOptions(f"mqtt://{host}:{port}/{topic}", rate_hz=5), CellInfo("t", 2)
+    )
+    assert publisher.wait_for_subscriber(10)
+    started = time.monotonic()
+    for frame in range(100):  # 100 frames in about 1 s
+        publisher.send(record(frame))
+        time.sleep(0.01)
+    elapsed = time.monotonic() - started
+    time.sleep(0.4)
+    publisher.close()
+    frames = [m["frame"] for m in listener.frames(topic)]
+    assert 1 <= len(frames) <= 5 * elapsed + 2  # about 5 a second, not 100
+    assert frames == sorted(frames) and frames[-1] >= 90  # the newest frame each time
+
+
+def test_a_broker_that_goes_away_never_stops_the_frames_and_is_told_once(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    process, port = start_broker(tmp_path)
+    publisher = MqttPublisher(MqttOptions(f"mqtt://127.0.0.1:{port}/cell/away"), CellInfo("t", 2))
+    try:
+        assert publisher.wait_for_subscriber(10)
+        with caplog.at_level(logging.WARNING, logger="weldpool.outputs"):
+            process.terminate()
+            process.wait(timeout=10)
+            for _ in range(100):
+                if publisher.status().state == "reconnecting":
+                    break
+                time.sleep(0.05)
+            for frame in range(300):  # the stream goes on: every send returns
+                publisher.send(record(frame))
+            assert publisher.status().skipped >= 300 - 5
+            process, _ = start_broker(tmp_path, port)
+            listener = Listener("127.0.0.1", port, "cell/away")
+            for _ in range(400):  # paho's back-off starts at 1 s
+                if publisher.status().state == "connected":
+                    break
+                time.sleep(0.05)
+            publisher.send(record(500))
+            listener.wait_for(lambda: listener.frames("cell/away") != [])
+            listener.close()
+        lines = [r.getMessage() for r in caplog.records]
+        assert len([line for line in lines if "went away" in line]) == 1
+        assert len([line for line in lines if "is back" in line]) == 1
+        assert [m["frame"] for m in listener.frames("cell/away")] == [500]
+    finally:
+        publisher.close()
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def test_bad_addresses_are_one_sentence() -> None:
+    for url, words in (
+        ("http://broker/topic", "not an MQTT address"),
+        ("mqtt://broker", "needs a topic"),
+        ("mqtt://broker/cell/#", "needs a topic without wildcards"),
+        ("mqtt://broker:99999/t", "not a number from 1 to 65535"),
+    ):
+        with pytest.raises(InvalidInputError, match=words):
+            parse_mqtt_url(url)
+    with pytest.raises(InvalidInputError, match="does not resolve"):
+        open_outputs(
+            OutputsConfig(mqtt=MqttOptions("mqtt://no-such-broker.invalid/t")), CellInfo("t", 2)
+        )
+    assert parse_mqtt_url("mqtts://u:p%40ss@b/x/y").password == "p@ss"
+    assert parse_mqtt_url("mqtts://b/x").port == 8883

@@ -1,0 +1,254 @@
+"""The OPC UA server, read by a real asyncua client over TCP: values, units, subscriptions,
+health, read-only, security, and a port in use or a bad URL refused in one sentence."""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import logging
+import math
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+
+from tests.core.outputs.common import record
+from tests.mqtt import free_port
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.outputs import CellInfo, Outputs, Reporter
+from weldpool_core.outputs.opcua import NAMESPACE, OpcUaOptions, OpcUaServer
+
+
+@pytest.fixture
+def served() -> Iterator[tuple[OpcUaServer, str]]:
+    port = free_port()
+    server = OpcUaServer(OpcUaOptions(f"opc.tcp://127.0.0.1:{port}"), CellInfo("tiny", 2, 0.1))
+    yield server, f"opc.tcp://127.0.0.1:{port}/weldpool/"
+    server.close()
+
+
+async def _node(client: Client, name: str) -> Any:
+    index = await client.get_namespace_index(NAMESPACE)
+    return client.get_node(ua.NodeId(f"WeldPool.{name}", index))
+
+
+def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
+    served: tuple[OpcUaServer, str],
+) -> None:
+    server, url = served
+    sent = record(7, width_px=42.0, scaled=True)
+    server.send(sent)
+
+    async def read() -> dict[str, Any]:
+        async with Client(url) as client:
+            width = await _node(client, "Width")
+            for _ in range(100):
+                if await (await _node(client, "FrameCounter")).read_value() == 7:
+                    break
+                await asyncio.sleep(0.02)
+            unit = await (await _node(client, "Width.EngineeringUnits")).read_value()
+            area_unit = await (await _node(client, "Area.EngineeringUnits")).read_value()
+            value = await width.read_data_value()
+            with pytest.raises(ua.UaStatusCodeError):  # read-only: a PLC cannot write
+                await width.write_value(1.0)
+            return {
+                "width": value.Value.Value,
+                "stamp": value.SourceTimestamp,
+                "unit": (unit.UnitId, unit.DisplayName.Text),
+                "area_unit": area_unit.DisplayName.Text,
+                "description": (await width.read_description()).Text,
+                "keypoints": await (await _node(client, "Keypoints")).read_value(),
+                "healthy": await (await _node(client, "Healthy")).read_value(),
+                "status": await (await _node(client, "Status")).read_value(),
+                "model": await (await _node(client, "Model")).read_value(),
+            }
+
+    got = asyncio.run(read())
+    assert got["width"] == pytest.approx(4.2)  # mm: the run has a scale
+    assert got["unit"] == (0x4D4D54, "mm")  # UNECE "MMT"
+    assert got["area_unit"] == "mm²"
+    assert "across the travel direction" in got["description"]
+    stamp = got["stamp"].replace(tzinfo=dt.UTC).timestamp()
+    assert stamp == pytest.approx(sent["captured_at"], abs=1e-3)
+    assert got["keypoints"][:2] == [17.0, 20.0] and all(math.isnan(v) for v in got["keypoints"][2:])
+    assert (got["healthy"], got["status"], got["model"]) == (True, "ok", "tiny")
+
+
+def test_a_subscriber_sees_the_newest_frame_and_is_counted(served: tuple[OpcUaServer, str]) -> None:
+    server, url = served
+    seen: list[int] = []
+
+    class Handler:
+        def datachange_notification(self, _node: Any, value: Any, _data: Any) -> None:
+            seen.append(int(value))
+
+    async def watch() -> tuple[int, int]:
+        async with Client(url) as client:
+            subscription = await client.create_subscription(10, Handler())
+            await subscription.subscribe_data_change(await _node(client, "FrameCounter"))
+            counted = server.status().subscribers
+            feeder = threading.Thread(
+                target=lambda: [(server.send(record(i)), time.sleep(0.002)) for i in range(1, 60)]
+            )
+            feeder.start()
+            while feeder.is_alive() or (seen and seen[-1] != 59):
+                await asyncio.sleep(0.02)
+                if len(seen) > 1000:
+                    break
+            await subscription.delete()
+            return counted or 0, server.status().subscribers or 0
+
+    counted, after = asyncio.run(watch())
+    assert counted == 1 and after == 0
+    assert seen[-1] == 59 and seen == sorted(seen)  # in order; skipped frames allowed, never late
+    status = server.status()
+    assert status.sent + status.skipped == 59 and status.added_p99_ms is not None
+
+
+def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
+    served: tuple[OpcUaServer, str],
+) -> None:
+    server, url = served
+    outputs = Outputs([server], CellInfo("tiny", 2, 0.1, stale_ms=100))
+    outputs.send(record(1))
+
+    async def states() -> list[tuple[bool, str, bool]]:
+        found = []
+        async with Client(url) as client:
+            healthy, status = await _node(client, "Healthy"), await _node(client, "Status")
+            width = await _node(client, "Width")
+            for _ in range(2):
+                await asyncio.sleep(0.4)
+                value = await width.read_attribute(ua.AttributeIds.Value, raise_on_bad_status=False)
+                found.append(
+                    (
+                        await healthy.read_value(),
+                        await status.read_value(),
+                        value.StatusCode.is_good(),
+                    )
+                )
+                outputs.send(record(2))
+                await asyncio.sleep(0.05)
+                found.append(
+                    (
+                        await healthy.read_value(),
+                        await status.read_value(),
+                        (await width.read_data_value()).StatusCode.is_good(),
+                    )
+                )
+        return found
+
+    found = asyncio.run(states())
+    outputs._stop.set()
+    assert found[0][0] is False and found[0][1].startswith("no frame for") and not found[0][2]
+    assert found[1] == (True, "ok", True)  # the next frame makes it healthy again
+    assert found[2][0] is False  # and a second pause is told again
+
+
+def test_a_port_in_use_or_a_bad_address_is_one_sentence(served: tuple[OpcUaServer, str]) -> None:
+    server, _url = served
+    with pytest.raises(InvalidInputError, match="the port is in use; choose another port"):
+        OpcUaServer(OpcUaOptions(f"opc.tcp://127.0.0.1:{server.port}"), CellInfo("m", 2))
+    with pytest.raises(InvalidInputError, match="not an OPC UA endpoint"):
+        OpcUaServer(OpcUaOptions("http://127.0.0.1:4840"), CellInfo("m", 2))
+    with pytest.raises(InvalidInputError, match="needs the server's --opcua-cert"):
+        OpcUaServer(OpcUaOptions("opc.tcp://127.0.0.1:1", "sign-encrypt"), CellInfo("m", 2))
+
+
+def _certificate(folder: Path, name: str, server: bool) -> tuple[Path, Path]:
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    key, cert = folder / f"{name}.pem", folder / f"{name}.der"
+    use = ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH
+    uri = "urn:weldpool:stream:server" if server else f"urn:weldpool:test:{name}"
+    asyncio.run(
+        setup_self_signed_certificate(
+            key, cert, uri, socket.gethostname(), [use], {"organizationName": "weldpool"}
+        )
+    )
+    return cert, key
+
+
+def test_sign_and_encrypt_lets_in_only_a_client_with_a_certificate(tmp_path: Path) -> None:
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+    server_cert, server_key = _certificate(tmp_path, "server", True)
+    client_cert, client_key = _certificate(tmp_path, "client", False)
+    port = free_port()
+    options = OpcUaOptions(f"opc.tcp://127.0.0.1:{port}", "sign-encrypt", server_cert, server_key)
+    server = OpcUaServer(options, CellInfo("tiny", 2))
+    url = f"opc.tcp://127.0.0.1:{port}/weldpool/"
+    server.send(record(3))
+
+    async def plain() -> None:
+        async with Client(url) as client:
+            await (await _node(client, "Width")).read_value()
+
+    async def secure() -> float:
+        client = Client(url)
+        client.application_uri = "urn:weldpool:test:client"
+        await client.set_security(
+            SecurityPolicyBasic256Sha256,
+            str(client_cert),
+            str(client_key),
+            server_certificate=str(server_cert),
+        )
+        async with client:
+            return float(await (await _node(client, "Width")).read_value())
+
+    try:
+        with pytest.raises(Exception):  # noqa: B017 (asyncua raises several kinds here)
+            asyncio.run(plain())
+        assert asyncio.run(secure()) == 50.0
+    finally:
+        server.close()
+
+
+def test_a_flooding_client_never_stops_the_frames(served: tuple[OpcUaServer, str]) -> None:
+    """A client reading in a tight loop: every send returns, the newest frame still arrives."""
+    server, url = served
+    stop = threading.Event()
+
+    async def flood() -> None:
+        async with Client(url) as client:
+            node = await _node(client, "Width")
+            while not stop.is_set():
+                await node.read_value()
+
+    flooder = threading.Thread(target=lambda: asyncio.run(flood()))
+    flooder.start()
+    time.sleep(0.5)
+    for frame in range(1, 400):
+        server.send(record(frame))
+    for _ in range(200):
+        if server._last is not None and server._last.frame == 399:
+            break
+        time.sleep(0.02)
+    stop.set()
+    flooder.join(timeout=10)
+    status = server.status()
+    assert server._last is not None and server._last.frame == 399
+    assert status.sent + status.skipped == 399
+
+
+def test_a_problem_is_logged_once_when_it_starts_and_once_when_it_ends(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    reporter = Reporter("MQTT mqtt://broker/t")
+    with caplog.at_level(logging.WARNING, logger="weldpool.outputs"):
+        for _ in range(50):
+            reporter.problem("down", "the broker went away")
+        reporter.resolved("down", "back")
+        reporter.resolved("down", "back")
+        reporter.problem("down", "the broker went away")
+    assert [r.getMessage() for r in caplog.records] == [
+        "MQTT mqtt://broker/t: the broker went away",
+        "MQTT mqtt://broker/t: back",
+        "MQTT mqtt://broker/t: the broker went away",
+    ]

@@ -1,0 +1,79 @@
+"""The MQTT broker the suite runs against: Debian's mosquitto on 127.0.0.1.
+
+`.ci/run` installs and starts it and sets WELDPOOL_TEST_MQTT_URL; the suite then fails, not
+skips, when it does not answer. Without that variable (a developer's machine) the first test that
+needs it starts ``mosquitto`` on a free port. ``start_broker`` starts a private one a test may
+stop (a broker that goes away)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from urllib.parse import urlparse
+
+import pytest
+
+URL_VARIABLE = "WELDPOOL_TEST_MQTT_URL"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def answers(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=2):
+            return True
+    except OSError:
+        return False
+
+
+def start_broker(folder: Path, port: int | None = None) -> tuple[subprocess.Popen[bytes], int]:
+    """A mosquitto of its own on 127.0.0.1 (``port`` or a free one), answering."""
+    binary = shutil.which("mosquitto") or (
+        "/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None
+    )
+    if binary is None:
+        pytest.fail(
+            "mosquitto is missing: apt-get install mosquitto (.ci/run does).", pytrace=False
+        )
+    port = port or free_port()
+    config = folder / f"mosquitto-{port}.conf"
+    config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    log = open(folder / f"mosquitto-{port}.log", "wb")  # noqa: SIM115
+    process = subprocess.Popen([binary, "-c", str(config)], stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 20
+    while not answers("127.0.0.1", port):
+        if time.monotonic() > deadline or process.poll() is not None:
+            process.kill()
+            pytest.fail(f"mosquitto did not start on port {port}.", pytrace=False)
+        time.sleep(0.05)
+    return process, port
+
+
+@pytest.fixture(scope="session")
+def mqtt_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, int]]:
+    """Host and port of a real MQTT broker (fails when CI's does not answer)."""
+    given = os.environ.get(URL_VARIABLE)
+    if given:
+        parsed = urlparse(given)
+        host, port = parsed.hostname or "127.0.0.1", parsed.port or 1883
+        if not answers(host, port):
+            pytest.fail(
+                f"The MQTT broker at {given} ({URL_VARIABLE}) does not answer; start mosquitto. "
+                "The suite must run against a real broker.",
+                pytrace=False,
+            )
+        yield host, port
+        return
+    process, port = start_broker(tmp_path_factory.mktemp("mosquitto"))
+    yield "127.0.0.1", port
+    process.terminate()
+    process.wait(timeout=10)

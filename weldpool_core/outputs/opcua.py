@@ -1,0 +1,391 @@
+"""An OPC UA server for PLCs and robot controllers (asyncua): one variable per ``CELL_FIELDS``.
+
+The address space (namespace ``urn:weldpool:stream``) holds one object, ``WeldPool``, under
+Objects; each value is a variable with a string node id ``ns=<i>;s=WeldPool.<Name>`` (e.g.
+``WeldPool.Width``), its description and ``EngineeringUnits`` (UNECE codes: mm, mm², ms, s;
+pixels have no UNECE code and say "px"), plus ``Status`` (a sentence) and ``Model``. All are
+read-only. Each value carries the frame's capture time as its source timestamp. When no frame
+comes for ``stale_ms``, ``Healthy`` turns False and the measurements keep their last value with
+the status code ``UncertainLastUsableValue``.
+
+The server runs its own asyncio loop on a thread. ``send`` only keeps the newest record and
+wakes the loop; the loop writes the newest record it finds, so a busy server skips frames
+(``skipped``) instead of queueing them, and the inference thread never waits for a client.
+Security: ``none`` (a lab bench) or ``sign-encrypt`` (Basic256Sha256 with the server's
+certificate and private key; clients must present certificates, which ``trust_dir`` limits to
+the ones found there).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import errno
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.outputs import (
+    CELL_FIELDS,
+    CellInfo,
+    CellRecord,
+    Counters,
+    OutputStatus,
+    Reporter,
+)
+
+NAMESPACE = "urn:weldpool:stream"
+OBJECT = "WeldPool"
+SECURITY = ("none", "sign-encrypt")
+START_TIMEOUT_S = 20.0
+BEHIND_WINDOW_S = 1.0
+"""The server counts as behind when it skipped over half the frames of this window."""
+_UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
+_UNITS = {"mm": "MMT", "mm²": "MMK", "ms": "C26", "s": "SEC"}
+
+
+@dataclass(frozen=True)
+class OpcUaOptions:
+    """How the server listens and whom it lets in."""
+
+    url: str
+    security: str = "none"
+    certificate: Path | None = None
+    private_key: Path | None = None
+    trust_dir: Path | None = None
+
+
+def parse_opcua_url(url: str) -> tuple[str, int]:
+    """Host and port of an ``opc.tcp://host:port[/path]`` endpoint (one-sentence errors)."""
+    parsed = urlparse(url)
+    if parsed.scheme != "opc.tcp" or not parsed.hostname:
+        raise InvalidInputError(
+            f"{url!r} is not an OPC UA endpoint; give opc.tcp://HOST:PORT, e.g. "
+            "opc.tcp://0.0.0.0:4840."
+        )
+    try:
+        port = parsed.port or 4840
+    except ValueError:
+        raise InvalidInputError(f"The port of {url!r} is not a number from 1 to 65535.") from None
+    return parsed.hostname, port
+
+
+def _ua() -> Any:
+    """asyncua's ``ua`` module, imported when a server starts (its stubs type node ids and
+    timestamps more narrowly than the library takes them)."""
+    from asyncua import ua
+
+    return ua
+
+
+def _unit(text: str) -> Any:
+    ua = _ua()
+    code = _UNITS.get(text)
+    if code is None:
+        return ua.EUInformation(
+            NamespaceUri="urn:weldpool:units",
+            UnitId=-1,
+            DisplayName=ua.LocalizedText(text or "-"),
+            Description=ua.LocalizedText("pixel" if text.startswith("px") else "dimensionless"),
+        )
+    unit_id = (ord(code[0]) << 16) | (ord(code[1]) << 8) | ord(code[2])
+    return ua.EUInformation(
+        NamespaceUri=_UNECE,
+        UnitId=unit_id,
+        DisplayName=ua.LocalizedText(text),
+        Description=ua.LocalizedText(text),
+    )
+
+
+class OpcUaServer:
+    """The stream's values as OPC UA variables (see the module doc)."""
+
+    kind = "opcua"
+
+    def __init__(self, options: OpcUaOptions, info: CellInfo) -> None:
+        self.host, self.port = parse_opcua_url(options.url)
+        if options.security not in SECURITY:
+            raise InvalidInputError(
+                f"--opcua-security must be one of {', '.join(SECURITY)}, not {options.security!r}."
+            )
+        if options.security == "sign-encrypt" and not (options.certificate and options.private_key):
+            raise InvalidInputError(
+                "--opcua-security sign-encrypt needs the server's --opcua-cert and --opcua-key."
+            )
+        for path in (options.certificate, options.private_key, options.trust_dir):
+            if path is not None and not path.exists():
+                raise InvalidInputError(f"There is no file or folder {str(path)!r} for OPC UA.")
+        self.address = options.url
+        self.options = options
+        self.info = info
+        self.counters = Counters()
+        self.reporter = Reporter(f"OPC UA {options.url}")
+        library_log = logging.getLogger("asyncua")
+        if library_log.level == logging.NOTSET:  # its per-connection chatter is not for the cell
+            library_log.setLevel(logging.ERROR)
+        self._latest: tuple[dict[str, Any], float] | None = None
+        self._lock = threading.Lock()
+        self._wake: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._started = threading.Event()
+        self._error: BaseException | None = None
+        self._nodes: dict[str, Any] = {}
+        self._server: Any = None
+        self._stop_event: asyncio.Event | None = None
+        self._last: CellRecord | None = None
+        self._window: list[int] = [0, 0]  # frames sent, skipped in the current window
+        self._window_start = time.perf_counter()
+        self._thread = threading.Thread(target=self._run, name="opcua-server", daemon=True)
+        self._thread.start()
+        if not self._started.wait(START_TIMEOUT_S):
+            raise InvalidInputError(f"The OPC UA server on {options.url!r} did not start in time.")
+        if self._error is not None:
+            self._thread.join(timeout=5)
+            raise self._error
+
+    # The inference thread's side.
+    def send(self, record: dict[str, Any]) -> None:
+        with self._lock:
+            if self._latest is not None:
+                self.counters.skipped += 1
+                self._window[1] += 1
+            self._latest = (record, time.perf_counter())
+        loop, wake = self._loop, self._wake
+        if loop is not None and wake is not None and not wake.is_set():
+            loop.call_soon_threadsafe(wake.set)
+
+    def stale(self, quiet_ms: float) -> None:
+        loop = self._loop
+        if loop is not None:
+            asyncio.run_coroutine_threadsafe(self._write_stale(quiet_ms), loop)
+
+    def subscriptions(self) -> int:
+        """Clients' subscriptions on this server (what a PLC opens to be told of changes)."""
+        server = self._server
+        return 0 if server is None else len(server.iserver.subscription_service.subscriptions)
+
+    def wait_for_subscriber(self, seconds: float) -> bool:
+        """True once a client has subscribed; False after ``seconds`` without one."""
+        deadline = time.perf_counter() + seconds
+        while self.subscriptions() == 0:
+            if time.perf_counter() >= deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
+    def status(self) -> OutputStatus:
+        p50, p99 = self.counters.percentiles()
+        return OutputStatus(
+            self.kind,
+            self.address,
+            "serving" if self._loop is not None else "stopped",
+            self.subscriptions(),
+            self.counters.sent,
+            self.counters.skipped,
+            p50,
+            p99,
+        )
+
+    def close(self) -> None:
+        loop = self._loop
+        if loop is not None and self._stop_event is not None:
+            loop.call_soon_threadsafe(self._stop_event.set)
+        self._thread.join(timeout=10)
+
+    # The server's thread.
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._serve())
+        except BaseException as exc:  # reported to the opener, or logged when it ends later
+            if not self._started.is_set():
+                self._error = _start_error(exc, self.options.url)
+                self._started.set()
+            else:
+                self.reporter.problem("crashed", f"the server stopped: {exc}")
+
+    async def _serve(self) -> None:
+        from asyncua.server.server import Server
+
+        self._stop_event = asyncio.Event()
+        self._wake = asyncio.Event()
+        server = Server()
+        await server.init()
+        server.set_endpoint(f"opc.tcp://{self.host}:{self.port}/weldpool/")
+        server.set_server_name("weldpool stream")
+        await server.set_application_uri("urn:weldpool:stream:server")
+        await self._secure(server)
+        index = await server.register_namespace(NAMESPACE)
+        await self._build(server, index)
+        async with server:
+            self._server = server
+            self._loop = asyncio.get_running_loop()
+            self._started.set()
+            writer = asyncio.create_task(self._write_loop())
+            await self._stop_event.wait()
+            writer.cancel()
+            await self._write_text("Status", "the stream has ended")
+            await self._write_flag(False)
+        self._loop = None
+
+    async def _secure(self, server: Any) -> None:
+        ua = _ua()
+        options = self.options
+        if options.security == "none":
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+            return
+        server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
+        await server.load_certificate(str(options.certificate))
+        await server.load_private_key(str(options.private_key))
+        if options.trust_dir is not None:
+            from asyncua.crypto.cert_validator import CertificateValidator
+            from asyncua.crypto.truststore import TrustStore
+
+            store = TrustStore([options.trust_dir], [])
+            await store.load()
+            server.set_certificate_validator(CertificateValidator(trust_store=store))
+
+    async def _build(self, server: Any, index: int) -> None:
+        ua = _ua()
+        pool = await server.nodes.objects.add_object(ua.NodeId(OBJECT, index), f"{index}:{OBJECT}")
+        await pool.write_attribute(
+            ua.AttributeIds.Description,
+            ua.DataValue(ua.Variant(ua.LocalizedText("The weld pool as the student sees it."))),
+        )
+        initial: dict[str, tuple[Any, Any]] = {
+            "FrameCounter": (0, ua.VariantType.UInt64),
+            "CaptureTime": (dt.datetime.now(dt.UTC), ua.VariantType.DateTime),
+            "Keypoints": ([math.nan] * (2 * self.info.keypoints), ua.VariantType.Double),
+            "Healthy": (False, ua.VariantType.Boolean),
+        }
+        for spec in CELL_FIELDS:
+            value, variant = initial.get(spec.name, (math.nan, ua.VariantType.Double))
+            node = await pool.add_variable(
+                ua.NodeId(f"{OBJECT}.{spec.name}", index), f"{index}:{spec.name}", value, variant
+            )
+            await node.write_attribute(
+                ua.AttributeIds.Description,
+                ua.DataValue(ua.Variant(ua.LocalizedText(spec.description))),
+            )
+            unit = self.info.unit(spec)
+            if unit and spec.name != "CaptureTime":
+                await node.add_property(
+                    ua.NodeId(f"{OBJECT}.{spec.name}.EngineeringUnits", index),
+                    "EngineeringUnits",
+                    _unit(unit),
+                    datatype=ua.NodeId(ua.ObjectIds.EUInformation),
+                )
+            self._nodes[spec.name] = node.nodeid
+        for name, text, description in (
+            ("Status", "waiting for the first frame", "Why the stream is or is not healthy."),
+            ("Model", self.info.model, "The student that makes the values."),
+        ):
+            node = await pool.add_variable(
+                ua.NodeId(f"{OBJECT}.{name}", index), f"{index}:{name}", text
+            )
+            await node.write_attribute(
+                ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(description)))
+            )
+            self._nodes[name] = node.nodeid
+
+    async def _write_loop(self) -> None:
+        assert self._wake is not None
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            with self._lock:
+                latest, self._latest = self._latest, None
+            if latest is None:
+                continue
+            record, since = latest
+            await self._write_record(CellRecord.of(record, self.info))
+            self.counters.added(since)
+            self._window[0] += 1
+            self._check_behind()
+
+    async def _write_record(self, cell: CellRecord) -> None:
+        ua = _ua()
+        stamp = dt.datetime.fromtimestamp(cell.t, dt.UTC)
+        now = dt.datetime.now(dt.UTC)
+        values: dict[str, tuple[Any, Any]] = {
+            "FrameCounter": (cell.frame, ua.VariantType.UInt64),
+            "CaptureTime": (stamp, ua.VariantType.DateTime),
+            "Keypoints": (list(cell.keypoints), ua.VariantType.Double),
+            "Healthy": (cell.healthy, ua.VariantType.Boolean),
+        }
+        for spec in CELL_FIELDS:
+            value, variant = values.get(spec.name, (None, ua.VariantType.Double))
+            if value is None:
+                value = getattr(cell, spec.key)
+            await self._server.write_attribute_value(
+                self._nodes[spec.name],
+                ua.DataValue(
+                    ua.Variant(value, variant), SourceTimestamp=stamp, ServerTimestamp=now
+                ),
+            )
+        if self._last is None or not self._last.healthy or not cell.healthy:
+            await self._write_text("Status", "ok" if cell.healthy else "the model is not usable")
+        self._last = cell
+
+    async def _write_stale(self, quiet_ms: float) -> None:
+        ua = _ua()
+        await self._write_flag(False)
+        await self._write_text("Status", f"no frame for {quiet_ms:.0f} ms")
+        self._last = None
+        for name in ("Area", "Length", "Width", "CentroidX", "CentroidY", "Keypoints"):
+            node = self._nodes[name]
+            current = self._server.read_attribute_value(node)
+            await self._server.write_attribute_value(
+                node,
+                ua.DataValue(
+                    current.Value,
+                    StatusCode=ua.StatusCode(ua.StatusCodes.UncertainLastUsableValue),
+                    SourceTimestamp=current.SourceTimestamp,
+                    ServerTimestamp=dt.datetime.now(dt.UTC),
+                ),
+            )
+
+    async def _write_flag(self, healthy: bool) -> None:
+        ua = _ua()
+        await self._server.write_attribute_value(
+            self._nodes["Healthy"], ua.DataValue(ua.Variant(healthy, ua.VariantType.Boolean))
+        )
+
+    async def _write_text(self, name: str, text: str) -> None:
+        ua = _ua()
+        await self._server.write_attribute_value(
+            self._nodes[name], ua.DataValue(ua.Variant(text, ua.VariantType.String))
+        )
+
+    def _check_behind(self) -> None:
+        now = time.perf_counter()
+        if now - self._window_start < BEHIND_WINDOW_S:
+            return
+        sent, skipped = self._window
+        self._window, self._window_start = [0, 0], now
+        if skipped > sent:
+            self.reporter.problem(
+                "behind",
+                f"the server is behind ({skipped} of {sent + skipped} frames skipped in the last "
+                "second): a client may be flooding it; values skip frames, inference goes on",
+            )
+        else:
+            self.reporter.resolved("behind", "the server keeps up with the frames again")
+
+
+def _start_error(exc: BaseException, url: str) -> BaseException:
+    """A start-up failure as one sentence (a port in use, an unknown host, a bad certificate)."""
+    if isinstance(exc, InvalidInputError):
+        return exc
+    if isinstance(exc, OSError):
+        if exc.errno == errno.EADDRINUSE:
+            return InvalidInputError(
+                f"Cannot serve OPC UA on {url!r}: the port is in use; choose another port."
+            )
+        return InvalidInputError(f"Cannot serve OPC UA on {url!r}: {exc.strerror or exc}.")
+    return InvalidInputError(f"Cannot serve OPC UA on {url!r}: {exc}.")
