@@ -11,11 +11,12 @@ from fastapi.responses import StreamingResponse
 from app.bounds import IdPath
 from app.deps import SessionDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.live.schemas import LiveIn, LiveOut, LiveRecords
+from app.live.schemas import LiveIn, LiveOut, LiveOutputOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews
 from app.models import ModelVersion
 from app.security import CurrentUser, ReviewerUser
 from app.training.service import model_folder, promoted_model
+from weldpool_core.outputs import OutputsConfig
 
 router = APIRouter(prefix="/live", tags=["live"])
 BOUNDARY = "weldpool-frame"
@@ -45,6 +46,18 @@ def _out(view: LiveView) -> LiveOut:
         int8=view.int8,
         mm_per_px=view.mm_per_px,
         last=last,
+        outputs=[
+            LiveOutputOut(
+                kind=status.kind,
+                address=status.address,
+                state=status.state,
+                subscribers=status.subscribers,
+                sent=status.sent,
+                skipped=status.skipped,
+                added_p99_ms=status.added_p99_ms,
+            )
+            for status in (view.outputs.statuses() if view.outputs is not None else [])
+        ],
         **view.stats(),
     )
 
@@ -86,9 +99,22 @@ def start_live(
             "int8": body.int8,
             "mm_per_px": body.mm_per_px,
             "travel_deg": body.travel_deg,
-        }
+        },
+        _outputs_config(body),
     )
     return _out(view)
+
+
+def _outputs_config(body: LiveIn) -> OutputsConfig:
+    """The outputs the form asked for (no security on OPC UA: the CLI has the options)."""
+    from weldpool_core.outputs.mqtt import MqttOptions
+    from weldpool_core.outputs.opcua import OpcUaOptions
+
+    return OutputsConfig(
+        zeromq=(body.zeromq or "").strip() or None,
+        opcua=OpcUaOptions(body.opcua.strip()) if body.opcua and body.opcua.strip() else None,
+        mqtt=MqttOptions(body.mqtt.strip()) if body.mqtt and body.mqtt.strip() else None,
+    )
 
 
 @router.get("", response_model=list[LiveOut])

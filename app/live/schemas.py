@@ -34,6 +34,34 @@ class LiveIn(BaseModel):
     )
     mm_per_px: float | None = Field(default=None, ge=MIN_MM_PER_PX, le=MAX_MM_PER_PX)
     travel_deg: float | None = Field(default=None, ge=-360, le=360)
+    zeromq: str | None = Field(
+        default=None,
+        max_length=200,
+        description="Publish each record on ZeroMQ at this address, e.g. tcp://0.0.0.0:5556.",
+    )
+    opcua: str | None = Field(
+        default=None,
+        max_length=200,
+        description="Serve the values over OPC UA (no security: a lab bench), e.g. "
+        "opc.tcp://0.0.0.0:4840. For certificates, run `weldpool stream --opcua-security`.",
+    )
+    mqtt: str | None = Field(
+        default=None,
+        max_length=500,
+        description="Publish one JSON message per frame, e.g. mqtt://broker:1883/cell1/pool.",
+    )
+
+
+class LiveOutputOut(BaseModel):
+    kind: str = Field(description="zeromq, opcua or mqtt.")
+    address: str
+    state: str = Field(description="bound, serving, connecting, connected, reconnecting, stopped.")
+    subscribers: int | None = Field(
+        description="ZeroMQ subscribers, OPC UA subscriptions; null for MQTT (the broker knows)."
+    )
+    sent: int
+    skipped: int = Field(description="Frames not sent: the broker away, or a busy server.")
+    added_p99_ms: float | None = Field(description="p99 time from the record to the wire.")
 
 
 class LiveOut(BaseModel):
@@ -60,6 +88,7 @@ class LiveOut(BaseModel):
     int8: bool
     mm_per_px: float | None
     last: dict[str, Any] | None = Field(description="The newest record (as `weldpool stream`).")
+    outputs: list[LiveOutputOut] = Field(default_factory=list)
 
 
 class LiveRecords(BaseModel):

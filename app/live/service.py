@@ -71,6 +71,8 @@ class LiveView:
     )
     jpeg: bytes | None = None
     jpeg_number: int = 0
+    outputs: Any = None
+    """The view's ``weldpool_core.outputs.Outputs`` (ZeroMQ, OPC UA, MQTT), or None."""
     stop_event: threading.Event = field(default_factory=threading.Event)
     changed: threading.Condition = field(default_factory=threading.Condition)
     thread: threading.Thread | None = None
@@ -109,8 +111,9 @@ class LiveViews:
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
 
-    def start(self, view_args: dict[str, Any]) -> LiveView:
-        """Start a view; 409 when ``MAX_RUNNING`` already run."""
+    def start(self, view_args: dict[str, Any], outputs: Any = None) -> LiveView:
+        """Start a view; 409 when ``MAX_RUNNING`` already run. ``outputs`` (an
+        ``OutputsConfig``) are opened now, so a port in use is a 400 before anything runs."""
         from weldpool_core.stream import parse_source
 
         parse_source(view_args["source"])  # a missing file is a 400 now, not a failed view
@@ -120,7 +123,22 @@ class LiveViews:
                 raise ConflictError(
                     f"{len(running)} live views are running; stop one before starting another."
                 )
-            view = LiveView(id=next(self._ids), **view_args)
+        opened = _open_outputs(view_args, outputs)
+        try:
+            return self._register(view_args, opened)
+        except BaseException:
+            if opened is not None:
+                opened.close()
+            raise
+
+    def _register(self, view_args: dict[str, Any], outputs: Any) -> LiveView:
+        with self._lock:
+            running = [v for v in self._views.values() if v.state in ACTIVE]
+            if len(running) >= MAX_RUNNING:
+                raise ConflictError(
+                    f"{len(running)} live views are running; stop one before starting another."
+                )
+            view = LiveView(id=next(self._ids), outputs=outputs, **view_args)
             self._views[view.id] = view
             ended = [v.id for v in self._views.values() if v.state not in ACTIVE]
             for old in sorted(ended)[: max(0, len(ended) - KEEP_ENDED)]:
@@ -153,6 +171,23 @@ class LiveViews:
         for view in list(self._views.values()):
             if view.thread is not None:
                 view.thread.join(timeout=10)
+
+
+def _open_outputs(view_args: dict[str, Any], config: Any) -> Any:
+    """The view's outputs, opened (None when it has none)."""
+    if config is None or not config.any():
+        return None
+    from weldpool_core.outputs import CellInfo, open_outputs
+    from weldpool_core.student.checkpoint import read_student_config
+
+    gate = view_args.get("gate") or {}
+    info = CellInfo(
+        model=view_args["model_name"],
+        keypoints=read_student_config(view_args["model_dir"]).k,
+        mm_per_px=view_args.get("mm_per_px"),
+        model_usable=gate.get("usable") is not False,
+    )
+    return open_outputs(config, info)
 
 
 def _set(view: LiveView, **changes: Any) -> None:
@@ -189,6 +224,8 @@ def _run(view: LiveView) -> None:
             drawn = 0.0
             for result in results:
                 record = result.record
+                if view.outputs is not None:
+                    view.outputs.send(record)
                 view.records.append(record)
                 view.latencies.append(record["latency_ms"])
                 view.stamps.append(time.perf_counter())
@@ -208,6 +245,9 @@ def _run(view: LiveView) -> None:
     except Exception:
         log.exception("live.crashed", view=view.id)
         _set(view, state="failed", message="Internal error; the server log has the details.")
+    finally:
+        if view.outputs is not None:
+            view.outputs.close()
 
 
 def overlay_jpeg(result: Any) -> bytes:

@@ -46,6 +46,21 @@ function keypointTable(view) {
     h("tfoot", {}, h("tr", {}, h("th", {}, "ambiguity"), h("td", { class: "num", colspan: "2" }, decimal(last.ambiguity, 3)))));
 }
 
+const OUTPUT_NAMES = { zeromq: "ZeroMQ", opcua: "OPC UA", mqtt: "MQTT" };
+
+function outputsLine(view) {
+  if (!view.outputs?.length) {
+    return h("p", { class: "muted small-text", "data-testid": "live-outputs" },
+      "Outputs: none (give ZeroMQ, OPC UA or MQTT addresses when starting a view).");
+  }
+  const listener = (o) => o.subscribers === null ? "" : ` · ${count(o.subscribers, o.kind === "opcua" ? "subscription" : "subscriber")}`;
+  const item = (o) => h("li", { "data-testid": `live-output-${o.kind}` },
+    h("strong", {}, OUTPUT_NAMES[o.kind] ?? o.kind), ` ${o.address} · ${o.state}${listener(o)} · ${count(o.sent, "frame")} sent`,
+    o.skipped ? ` · ${count(o.skipped, "skipped")}` : "",
+    o.added_p99_ms !== null ? ` · +${decimal(o.added_p99_ms, 2)} ms p99` : "");
+  return h("ul", { class: "live-output-list small-text", "data-testid": "live-outputs" }, view.outputs.map(item));
+}
+
 async function stop(view, button) {
   button.disabled = true;
   try {
@@ -66,6 +81,7 @@ function card(view) {
       image,
       state: h("span", {}),
       stats: h("p", { class: "muted", "data-testid": "live-stats" }),
+      outputs: h("div", {}),
       charts: h("div", { class: "charts" }),
       keypoints: h("div", {}),
       stop: h("button", { type: "button", class: "secondary", "data-testid": "live-stop" }, "Stop"),
@@ -79,6 +95,7 @@ function card(view) {
         isReviewer() ? entry.stop : ""),
       gateLine(view.gate),
       entry.stats,
+      entry.outputs,
       h("div", { class: "live-body" },
         h("div", { class: "live-frame-box" }, image),
         h("div", { class: "live-side" }, entry.keypoints)),
@@ -88,6 +105,7 @@ function card(view) {
   entry.state.replaceChildren(badge(view.state, `state-${view.state}`));
   entry.card.dataset.state = view.state;
   entry.stats.textContent = statsLine(view);
+  entry.outputs.replaceChildren(outputsLine(view));
   entry.stop.hidden = !ACTIVE.has(view.state);
   entry.keypoints.replaceChildren(keypointTable(view));
   entry.charts.replaceChildren(...geometryCharts(view));
@@ -166,6 +184,9 @@ $("live-form")?.addEventListener("submit", async (event) => {
         sequential: data.get("sequential") === "on",
         int8: data.get("int8") === "on",
         mm_per_px: data.get("mm_per_px") ? Number(data.get("mm_per_px")) : null,
+        zeromq: data.get("zeromq")?.trim() || null,
+        opcua: data.get("opcua")?.trim() || null,
+        mqtt: data.get("mqtt")?.trim() || null,
       },
     });
     toast(`Live view ${view.id} started.`, "ok");

@@ -437,3 +437,75 @@ def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live
     ended = _wait_state(client, live.json()["id"], token, {"ended", "failed"})
     assert ended["state"] == "ended" and ended["int8"] is True, ended
     assert ended["frames"] + ended["dropped"] == 20 and ended["last"]["area_px"] > 0
+
+
+def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
+    client: TestClient,
+    make_user,
+    session_factory,
+    settings: Settings,
+    student_dir: Path,
+    tmp_path: Path,
+    mqtt_broker: tuple[str, int],
+) -> None:
+    """The view's outputs from the form: an OPC UA client's subscription and the frames sent
+    show on the view; a port in use is a 400 and takes no slot."""
+    import asyncio
+
+    from asyncua import Client
+
+    from tests.core.outputs.test_mqtt import Listener
+    from tests.mqtt import free_port
+
+    _, token = make_user("cell", Role.reviewer)
+    _promote(session_factory, student_dir, settings.home)
+    host, port = mqtt_broker
+    listener = Listener(host, port, "cell/live")
+    opc_port = free_port()
+    video = str(write_video(tmp_path / "long.avi", 200, fps=20.0))
+    body = {
+        "source": video,
+        "opcua": f"opc.tcp://127.0.0.1:{opc_port}",
+        "mqtt": f"mqtt://{host}:{port}/cell/live",
+    }
+    started = client.post("/api/v1/live", json=body, headers=auth(token))
+    assert started.status_code == 201, started.text
+    view_id = started.json()["id"]
+    busy = client.post("/api/v1/live", json=body | {"mqtt": None}, headers=auth(token))
+    assert busy.status_code == 400 and "the port is in use" in busy.json()["detail"]
+
+    class Handler:
+        def datachange_notification(self, *_args: object) -> None:
+            pass
+
+    async def subscribed() -> dict:
+        async with Client(f"opc.tcp://127.0.0.1:{opc_port}/weldpool/") as opc:
+            index = await opc.get_namespace_index("urn:weldpool:stream")
+            subscription = await opc.create_subscription(50, Handler())
+            await subscription.subscribe_data_change(opc.get_node(f"ns={index};s=WeldPool.Width"))
+            found = wait_for(
+                lambda: (
+                    (v := client.get(f"/api/v1/live/{view_id}", headers=auth(token)).json())
+                    and v["outputs"][0]["subscribers"] == 1
+                    and v["outputs"][1]["sent"] > 0
+                    and v
+                ),
+                timeout=30,
+            )
+            return found
+
+    try:
+        view = asyncio.run(subscribed())
+        listener.wait_for(lambda: len(listener.frames("cell/live")) > 0)
+    finally:
+        client.post(f"/api/v1/live/{view_id}/stop", headers=auth(token))
+        listener.close()
+    kinds = [(o["kind"], o["state"]) for o in view["outputs"]]
+    assert kinds == [("opcua", "serving"), ("mqtt", "connected")]
+    assert view["outputs"][1]["subscribers"] is None
+    assert listener.frames("cell/live")[0]["frame"] >= 0
+    ended = client.get(f"/api/v1/live/{view_id}", headers=auth(token)).json()
+    assert ended["outputs"][0]["state"] == "stopped"
+    again = client.post("/api/v1/live", json=body | {"mqtt": None}, headers=auth(token))
+    assert again.status_code == 201  # the stopped view let its port go
+    client.post(f"/api/v1/live/{again.json()['id']}/stop", headers=auth(token))

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import corrected_label, image_bytes, write_video
+from tests.mqtt import free_port
 from tests.web.conftest import fixed, shoot, synthetic_png
 from tests.web.server import LiveServer, accept_dialogs, login, wait_for_js, wait_until
 from tests.web.test_review_flow import (
@@ -652,11 +653,22 @@ def test_real_model_version_on_the_models_and_metrics_pages(
     chosen = page.locator("[data-testid=live-model] option:checked").inner_text()
     assert chosen.startswith(name) and ("not usable" in chosen) == (not usable)
     page.fill("[data-testid=live-source]", str(video))
+    page.click("[data-testid=live-outputs-form] summary")  # the cell's outputs, from the form
+    opc_port, zmq_port = free_port(), free_port()
+    page.fill("[data-testid=live-opcua]", f"opc.tcp://127.0.0.1:{opc_port}")
+    page.fill("[data-testid=live-zeromq]", f"tcp://127.0.0.1:{zmq_port}")
     page.click("[data-testid=live-start]")
     live = page.locator("[data-testid=live-card][data-state=running]")
     live.wait_for(timeout=60_000)
     wait_for_js(page, "document.querySelector('[data-testid=live-frame]').naturalWidth === 320")
     wait_for_js(page, "/fps/.test(document.querySelector('[data-testid=live-stats]').textContent)")
+    wait_for_js(
+        page,
+        "/sent/.test(document.querySelector('[data-testid=live-output-opcua]')?.textContent)",
+    )
+    opc = live.locator("[data-testid=live-output-opcua]").inner_text()
+    assert opc.startswith(f"OPC UA opc.tcp://127.0.0.1:{opc_port} · serving · 0 subscriptions")
+    assert "0 subscribers" in live.locator("[data-testid=live-output-zeromq]").inner_text()
     assert live.locator("[data-testid=live-keypoints]").count() == 1
     assert live.locator("[data-testid=gate]").inner_text() == gate  # the verdict, as on /models
     assert live.locator("svg.chart").count() == 3  # area, length, width scrolling
