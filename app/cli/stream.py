@@ -175,20 +175,6 @@ def stream_cmd(
     device: str,
     threads: int | None,
     publish: str | None,
-    opcua: str | None,
-    opcua_security: str,
-    opcua_cert: Path | None,
-    opcua_key: Path | None,
-    opcua_trust: Path | None,
-    mqtt: str | None,
-    mqtt_qos: int,
-    mqtt_retain: bool,
-    mqtt_rate: float | None,
-    mqtt_username: str | None,
-    mqtt_ca: Path | None,
-    mqtt_cert: Path | None,
-    mqtt_key: Path | None,
-    stale_ms: float,
     wait_for_subscriber: float,
     record_path: Path | None,
     quiet: bool,
@@ -203,6 +189,7 @@ def stream_cmd(
     realtime: bool,
     max_frames: int | None,
     decoder_threads: int,
+    **cell: Any,
 ) -> None:
     """Run a student on SOURCE (a video file, a camera index such as 0, or an RTSP/HTTP URL) and
     emit one JSON line per frame: keypoints, pool area / length / width, ambiguity, latency.
@@ -215,22 +202,7 @@ def stream_cmd(
     from weldpool_core.stream import StreamOptions, open_stream
 
     model_dir, usable = _checked_model_dir(model, record_path, samples, backend, sequential)
-    from weldpool_core.outputs import CellInfo, OutputsConfig
-
-    config = OutputsConfig(
-        zeromq=publish,
-        opcua=_opcua_options(opcua, opcua_security, opcua_cert, opcua_key, opcua_trust),
-        mqtt=_mqtt_options(
-            mqtt, mqtt_qos, mqtt_retain, mqtt_rate, mqtt_username, mqtt_ca, mqtt_cert, mqtt_key
-        ),
-    )
-    info = CellInfo(
-        model=model_dir.name,
-        keypoints=_keypoint_count(model_dir),
-        mm_per_px=mm_per_px,
-        model_usable=usable,
-        stale_ms=stale_ms,
-    )
+    config, info = _cell_outputs(publish, cell, model_dir, usable, mm_per_px)
     options = StreamOptions(
         backend=backend,
         device=device,
@@ -288,10 +260,41 @@ def _checked_model_dir(
     return model_dir, usable
 
 
-def _keypoint_count(model_dir: Path) -> int:
+def _cell_outputs(
+    publish: str | None, cell: dict[str, Any], model_dir: Path, usable: bool, mm_per_px: Any
+) -> tuple[Any, Any]:
+    """The outputs the options ask for (ZeroMQ, OPC UA, MQTT), and what they know of the run."""
+    from weldpool_core.outputs import CellInfo, OutputsConfig
     from weldpool_core.student.checkpoint import read_student_config
 
-    return read_student_config(model_dir).k
+    config = OutputsConfig(
+        zeromq=publish,
+        opcua=_opcua_options(
+            cell["opcua"],
+            cell["opcua_security"],
+            cell["opcua_cert"],
+            cell["opcua_key"],
+            cell["opcua_trust"],
+        ),
+        mqtt=_mqtt_options(
+            cell["mqtt"],
+            cell["mqtt_qos"],
+            cell["mqtt_retain"],
+            cell["mqtt_rate"],
+            cell["mqtt_username"],
+            cell["mqtt_ca"],
+            cell["mqtt_cert"],
+            cell["mqtt_key"],
+        ),
+    )
+    info = CellInfo(
+        model=model_dir.name,
+        keypoints=read_student_config(model_dir).k,
+        mm_per_px=mm_per_px,
+        model_usable=usable,
+        stale_ms=cell["stale_ms"],
+    )
+    return config, info
 
 
 def _opcua_options(

@@ -57,7 +57,7 @@ function outputsLine(view) {
   const item = (o) => h("li", { "data-testid": `live-output-${o.kind}` },
     h("strong", {}, OUTPUT_NAMES[o.kind] ?? o.kind), ` ${o.address} · ${o.state}${listener(o)} · ${count(o.sent, "frame")} sent`,
     o.skipped ? ` · ${count(o.skipped, "skipped")}` : "",
-    o.added_p99_ms !== null ? ` · +${decimal(o.added_p99_ms, 2)} ms p99` : "");
+    o.added_p99_ms !== null ? ` · +${decimal(o.added_p99_ms, 2)} ms to the wire (p99)` : "");
   return h("ul", { class: "live-output-list small-text", "data-testid": "live-outputs" }, view.outputs.map(item));
 }
 
