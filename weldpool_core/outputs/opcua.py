@@ -19,6 +19,7 @@ the ones found there).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime as dt
 import errno
 import logging
@@ -44,6 +45,8 @@ NAMESPACE = "urn:weldpool:stream"
 OBJECT = "WeldPool"
 SECURITY = ("none", "sign-encrypt")
 START_TIMEOUT_S = 20.0
+CLOSE_LINGER_S = 0.5
+"""At the end of a stream, subscribers get this long to receive the last values."""
 BEHIND_WINDOW_S = 1.0
 """The server counts as behind when it skipped over half the frames of this window."""
 _UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
@@ -229,8 +232,17 @@ class OpcUaServer:
             writer = asyncio.create_task(self._write_loop())
             await self._stop_event.wait()
             writer.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await writer
+            with self._lock:
+                latest, self._latest = self._latest, None
+            if latest is not None:  # the last frame is not lost to the end of the stream
+                await self._write_record(CellRecord.of(latest[0], self.info))
+                self.counters.added(latest[1])
             await self._write_text("Status", "the stream has ended")
             await self._write_flag(False)
+            if self.subscriptions():  # subscribers get the last values before the server goes
+                await asyncio.sleep(CLOSE_LINGER_S)
         self._loop = None
 
     async def _secure(self, server: Any) -> None:
