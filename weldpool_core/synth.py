@@ -280,6 +280,41 @@ def synth_frame(
     return _frame(_Pool.draw(np.random.default_rng(seed)), seed, time_s, params or SynthParams())
 
 
+def _frozen(wave: _Wave, factor: float = 1.0) -> _Wave:
+    """``wave`` held at its value at t = 0 (times ``factor``)."""
+    return _Wave(wave.at(0.0) * factor, 0.0, wave.frequency, wave.phase)
+
+
+def steady_pool_frame(
+    seed: int = 0, params: SynthParams | None = None, time_s: float = 0.0, scale: float = 1.0
+) -> SynthFrame:
+    """A frame of a steady weld pool whose size a process sets: the pool of run ``seed`` with its
+    shape held at t = 0 and its length and width multiplied by ``scale`` (about its centre); the
+    lighting, ripples and sensor noise still change with ``time_s``. ``weldpool_core.plant``
+    renders its width with it, so a change in the frames is the process's, not the generator's.
+    """
+    if not 0.2 <= scale <= 1.6:
+        raise InvalidInputError(f"A pool scale must be within 0.2–1.6 (it leaves the frame), not {scale}.")
+    pool = _Pool.draw(np.random.default_rng(seed))
+    steady = _Pool(
+        centre_x=_frozen(pool.centre_x),
+        centre_y=_frozen(pool.centre_y),
+        half_length=_frozen(pool.half_length, scale),
+        half_width=_frozen(pool.half_width, scale),
+        tail=_frozen(pool.tail),
+        notch_angle=_frozen(pool.notch_angle),
+        notch_depth=_frozen(pool.notch_depth),
+        notch_width=pool.notch_width,
+        harmonics=tuple(
+            (order, _frozen(amplitude), phase, 0.0)
+            for order, amplitude, phase, drift in pool.harmonics
+        ),
+        ripple_period=pool.ripple_period,
+        islands=pool.islands,
+    )
+    return _frame(steady, seed, time_s, params or SynthParams())
+
+
 def synth_sequence(
     seed: int = 0, length: int = 8, params: SynthParams | None = None
 ) -> list[SynthFrame]:

@@ -374,3 +374,28 @@ def test_the_cli_refuses_a_port_in_use_and_bad_addresses_in_one_line(
         assert words in result.stderr and "Traceback" not in result.stderr
     lonely = run_cli(*base, "--mqtt-qos", "1")
     assert lonely.returncode == 2 and "need --mqtt URL" in lonely.stderr
+
+
+def test_the_closed_loop_example_answers_every_frame_over_mqtt(
+    model_dir: Path, tmp_path: Path, mqtt_broker: tuple[str, int]
+) -> None:
+    """examples/closed_loop.py: each frame's record goes through mosquitto to the controller and
+    its speed comes back before the next step; the run without the controller holds the speed.
+    (The tiny student's widths mean little: the loop's meaning is tested in test_plant.py.)"""
+    export_student(model_dir, ["onnx"])
+    host, port = mqtt_broker
+    out = tmp_path / "loop.json"
+    command = [sys.executable, str(REPO / "examples" / "closed_loop.py"), "--model", str(model_dir)]
+    command += ["--mqtt", f"mqtt://{host}:{port}/loop/{tmp_path.name}", "--seconds", "1.5"]
+    command += ["--disturbance-at", "0.5", "--json", str(out)]
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    done = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(out.read_text())
+    assert result["frames"] == 30 and result["commands"] == 30
+    closed, held = result["runs"]
+    assert {r["speed_mm_s"] for r in held} == {5.0}
+    assert len({r["speed_mm_s"] for r in closed}) > 1  # the controller's commands drove it
+    assert [r["power_w"] for r in closed][9:11] == [2000.0, 2600.0]  # the step at 0.5 s
+    stages = result["latency_ms"]
+    assert len(stages) == 4 and all(v["p99"] >= v["p50"] > 0 for v in stages.values())
