@@ -168,10 +168,12 @@ def _command_for(controller: Controller, index: int) -> dict[str, Any] | None:
     return None
 
 
-def settled(run: Run, args: argparse.Namespace, key: str) -> float:
-    """The largest deviation from the set point after the disturbance settled (fraction)."""
+def settled(run: Run, args: argparse.Namespace, key: str) -> float | None:
+    """The largest deviation from the set point after the disturbance settled (a fraction; None
+    for a run too short to settle)."""
     after = [r[key] for r in run.rows if r["t"] >= args.disturbance_at + SETTLE_S]
-    return max(abs(float(v) - args.setpoint) / args.setpoint for v in after if v is not None)
+    deviations = [abs(float(v) - args.setpoint) / args.setpoint for v in after if v is not None]
+    return round(max(deviations), 4) if deviations else None
 
 
 def latency_budget(run: Run) -> dict[str, dict[str, float]]:
@@ -226,10 +228,12 @@ def plot(runs: list[Run], args: argparse.Namespace, budget: dict[str, Any], path
     top.axvline(args.disturbance_at, color="#868e96", lw=1, ls=":")
     top.text(
         args.disturbance_at + 0.1,
-        band[0] - 0.25,
+        0.96,
         f"heat input +{(args.heat_step - 1) * 100:.0f} %",
+        transform=top.get_xaxis_transform(),
         color="#495057",
         fontsize=9,
+        va="top",
     )
     top.set_ylabel("pool width (mm)")
     top.legend(loc="upper left", fontsize=8)
@@ -240,16 +244,16 @@ def plot(runs: list[Run], args: argparse.Namespace, budget: dict[str, Any], path
     bottom.set_xlabel("process time (s)")
     bottom.legend(loc="upper left", fontsize=8)
     lines = [f"{name}: p50 {v['p50']:.1f} ms · p99 {v['p99']:.1f} ms" for name, v in budget.items()]
-    bottom.text(
+    top.text(
         0.99,
-        0.05,
-        "\n".join(lines),
-        transform=bottom.transAxes,
+        0.03,
+        "latency (wall time)\n" + "\n".join(lines),
+        transform=top.transAxes,
         ha="right",
         va="bottom",
         fontsize=7.5,
         family="monospace",
-        bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        bbox={"facecolor": "white", "alpha": 0.85, "lw": 0},
     )
     figure.tight_layout()
     figure.savefig(path, dpi=110)
@@ -282,9 +286,9 @@ def main() -> None:
     runs = [simulate(True, student, camera, args), simulate(False, student, camera, args)]
     budget = latency_budget(runs[0])
     result = {
-        "closed_loop_max_deviation": round(settled(runs[0], args, "width_mm"), 4),
-        "closed_loop_measured_max_deviation": round(settled(runs[0], args, "measured_mm"), 4),
-        "open_loop_max_deviation": round(settled(runs[1], args, "width_mm"), 4),
+        "closed_loop_max_deviation": settled(runs[0], args, "width_mm"),
+        "closed_loop_measured_max_deviation": settled(runs[0], args, "measured_mm"),
+        "open_loop_max_deviation": settled(runs[1], args, "width_mm"),
         "frames": len(runs[0].rows),
         "commands": sum(1 for r in runs[0].rows if r.get("loop_ms") is not None),
         "latency_ms": budget,
