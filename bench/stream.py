@@ -24,6 +24,8 @@ one-euro filter; jitter is the mean and the median second difference of the keyp
 steady speed is how many frames the filter trails a keypoint moving 3 px per frame (the real
 pool barely moves, so it is measured on a synthetic ramp at the videos' 15 fps), and the lag on
 the real tracks is the shift that best aligns filtered and raw tracks.
+
+What the outputs to a welding cell (OPC UA, MQTT, ZeroMQ) add to this: ``bench/cell_outputs.py``.
 """
 
 from __future__ import annotations
