@@ -119,8 +119,11 @@ class PlantCamera:
         self.seed = seed
         self.params = params or SynthParams(width=320, height=200)
         nominal = steady_pool_frame(seed, self.params, 0.0, 1.0)
-        self.nominal_width_px = pool_geometry(nominal.mask).width_px
-        self.mm_per_px = self.plant.width_mm / self.nominal_width_px
+        width_px = pool_geometry(nominal.mask).width_px
+        if not width_px:
+            raise InvalidInputError("The synthetic pool has no width at this frame size.")
+        self.nominal_width_px = width_px
+        self.mm_per_px = self.plant.width_mm / width_px
 
     def render(self, width_mm: float, time_s: float) -> SynthFrame:
         """The frame at ``time_s`` of a pool ``width_mm`` wide."""

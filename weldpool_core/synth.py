@@ -294,7 +294,9 @@ def steady_pool_frame(
     renders its width with it, so a change in the frames is the process's, not the generator's.
     """
     if not 0.2 <= scale <= 1.6:
-        raise InvalidInputError(f"A pool scale must be within 0.2–1.6 (it leaves the frame), not {scale}.")
+        raise InvalidInputError(
+            f"A pool scale must be within 0.2–1.6 (it leaves the frame), not {scale}."
+        )
     pool = _Pool.draw(np.random.default_rng(seed))
     steady = _Pool(
         centre_x=_frozen(pool.centre_x),

@@ -86,6 +86,7 @@ COMMANDS = {
     "predict": "student",
     "export-student": "student",
     "stream": "stream",
+    "opcua-certificate": "stream",
     "heatmap": "evaluation",
     "eval": "evaluation",
     "user": "users",

@@ -239,6 +239,24 @@ def stream_cmd(
     click.echo(json.dumps(report), err=True)
 
 
+@main.command("opcua-certificate")
+@click.argument("folder", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--host", default=None, help="The name clients reach the server by (default: this host's)."
+)
+@click.option("--days", type=click.IntRange(1, 3650), default=365, show_default=True)
+@friendly_errors
+def opcua_certificate_cmd(folder: Path, host: str | None, days: int) -> None:
+    """Make a self-signed certificate and key for `weldpool stream --opcua-security
+    sign-encrypt` in FOLDER (clients, e.g. the PLC, must be told to trust the certificate)."""
+    import socket
+
+    from weldpool_core.outputs.opcua import make_certificate
+
+    certificate, key = make_certificate(folder, host or socket.gethostname(), days)
+    click.echo(f"--opcua-cert {certificate} --opcua-key {key}")
+
+
 def _checked_model_dir(
     model: str, record_path: Path | None, samples: int, backend: str, sequential: bool
 ) -> tuple[Path, bool]:

@@ -221,7 +221,7 @@ class OpcUaServer:
         await server.init()
         server.set_endpoint(f"opc.tcp://{self.host}:{self.port}/weldpool/")
         server.set_server_name("weldpool stream")
-        await server.set_application_uri("urn:weldpool:stream:server")
+        await server.set_application_uri(APPLICATION_URI)
         await self._secure(server)
         index = await server.register_namespace(NAMESPACE)
         await self._build(server, index)
@@ -255,12 +255,16 @@ class OpcUaServer:
         await server.load_certificate(str(options.certificate))
         await server.load_private_key(str(options.private_key))
         if options.trust_dir is not None:
-            from asyncua.crypto.cert_validator import CertificateValidator
             from asyncua.crypto.truststore import TrustStore
+            from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
             store = TrustStore([options.trust_dir], [])
             await store.load()
-            server.set_certificate_validator(CertificateValidator(trust_store=store))
+            checks = CertificateValidatorOptions  # the default checks dates only: trust too
+            validator = CertificateValidator(
+                checks.TRUSTED_VALIDATION | checks.PEER_CLIENT, trust_store=store
+            )
+            server.set_certificate_validator(validator)
 
     async def _build(self, server: Any, index: int) -> None:
         ua = _ua()
@@ -388,6 +392,49 @@ class OpcUaServer:
             )
         else:
             self.reporter.resolved("behind", "the server keeps up with the frames again")
+
+
+APPLICATION_URI = "urn:weldpool:stream:server"
+CERTIFICATE_FILE = "weldpool-opcua-cert.der"
+KEY_FILE = "weldpool-opcua-key.pem"
+
+
+def make_certificate(folder: Path, hostname: str, days: int = 365) -> tuple[Path, Path]:
+    """A self-signed certificate and private key for the server (``--opcua-security
+    sign-encrypt``): RSA 2048, the server's application URI and ``hostname`` in its subject
+    alternative names, as OPC UA clients check them. Clients must be told to trust it.
+    Refuses to overwrite files already there."""
+    from asyncua.crypto.cert_gen import (
+        dump_private_key_as_pem,
+        generate_private_key,
+        generate_self_signed_app_certificate,
+    )
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    if not folder.is_dir():
+        raise InvalidInputError(f"There is no folder {str(folder)!r}; create it first.")
+    certificate, key = folder / CERTIFICATE_FILE, folder / KEY_FILE
+    for path in (certificate, key):
+        if path.exists():
+            raise InvalidInputError(
+                f"{str(path)!r} exists already; move it or choose another folder."
+            )
+    private = generate_private_key()
+    names = [x509.UniformResourceIdentifier(APPLICATION_URI), x509.DNSName(hostname)]
+    cert = generate_self_signed_app_certificate(
+        private,
+        "weldpool stream",
+        {"organizationName": "weldpool"},
+        names,
+        [ExtendedKeyUsageOID.SERVER_AUTH],
+        days=days,
+    )
+    key.write_bytes(dump_private_key_as_pem(private))
+    key.chmod(0o600)
+    certificate.write_bytes(cert.public_bytes(serialization.Encoding.DER))
+    return certificate, key
 
 
 def _start_error(exc: BaseException, url: str) -> BaseException:

@@ -18,10 +18,17 @@ import pytest
 from asyncua import Client, ua
 
 from tests.core.outputs.common import record
+from tests.helpers import run_cli
 from tests.mqtt import free_port
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.outputs import CellInfo, Outputs, Reporter
-from weldpool_core.outputs.opcua import NAMESPACE, OpcUaOptions, OpcUaServer
+from weldpool_core.outputs.opcua import (
+    CERTIFICATE_FILE,
+    KEY_FILE,
+    NAMESPACE,
+    OpcUaOptions,
+    OpcUaServer,
+)
 
 
 @pytest.fixture
@@ -160,28 +167,51 @@ def test_a_port_in_use_or_a_bad_address_is_one_sentence(served: tuple[OpcUaServe
         OpcUaServer(OpcUaOptions("opc.tcp://127.0.0.1:1", "sign-encrypt"), CellInfo("m", 2))
 
 
-def _certificate(folder: Path, name: str, server: bool) -> tuple[Path, Path]:
+def _client_certificate(folder: Path, name: str) -> tuple[Path, Path]:
     from asyncua.crypto.cert_gen import setup_self_signed_certificate
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    key, cert = folder / f"{name}.pem", folder / f"{name}.der"
-    use = ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH
-    uri = "urn:weldpool:stream:server" if server else f"urn:weldpool:test:{name}"
+    folder.mkdir(exist_ok=True)  # a trust folder holds certificates only: the key goes beside it
+    key, cert = folder.with_name(f"{name}-key.pem"), folder / f"{name}.der"
+    uri, use = f"urn:weldpool:test:{name}", [ExtendedKeyUsageOID.CLIENT_AUTH]
     asyncio.run(
         setup_self_signed_certificate(
-            key, cert, uri, socket.gethostname(), [use], {"organizationName": "weldpool"}
+            key, cert, uri, socket.gethostname(), use, {"organizationName": "weldpool"}
         )
     )
     return cert, key
 
 
-def test_sign_and_encrypt_lets_in_only_a_client_with_a_certificate(tmp_path: Path) -> None:
+def _read_securely(url: str, name: str, cert: Path, key: Path, server_cert: Path) -> float:
     from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-    server_cert, server_key = _certificate(tmp_path, "server", True)
-    client_cert, client_key = _certificate(tmp_path, "client", False)
+    async def read() -> float:
+        client = Client(url)
+        client.application_uri = f"urn:weldpool:test:{name}"
+        await client.set_security(
+            SecurityPolicyBasic256Sha256, str(cert), str(key), server_certificate=str(server_cert)
+        )
+        async with client:
+            return float(await (await _node(client, "Width")).read_value())
+
+    return asyncio.run(read())
+
+
+def test_sign_and_encrypt_lets_in_only_clients_with_a_trusted_certificate(tmp_path: Path) -> None:
+    """The server's certificate from `weldpool opcua-certificate`; a client without security is
+    refused; with --opcua-trust, only a client whose certificate is in the folder gets in."""
+    done = run_cli("opcua-certificate", str(tmp_path), "--host", socket.gethostname())
+    assert done.returncode == 0, done.stderr
+    server_cert, server_key = tmp_path / CERTIFICATE_FILE, tmp_path / KEY_FILE
+    assert done.stdout.strip() == f"--opcua-cert {server_cert} --opcua-key {server_key}"
+    again = run_cli("opcua-certificate", str(tmp_path))
+    assert again.returncode == 2 and "exists already" in again.stderr
+    trusted = _client_certificate(tmp_path / "clients", "plc")
+    stranger = _client_certificate(tmp_path / "others", "laptop")
     port = free_port()
-    options = OpcUaOptions(f"opc.tcp://127.0.0.1:{port}", "sign-encrypt", server_cert, server_key)
+    options = OpcUaOptions(
+        f"opc.tcp://127.0.0.1:{port}", "sign-encrypt", server_cert, server_key, tmp_path / "clients"
+    )
     server = OpcUaServer(options, CellInfo("tiny", 2))
     url = f"opc.tcp://127.0.0.1:{port}/weldpool/"
     server.send(record(3))
@@ -190,22 +220,12 @@ def test_sign_and_encrypt_lets_in_only_a_client_with_a_certificate(tmp_path: Pat
         async with Client(url) as client:
             await (await _node(client, "Width")).read_value()
 
-    async def secure() -> float:
-        client = Client(url)
-        client.application_uri = "urn:weldpool:test:client"
-        await client.set_security(
-            SecurityPolicyBasic256Sha256,
-            str(client_cert),
-            str(client_key),
-            server_certificate=str(server_cert),
-        )
-        async with client:
-            return float(await (await _node(client, "Width")).read_value())
-
     try:
-        with pytest.raises(Exception):  # noqa: B017 (asyncua raises several kinds here)
+        with pytest.raises(ua.UaError):  # no security: no endpoint for it
             asyncio.run(plain())
-        assert asyncio.run(secure()) == 50.0
+        assert _read_securely(url, "plc", *trusted, server_cert) == 50.0
+        with pytest.raises(ua.UaError):  # a certificate the folder does not hold
+            _read_securely(url, "laptop", *stranger, server_cert)
     finally:
         server.close()
 
