@@ -35,8 +35,11 @@ def answers(host: str, port: int) -> bool:
         return False
 
 
-def start_broker(folder: Path, port: int | None = None) -> tuple[subprocess.Popen[bytes], int]:
-    """A mosquitto of its own on 127.0.0.1 (``port`` or a free one), answering."""
+def start_broker(
+    folder: Path, port: int | None = None, settings: str = "allow_anonymous true\n"
+) -> tuple[subprocess.Popen[bytes], int]:
+    """A mosquitto of its own on 127.0.0.1 (``port`` or a free one), answering; ``settings`` are
+    the listener's lines (TLS files, a password file)."""
     binary = shutil.which("mosquitto") or (
         "/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None
     )
@@ -46,7 +49,9 @@ def start_broker(folder: Path, port: int | None = None) -> tuple[subprocess.Pope
         )
     port = port or free_port()
     config = folder / f"mosquitto-{port}.conf"
-    config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    # As root, mosquitto would drop to its own user, who cannot read the test's files.
+    user = "user root\n" if os.geteuid() == 0 else ""
+    config.write_text(f"{user}listener {port} 127.0.0.1\npersistence false\n{settings}")
     log = open(folder / f"mosquitto-{port}.log", "wb")  # noqa: SIM115
     process = subprocess.Popen([binary, "-c", str(config)], stdout=log, stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 20

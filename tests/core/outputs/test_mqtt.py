@@ -161,3 +161,106 @@ def test_bad_addresses_are_one_sentence() -> None:
         )
     assert parse_mqtt_url("mqtts://u:p%40ss@b/x/y").password == "p@ss"
     assert parse_mqtt_url("mqtts://b/x").port == 8883
+
+
+def _tls_files(folder: Path) -> tuple[Path, Path, Path]:
+    """A CA, and a certificate for 127.0.0.1 signed by it, with its key."""
+    import datetime as dt
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import NameOID
+
+    def name(text: str) -> x509.Name:
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, text)])
+
+    now = dt.datetime.now(dt.UTC)
+    ca_key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    ca = (
+        x509.CertificateBuilder()
+        .subject_name(name("weldpool test CA"))
+        .issuer_name(name("weldpool test CA"))
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - dt.timedelta(minutes=5))
+        .not_valid_after(now + dt.timedelta(days=1))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+        .sign(ca_key, hashes.SHA256())
+    )
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    address = x509.IPAddress(ipaddress.ip_address("127.0.0.1"))
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name("127.0.0.1"))
+        .issuer_name(ca.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - dt.timedelta(minutes=5))
+        .not_valid_after(now + dt.timedelta(days=1))
+        .add_extension(x509.SubjectAlternativeName([address]), critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )
+    paths = folder / "ca.pem", folder / "broker.pem", folder / "broker-key.pem"
+    paths[0].write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    paths[1].write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    paths[2].write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.TraditionalOpenSSL,
+            serialization.NoEncryption(),
+        )
+    )
+    return paths
+
+
+def test_tls_and_credentials_reach_a_broker_that_needs_both(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import subprocess
+
+    ca, cert, key = _tls_files(tmp_path)
+    passwords = tmp_path / "passwords"
+    subprocess.run(["mosquitto_passwd", "-b", "-c", str(passwords), "weld", "s3cret"], check=True)
+    settings = (
+        f"cafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
+        f"allow_anonymous false\npassword_file {passwords}\n"
+    )
+    process, port = start_broker(tmp_path, settings=settings)
+    url = f"mqtts://weld@127.0.0.1:{port}/cell/tls"
+    good = MqttPublisher(MqttOptions(url, password="s3cret", ca_file=ca), CellInfo("t", 2))
+    with caplog.at_level(logging.WARNING, logger="weldpool.outputs"):
+        wrong = MqttPublisher(MqttOptions(url, password="guess", ca_file=ca), CellInfo("t", 2))
+        try:
+            assert good.wait_for_subscriber(10)
+            assert good.status().address == url
+            got: list[Any] = []
+            reader = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+            reader.username_pw_set("weld", "s3cret")
+            reader.tls_set(ca_certs=str(ca))
+            reader.on_message = lambda _c, _u, m: got.append(json.loads(m.payload))
+            ready = threading.Event()
+            reader.on_subscribe = lambda *_a: ready.set()
+            reader.connect("127.0.0.1", port)
+            reader.subscribe("cell/tls", 1)
+            reader.loop_start()
+            assert ready.wait(10)
+            good.send(record(11))
+            deadline = time.monotonic() + 10
+            while not got and time.monotonic() < deadline:
+                time.sleep(0.02)
+            reader.loop_stop()
+            reader.disconnect()
+            assert [m["frame"] for m in got] == [11]
+            assert not wrong.wait_for_subscriber(2)  # the broker refuses a wrong password
+            assert wrong.status().state == "connecting"
+        finally:
+            good.close()
+            wrong.close()
+            process.terminate()
+            process.wait(timeout=10)
+    refusals = [
+        r.getMessage() for r in caplog.records if "refused the connection" in r.getMessage()
+    ]
+    assert len(refusals) == 1  # told once, though paho retries
