@@ -171,6 +171,16 @@ class Settings(BaseSettings):
         "X-Forwarded-For and X-Forwarded-Proto are believed; empty: none, so a client cannot "
         "choose the address the login lockout counts.",
     )
+    live_bind_hosts: str = Field(
+        default="127.0.0.1",
+        description="Addresses the live view's ZeroMQ and OPC UA outputs may listen on "
+        "(comma-separated; 0.0.0.0 serves the cell's network); empty: the live view opens none.",
+    )
+    live_mqtt_brokers: str = Field(
+        default="127.0.0.1,localhost",
+        description="Broker hosts the live view's MQTT output may publish to (comma-separated); "
+        "empty: none.",
+    )
     log_level: str = Field(default="INFO")
     log_format: Literal["console", "json"] = Field(default="console")
 

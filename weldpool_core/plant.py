@@ -73,9 +73,10 @@ class WeldPoolPlant:
     def step(self, power_w: float, speed_mm_s: float) -> float:
         """Advance one step with this power and speed; the width after it (mm)."""
         target = self.params.steady_width(power_w, speed_mm_s)
-        if self._delayed.maxlen:
+        if self._delayed.maxlen:  # what was asked ``dead_time_s`` ago acts now
+            acting = self._delayed[0]
             self._delayed.append(target)
-            target = self._delayed[0]
+            target = acting
         self.width_mm = target + (self.width_mm - target) * self._decay
         return self.width_mm
 

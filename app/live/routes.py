@@ -9,10 +9,11 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import StreamingResponse
 
 from app.bounds import IdPath
-from app.deps import SessionDep, StorageDep
+from app.config import Settings
+from app.deps import SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
 from app.live.schemas import LiveIn, LiveOut, LiveOutputOut, LiveRecords
-from app.live.service import ACTIVE, LiveView, LiveViews
+from app.live.service import ACTIVE, LiveView, LiveViews, check_outputs
 from app.models import ModelVersion
 from app.security import CurrentUser, ReviewerUser
 from app.training.service import model_folder, promoted_model
@@ -64,7 +65,12 @@ def _out(view: LiveView) -> LiveOut:
 
 @router.post("", response_model=LiveOut, status_code=201)
 def start_live(
-    body: LiveIn, request: Request, session: SessionDep, storage: StorageDep, user: ReviewerUser
+    body: LiveIn,
+    request: Request,
+    session: SessionDep,
+    storage: StorageDep,
+    settings: SettingsDep,
+    user: ReviewerUser,
 ) -> LiveOut:
     """Run a student on a source on this server and keep its newest frame and records."""
     if body.model_id is None:
@@ -100,20 +106,25 @@ def start_live(
             "mm_per_px": body.mm_per_px,
             "travel_deg": body.travel_deg,
         },
-        _outputs_config(body),
+        _outputs_config(body, settings),
     )
     return _out(view)
 
 
-def _outputs_config(body: LiveIn) -> OutputsConfig:
-    """The outputs the form asked for (no security on OPC UA: the CLI has the options)."""
+def _outputs_config(body: LiveIn, settings: Settings) -> OutputsConfig:
+    """The outputs the form asked for, within what the admin allows (``check_outputs``; no
+    security on OPC UA: the CLI has the options)."""
     from weldpool_core.outputs.mqtt import MqttOptions
     from weldpool_core.outputs.opcua import OpcUaOptions
 
+    zeromq, opcua, mqtt = (
+        (value or "").strip() or None for value in (body.zeromq, body.opcua, body.mqtt)
+    )
+    check_outputs(zeromq, opcua, mqtt, settings)
     return OutputsConfig(
-        zeromq=(body.zeromq or "").strip() or None,
-        opcua=OpcUaOptions(body.opcua.strip()) if body.opcua and body.opcua.strip() else None,
-        mqtt=MqttOptions(body.mqtt.strip()) if body.mqtt and body.mqtt.strip() else None,
+        zeromq=zeromq,
+        opcua=OpcUaOptions(opcua) if opcua else None,
+        mqtt=MqttOptions(mqtt) if mqtt else None,
     )
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import structlog
 
 from app.db import utcnow
-from app.errors import ConflictError, NotFoundError, WeldpoolError
+from app.errors import ConflictError, InvalidInputError, NotFoundError, WeldpoolError
 
 log = structlog.get_logger(__name__)
 
@@ -171,6 +171,60 @@ class LiveViews:
         for view in list(self._views.values()):
             if view.thread is not None:
                 view.thread.join(timeout=10)
+
+
+MIN_PORT = 1024
+"""The live view listens on no privileged port (nor on one below it that a service may own)."""
+
+
+def _listed(value: str) -> set[str]:
+    return {part.strip().lower() for part in value.split(",") if part.strip()}
+
+
+def check_outputs(zeromq: str | None, opcua: str | None, mqtt: str | None, settings: Any) -> None:
+    """Refuse live-view outputs outside what the admin allows (``live_bind_hosts``,
+    ``live_mqtt_brokers``): a reviewer's form must not bind any address of the server, reach any
+    host, or give ZeroMQ a path (``ipc://`` replaces the file there)."""
+    from urllib.parse import urlparse
+
+    from weldpool_core.outputs.mqtt import parse_mqtt_url
+    from weldpool_core.outputs.opcua import parse_opcua_url
+
+    binds = _listed(settings.live_bind_hosts)
+    allowed = ", ".join(sorted(binds)) or "none"
+    where = (
+        f"(WELDPOOL_LIVE_BIND_HOSTS: {allowed}); ask an admin, or run weldpool stream at the cell"
+    )
+    listens: list[tuple[str, str, int | None]] = []
+    if zeromq:
+        parsed = urlparse(zeromq)
+        try:
+            port = parsed.port
+        except ValueError:
+            port = None
+        if parsed.scheme != "tcp" or not parsed.hostname or port is None or parsed.path:
+            raise InvalidInputError(
+                f"The live view's ZeroMQ output takes tcp://HOST:PORT only, not {zeromq!r}."
+            )
+        listens.append(("ZeroMQ", parsed.hostname, port))
+    if opcua:
+        host, port = parse_opcua_url(opcua)
+        listens.append(("OPC UA", host, port))
+    for name, host, port in listens:
+        if host.lower() not in binds:
+            raise InvalidInputError(
+                f"The live view's {name} output may not listen on {host} {where}."
+            )
+        if port is not None and port < MIN_PORT:
+            raise InvalidInputError(f"The live view's {name} port must be {MIN_PORT} or above.")
+    if mqtt:
+        target = parse_mqtt_url(mqtt)
+        brokers = _listed(settings.live_mqtt_brokers)
+        if target.host.lower() not in brokers:
+            raise InvalidInputError(
+                f"The live view may not publish to the broker {target.host} "
+                f"(WELDPOOL_LIVE_MQTT_BROKERS: {', '.join(sorted(brokers)) or 'none'})."
+            )
 
 
 def _open_outputs(view_args: dict[str, Any], config: Any) -> Any:

@@ -468,6 +468,20 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
         "opcua": f"opc.tcp://127.0.0.1:{opc_port}",
         "mqtt": f"mqtt://{host}:{port}/cell/live",
     }
+    for field, value, words in (  # within what the admin allows, and nothing else
+        ("zeromq", f"ipc://{settings.home}/weldpool.db", "tcp://HOST:PORT only"),
+        ("zeromq", "tcp://0.0.0.0:5556", "may not listen on 0.0.0.0"),
+        ("opcua", "opc.tcp://0.0.0.0:4840", "WELDPOOL_LIVE_BIND_HOSTS: 127.0.0.1"),
+        ("opcua", "opc.tcp://127.0.0.1:502", "port must be 1024 or above"),
+        ("mqtt", "mqtt://10.1.2.3:1883/cell/live", "may not publish to the broker 10.1.2.3"),
+        ("mqtt", "mqtt://u:hunter2@127.0.0.1", "needs a topic"),
+    ):
+        refused = client.post(
+            "/api/v1/live", json={"source": video, field: value}, headers=auth(token)
+        )
+        assert refused.status_code == 400 and words in refused.json()["detail"], refused.text
+        assert "hunter2" not in refused.text
+    assert client.get("/api/v1/live", headers=auth(token)).json() == []  # none took a slot
     started = client.post("/api/v1/live", json=body, headers=auth(token))
     assert started.status_code == 201, started.text
     view_id = started.json()["id"]
@@ -509,3 +523,18 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
     again = client.post("/api/v1/live", json=body | {"mqtt": None}, headers=auth(token))
     assert again.status_code == 201  # the stopped view let its port go
     client.post(f"/api/v1/live/{again.json()['id']}/stop", headers=auth(token))
+
+
+def test_an_admin_opens_the_cells_network_to_the_live_views_outputs(settings: Settings) -> None:
+    from app.errors import InvalidInputError
+    from app.live.service import check_outputs
+
+    opened = settings.model_copy(
+        update={"live_bind_hosts": "0.0.0.0", "live_mqtt_brokers": "broker"}
+    )
+    check_outputs("tcp://0.0.0.0:5556", "opc.tcp://0.0.0.0:4840", "mqtt://broker/c/p", opened)
+    closed = settings.model_copy(update={"live_bind_hosts": "", "live_mqtt_brokers": ""})
+    with pytest.raises(InvalidInputError, match="BIND_HOSTS: none"):
+        check_outputs(None, "opc.tcp://127.0.0.1:4840", None, closed)
+    with pytest.raises(InvalidInputError, match="BROKERS: none"):
+        check_outputs(None, None, "mqtt://127.0.0.1/c/p", closed)

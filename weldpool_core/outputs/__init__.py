@@ -237,14 +237,16 @@ def _percentile(values: list[float], q: float) -> float:
 
 class Outputs:
     """The stream's outputs together: ``send`` to each, and a watchdog that tells each of them
-    once when no frame has come for ``info.stale_ms`` (``output.stale``) and again when frames
-    resume (the next ``send``)."""
+    once when no frame has come for ``info.stale_ms`` (``output.stale``; armed by the first frame)
+    and once when frames resume (``output.resumed``, before the next ``send``)."""
 
     def __init__(self, outputs: list[Any], info: CellInfo) -> None:
         self.outputs = outputs
         self.info = info
-        self._last = time.perf_counter()
+        self.reporter = Reporter("outputs")
+        self._last: float | None = None  # armed by the first frame, not by the opening
         self._stale = False
+        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         if any(hasattr(output, "stale") for output in outputs):
@@ -252,20 +254,32 @@ class Outputs:
             self._watchdog.start()
 
     def send(self, record: dict[str, Any]) -> None:
-        self._last = time.perf_counter()
-        self._stale = False
+        """Hand the record to every output; one that fails is told once in the log and the
+        others still get the frame (inference goes on)."""
+        with self._lock:
+            self._last = time.perf_counter()
+            resumed, self._stale = self._stale, False
         for output in self.outputs:
-            output.send(record)
+            try:
+                if resumed and hasattr(output, "resumed"):
+                    output.resumed()
+                output.send(record)
+            except Exception as exc:
+                self.reporter.problem(output.kind, f"{output.kind} failed ({exc}); it skips frames")
 
     def _watch(self) -> None:
         period = self.info.stale_ms / 4000.0
         while not self._stop.wait(period):
-            quiet_ms = 1000.0 * (time.perf_counter() - self._last)
-            if quiet_ms >= self.info.stale_ms and not self._stale:
+            with self._lock:
+                if self._last is None or self._stale:
+                    continue
+                quiet_ms = 1000.0 * (time.perf_counter() - self._last)
+                if quiet_ms < self.info.stale_ms:
+                    continue
                 self._stale = True
-                for output in self.outputs:
-                    if hasattr(output, "stale"):
-                        output.stale(quiet_ms)
+            for output in self.outputs:
+                if hasattr(output, "stale"):
+                    output.stale(quiet_ms)
 
     def statuses(self) -> list[OutputStatus]:
         return [output.status() for output in self.outputs]
@@ -314,7 +328,6 @@ def open_outputs(config: OutputsConfig, info: CellInfo) -> Outputs:
             check_broker_host(config.mqtt.url)
             opened.append(MqttPublisher(config.mqtt, info))
     except BaseException:
-        for output in opened:
-            output.close()
+        Outputs(opened, info).close()  # each closed, even when one of them fails to
         raise
     return Outputs(opened, info)

@@ -65,19 +65,20 @@ class MqttTarget:
 def parse_mqtt_url(url: str) -> MqttTarget:
     """The broker and topic of ``mqtt[s]://[user[:password]@]host[:port]/topic``."""
     parsed = urlparse(url)
+    shown = _without_password(url)  # errors go to logs and API answers: never the password
     if parsed.scheme not in ("mqtt", "mqtts") or not parsed.hostname:
         raise InvalidInputError(
-            f"{url!r} is not an MQTT address; give mqtt://HOST[:PORT]/TOPIC (mqtts:// for TLS)."
+            f"{shown!r} is not an MQTT address; give mqtt://HOST[:PORT]/TOPIC (mqtts:// for TLS)."
         )
     topic = unquote(parsed.path.lstrip("/"))
     if not topic or "#" in url or parsed.query or any(c in topic for c in "+\0"):
         raise InvalidInputError(
-            f"{url!r} needs a topic without wildcards after the host, e.g. mqtt://broker/cell1/pool."
+            f"{shown!r} needs a topic without wildcards after the host, e.g. mqtt://broker/cell1/pool."
         )
     try:
         port = parsed.port or (8883 if parsed.scheme == "mqtts" else 1883)
     except ValueError:
-        raise InvalidInputError(f"The port of {url!r} is not a number from 1 to 65535.") from None
+        raise InvalidInputError(f"The port of {shown!r} is not a number from 1 to 65535.") from None
     return MqttTarget(
         parsed.hostname,
         port,
@@ -174,18 +175,23 @@ class MqttPublisher:
                     self.counters.skipped += 1
                 self._pending = (record, since)
             return
-        self._publish(record, since)
+        with self._lock:
+            self._publish(record, since)
 
     def _flush(self) -> None:
         assert self.options.rate_hz
         period = 1.0 / self.options.rate_hz
         while not self._flush_stop.wait(period):
-            with self._lock:
-                pending, self._pending = self._pending, None
+            self._flush_pending()
+
+    def _flush_pending(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, None
             if pending is not None:
                 self._publish(*pending)
 
     def _publish(self, record: dict[str, Any], since: float) -> None:
+        """One message (called holding ``_lock``: the counters have one writer at a time)."""
         import paho.mqtt.client as mqtt
 
         if not self._connected.is_set():
@@ -213,6 +219,13 @@ class MqttPublisher:
                 self.status_topic, _state("stale", quiet_ms=round(quiet_ms)), qos=1, retain=True
             )
 
+    def resumed(self) -> None:
+        """Frames come again after a pause: the status says ``online`` again."""
+        if self._connected.is_set():
+            self._client.publish(
+                self.status_topic, _state("online", model=self.info.model), 1, True
+            )
+
     def _on_connect(self, client: Any, _data: Any, _flags: Any, reason: Any, _props: Any) -> None:
         if reason.is_failure:
             self.reporter.problem("connect", f"the broker refused the connection ({reason})")
@@ -227,7 +240,7 @@ class MqttPublisher:
         self, _client: Any, _data: Any, _flags: Any, reason: Any, _props: Any
     ) -> None:
         self._connected.clear()
-        if not self._closing:
+        if not self._closing and self._ever_connected:  # a refusal is told by _on_connect
             self.reporter.problem(
                 "down",
                 f"the broker went away ({reason}); reconnecting, frames are dropped meanwhile",
@@ -254,6 +267,7 @@ class MqttPublisher:
         self._flush_stop.set()
         if self._flusher is not None:
             self._flusher.join(timeout=2)
+            self._flush_pending()  # the last frame is not lost to the rate
         self._closing = True
         if self._connected.is_set():
             info = self._client.publish(self.status_topic, _state("offline"), qos=1, retain=True)

@@ -24,6 +24,7 @@ import datetime as dt
 import errno
 import logging
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -49,6 +50,18 @@ CLOSE_LINGER_S = 0.5
 """At the end of a stream, subscribers get this long to receive the last values."""
 BEHIND_WINDOW_S = 1.0
 """The server counts as behind when it skipped over half the frames of this window."""
+MEASUREMENTS = (
+    "Area",
+    "Length",
+    "Width",
+    "CentroidX",
+    "CentroidY",
+    "Keypoints",
+    "Uncertainty",
+    "Ambiguity",
+    "LatencyMs",
+)
+"""The values that turn ``UncertainLastUsableValue`` when frames stop."""
 _UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
 _UNITS = {"mm": "MMT", "mm²": "MMK", "ms": "C26", "s": "SEC"}
 
@@ -130,8 +143,8 @@ class OpcUaServer:
         self.counters = Counters()
         self.reporter = Reporter(f"OPC UA {options.url}")
         library_log = logging.getLogger("asyncua")
-        if library_log.level == logging.NOTSET:  # its per-connection chatter is not for the cell
-            library_log.setLevel(logging.ERROR)
+        if library_log.level == logging.NOTSET:  # its chatter and tracebacks are not for the
+            library_log.setLevel(logging.CRITICAL)  # cell: what matters is told by ``reporter``
         self._latest: tuple[dict[str, Any], float] | None = None
         self._lock = threading.Lock()
         self._wake: asyncio.Event | None = None
@@ -141,12 +154,15 @@ class OpcUaServer:
         self._nodes: dict[str, Any] = {}
         self._server: Any = None
         self._stop_event: asyncio.Event | None = None
+        self._abandoned = False
         self._last: CellRecord | None = None
         self._window: list[int] = [0, 0]  # frames sent, skipped in the current window
         self._window_start = time.perf_counter()
         self._thread = threading.Thread(target=self._run, name="opcua-server", daemon=True)
         self._thread.start()
         if not self._started.wait(START_TIMEOUT_S):
+            self._abandoned = True  # it stops as soon as it starts, if it ever does
+            self.close()
             raise InvalidInputError(f"The OPC UA server on {options.url!r} did not start in time.")
         if self._error is not None:
             self._thread.join(timeout=5)
@@ -161,12 +177,14 @@ class OpcUaServer:
             self._latest = (record, time.perf_counter())
         loop, wake = self._loop, self._wake
         if loop is not None and wake is not None and not wake.is_set():
-            loop.call_soon_threadsafe(wake.set)
+            with contextlib.suppress(RuntimeError):  # the loop ended meanwhile (reported there)
+                loop.call_soon_threadsafe(wake.set)
 
     def stale(self, quiet_ms: float) -> None:
         loop = self._loop
         if loop is not None:
-            asyncio.run_coroutine_threadsafe(self._write_stale(quiet_ms), loop)
+            with contextlib.suppress(RuntimeError):
+                asyncio.run_coroutine_threadsafe(self._write_stale(quiet_ms), loop)
 
     def subscriptions(self) -> int:
         """Clients' subscriptions on this server (what a PLC opens to be told of changes)."""
@@ -211,6 +229,8 @@ class OpcUaServer:
                 self._started.set()
             else:
                 self.reporter.problem("crashed", f"the server stopped: {exc}")
+        finally:
+            self._loop = None
 
     async def _serve(self) -> None:
         from asyncua.server.server import Server
@@ -229,6 +249,8 @@ class OpcUaServer:
             self._server = server
             self._loop = asyncio.get_running_loop()
             self._started.set()
+            if self._abandoned:
+                return
             writer = asyncio.create_task(self._write_loop())
             await self._stop_event.wait()
             writer.cancel()
@@ -254,7 +276,13 @@ class OpcUaServer:
         server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
         await server.load_certificate(str(options.certificate))
         await server.load_private_key(str(options.private_key))
-        if options.trust_dir is not None:
+        if options.trust_dir is None:
+            self.reporter.problem(
+                "trust",
+                "sign-encrypt without --opcua-trust accepts any client certificate within its "
+                "dates (encrypted, not authenticated); give a folder of trusted certificates",
+            )
+        else:
             from asyncua.crypto.truststore import TrustStore
             from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
@@ -319,7 +347,12 @@ class OpcUaServer:
             if latest is None:
                 continue
             record, since = latest
-            await self._write_record(CellRecord.of(record, self.info))
+            try:
+                await self._write_record(CellRecord.of(record, self.info))
+            except Exception as exc:  # a bad record must not stop the values for good
+                self.reporter.problem("write", f"a frame could not be written ({exc!r})")
+                continue
+            self.reporter.resolved("write", "frames are written again")
             self.counters.added(since)
             self._window[0] += 1
             self._check_behind()
@@ -334,14 +367,19 @@ class OpcUaServer:
             "Keypoints": (list(cell.keypoints), ua.VariantType.Double),
             "Healthy": (cell.healthy, ua.VariantType.Boolean),
         }
+        good, none = ua.StatusCode(ua.StatusCodes.Good), ua.StatusCode(ua.StatusCodes.BadNoData)
         for spec in CELL_FIELDS:
             value, variant = values.get(spec.name, (None, ua.VariantType.Double))
             if value is None:
                 value = getattr(cell, spec.key)
+            missing = isinstance(value, float) and math.isnan(value)  # no pool, no samples
             await self._server.write_attribute_value(
                 self._nodes[spec.name],
                 ua.DataValue(
-                    ua.Variant(value, variant), SourceTimestamp=stamp, ServerTimestamp=now
+                    ua.Variant(value, variant),
+                    StatusCode=none if missing else good,
+                    SourceTimestamp=stamp,
+                    ServerTimestamp=now,
                 ),
             )
         if self._last is None or not self._last.healthy or not cell.healthy:
@@ -353,9 +391,11 @@ class OpcUaServer:
         await self._write_flag(False)
         await self._write_text("Status", f"no frame for {quiet_ms:.0f} ms")
         self._last = None
-        for name in ("Area", "Length", "Width", "CentroidX", "CentroidY", "Keypoints"):
+        for name in MEASUREMENTS:
             node = self._nodes[name]
             current = self._server.read_attribute_value(node)
+            if not current.StatusCode.is_good():  # no data stays no data
+                continue
             await self._server.write_attribute_value(
                 node,
                 ua.DataValue(
@@ -431,8 +471,9 @@ def make_certificate(folder: Path, hostname: str, days: int = 365) -> tuple[Path
         [ExtendedKeyUsageOID.SERVER_AUTH],
         days=days,
     )
-    key.write_bytes(dump_private_key_as_pem(private))
-    key.chmod(0o600)
+    descriptor = os.open(key, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)  # never readable
+    with os.fdopen(descriptor, "wb") as handle:
+        handle.write(dump_private_key_as_pem(private))
     certificate.write_bytes(cert.public_bytes(serialization.Encoding.DER))
     return certificate, key
 

@@ -103,11 +103,11 @@ def test_a_rate_sends_the_newest_frame_at_most_that_often(
         publisher.send(record(frame))
         time.sleep(0.01)
     elapsed = time.monotonic() - started
-    time.sleep(0.4)
-    publisher.close()
+    publisher.close()  # sends the last pending frame
+    listener.wait_for(lambda: [m["frame"] for m in listener.frames(topic)][-1:] == [99])
     frames = [m["frame"] for m in listener.frames(topic)]
     assert 1 <= len(frames) <= 5 * elapsed + 2  # about 5 a second, not 100
-    assert frames == sorted(frames) and frames[-1] >= 90  # the newest frame each time
+    assert frames == sorted(frames) and frames[-1] == 99  # the newest frame each time, and the last
 
 
 def test_a_broker_that_goes_away_never_stops_the_frames_and_is_told_once(
@@ -264,3 +264,24 @@ def test_tls_and_credentials_reach_a_broker_that_needs_both(
         r.getMessage() for r in caplog.records if "refused the connection" in r.getMessage()
     ]
     assert len(refusals) == 1  # told once, though paho retries
+
+
+def test_the_status_says_stale_in_a_pause_and_online_when_frames_come_again(
+    mqtt_broker: tuple[str, int],
+    listener: Listener,
+) -> None:
+    host, port = mqtt_broker
+    topic = listener.topic  # type: ignore[attr-defined]
+    info = CellInfo("t", 2, stale_ms=200)
+    outputs = open_outputs(OutputsConfig(mqtt=MqttOptions(f"mqtt://{host}:{port}/{topic}")), info)
+    try:
+        assert outputs.outputs[0].wait_for_subscriber(10)
+        time.sleep(0.5)  # no frame yet: the watchdog is armed by the first one, not the opening
+        outputs.send(record(1))
+        time.sleep(0.6)  # a pause
+        outputs.send(record(2))
+        listener.wait_for(lambda: len(listener.frames(f"{topic}/status")) >= 3)
+    finally:
+        outputs.close()
+    states = [m["state"] for m in listener.frames(f"{topic}/status")]
+    assert states[:3] == ["online", "stale", "online"]

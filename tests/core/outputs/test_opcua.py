@@ -121,7 +121,7 @@ def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
     served: tuple[OpcUaServer, str],
 ) -> None:
     server, url = served
-    outputs = Outputs([server], CellInfo("tiny", 2, 0.1, stale_ms=100))
+    outputs = Outputs([server], CellInfo("tiny", 2, 0.1, stale_ms=300))
     outputs.send(record(1))
 
     async def states() -> list[tuple[bool, str, bool]]:
@@ -130,7 +130,7 @@ def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
             healthy, status = await _node(client, "Healthy"), await _node(client, "Status")
             width = await _node(client, "Width")
             for _ in range(2):
-                await asyncio.sleep(0.4)
+                await asyncio.sleep(0.7)
                 value = await width.read_attribute(ua.AttributeIds.Value, raise_on_bad_status=False)
                 found.append(
                     (
@@ -230,8 +230,32 @@ def test_sign_and_encrypt_lets_in_only_clients_with_a_trusted_certificate(tmp_pa
         server.close()
 
 
-def test_a_flooding_client_never_stops_the_frames(served: tuple[OpcUaServer, str]) -> None:
-    """A client reading in a tight loop: every send returns, the newest frame still arrives."""
+def test_a_frame_without_a_pool_says_no_data_rather_than_a_good_nan(
+    served: tuple[OpcUaServer, str],
+) -> None:
+    server, url = served
+    empty = record(4) | {"width_px": None, "width_mm": None, "centroid": None}
+    server.send(empty)
+
+    async def read() -> tuple[Any, Any]:
+        async with Client(url) as client:
+            for _ in range(100):
+                if await (await _node(client, "FrameCounter")).read_value() == 4:
+                    break
+                await asyncio.sleep(0.02)
+            width = await (await _node(client, "Width")).read_attribute(
+                ua.AttributeIds.Value, raise_on_bad_status=False
+            )
+            length = await (await _node(client, "Length")).read_data_value()
+            return width.StatusCode, length.StatusCode
+
+    width, length = asyncio.run(read())
+    assert width.value == ua.StatusCodes.BadNoData and length.is_good()
+
+
+def test_flooding_clients_never_stop_the_frames(served: tuple[OpcUaServer, str]) -> None:
+    """Three clients reading as fast as the server answers: every send returns, and the newest
+    frame still reaches the address space."""
     server, url = served
     stop = threading.Event()
 
@@ -239,10 +263,11 @@ def test_a_flooding_client_never_stops_the_frames(served: tuple[OpcUaServer, str
         async with Client(url) as client:
             node = await _node(client, "Width")
             while not stop.is_set():
-                await node.read_value()
+                await asyncio.gather(*(node.read_value() for _ in range(8)))
 
-    flooder = threading.Thread(target=lambda: asyncio.run(flood()))
-    flooder.start()
+    flooders = [threading.Thread(target=lambda: asyncio.run(flood())) for _ in range(3)]
+    for flooder in flooders:
+        flooder.start()
     time.sleep(0.5)
     for frame in range(1, 400):
         server.send(record(frame))
@@ -251,7 +276,8 @@ def test_a_flooding_client_never_stops_the_frames(served: tuple[OpcUaServer, str
             break
         time.sleep(0.02)
     stop.set()
-    flooder.join(timeout=10)
+    for flooder in flooders:
+        flooder.join(timeout=10)
     status = server.status()
     assert server._last is not None and server._last.frame == 399
     assert status.sent + status.skipped == 399
