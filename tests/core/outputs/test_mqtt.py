@@ -25,6 +25,8 @@ class Listener:
     """A subscriber on ``topic/#`` that keeps what it receives."""
 
     def __init__(self, host: str, port: int, topic: str) -> None:
+        self.topic = topic
+        self.url = f"mqtt://{host}:{port}/{topic}"
         self.messages: list[tuple[str, Any]] = []
         self.ready = threading.Event()
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
@@ -52,22 +54,16 @@ class Listener:
 
 @pytest.fixture
 def listener(mqtt_broker: tuple[str, int], request: pytest.FixtureRequest) -> Iterator[Listener]:
-    topic = f"cell/{request.node.name[:40]}"
-    found = Listener(*mqtt_broker, topic)
-    found.topic = topic  # type: ignore[attr-defined]
+    found = Listener(*mqtt_broker, f"cell/{request.node.name[:40]}")
     yield found
     found.close()
 
 
 def test_every_frame_is_one_compact_message_and_the_status_is_retained(
-    mqtt_broker: tuple[str, int],
     listener: Listener,
 ) -> None:
-    host, port = mqtt_broker
-    topic = listener.topic  # type: ignore[attr-defined]
-    publisher = MqttPublisher(
-        MqttOptions(f"mqtt://{host}:{port}/{topic}", qos=1), CellInfo("tiny", 2, 0.1)
-    )
+    topic = listener.topic
+    publisher = MqttPublisher(MqttOptions(listener.url, qos=1), CellInfo("tiny", 2, 0.1))
     assert publisher.wait_for_subscriber(10)
     for frame in range(20):
         publisher.send(record(frame, width_px=40.0 + frame, scaled=True))
@@ -89,14 +85,10 @@ def test_every_frame_is_one_compact_message_and_the_status_is_retained(
 
 
 def test_a_rate_sends_the_newest_frame_at_most_that_often(
-    mqtt_broker: tuple[str, int],
     listener: Listener,
 ) -> None:
-    host, port = mqtt_broker
-    topic = listener.topic  # type: ignore[attr-defined]
-    publisher = MqttPublisher(
-        MqttOptions(f"mqtt://{host}:{port}/{topic}", rate_hz=5), CellInfo("t", 2)
-    )
+    topic = listener.topic
+    publisher = MqttPublisher(MqttOptions(listener.url, rate_hz=5), CellInfo("t", 2))
     assert publisher.wait_for_subscriber(10)
     started = time.monotonic()
     for frame in range(100):  # 100 frames in about 1 s
@@ -267,13 +259,11 @@ def test_tls_and_credentials_reach_a_broker_that_needs_both(
 
 
 def test_the_status_says_stale_in_a_pause_and_online_when_frames_come_again(
-    mqtt_broker: tuple[str, int],
     listener: Listener,
 ) -> None:
-    host, port = mqtt_broker
-    topic = listener.topic  # type: ignore[attr-defined]
+    topic = listener.topic
     info = CellInfo("t", 2, stale_ms=200)
-    outputs = open_outputs(OutputsConfig(mqtt=MqttOptions(f"mqtt://{host}:{port}/{topic}")), info)
+    outputs = open_outputs(OutputsConfig(mqtt=MqttOptions(listener.url)), info)
     try:
         assert outputs.outputs[0].wait_for_subscriber(10)
         time.sleep(0.5)  # no frame yet: the watchdog is armed by the first one, not the opening
