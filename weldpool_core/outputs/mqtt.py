@@ -125,7 +125,7 @@ class MqttPublisher:
         self.reporter = Reporter(f"MQTT {self.address}")
         self._connected = threading.Event()
         self._ever_connected = False
-        self._last_publish = 0.0
+        self._ok, self._full = mqtt.MQTT_ERR_SUCCESS, mqtt.MQTT_ERR_QUEUE_SIZE
         self._pending: tuple[dict[str, Any], float] | None = None
         self._lock = threading.Lock()
         self._closing = False
@@ -192,8 +192,6 @@ class MqttPublisher:
 
     def _publish(self, record: dict[str, Any], since: float) -> None:
         """One message (called holding ``_lock``: the counters have one writer at a time)."""
-        import paho.mqtt.client as mqtt
-
         if not self._connected.is_set():
             self.counters.skipped += 1
             return
@@ -201,12 +199,12 @@ class MqttPublisher:
         info = self._client.publish(
             self.topic, payload, qos=self.options.qos, retain=self.options.retain
         )
-        if info.rc == mqtt.MQTT_ERR_SUCCESS:
+        if info.rc == self._ok:
             self.counters.added(since)
             self.reporter.resolved("queue", "the broker takes messages again")
         else:
             self.counters.skipped += 1
-            if info.rc == mqtt.MQTT_ERR_QUEUE_SIZE:
+            if info.rc == self._full:
                 self.reporter.problem(
                     "queue",
                     f"the broker does not acknowledge; {MAX_QUEUED} messages wait, newer ones "
