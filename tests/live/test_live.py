@@ -439,6 +439,7 @@ def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live
     assert ended["frames"] + ended["dropped"] == 20 and ended["last"]["area_px"] > 0
 
 
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)  # outputs touch no SQL
 def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
     client: TestClient,
     make_user,
