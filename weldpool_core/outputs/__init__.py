@@ -107,10 +107,9 @@ class CellRecord:
 
     @classmethod
     def of(cls, record: dict[str, Any], info: CellInfo) -> CellRecord:
-        scaled = info.mm_per_px is not None and record.get("area_mm2") is not None
-        area = record["area_mm2"] if scaled else record["area_px"]
-        length = record["length_mm"] if scaled else record["length_px"]
-        width = record["width_mm"] if scaled else record["width_px"]
+        unit = info.length_unit  # the values in the units the variables declare
+        area = record["area_mm2" if unit == "mm" else "area_px"]
+        length, width = record[f"length_{unit}"], record[f"width_{unit}"]
         centroid = record.get("centroid") or (None, None)
         flat: list[float] = []
         for point in record.get("keypoints") or [None] * info.keypoints:
@@ -171,10 +170,15 @@ class OutputStatus:
 
 
 class Output(Protocol):
+    """What every output does (``stale`` and ``resumed``, where an output has them, are told by
+    ``Outputs``' watchdog)."""
+
     kind: str
     address: str
 
     def send(self, record: dict[str, Any]) -> None: ...
+
+    def wait_for_subscriber(self, seconds: float) -> bool: ...
 
     def status(self) -> OutputStatus: ...
 
@@ -202,9 +206,6 @@ class Reporter:
                 return
             self._open.discard(key)
         log.warning("%s: %s", self.output, message)
-
-    def is_open(self, key: str) -> bool:
-        return key in self._open
 
 
 @dataclass
@@ -240,7 +241,7 @@ class Outputs:
     once when no frame has come for ``info.stale_ms`` (``output.stale``; armed by the first frame)
     and once when frames resume (``output.resumed``, before the next ``send``)."""
 
-    def __init__(self, outputs: list[Any], info: CellInfo) -> None:
+    def __init__(self, outputs: list[Output], info: CellInfo) -> None:
         self.outputs = outputs
         self.info = info
         self.reporter = Reporter("outputs")

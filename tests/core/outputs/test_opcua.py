@@ -122,7 +122,7 @@ def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
 ) -> None:
     server, url = served
     outputs = Outputs([server], CellInfo("tiny", 2, 0.1, stale_ms=300))
-    outputs.send(record(1))
+    outputs.send(record(1, scaled=True))
 
     async def states() -> list[tuple[bool, str, bool]]:
         found = []
@@ -139,7 +139,7 @@ def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
                         value.StatusCode.is_good(),
                     )
                 )
-                outputs.send(record(2))
+                outputs.send(record(2, scaled=True))
                 await asyncio.sleep(0.05)
                 found.append(
                     (
@@ -234,7 +234,7 @@ def test_a_frame_without_a_pool_says_no_data_rather_than_a_good_nan(
     served: tuple[OpcUaServer, str],
 ) -> None:
     server, url = served
-    empty = record(4) | {"width_px": None, "width_mm": None, "centroid": None}
+    empty = record(4, scaled=True) | {"width_px": None, "width_mm": None, "centroid": None}
     server.send(empty)
 
     async def read() -> tuple[Any, Any]:
@@ -263,14 +263,19 @@ def test_flooding_clients_never_stop_the_frames(served: tuple[OpcUaServer, str])
         async with Client(url) as client:
             node = await _node(client, "Width")
             while not stop.is_set():
-                await asyncio.gather(*(node.read_value() for _ in range(8)))
+                await asyncio.gather(
+                    *(
+                        node.read_attribute(ua.AttributeIds.Value, raise_on_bad_status=False)
+                        for _ in range(8)
+                    )
+                )
 
     flooders = [threading.Thread(target=lambda: asyncio.run(flood())) for _ in range(3)]
     for flooder in flooders:
         flooder.start()
     time.sleep(0.5)
     for frame in range(1, 400):
-        server.send(record(frame))
+        server.send(record(frame, scaled=True))
     for _ in range(200):
         if server._last is not None and server._last.frame == 399:
             break
