@@ -256,11 +256,7 @@ class OpcUaServer:
             writer.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await writer
-            with self._lock:
-                latest, self._latest = self._latest, None
-            if latest is not None:  # the last frame is not lost to the end of the stream
-                await self._write_record(CellRecord.of(latest[0], self.info))
-                self.counters.added(latest[1])
+            await self._write_latest()  # the last frame is not lost to the end of the stream
             await self._write_text("Status", "the stream has ended")
             await self._write_flag(False)
             if self.subscriptions():  # subscribers get the last values before the server goes
@@ -342,20 +338,24 @@ class OpcUaServer:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            with self._lock:
-                latest, self._latest = self._latest, None
-            if latest is None:
-                continue
-            record, since = latest
-            try:
-                await self._write_record(CellRecord.of(record, self.info))
-            except Exception as exc:  # a bad record must not stop the values for good
-                self.reporter.problem("write", f"a frame could not be written ({exc!r})")
-                continue
-            self.reporter.resolved("write", "frames are written again")
-            self.counters.added(since)
-            self._window[0] += 1
-            self._check_behind()
+            await self._write_latest()
+
+    async def _write_latest(self) -> None:
+        """Write the newest record ``send`` left, if any (older ones were skipped)."""
+        with self._lock:
+            latest, self._latest = self._latest, None
+        if latest is None:
+            return
+        record, since = latest
+        try:
+            await self._write_record(CellRecord.of(record, self.info))
+        except Exception as exc:  # a bad record must not stop the values for good
+            self.reporter.problem("write", f"a frame could not be written ({exc!r})")
+            return
+        self.reporter.resolved("write", "frames are written again")
+        self.counters.added(since)
+        self._window[0] += 1
+        self._check_behind()
 
     async def _write_record(self, cell: CellRecord) -> None:
         ua = _ua()
