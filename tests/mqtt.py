@@ -12,6 +12,7 @@ import shutil
 import socket
 import subprocess
 import time
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import urlparse
@@ -19,6 +20,12 @@ from urllib.parse import urlparse
 import pytest
 
 URL_VARIABLE = "WELDPOOL_TEST_MQTT_URL"
+
+
+def unique_topic(name: str) -> str:
+    """A topic no earlier run has used: a shared broker (CI's, a developer's with persistence)
+    may still hold retained status messages of the same test from before."""
+    return f"weldpool-test/{uuid.uuid4().hex[:12]}/{name}"
 
 
 def free_port() -> int:

@@ -456,18 +456,18 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
     from asyncua import Client
 
     from tests.core.outputs.test_mqtt import Listener
-    from tests.mqtt import free_port
+    from tests.mqtt import free_port, unique_topic
 
     _, token = make_user("cell", Role.reviewer)
     _promote(session_factory, student_dir, settings.home)
     host, port = mqtt_broker
-    listener = Listener(host, port, "cell/live")
+    listener = Listener(host, port, unique_topic("live"))
     opc_port = free_port()
     video = str(write_video(tmp_path / "long.avi", 200, fps=20.0))
     body = {
         "source": video,
         "opcua": f"opc.tcp://127.0.0.1:{opc_port}",
-        "mqtt": f"mqtt://{host}:{port}/cell/live",
+        "mqtt": listener.url,
     }
     for field, value, words in (  # within what the admin allows, and nothing else
         ("zeromq", f"ipc://{settings.home}/weldpool.db", "tcp://HOST:PORT only"),
@@ -511,14 +511,14 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
 
     try:
         view = asyncio.run(subscribed())
-        listener.wait_for(lambda: len(listener.frames("cell/live")) > 0)
+        listener.wait_for(lambda: len(listener.frames(listener.topic)) > 0)
     finally:
         client.post(f"/api/v1/live/{view_id}/stop", headers=auth(token))
         listener.close()
     kinds = [(o["kind"], o["state"]) for o in view["outputs"]]
     assert kinds == [("opcua", "serving"), ("mqtt", "connected")]
     assert view["outputs"][1]["subscribers"] is None
-    assert listener.frames("cell/live")[0]["frame"] >= 0
+    assert listener.frames(listener.topic)[0]["frame"] >= 0
     ended = client.get(f"/api/v1/live/{view_id}", headers=auth(token)).json()
     assert ended["outputs"][0]["state"] == "stopped"
     again = client.post("/api/v1/live", json=body | {"mqtt": None}, headers=auth(token))

@@ -15,7 +15,7 @@ import paho.mqtt.client as mqtt
 import pytest
 
 from tests.core.outputs.common import record
-from tests.mqtt import start_broker
+from tests.mqtt import start_broker, unique_topic
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.outputs import CellInfo, OutputsConfig, open_outputs
 from weldpool_core.outputs.mqtt import MqttOptions, MqttPublisher, parse_mqtt_url
@@ -30,8 +30,8 @@ class Listener:
         self.messages: list[tuple[str, Any]] = []
         self.ready = threading.Event()
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
-        self.client.on_message = lambda _c, _u, m: self.messages.append(
-            (m.topic, json.loads(m.payload))
+        self.client.on_message = lambda _c, _u, m: (
+            self.messages.append((m.topic, json.loads(m.payload))) if m.payload else None
         )
         self.client.on_subscribe = lambda *_args: self.ready.set()
         self.client.on_connect = lambda c, *_args: c.subscribe(f"{topic}/#", qos=1)
@@ -48,13 +48,15 @@ class Listener:
             time.sleep(0.02)
 
     def close(self) -> None:
+        # A shared broker keeps retained messages: clear this run's status (an empty payload).
+        self.client.publish(f"{self.topic}/status", b"", qos=1, retain=True).wait_for_publish(5)
         self.client.loop_stop()
         self.client.disconnect()
 
 
 @pytest.fixture
 def listener(mqtt_broker: tuple[str, int], request: pytest.FixtureRequest) -> Iterator[Listener]:
-    found = Listener(*mqtt_broker, f"cell/{request.node.name[:40]}")
+    found = Listener(*mqtt_broker, unique_topic(request.node.name[:40]))
     yield found
     found.close()
 

@@ -24,6 +24,7 @@ import zmq
 
 from tests.core.student.common import TINY_STUDENT
 from tests.helpers import REPO, run_cli, write_video
+from tests.mqtt import unique_topic
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.smoothing import KeypointSmoother
 from weldpool_core.stream import (
@@ -284,14 +285,14 @@ def test_the_cli_serves_opcua_and_publishes_mqtt_to_real_clients(
 
     host, port = mqtt_broker
     opc_port = free_port()
-    listener = Listener(host, port, "cell/cli")
+    listener = Listener(host, port, unique_topic("cli"))
     video = write_video(tmp_path / "run.avi", 8)
     command = [sys.executable, "-m", "app", "stream", str(video), "--model", str(model_dir)]
     command += [
         "--opcua",
         f"opc.tcp://127.0.0.1:{opc_port}",
         "--mqtt",
-        f"mqtt://{host}:{port}/cell/cli",
+        listener.url,
     ]
     command += ["--mqtt-qos", "1", "--mm-per-px", "0.1", "--quiet", "--wait-for-subscriber", "60"]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WELDPOOL_HOME": str(tmp_path / "home")}
@@ -334,13 +335,13 @@ def test_the_cli_serves_opcua_and_publishes_mqtt_to_real_clients(
     try:
         opc_width = asyncio.run(watch())
         stdout, stderr = process.communicate(timeout=60)
-        listener.wait_for(lambda: len(listener.frames("cell/cli")) == 8)
+        listener.wait_for(lambda: len(listener.frames(listener.topic)) == 8)
     finally:
         process.kill()
         listener.close()
     assert process.returncode == 0, stderr
     assert stdout == ""
-    frames = listener.frames("cell/cli")
+    frames = listener.frames(listener.topic)
     assert [m["frame"] for m in frames] == list(range(8))
     assert counters[-1] == 7 and counters == sorted(counters)
     assert opc_width == pytest.approx(frames[-1]["width"], abs=1e-3)
@@ -382,7 +383,7 @@ def test_the_closed_loop_example_answers_every_frame_over_mqtt(
     host, port = mqtt_broker
     out = tmp_path / "loop.json"
     command = [sys.executable, str(REPO / "examples" / "closed_loop.py"), "--model", str(model_dir)]
-    command += ["--mqtt", f"mqtt://{host}:{port}/loop/{tmp_path.name}", "--seconds", "1.5"]
+    command += ["--mqtt", f"mqtt://{host}:{port}/{unique_topic('loop')}", "--seconds", "1.5"]
     command += ["--disturbance-at", "0.5", "--json", str(out)]
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     done = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
