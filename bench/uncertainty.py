@@ -91,8 +91,8 @@ def tta_disagreement(
         gamma = float(np.exp(rng.uniform(-spread, spread)))
         gain = float(1 + rng.uniform(-1, 1) * ranges["gain"])
         changed = (_warp(batch, theta).clamp(0, 1).pow(gamma) * gain).clamp(0, 1)
-        mean, _ = model.encode(changed.contiguous(memory_format=torch.channels_last))
-        logits, _ = model.decode(mean)
+        mean, _, skips = model.encode(changed.contiguous(memory_format=torch.channels_last))
+        logits, _ = model.decode(mean, skips)
         inverse = torch.linalg.inv(torch.cat([theta, torch.tensor([[0.0, 0.0, 1.0]])]))[:2]
         stacked = torch.stack([torch.sigmoid(logits.float()), torch.ones_like(plain)], 1)
         back = _warp(stacked, inverse)
@@ -111,9 +111,9 @@ def candidates(
     out: dict[str, list[float]] = {}
     cost: dict[str, float] = {}
     with torch.inference_mode():
-        features = model.features(batch)
+        features, skips = model.encoder_maps(batch)
         mean, logvar = model.posterior(features)
-        mask_logits, heat_logits = model.decode(mean)
+        mask_logits, heat_logits = model.decode(mean, skips)
         plain = torch.sigmoid(mask_logits.float())
         heat = torch.sigmoid(heat_logits.float())
         inside = torch.zeros(plain.shape, dtype=torch.bool)
@@ -147,12 +147,12 @@ def candidates(
             total = torch.zeros(len(batch))
             for _ in range(samples):
                 m, _ = model.posterior(F.dropout2d(features, 0.2, training=True))
-                logits, _ = model.decode(m)
+                logits, _ = model.decode(m, skips)
                 total += soft_iou(torch.sigmoid(logits.float()), plain, inside)
             return [float(1 - v / samples) for v in total]
 
         def latent() -> list[float]:
-            drawn = P.predictive_mask(model, mean, logvar, samples)
+            drawn = P.predictive_mask(model, mean, logvar, samples, skips=skips)
             return [float(1 - v) for v in soft_iou(drawn, plain, inside)]
 
         begun = time.perf_counter()

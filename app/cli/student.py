@@ -77,6 +77,11 @@ def _given(ctx: click.Context, *names: str) -> bool:
 )
 @click.option("--input-size", type=click.IntRange(min=32), help="Square input side (×32).")
 @click.option("--aspect", type=click.Choice(["letterbox", "resize"]), help="Frame → square input.")
+@click.option(
+    "--skips",
+    type=click.IntRange(0, 3),
+    help="Encoder maps (strides 16, 8, 4) fed to the decoder beside the latent (default 0).",
+)
 @click.option("--batch-size", default=8, show_default=True, type=click.IntRange(min=1))
 @click.option("--learning-rate", default=3e-3, show_default=True, type=click.FloatRange(min=0))
 @click.option("--seed", default=0, show_default=True, type=int)
@@ -98,6 +103,7 @@ def train_cmd(
     size: str,
     input_size: int | None,
     aspect: str | None,
+    skips: int | None,
     batch_size: int,
     learning_rate: float,
     seed: int,
@@ -115,7 +121,7 @@ def train_cmd(
     from weldpool_core.student.train import TrainConfig, train_from_folder
 
     settings = load_settings()
-    model_options = ("size", "input_size", "aspect", "encoder_weights", "no_pretrained")
+    model_options = ("size", "input_size", "aspect", "skips", "encoder_weights", "no_pretrained")
     student = None
     if not resume or _given(ctx, *model_options):
         changes: dict[str, Any] = {}
@@ -123,6 +129,8 @@ def train_cmd(
             changes["input_size"] = input_size
         if aspect is not None:
             changes["aspect"] = aspect
+        if skips is not None:
+            changes["skips"] = skips
         if encoder_weights is not None:
             changes["encoder_weights"] = encoder_weights
         if no_pretrained:

@@ -37,7 +37,8 @@ def model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     data = _dataset(root / "data")
     result = run(
         root, "train", str(data), "--out", str(root / "model"), "--epochs", "1",
-        "--model", "light", "--input-size", "64", "--batch-size", "4", "--device", "cpu",
+        "--model", "light", "--input-size", "64", "--skips", "2", "--batch-size", "4",
+        "--device", "cpu",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
@@ -45,6 +46,8 @@ def model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
         summary["best_epoch"] == 1 and summary["train_frames"] + summary["validation_frames"] == 6
     )
     assert "epoch 1/1" in result.stderr  # the progress bar
+    # the model this module's tests predict with and export feeds two encoder maps forward
+    assert json.loads((root / "model" / "config.json").read_text())["student"]["skips"] == 2
     return root / "model", data
 
 

@@ -48,6 +48,9 @@ class HeldOutScores:
         distances: per frame, each true keypoint's distance to its match (NaN: missed).
         uncertainties: the predictor's uncertainty per frame (None without samples).
         parts: its parts per frame (``StudentPrediction.uncertainty_parts``).
+        mask_distances: like ``distances``, for Algorithm 1's keypoints on the *predicted*
+            mask instead of the heatmap's (all NaN where that mask has none): which of the
+            student's two outputs places the corners better.
     """
 
     names: list[str]
@@ -55,6 +58,7 @@ class HeldOutScores:
     distances: list[list[float]]
     uncertainties: list[float | None]
     parts: list[dict[str, float | None] | None] = field(default_factory=list)
+    mask_distances: list[list[float]] = field(default_factory=list)
 
     @property
     def miou(self) -> float:
@@ -68,6 +72,12 @@ class HeldOutScores:
         return float(np.mean(found)) if found else None
 
     @property
+    def mask_med(self) -> float | None:
+        """``med`` of ``mask_distances``."""
+        found = [d for frame in self.mask_distances for d in frame if not np.isnan(d)]
+        return float(np.mean(found)) if found else None
+
+    @property
     def missed(self) -> int:
         """True keypoints without a predicted partner."""
         return sum(int(np.isnan(d)) for frame in self.distances for d in frame)
@@ -78,19 +88,25 @@ def score_predictions(
 ) -> HeldOutScores:
     """IoU and keypoint distances of predictions against frames' true masks (Algorithm 1's
     keypoints, or the frames' own keypoints when given)."""
-    ious, distances = [], []
+    ious, distances, mask_distances = [], [], []
     for prediction, frame in zip(predictions, frames, strict=True):
         ious.append(iou(prediction.mask, frame.mask))
         truth = frame.keypoints
         if truth is None:
             truth = heatmap_from_mask(frame.mask, HeatmapParams(k=k)).keypoints
         distances.append([float(d) for d in match_keypoints(prediction.keypoints, truth)])
+        try:
+            own = heatmap_from_mask(prediction.mask, HeatmapParams(k=k)).keypoints
+        except InvalidInputError:  # an empty or tiny predicted mask
+            own = np.zeros((0, 2))
+        mask_distances.append([float(d) for d in match_keypoints(own, truth)])
     return HeldOutScores(
         [f.name for f in frames],
         ious,
         distances,
         [p.uncertainty for p in predictions],
         [p.uncertainty_parts for p in predictions],
+        mask_distances,
     )
 
 

@@ -54,8 +54,8 @@ class StudentExport(nn.Module):
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean-latent mask probability and heatmap of a batch of frames."""
-        mean, _ = self.student.encode(image)
-        mask_logits, heatmap_logits = self.student.decode(mean)
+        mean, _, skips = self.student.encode(image)
+        mask_logits, heatmap_logits = self.student.decode(mean, skips)
         return torch.sigmoid(mask_logits), torch.sigmoid(heatmap_logits)
 
 

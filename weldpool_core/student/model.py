@@ -10,8 +10,11 @@ step is bilinear rather than a fifth conv stage because the targets are smooth a
 than any other part of training on a CPU (memory traffic, not arithmetic).
 
 The latent is spatial rather than one vector so that the decoder keeps the pool's position
-without learning it from scratch; there are no skip connections, so everything the decoder draws
-passes through the latent and latent samples really move the outputs.
+without learning it from scratch. By default there are no skip connections, so everything the
+decoder draws passes through the latent and latent samples really move the outputs; with
+``skips`` (1–3) the encoder's stride-16, 8 and 4 maps of the frame are added (after a 1×1
+projection) to the decoder's input at the same scale, so fine detail (the pool's front at the
+wire) need not pass through the stride-32 grid (``bench/real_student.py`` measures both).
 
 The encoder takes RGB in [0, 1]; the ImageNet normalisation happens inside the model, so an
 exported model needs nothing but the letterboxed (or resized) frame scaled to [0, 1].
@@ -79,6 +82,8 @@ class StudentConfig:
             (``encoder_weights``: a local ``save_pretrained`` directory or a hub id in the local
             cache; default the encoder's ``hub_id``); random weights otherwise.
         encoder_weights: where the ImageNet weights are, overriding the encoder's hub id.
+        skips: how many of the encoder's finer maps (strides 16, 8, 4, in that order) feed the
+            decoder beside the latent (default 0: none; see the module doc).
     """
 
     encoder: str = "resnet18"
@@ -90,6 +95,7 @@ class StudentConfig:
     k: int = 4
     pretrained: bool = True
     encoder_weights: str | None = None
+    skips: int = 0
 
     def __post_init__(self) -> None:
         problems = []
@@ -101,6 +107,8 @@ class StudentConfig:
             problems.append(f"aspect must be letterbox or resize, not {self.aspect!r}")
         if not 0 < self.width <= 4 or self.latent_channels < 1 or self.k < 1:
             problems.append("width must lie in (0, 4], latent_channels and k be positive")
+        if not 0 <= self.skips <= 3:
+            problems.append(f"skips must be 0 to 3, not {self.skips}")
         if len(self.decoder_channels) != 4 or min(self.decoder_channels) < 1:
             problems.append("decoder_channels must be four positive numbers")
         if problems:
@@ -181,22 +189,40 @@ def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequen
 class Decoder(nn.Module):
     """Latent (stride 32) → two logit channels at the input size (see the module doc)."""
 
-    def __init__(self, latent_channels: int, channels: tuple[int, ...]) -> None:
+    def __init__(
+        self,
+        latent_channels: int,
+        channels: tuple[int, ...],
+        skip_channels: tuple[int, ...] = (),
+    ) -> None:
         super().__init__()
         self.entry = _conv_bn_relu(latent_channels, channels[0], 1)
         stages = []
         previous = channels[0]
+        inputs = []
         for out_channels in channels:
+            inputs.append(previous)
             stages.append(_conv_bn_relu(previous, out_channels, 3))
             previous = out_channels
         self.stages = nn.ModuleList(stages)
+        # skip_channels[i]: the encoder map at stage i's scale (stride 16, 8, 4), added after
+        # a 1×1 projection before the stage's conv
+        self.skips = nn.ModuleList(nn.Conv2d(c, inputs[i], 1) for i, c in enumerate(skip_channels))
         self.head = nn.Conv2d(previous, 2, 1)
 
-    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+    def forward(self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()) -> torch.Tensor:
         """Decode an N×C×h×w latent into N×2×32h×32w logits (mask, heatmap)."""
+        if len(skips) != len(self.skips):
+            plural = "" if len(self.skips) == 1 else "s"
+            raise ValueError(
+                f"This decoder takes {len(self.skips)} skip map{plural}, not {len(skips)}."
+            )
         features = self.entry(latent)
-        for stage in self.stages:
-            features = stage(F.interpolate(features, scale_factor=2.0, mode="nearest"))
+        for index, stage in enumerate(self.stages):
+            features = F.interpolate(features, scale_factor=2.0, mode="nearest")
+            if index < len(self.skips):
+                features = features + self.skips[index](skips[index])
+            features = stage(features)
         logits = self.head(features)
         return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
 
@@ -228,8 +254,11 @@ class ResNetVAE(nn.Module):
         self.stages = resnet.encoder
         features = config.channels(config.spec.widths[-1])
         self.to_latent = nn.Conv2d(features, 2 * config.latent_channels, 1)
+        widths = [config.channels(w) for w in config.spec.widths]
         self.decoder = Decoder(
-            config.latent_channels, tuple(config.channels(c) for c in config.decoder_channels)
+            config.latent_channels,
+            tuple(config.channels(c) for c in config.decoder_channels),
+            tuple(widths[2::-1][: config.skips]),
         )
         self.register_buffer("pixel_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
         self.register_buffer("pixel_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
@@ -239,38 +268,52 @@ class ResNetVAE(nn.Module):
             # the heatmap is mostly 0: start it low (as CenterNet does)
             cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
 
+    def encoder_maps(self, images: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+        """The encoder's last feature map (N×F×S/32×S/32) of RGB images in [0, 1], and the
+        maps its decoder takes as skips (strides 16, 8, 4; ``config.skips`` of them)."""
+        pixels = (images - self.pixel_mean) / self.pixel_std
+        if not self.config.skips:
+            return self.stages(self.stem(pixels), return_dict=False)[0], ()
+        last, hidden = self.stages(self.stem(pixels), output_hidden_states=True, return_dict=False)
+        return last, tuple(hidden[3:0:-1][: self.config.skips])
+
     def features(self, images: torch.Tensor) -> torch.Tensor:
         """The encoder's last feature map (N×F×S/32×S/32) of RGB images in [0, 1]."""
-        pixels = (images - self.pixel_mean) / self.pixel_std
-        features: torch.Tensor = self.stages(self.stem(pixels), return_dict=False)[0]
-        return features
+        return self.encoder_maps(images)[0]
 
     def posterior(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Latent mean and log-variance of encoder features."""
         mean, logvar = self.to_latent(features).chunk(2, dim=1)
         return mean, logvar.clamp(-12.0, 6.0)
 
-    def encode(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Latent mean and log-variance (N×C×S/32×S/32) of RGB images in [0, 1]."""
-        return self.posterior(self.features(images))
+    def encode(
+        self, images: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, ...]]:
+        """Latent mean and log-variance (N×C×S/32×S/32) of RGB images in [0, 1], and the
+        encoder maps ``decode`` takes with them (none unless ``config.skips``)."""
+        last, skips = self.encoder_maps(images)
+        mean, logvar = self.posterior(last)
+        return mean, logvar, skips
 
-    def decode(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mask logits and heatmap logits (N×S×S each) of a latent."""
-        logits = self.decoder(latent)
+    def decode(
+        self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mask logits and heatmap logits (N×S×S each) of a latent (and the frame's skip maps)."""
+        logits = self.decoder(latent, skips)
         return logits[:, 0], logits[:, 1]
 
     def forward(
         self, images: torch.Tensor, sample: bool = True, generator: torch.Generator | None = None
     ) -> StudentOutput:
         """Encode, sample the latent (or take its mean when ``sample`` is False), decode."""
-        mean, logvar = self.encode(images)
+        mean, logvar, skips = self.encode(images)
         latent = mean
         if sample:
             noise = torch.randn(
                 mean.shape, generator=generator, device=mean.device, dtype=mean.dtype
             )
             latent = mean + noise * torch.exp(0.5 * logvar)
-        mask_logits, heatmap_logits = self.decode(latent)
+        mask_logits, heatmap_logits = self.decode(latent, skips)
         return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
 
 

@@ -166,6 +166,7 @@ def predictive_mask(
     logvar: torch.Tensor,
     samples: int,
     seed: int = UNCERTAINTY_SEED,
+    skips: tuple[torch.Tensor, ...] = (),
 ) -> torch.Tensor:
     """The mean mask probability (N×S×S, float32) over ``samples`` seeded latent draws (the
     same draws for every frame, so a frame's score does not depend on its batch)."""
@@ -174,7 +175,7 @@ def predictive_mask(
     spread = torch.exp(0.5 * logvar.float())
     for _ in range(samples):
         noise = torch.randn((1, *mean.shape[1:]), generator=generator).to(mean.device)
-        logits, _ = model.decode((mean.float() + noise * spread).to(mean.dtype))
+        logits, _ = model.decode((mean.float() + noise * spread).to(mean.dtype), skips)
         total = total + torch.sigmoid(logits.float())
     return total / samples
 
@@ -291,13 +292,14 @@ class StudentPredictor:
         batch = batch.to(self.device).contiguous(memory_format=torch.channels_last)
         autocast = torch.autocast(self.device.type, self.dtype, enabled=self.dtype != torch.float32)
         with torch.inference_mode(), autocast:
-            features = self.model.features(batch)
+            features, skips = self.model.encoder_maps(batch)
             mean, logvar = self.model.posterior(features)
-            mask_logits, heatmap_logits = self.model.decode(mean)
+            mask_logits, heatmap_logits = self.model.decode(mean, skips)
             masks_t = torch.sigmoid(mask_logits.float())
             parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
-                drawn = predictive_mask(self.model, mean, logvar, samples).cpu().numpy()
+                predictive = predictive_mask(self.model, mean, logvar, samples, skips=skips)
+                drawn = predictive.cpu().numpy()
                 inner = list(drawn)
                 for index, geometry in enumerate(geometries):
                     inner[index] = drawn[index, geometry.inner_rows, geometry.inner_columns]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
@@ -21,6 +23,15 @@ def trained(
     """A light student trained for two epochs on eight tiny frames (not accurate, but real)."""
     out = tmp_path_factory.mktemp("student") / "model"
     return train_student(tiny_frames, out, TINY_STUDENT, tiny_config())
+
+
+@pytest.fixture(scope="session")
+def skipped(
+    tmp_path_factory: pytest.TempPathFactory, tiny_frames: list[TrainingFrame]
+) -> TrainResult:
+    """Like ``trained``, with the encoder's stride-16, 8 and 4 maps fed to the decoder."""
+    out = tmp_path_factory.mktemp("skips-student") / "model"
+    return train_student(tiny_frames, out, replace(TINY_STUDENT, skips=3), tiny_config())
 
 
 @pytest.fixture(scope="session")

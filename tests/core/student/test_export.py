@@ -21,7 +21,9 @@ from weldpool_core.student.train import TrainResult
 from weldpool_core.synth import SynthParams, synth_frame
 
 
-def test_onnx_and_torchscript_match_pytorch(trained: TrainResult) -> None:
+@pytest.mark.parametrize("student", ["trained", "skipped"])
+def test_onnx_and_torchscript_match_pytorch(student: str, request: pytest.FixtureRequest) -> None:
+    trained: TrainResult = request.getfixturevalue(student)
     result = export_student(trained.model_dir)
     assert set(result.files) == {"onnx", "torchscript"}
     assert all(d <= 1e-4 for d in result.differences.values())

@@ -61,8 +61,10 @@ def test_samples_have_the_posterior_mean_and_standard_deviation(monkeypatch) -> 
     mean = torch.full((4000, 2, 1, 1), 3.0)
     logvar = torch.full((4000, 2, 1, 1), float(2 * torch.log(torch.tensor(2.0))))  # σ = 2
     seen: list[torch.Tensor] = []
-    monkeypatch.setattr(model, "encode", lambda images: (mean, logvar))
-    monkeypatch.setattr(model, "decode", lambda latent: (seen.append(latent) or latent, latent))
+    monkeypatch.setattr(model, "encode", lambda images: (mean, logvar, ()))
+    monkeypatch.setattr(
+        model, "decode", lambda latent, skips: (seen.append(latent) or latent, latent)
+    )
     model(torch.zeros(1), sample=True, generator=torch.Generator().manual_seed(0))
     latent = seen[0]
     assert float(latent.mean()) == pytest.approx(3.0, abs=0.1)
@@ -118,3 +120,29 @@ def test_configurations_round_trip_and_bad_ones_are_refused() -> None:
         student_config("huge")
     with pytest.raises(InvalidInputError, match="Unknown student configuration keys"):
         StudentConfig.from_dict({"layers": 3})
+    with pytest.raises(InvalidInputError, match="skips must be 0 to 3"):
+        StudentConfig(skips=4)
+    saved_before_skips = {k: v for k, v in config.as_dict().items() if k != "skips"}
+    assert StudentConfig.from_dict(saved_before_skips).skips == 0
+
+
+def test_skips_carry_the_frames_own_detail_past_the_latent() -> None:
+    """With ``skips`` the decoder adds the encoder's stride-16, 8 and 4 maps of the frame itself:
+    the same latent decodes differently with another frame's maps. Without, nothing passes by
+    the latent."""
+    a, b = torch.rand(2, 1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
+    for skips in (0, 1, 3):
+        torch.manual_seed(0)
+        model = build_student(student_config("light", input_size=64, skips=skips)).model.eval()
+        with torch.no_grad():
+            mean, _, maps_a = model.encode(a)
+            _, _, maps_b = model.encode(b)
+            own = model.decode(mean, maps_a)[0]
+            other = model.decode(mean, maps_b)[0]
+            whole = model(a, sample=False).mask_logits
+        assert [m.shape[-1] for m in maps_a] == [4, 8, 16][:skips]  # strides 16, 8, 4
+        torch.testing.assert_close(own, whole)
+        assert (own - other).abs().max() > 1e-3 if skips else torch.equal(own, other)
+        if skips:
+            with pytest.raises(ValueError, match=f"takes {skips} skip map"):
+                model.decode(mean)

@@ -18,6 +18,7 @@ from weldpool_core.student.sequential.data import LabelledClip
 from weldpool_core.student.sequential.model import SequentialStudent
 from weldpool_core.student.sequential.training import (
     Window,
+    WindowCodes,
     clip_windows,
     encode_windows,
     unroll,
@@ -31,11 +32,12 @@ def _as_batch(window: Window, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(stacked)[None].to(device)
 
 
-def _per_frame_masks(model: SequentialStudent, latents: torch.Tensor) -> torch.Tensor:
-    """The per-frame student's mask probabilities (N×T×S×S) of ``encode_windows`` latents: each
-    frame decoded alone."""
-    mask_logits, _ = model.student.decode(latents.flatten(0, 1))
-    return torch.sigmoid(mask_logits).reshape(*latents.shape[:2], *mask_logits.shape[1:])
+def _per_frame_masks(model: SequentialStudent, codes: WindowCodes, first: int = 0) -> torch.Tensor:
+    """The per-frame student's mask probabilities (N×T′×S×S) of ``encode_windows`` codes from
+    step ``first`` on: each frame decoded alone."""
+    mask_logits, _ = model.student.decode(*codes.frames(first))
+    steps = codes.latents.shape[1] - first
+    return torch.sigmoid(mask_logits).reshape(len(codes.latents), steps, *mask_logits.shape[1:])
 
 
 def measure_sequential(
@@ -67,10 +69,10 @@ def measure_sequential(
     with torch.no_grad():
         for window in windows:
             images = _as_batch(window, device)
-            latents = encode_windows(model, images)  # once for both students
+            codes = encode_windows(model, images)  # once for both students
             last = images.shape[1] - 1 if window.labelled else 0  # a label: its frame only
-            alone = _per_frame_masks(model, latents[:, last:])
-            steady = torch.sigmoid(unroll(model, images, first=last, latents=latents)[0])
+            alone = _per_frame_masks(model, codes, last)
+            steady = torch.sigmoid(unroll(model, images, first=last, codes=codes)[0])
             if window.labelled:
                 truth = window.target.mask >= 128
                 for name, probability in (("per_frame", alone), ("sequential", steady)):

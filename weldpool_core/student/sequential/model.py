@@ -57,9 +57,9 @@ class SequentialStudent(nn.Module):
         self, images: torch.Tensor, state: torch.Tensor | None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Mask logits, heatmap logits (N×S×S) and the new state for one frame per stream."""
-        latent, _ = self.student.encode(images)
+        latent, _, skips = self.student.encode(images)
         new_state = self.cell(latent, state)
-        mask_logits, heatmap_logits = self.student.decode(new_state)
+        mask_logits, heatmap_logits = self.student.decode(new_state, skips)
         return mask_logits, heatmap_logits, new_state
 
 
@@ -74,8 +74,8 @@ class SequentialExport(nn.Module):
     def forward(
         self, image: torch.Tensor, state: torch.Tensor, fresh: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        latent, _ = self.model.student.encode(image)
+        latent, _, skips = self.model.student.encode(image)
         start = fresh * latent + (1 - fresh) * state
         new_state = self.model.cell(latent, start)
-        mask_logits, heatmap_logits = self.model.student.decode(new_state)
+        mask_logits, heatmap_logits = self.model.student.decode(new_state, skips)
         return torch.sigmoid(mask_logits), torch.sigmoid(heatmap_logits), new_state

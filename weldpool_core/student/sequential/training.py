@@ -161,33 +161,56 @@ def _loss(
     return bce + dice_loss(mask_logits, mask) + heatmap_loss(heat_logits, heat)
 
 
-def encode_windows(model: SequentialStudent, images: torch.Tensor) -> torch.Tensor:
-    """The frozen student's latent means (N×T×C×h×w) of N windows of T frames (N×T×3×S×S)."""
+@dataclass(frozen=True)
+class WindowCodes:
+    """The frozen student's encoding of N windows of T frames: latent means (N×T×C×h×w) and
+    the encoder maps its decoder takes with them (each N×T×…; none unless ``skips``)."""
+
+    latents: torch.Tensor
+    skips: tuple[torch.Tensor, ...]
+
+    def step(self, t: int) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+        """Step ``t``'s latents (N×C×h×w) and skip maps."""
+        return self.latents[:, t], tuple(s[:, t] for s in self.skips)
+
+    def frames(self, first: int = 0) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+        """Steps ``first`` on, flattened to frames: latents ((N·T′)×C×h×w) and skip maps."""
+        return self.latents[:, first:].flatten(0, 1), tuple(
+            s[:, first:].flatten(0, 1) for s in self.skips
+        )
+
+
+def encode_windows(model: SequentialStudent, images: torch.Tensor) -> WindowCodes:
+    """The frozen student's encoding of N windows of T frames (N×T×3×S×S)."""
     count, steps = images.shape[:2]
     with torch.no_grad():
         flat = images.flatten(0, 1).contiguous(memory_format=torch.channels_last)
-        mean = model.student.encode(flat)[0]
-    return mean.reshape(count, steps, *mean.shape[1:])
+        mean, _, skips = model.student.encode(flat)
+    return WindowCodes(
+        mean.reshape(count, steps, *mean.shape[1:]),
+        tuple(s.reshape(count, steps, *s.shape[1:]) for s in skips),
+    )
 
 
 def unroll(
     model: SequentialStudent,
     images: torch.Tensor,
     first: int = 0,
-    latents: torch.Tensor | None = None,
+    codes: WindowCodes | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Mask and heatmap logits (N×(T − first)×S×S) of N windows of T frames (N×T×3×S×S), in
     order, from step ``first`` on (training skips step 0: without a past the cell is the
-    identity, so decoding it teaches nothing). ``latents``: the windows' ``encode_windows``
+    identity, so decoding it teaches nothing). ``codes``: the windows' ``encode_windows``
     when already at hand."""
-    latents = encode_windows(model, images) if latents is None else latents
+    codes = encode_windows(model, images) if codes is None else codes
     state = None
     masks, heats = [], []
-    for t in range(latents.shape[1]):
-        state = model.cell(latents[:, t], state)
+    for t in range(codes.latents.shape[1]):
+        latent, skips = codes.step(t)
+        state = model.cell(latent, state)
         if t < first:
             continue
-        mask_logits, heat_logits = model.student.decode(state)
+        mask_logits, heat_logits = model.student.decode(state, skips)
         masks.append(mask_logits)
         heats.append(heat_logits)
     return torch.stack(masks, 1), torch.stack(heats, 1)

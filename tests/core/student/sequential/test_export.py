@@ -13,8 +13,15 @@ from weldpool_core.errors import InvalidInputError
 from weldpool_core.stream import FrameSource, StreamStudent
 from weldpool_core.student import checkpoint
 from weldpool_core.student.sequential import (
+    LabelledClip,
+    SequentialConfig,
     has_sequential,
+    load_sequential,
+    measure_sequential,
+    save_cell,
 )
+from weldpool_core.student.sequential.export import export_sequential_onnx
+from weldpool_core.student.train import TrainResult
 
 
 def test_onnx_and_torch_carry_the_same_state_and_reset_starts_again(
@@ -66,3 +73,35 @@ def test_a_sequential_onnx_export_that_differs_from_pytorch_is_not_kept(
     assert not (stateful_dir / SEQUENTIAL_ONNX).exists()
     monkeypatch.setattr(export, "TOLERANCE", 1e-4)
     assert export_sequential_onnx(stateful_dir).is_file()
+
+
+def test_a_student_with_skips_decodes_the_state_with_each_frames_own_maps(
+    skipped: TrainResult, tmp_path: Path
+) -> None:
+    """The cell carries the latent; the skip maps come from the frame being decoded, in
+    PyTorch, in the ONNX export (kept only when it agrees) and in the measurement's windows."""
+    import shutil
+
+    from tests.core.student.common import synthetic_frames
+    from tests.core.student.sequential.common import gated_cell
+
+    root = Path(shutil.copytree(skipped.model_dir, tmp_path / "model"))
+    student = checkpoint.load_student(root)
+    cell = gated_cell(student.config.latent_channels, update=0.4)
+    save_cell(root, cell, SequentialConfig(device="cpu"), windows=1, losses=[1.0])
+    assert export_sequential_onnx(root).is_file()
+    model = load_sequential(root)
+    a, b = torch.rand(2, 1, 3, 64, 64, generator=torch.Generator().manual_seed(1))
+    with torch.inference_mode():
+        _, _, state = model.step(a, None)
+        mask, _, _ = model.step(b, state)
+        latent_a, _, _ = student.encode(a)
+        latent_b, _, maps_b = student.encode(b)
+        expected = student.decode(latent_a + 0.4 * (latent_b - latent_a), maps_b)[0]
+    torch.testing.assert_close(mask, expected)
+    first = synthetic_frames(1)[0]
+    still = [first.image] * 10  # the state is the frame's own latent: both students agree
+    clip = LabelledClip(still.__getitem__, 10, {9: first}, "still", (7, 8, 9))
+    measured = measure_sequential(root, [clip], SequentialConfig(device="cpu"))
+    assert measured["per_frame_iou"] == measured["sequential_iou"]
+    assert measured["per_frame_change"] == measured["sequential_change"] == 0.0
