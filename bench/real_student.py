@@ -99,6 +99,7 @@ VARIANTS = (
     "skips from the encoder (strides 16, 8, 4)",
     "skips and wider geometry",
     "skips at strides 16 and 8, wider geometry",
+    "skips 2, wider geometry, heatmap weight 3",
 )
 
 
@@ -124,6 +125,10 @@ def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
         VARIANTS[9]: ({"skips": 3}, {}),
         VARIANTS[10]: ({"skips": 3}, {"augmentation": wider}),
         VARIANTS[11]: ({"skips": 2}, {"augmentation": wider}),
+        VARIANTS[12]: (
+            {"skips": 2},
+            {"augmentation": wider, "losses": replace(config.losses, heatmap=3.0)},
+        ),
     }
     if name not in changes:
         raise SystemExit(f"unknown variant {name!r}; use one of: {', '.join(changes)}")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
+from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask, keypoints_from_mask
 from weldpool_core.io import load_rgb8, read_mask
 from weldpool_core.metrics import iou, match_keypoints
 from weldpool_core.student.data import TrainingFrame
@@ -96,7 +96,7 @@ def score_predictions(
             truth = heatmap_from_mask(frame.mask, HeatmapParams(k=k)).keypoints
         distances.append([float(d) for d in match_keypoints(prediction.keypoints, truth)])
         try:
-            own = heatmap_from_mask(prediction.mask, HeatmapParams(k=k)).keypoints
+            own = keypoints_from_mask(prediction.mask, HeatmapParams(k=k))
         except InvalidInputError:  # an empty or tiny predicted mask
             own = np.zeros((0, 2))
         mask_distances.append([float(d) for d in match_keypoints(own, truth)])

@@ -157,7 +157,14 @@ def quantize_onnx(source: Path, target: Path, calibration: NDArray[np.float32]) 
     work_dir = tempfile.TemporaryDirectory(dir=target.parent, prefix=WORK_PREFIX)
     with _quiet_quantizer(), work_dir as work:
         prepared = Path(work) / "prepared.onnx"
-        quant_pre_process(str(source), str(prepared))
+        # auto_merge: a skip connection adds an upsampled map to an encoder map whose sizes
+        # the symbolic inference names apart (they are equal); without it inference gives up.
+        try:
+            quant_pre_process(str(source), str(prepared), auto_merge=True)
+        except Exception as exc:  # ORT raises bare Exceptions from its shape inference
+            raise InvalidInputError(
+                f"ONNX Runtime could not prepare this student for int8 ({exc})."
+            ) from exc
 
         def write(path: Path) -> None:
             quantize_static(

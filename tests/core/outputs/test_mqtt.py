@@ -48,10 +48,13 @@ class Listener:
             time.sleep(0.02)
 
     def close(self) -> None:
-        # A shared broker keeps retained messages: clear this run's status (an empty payload).
-        self.client.publish(f"{self.topic}/status", b"", qos=1, retain=True).wait_for_publish(5)
-        self.client.loop_stop()
-        self.client.disconnect()
+        try:  # a shared broker keeps retained messages: clear this run's status (empty payload)
+            self.client.publish(f"{self.topic}/status", b"", qos=1, retain=True).wait_for_publish(5)
+        except (RuntimeError, ValueError):  # no longer connected: nothing to clear then
+            pass
+        finally:
+            self.client.loop_stop()
+            self.client.disconnect()
 
 
 @pytest.fixture

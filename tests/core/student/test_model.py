@@ -141,6 +141,10 @@ def test_skips_carry_the_frames_own_detail_past_the_latent() -> None:
             other = model.decode(mean, maps_b)[0]
             whole = model(a, sample=False).mask_logits
         assert [m.shape[-1] for m in maps_a] == [4, 8, 16][:skips]  # strides 16, 8, 4
+        if skips == 3:  # the stride-4 map is the first stage's output, not the stem's
+            with torch.no_grad():
+                stem = model.stem((a - model.pixel_mean) / model.pixel_std)
+                torch.testing.assert_close(maps_a[2], model.stages.stages[0](stem))
         torch.testing.assert_close(own, whole)
         assert (own - other).abs().max() > 1e-3 if skips else torch.equal(own, other)
         if skips:

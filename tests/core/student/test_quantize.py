@@ -11,7 +11,7 @@ import numpy as np
 import onnx
 import pytest
 
-from tests.core.student.common import TINY_FRAME
+from tests.core.student.common import TINY_FRAME, TINY_STUDENT, synthetic_frames, tiny_config
 from tests.helpers import run_cli, write_video
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import heatmap_from_mask
@@ -20,7 +20,7 @@ from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import export_student
 from weldpool_core.student.quantize import compare, quantize_student
-from weldpool_core.student.train import TrainResult
+from weldpool_core.student.train import TrainResult, train_student
 from weldpool_core.synth import synth_frame
 
 
@@ -85,6 +85,22 @@ def test_an_int8_student_is_kept_when_its_masks_agree_and_streams_like_the_float
         assert union == 0 or np.count_nonzero(ours & theirs) / union >= 0.9
     with pytest.raises(InvalidInputError, match="frame by frame"):
         StreamStudent(model_dir, "torch", int8=True)
+
+
+def test_a_student_with_skips_quantizes_and_passes_the_same_check(tmp_path: Path) -> None:
+    """The skip connections' additions survive ONNX Runtime's shape inference (auto_merge)
+    and the int8 masks agree with the float ones as the module's limits ask."""
+    from dataclasses import replace
+
+    config = tiny_config(epochs=None, steps=400, rounds=4)
+    trained = train_student(
+        synthetic_frames(8), tmp_path / "model", replace(TINY_STUDENT, skips=2), config
+    )
+    export_student(trained.model_dir, ["onnx"])
+    result = quantize_student(trained.model_dir, _camera_frames())
+    assert result.path.is_file() and result.mean_iou >= 0.97
+    kinds = {node.op_type for node in onnx.load(str(result.path)).graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear"} <= kinds
 
 
 def test_an_int8_student_calibrated_on_the_wrong_frames_is_refused(

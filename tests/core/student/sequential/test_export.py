@@ -19,6 +19,7 @@ from weldpool_core.student.sequential import (
     load_sequential,
     measure_sequential,
     save_cell,
+    unroll,
 )
 from weldpool_core.student.sequential.export import export_sequential_onnx
 from weldpool_core.student.train import TrainResult
@@ -99,6 +100,14 @@ def test_a_student_with_skips_decodes_the_state_with_each_frames_own_maps(
         latent_b, _, maps_b = student.encode(b)
         expected = student.decode(latent_a + 0.4 * (latent_b - latent_a), maps_b)[0]
     torch.testing.assert_close(mask, expected)
+    window = torch.rand(1, 4, 3, 64, 64, generator=torch.Generator().manual_seed(2))
+    with torch.inference_mode():  # training's unroll: each step decoded with its own frame's maps
+        unrolled, _ = unroll(model, window, first=1)
+        state, stepped = None, []
+        for t in range(4):
+            step_mask, _, state = model.step(window[:, t], state)
+            stepped.append(step_mask)
+    torch.testing.assert_close(unrolled, torch.stack(stepped[1:], 1))
     first = synthetic_frames(1)[0]
     still = [first.image] * 10  # the state is the frame's own latent: both students agree
     clip = LabelledClip(still.__getitem__, 10, {9: first}, "still", (7, 8, 9))
