@@ -208,9 +208,10 @@ def within_rho(rows: list[dict], name: str, fold: str) -> tuple[float, ...]:
     return float(np.nanmean(values)), float(low), float(high)
 
 
-def fold_folder(fold: str, seed: int) -> str:
-    """The cached folder's name of a default fold (``real_student.run_folds``'s naming)."""
-    return f"default-{fold.replace(':', '-')}-s{seed}"
+def fold_folder(fold: str, seed: int, tag: str = "default") -> str:
+    """The cached folder's name of a fold (``real_student.run_folds``'s naming: ``default``,
+    or a variant's tag such as ``v11``)."""
+    return f"{tag}-{fold.replace(':', '-')}-s{seed}"
 
 
 def train_fold(
@@ -233,6 +234,12 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=8)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=Path("/tmp/weldpool-bench-students"))
+    parser.add_argument(
+        "--tag",
+        default="default",
+        help="score a variant's students that real_student.py --ablation trained into --cache "
+        "(its tag, e.g. v11) instead of the default's",
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     data = shared_data() / "waam"
@@ -244,7 +251,9 @@ def main() -> None:
     probabilities: dict[tuple[str, int], tuple[torch.Tensor, torch.Tensor]] = {}
     for seed in args.seeds:
         for name, train, test in folds(frames, "loco"):
-            folder = args.cache / fold_folder(name, seed)
+            folder = args.cache / fold_folder(name, seed, args.tag)
+            if args.tag != "default" and not (folder / "bench-done.json").is_file():
+                raise SystemExit(f"{folder} is not trained: run real_student.py --ablation first")
             predictor, seconds = train_fold(frames, train, folder, seed)
             held = [frames[i] for i in test]
             images = [f.image for f in held]
@@ -278,7 +287,8 @@ def main() -> None:
             inside = probabilities[(name, args.seeds[0])][1]
             centre = stack.mean(0)
             spread = 1 - torch.stack([soft_iou(p, centre, inside) for p in stack]).mean(0)
-            predictor = StudentPredictor.load(args.cache / fold_folder(name, args.seeds[0]), "cpu")
+            first = args.cache / fold_folder(name, args.seeds[0], args.tag)
+            predictor = StudentPredictor.load(first, "cpu")
             _, geometries = frames_to_batch([frames[i].image for i in test], predictor.config)
             for j, index in enumerate(test):
                 vote = P.to_frame(
@@ -338,7 +348,8 @@ def main() -> None:
             miou, med = np.mean([r["iou"] for r in mine]), np.nanmean([r["med"] for r in mine])
             cells.append(f"{miou:.3f} / {med:.1f}")
         print(f"  {fold:<10}" + "".join(f"{c:>18}" for c in cells))
-    (args.cache / "rows.json").write_text(json.dumps(rows, indent=1))
+    suffix = "" if args.tag == "default" else f"-{args.tag}"
+    (args.cache / f"rows{suffix}.json").write_text(json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":
