@@ -270,6 +270,8 @@ def bootstrap_rho(
         pick = rng.integers(0, len(x), len(x))
         if np.ptp(x[pick]) > 0 and np.ptp(y[pick]) > 0:
             values.append(spearmanr(x[pick], y[pick])[0])
+    if not values:  # a constant score (novelty on frames of the training clips): no rank
+        return (float("nan"),) * 3
     low, high = np.percentile(values, [2.5, 97.5])
     return float(spearmanr(x, y)[0]), float(low), float(high)
 
