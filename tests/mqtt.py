@@ -28,6 +28,20 @@ def unique_topic(name: str) -> str:
     return f"weldpool-test/{uuid.uuid4().hex[:12]}/{name}"
 
 
+def clear_retained(host: str, port: int, topic: str) -> None:
+    """Remove ``topic``'s retained message from a shared broker (an empty retained payload)."""
+    import paho.mqtt.client as mqtt
+
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    client.connect(host, port)
+    client.loop_start()
+    try:
+        client.publish(topic, b"", qos=1, retain=True).wait_for_publish(5)
+    finally:
+        client.loop_stop()
+        client.disconnect()
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))

@@ -2,7 +2,7 @@
 
 The scores are the ones the paper and the service use: IoU of the predicted mask against the
 true mask, and the distance from each of Algorithm 1's keypoints on the true mask
-(``heatmap.heatmap_from_mask``) to its Hungarian-matched predicted keypoint (mED, pixels).
+(``heatmap.keypoints_from_mask``) to its Hungarian-matched predicted keypoint (mED, pixels).
 Each held-out frame also gets the predictor's ``uncertainty``, so that a benchmark can check
 whether it ranks the student's errors (Spearman ρ against 1 − IoU).
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask, keypoints_from_mask
+from weldpool_core.heatmap import HeatmapParams, keypoints_from_mask
 from weldpool_core.io import load_rgb8, read_mask
 from weldpool_core.metrics import iou, match_keypoints
 from weldpool_core.student.data import TrainingFrame
@@ -93,7 +93,7 @@ def score_predictions(
         ious.append(iou(prediction.mask, frame.mask))
         truth = frame.keypoints
         if truth is None:
-            truth = heatmap_from_mask(frame.mask, HeatmapParams(k=k)).keypoints
+            truth = keypoints_from_mask(frame.mask, HeatmapParams(k=k))
         distances.append([float(d) for d in match_keypoints(prediction.keypoints, truth)])
         try:
             own = keypoints_from_mask(prediction.mask, HeatmapParams(k=k))
