@@ -2,16 +2,21 @@
 
 The queue carries only job ids; the jobs table is the truth about a job's state. A worker is a
 Huey consumer plus a presence thread that reports heartbeats and reaps jobs of dead workers.
+
+Huey (which imports redis and psycopg, ~0.12 s) is imported when a job is first enqueued or a
+consumer starts, not when the web process starts: ``serve --no-worker`` on SQLite answers
+``/health`` by counting the queue's table itself (`sqlite_queue_count`).
 """
 
 from __future__ import annotations
 
+import sqlite3
 import threading
-from typing import Any
+from contextlib import closing
+from functools import cache, cached_property
+from typing import TYPE_CHECKING, Any
 
 import structlog
-from huey import Huey, RedisHuey, SqliteHuey
-from huey.consumer import Consumer
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.config import Settings
@@ -20,6 +25,10 @@ from app.errors import ConfigurationError
 from app.jobs.runner import execute_job, new_worker_id, reap_lost_jobs, record_heartbeat
 from app.models import Worker
 from app.periodic import Periodic
+
+if TYPE_CHECKING:
+    from huey import Huey
+    from huey.consumer import Consumer
 
 log = structlog.get_logger(__name__)
 
@@ -34,16 +43,29 @@ class JobQueue:
         self.session_factory = session_factory
         self.worker_id = new_worker_id()
         self.stopping = threading.Event()  # set when this process's worker shuts down
-        if settings.queue_url:
-            self.backend = "redis"
-            self.huey: Huey = RedisHuey(settings.queue_name, url=settings.queue_url, results=False)
-        else:
-            self.backend = "sqlite"
+        self.backend = "redis" if settings.queue_url else "sqlite"
+        if self.backend == "sqlite":
             settings.home.mkdir(parents=True, exist_ok=True)
-            self.huey = SqliteHuey(
-                settings.queue_name, filename=str(settings.queue_file), results=False
+
+    @cached_property
+    def huey(self) -> Huey:
+        """The Huey instance, made (and Huey imported) on first use."""
+        from huey import RedisHuey, SqliteHuey
+
+        if self.backend == "redis":
+            huey: Huey = RedisHuey(
+                self.settings.queue_name, url=self.settings.queue_url, results=False
             )
-        self._run_job = self.huey.task(name="weldpool.run_job")(self._execute)
+        else:
+            huey = SqliteHuey(
+                self.settings.queue_name, filename=str(self.settings.queue_file), results=False
+            )
+        return huey
+
+    @cached_property
+    def _run_job(self) -> Any:
+        """The one task: run the job row with this id."""
+        return self.huey.task(name="weldpool.run_job")(self._execute)
 
     def _execute(self, job_id: int) -> None:
         execute_job(
@@ -61,11 +83,16 @@ class JobQueue:
 
     def pending(self) -> int:
         """How many job ids wait in the queue (raises when the queue is unreachable)."""
+        if self.backend == "sqlite":
+            return sqlite_queue_count(str(self.settings.queue_file), self.settings.queue_name)
         return int(self.huey.pending_count())
 
     def consumer(self, threads: int, embedded: bool = False) -> Consumer:
         """A Huey consumer for this queue; an embedded one installs no signal handlers."""
-        cls = _EmbeddedConsumer if embedded else Consumer
+        from huey.consumer import Consumer
+
+        self._run_job  # noqa: B018 (the task is registered before the consumer reads tasks)
+        cls = _embedded_consumer() if embedded else Consumer
         # max_delay bounds how long an idle SQLite queue waits between polls (Redis blocks).
         return cls(
             self.huey,
@@ -78,11 +105,32 @@ class JobQueue:
         )
 
 
-class _EmbeddedConsumer(Consumer):  # type: ignore[misc]
+@cache
+def _embedded_consumer() -> type[Consumer]:
     """A consumer that runs inside the web server's process, whose signals belong to uvicorn."""
+    from huey.consumer import Consumer
 
-    def _set_signal_handlers(self) -> None:
-        pass
+    class EmbeddedConsumer(Consumer):  # type: ignore[misc]
+        def _set_signal_handlers(self) -> None:
+            pass
+
+    return EmbeddedConsumer
+
+
+def sqlite_queue_count(filename: str, name: str) -> int:
+    """Job ids waiting in Huey's SQLite queue file, read without importing Huey.
+
+    The same query as Huey's ``SqliteStorage.queue_size`` (a test holds the two equal); a file or
+    table that does not exist yet holds none.
+    """
+    try:
+        with closing(sqlite3.connect(f"file:{filename}?mode=ro", uri=True, timeout=5)) as conn:
+            row = conn.execute("select count(id) from task where queue=?", (name,)).fetchone()
+    except sqlite3.OperationalError as exc:
+        if "no such table" in str(exc) or "unable to open" in str(exc):
+            return 0
+        raise
+    return int(row[0])
 
 
 class WorkerPresence:

@@ -1,16 +1,18 @@
 """Where SAM2's image encoder spends its time on the CPU, block by block, against the FLOP floor.
 
-Run: ``.venv/bin/python bench/sam2_encoder.py [--runs 3] [--threads 2] [--dtype float32|bfloat16]``
+Run: ``.venv/bin/python bench/sam2_encoder.py [--runs 5] [--threads 2] [--dtype float32|bfloat16]``
 (a minute or two; run it alone).
 
-The full-size sam2.1-hiera-tiny architecture with random weights encodes one 1024² input
-(``Sam2Model.get_image_embeddings``, what a click's first embedding and the teacher run). The
-floor is the encoder's FLOPs (``torch.utils.flop_counter``: matmuls, convolutions, and attention,
-whose CPU kernel the counter is taught here)
-at this machine's measured fp32 matmul rate (a 2048³ product, same threads). Each Hiera block,
-the patch embedding and the neck are timed with forward hooks (median of the runs); a ratio is
-the module's time over its own floor. Elementwise work (layer norms, GELU, window partition
-copies, softmax) counts no FLOPs here, so it shows as the ratio above 1 of the blocks that do it.
+The full-size sam2.1-hiera-tiny architecture with random weights encodes one 1024² input, as a
+click's first embedding and the teacher do: transformers' ``Sam2Model.get_image_embeddings``
+(the naive way) and ours, ``hiera.ImageEncoder`` (what ``Sam2Predictor.set_image`` runs),
+alternately. The floor is the encoder's FLOPs (``torch.utils.flop_counter``: matmuls,
+convolutions, and attention, whose CPU kernel the counter is taught here) at this machine's
+measured matmul rate in the same precision (a 2048³ product, same threads). In transformers'
+forward each Hiera block, the patch embedding and the neck are timed with forward hooks; ours is
+timed block by block around the same blocks (median of the runs); a ratio is the part's time
+over its own floor. Elementwise work (layer norms, GELU, window partition copies, softmax)
+counts no FLOPs, so it shows as the ratio above 1 of the blocks that do it.
 """
 
 from __future__ import annotations
@@ -35,9 +37,9 @@ def _cpu_attention_flops(query: Any, key: Any, value: Any, *args: Any, **kwargs:
 CUSTOM = {torch.ops.aten._scaled_dot_product_flash_attention_for_cpu: _cpu_attention_flops}
 
 
-def matmul_rate(runs: int) -> float:
-    """GFLOP/s of a 2048³ fp32 product on this machine (median of ``runs`` × 3)."""
-    a, b = torch.randn(2048, 2048), torch.randn(2048, 2048)
+def matmul_rate(runs: int, dtype: torch.dtype = torch.float32) -> float:
+    """GFLOP/s of a 2048³ product in ``dtype`` on this machine (median of ``runs`` × 3)."""
+    a, b = torch.randn(2048, 2048, dtype=dtype), torch.randn(2048, 2048, dtype=dtype)
     a @ b
     times = []
     for _ in range(3 * runs):
@@ -49,16 +51,21 @@ def matmul_rate(runs: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--dtype", choices=["float32", "bfloat16"], default="float32")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     from transformers import Sam2Config, Sam2Model
 
+    from weldpool_core.teacher import hiera
+
     torch.manual_seed(0)
     dtype = getattr(torch, args.dtype)
-    model = Sam2Model(Sam2Config()).eval().to(dtype)
+    config = Sam2Config()
+    config._attn_implementation = "sdpa"  # as the loader loads it
+    model = Sam2Model(config).eval().to(dtype)
+    encoder = hiera.ImageEncoder(model)
     pixels = torch.randn(1, 3, 1024, 1024, dtype=dtype)
     backbone = model.vision_encoder.backbone
     parts: dict[str, Any] = {"patch embedding": backbone.patch_embed}
@@ -82,15 +89,33 @@ def main() -> None:
         module.register_forward_hook(
             lambda *_, n=name: timings[n].append(time.perf_counter() - started[n])
         )
-    whole = []
+    ours: dict[str, list[float]] = defaultdict(list)  # per run: a banded block's bands summed
+    this_run: dict[str, float] = defaultdict(float)
+    block_of = {id(block): name for name, block in parts.items()}
+    plain_block = hiera._block
+
+    def timed_block(block: Any, hidden: torch.Tensor) -> torch.Tensor:
+        start = time.perf_counter()
+        out = plain_block(block, hidden)
+        this_run[block_of[id(block)]] += time.perf_counter() - start
+        return out
+
+    whole: dict[str, list[float]] = defaultdict(list)
+    paths = {"transformers": model.get_image_embeddings, "ours": encoder}
     with torch.inference_mode():
-        model.get_image_embeddings(pixels)  # warm-up
-        timings.clear()
-        for _ in range(args.runs):
-            start = time.perf_counter()
-            model.get_image_embeddings(pixels)
-            whole.append(time.perf_counter() - start)
-    rate = matmul_rate(args.runs) * 1e9  # measured right after, in the same state
+        for run in range(args.runs + 1):  # the first of each is a warm-up
+            for path, encode in paths.items():
+                hiera._block = timed_block if path == "ours" else plain_block
+                this_run.clear()
+                start = time.perf_counter()
+                encode(pixels)
+                whole[path].append(time.perf_counter() - start)
+            for name, seconds in this_run.items():
+                ours[name].append(seconds)
+            if run == 0:
+                timings.clear(), ours.clear(), whole.clear()
+    hiera._block = plain_block
+    rate = matmul_rate(args.runs, dtype) * 1e9  # measured right after, in the same state
     root = type(model.vision_encoder).__name__  # the counter names modules from the one called
     names = {module: f"{root}.{key}" for key, module in model.vision_encoder.named_modules()}
 
@@ -99,25 +124,31 @@ def main() -> None:
 
     print(
         f"SAM2 hiera-tiny image encoder, 1024², {args.dtype}, {args.threads} threads; "
-        f"fp32 matmul {rate / 1e9:.0f} GFLOP/s; median of {args.runs}\n"
+        f"{args.dtype} matmul {rate / 1e9:.0f} GFLOP/s; median of {args.runs}\n"
     )
-    print("| part | GFLOP | ms | floor ms | × floor |")
-    print("|---|---:|---:|---:|---:|")
-    counted = 0.0
+    print("| part | GFLOP | floor ms | transformers ms | × floor | ours ms | × floor |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+
+    def ratio(ms: float, floor: float) -> str:
+        return f"{ms / floor:.2f}×" if floor > 0.05 else "–"
+
     for name, module in parts.items():
         flops = flops_of(module)
-        ms = 1000 * statistics.median(timings[name])
-        counted += ms
         floor = 1000 * flops / rate
-        ratio = f"{ms / floor:.2f}×" if floor > 0.05 else "–"
-        print(f"| {name} | {flops / 1e9:.2f} | {ms:.1f} | {floor:.1f} | {ratio} |")
-    ms = 1000 * statistics.median(whole)
+        theirs = 1000 * statistics.median(timings[name])
+        mine = f"{1000 * statistics.median(ours[name]):.1f}" if name in ours else "–"
+        mine_ratio = ratio(float(mine), floor) if name in ours else "–"
+        print(
+            f"| {name} | {flops / 1e9:.2f} | {floor:.1f} | {theirs:.1f} | "
+            f"{ratio(theirs, floor)} | {mine} | {mine_ratio} |"
+        )
     floor = 1000 * total_flops / rate
+    theirs, mine = (1000 * statistics.median(whole[path]) for path in paths)
     print(
-        f"| **whole encoder** | {total_flops / 1e9:.2f} | {ms:.1f} | {floor:.1f} | "
-        f"{ms / floor:.2f}× |"
+        f"| **whole encoder** | {total_flops / 1e9:.2f} | {floor:.1f} | {theirs:.1f} | "
+        f"**{ratio(theirs, floor)}** | {mine:.1f} | **{ratio(mine, floor)}** |"
     )
-    print(f"\noutside the parts above (pre-/post-processing of the call): {ms - counted:.1f} ms")
+    print(f"\nours ÷ transformers: {mine / theirs:.2f}× the time (the same outputs: a test)")
 
 
 if __name__ == "__main__":

@@ -349,3 +349,21 @@ def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -
     assert without_server_paths("at /usr/lib/x/y.py, 1/2 done", settings.home) == (
         "at y.py, 1/2 done"
     )
+
+
+def test_the_sqlite_queue_is_counted_as_huey_counts_it(tmp_path) -> None:
+    """`/health` counts the SQLite queue without importing Huey; the count must be Huey's own,
+    for this queue's name only, and 0 before the queue file exists."""
+    from app.queue import JobQueue
+    from tests.helpers import make_settings
+
+    queue = JobQueue(make_settings(tmp_path / "a"), None)  # type: ignore[arg-type]
+    other = JobQueue(make_settings(tmp_path / "a"), None)  # type: ignore[arg-type]
+    assert queue.pending() == 0  # no file yet
+    for job_id in range(3):
+        queue.enqueue(job_id)
+    other.enqueue(99)
+    assert queue.pending() == queue.huey.pending_count() == 3
+    assert other.pending() == other.huey.pending_count() == 1
+    queue.huey.dequeue()
+    assert queue.pending() == queue.huey.pending_count() == 2

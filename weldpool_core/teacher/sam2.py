@@ -5,7 +5,8 @@
 prompt coordinates are scaled by 1024 / width and 1024 / height; the 256×256 mask logits are
 resized bilinearly to the frame and thresholded at 0.
 
-``Sam2Predictor.set_image`` runs the image encoder once; ``predict`` then runs only the prompt
+``Sam2Predictor.set_image`` runs the image encoder once (``hiera.ImageEncoder``: transformers'
+encoder re-stated without its unused work, same numbers); ``predict`` then runs only the prompt
 encoder and the mask decoder. The decoder pass is our own re-statement of transformers'
 ``Sam2MaskDecoder`` (same weights, same numbers; a test checks it against ``Sam2Model``) that
 computes what does not depend on the prompt once per image: the image tokens in token-major
@@ -26,6 +27,7 @@ from transformers import Sam2Config, Sam2Model
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.teacher.dino import IMAGENET_MEAN, IMAGENET_STD
+from weldpool_core.teacher.hiera import ImageEncoder
 
 SAM2_INPUT_SIZE = 1024
 PREPROCESSING_VERSION = 1
@@ -150,6 +152,7 @@ class Sam2Predictor:
         with torch.inference_mode():
             pe = self.model.get_image_wide_positional_embeddings()  # 1 × C × 64 × 64
         self._image_pe = pe.flatten(2).transpose(1, 2).contiguous().to(self.dtype)  # 1×4096×C
+        self._encoder = ImageEncoder(self.model)
 
     @classmethod
     def from_config(cls, config: Sam2Config, device: torch.device | None = None) -> Sam2Predictor:
@@ -180,7 +183,7 @@ class Sam2Predictor:
     @torch.inference_mode()
     def set_image(self, image: NDArray[np.uint8]) -> ImageEmbedding:
         """Run the image encoder once; the returned embedding serves every later prompt."""
-        features = self.model.get_image_embeddings(self.preprocess(image))
+        features = self._encoder(self.preprocess(image))
         s0, s1, top = (f.contiguous() for f in features)
         return ImageEmbedding((s0, s1, top), (int(image.shape[0]), int(image.shape[1])))
 

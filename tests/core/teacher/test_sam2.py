@@ -73,7 +73,9 @@ def test_decoder_with_a_previous_mask_equals_sam2model(predictor, embedding) -> 
 
 def test_clicks_after_set_image_never_run_the_image_encoder(predictor) -> None:
     calls = []
-    hook = predictor.model.vision_encoder.register_forward_hook(lambda *a: calls.append(1))
+    # The encoder's first layer (the encoder itself runs as hiera.ImageEncoder, not forward).
+    stem = predictor.model.vision_encoder.backbone.patch_embed.projection
+    hook = stem.register_forward_hook(lambda *a: calls.append(1))
     try:
         embedding = predictor.set_image(FRAME)
         assert len(calls) == 1

@@ -65,7 +65,9 @@ def test_second_run_reuses_the_cached_embedding(models, frame, tmp_path: Path) -
     cache = EmbeddingCache(tmp_path)
     teacher = Teacher(dino, sam2, "tiny-sam2", cache)
     calls = []
-    hook = sam2.model.vision_encoder.register_forward_hook(lambda *a: calls.append(1))
+    hook = sam2.model.vision_encoder.backbone.patch_embed.projection.register_forward_hook(
+        lambda *a: calls.append(1)
+    )
     try:
         first = teacher.run(frame, image_sha256="f" * 64)
         second = teacher.run(frame, image_sha256="f" * 64)
@@ -83,7 +85,9 @@ def test_a_run_stops_after_the_stage_where_it_is_asked_to(models, frame) -> None
     dino, sam2 = models
     teacher = Teacher(dino, sam2, "tiny-sam2")
     encoded = []
-    hook = sam2.model.vision_encoder.register_forward_hook(lambda *a: encoded.append(1))
+    hook = sam2.model.vision_encoder.backbone.patch_embed.projection.register_forward_hook(
+        lambda *a: encoded.append(1)
+    )
 
     class Stop(Exception):
         pass

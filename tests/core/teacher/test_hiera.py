@@ -1,0 +1,67 @@
+"""SAM2's image encoder re-stated (``hiera.ImageEncoder``) gives transformers' numbers.
+
+The tiny config keeps every path of the full one: windows that tile the map and windows that
+need padding (14 on 64²), query pooling at each stage change, a global-attention block, the
+FPN's top-down levels, the decoder's two projections and the no-memory embedding; here with
+several heads per stage (as the full model has), so the heads' channel order is checked too.
+Every parameter is random (biases and positional embeddings too), so a dropped term cannot pass.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from tests.models import randomize, tiny_sam2_config
+from weldpool_core.teacher import hiera
+from weldpool_core.teacher.hiera import ImageEncoder
+
+PIXELS = torch.randn(1, 3, 1024, 1024, generator=torch.Generator().manual_seed(5))
+
+
+@pytest.fixture(scope="module")
+def model():
+    from transformers import Sam2Model
+
+    config = tiny_sam2_config()
+    config.vision_config.backbone_config.num_attention_heads_per_stage = [1, 2, 2, 4]
+    config._attn_implementation = "sdpa"
+    torch.manual_seed(0)
+    return randomize(Sam2Model(config), seed=4).eval()
+
+
+def _compare(model, pixels, rtol: float, atol: float) -> None:
+    with torch.inference_mode():
+        theirs = model.get_image_embeddings(pixels)
+        ours = ImageEncoder(model)(pixels)
+    assert len(ours) == len(theirs) == 3
+    for mine, reference in zip(ours, theirs, strict=True):
+        assert mine.shape == reference.shape and mine.dtype == reference.dtype
+        scale = float(reference.float().abs().max())
+        torch.testing.assert_close(mine.float(), reference.float(), rtol=rtol, atol=atol * scale)
+
+
+def test_the_encoder_equals_transformers_forward_in_fp32(model) -> None:
+    _compare(model, PIXELS, rtol=1e-5, atol=1e-5)
+
+
+def test_the_encoder_equals_transformers_forward_in_bf16(model) -> None:
+    """bf16 (a GPU's precision, and CPUs with AMX): the fused kernels round once where the
+    separate ops round twice, so the two agree to bf16's precision, not to the bit."""
+    _compare(copy.deepcopy(model).to(torch.bfloat16), PIXELS.bfloat16(), rtol=0.02, atol=0.02)
+
+
+def test_the_encoder_without_onednn_equals_transformers_forward(model, monkeypatch) -> None:
+    """Where oneDNN is absent (or on a GPU) each layer runs as separate PyTorch ops."""
+    monkeypatch.setattr(hiera, "_ONEDNN", False)
+    _compare(model, PIXELS, rtol=1e-5, atol=1e-5)
+
+
+def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
+    encoder = ImageEncoder(model)
+    with torch.inference_mode():
+        encoder(PIXELS)
+        encoder(PIXELS)
+    assert len(encoder._positions) == 1

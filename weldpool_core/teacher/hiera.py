@@ -1,0 +1,262 @@
+"""SAM2's image encoder for inference: ``Sam2Model.get_image_embeddings``'s numbers, less traffic.
+
+transformers' forward (the Hiera backbone, the FPN neck and the decoder's two projections) spends
+as much time moving memory as multiplying on the CPU (``bench/sam2_encoder.py``): every
+attention also computes a per-token head-by-head softmax it never uses, the neck computes a sine
+positional encoding for every level that ``get_image_embeddings`` drops, the windowed
+positional embedding is re-interpolated from the weights on every frame, and each window
+partition, unpartition and attention output is copied twice, every linear layer writes its
+output twice (the bias first), and the neck's 1×1 convolutions read channels-last views as
+strided images. ``ImageEncoder`` re-states the same computation with the same weights (a test
+holds it equal to transformers' forward in fp32 and bf16): the dropped work is skipped, the
+positional embedding is kept per input size, the window unpartition is fused into the residual
+sum, the 1×1 convolutions and poolings run on the ``(B, H, W, C)`` maps as they are, and on the
+CPU each linear layer is one oneDNN call with its bias, GELU or residual sum fused in (the
+kernels PyTorch's own compiler emits for these layers; they round as the separate ops do in fp32).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+_ONEDNN: bool = torch.backends.mkldnn.is_available()  # type: ignore[no-untyped-call]
+
+
+def _fused(hidden: torch.Tensor) -> bool:
+    """Whether oneDNN's fused linear serves this tensor: on the CPU, in fp32, or in bf16 where
+    the processor has bf16 instructions."""
+    if not _ONEDNN or hidden.device.type != "cpu":
+        return False
+    if hidden.dtype == torch.float32:
+        return True
+    return hidden.dtype == torch.bfloat16 and bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
+
+class ImageEncoder:
+    """``model.get_image_embeddings(pixels)`` for a ``Sam2Model`` in eval mode, in inference."""
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+        self._positions: dict[tuple[int, int, torch.dtype, torch.device], torch.Tensor] = {}
+
+    @torch.inference_mode()
+    def __call__(self, pixels: torch.Tensor) -> list[torch.Tensor]:
+        """Pixels ``(B, 3, 1024, 1024)`` → the three feature maps, highest resolution first."""
+        vision = self.model.vision_encoder
+        stages = self._backbone(vision.backbone, pixels)
+        levels = _neck(vision.neck, stages)[-vision.num_feature_levels :][::-1]
+        decoder = self.model.mask_decoder
+        levels[0] = _conv(decoder.conv_s0, levels[0])
+        levels[1] = _conv(decoder.conv_s1, levels[1])
+        levels[-1] = levels[-1] + self.model.no_memory_embedding.view(1, 1, 1, -1)
+        return [level.permute(0, 3, 1, 2) for level in levels]
+
+    def _position(self, backbone: Any, height: int, width: int, like: torch.Tensor) -> torch.Tensor:
+        """The backbone's positional embedding at this size, ``(1, H, W, C)`` (weights only)."""
+        key = (height, width, like.dtype, like.device)
+        if key not in self._positions:
+            self._positions[key] = backbone._get_pos_embed((height, width)).contiguous()
+        return self._positions[key]
+
+    def _backbone(self, backbone: Any, pixels: torch.Tensor) -> list[torch.Tensor]:
+        """The Hiera blocks; the output of each stage's last block, ``(B, H, W, C)``."""
+        projection = backbone.patch_embed.projection
+        hidden = projection(pixels.to(projection.weight.dtype)).permute(0, 2, 3, 1)
+        hidden = hidden + self._position(backbone, hidden.shape[1], hidden.shape[2], hidden)
+        blocks = list(backbone.blocks)
+        ends = set(backbone.stage_ends)
+        local, rows = _local_blocks(blocks, hidden.shape[1], hidden.shape[2])
+        stages: list[torch.Tensor] = []
+        if local:
+            # The first blocks see only their own windows: run them a band of rows at a time.
+            # A band's tensors stay small enough for the allocator to reuse (a whole 256² map's
+            # are not: each would be mapped and page-faulted anew on every frame) and in cache.
+            kept = [index for index in range(local) if index in ends or index == local - 1]
+            bands: dict[int, list[torch.Tensor]] = {index: [] for index in kept}
+            for top in range(0, hidden.shape[1], rows):
+                band = hidden[:, top : top + rows]
+                for index in range(local):
+                    band = _block(blocks[index], band)
+                    if index in bands:
+                        bands[index].append(band)
+            joined = {index: torch.cat(parts, dim=1) for index, parts in bands.items()}
+            stages = [joined[index] for index in kept if index in ends]
+            hidden = joined[local - 1]
+        for index in range(local, len(blocks)):
+            hidden = _block(blocks[index], hidden)
+            if index in ends:
+                stages.append(hidden)
+        return stages
+
+
+BAND_TOKENS = 8192
+"""About how many tokens of the first map one band of the window-local blocks holds (measured:
+4,096 and 16,384 were slower on 2 cores)."""
+
+
+def _local_blocks(blocks: list[Any], height: int, width: int) -> tuple[int, int]:
+    """How many leading blocks attend within windows that tile the map without padding, and
+    the band height (rows of the first map) whose windows all those blocks share."""
+    scale, rows, count = 1, 1, 0
+    for block in blocks:
+        window = block.window_size
+        h, w = height // scale, width // scale
+        if window <= 0 or h % window or w % window:
+            break
+        stride = block.query_stride[0] if block.query_stride else 1
+        if block.query_stride and (len(set(block.query_stride)) > 1 or window % stride):
+            break
+        rows = math.lcm(rows, window * scale)
+        scale *= stride
+        count += 1
+    if count == 0 or height % rows:
+        return 0, height
+    while rows * 2 * width <= BAND_TOKENS and height % (rows * 2) == 0:
+        rows *= 2
+    return count, rows
+
+
+def _neck(neck: Any, stages: list[torch.Tensor]) -> list[torch.Tensor]:
+    """The FPN's feature maps ``(B, H, W, C)``, lowest resolution first, without the sine
+    positional encodings that ``get_image_embeddings`` does not return."""
+    last = len(neck.convs) - 1
+    levels: list[torch.Tensor] = []
+    previous = stages[last]
+    for i in range(last, -1, -1):
+        lateral = _conv(neck.convs[last - i], stages[i])
+        if i not in neck.fpn_top_down_levels or i == last:
+            previous = lateral
+        else:  # nearest 2× upsampling: each value repeated over a 2×2 block
+            batch, height, width, channels = previous.shape
+            tiles = previous[:, :, None, :, None].expand(batch, height, 2, width, 2, channels)
+            previous = lateral + tiles.reshape(lateral.shape)
+        levels.append(previous)
+    return levels
+
+
+def _conv(conv: Any, hidden: torch.Tensor) -> torch.Tensor:
+    """A ``Conv2d`` on a ``(B, H, W, C)`` map; a 1×1 one (all of SAM2's here) is a linear layer."""
+    if conv.kernel_size == (1, 1) and conv.stride == (1, 1) and conv.padding in ((0, 0), "valid"):
+        return _linear(hidden, conv.weight.flatten(1), conv.bias)
+    out: torch.Tensor = conv(hidden.permute(0, 3, 1, 2))
+    return out.permute(0, 2, 3, 1)
+
+
+def _linear(
+    hidden: torch.Tensor,
+    weight: torch.Tensor,
+    bias: torch.Tensor | None,
+    gelu: bool = False,
+    residual: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """``residual + gelu(hidden @ weightᵀ + bias)`` (each part optional) over the last axis; on
+    the CPU one oneDNN matmul with the bias and the GELU or the sum in its epilogue."""
+    if bias is not None and _fused(hidden):
+        flat = hidden.reshape(-1, hidden.shape[-1])
+        out: torch.Tensor
+        if residual is not None and not gelu:
+            other = residual.reshape(-1, weight.shape[0])
+            out = torch.ops.mkldnn._linear_pointwise.binary(flat, other, weight, bias, "add")
+        else:
+            attr = "gelu" if gelu else "none"
+            out = torch.ops.mkldnn._linear_pointwise(flat, weight, bias, attr, [], "none")
+            if residual is not None:
+                out = residual.reshape(out.shape) + out
+        return out.view(*hidden.shape[:-1], weight.shape[0])
+    plain = F.linear(hidden, weight, bias)
+    plain = F.gelu(plain) if gelu else plain
+    return plain if residual is None else residual + plain
+
+
+def _block(block: Any, hidden: torch.Tensor) -> torch.Tensor:
+    """One ``Sam2MultiScaleBlock``: windowed (or global) attention with optional query pooling,
+    then the MLP, each with its residual."""
+    norm1, norm2 = block.layer_norm1, block.layer_norm2
+    normed = F.layer_norm(hidden, norm1.normalized_shape, norm1.weight, norm1.bias, norm1.eps)
+    stride = block.query_stride
+    residual = hidden
+    if block.dim != block.dim_out:
+        residual = _pool(_linear(normed, block.proj.weight, block.proj.bias), stride)
+    window = block.window_size
+    if window > 0:
+        attended = _attention(block.attn, _partition(normed, window))
+        hidden = _add_unpartitioned(residual, attended, window // (stride[0] if stride else 1))
+    else:
+        hidden = _attention(block.attn, normed, residual)
+    normed = F.layer_norm(hidden, norm2.normalized_shape, norm2.weight, norm2.bias, norm2.eps)
+    mlp = block.mlp
+    gelu = _is_exact_gelu(mlp.activation)
+    inner = _linear(normed, mlp.proj_in.weight, mlp.proj_in.bias, gelu=gelu)
+    inner = inner if gelu else mlp.activation(inner)
+    for layer in mlp.layers:
+        inner = _linear(inner, layer.weight, layer.bias, gelu=gelu)
+        inner = inner if gelu else mlp.activation(inner)
+    return _linear(inner, mlp.proj_out.weight, mlp.proj_out.bias, residual=hidden)
+
+
+def _is_exact_gelu(activation: Any) -> bool:
+    """Whether ``activation`` is the erf GELU (transformers' ``GELUActivation``, SAM2's)."""
+    return type(activation).__name__ == "GELUActivation" and not getattr(
+        activation, "use_gelu_python", False
+    )
+
+
+def _pool(hidden: torch.Tensor, stride: Any) -> torch.Tensor:
+    """Max pooling of a ``(B, H, W, C)`` map by ``stride`` (transformers' ``do_pool``), read in
+    place: the maximum over each ``stride`` block of a strided view."""
+    if not stride:
+        return hidden
+    batch, height, width, channels = hidden.shape
+    (sh, sw), rows, cols = stride, height // stride[0], width // stride[1]
+    blocks = hidden[:, : rows * sh, : cols * sw].reshape(batch, rows, sh, cols, sw, channels)
+    return blocks.amax(dim=(2, 4))
+
+
+def _attention(
+    attn: Any, tokens: torch.Tensor, residual: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``Sam2MultiScaleAttention`` on ``(B, h, w, C)`` windows, without the unused weights
+    (plus ``residual``, when given, summed in the output projection)."""
+    batch, height, width, _ = tokens.shape
+    heads = attn.num_attention_heads
+    qkv = _linear(tokens, attn.qkv.weight, attn.qkv.bias).view(batch, height, width, 3, -1)
+    query = qkv[..., 0, :]
+    if attn.query_stride:  # pooled over (h, w) with channels in transformers' (heads, d) order
+        query = _pool(query, attn.query_stride)
+    height, width = query.shape[1:3]
+    query = query.reshape(batch, height * width, heads, -1).transpose(1, 2)
+    key, value = qkv.view(batch, -1, 3, heads, qkv.shape[-1] // heads)[:, :, 1:].permute(
+        2, 0, 3, 1, 4
+    )
+    out = F.scaled_dot_product_attention(query, key, value, scale=attn.scale)
+    out = out.transpose(1, 2).reshape(batch, height, width, -1)
+    return _linear(out, attn.proj.weight, attn.proj.bias, residual=residual)
+
+
+def _partition(hidden: torch.Tensor, window: int) -> torch.Tensor:
+    """``(B, H, W, C)`` → ``(B · windows, window, window, C)``, zero-padded to whole windows."""
+    batch, height, width, channels = hidden.shape
+    pad_h, pad_w = (-height) % window, (-width) % window
+    if pad_h or pad_w:
+        hidden = F.pad(hidden, (0, 0, 0, pad_w, 0, pad_h))
+    rows, cols = (height + pad_h) // window, (width + pad_w) // window
+    grid = hidden.view(batch, rows, window, cols, window, channels).permute(0, 1, 3, 2, 4, 5)
+    return grid.reshape(-1, window, window, channels)
+
+
+def _add_unpartitioned(residual: torch.Tensor, windows: torch.Tensor, window: int) -> torch.Tensor:
+    """``residual + unpartition(windows)``: the windows are read in place by the sum where no
+    padding is cut off (one pass instead of a copy and a sum)."""
+    batch, height, width, channels = residual.shape
+    pad_h, pad_w = (-height) % window, (-width) % window
+    rows, cols = (height + pad_h) // window, (width + pad_w) // window
+    grid = windows.view(batch, rows, cols, window, window, -1).permute(0, 1, 3, 2, 4, 5)
+    if pad_h or pad_w:
+        full = grid.reshape(batch, height + pad_h, width + pad_w, -1)
+        return residual + full[:, :height, :width]
+    tiled = residual.reshape(batch, rows, window, cols, window, channels)
+    return torch.add(tiled, grid).view(batch, height, width, channels)
