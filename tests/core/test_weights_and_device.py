@@ -43,3 +43,45 @@ def test_device_resolution() -> None:
     if not torch.cuda.is_available():
         with pytest.raises(InvalidInputError, match="no such CUDA device"):
             resolve_device("cuda:1")
+
+
+def test_the_hub_cache_is_read_as_huggingface_hub_reads_it(tmp_path: Path) -> None:
+    """`cached_snapshot` (no hub import at start-up) finds what `try_to_load_from_cache`
+    finds: nothing for an unknown id or an empty repo folder, the snapshot that refs/main
+    names (not another one), and a status that is ready only with weights in it."""
+    from huggingface_hub import try_to_load_from_cache
+
+    from weldpool_core.teacher.weights import cached_snapshot
+
+    def hubs(ref: str) -> Path | None:
+        found = try_to_load_from_cache(ref, "config.json", cache_dir=tmp_path)
+        return Path(found).parent if isinstance(found, str) else None
+
+    ref = "facebook/sam2.1-hiera-tiny"
+    repo = tmp_path / "models--facebook--sam2.1-hiera-tiny"
+    assert cached_snapshot(ref, tmp_path) is None is hubs(ref)
+    (repo / "refs").mkdir(parents=True)
+    assert cached_snapshot(ref, tmp_path) is None is hubs(ref)
+    for commit in ("a" * 40, "b" * 40):
+        (repo / "snapshots" / commit).mkdir(parents=True)
+        (repo / "snapshots" / commit / "config.json").write_text("{}")
+    (repo / "refs" / "main").write_text("b" * 40)
+    assert cached_snapshot(ref, tmp_path) == repo / "snapshots" / ("b" * 40) == hubs(ref)
+    assert cached_snapshot("facebook/dino-vits8", tmp_path) is None is hubs("facebook/dino-vits8")
+
+
+def test_a_hub_snapshot_with_weights_is_ready(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from huggingface_hub import constants
+
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path))
+    snapshot = tmp_path / "models--facebook--dino-vits8" / "snapshots" / ("c" * 40)
+    snapshot.mkdir(parents=True)
+    (tmp_path / "models--facebook--dino-vits8" / "refs").mkdir()
+    (tmp_path / "models--facebook--dino-vits8" / "refs" / "main").write_text("c" * 40)
+    (snapshot / "config.json").write_text("{}")
+    assert not weights_status("facebook/dino-vits8", "WELDPOOL_DINO").available
+    (snapshot / "model.safetensors").write_bytes(b"")
+    status = weights_status("facebook/dino-vits8", "WELDPOOL_DINO")
+    assert status.available and status.source == "hub" and status.path == str(snapshot)

@@ -44,6 +44,25 @@ def _weights_in(directory: Path) -> bool:
     )
 
 
+def cached_snapshot(ref: str, cache_dir: str | Path | None = None) -> Path | None:
+    """The hub cache's folder of ``ref``'s ``main`` revision, or None where it has none.
+
+    The cache's documented layout (``models--org--name/refs/main`` names the snapshot), read
+    as ``huggingface_hub.try_to_load_from_cache`` reads it (a test holds the two equal) but
+    without importing the hub's download machinery (~0.1 s): ``/health`` asks on every call,
+    the first one while a web process starts.
+    """
+    from huggingface_hub import constants
+
+    repo = Path(cache_dir or constants.HF_HUB_CACHE) / ("models--" + ref.replace("/", "--"))
+    try:
+        revision = (repo / "refs" / "main").read_text().strip()
+    except OSError:
+        revision = "main"
+    snapshot = repo / "snapshots" / revision
+    return snapshot if (snapshot / "config.json").is_file() else None
+
+
 def weights_status(ref: str, setting: str) -> WeightsStatus:
     """Whether the model ``ref`` (the value of the variable ``setting``) is ready to load."""
     if _looks_local(ref):
@@ -59,13 +78,9 @@ def weights_status(ref: str, setting: str) -> WeightsStatus:
             f"{directory} holds no config.json with model weights; set {setting} to a "
             "directory written by save_pretrained or to a Hugging Face model id.",
         )
-    from huggingface_hub import try_to_load_from_cache
-
-    config = try_to_load_from_cache(ref, "config.json")
-    if isinstance(config, str):
-        snapshot = Path(config).parent
-        if _weights_in(snapshot):
-            return WeightsStatus(ref, setting, "hub", True, str(snapshot), "ready (hub cache)")
+    snapshot = cached_snapshot(ref)
+    if snapshot is not None and _weights_in(snapshot):
+        return WeightsStatus(ref, setting, "hub", True, str(snapshot), "ready (hub cache)")
     return WeightsStatus(
         ref,
         setting,
