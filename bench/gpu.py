@@ -6,6 +6,8 @@ product's one loader, so device, precision and the weights' identity are chosen 
 production. Steps, each timed, with a verdict:
 
 1. load  — both models through ``weldpool_core.teacher.loader`` (bf16 on CUDA).
+1b. encoder — ``hiera.ImageEncoder`` (what ``set_image`` runs) against transformers'
+   ``get_image_embeddings`` on the device, in its precision: same outputs, and both timed.
 2. teacher — ``Teacher.run`` on a 1280×800 frame (a real WAAM frame when ../shared is here),
    its embedding written to a disk cache.
 3. click from disk — a new cache on the same folder (another process's view): the embedding
@@ -124,6 +126,21 @@ def main() -> int:
                 raise AssertionError(f"SAM2 loaded in {got}, expected {dtype}")
             return f"SAM2 {got[0]}, identity {state['sam2'].cache_identity[-40:]}"
 
+        def encoder() -> str:
+            predictor = state["sam2"]
+            pixels = predictor.preprocess(frame)
+            with torch.inference_mode():
+                ours_ms, ours = _median_ms(lambda: predictor._encoder(pixels), args.runs, device)
+                theirs_ms, theirs = _median_ms(
+                    lambda: predictor.model.get_image_embeddings(pixels), args.runs, device
+                )
+            for mine, reference in zip(ours, theirs, strict=True):
+                scale = float(reference.float().abs().max())
+                error = float((mine.float() - reference.float()).abs().max())
+                if error > 0.02 * scale:
+                    raise AssertionError(f"encoder differs by {error:.3g} (scale {scale:.3g})")
+            return f"ours {ours_ms:.1f} ms, transformers {theirs_ms:.1f} ms, outputs equal"
+
         def teacher() -> str:
             from weldpool_core.teacher.cache import EmbeddingCache
             from weldpool_core.teacher.teacher import Teacher
@@ -219,6 +236,7 @@ def main() -> int:
             return ", ".join(f"{name} max diff {d:.1e}" for name, d in result.differences.items())
 
         step("load", load)
+        step("encoder", encoder)
         step("teacher", teacher)
         step("click from disk", click_from_disk)
         step("propagate", propagate)

@@ -47,12 +47,20 @@ class ImageEncoder:
     @torch.inference_mode()
     def __call__(self, pixels: torch.Tensor) -> list[torch.Tensor]:
         """Pixels ``(B, 3, 1024, 1024)`` → the three feature maps, highest resolution first."""
-        vision = self.model.vision_encoder
-        stages = self._backbone(vision.backbone, pixels)
-        levels = _neck(vision.neck, stages)[-vision.num_feature_levels :][::-1]
-        decoder = self.model.mask_decoder
-        levels[0] = _conv(decoder.conv_s0, levels[0])
-        levels[1] = _conv(decoder.conv_s1, levels[1])
+        vision, decoder = self.model.vision_encoder, self.model.mask_decoder
+        projections = {0: decoder.conv_s0, 1: decoder.conv_s1}  # levels, highest resolution first
+        # A projected level that neither takes nor gives a top-down sum is a per-token map of its
+        # stage (lateral 1×1, then the decoder's 1×1): made as its stage's bands come out.
+        finished = {
+            level: functools.partial(_lateral_projection, vision.neck, level, projection)
+            for level, projection in projections.items()
+            if _per_token(vision.neck, level)
+        }
+        stages = self._backbone(vision.backbone, pixels, finished)
+        levels = _neck(vision.neck, stages, set(finished))[-vision.num_feature_levels :][::-1]
+        for level, projection in projections.items():
+            if level not in finished:
+                levels[level] = _conv(projection, levels[level])
         levels[-1] = levels[-1] + self.model.no_memory_embedding.view(1, 1, 1, -1)
         return [level.permute(0, 3, 1, 2) for level in levels]
 
@@ -63,34 +71,41 @@ class ImageEncoder:
             self._positions[key] = backbone._get_pos_embed((height, width)).contiguous()
         return self._positions[key]
 
-    def _backbone(self, backbone: Any, pixels: torch.Tensor) -> list[torch.Tensor]:
-        """The Hiera blocks; the output of each stage's last block, ``(B, H, W, C)``."""
+    def _backbone(
+        self, backbone: Any, pixels: torch.Tensor, finished: dict[int, Any]
+    ) -> list[torch.Tensor]:
+        """The Hiera blocks; the output of each stage's last block, ``(B, H, W, C)``, or for a
+        stage in ``finished`` that function of it."""
         projection = backbone.patch_embed.projection
         hidden = projection(pixels.to(projection.weight.dtype)).permute(0, 2, 3, 1)
         hidden = hidden + self._position(backbone, hidden.shape[1], hidden.shape[2], hidden)
         blocks = list(backbone.blocks)
-        ends = set(backbone.stage_ends)
+        stage_of = {index: stage for stage, index in enumerate(backbone.stage_ends)}
+
+        def output(index: int, hidden: torch.Tensor) -> torch.Tensor:
+            stage = stage_of[index]
+            return finished[stage](hidden) if stage in finished else hidden
+
         local, rows = _local_blocks(blocks, hidden.shape[1], hidden.shape[2])
-        stages: list[torch.Tensor] = []
+        ended: dict[int, list[torch.Tensor]] = {i: [] for i in range(local) if i in stage_of}
         if local:
             # The first blocks see only their own windows: run them a band of rows at a time.
             # A band's tensors stay small enough for the allocator to reuse (a whole 256² map's
             # are not: each would be mapped and page-faulted anew on every frame) and in cache.
-            kept = [index for index in range(local) if index in ends or index == local - 1]
-            bands: dict[int, list[torch.Tensor]] = {index: [] for index in kept}
+            last: list[torch.Tensor] = []  # the last of them: what the next block reads
             for top in range(0, hidden.shape[1], rows):
                 band = hidden[:, top : top + rows]
                 for index in range(local):
                     band = _block(blocks[index], band)
-                    if index in bands:
-                        bands[index].append(band)
-            joined = {index: torch.cat(parts, dim=1) for index, parts in bands.items()}
-            stages = [joined[index] for index in kept if index in ends]
-            hidden = joined[local - 1]
+                    if index in ended:
+                        ended[index].append(output(index, band))
+                last.append(band)
+            hidden = torch.cat(last, dim=1)
+        stages = [torch.cat(parts, dim=1) for parts in ended.values()]
         for index in range(local, len(blocks)):
             hidden = _block(blocks[index], hidden)
-            if index in ends:
-                stages.append(hidden)
+            if index in stage_of:
+                stages.append(output(index, hidden))
         return stages
 
 
@@ -121,13 +136,34 @@ def _local_blocks(blocks: list[Any], height: int, width: int) -> tuple[int, int]
     return count, rows
 
 
-def _neck(neck: Any, stages: list[torch.Tensor]) -> list[torch.Tensor]:
+def _per_token(neck: Any, level: int) -> bool:
+    """Whether the FPN level is its stage's lateral 1×1 alone: it takes no top-down sum from
+    the level below it and gives none to the level above."""
+    last = len(neck.convs) - 1
+    takes = level in neck.fpn_top_down_levels and level != last
+    gives = level > 0 and level - 1 in neck.fpn_top_down_levels
+    return not takes and not gives
+
+
+def _lateral_projection(
+    neck: Any, level: int, projection: Any, stage: torch.Tensor
+) -> torch.Tensor:
+    """A per-token FPN level of a stage's output (or of a band of it), then ``projection``."""
+    lateral = neck.convs[len(neck.convs) - 1 - level]
+    return _conv(projection, _conv(lateral, stage))
+
+
+def _neck(neck: Any, stages: list[torch.Tensor], finished: set[int]) -> list[torch.Tensor]:
     """The FPN's feature maps ``(B, H, W, C)``, lowest resolution first, without the sine
-    positional encodings that ``get_image_embeddings`` does not return."""
+    positional encodings that ``get_image_embeddings`` does not return; the levels in
+    ``finished`` come made in ``stages``."""
     last = len(neck.convs) - 1
     levels: list[torch.Tensor] = []
     previous = stages[last]
     for i in range(last, -1, -1):
+        if i in finished:
+            levels.append(stages[i])
+            continue
         lateral = _conv(neck.convs[last - i], stages[i])
         if i not in neck.fpn_top_down_levels or i == last:
             previous = lateral

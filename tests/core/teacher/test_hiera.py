@@ -21,15 +21,21 @@ from weldpool_core.teacher.hiera import ImageEncoder
 PIXELS = torch.randn(1, 3, 1024, 1024, generator=torch.Generator().manual_seed(5))
 
 
-@pytest.fixture(scope="module")
-def model():
+def _model(top_down_levels: list[int] | None = None):
     from transformers import Sam2Model
 
     config = tiny_sam2_config()
     config.vision_config.backbone_config.num_attention_heads_per_stage = [1, 2, 2, 4]
+    if top_down_levels is not None:
+        config.vision_config.fpn_top_down_levels = top_down_levels
     config._attn_implementation = "sdpa"
     torch.manual_seed(0)
     return randomize(Sam2Model(config), seed=4).eval()
+
+
+@pytest.fixture(scope="module")
+def model():
+    return _model()
 
 
 def _compare(model, pixels, rtol: float, atol: float) -> None:
@@ -57,6 +63,13 @@ def test_the_encoder_without_onednn_equals_transformers_forward(model, monkeypat
     """Where oneDNN is absent (or on a GPU) each layer runs as separate PyTorch ops."""
     monkeypatch.setattr(hiera, "_ONEDNN", False)
     _compare(model, PIXELS, rtol=1e-5, atol=1e-5)
+
+
+def test_levels_with_a_top_down_sum_are_not_made_per_token() -> None:
+    """SAM2's two finest levels take no top-down sum, so they are made band by band; where a
+    config sums the finest level, it and the level that gives the sum are made as transformers
+    makes them."""
+    _compare(_model(top_down_levels=[0, 2, 3]), PIXELS, rtol=1e-5, atol=1e-5)
 
 
 def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
