@@ -12,7 +12,10 @@ holds it equal to transformers' forward in fp32 and bf16): the dropped work is s
 positional embedding is kept per input size, the window unpartition is fused into the residual
 sum, the 1×1 convolutions and poolings run on the ``(B, H, W, C)`` maps as they are, and on the
 CPU each linear layer is one oneDNN call with its bias, GELU or residual sum fused in (the
-kernels PyTorch's own compiler emits for these layers; they round as the separate ops do in fp32).
+kernels PyTorch's own compiler emits for these layers; they round as the separate ops do in fp32),
+and the window-local first blocks (with the two finest FPN levels) run a band of rows at a time.
+The weights are read as they are at each call; only the positional embedding, a function of the
+weights alone, is kept (per input size): a model is not trained while it encodes.
 """
 
 from __future__ import annotations
@@ -297,4 +300,4 @@ def _add_unpartitioned(residual: torch.Tensor, windows: torch.Tensor, window: in
         full = grid.reshape(batch, height + pad_h, width + pad_w, -1)
         return residual + full[:, :height, :width]
     tiled = residual.reshape(batch, rows, window, cols, window, channels)
-    return torch.add(tiled, grid).view(batch, height, width, channels)
+    return torch.add(tiled, grid).reshape(batch, height, width, channels)
