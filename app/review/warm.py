@@ -75,14 +75,16 @@ def warmth(storage: Storage, settings: Settings, frame: Frame, *, start: bool) -
 
     predictor = runtime.sam2_predictor(settings)  # WeightsUnavailableError: 503, as a click
     key = embedding_key(frame.sha256, predictor.cache_identity)
-    if runtime.embedding_cache(settings).in_memory(key):
-        return Warmth("ready", expected_ms=_expected())
     with _lock:
         for done in [k for k, (future, _) in _pending.items() if future.done()]:
             del _pending[done]
+        # A computation still running is "computing" even once its embedding is in memory:
+        # it has not recorded its duration yet, which "ready" reports as the expected time.
         if key in _pending:
             asked = _pending[key][1]
             return Warmth("computing", (time.monotonic() - asked) * 1000, _expected())
+        if runtime.embedding_cache(settings).in_memory(key):
+            return Warmth("ready", expected_ms=_expected())
         if not start:
             return Warmth("cold", expected_ms=_expected())
         if len(_pending) >= MAX_PENDING:
