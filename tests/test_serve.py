@@ -134,3 +134,36 @@ def _healthy(base: str) -> bool:
         return httpx.get(f"{base}/api/v1/health", timeout=2).status_code in (200, 503)
     except httpx.HTTPError:
         return False
+
+
+def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: Path) -> None:
+    """`serve --no-worker` on SQLite counts its queue and finds the teacher's weights without
+    importing Huey (with redis and psycopg) or huggingface_hub's download client: start-up cost
+    they would add to every restart. Huey comes with the first job."""
+    script = """
+import sys
+from fastapi.testclient import TestClient
+from app.db import create_db_engine, migrate
+from app.main import create_app
+from tests.helpers import make_settings
+settings = make_settings(__import__("pathlib").Path(sys.argv[1]))
+migrate(create_db_engine(settings.resolved_database_url))
+with TestClient(create_app(settings)) as client:
+    body = client.get("/api/v1/health").json()
+assert body["queue"]["pending"] == 0, body
+print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download") if m in sys.modules))
+create_app(settings).state.queue.enqueue(1)
+print("huey" in sys.modules)
+"""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}
+    env["HF_HUB_OFFLINE"] = "1"
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path / "home")],
+        env=env,
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:2] == ["[]", "True"]
