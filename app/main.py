@@ -9,7 +9,7 @@ from pathlib import Path
 
 import sqlalchemy as sa
 import structlog
-from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -177,20 +177,22 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.add_middleware(SecurityHeaders)
     _install_error_handlers(app)
 
-    api = APIRouter(prefix="/api/v1")
-    api.include_router(system_router)
+    # Each router straight into the app under /api/v1: FastAPI builds an included router's
+    # routes on its first request, but a router nested without a prefix (an /api/v1 router
+    # holding them all) has every route built again when it is included.
+    api = "/api/v1"
     protected = [Depends(current_user)]
-    api.include_router(users_router, dependencies=protected)
-    api.include_router(tokens_router)  # a token by password, or for the caller
-    api.include_router(jobs_router, dependencies=protected)
-    api.include_router(frames_router, dependencies=protected)
-    api.include_router(review_router, dependencies=protected)
-    api.include_router(imports_router, dependencies=protected)
-    api.include_router(training_router, dependencies=protected)
-    api.include_router(insights_router, dependencies=protected)
-    api.include_router(timeline_router, dependencies=protected)
-    api.include_router(live_router, dependencies=protected)
-    app.include_router(api)
+    app.include_router(system_router, prefix=api)
+    app.include_router(users_router, prefix=api, dependencies=protected)
+    app.include_router(tokens_router, prefix=api)  # a token by password, or for the caller
+    app.include_router(jobs_router, prefix=api, dependencies=protected)
+    app.include_router(frames_router, prefix=api, dependencies=protected)
+    app.include_router(review_router, prefix=api, dependencies=protected)
+    app.include_router(imports_router, prefix=api, dependencies=protected)
+    app.include_router(training_router, prefix=api, dependencies=protected)
+    app.include_router(insights_router, prefix=api, dependencies=protected)
+    app.include_router(timeline_router, prefix=api, dependencies=protected)
+    app.include_router(live_router, prefix=api, dependencies=protected)
     app.include_router(web_router)
 
     app.openapi = lambda: openapi_schema(app)  # type: ignore[method-assign]

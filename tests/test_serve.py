@@ -138,8 +138,9 @@ def _healthy(base: str) -> bool:
 
 def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: Path) -> None:
     """`serve --no-worker` on SQLite counts its queue and finds the teacher's weights without
-    importing Huey (with redis and psycopg) or huggingface_hub's download client: start-up cost
-    they would add to every restart. Huey comes with the first job."""
+    importing Huey (with redis and psycopg), huggingface_hub's download client or the pages'
+    Jinja: start-up cost they would add to every restart. Huey comes with the first job, Jinja
+    with the first page."""
     script = """
 import sys
 from fastapi.testclient import TestClient
@@ -150,8 +151,11 @@ settings = make_settings(__import__("pathlib").Path(sys.argv[1]))
 migrate(create_db_engine(settings.resolved_database_url))
 with TestClient(create_app(settings)) as client:
     body = client.get("/api/v1/health").json()
-assert body["queue"]["pending"] == 0, body
-print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download") if m in sys.modules))
+    assert body["queue"]["pending"] == 0, body
+    print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download", "jinja2")
+                 if m in sys.modules))
+    assert "<form" in client.get("/login").text
+    print("jinja2" in sys.modules)
 create_app(settings).state.queue.enqueue(1)
 print("huey" in sys.modules)
 """
@@ -166,4 +170,4 @@ print("huey" in sys.modules)
         timeout=120,
     )
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split("\n")[:2] == ["[]", "True"]
+    assert out.stdout.split("\n")[:3] == ["[]", "True", "True"]

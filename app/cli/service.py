@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import click
@@ -58,14 +59,21 @@ def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 
 @friendly_errors
 def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
-    import uvicorn
-
-    from app.housekeeping import prune_training_state, sweep_orphan_files
-    from app.main import create_app
     from app.storage import Storage
+    from app.users.service import ensure_initial_admin  # noqa: F401 (see below)
 
     settings = load_settings()
-    password_file = prepare_instance(settings)
+    with ThreadPoolExecutor(1) as pool:
+        # The migration check and a fresh instance's Argon2 hash (C, without the GIL) run
+        # beside the imports of the service (Python, with it). What the thread imports is
+        # imported above: two threads importing the same modules can see them half-made.
+        prepared = pool.submit(prepare_instance, settings)
+        import uvicorn
+
+        from app.housekeeping import prune_training_state, sweep_orphan_files
+        from app.main import create_app
+
+        password_file = prepared.result()
     engine = create_db_engine(settings.resolved_database_url)
     with create_session_factory(engine)() as session:
         swept = sweep_orphan_files(session, Storage.of(settings))

@@ -6,12 +6,12 @@ routes only check the login and render (no data is loaded here)."""
 from __future__ import annotations
 
 import math
+from functools import cache
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
-from fastapi.templating import Jinja2Templates
 
 from app.bounds import IdPath
 from app.db import utcnow
@@ -31,7 +31,9 @@ from app.security import (
 )
 from app.system.status import sam2_problem, teacher_problem
 
-TEMPLATES = Jinja2Templates(directory=Path(__file__).resolve().parents[2] / "templates")
+if TYPE_CHECKING:
+    from fastapi.templating import Jinja2Templates
+
 router = APIRouter(include_in_schema=False)
 
 
@@ -40,6 +42,14 @@ def _safe_next(target: str | None) -> str:
     if not target or not target.startswith("/") or target.startswith("//") or "\\" in target:
         return "/"
     return target
+
+
+@cache
+def templates() -> Jinja2Templates:
+    """The pages' Jinja environment, made with the first page (an API process never needs it)."""
+    from fastapi.templating import Jinja2Templates
+
+    return Jinja2Templates(directory=Path(__file__).resolve().parents[2] / "templates")
 
 
 def render(request: Request, name: str, status_code: int = 200, **context: Any) -> HTMLResponse:
@@ -51,7 +61,7 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
     if web_session is not None:
         context.setdefault("teacher_problem", teacher_problem(request.app.state.settings))
         context.setdefault("sam2_problem", sam2_problem(request.app.state.settings))
-    return TEMPLATES.TemplateResponse(request, name, context, status_code=status_code)
+    return templates().TemplateResponse(request, name, context, status_code=status_code)
 
 
 def _login_page(
