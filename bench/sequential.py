@@ -93,7 +93,7 @@ def stream(
         bgr = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
         batch, geometry = student.prepare(bgr)
         mask, heatmap, _ = student(batch, geometry)
-        points = frame_keypoints(mask, heatmap, geometry, student.config.k)
+        points = frame_keypoints(mask, heatmap, geometry, student.config)
         tracked = tracker.update(points, frame.timestamp_s)
         rows.append([p if p is not None else [np.nan, np.nan] for p in tracked])
         full = np.asarray(geometry.map_to_frame(mask)) >= 0.5

@@ -12,8 +12,9 @@ the ensemble's own error.
 
 Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: the
 ambiguity of the predictive mask over ``--samples`` latent draws, noisy-or'd with novelty
-beyond ``FAMILIAR_DISTANCE``), ``ambiguity`` (of the plain pass alone), ``novelty`` (the
-shipped, shifted one), ``before`` (the score shipped before this bench: test-time-pass
+beyond the student's own familiar distance), ``ambiguity`` (of the plain pass alone),
+``novelty`` (the shipped one), ``novelty_fixed`` (beyond the fixed ``FAMILIAR_DISTANCE`` that
+every student used before measuring its own), ``before`` (the score shipped before this bench: test-time-pass
 disagreement noisy-or'd with r / (1 + r)), ``tta`` (that disagreement alone), ``tta_strong``
 (passes twice as wide), ``novelty_old`` (r / (1 + r)), ``latent`` (1 − soft IoU of the latent
 draws' mean mask with the plain one), ``dropout`` (the same under feature dropout at test
@@ -22,7 +23,8 @@ time), ``heatmap`` (1 − the strongest keypoint peak); and across the seeds' st
 mean).
 
 Trained folders are kept under ``--cache`` (default /tmp/weldpool-bench-students, which
-``real_student.py --cache`` shares), so a rerun only scores.
+``real_student.py --cache`` shares), so a rerun only scores; a folder trained before students
+measured their familiar distance gets it measured (``train.save_training_codes``) first.
 
     PYTHONPATH=. .venv/bin/python bench/uncertainty.py [--seeds 0 1 2] [--samples 8]
 """
@@ -42,13 +44,15 @@ import torch.nn.functional as F
 from real_student import bootstrap_rho, folds, shared_data
 from scipy.stats import spearmanr
 
+from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.metrics import iou
 from weldpool_core.student import predict as P
-from weldpool_core.student.data import TrainingFrame
+from weldpool_core.student.checkpoint import load_codes
+from weldpool_core.student.data import TrainingFrame, prepare_frame
 from weldpool_core.student.evaluate import labelled_frames, score_predictions
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import StudentPredictor, frames_to_batch
-from weldpool_core.student.train import TrainConfig, train_student
+from weldpool_core.student.train import TrainConfig, save_training_codes, train_student
 
 TTA_RANGES = {"shift": 0.04, "scale": 0.06, "rotation_deg": 4.0, "gamma": 0.35, "gain": 0.2}
 """The earlier score's test-time passes (± fractions of the input, degrees, log-gamma, gain)."""
@@ -122,6 +126,7 @@ def candidates(
         known = predictor.training_codes
         assert known is not None
         distance = known.distance(P.frame_codes(features))
+        fixed_beyond = [max(0.0, r - P.FAMILIAR_DISTANCE) for r in distance]
 
         def timed(name: str, fn: Callable[[], list[float]]) -> None:
             begun = time.perf_counter()
@@ -165,6 +170,7 @@ def candidates(
         timed("tta", lambda: tta_disagreement(model, batch, plain, inside, samples))
         timed("tta_strong", lambda: tta_disagreement(model, batch, plain, inside, samples, 2.0))
         timed("novelty_old", lambda: [r / (1 + r) for r in distance])
+        timed("novelty_fixed", lambda: [e / (1 + e) for e in fixed_beyond])
         timed("latent", latent)
         timed("dropout", dropout)
         timed("heatmap", lambda: [float(1 - v) for v in (heat * inside).flatten(1).max(1).values])
@@ -225,6 +231,13 @@ def train_fold(
         chosen = [frames[i] for i in train]
         train_student(chosen, folder, StudentConfig(), config, validation=chosen)
         done.write_text(json.dumps({"seconds": time.perf_counter() - begun}))
+    codes = load_codes(folder)
+    if codes is not None and codes[1] is None:  # trained before students measured their own
+        predictor = StudentPredictor.load(folder, "cpu")
+        config = predictor.config
+        params = HeatmapParams(k=config.k)
+        prepared = [prepare_frame(frames[i], config.input_size, config.aspect, params) for i in train]
+        save_training_codes(folder, prepared, torch.device("cpu"), 8)
     return StudentPredictor.load(folder, "cpu"), json.loads(done.read_text())["seconds"]
 
 
@@ -292,7 +305,7 @@ def main() -> None:
             _, geometries = frames_to_batch([frames[i].image for i in test], predictor.config)
             for j, index in enumerate(test):
                 vote = P.to_frame(
-                    centre[j].numpy(), centre[j].numpy(), geometries[j], predictor.config.k
+                    centre[j].numpy(), centre[j].numpy(), geometries[j], predictor.config
                 ).mask
                 ensemble_errors[(name, frames[index].name)] = 1 - iou(
                     vote, truth[frames[index].name].mask

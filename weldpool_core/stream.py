@@ -377,7 +377,7 @@ def analyse(
     travel_deg: float | None = None,
 ) -> StreamResult:
     """One frame's record from the student's S×S outputs (see ``record_fields``)."""
-    raw = frame_keypoints(mask_probability, heatmap, geometry, config.k)
+    raw = frame_keypoints(mask_probability, heatmap, geometry, config)
     inner = mask_probability[geometry.inner_rows, geometry.inner_columns]
     sx, sy = geometry.scale_x, geometry.scale_y
     shape = pool_shape(

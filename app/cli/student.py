@@ -80,7 +80,7 @@ def _given(ctx: click.Context, *names: str) -> bool:
 @click.option(
     "--skips",
     type=click.IntRange(0, 3),
-    help="Encoder maps (strides 16, 8, 4) fed to the decoder beside the latent (default 0).",
+    help="Encoder maps (strides 16, 8, 4) fed to the decoder beside the latent (default 2).",
 )
 @click.option("--batch-size", default=8, show_default=True, type=click.IntRange(min=1))
 @click.option("--learning-rate", default=3e-3, show_default=True, type=click.FloatRange(min=0))

@@ -9,8 +9,10 @@ Layout (every file written atomically: a temporary file, then a rename):
   (frames, whether the encoder started from ImageNet weights).
 - ``curve.json``: one record per epoch (losses, β, learning rate, mIoU, mED, seconds).
 - ``frame_codes.safetensors``: the kept weights' encoder descriptors of the training frames
-  (``codes``, M×D; ``predict.frame_codes``), for the predictor's novelty score; absent in
-  folders of older or unfinished runs (the uncertainty then has no novelty part).
+  (``codes``, M×D; ``predict.frame_codes``) and the student's own familiar distance
+  (``familiar``; ``predict.familiar_distance``), for the predictor's novelty score; absent in
+  folders of older or unfinished runs (the uncertainty then has no novelty part; a folder with
+  codes but no ``familiar`` uses ``predict.FAMILIAR_DISTANCE``).
 - ``training_state.pt``: the last epoch's full state (weights, optimiser, schedule, best score)
   from which ``resume`` continues; not needed for inference. The service removes it once a
   version is recorded (``prune_state``): an interrupted run keeps it to resume.
@@ -146,26 +148,37 @@ def load_student(model_dir: str | Path, device: torch.device | None = None) -> R
     return model.to(device or torch.device("cpu")).eval()
 
 
-def save_codes(model_dir: Path, codes: torch.Tensor) -> None:
-    """The training frames' descriptors (M×D) as ``frame_codes.safetensors``."""
+def save_codes(model_dir: Path, codes: torch.Tensor, familiar: float | None = None) -> None:
+    """The training frames' descriptors (M×D) as ``frame_codes.safetensors``, with the
+    student's familiar distance (``predict.familiar_distance``) when given."""
+    import torch
+
     state = {"codes": codes.detach().float().cpu().contiguous()}
+    if familiar is not None:
+        state["familiar"] = torch.tensor([float(familiar)])
     from safetensors.torch import save_file
 
     write_atomic(model_dir / CODES_FILE, lambda p: save_file(state, str(p)))
 
 
-def load_codes(model_dir: str | Path) -> torch.Tensor | None:
-    """The training frames' descriptors, or None when the folder has none (or unreadable)."""
+def load_codes(model_dir: str | Path) -> tuple[torch.Tensor, float | None] | None:
+    """The training frames' descriptors and the familiar distance saved with them (None for a
+    folder saved before it was), or None when the folder has no descriptors (or unreadable)."""
     path = Path(model_dir) / CODES_FILE
     if not path.is_file():
         return None
     from safetensors.torch import load_file
 
     try:
-        codes = load_file(str(path))["codes"]
+        state = load_file(str(path))
+        codes = state["codes"]
     except (OSError, RuntimeError, KeyError):
         return None
-    return codes if codes.ndim == 2 and len(codes) else None
+    if codes.ndim != 2 or not len(codes):
+        return None
+    familiar = state.get("familiar")
+    usable = familiar is not None and familiar.numel() == 1 and float(familiar) > 0
+    return codes, float(familiar) if usable else None
 
 
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:

@@ -322,9 +322,9 @@ class Augmentation:
     noise_sigma: float = 6.0
     blur_probability: float = 0.3
     blur_sigma: float = 1.2
-    rotation_deg: float = 8.0
-    scale: float = 0.1
-    shift: float = 0.05
+    rotation_deg: float = 12.0
+    scale: float = 0.25
+    shift: float = 0.1
 
 
 def random_affine(rng: np.random.Generator, size: int, params: Augmentation) -> NDArray[np.float64]:

@@ -5,39 +5,54 @@ inference (BatchNorm folded into the convolutions, channels-last memory, inferen
 precision on CUDA via ``device.inference_dtype``). ``predict`` takes a batch of frames of any
 size, fits each to the input (``FrameGeometry``), runs them together, and maps the outputs back.
 
-Keypoints are the modes of the predicted heatmap (``keypoints_from_heatmap``) found at model
-resolution and mapped to frame pixels, so they keep the sub-pixel refinement of the small map;
-of modes closer than half Algorithm 1's keypoint separation, only the strongest counts: the
-others are lobes of the same keypoint (``mode_distance``).
+Keypoints are read at model resolution and mapped to frame pixels (``frame_keypoints``), from
+where the student's ``config.keypoints`` says. ``mask`` (the default): Algorithm 1 on the
+predicted mask within the frame, the rule by which a label's keypoints are placed: on the real
+labels it places them nearer than the heatmap's modes do, within a clip and across clips
+(``bench/real_student.py``, README), and it costs ~0.5 ms a frame. ``heatmap`` (students saved
+before the choice): the modes of the predicted heatmap (``keypoints_from_heatmap``), with the
+sub-pixel refinement of the small map; of modes closer than half Algorithm 1's keypoint
+separation, only the strongest counts: the others are lobes of the same keypoint
+(``mode_distance``).
 
 Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from two
-signals (``uncertainty_parts`` holds both):
+signals (``uncertainty_parts`` holds them, and the ambiguity beside them):
 
-- ``ambiguity``: how much of the predicted pool the student is unsure of. The frame's
+- ``disagreement``: how much of the answer the student's own posterior moves. The frame's
   predictive mask probability p̄ is the mean over ``samples`` seeded draws of the VAE's latent
-  (its posterior mean plus noise of its predicted spread, decoded); the score is the
-  probability mass in doubt, Σ 2·min(p̄, 1 − p̄) over the frame's pixels, divided by the
-  predicted pool's area (pixels with p̄ ≥ 0.5), capped at 1: 0 for a mask whose every pixel
-  is sure, higher where the edge is smeared over a wide band relative to the pool (the wire,
-  the glare, a dark front edge: where a mask goes wrong). A mask error is mostly at its edge
-  and IoU divides it by the pool's size, and the score does both.
+  (its posterior mean plus noise of its predicted spread, decoded); the score is 1 − the soft
+  IoU (Σ min ÷ Σ max over the frame's pixels) of p̄ with the plain pass's mask probability
+  (``mask_disagreement``): 0 where no draw changes the mask, higher where the draws move the
+  pool's outline (the wire, the glare, a dark front edge: where a mask goes wrong), and like
+  IoU it weighs that change against the pool's size.
+- ``ambiguity`` (reported, not combined): the probability mass in doubt on p̄, Σ 2·min(p̄,
+  1 − p̄), over the predicted pool's area, capped at 1 (``mask_ambiguity``, which the live
+  record also reports). It ranked the errors of the students without skips best (ρ +0.49 on
+  the real folds, against +0.39 for the disagreement); a student with skips draws its edge
+  sharp from the encoder's maps, and there the disagreement ranks them and the ambiguity less
+  well (+0.60 against +0.36, README).
 - ``novelty``: how far the frame lies beyond the training frames, as the encoder sees them.
   Each frame's descriptor is the mean and standard deviation of every channel of the
   encoder's last feature map (``frame_codes``); training stores the training frames'
   descriptors (``frame_codes.safetensors``). Standardised per dimension by the training set's
   spread (``TrainingCodes``), r is the RMS distance to the nearest training frame; the novelty
-  is e / (1 + e) with e = max(0, r − ``FAMILIAR_DISTANCE``). Frames of other runs of the same
-  camera lie within that distance and score 0 (there novelty ranked the student's errors
-  backwards, ``bench/uncertainty.py``); a blank, noise or inverted frame, another camera,
-  lies beyond and scores high even where the student answers confidently. None for a model
-  folder without codes.
+  is e / (1 + e) with e = max(0, r − the student's familiar distance). Each student measures
+  its own at the end of training (``familiar_distance``): ``FOREIGN_MARGIN`` of the way to the
+  nearest of the frames it cannot read, made from its training frames (``foreign_versions``:
+  blank, noise, inverted, contrast cut to a tenth), because how far frames lie depends on the
+  student (a skip student puts a real clip it never saw at up to 6, the old default at 4.6).
+  Frames of other runs of the same camera lie within it and score 0 (there novelty ranked the
+  student's errors backwards, ``bench/uncertainty.py``); a blank, noise or inverted frame,
+  another camera, lies beyond and scores high even where the student answers confidently.
+  None for a model folder without codes.
 
-``uncertainty`` = 1 − (1 − ambiguity)·(1 − novelty) (a noisy-or: either signal alone can raise
-it). The draws are seeded, so the same frame gets the same score, and they never change the
-answer itself (mask, heatmap, keypoints come from the latent mean). On the 15 real labels,
-leave-one-clip-out, the ambiguity ranks the student's errors (Spearman ρ +0.49 over 45
-held-out predictions, 95 % interval +0.22 to +0.68) where the earlier score, test-time-pass
-disagreement noisy-or'd with unshifted novelty, ranked them backwards (−0.39).
+``uncertainty`` = 1 − (1 − disagreement)·(1 − novelty) (a noisy-or: either signal alone can
+raise it). The draws are seeded, so the same frame gets the same score, and they never change
+the answer itself (mask, heatmap, keypoints come from the latent mean). On the 15 real labels,
+leave-one-clip-out, it ranks the default student's errors (Spearman ρ over 45 held-out
+predictions, with its 95 % interval, in the README; ``bench/uncertainty.py``) where the score
+of two releases ago, test-time-pass disagreement noisy-or'd with unshifted novelty, ranked them
+backwards.
 """
 
 from __future__ import annotations
@@ -55,7 +70,7 @@ from numpy.typing import NDArray
 
 from weldpool_core.device import inference_dtype, resolve_device
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.heatmap import HeatmapParams
+from weldpool_core.heatmap import HeatmapParams, keypoints_from_mask
 from weldpool_core.io import to_rgb8
 from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
 from weldpool_core.student.checkpoint import load_codes, load_student
@@ -65,10 +80,19 @@ from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last,
 UNCERTAINTY_SEED = 0
 MIN_MODE_DISTANCE = 5.0
 FAMILIAR_DISTANCE = 4.0
-"""RMS standardised distance to the nearest training frame within which a frame is familiar
-(novelty 0). Measured (``bench/uncertainty.py`` and the module doc): real frames of clips a
-student never saw lie at 0–4 from its training frames; blank, white, noise, inverted, darkened
-frames and another camera's at 5–15, a flipped one at 4–6."""
+"""The familiar distance of a model folder saved before each student measured its own
+(``familiar_distance``): RMS standardised distance to the nearest training frame within which
+a frame is familiar (novelty 0), measured for the default student of that time on real frames
+(``bench/uncertainty.py``): real frames of clips it never saw at 0–4 from its training frames;
+blank, white, noise, inverted, darkened frames and another camera's at 5–15."""
+FOREIGN_MARGIN = 0.75
+"""A student's familiar distance as a fraction of the distance of the nearest frame it could
+not read (``foreign_versions`` of its training frames). Measured on the real folds
+(``bench/uncertainty.py``, README): the held-out clips reach 0.22–0.69 of it (up to 6.1 in
+absolute units for a skip student whose foreign frames lie at 8.9 and beyond), so a fixed
+distance either flags a real clip or lets a foreign frame through, depending on the student."""
+FOREIGN_FRAMES = 8
+"""Training frames whose foreign versions calibrate the familiar distance (evenly spaced)."""
 MAX_SAMPLES = 64
 """Most latent draws an uncertainty may take: each is one more decoder pass of the batch, and
 the score has long settled by then (the app takes 8)."""
@@ -130,26 +154,36 @@ def frame_keypoints(
     mask_probability: NDArray[np.float32],
     heatmap: NDArray[np.float32],
     geometry: FrameGeometry,
-    k: int,
+    config: StudentConfig,
 ) -> NDArray[np.float64]:
-    """The heatmap's modes of one frame's S×S outputs, in full-resolution frame pixels."""
+    """One frame's keypoints from its S×S outputs, in full-resolution frame pixels, read where
+    ``config.keypoints`` says: Algorithm 1 on the mask (its outline within the frame; none for
+    a mask too small to have one), or the heatmap's modes."""
     rows, columns = geometry.inner_rows, geometry.inner_columns
-    inner = np.stack([heatmap[rows, columns], mask_probability[rows, columns]], axis=2)
-    params = ModeParams(min_distance=mode_distance(inner[:, :, 1], k))
-    modes = keypoints_from_heatmap(inner, k=k, params=params)
+    if config.keypoints == "mask":
+        try:
+            points = keypoints_from_mask(
+                mask_probability[rows, columns] >= 0.5, HeatmapParams(k=config.k)
+            )
+        except InvalidInputError:  # no pool, or one too small for an outline
+            return np.zeros((0, 2))
+    else:
+        inner = np.stack([heatmap[rows, columns], mask_probability[rows, columns]], axis=2)
+        params = ModeParams(min_distance=mode_distance(inner[:, :, 1], config.k))
+        points = keypoints_from_heatmap(inner, k=config.k, params=params)
     offset = np.array([geometry.offset_x, geometry.offset_y], np.float64)
-    return geometry.to_frame(modes + offset) if len(modes) else modes
+    return geometry.to_frame(points + offset) if len(points) else points
 
 
 def to_frame(
     mask_probability: NDArray[np.float32],
     heatmap: NDArray[np.float32],
     geometry: FrameGeometry,
-    k: int,
+    config: StudentConfig,
     uncertainty: float | None = None,
 ) -> StudentPrediction:
     """Map one frame's S×S outputs (mask probability, heatmap) back to its full resolution."""
-    keypoints = frame_keypoints(mask_probability, heatmap, geometry, k)
+    keypoints = frame_keypoints(mask_probability, heatmap, geometry, config)
     full = np.asarray(geometry.map_to_frame(np.stack([heatmap, mask_probability], axis=2)))
     full = np.clip(full, 0, 1).astype(np.float32)
     return StudentPrediction(full[:, :, 1] >= 0.5, full, keypoints, uncertainty)
@@ -189,6 +223,15 @@ def mask_ambiguity(probability: NDArray[np.floating[Any]]) -> float:
     return min(1.0, doubt / max(area, 1))
 
 
+def mask_disagreement(drawn: NDArray[np.floating[Any]], plain: NDArray[np.floating[Any]]) -> float:
+    """1 − the soft IoU (Σ min ÷ Σ max) of the latent draws' mean mask probability with the
+    plain pass's, over one frame's pixels: how much of the answer the student's own posterior
+    moves (0 when both are empty; see the module doc)."""
+    a, b = np.asarray(drawn, np.float64), np.asarray(plain, np.float64)
+    union = float(np.maximum(a, b).sum())
+    return 0.0 if union <= 1e-6 else 1.0 - float(np.minimum(a, b).sum()) / union
+
+
 def frame_codes(features: torch.Tensor) -> torch.Tensor:
     """One descriptor per frame from encoder features (N×F×h×w → N×2F, float32): each
     channel's mean and standard deviation over the map."""
@@ -196,26 +239,48 @@ def frame_codes(features: torch.Tensor) -> torch.Tensor:
     return torch.cat([flat.mean(2), flat.std(2, unbiased=False)], dim=1)
 
 
+def foreign_versions(batch: torch.Tensor, seed: int = UNCERTAINTY_SEED) -> torch.Tensor:
+    """Frames no student of this camera can read, made from an N×3×S×S batch in [0, 1]: black,
+    mid-grey and white frames, uniform noise, each frame inverted, and each with its contrast
+    cut to a tenth (6N frames). A darkened or mirrored frame is left out: a real camera gives
+    those (another exposure, another mounting)."""
+    generator = torch.Generator(device="cpu").manual_seed(seed)
+    noise = torch.rand(batch.shape, generator=generator).to(batch.device, batch.dtype)
+    centre = batch.mean(dim=(1, 2, 3), keepdim=True)
+    return torch.cat(
+        [
+            torch.zeros_like(batch),
+            torch.full_like(batch, 0.5),
+            torch.ones_like(batch),
+            noise,
+            1 - batch,
+            centre + 0.1 * (batch - centre),
+        ]
+    )
+
+
 @dataclass(frozen=True)
 class TrainingCodes:
     """The training frames' descriptors, standardised: each dimension by its training mean and
     standard deviation (floored at half the mean standard deviation, so that a dimension that
-    hardly varied over a few frames does not dominate)."""
+    hardly varied over a few frames does not dominate), and the distance within which a frame
+    is familiar (``familiar_distance``)."""
 
     codes: torch.Tensor
     centre: torch.Tensor
     scale: torch.Tensor
+    familiar: float = FAMILIAR_DISTANCE
 
     @classmethod
-    def from_codes(cls, codes: torch.Tensor) -> TrainingCodes:
-        """Standardise ``codes`` (M×D)."""
+    def from_codes(cls, codes: torch.Tensor, familiar: float | None = None) -> TrainingCodes:
+        """Standardise ``codes`` (M×D); ``familiar`` None: ``FAMILIAR_DISTANCE``."""
         codes = codes.float()
         centre = codes.mean(0)
         spread = codes.std(0, unbiased=False) if len(codes) > 1 else torch.zeros_like(centre)
         size = float(codes.pow(2).mean().sqrt())
         floor = max(0.5 * float(spread.mean()), 1e-3 * size, 1e-6)
         scale = spread.clamp(min=floor)
-        return cls((codes - centre) / scale, centre, scale)
+        return cls((codes - centre) / scale, centre, scale, familiar or FAMILIAR_DISTANCE)
 
     def distance(self, codes: torch.Tensor) -> list[float]:
         """r per frame: the RMS standardised distance to the nearest training frame."""
@@ -224,19 +289,25 @@ class TrainingCodes:
         return [float(r) for r in nearest / math.sqrt(self.codes.shape[1])]
 
     def novelty(self, codes: torch.Tensor) -> list[float]:
-        """e / (1 + e) per frame, e = max(0, r − ``FAMILIAR_DISTANCE``) (see the module doc)."""
-        beyond = [max(0.0, r - FAMILIAR_DISTANCE) for r in self.distance(codes)]
+        """e / (1 + e) per frame, e = max(0, r − ``familiar``) (see the module doc)."""
+        beyond = [max(0.0, r - self.familiar) for r in self.distance(codes)]
         return [e / (1 + e) for e in beyond]
 
 
-def combine(ambiguity: float, novel: float | None) -> float:
+def familiar_distance(known: TrainingCodes, foreign_codes: torch.Tensor) -> float:
+    """A student's own familiar distance: ``FOREIGN_MARGIN`` × the distance of the nearest of
+    its training frames' ``foreign_versions`` (their descriptors, ``foreign_codes``)."""
+    return FOREIGN_MARGIN * min(known.distance(foreign_codes))
+
+
+def combine(disagreement: float, novel: float | None) -> float:
     """The uncertainty of a frame from its parts (a noisy-or; see the module doc)."""
-    return float(1.0 - (1.0 - ambiguity) * (1.0 - (novel or 0.0)))
+    return float(1.0 - (1.0 - disagreement) * (1.0 - (novel or 0.0)))
 
 
 def uncertainty_of(parts: dict[str, float | None]) -> float:
     """The uncertainty of a frame from its ``uncertainty_parts``."""
-    return combine(float(parts["ambiguity"] or 0.0), parts["novelty"])
+    return combine(float(parts["disagreement"] or 0.0), parts["novelty"])
 
 
 class StudentPredictor:
@@ -246,6 +317,8 @@ class StudentPredictor:
         model: the network; the predictor owns it from then on (its BatchNorm is folded).
         device: where it runs.
         batch_size: frames per forward pass.
+        codes: the training frames' descriptors and the student's familiar distance
+            (``checkpoint.load_codes``), for the novelty part of the uncertainty.
     """
 
     def __init__(
@@ -253,14 +326,14 @@ class StudentPredictor:
         model: ResNetVAE,
         device: torch.device,
         batch_size: int = 16,
-        codes: torch.Tensor | None = None,
+        codes: tuple[torch.Tensor, float | None] | None = None,
     ) -> None:
         self.config = model.config
         self.device = device
         self.dtype = inference_dtype(device)
         self.batch_size = batch_size
         self.model = channels_last(fuse_batchnorm(model.eval().to(device)))
-        self.training_codes = None if codes is None else TrainingCodes.from_codes(codes)
+        self.training_codes = None if codes is None else TrainingCodes.from_codes(*codes)
 
     @classmethod
     def load(
@@ -299,18 +372,24 @@ class StudentPredictor:
             parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
                 predictive = predictive_mask(self.model, mean, logvar, samples, skips=skips)
-                drawn = predictive.cpu().numpy()
-                inner = list(drawn)
+                drawn, plain = predictive.cpu().numpy(), masks_t.cpu().numpy()
+                inner, inner_plain = list(drawn), list(plain)
                 for index, geometry in enumerate(geometries):
-                    inner[index] = drawn[index, geometry.inner_rows, geometry.inner_columns]
-                ambiguity = [mask_ambiguity(d) for d in inner]
+                    rows, columns = geometry.inner_rows, geometry.inner_columns
+                    inner[index] = drawn[index, rows, columns]
+                    inner_plain[index] = plain[index, rows, columns]
                 novel: list[float | None] = [None] * len(batch)
                 known = self.training_codes
                 codes = frame_codes(features)
                 if known is not None and codes.shape[1] == known.codes.shape[1]:
                     novel = list(known.novelty(codes))
                 parts = [
-                    {"ambiguity": a, "novelty": n} for a, n in zip(ambiguity, novel, strict=True)
+                    {
+                        "disagreement": mask_disagreement(d, p),
+                        "ambiguity": mask_ambiguity(d),
+                        "novelty": n,
+                    }
+                    for d, p, n in zip(inner, inner_plain, novel, strict=True)
                 ]
         masks = masks_t.cpu().numpy()
         heatmaps = torch.sigmoid(heatmap_logits.float()).cpu().numpy()
@@ -323,7 +402,7 @@ class StudentPredictor:
         masks, heatmaps, parts = self.outputs(batch, samples, geometries)
         results = []
         for i, geometry in enumerate(geometries):
-            found = to_frame(masks[i], heatmaps[i], geometry, self.config.k)
+            found = to_frame(masks[i], heatmaps[i], geometry, self.config)
             part = parts[i]
             if part is not None:
                 found = replace(found, uncertainty=uncertainty_of(part), uncertainty_parts=part)

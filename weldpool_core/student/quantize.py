@@ -45,6 +45,7 @@ from weldpool_core.student.checkpoint import (
 
 if TYPE_CHECKING:
     from weldpool_core.student.data import FrameGeometry
+    from weldpool_core.student.model import StudentConfig
 
 MIN_FRAMES = 4
 """Frames needed: half calibrate, half check."""
@@ -220,7 +221,7 @@ def compare(
     float_outputs: Sequence[NDArray[np.float32]],
     int8_outputs: Sequence[NDArray[np.float32]],
     geometries: Sequence[FrameGeometry],
-    k: int,
+    config: StudentConfig,
 ) -> tuple[list[float], list[float], float]:
     """Per frame the masks' IoU and the keypoints' distance, and the mean probability
     difference, of two students' (mask, heatmap) batches."""
@@ -236,8 +237,8 @@ def compare(
             iou(float_masks[index][rows, columns] >= 0.5, int8_masks[index][rows, columns] >= 0.5)
         )
         distance = _keypoint_distance(
-            frame_keypoints(float_masks[index], float_heatmaps[index], geometry, k),
-            frame_keypoints(int8_masks[index], int8_heatmaps[index], geometry, k),
+            frame_keypoints(float_masks[index], float_heatmaps[index], geometry, config),
+            frame_keypoints(int8_masks[index], int8_heatmaps[index], geometry, config),
         )
         if distance is not None:
             distances.append(distance)
@@ -276,9 +277,7 @@ def quantize_student(model_dir: str | Path, images: Sequence[NDArray[Any]]) -> Q
         float_session, int8_session = onnx_session(root / ONNX_FILE), onnx_session(candidate)
         float_outputs = float_session.run(None, {"image": check})
         int8_outputs = int8_session.run(None, {"image": check})
-        ious, distances, difference = compare(
-            float_outputs, int8_outputs, geometries[1::2], config.k
-        )
+        ious, distances, difference = compare(float_outputs, int8_outputs, geometries[1::2], config)
         result = QuantizeResult(
             path=path,
             calibration_frames=len(calibration),

@@ -72,7 +72,14 @@ from weldpool_core.student.model import (
     channels_last,
     kl_divergence,
 )
-from weldpool_core.student.predict import frame_codes, to_frame
+from weldpool_core.student.predict import (
+    FOREIGN_FRAMES,
+    TrainingCodes,
+    familiar_distance,
+    foreign_versions,
+    frame_codes,
+    to_frame,
+)
 
 ProgressCallback = Callable[[float, str], None]
 """``(fraction done in [0, 1], message) -> None``; raising from it cancels the training."""
@@ -403,7 +410,7 @@ def validate(
             masks = torch.sigmoid(output.mask_logits).cpu().numpy()
             heatmaps = torch.sigmoid(output.heatmap_logits).cpu().numpy()
             for offset, frame in enumerate(chunk):
-                found = to_frame(masks[offset], heatmaps[offset], frame.geometry, model.config.k)
+                found = to_frame(masks[offset], heatmaps[offset], frame.geometry, model.config)
                 scored[f"{start + offset}:{frame.name}"] = (
                     found.mask,
                     found.keypoints,
@@ -423,18 +430,31 @@ def save_training_codes(
     root: Path, frames: Sequence[PreparedFrame], device: torch.device, batch_size: int
 ) -> None:
     """The kept weights' descriptors (``predict.frame_codes``) of up to ``MAX_CODES`` training
-    frames, unaugmented (``checkpoint.save_codes``; the predictor's novelty score)."""
+    frames, unaugmented, and the student's familiar distance, measured on the
+    ``predict.foreign_versions`` of ``FOREIGN_FRAMES`` of them (``checkpoint.save_codes``; the
+    predictor's novelty score)."""
     model = checkpoint.load_student(root, device)
-    chosen = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), MAX_CODES)).round())
-    picked = [frames[int(i)] for i in chosen]
-    codes = []
-    with torch.inference_mode():
-        for start in range(0, len(picked), batch_size):
-            images = np.stack([f.image for f in picked[start : start + batch_size]])
-            batch = torch.from_numpy(images.transpose(0, 3, 1, 2)).to(device).float().div_(255.0)
-            features = model.features(batch.contiguous(memory_format=torch.channels_last))
-            codes.append(frame_codes(features).cpu())
-    checkpoint.save_codes(root, torch.cat(codes))
+
+    def descriptors(images: NDArray[np.uint8], foreign: bool = False) -> torch.Tensor:
+        codes = []
+        with torch.inference_mode():
+            for start in range(0, len(images), batch_size):
+                chunk = images[start : start + batch_size].transpose(0, 3, 1, 2)
+                batch = torch.from_numpy(chunk).to(device).float().div_(255.0)
+                if foreign:
+                    batch = foreign_versions(batch)
+                features = model.features(batch.contiguous(memory_format=torch.channels_last))
+                codes.append(frame_codes(features).cpu())
+        return torch.cat(codes)
+
+    def evenly(count: int) -> NDArray[np.uint8]:
+        chosen = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), count)).round())
+        return np.stack([frames[int(i)].image for i in chosen])
+
+    codes = descriptors(evenly(MAX_CODES))
+    foreign = descriptors(evenly(FOREIGN_FRAMES), foreign=True)
+    familiar = familiar_distance(TrainingCodes.from_codes(codes), foreign)
+    checkpoint.save_codes(root, codes, familiar)
 
 
 def _score(metrics: dict[str, Any], selection: Selection) -> float:

@@ -43,3 +43,14 @@ def sure_student(
     out = tmp_path_factory.mktemp("sure-student") / "model"
     config = tiny_config(epochs=None, steps=800, rounds=4)
     return train_student(tiny_frames, out, TINY_STUDENT, config)
+
+
+@pytest.fixture(scope="session")
+def sure_latent_student(
+    tmp_path_factory: pytest.TempPathFactory, tiny_frames: list[TrainingFrame]
+) -> TrainResult:
+    """``sure_student`` without skips: everything it draws passes through its latent, the
+    state a sequential cell carries (a skip student's finer maps come from each frame)."""
+    out = tmp_path_factory.mktemp("sure-latent-student") / "model"
+    config = tiny_config(epochs=None, steps=800, rounds=4)
+    return train_student(tiny_frames, out, replace(TINY_STUDENT, skips=0), config)

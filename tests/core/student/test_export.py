@@ -45,7 +45,7 @@ def test_onnx_and_torchscript_match_pytorch(student: str, request: pytest.Fixtur
     # A controller reproduces the predictor from the ONNX outputs and the geometry.
     predicted = StudentPredictor.load(trained.model_dir, "cpu").predict(frames)
     for index, geometry in enumerate(geometries):
-        rebuilt = to_frame(onnx_mask[index], onnx_heatmap[index], geometry, model.config.k)
+        rebuilt = to_frame(onnx_mask[index], onnx_heatmap[index], geometry, model.config)
         assert np.mean(rebuilt.mask == predicted[index].mask) > 0.999
         assert np.allclose(rebuilt.heatmap, predicted[index].heatmap, atol=1e-3)
 

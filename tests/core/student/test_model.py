@@ -122,8 +122,15 @@ def test_configurations_round_trip_and_bad_ones_are_refused() -> None:
         StudentConfig.from_dict({"layers": 3})
     with pytest.raises(InvalidInputError, match="skips must be 0 to 3"):
         StudentConfig(skips=4)
-    saved_before_skips = {k: v for k, v in config.as_dict().items() if k != "skips"}
-    assert StudentConfig.from_dict(saved_before_skips).skips == 0
+    with pytest.raises(InvalidInputError, match="keypoints must be mask or heatmap"):
+        StudentConfig(keypoints="corners")  # type: ignore[arg-type]
+    # A folder saved before a key existed loads as it was trained and used, whatever the
+    # default is now.
+    changed = replace(config, skips=2, keypoints="mask")
+    for key, before in (("skips", 0), ("keypoints", "heatmap")):
+        saved_before = {k: v for k, v in changed.as_dict().items() if k != key}
+        assert getattr(StudentConfig.from_dict(saved_before), key) == before
+    assert StudentConfig.from_dict(changed.as_dict()) == changed
 
 
 def test_skips_carry_the_frames_own_detail_past_the_latent() -> None:

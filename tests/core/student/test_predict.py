@@ -7,10 +7,14 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import keypoints_from_mask
 from weldpool_core.student.data import FrameGeometry
+from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import StudentPredictor, to_frame
 from weldpool_core.student.train import TrainResult
 from weldpool_core.synth import SynthParams, synth_frame
+
+HEATMAP_MODES = StudentConfig(keypoints="heatmap")
 
 
 def _spot(size: int, x: float, y: float, sigma: float = 1.5) -> np.ndarray:
@@ -26,11 +30,31 @@ def test_keypoints_and_maps_come_back_in_frame_pixels(aspect: str) -> None:
     heatmap = _spot(64, *at_input[0]) + _spot(64, *at_input[1])
     mask = np.zeros((64, 64), np.float32)
     mask[geometry.inner_rows, geometry.inner_columns] = 1.0
-    found = to_frame(mask, heatmap.astype(np.float32), geometry, k=4)
+    found = to_frame(mask, heatmap.astype(np.float32), geometry, HEATMAP_MODES)
     assert found.mask.shape == (200, 320) and found.mask.all()
     assert found.heatmap.shape == (200, 320, 2) and found.heatmap.dtype == np.float32
     order = np.argsort(found.keypoints[:, 0])
     assert np.allclose(found.keypoints[order], truth, atol=0.6)
+
+
+def test_keypoints_follow_the_source_the_config_names() -> None:
+    """The predicted mask says a pool at one place, the heatmap has its peaks elsewhere: the
+    default student reads Algorithm 1's keypoints of the mask (as a label's are placed; read at
+    model size, within 5 model pixels of Algorithm 1 on the full-resolution mask, whose
+    smoothing is finer), a heatmap student the peaks, 40 model pixels to the side; and a mask
+    with no pool gives no keypoints, not the heatmap's."""
+    frame = synth_frame(3)
+    geometry = FrameGeometry.fit(*frame.mask.shape, 256)
+    mask = geometry.image_to_input(frame.mask.astype(np.float32))
+    elsewhere = np.roll(geometry.image_to_input(frame.heatmap[:, :, 0]), 40, axis=1)
+    truth = keypoints_from_mask(frame.mask)
+    from_mask = to_frame(mask, elsewhere, geometry, StudentConfig()).keypoints
+    from_peaks = to_frame(mask, elsewhere, geometry, HEATMAP_MODES).keypoints
+    pixel = 1 / geometry.scale_x
+    assert len(from_mask) == 4 and np.abs(from_mask - truth).max() < 5 * pixel
+    assert len(from_peaks) == 4 and np.abs(from_peaks - truth)[:, 0].min() > 30 * pixel
+    nothing = to_frame(np.zeros_like(mask), elsewhere, geometry, StudentConfig())
+    assert nothing.keypoints.shape == (0, 2) and not nothing.mask.any()
 
 
 def test_a_notch_split_in_two_lobes_is_one_keypoint() -> None:
@@ -44,7 +68,7 @@ def test_a_notch_split_in_two_lobes_is_one_keypoint() -> None:
         frame = synth_frame(seed)
         geometry = FrameGeometry.fit(*frame.mask.shape, 256)
         maps = geometry.image_to_input(frame.heatmap)
-        found = to_frame(maps[:, :, 1], maps[:, :, 0], geometry, k=4)
+        found = to_frame(maps[:, :, 1], maps[:, :, 0], geometry, HEATMAP_MODES)
         cost = np.linalg.norm(found.keypoints[:, None] - frame.keypoints[None], axis=2)
         rows, columns = linear_sum_assignment(cost)
         assert len(found.keypoints) == 4, seed

@@ -19,6 +19,7 @@ from weldpool_core.stream import FrameSource, StreamStudent, run_stream
 from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import export_student
+from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.quantize import compare, quantize_student
 from weldpool_core.student.train import TrainResult, train_student
 from weldpool_core.synth import synth_frame
@@ -38,19 +39,22 @@ def _camera_frames(count: int = 12) -> list[np.ndarray]:
     return [synth_frame(seed, TINY_FRAME, 0.0).image for seed in range(100, 100 + count)]
 
 
-def test_compare_measures_masks_on_the_frame_and_keypoints_in_frame_pixels() -> None:
+@pytest.mark.parametrize("source", ["mask", "heatmap"])
+def test_compare_measures_masks_on_the_frame_and_keypoints_in_frame_pixels(source: str) -> None:
     """A pool moved 4 model pixels to the right: IoU of the two discs, and every keypoint
-    6 frame pixels away (the 96-wide frame is 64 model pixels wide: 1.5 px per model pixel)."""
+    6 frame pixels away (the 96-wide frame is 64 model pixels wide: 1.5 px per model pixel),
+    read from either output."""
+    config = StudentConfig(keypoints=source)  # type: ignore[arg-type]
     geometry = FrameGeometry.fit(64, 96, 64)
     mask = np.zeros((64, 64), np.float32)
     cv2.circle(mask, (30, 32), 12, 1.0, -1)
     moved = np.roll(mask, 4, axis=1)
     heatmap = heatmap_from_mask(mask).heatmap[:, :, 0].astype(np.float32)
     outputs = (np.stack([mask]), np.stack([heatmap]))
-    same, distances, difference = compare(outputs, outputs, [geometry], 4)
+    same, distances, difference = compare(outputs, outputs, [geometry], config)
     assert same == [1.0] and distances == [0.0] and difference == 0.0
     shifted = (np.stack([moved]), np.stack([np.roll(heatmap, 4, axis=1)]))
-    ious, distances, difference = compare(outputs, shifted, [geometry], 4)
+    ious, distances, difference = compare(outputs, shifted, [geometry], config)
     overlap = np.count_nonzero((mask > 0) & (moved > 0))
     expected = overlap / (2 * np.count_nonzero(mask) - overlap)
     assert ious == [pytest.approx(expected)] and expected < 0.8

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from tests.core.student.common import TINY_STUDENT
 from tests.helpers import REPO, run_cli, write_video
 from tests.mqtt import clear_retained, unique_topic
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import keypoints_from_mask
 from weldpool_core.smoothing import KeypointSmoother
 from weldpool_core.stream import (
     CapturedFrame,
@@ -83,8 +85,9 @@ def test_a_live_source_drops_stale_frames_and_says_how_many(tmp_path: Path) -> N
 
 def test_a_record_is_in_frame_pixels_and_millimetres() -> None:
     """Known outputs on a 64² letterboxed input of a 160×100 frame: the record's numbers are the
-    frame's, so a lost offset, scale or swapped axis shows."""
-    config = TINY_STUDENT
+    frame's, so a lost offset, scale or swapped axis shows (keypoints from the heatmap's peaks
+    here, and from the mask's outline below)."""
+    config = replace(TINY_STUDENT, keypoints="heatmap")
     geometry = FrameGeometry.fit(100, 160, 64, "letterbox")  # inner 64×40, offset y 12
     assert (geometry.offset_x, geometry.offset_y) == (0, 12)
     mask = np.zeros((64, 64), np.float32)
@@ -107,6 +110,12 @@ def test_a_record_is_in_frame_pixels_and_millimetres() -> None:
     expected = geometry.to_frame(corners)  # (x, y) · 2.5, y shifted by the letterbox
     assert len(found) == 4
     assert np.abs(np.sort(found, axis=0) - np.sort(expected, axis=0)).max() < 1.5
+    outline = analyse(frame, mask, heatmap, geometry, TINY_STUDENT).record["keypoints"]
+    full = np.zeros((100, 160), bool)
+    full[5:65, 20:140] = True  # the same pool in frame pixels
+    # Within 2 model pixels (5 frame px; Algorithm 1 smooths 9 px at either size, a rounder
+    # corner at 64²); a lost letterbox offset is 30 px, a lost scale 60 and more.
+    assert np.abs(np.array(outline) - keypoints_from_mask(full)).max() < 5
     assert record["ambiguity"] == 0.0
     hesitant = mask.copy()
     hesitant[12:14, 8:40] = 0.5  # a band the student is unsure of

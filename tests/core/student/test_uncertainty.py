@@ -1,5 +1,6 @@
-"""The student's uncertainty: the mask's doubtful mass over its area, novelty beyond the
-training frames, and what they add up to on frames the student gets wrong or never saw."""
+"""The student's uncertainty: how far its posterior moves the mask, the mask's doubtful mass
+over its area, novelty beyond the student's own familiar distance from its training frames,
+and what they add up to on frames the student gets wrong or never saw."""
 
 from __future__ import annotations
 
@@ -13,16 +14,20 @@ from scipy.stats import spearmanr
 
 from tests.core.student.common import synthetic_frames
 from weldpool_core.metrics import iou
-from weldpool_core.student import predict as predict_module
+from weldpool_core.student.checkpoint import load_codes, save_codes
 from weldpool_core.student.data import TrainingFrame
 from weldpool_core.student.predict import (
     FAMILIAR_DISTANCE,
+    FOREIGN_MARGIN,
     StudentPredictor,
     TrainingCodes,
     combine,
+    familiar_distance,
+    foreign_versions,
     frame_codes,
     frames_to_batch,
     mask_ambiguity,
+    mask_disagreement,
 )
 from weldpool_core.student.train import TrainResult
 
@@ -50,28 +55,75 @@ def test_ambiguity_is_the_doubtful_mass_over_the_pool_area() -> None:
     assert mask_ambiguity(np.full((64, 64), 0.45, np.float32)) == 1.0  # capped
 
 
-def test_novelty_grows_with_the_distance_to_the_nearest_training_frame() -> None:
+def test_disagreement_is_one_minus_the_soft_iou_of_the_draws_with_the_plain_mask() -> None:
+    """0 when the draws leave the mask as it is, growing as they move its outline, the same
+    either way round, weighed against the pool's size, and 0 for two empty frames."""
+    plain = _disc(20, 2)
+    moved = [mask_disagreement(np.roll(plain, shift, axis=1), plain) for shift in (0, 2, 6)]
+    assert moved[0] == 0.0 and 0 < moved[1] < moved[2] < 1
+    assert mask_disagreement(plain, np.roll(plain, 6, axis=1)) == pytest.approx(moved[2])
+    small = _disc(10, 2)
+    assert mask_disagreement(np.roll(small, 2, axis=1), small) > 1.5 * moved[1]
+    half = 0.5 * plain  # every pixel's probability halved: the soft IoU is one half
+    assert mask_disagreement(half, plain) == pytest.approx(0.5)
+    assert mask_disagreement(np.zeros((64, 64)), np.zeros((64, 64))) == 0.0
+
+
+def test_novelty_grows_with_the_distance_beyond_the_students_familiar_distance() -> None:
     rng = np.random.default_rng(0)
     codes = torch.from_numpy(rng.normal(size=(6, 32))).float()
-    known = TrainingCodes.from_codes(codes)
     direction = torch.from_numpy(rng.normal(size=32)).float()
     steps = [0.0, 0.1, 0.5, 2.0, 10.0, 40.0, 100.0]
     moved = torch.stack([codes[2] + step * direction for step in steps])
-    distances = known.distance(moved)
-    assert distances[0] == pytest.approx(0.0, abs=1e-6)
-    assert all(a < b for a, b in itertools.pairwise(distances))
-    scores = known.novelty(moved)
-    familiar = [s for s, r in zip(scores, distances, strict=True) if r <= FAMILIAR_DISTANCE]
-    beyond = [s for s, r in zip(scores, distances, strict=True) if r > FAMILIAR_DISTANCE]
-    assert familiar == [0.0] * len(familiar) and len(familiar) >= 3 and len(beyond) >= 2
-    assert all(a < b for a, b in itertools.pairwise(beyond)) and beyond[-1] > 0.8
-    assert all(0 <= s < 1 for s in scores)
-    for score, r in zip(beyond, distances[-len(beyond) :], strict=True):
-        excess = r - FAMILIAR_DISTANCE
-        assert score == pytest.approx(excess / (1 + excess))
+    for familiar in (1.0, 6.0):
+        known = TrainingCodes.from_codes(codes, familiar)
+        distances = known.distance(moved)
+        assert distances[0] == pytest.approx(0.0, abs=1e-6)
+        assert all(a < b for a, b in itertools.pairwise(distances))
+        scores = known.novelty(moved)
+        inside = [s for s, r in zip(scores, distances, strict=True) if r <= familiar]
+        beyond = [s for s, r in zip(scores, distances, strict=True) if r > familiar]
+        assert inside == [0.0] * len(inside) and len(inside) >= 3 and len(beyond) >= 2
+        assert all(a < b for a, b in itertools.pairwise(beyond)) and beyond[-1] > 0.8
+        assert all(0 <= s < 1 for s in scores)
+        for score, r in zip(beyond, distances[-len(beyond) :], strict=True):
+            assert score == pytest.approx((r - familiar) / (1 + r - familiar))
+    assert TrainingCodes.from_codes(codes).familiar == FAMILIAR_DISTANCE  # an older folder
     single = TrainingCodes.from_codes(codes[:1])  # one training frame still has a scale
     near, far = single.distance(torch.stack([codes[0] * 1.01, codes[0] * 3]))
     assert near < far
+
+
+def test_the_familiar_distance_is_a_margin_short_of_the_nearest_foreign_frame(
+    tmp_path,  # type: ignore[no-untyped-def]
+) -> None:
+    """Measured per student: ``FOREIGN_MARGIN`` of the distance of the nearest foreign frame
+    (not the farthest, not the mean), so it scales with how far that student puts them; and
+    it is saved with the codes, an older file reading as None."""
+    rng = np.random.default_rng(1)
+    codes = torch.from_numpy(rng.normal(size=(8, 16))).float()
+    known = TrainingCodes.from_codes(codes)
+    direction = torch.from_numpy(rng.normal(size=16)).float()
+    for spread in (1.0, 3.0):
+        foreign = torch.stack([codes[0] + spread * k * direction for k in (5.0, 2.0, 9.0)])
+        nearest = min(known.distance(foreign))
+        assert familiar_distance(known, foreign) == pytest.approx(FOREIGN_MARGIN * nearest)
+    save_codes(tmp_path, codes, 2.5)
+    found = load_codes(tmp_path)
+    assert found is not None and torch.equal(found[0], codes) and found[1] == 2.5
+    save_codes(tmp_path, codes)
+    assert load_codes(tmp_path)[1] is None  # type: ignore[index]
+
+
+def test_foreign_versions_are_blank_noise_inverted_and_washed_out() -> None:
+    batch = torch.rand(2, 3, 8, 8, generator=torch.Generator().manual_seed(0))
+    made = foreign_versions(batch)
+    assert made.shape == (12, 3, 8, 8) and float(made.min()) >= 0 and float(made.max()) <= 1
+    assert [float(made[i].mean()) for i in (0, 2, 4)] == [0.0, 0.5, 1.0]
+    assert torch.equal(made[8:10], 1 - batch)
+    washed = made[10:]
+    assert torch.allclose(washed.std(dim=(1, 2, 3)), 0.1 * batch.std(dim=(1, 2, 3)), rtol=1e-4)
+    assert torch.equal(made, foreign_versions(batch))  # seeded noise
 
 
 def test_either_part_raises_the_uncertainty() -> None:
@@ -79,13 +131,6 @@ def test_either_part_raises_the_uncertainty() -> None:
     assert combine(0.2, 0.5) == pytest.approx(0.6)
     assert combine(0.3, 0.1) > combine(0.2, 0.1) and combine(0.2, 0.4) > combine(0.2, 0.1)
     assert combine(1.0, 0.0) == 1.0 and combine(0.0, 1.0) == 1.0
-
-
-TINY_FAMILIAR = 1.5
-"""The familiar distance for the tiny test student. ``FAMILIAR_DISTANCE`` is measured for the
-default student on real frames (``bench/uncertainty.py``); the tiny student's 64² features are
-weaker, and its frames lie closer: frames like its training ones at under 1, noise, blank,
-inverted and low-contrast frames at 2 to 4 (over seeds and thread counts)."""
 
 
 def _distances(predictor: StudentPredictor, images: list[NDArray[np.uint8]]) -> list[float]:
@@ -96,13 +141,11 @@ def _distances(predictor: StudentPredictor, images: list[NDArray[np.uint8]]) -> 
     return predictor.training_codes.distance(codes)
 
 
-def test_frames_unlike_the_training_ones_score_above_like_ones(
-    sure_student: TrainResult, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_frames_unlike_the_training_ones_score_above_like_ones(sure_student: TrainResult) -> None:
     """Noise, a blank frame and an inverted one against held-out synthetic frames like the
-    training ones: twice as far from the training frames as the farthest like one, and, with
-    the familiar distance between the two, above every like frame in uncertainty. A constant
-    score or a dropped novelty fails here."""
+    training ones: twice as far from the training frames as the farthest like one, the
+    student's own familiar distance between the two, and above every like frame in
+    uncertainty. A constant score or a dropped novelty fails here."""
     assert (sure_student.model_dir / "frame_codes.safetensors").is_file()
     predictor = StudentPredictor.load(sure_student.model_dir, "cpu")
     like = [f.image for f in synthetic_frames(4, first_seed=20)]
@@ -113,8 +156,9 @@ def test_frames_unlike_the_training_ones_score_above_like_ones(
         255 - like[0],
     ]
     near, far = _distances(predictor, like), _distances(predictor, unlike)
-    assert max(near) < TINY_FAMILIAR < min(far) and min(far) > 2 * max(near), (near, far)
-    monkeypatch.setattr(predict_module, "FAMILIAR_DISTANCE", TINY_FAMILIAR)
+    assert predictor.training_codes is not None
+    familiar = predictor.training_codes.familiar
+    assert max(near) < familiar < min(far) and min(far) > 2 * max(near), (near, far, familiar)
     found = predictor.predict(like + unlike, samples=4)
     scores = [p.uncertainty for p in found]
     assert all(s is not None and 0 <= s <= 1 for s in scores)
@@ -130,13 +174,10 @@ def _dim(frame: TrainingFrame, contrast: float = 0.1) -> NDArray[np.uint8]:
     return np.clip(centre + contrast * (image - centre), 0, 255).astype(np.uint8)
 
 
-def test_the_uncertainty_rises_on_frames_the_student_gets_wrong(
-    sure_student: TrainResult, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_the_uncertainty_rises_on_frames_the_student_gets_wrong(sure_student: TrainResult) -> None:
     """A known hard region: the same held-out frames dimmed. The student really gets them wrong
     (lower IoU on average, checked), every dimmed frame scores above its clean self, and over
     both sets the score ranks the error. Constant, dropped or inverted, it fails."""
-    monkeypatch.setattr(predict_module, "FAMILIAR_DISTANCE", TINY_FAMILIAR)
     predictor = StudentPredictor.load(sure_student.model_dir, "cpu")
     clean = synthetic_frames(6, first_seed=40)
     plain = predictor.predict([f.image for f in clean], samples=4)

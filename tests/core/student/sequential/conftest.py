@@ -18,10 +18,11 @@ from weldpool_core.student.train import TrainResult
 
 
 @pytest.fixture()
-def stateful_dir(sure_student: TrainResult, tmp_path: Path) -> Path:
-    """The tiny student trained until its masks are crisp, with a cell that keeps 60 % of the
-    past (so the state shows in its masks)."""
-    root = Path(shutil.copytree(sure_student.model_dir, tmp_path / "model"))
+def stateful_dir(sure_latent_student: TrainResult, tmp_path: Path) -> Path:
+    """The tiny student (without skips: all it draws comes through the state) trained until
+    its masks are crisp, with a cell that keeps 60 % of the past (so the state shows in its
+    masks)."""
+    root = Path(shutil.copytree(sure_latent_student.model_dir, tmp_path / "model"))
     cell = gated_cell(checkpoint.load_student(root).config.latent_channels, update=0.4)
     save_cell(root, cell, SequentialConfig(device="cpu"), windows=1, losses=[1.0])
     export_student(root, ["onnx"])
