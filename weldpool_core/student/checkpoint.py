@@ -177,8 +177,9 @@ def load_codes(model_dir: str | Path) -> tuple[torch.Tensor, float | None] | Non
     if codes.ndim != 2 or not len(codes):
         return None
     familiar = state.get("familiar")
-    usable = familiar is not None and familiar.numel() == 1 and float(familiar) > 0
-    return codes, float(familiar) if usable else None
+    if familiar is None or familiar.numel() != 1 or not float(familiar) > 0:
+        return codes, None
+    return codes, float(familiar)
 
 
 def save_state(model_dir: Path, state: dict[str, Any]) -> None:

@@ -164,6 +164,13 @@ def test_frames_unlike_the_training_ones_score_above_like_ones(sure_student: Tra
     assert all(s is not None and 0 <= s <= 1 for s in scores)
     assert min(scores[4:]) > max(scores[:4]), scores  # type: ignore[type-var]
     assert [p.uncertainty_parts["novelty"] for p in found[:4]] == [0.0] * 4  # type: ignore[index]
+    # The score is the disagreement ⊕ the novelty; the ambiguity is reported beside them.
+    parts = [p.uncertainty_parts for p in found]
+    assert all(
+        s == pytest.approx(combine(q["disagreement"], q["novelty"]))  # type: ignore[index]
+        for s, q in zip(scores, parts, strict=True)
+    )
+    assert any(q["disagreement"] != q["ambiguity"] for q in parts)  # type: ignore[index]
 
 
 def _dim(frame: TrainingFrame, contrast: float = 0.1) -> NDArray[np.uint8]:
