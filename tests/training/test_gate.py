@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +32,11 @@ KEYPOINTS = [[20.0, 20.0], [76.0, 20.0], [76.0, 44.0], [20.0, 44.0]]
 
 @pytest.fixture(scope="module")
 def base_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A student whose keypoints are its heatmap's peaks, so that the head's biases below make
+    its mask and its keypoints separately (from the mask, a whole-frame pool has corners)."""
     out = tmp_path_factory.mktemp("gate") / "model"
-    train_student(synthetic_frames(4), out, TINY_STUDENT, tiny_config(epochs=1))
+    student = replace(TINY_STUDENT, keypoints="heatmap")
+    train_student(synthetic_frames(4), out, student, tiny_config(epochs=1))
     return out
 
 

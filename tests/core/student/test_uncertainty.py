@@ -158,6 +158,8 @@ def test_frames_unlike_the_training_ones_score_above_like_ones(sure_student: Tra
     near, far = _distances(predictor, like), _distances(predictor, unlike)
     assert predictor.training_codes is not None
     familiar = predictor.training_codes.familiar
+    saved = load_codes(sure_student.model_dir)
+    assert saved is not None and saved[1] == familiar  # measured by its training, not the fallback
     assert max(near) < familiar < min(far) and min(far) > 2 * max(near), (near, far, familiar)
     found = predictor.predict(like + unlike, samples=4)
     scores = [p.uncertainty for p in found]
