@@ -14,8 +14,8 @@ Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertaint
 ambiguity of the predictive mask over ``--samples`` latent draws, noisy-or'd with novelty
 beyond the student's own familiar distance), ``ambiguity`` (of the plain pass alone),
 ``novelty`` (the shipped one), ``novelty_fixed`` (beyond the fixed ``FAMILIAR_DISTANCE`` that
-every student used before measuring its own), ``before`` (the score shipped before this bench: test-time-pass
-disagreement noisy-or'd with r / (1 + r)), ``tta`` (that disagreement alone), ``tta_strong``
+every student used before measuring its own), ``before`` (the score shipped before this
+bench: test-time-pass disagreement noisy-or'd with r / (1 + r)), ``tta`` (that disagreement alone), ``tta_strong``
 (passes twice as wide), ``novelty_old`` (r / (1 + r)), ``latent`` (1 − soft IoU of the latent
 draws' mean mask with the plain one), ``dropout`` (the same under feature dropout at test
 time), ``heatmap`` (1 − the strongest keypoint peak); and across the seeds' students:
@@ -236,7 +236,8 @@ def train_fold(
         predictor = StudentPredictor.load(folder, "cpu")
         config = predictor.config
         params = HeatmapParams(k=config.k)
-        prepared = [prepare_frame(frames[i], config.input_size, config.aspect, params) for i in train]
+        size, aspect = config.input_size, config.aspect
+        prepared = [prepare_frame(frames[i], size, aspect, params) for i in train]
         save_training_codes(folder, prepared, torch.device("cpu"), 8)
     return StudentPredictor.load(folder, "cpu"), json.loads(done.read_text())["seconds"]
 
