@@ -10,16 +10,17 @@ held-out frames together, and the per-seed values. Also the cost of each candida
 frame (2 threads, batch of 5 frames) and, for the seeds' students as an ensemble, ρ against
 the ensemble's own error.
 
-Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: the ambiguity
-of the predictive mask over ``--samples`` latent draws, noisy-or'd with novelty beyond the
-student's own familiar distance), ``ambiguity`` (of the plain pass alone), ``novelty`` (the
-shipped one), ``novelty_fixed`` (beyond the fixed ``FAMILIAR_DISTANCE`` that every student used
-before measuring its own), ``before`` (the score shipped before this bench: test-time-pass
-disagreement noisy-or'd with r / (1 + r)), ``tta`` (that disagreement alone), ``tta_strong``
-(passes twice as wide), ``novelty_old`` (r / (1 + r)), ``latent`` (1 − soft IoU of the latent
-draws' mean mask with the plain one), ``dropout`` (the same under feature dropout at test time),
-``heatmap`` (1 − the strongest keypoint peak); and across the seeds' students: ``ensemble`` (1 −
-the mean soft IoU between each student's mask probability and the students' mean).
+Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: the
+disagreement of the predictive mask over ``--samples`` latent draws with the plain one, i.e.
+``latent``, noisy-or'd with novelty beyond the student's own familiar distance), ``ambiguity``
+(of the plain pass alone), ``novelty`` (the shipped one), ``novelty_fixed`` (beyond the fixed
+``FAMILIAR_DISTANCE`` that every student used before measuring its own), ``before`` (the score
+shipped before this bench: test-time-pass disagreement noisy-or'd with r / (1 + r)), ``tta``
+(that disagreement alone), ``tta_strong`` (passes twice as wide), ``novelty_old`` (r / (1 + r)),
+``latent`` (1 − soft IoU of the latent draws' mean mask with the plain one), ``dropout`` (the
+same under feature dropout at test time), ``heatmap`` (1 − the strongest keypoint peak); and
+across the seeds' students: ``ensemble`` (1 − the mean soft IoU between each student's mask
+probability and the students' mean).
 
 Trained folders are kept under ``--cache`` (default /tmp/weldpool-bench-students, which
 ``real_student.py --cache`` shares), so a rerun only scores; a folder trained before students
