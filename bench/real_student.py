@@ -258,7 +258,7 @@ def print_folds(results: dict[str, list[tuple[str, FoldResult]]]) -> None:
     for kind, done in results.items():
         print(
             f"uncertainty ~ 1 − IoU, Spearman ρ over the {kind} held-out frames: "
-            f"{rho(done):.2f} (disagreement alone {rho(done, 'disagreement'):.2f}, novelty "
+            f"{rho(done):.2f} (spread alone {rho(done, 'spread'):.2f}, novelty "
             f"alone {rho(done, 'novelty'):.2f})"
         )
 
@@ -317,7 +317,7 @@ def print_seeds(
         print(
             f"seed {seed}: ρ(uncertainty, 1 − IoU) LOCO {rho(run.get('loco', [])):.2f}, "
             f"LOCO and within pooled {rho(pooled):.2f} (novelty {rho(pooled, 'novelty'):.2f}, "
-            f"disagreement {rho(pooled, 'disagreement'):.2f})"
+            f"spread {rho(pooled, 'spread'):.2f}, ambiguity {rho(pooled, 'ambiguity'):.2f})"
         )
     truth = {f.name: f.mask for f in frames}
     for kind in runs[0]:
@@ -327,7 +327,8 @@ def print_seeds(
         for label, values in (
             ("uncertainty", [u for f in every for u in f.scores.uncertainties]),
             ("novelty", [p.get("novelty") for p in parts]),
-            ("disagreement", [p.get("disagreement") for p in parts]),
+            ("spread", [p.get("spread") for p in parts]),
+            ("ambiguity", [p.get("ambiguity") for p in parts]),
         ):
             if any(v is None for v in values):
                 continue

@@ -11,7 +11,7 @@ frame (2 threads, batch of 5 frames) and, for the seeds' students as an ensemble
 the ensemble's own error.
 
 Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: the
-disagreement of the predictive mask over ``--samples`` latent draws with the plain one, i.e.
+spread of the predictive mask over ``--samples`` latent draws about the plain one, i.e.
 ``latent``, noisy-or'd with novelty beyond the student's own familiar distance), ``ambiguity``
 (of the plain pass alone), ``novelty`` (the shipped one), ``novelty_fixed`` (beyond the fixed
 ``FAMILIAR_DISTANCE`` that every student used before measuring its own), ``before`` (the score

@@ -18,18 +18,18 @@ separation, only the strongest counts: the others are lobes of the same keypoint
 Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from two
 signals (``uncertainty_parts`` holds them, and the ambiguity beside them):
 
-- ``disagreement``: how much of the answer the student's own posterior moves. The frame's
+- ``spread``: how much of the answer the student's own posterior moves. The frame's
   predictive mask probability p̄ is the mean over ``samples`` seeded draws of the VAE's latent
   (its posterior mean plus noise of its predicted spread, decoded); the score is 1 − the soft
   IoU (Σ min ÷ Σ max over the frame's pixels) of p̄ with the plain pass's mask probability
-  (``mask_disagreement``): 0 where no draw changes the mask, higher where the draws move the
+  (``mask_spread``): 0 where no draw changes the mask, higher where the draws move the
   pool's outline (the wire, the glare, a dark front edge: where a mask goes wrong), and like
   IoU it weighs that change against the pool's size.
 - ``ambiguity`` (reported, not combined): the probability mass in doubt on p̄, Σ 2·min(p̄,
   1 − p̄), over the predicted pool's area, capped at 1 (``mask_ambiguity``, which the live
   record also reports). It ranked the errors of the students without skips best (ρ +0.49 on
-  the real folds, against +0.39 for the disagreement); a student with skips draws its edge
-  sharp from the encoder's maps, and there the disagreement ranks them and the ambiguity less
+  the real folds, against +0.39 for the spread); a student with skips draws its edge
+  sharp from the encoder's maps, and there the spread ranks them and the ambiguity less
   well (+0.60 against +0.36, README).
 - ``novelty``: how far the frame lies beyond the training frames, as the encoder sees them.
   Each frame's descriptor is the mean and standard deviation of every channel of the
@@ -46,7 +46,7 @@ signals (``uncertainty_parts`` holds them, and the ambiguity beside them):
   another camera, lies beyond and scores high even where the student answers confidently.
   None for a model folder without codes.
 
-``uncertainty`` = 1 − (1 − disagreement)·(1 − novelty) (a noisy-or: either signal alone can
+``uncertainty`` = 1 − (1 − spread)·(1 − novelty) (a noisy-or: either signal alone can
 raise it). The draws are seeded, so the same frame gets the same score, and they never change
 the answer itself (mask, heatmap, keypoints come from the latent mean). On the 15 real labels,
 leave-one-clip-out, it ranks the default student's errors (Spearman ρ over 45 held-out
@@ -223,7 +223,7 @@ def mask_ambiguity(probability: NDArray[np.floating[Any]]) -> float:
     return min(1.0, doubt / max(area, 1))
 
 
-def mask_disagreement(drawn: NDArray[np.floating[Any]], plain: NDArray[np.floating[Any]]) -> float:
+def mask_spread(drawn: NDArray[np.floating[Any]], plain: NDArray[np.floating[Any]]) -> float:
     """1 − the soft IoU (Σ min ÷ Σ max) of the latent draws' mean mask probability with the
     plain pass's, over one frame's pixels: how much of the answer the student's own posterior
     moves (0 when both are empty; see the module doc)."""
@@ -300,14 +300,14 @@ def familiar_distance(known: TrainingCodes, foreign_codes: torch.Tensor) -> floa
     return FOREIGN_MARGIN * min(known.distance(foreign_codes))
 
 
-def combine(disagreement: float, novel: float | None) -> float:
+def combine(spread: float, novel: float | None) -> float:
     """The uncertainty of a frame from its parts (a noisy-or; see the module doc)."""
-    return float(1.0 - (1.0 - disagreement) * (1.0 - (novel or 0.0)))
+    return float(1.0 - (1.0 - spread) * (1.0 - (novel or 0.0)))
 
 
 def uncertainty_of(parts: dict[str, float | None]) -> float:
     """The uncertainty of a frame from its ``uncertainty_parts``."""
-    return combine(float(parts["disagreement"] or 0.0), parts["novelty"])
+    return combine(float(parts["spread"] or 0.0), parts["novelty"])
 
 
 class StudentPredictor:
@@ -368,16 +368,16 @@ class StudentPredictor:
             features, skips = self.model.encoder_maps(batch)
             mean, logvar = self.model.posterior(features)
             mask_logits, heatmap_logits = self.model.decode(mean, skips)
-            masks_t = torch.sigmoid(mask_logits.float())
+            masks = torch.sigmoid(mask_logits.float()).cpu().numpy()
             parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
                 predictive = predictive_mask(self.model, mean, logvar, samples, skips=skips)
-                drawn, plain = predictive.cpu().numpy(), masks_t.cpu().numpy()
-                inner, inner_plain = list(drawn), list(plain)
+                drawn = predictive.cpu().numpy()
+                inner, inner_plain = list(drawn), list(masks)
                 for index, geometry in enumerate(geometries):
                     rows, columns = geometry.inner_rows, geometry.inner_columns
                     inner[index] = drawn[index, rows, columns]
-                    inner_plain[index] = plain[index, rows, columns]
+                    inner_plain[index] = masks[index, rows, columns]
                 novel: list[float | None] = [None] * len(batch)
                 known = self.training_codes
                 codes = frame_codes(features)
@@ -385,13 +385,12 @@ class StudentPredictor:
                     novel = list(known.novelty(codes))
                 parts = [
                     {
-                        "disagreement": mask_disagreement(d, p),
+                        "spread": mask_spread(d, p),
                         "ambiguity": mask_ambiguity(d),
                         "novelty": n,
                     }
                     for d, p, n in zip(inner, inner_plain, novel, strict=True)
                 ]
-        masks = masks_t.cpu().numpy()
         heatmaps = torch.sigmoid(heatmap_logits.float()).cpu().numpy()
         return masks, heatmaps, parts
 

@@ -27,7 +27,7 @@ from weldpool_core.student.predict import (
     frame_codes,
     frames_to_batch,
     mask_ambiguity,
-    mask_disagreement,
+    mask_spread,
 )
 from weldpool_core.student.train import TrainResult
 
@@ -55,18 +55,18 @@ def test_ambiguity_is_the_doubtful_mass_over_the_pool_area() -> None:
     assert mask_ambiguity(np.full((64, 64), 0.45, np.float32)) == 1.0  # capped
 
 
-def test_disagreement_is_one_minus_the_soft_iou_of_the_draws_with_the_plain_mask() -> None:
+def test_spread_is_one_minus_the_soft_iou_of_the_draws_with_the_plain_mask() -> None:
     """0 when the draws leave the mask as it is, growing as they move its outline, the same
     either way round, weighed against the pool's size, and 0 for two empty frames."""
     plain = _disc(20, 2)
-    moved = [mask_disagreement(np.roll(plain, shift, axis=1), plain) for shift in (0, 2, 6)]
+    moved = [mask_spread(np.roll(plain, shift, axis=1), plain) for shift in (0, 2, 6)]
     assert moved[0] == 0.0 and 0 < moved[1] < moved[2] < 1
-    assert mask_disagreement(plain, np.roll(plain, 6, axis=1)) == pytest.approx(moved[2])
+    assert mask_spread(plain, np.roll(plain, 6, axis=1)) == pytest.approx(moved[2])
     small = _disc(10, 2)
-    assert mask_disagreement(np.roll(small, 2, axis=1), small) > 1.5 * moved[1]
+    assert mask_spread(np.roll(small, 2, axis=1), small) > 1.5 * moved[1]
     half = 0.5 * plain  # every pixel's probability halved: the soft IoU is one half
-    assert mask_disagreement(half, plain) == pytest.approx(0.5)
-    assert mask_disagreement(np.zeros((64, 64)), np.zeros((64, 64))) == 0.0
+    assert mask_spread(half, plain) == pytest.approx(0.5)
+    assert mask_spread(np.zeros((64, 64)), np.zeros((64, 64))) == 0.0
 
 
 def test_novelty_grows_with_the_distance_beyond_the_students_familiar_distance() -> None:
@@ -166,13 +166,13 @@ def test_frames_unlike_the_training_ones_score_above_like_ones(sure_student: Tra
     assert all(s is not None and 0 <= s <= 1 for s in scores)
     assert min(scores[4:]) > max(scores[:4]), scores  # type: ignore[type-var]
     assert [p.uncertainty_parts["novelty"] for p in found[:4]] == [0.0] * 4  # type: ignore[index]
-    # The score is the disagreement ⊕ the novelty; the ambiguity is reported beside them.
+    # The score is the spread ⊕ the novelty; the ambiguity is reported beside them.
     parts = [p.uncertainty_parts for p in found]
     assert all(
-        s == pytest.approx(combine(q["disagreement"], q["novelty"]))  # type: ignore[index]
+        s == pytest.approx(combine(q["spread"], q["novelty"]))  # type: ignore[index]
         for s, q in zip(scores, parts, strict=True)
     )
-    assert any(q["disagreement"] != q["ambiguity"] for q in parts)  # type: ignore[index]
+    assert any(q["spread"] != q["ambiguity"] for q in parts)  # type: ignore[index]
 
 
 def _dim(frame: TrainingFrame, contrast: float = 0.1) -> NDArray[np.uint8]:
