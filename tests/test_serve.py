@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -138,9 +139,9 @@ def _healthy(base: str) -> bool:
 
 def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: Path) -> None:
     """`serve --no-worker` on SQLite counts its queue and finds the teacher's weights without
-    importing Huey (with redis and psycopg), huggingface_hub's download client or the pages'
-    Jinja: start-up cost they would add to every restart. Huey comes with the first job, Jinja
-    with the first page."""
+    importing Huey (with redis and psycopg), huggingface_hub's download client, the pages'
+    Jinja or rich (structlog's traceback drawing): start-up cost they would add to every
+    restart. Huey comes with the first job, Jinja with the first page."""
     script = """
 import sys
 from fastapi.testclient import TestClient
@@ -152,7 +153,7 @@ migrate(create_db_engine(settings.resolved_database_url))
 with TestClient(create_app(settings)) as client:
     body = client.get("/api/v1/health").json()
     assert body["queue"]["pending"] == 0, body
-    print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download", "jinja2")
+    print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download", "jinja2", "rich")
                  if m in sys.modules))
     assert "<form" in client.get("/login").text
     print("jinja2" in sys.modules)
@@ -171,3 +172,37 @@ print("huey" in sys.modules)
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:3] == ["[]", "True", "True"]
+
+
+def test_logs_keep_tracebacks_without_rich() -> None:
+    """A fresh process hides rich from structlog (start-up), and an exception logged in either
+    format still carries its whole traceback as plain text."""
+    script = """
+import sys
+import app
+import structlog
+from app.logs import configure_logging
+print("rich" in sys.modules)
+log = structlog.get_logger("check")
+for fmt in ("console", "json"):
+    configure_logging(fmt=fmt)
+    try:
+        {}["missing key"]
+    except KeyError:
+        log.exception("failed", frame=7)
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+    assert "failed" in out.stderr and "frame=7" in out.stderr
+    assert out.stderr.count("Traceback (most recent call last)") == 2
+    assert out.stderr.count("KeyError: 'missing key'") == 2
+    assert json.loads(out.stderr.strip().splitlines()[-1])["exception"].endswith(
+        "KeyError: 'missing key'"
+    )
