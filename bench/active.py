@@ -4,8 +4,9 @@ A pool of frames from many synthetic runs (consecutive frames of a run look alik
 video), a fixed validation set (best-epoch choice, as the validation split does in the service)
 and a test set, both from other runs. Both strategies start from the same random labels; each
 round the oracle labels ``--step`` more frames — (a) the head of the review queue as the service
-builds it (``combined_score`` of the student's uncertainty: mask ambiguity and
-novelty against its training frames, ``student.predict``; then the diversity pick over its top
+builds it (``combined_score`` of the student's uncertainty: the geometric mean of its latent
+draws' spread and its mask's ambiguity, ⊕ novelty against its training frames,
+``student.predict``; then the diversity pick over its top
 50, on small thumbnails since no DINO weights are here; no teacher components, as a
 random-weight teacher would score noise) or (b) random ones — and a fresh student is
 trained for a fixed number of optimiser steps. Prints the test mIoU and mED per round (mean over
@@ -33,7 +34,7 @@ from scipy.stats import spearmanr
 from weldpool_core.active import combined_score, diverse_order
 from weldpool_core.metrics import iou, keypoint_scores
 from weldpool_core.student.model import student_config
-from weldpool_core.student.predict import StudentPredictor
+from weldpool_core.student.predict import StudentPredictor, frame_codes, frames_to_batch
 from weldpool_core.student.train import TrainConfig, train_student
 from weldpool_core.synth import SynthFrame, SynthParams, synth_sequence
 
@@ -107,7 +108,7 @@ def _evaluate(predictor: StudentPredictor, test) -> tuple[float, float]:
 def _queue_pick(
     predictor, frames, unlabelled: list[int], count: int, samples: int
 ) -> tuple[list[int], float]:
-    """The head of the review queue as the service builds it, from the student's spread alone,
+    """The head of the review queue as the service builds it, from the student's uncertainty,
     and the rank correlation (Spearman) of the queue's score with the student's real error
     (1 − IoU) on the unlabelled frames: above 0, the score finds the frames the student gets
     wrong."""
@@ -116,10 +117,21 @@ def _queue_pick(
         [combined_score({"student_uncertainty": p.uncertainty}) or 0.0 for p in predictions]
     )
     errors = [1 - iou(p.mask, frames[i].mask) for p, i in zip(predictions, unlabelled, strict=True)]
-    for part in ("ambiguity", "novelty"):
+    for part in ("spread", "ambiguity", "novelty"):
         values = [(p.uncertainty_parts or {}).get(part) for p in predictions]
         if all(v is not None for v in values):
             print(f"  ρ of {part} alone: {spearmanr(values, errors)[0]:.2f}", flush=True)
+    batch, _ = frames_to_batch([_rgb(frames[i].image) for i in unlabelled], predictor.config)
+    with torch.inference_mode():
+        codes = frame_codes(predictor.model.features(batch))
+    assert predictor.training_codes is not None
+    distance = predictor.training_codes.distance(codes)
+    print(
+        f"  ρ of the unshifted distance: {spearmanr(distance, errors)[0]:.2f} (median "
+        f"{np.median(distance):.2f}, max {np.max(distance):.2f}; familiar "
+        f"{predictor.training_codes.familiar:.2f})",
+        flush=True,
+    )
     head = np.argsort(-scores, kind="stable")[:DIVERSITY_POOL]
     descriptors = np.array([_thumbnail(frames[unlabelled[i]].image) for i in head])
     order = diverse_order(scores[head], descriptors, DIVERSITY)

@@ -9,10 +9,10 @@ trains it) is trained on the labels so far, and mIoU and mED are measured on the
 clip's 5 frames. The strategies pick the next frames:
 
 - ``queue``: the head of the review queue as the service builds it from the student: its
-  uncertainty (``predict(samples=8)``: mask ambiguity and novelty beyond the familiar
-  distance) through ``combined_score``, reordered for diversity (``diverse_order``, trade-off
-  0.5; on 16×10 thumbnails, as no DINO weights are here; no teacher components: a
-  random-weight teacher would score noise);
+  uncertainty (``predict(samples=8)``: √(the latent draws' spread × the mask's ambiguity) ⊕
+  novelty beyond the familiar distance) through ``combined_score``, reordered for diversity
+  (``diverse_order``, trade-off 0.5; on 16×10 thumbnails, as no DINO weights are here; no
+  teacher components: a random-weight teacher would score noise);
 - ``novel``: most novel first: the largest distance of the frame's encoder descriptor to the
   nearest labelled frame's (``TrainingCodes.distance``, unshifted);
 - ``random``: a seeded random order.

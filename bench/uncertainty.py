@@ -10,14 +10,17 @@ held-out frames together, and the per-seed values. Also the cost of each candida
 frame (2 threads, batch of 5 frames) and, for the seeds' students as an ensemble, ρ against
 the ensemble's own error.
 
-Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: the
-spread of the predictive mask over ``--samples`` latent draws about the plain one, i.e.
-``latent``, noisy-or'd with novelty beyond the student's own familiar distance), ``ambiguity``
+Candidates (one student): ``shipped`` (``StudentPredictor.predict``'s uncertainty: since
+2026-12-05 ``geometric`` below, noisy-or'd with novelty beyond the student's own familiar
+distance; before it, ``latent`` in its place), ``ambiguity``
 (of the plain pass alone), ``novelty`` (the shipped one), ``novelty_fixed`` (beyond the fixed
 ``FAMILIAR_DISTANCE`` that every student used before measuring its own), ``before`` (the score
 shipped before this bench: test-time-pass disagreement noisy-or'd with r / (1 + r)), ``tta``
 (that disagreement alone), ``tta_strong`` (passes twice as wide), ``novelty_old`` (r / (1 + r)),
-``latent`` (1 − soft IoU of the latent draws' mean mask with the plain one), ``dropout`` (the
+``latent`` (1 − soft IoU of the latent draws' mean mask with the plain one), ``expected`` (1 −
+soft IoU of the draws' mean mask with the plain pass's *answer*, its mask ≥ 0.5: the IoU the
+answer would lose if the draws' probabilities were calibrated), ``geometric`` (√(latent ×
+ambiguity), computed here apart from ``predict``), ``dropout`` (the
 same under feature dropout at test time), ``heatmap`` (1 − the strongest keypoint peak); and
 across the seeds' students: ``ensemble`` (1 − the mean soft IoU between each student's mask
 probability and the students' mean).
@@ -160,6 +163,10 @@ def candidates(
             drawn = P.predictive_mask(model, mean, logvar, samples, skips=skips)
             return [float(1 - v) for v in soft_iou(drawn, plain, inside)]
 
+        def expected() -> list[float]:
+            drawn = P.predictive_mask(model, mean, logvar, samples, skips=skips)
+            return [float(1 - v) for v in soft_iou(drawn, (plain >= 0.5).float(), inside)]
+
         begun = time.perf_counter()
         predictor.predict(images, samples=0)
         cost["predict alone"] = 1000 * (time.perf_counter() - begun) / len(images)
@@ -172,6 +179,11 @@ def candidates(
         timed("novelty_old", lambda: [r / (1 + r) for r in distance])
         timed("novelty_fixed", lambda: [e / (1 + e) for e in fixed_beyond])
         timed("latent", latent)
+        timed("expected", expected)
+        out["geometric"] = [
+            float(np.sqrt(a * b)) for a, b in zip(out["latent"], out["ambiguity"], strict=True)
+        ]
+        cost["geometric"] = cost["latent"] + cost["ambiguity"]
         timed("dropout", dropout)
         timed("heatmap", lambda: [float(1 - v) for v in (heat * inside).flatten(1).max(1).values])
     return out, cost, plain, inside

@@ -15,22 +15,19 @@ sub-pixel refinement of the small map; of modes closer than half Algorithm 1's k
 separation, only the strongest counts: the others are lobes of the same keypoint
 (``mode_distance``).
 
-Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from two
-signals (``uncertainty_parts`` holds them, and the ambiguity beside them):
+Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from three
+signals (``uncertainty_parts`` holds them):
 
 - ``spread``: how much of the answer the student's own posterior moves. The frame's
   predictive mask probability p̄ is the mean over ``samples`` seeded draws of the VAE's latent
-  (its posterior mean plus noise of its predicted spread, decoded); the score is 1 − the soft
+  (its posterior mean plus noise of its predicted spread, decoded); the spread is 1 − the soft
   IoU (Σ min ÷ Σ max over the frame's pixels) of p̄ with the plain pass's mask probability
   (``mask_spread``): 0 where no draw changes the mask, higher where the draws move the
   pool's outline (the wire, the glare, a dark front edge: where a mask goes wrong), and like
   IoU it weighs that change against the pool's size.
-- ``ambiguity`` (reported, not combined): the probability mass in doubt on p̄, Σ 2·min(p̄,
-  1 − p̄), over the predicted pool's area, capped at 1 (``mask_ambiguity``, which the live
-  record also reports). It ranked the errors of the students without skips best (ρ +0.49 on
-  the real folds, against +0.39 for the spread); a student with skips draws its edge
-  sharp from the encoder's maps, and there the spread ranks them and the ambiguity less
-  well (+0.60 against +0.36, README).
+- ``ambiguity``: the probability mass in doubt on p̄, Σ 2·min(p̄, 1 − p̄), over the predicted
+  pool's area, capped at 1 (``mask_ambiguity``, which the live record also reports): how soft
+  the outline is, against the pool's size.
 - ``novelty``: how far the frame lies beyond the training frames, as the encoder sees them.
   Each frame's descriptor is the mean and standard deviation of every channel of the
   encoder's last feature map (``frame_codes``); training stores the training frames'
@@ -46,8 +43,15 @@ signals (``uncertainty_parts`` holds them, and the ambiguity beside them):
   another camera, lies beyond and scores high even where the student answers confidently.
   None for a model folder without codes.
 
-``uncertainty`` = 1 − (1 − spread)·(1 − novelty) (a noisy-or: either signal alone can
-raise it). The draws are seeded, so the same frame gets the same score, and they never change
+The mask's part is √(spread × ambiguity) (``mask_doubt``): both must be high, and a change of
+either by a factor counts the same whatever their scales. Each alone ranked the errors on one
+test bed and not the other: on the 15 real labels (45 held-out predictions, leave-one-clip-out)
+the spread ranks them at ρ +0.54 and the ambiguity at +0.34, on the varied synthetic pool of
+``bench/active.py`` the ambiguity at +0.45 and the spread at +0.24; their geometric mean ranks
+them at +0.58 and +0.38, as well as or better than either on every seed (README).
+
+``uncertainty`` = 1 − (1 − mask part)·(1 − novelty) (a noisy-or: either alone can raise
+it). The draws are seeded, so the same frame gets the same score, and they never change
 the answer itself (mask, heatmap, keypoints come from the latent mean). On the 15 real labels,
 leave-one-clip-out, it ranks the default student's errors (Spearman ρ over 45 held-out
 predictions, with its 95 % interval, in the README; ``bench/uncertainty.py``) where the score
@@ -106,10 +110,12 @@ class StudentPrediction:
         mask: H×W bool, mask probability ≥ 0.5.
         heatmap: H×W×2 float32: channel 0 the keypoint heatmap in [0, 1], channel 1 the mask
             probability (the layout of Algorithm 1's output).
-        keypoints: m×2 ``(x, y)`` heatmap modes in the order rule (m ≤ k).
+        keypoints: m×2 ``(x, y)`` frame pixels (m ≤ k), in the order rule, read where
+            ``StudentConfig.keypoints`` says (the mask's outline or the heatmap's modes).
         uncertainty: how likely the mask is wrong, in [0, 1] (see the module doc), or None
             when no samples were asked for.
-        uncertainty_parts: its parts (``ambiguity``, ``novelty``), or None without samples.
+        uncertainty_parts: its parts (``spread``, ``ambiguity``, ``novelty``), or None
+            without samples.
     """
 
     mask: NDArray[np.bool_]
@@ -300,14 +306,22 @@ def familiar_distance(known: TrainingCodes, foreign_codes: torch.Tensor) -> floa
     return FOREIGN_MARGIN * min(known.distance(foreign_codes))
 
 
-def combine(spread: float, novel: float | None) -> float:
-    """The uncertainty of a frame from its parts (a noisy-or; see the module doc)."""
-    return float(1.0 - (1.0 - spread) * (1.0 - (novel or 0.0)))
+def mask_doubt(spread: float, ambiguity: float) -> float:
+    """The uncertainty's mask part: the geometric mean of the latent draws' spread and the
+    outline's ambiguity (see the module doc)."""
+    return math.sqrt(max(spread, 0.0) * max(ambiguity, 0.0))
+
+
+def combine(mask: float, novel: float | None) -> float:
+    """The uncertainty of a frame from its mask part and its novelty (a noisy-or; see the
+    module doc)."""
+    return float(1.0 - (1.0 - mask) * (1.0 - (novel or 0.0)))
 
 
 def uncertainty_of(parts: dict[str, float | None]) -> float:
-    """The uncertainty of a frame from its ``uncertainty_parts``."""
-    return combine(float(parts["spread"] or 0.0), parts["novelty"])
+    """The uncertainty of a frame from its ``uncertainty_parts``: the one rule for it."""
+    mask = mask_doubt(float(parts["spread"] or 0.0), float(parts["ambiguity"] or 0.0))
+    return combine(mask, parts["novelty"])
 
 
 class StudentPredictor:

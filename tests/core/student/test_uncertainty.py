@@ -1,6 +1,6 @@
-"""The student's uncertainty: how far its posterior moves the mask, the mask's doubtful mass
-over its area, novelty beyond the student's own familiar distance from its training frames,
-and what they add up to on frames the student gets wrong or never saw."""
+"""The student's uncertainty: how far its posterior moves the mask and the mask's doubtful mass
+over its area (their geometric mean), novelty beyond the student's own familiar distance from
+its training frames, and what they add up to on frames the student gets wrong or never saw."""
 
 from __future__ import annotations
 
@@ -27,7 +27,9 @@ from weldpool_core.student.predict import (
     frame_codes,
     frames_to_batch,
     mask_ambiguity,
+    mask_doubt,
     mask_spread,
+    uncertainty_of,
 )
 from weldpool_core.student.train import TrainResult
 
@@ -133,6 +135,20 @@ def test_either_part_raises_the_uncertainty() -> None:
     assert combine(1.0, 0.0) == 1.0 and combine(0.0, 1.0) == 1.0
 
 
+def test_the_mask_part_is_the_geometric_mean_of_the_spread_and_the_ambiguity() -> None:
+    """Both must be high: either at 0 gives 0; each raises it; a factor on either counts the
+    same (their scales differ: the spread is often a tenth of the ambiguity); and the
+    uncertainty of a frame's parts is this part ⊕ the novelty."""
+    assert mask_doubt(0.04, 0.25) == pytest.approx(0.1)
+    assert mask_doubt(0.0, 0.9) == 0.0 and mask_doubt(0.3, 0.0) == 0.0
+    assert mask_doubt(0.08, 0.25) > mask_doubt(0.04, 0.25) < mask_doubt(0.04, 0.5)
+    assert mask_doubt(0.08, 0.25) == pytest.approx(mask_doubt(0.04, 0.5))
+    assert mask_doubt(0.16, 0.25) == pytest.approx(2 * mask_doubt(0.04, 0.25))
+    parts: dict[str, float | None] = {"spread": 0.04, "ambiguity": 0.25, "novelty": 0.5}
+    assert uncertainty_of(parts) == pytest.approx(0.55)
+    assert uncertainty_of(parts | {"novelty": None}) == pytest.approx(0.1)
+
+
 def _distances(predictor: StudentPredictor, images: list[NDArray[np.uint8]]) -> list[float]:
     batch, _ = frames_to_batch(images, predictor.config)
     with torch.inference_mode():
@@ -166,12 +182,10 @@ def test_frames_unlike_the_training_ones_score_above_like_ones(sure_student: Tra
     assert all(s is not None and 0 <= s <= 1 for s in scores)
     assert min(scores[4:]) > max(scores[:4]), scores  # type: ignore[type-var]
     assert [p.uncertainty_parts["novelty"] for p in found[:4]] == [0.0] * 4  # type: ignore[index]
-    # The score is the spread ⊕ the novelty; the ambiguity is reported beside them.
-    parts = [p.uncertainty_parts for p in found]
-    assert all(
-        s == pytest.approx(combine(q["spread"], q["novelty"]))  # type: ignore[index]
-        for s, q in zip(scores, parts, strict=True)
-    )
+    # The score is √(spread × ambiguity) ⊕ the novelty, from the parts it reports.
+    parts = [p.uncertainty_parts or {} for p in found]
+    made = [combine(mask_doubt(q["spread"] or 0, q["ambiguity"] or 0), q["novelty"]) for q in parts]
+    assert scores == pytest.approx(made)
     assert any(q["spread"] != q["ambiguity"] for q in parts)  # type: ignore[index]
 
 
