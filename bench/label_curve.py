@@ -20,8 +20,9 @@ clip's 5 frames. The strategies pick the next frames:
 The first round (the start labels) and the last (all 10) are the same for every strategy and
 trained once. Prints the table (mean over seeds and folds, and the range over seeds) and writes
 the plot (``--plot``, a PNG; needs matplotlib: ``pip install matplotlib``). Trained folders
-are kept under ``--cache`` (``curve-<fold>-s<seed>-<strategy>-<labels>``): a rerun only
-scores, and more seeds can be added later.
+are kept under ``--cache`` (``curve-<fold>-s<seed>-<strategy>-<labels>``, with the frames they
+learnt from): a rerun only scores, trains again a folder whose strategy now picks other frames
+(after a change of the score), and more seeds can be added later.
 
     PYTHONPATH=. .venv/bin/python bench/label_curve.py [--seeds 0 1 2] [--step 2]
         [--plot docs/label-curve.png]
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -109,8 +111,12 @@ def _curve(
             return shared[len(labels)]
         folder = cache / f"{stem}-{'all' if shared_round else strategy}-{len(labels)}"
         chosen = [frames[i] for i in sorted(labels)]
+        record = folder / "curve-labels.json"
+        if record.is_file() and json.loads(record.read_text()) != [f.name for f in chosen]:
+            shutil.rmtree(folder)  # trained on other picks (an earlier score): train again
         begun = time.perf_counter()
         done = cached_fold(chosen, held, folder, StudentConfig(), config, 0)
+        record.write_text(json.dumps([f.name for f in chosen]))
         if time.perf_counter() - begun > 5:
             print(f"  {folder.name}: trained {done.seconds:.0f} s", flush=True)
         answer = (StudentPredictor.load(folder, "cpu"), done.scores.miou, done.scores.med or np.nan)
