@@ -47,8 +47,9 @@ The mask's part is √(spread × ambiguity) (``mask_doubt``): both must be high,
 either by a factor counts the same whatever their scales. Each alone ranked the errors on one
 test bed and not the other: on the 15 real labels (45 held-out predictions, leave-one-clip-out)
 the spread ranks them at ρ +0.54 and the ambiguity at +0.34, on the varied synthetic pool of
-``bench/active.py`` the ambiguity at +0.45 and the spread at +0.24; their geometric mean ranks
-them at +0.58 and +0.38, as well as or better than either on every seed (README).
+``bench/active.py`` the ambiguity at +0.44 and the spread at +0.22; their geometric mean ranks
+them at +0.58 and +0.38: above the spread on both, far above the ambiguity on the real frames
+(``bench/uncertainty.py``, ``bench/uncertainty_synthetic.py``, README).
 
 ``uncertainty`` = 1 − (1 − mask part)·(1 − novelty) (a noisy-or: either alone can raise
 it). The draws are seeded, so the same frame gets the same score, and they never change
