@@ -31,6 +31,7 @@ from scipy.stats import spearmanr
 
 from weldpool_core.metrics import iou
 from weldpool_core.student.predict import (
+    StudentPrediction,
     StudentPredictor,
     combine,
     frame_codes,
@@ -41,8 +42,10 @@ from weldpool_core.student.predict import (
 SAMPLES = 8  # the app's latent draws per frame
 
 
-def signals(predictor: StudentPredictor, images: list[np.ndarray]) -> dict[str, np.ndarray]:
-    """Every candidate per frame."""
+def signals(
+    predictor: StudentPredictor, images: list[np.ndarray]
+) -> tuple[list[StudentPrediction], dict[str, np.ndarray]]:
+    """The predictions (with the uncertainty) and every candidate, per frame."""
     found = predictor.predict(images, samples=SAMPLES)
     parts = [p.uncertainty_parts or {} for p in found]
     spread = np.array([q["spread"] or 0.0 for q in parts])
@@ -64,7 +67,7 @@ def signals(predictor: StudentPredictor, images: list[np.ndarray]) -> dict[str, 
         answer = plain[index, rows, columns] >= 0.5
         common = float(p[answer].sum())
         expected.append(1 - common / max(float(answer.sum()) + float(p[~answer].sum()), 1e-6))
-    return {
+    return found, {
         "shipped": np.array([p.uncertainty for p in found], np.float64),
         "spread": spread,
         "ambiguity": ambiguity,
@@ -102,8 +105,7 @@ def main() -> None:
                 predictor = _train(pool, sorted(labelled), validation, args.steps, seed, folder)
                 rest = [i for i in range(len(pool)) if i not in labelled]
                 images = [_rgb(pool[i].image) for i in rest]
-                found = signals(predictor, images)
-                masks = predictor.predict(images)
+                masks, found = signals(predictor, images)
                 error = [1 - iou(p.mask, pool[i].mask) for p, i in zip(masks, rest, strict=True)]
                 rho = {name: float(spearmanr(v, error)[0]) for name, v in found.items()}
                 rows.append(rho)

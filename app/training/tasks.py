@@ -444,8 +444,8 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
 @job_handler("student", max_attempts=2)
 def student_proposals(ctx: JobContext) -> dict[str, Any]:
     """The promoted student's mask, heatmap and keypoints for frames, with its uncertainty
-    (its latent draws' spread and novelty, ``weldpool_core.student.predict``) stored on the
-    frame for the review queue."""
+    (√ of its latent draws' spread × its mask's ambiguity, ⊕ novelty,
+    ``weldpool_core.student.predict``) stored on the frame for the review queue."""
     from weldpool_core.student.predict import StudentPredictor
 
     storage = Storage.of(ctx.settings)
