@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import secrets
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cv2
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -27,6 +26,11 @@ from weldpool_core.io import encode_mask_png
 from weldpool_core.synth import synth_sequence
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 from weldpool_core.teacher.weights import weights_status
+
+if TYPE_CHECKING:
+    import cv2
+else:
+    from weldpool_core.lazy import cv2
 
 DEMO_USER = "demo"
 

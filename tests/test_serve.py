@@ -140,7 +140,8 @@ def _healthy(base: str) -> bool:
 def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: Path) -> None:
     """`serve --no-worker` on SQLite counts its queue and finds the teacher's weights without
     importing Huey (with redis and psycopg), huggingface_hub's download client, the pages'
-    Jinja or rich (structlog's traceback drawing): start-up cost they would add to every
+    Jinja, rich (structlog's traceback drawing) or the numerical libraries (NumPy, OpenCV,
+    Pillow's Image, PyYAML: `weldpool_core.lazy`): start-up cost they would add to every
     restart. Huey comes with the first job, Jinja with the first page."""
     script = """
 import sys
@@ -153,8 +154,8 @@ migrate(create_db_engine(settings.resolved_database_url))
 with TestClient(create_app(settings)) as client:
     body = client.get("/api/v1/health").json()
     assert body["queue"]["pending"] == 0, body
-    print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download", "jinja2", "rich")
-                 if m in sys.modules))
+    print(sorted(m for m in ("huey", "redis", "huggingface_hub.file_download", "jinja2", "rich",
+                             "numpy", "cv2", "PIL.Image", "yaml") if m in sys.modules))
     assert "<form" in client.get("/login").text
     print("jinja2" in sys.modules)
 create_app(settings).state.queue.enqueue(1)

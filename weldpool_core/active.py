@@ -23,13 +23,16 @@ settings); a frame with none has no score and goes to the end of the queue.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.defaults import DEFAULT_WEIGHTS
 from weldpool_core.metrics import iou, match_keypoints
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 COMPONENTS = (
     "teacher_iou",

@@ -53,14 +53,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
-
-import cv2
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any, Literal
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.keypoints import ORDER_START_DEG, Points, angles_around, order_by_angle
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 KeypointRule = Literal["curvature", "completion"]
 """Which rule placed a keypoint: its group's high-curvature points, or its anchor (completion)."""

@@ -19,21 +19,24 @@ import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
-import cv2
-import numpy as np
 from isal import isal_zlib
-from numpy.typing import NDArray
-from PIL import Image, UnidentifiedImageError
+from PIL import UnidentifiedImageError  # PIL's package, without its Image module
 
 from weldpool_core.defaults import DEFAULT_MAX_PIXELS
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.pngcheck import CORRUPT as _CORRUPT
 from weldpool_core.pngcheck import PNG_SIGNATURE, plain_png, verify_stream
 
-cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # errors are raised as ours
-Image.MAX_IMAGE_PIXELS = None  # our own limit (max_pixels) applies, before any decoding
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+    from PIL import Image
+else:
+    from weldpool_core.lazy import Image, cv2, np
+
 
 MEDIA_TYPES = {"PNG": "image/png", "JPEG": "image/jpeg", "TIFF": "image/tiff", "BMP": "image/bmp"}
 EXTENSIONS = {"PNG": ".png", "JPEG": ".jpg", "TIFF": ".tif", "BMP": ".bmp"}
@@ -41,7 +44,7 @@ LOW_PERCENTILE = 0.5
 HIGH_PERCENTILE = 99.99
 _SUPPORTED = "upload PNG, JPEG, TIFF or BMP"
 
-ImageArray = NDArray[Any]
+ImageArray: TypeAlias = "NDArray[Any]"
 """Pixels of a frame: H×W or H×W×C (RGB order), uint8 or uint16."""
 
 

@@ -15,18 +15,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
-
-import cv2
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from weldpool_core.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 ORDER_START_DEG = 180.0
 """Default start direction of the order rule, in image degrees (180°: left on screen)."""
 
-Points = NDArray[np.float64]
+Points: TypeAlias = "NDArray[np.float64]"
 """k×2 array of ``(x, y)`` keypoints."""
 
 

@@ -21,14 +21,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
-
-import cv2
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import mask_gray, mask_level
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 MAX_VERTICES = 10_000
 """Most vertices an outline may have in all. The polygon tool sends tens (a pool traced at

@@ -20,11 +20,16 @@ from __future__ import annotations
 import re
 import struct
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import deflate
-import numpy as np
 
 from weldpool_core.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 CORRUPT = "The image is truncated or corrupt and cannot be decoded."

@@ -38,11 +38,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import cv2
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
@@ -53,6 +49,13 @@ from weldpool_core.student.export import ensure_onnx
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import frame_keypoints, mask_ambiguity
 from weldpool_core.student.runners import RunnerOptions, open_runner, runner_kind
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 NETWORK_SCHEMES = ("rtsp", "rtsps", "rtmp", "http", "https", "udp", "tcp", "srt")
 OPEN_TIMEOUT_MS = 5000

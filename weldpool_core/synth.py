@@ -14,15 +14,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
-
-import cv2
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Literal
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.keypoints import Points
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 _OUTLINE_POINTS = 720
 _SUBPIXEL_BITS = 4

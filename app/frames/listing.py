@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, undefer
@@ -25,6 +25,11 @@ from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
 from weldpool_core.io import encode_png, read_image
+
+if TYPE_CHECKING:
+    import cv2
+else:
+    from weldpool_core.lazy import cv2
 
 ORDERINGS: dict[str, tuple[Any, ...]] = {
     "id": (Frame.id,),
@@ -300,8 +305,6 @@ def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, A
 def display_image(storage: Storage, frame: Frame, variant: str) -> Path:
     """An 8-bit PNG of the frame for browsers (``display``: full size; ``thumb``: 256 px),
     made once from the original by the one reader and cached under ``cache/``."""
-    import cv2
-
     from weldpool_core.io import to_rgb8
 
     relative = f"cache/{variant}/{frame.sha256[:2]}/{frame.sha256}.png"

@@ -4,15 +4,19 @@ masks, and how reviewers receive the teacher's proposals."""
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
 from app.proposals.policy import current, source_key, stored_iou
 from app.storage import Storage
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 
 def student_curve(session: Session) -> list[dict[str, Any]]:

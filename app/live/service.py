@@ -19,12 +19,17 @@ import time
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
 from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, WeldpoolError
+
+if TYPE_CHECKING:
+    import cv2
+else:
+    from weldpool_core.lazy import cv2
 
 log = structlog.get_logger(__name__)
 
@@ -306,7 +311,6 @@ def _run(view: LiveView) -> None:
 
 def overlay_jpeg(result: Any) -> bytes:
     """The frame, at most ``OVERLAY_WIDTH`` wide, with the mask outline and keypoints drawn."""
-    import cv2
     import numpy as np
 
     bgr = result.frame.bgr

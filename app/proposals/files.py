@@ -12,10 +12,9 @@ import io
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
@@ -23,6 +22,12 @@ from app.errors import NotFoundError
 from app.models import Frame, LabelRevision, Proposal
 from app.storage import Storage, StoredFile
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 
 def store_mask_file(storage: Storage, mask: NDArray[np.bool_]) -> StoredFile:

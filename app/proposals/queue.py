@@ -5,9 +5,8 @@ for the scores)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
@@ -19,6 +18,11 @@ from weldpool_core.active import (
     propagation_components,
     teacher_components,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 
 def latest_teacher_proposal(session: Session, frame_id: int) -> Proposal | None:

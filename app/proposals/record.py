@@ -5,17 +5,21 @@ to ``proposed`` and rescores it for the review queue."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.models import Frame, FrameStatus, Label, LabelRevision, Proposal
 from app.proposals.files import writing_for_frame
 from app.proposals.queue import rescore_frame
 from app.storage import Storage
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 TEACHER, STUDENT, PROPAGATED = "teacher", "student", "propagated"
 """The proposal sources (``Proposal.source``)."""

@@ -31,11 +31,9 @@ import tempfile
 import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.budgets import shared_pool
@@ -45,6 +43,12 @@ from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKey
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 ExportFormat = Literal["coco", "masks", "yolo", "cvat"]
 YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}

@@ -16,11 +16,9 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
 
@@ -33,6 +31,12 @@ from app.storage import Storage
 from weldpool_core.errors import InvalidInputError as CoreInvalidInput
 from weldpool_core.heatmap import heatmap_from_mask
 from weldpool_core.teacher.passes import Direction, passes
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 SOURCE = PROPAGATED
 STOP_AFTER = 3

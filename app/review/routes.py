@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
 from fastapi import APIRouter, Depends, Query, Response, status
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel
@@ -52,6 +51,12 @@ from app.security import AdminUser, CurrentUser, ReviewerUser
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
 from weldpool_core.outline import Polygon, fill_polygons, mask_polygons
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+else:
+    from weldpool_core.lazy import cv2, np
 
 router = APIRouter(tags=["review"])
 
@@ -181,8 +186,6 @@ def get_proposal_heatmap_png(
     storage: StorageDep, _user: CurrentUser, proposal: ShownProposal
 ) -> Response:
     """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
-    import cv2
-
     heat = load_heatmap(storage, proposal)[:, :, 0]
     scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
     colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)

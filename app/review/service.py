@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
@@ -45,6 +43,13 @@ from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import mask_record
 
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
+
 EmbeddingSource = Literal["memory", "disk", "computed"]
 
 # --- click corrections -------------------------------------------------------------------------
@@ -63,8 +68,6 @@ class Segmentation:
 
 def _mask_prompt(mask: NDArray[np.bool_]) -> NDArray[np.float32]:
     """A binary mask as SAM2's 256×256 mask-logit input (±8 by the covered fraction)."""
-    import cv2
-
     fraction = cv2.resize(mask.astype(np.float32), (256, 256), interpolation=cv2.INTER_AREA)
     return (fraction * 16.0 - 8.0).astype(np.float32)
 

@@ -15,9 +15,8 @@ import io
 import math
 import threading
 from collections import OrderedDict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
@@ -28,6 +27,11 @@ from app.proposals import policy
 from app.proposals.files import load_mask
 from app.storage import Storage
 from weldpool_core.geometry import PoolShape, pool_shape
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 _CACHE_SIZE = 50_000
 _cache_lock = threading.Lock()

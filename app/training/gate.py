@@ -29,9 +29,8 @@ floor alone, as when the teacher proposed for none.
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
-import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
@@ -44,12 +43,17 @@ from app.storage import Storage
 from app.training import service
 from weldpool_core.metrics import proposal_quality
 
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
+
 MIN_MIOU = 0.7
 """The least mIoU a first student needs where the teacher has no proposal to compare with."""
 MIOU_TOLERANCE = 0.005
 """How much mIoU a candidate may lose to the incumbent while its keypoints improve."""
 
-Truth = dict[int, tuple[np.ndarray, Any]]
+Truth: TypeAlias = "dict[int, tuple[np.ndarray, Any]]"
 
 
 def gate_frames(
@@ -85,7 +89,7 @@ def _truth(session: Session, storage: Storage, frame_ids: list[int]) -> Truth:
     return truth
 
 
-Outputs = dict[int, tuple[np.ndarray, Any]]
+Outputs: TypeAlias = "dict[int, tuple[np.ndarray, Any]]"
 
 
 def _student_outputs(

@@ -5,11 +5,9 @@ from __future__ import annotations
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
@@ -31,6 +29,12 @@ from app.models import (
 )
 from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 TRAINABLE = (LabelStatus.accepted, LabelStatus.corrected)
 TRAINABLE_LABEL = sa.and_(

@@ -7,9 +7,8 @@ import shutil
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import sqlalchemy as sa
 import structlog
 
@@ -23,6 +22,11 @@ from app.storage import Storage, best_effort
 from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 log = structlog.get_logger(__name__)
 

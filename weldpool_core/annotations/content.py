@@ -10,15 +10,18 @@ import ctypes.util
 import dataclasses
 import hashlib
 from dataclasses import dataclass, field
-from typing import Any
-
-import cv2
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.annotations.shapes import DAMAGED, ImportedLabel
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import encode_mask_png
 from weldpool_core.outline import mask_record
+
+if TYPE_CHECKING:
+    import cv2
+else:
+    from weldpool_core.lazy import cv2
 
 HEAP_BYTES = 64 << 20
 """Blocks up to this size a label process takes from its heap instead of fresh pages."""

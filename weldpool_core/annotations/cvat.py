@@ -16,12 +16,10 @@ import posixpath
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as SafeET
-from numpy.typing import NDArray
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
 from weldpool_core.annotations.shapes import (
@@ -36,6 +34,12 @@ from weldpool_core.annotations.shapes import (
 )
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 POOL_LABEL = "weld_pool"
 KIND = "kind"  # the attribute telling a label's keypoints from validation keypoints

@@ -9,9 +9,7 @@ import binascii
 import json
 import math
 import posixpath
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
 from weldpool_core.annotations.shapes import (
@@ -26,6 +24,11 @@ from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import Polygon
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
 
 CIRCLE_VERTICES = 64
 

@@ -13,15 +13,18 @@ pixel for pixel, holes and all.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any, Protocol
 
 from weldpool_core.annotations.source import Refusal
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import Polygon, fill_polygons, rle_mask
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 MAX_KEYPOINTS = 64
 """Most keypoints one imported label may carry (as many as a reviewer may place)."""

@@ -7,11 +7,7 @@ from __future__ import annotations
 
 import posixpath
 from dataclasses import dataclass
-from typing import Any
-
-import numpy as np
-import yaml
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from weldpool_core.annotations.categories import not_the_pool, pool_names
 from weldpool_core.annotations.shapes import (
@@ -24,6 +20,13 @@ from weldpool_core.annotations.shapes import (
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.outline import Polygon
+
+if TYPE_CHECKING:
+    import numpy as np
+    import yaml
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np, yaml
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 

@@ -30,17 +30,21 @@ import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cv2
-import numpy as np
 import torch
-from numpy.typing import NDArray
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, gaussian_window, heatmap_from_mask
 from weldpool_core.io import load_rgb8, read_mask
 from weldpool_core.student.model import Aspect
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 

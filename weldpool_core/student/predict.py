@@ -66,12 +66,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cv2
-import numpy as np
 import torch
-from numpy.typing import NDArray
 
 from weldpool_core.device import inference_dtype, resolve_device
 from weldpool_core.errors import InvalidInputError
@@ -81,6 +78,13 @@ from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
 from weldpool_core.student.checkpoint import load_codes, load_student
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last, fuse_batchnorm
+
+if TYPE_CHECKING:
+    import cv2
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import cv2, np
 
 UNCERTAINTY_SEED = 0
 MIN_MODE_DISTANCE = 5.0

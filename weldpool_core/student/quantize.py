@@ -30,9 +30,6 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from numpy.typing import NDArray
-
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.metrics import iou
 from weldpool_core.student import checkpoint
@@ -42,6 +39,12 @@ from weldpool_core.student.checkpoint import (
     ONNX_FILE,
     weights_digest,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+else:
+    from weldpool_core.lazy import np
 
 if TYPE_CHECKING:
     from weldpool_core.student.data import FrameGeometry
