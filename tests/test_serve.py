@@ -124,7 +124,7 @@ def test_a_web_process_without_worker_loads_no_ml_stack(tmp_path: Path) -> None:
         maps = Path(f"/proc/{server.pid}/maps").read_text()
         for library in ("/torch/lib/", "/sklearn/", "/scipy/", "/onnxruntime/"):
             assert library not in maps, f"the web process loaded {library}"
-        assert "cv2" in maps  # it does decode uploads itself
+        assert "/pydantic_core/" in maps  # the check sees the libraries it does load
     finally:
         server.send_signal(signal.SIGTERM)
         server.wait(timeout=60)
