@@ -11,9 +11,9 @@ The modules a server imports at start name them through the stand-ins below (``n
         from weldpool_core.lazy import np
 
 A stand-in imports its library on the first attribute read (once, however many threads read at
-once), copies the library's public names into itself so that later reads cost what a module's
-do, and falls back to the library for any other name. The settings weldpool applies to a
-library are applied here, when it loads.
+once), copies the library's public names into itself and becomes a plain module, so that later
+reads cost what a module's do (other names are read from the library). The settings weldpool
+applies to a library are applied here, when it loads.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import threading
 from collections.abc import Callable
+from functools import partial
 from types import ModuleType
 from typing import Any
 
@@ -34,7 +35,9 @@ def _no_pillow_pixel_limit(image: Any) -> None:
 
 
 class LazyModule(ModuleType):
-    """A module that imports `name` on the first attribute read and then stands for it."""
+    """A module that imports `name` on the first attribute read, then becomes a plain module
+    holding the library's public names, with the module `__getattr__` (PEP 562) forwarding any
+    other name to the library: after the first read, a read costs what a module's does."""
 
     def __init__(self, name: str, on_load: Callable[[ModuleType], None] | None = None) -> None:
         super().__init__(name)
@@ -42,18 +45,17 @@ class LazyModule(ModuleType):
         self._loaded: ModuleType | None = None
         self._lock = threading.Lock()
 
-    def _load(self) -> ModuleType:
+    def __getattr__(self, attr: str) -> Any:  # until the library is loaded
         with self._lock:  # the settings once, however many threads read first
             if self._loaded is None:
                 module = importlib.import_module(self.__name__)
                 if self._on_load is not None:
                     self._on_load(module)
                 self.__dict__.update({k: v for k, v in vars(module).items() if k[0] != "_"})
+                self.__dict__["__getattr__"] = partial(getattr, module)
                 self._loaded = module
-            return self._loaded
-
-    def __getattr__(self, attr: str) -> Any:  # only for names not copied (yet)
-        return getattr(self._loaded or self._load(), attr)
+                object.__setattr__(self, "__class__", ModuleType)
+        return getattr(self._loaded, attr)
 
 
 np = LazyModule("numpy")
