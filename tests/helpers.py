@@ -51,6 +51,21 @@ def run_cli(
     )
 
 
+def fresh_python(
+    script: str, *args: str, env: dict[str, str] | None = None, timeout: float = 60
+) -> subprocess.CompletedProcess[str]:
+    """``python -c SCRIPT ARGS`` in a fresh process at the repository's root (what a process
+    imports at start is only seen there), with ``env`` as its whole environment if given."""
+    return subprocess.run(
+        [sys.executable, "-c", script, *args],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
 def mask_b64(mask: Any) -> str:
     """A mask as the API carries it: a 0/255 PNG, base64."""
     import base64

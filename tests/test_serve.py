@@ -13,7 +13,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.helpers import wait_for
+from tests.helpers import fresh_python, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -163,14 +163,7 @@ print("huey" in sys.modules)
 """
     env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}
     env["HF_HUB_OFFLINE"] = "1"
-    out = subprocess.run(
-        [sys.executable, "-c", script, str(tmp_path / "home")],
-        env=env,
-        cwd=Path(__file__).resolve().parents[1],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    out = fresh_python(script, str(tmp_path / "home"), env=env, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:3] == ["[]", "True", "True"]
 
@@ -192,13 +185,7 @@ for fmt in ("console", "json"):
     except KeyError:
         log.exception("failed", frame=7)
 """
-    out = subprocess.run(
-        [sys.executable, "-c", script],
-        cwd=Path(__file__).resolve().parents[1],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    out = fresh_python(script)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
     assert "failed" in out.stderr and "frame=7" in out.stderr

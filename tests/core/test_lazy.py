@@ -3,13 +3,11 @@ with weldpool's settings applied."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 from types import ModuleType
 
+from tests.helpers import fresh_python
 from weldpool_core.lazy import LazyModule
 
 FRESH_PROCESS = """
@@ -25,13 +23,7 @@ print(Image.MAX_IMAGE_PIXELS, yaml.safe_load("a: 1"))
 
 
 def test_nothing_loads_before_use_then_each_is_the_library_with_our_settings() -> None:
-    out = subprocess.run(
-        [sys.executable, "-c", FRESH_PROCESS],
-        cwd=Path(__file__).resolve().parents[2],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    out = fresh_python(FRESH_PROCESS)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:4] == [
         "[]",
