@@ -25,6 +25,9 @@ same under feature dropout at test time), ``heatmap`` (1 − the strongest keypo
 across the seeds' students: ``ensemble`` (1 − the mean soft IoU between each student's mask
 probability and the students' mean).
 
+It also prints the students' mIoU with the mask read from other outputs they compute anyway:
+the latent draws' mean and the test-time passes' mean (each ≥ 0.5), beside the plain pass's.
+
 Trained folders are kept under ``--cache`` (default /tmp/weldpool-bench-students, which
 ``real_student.py --cache`` shares), so a rerun only scores; a folder trained before students
 measured their familiar distance gets it measured (``train.save_training_codes``) first.
@@ -74,20 +77,15 @@ def _warp(images: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
     return F.grid_sample(images, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
 
 
-def tta_disagreement(
-    model: torch.nn.Module,
-    batch: torch.Tensor,
-    plain: torch.Tensor,
-    inside: torch.Tensor,
-    samples: int,
-    scale: float = 1.0,
-) -> list[float]:
-    """The earlier score's disagreement: 1 − the mean soft IoU between the plain mask
-    probability and ``samples`` seeded test-time passes (shift, scale, rotation, gamma, gain
-    within ``scale`` × ``TTA_RANGES``) mapped back onto it."""
+def tta_passes(
+    model: torch.nn.Module, batch: torch.Tensor, samples: int, scale: float = 1.0
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """``samples`` seeded test-time passes (shift, scale, rotation, gamma, gain within ``scale``
+    × ``TTA_RANGES``), each as its mask probability mapped back onto the plain pass's grid and
+    where that mapping saw the frame (N×S×S each)."""
     ranges = {key: value * scale for key, value in TTA_RANGES.items()}
     rng = np.random.default_rng([0, 11])
-    total = torch.zeros(len(batch))
+    passes = []
     for _ in range(samples):
         angle = np.deg2rad(rng.uniform(-1, 1) * ranges["rotation_deg"])
         size = 1 + rng.uniform(-1, 1) * ranges["scale"]
@@ -101,10 +99,29 @@ def tta_disagreement(
         mean, _, skips = model.encode(changed.contiguous(memory_format=torch.channels_last))
         logits, _ = model.decode(mean, skips)
         inverse = torch.linalg.inv(torch.cat([theta, torch.tensor([[0.0, 0.0, 1.0]])]))[:2]
-        stacked = torch.stack([torch.sigmoid(logits.float()), torch.ones_like(plain)], 1)
-        back = _warp(stacked, inverse)
-        total += soft_iou(back[:, 0], plain, inside & (back[:, 1] > 0.99))
-    return [float(1 - v / samples) for v in total]
+        probability = torch.sigmoid(logits.float())
+        back = _warp(torch.stack([probability, torch.ones_like(probability)], 1), inverse)
+        passes.append((back[:, 0], back[:, 1] > 0.99))
+    return passes
+
+
+def tta_disagreement(
+    passes: list[tuple[torch.Tensor, torch.Tensor]], plain: torch.Tensor, inside: torch.Tensor
+) -> list[float]:
+    """The earlier score's disagreement: 1 − the mean soft IoU between the plain mask
+    probability and the test-time passes mapped back onto it."""
+    total = sum(soft_iou(back, plain, inside & seen) for back, seen in passes)
+    return [float(1 - v / len(passes)) for v in total]
+
+
+def tta_mean(passes: list[tuple[torch.Tensor, torch.Tensor]], plain: torch.Tensor) -> torch.Tensor:
+    """The mask probability averaged over the plain pass and the test-time passes (each where it
+    saw the frame)."""
+    total, count = plain.clone(), torch.ones_like(plain)
+    for back, seen in passes:
+        total += back * seen
+        count += seen
+    return total / count
 
 
 def candidates(
@@ -117,6 +134,7 @@ def candidates(
     batch = batch.contiguous(memory_format=torch.channels_last)
     out: dict[str, list[float]] = {}
     cost: dict[str, float] = {}
+    masks: dict[str, torch.Tensor] = {}
     with torch.inference_mode():
         features, skips = model.encoder_maps(batch)
         mean, logvar = model.posterior(features)
@@ -140,8 +158,11 @@ def candidates(
             found = predictor.predict(images, samples=samples)
             return [float(p.uncertainty or 0.0) for p in found]
 
+        passes = tta_passes(model, batch, samples)
+        masks["tta mean"] = tta_mean(passes, plain)
+
         def before() -> list[float]:
-            spread = tta_disagreement(model, batch, plain, inside, samples)
+            spread = tta_disagreement(passes, plain, inside)
             return [1 - (1 - d) * (1 - r / (1 + r)) for d, r in zip(spread, distance, strict=True)]
 
         def ambiguity_of(probability: torch.Tensor) -> list[float]:
@@ -161,6 +182,7 @@ def candidates(
 
         def latent() -> list[float]:
             drawn = P.predictive_mask(model, mean, logvar, samples, skips=skips)
+            masks["draws' mean"] = drawn
             return [float(1 - v) for v in soft_iou(drawn, plain, inside)]
 
         def expected() -> list[float]:
@@ -174,8 +196,11 @@ def candidates(
         timed("ambiguity", lambda: ambiguity_of(plain))
         timed("novelty", lambda: known.novelty(P.frame_codes(features)))
         timed("before", before)
-        timed("tta", lambda: tta_disagreement(model, batch, plain, inside, samples))
-        timed("tta_strong", lambda: tta_disagreement(model, batch, plain, inside, samples, 2.0))
+        timed("tta", lambda: tta_disagreement(tta_passes(model, batch, samples), plain, inside))
+        timed(
+            "tta_strong",
+            lambda: tta_disagreement(tta_passes(model, batch, samples, 2.0), plain, inside),
+        )
         timed("novelty_old", lambda: [r / (1 + r) for r in distance])
         timed("novelty_fixed", lambda: [e / (1 + e) for e in fixed_beyond])
         timed("latent", latent)
@@ -186,7 +211,7 @@ def candidates(
         cost["geometric"] = cost["latent"] + cost["ambiguity"]
         timed("dropout", dropout)
         timed("heatmap", lambda: [float(1 - v) for v in (heat * inside).flatten(1).max(1).values])
-    return out, cost, plain, inside
+    return out, cost, plain, inside, masks
 
 
 def bootstrap(scores: list[float], errors: list[float], draws: int = 2000) -> tuple[float, ...]:
@@ -283,7 +308,18 @@ def main() -> None:
             predictor, seconds = train_fold(frames, train, folder, seed)
             held = [frames[i] for i in test]
             images = [f.image for f in held]
-            scores, cost, plain, inside = candidates(predictor, images, args.samples)
+            scores, cost, plain, inside, masks = candidates(predictor, images, args.samples)
+            _, geometries = frames_to_batch(images, predictor.config)
+            other_ious = {
+                source: [
+                    iou(
+                        P.to_frame(m.numpy(), m.numpy(), geometry, predictor.config).mask,
+                        frame.mask,
+                    )
+                    for m, geometry, frame in zip(probability, geometries, held, strict=True)
+                ]
+                for source, probability in masks.items()
+            }
             for key, value in cost.items():
                 costs.setdefault(key, []).append(value)
             probabilities[(name, seed)] = (plain, inside)
@@ -296,6 +332,7 @@ def main() -> None:
                         "frame": frame.name,
                         "iou": found.ious[j],
                         "med": float(np.nanmean(found.distances[j])),
+                        **{f"iou {source}": values[j] for source, values in other_ious.items()},
                         **{key: values[j] for key, values in scores.items()},
                     }
                 )
@@ -326,7 +363,9 @@ def main() -> None:
                 for row in rows:
                     if row["fold"] == name and row["frame"] == frames[index].name:
                         row["ensemble"] = float(spread[j])
-    names = [k for k in rows[0] if k not in ("seed", "fold", "frame", "iou", "med")]
+    names = [
+        k for k in rows[0] if k not in ("seed", "fold", "frame", "iou", "med") and k[:4] != "iou "
+    ]
     fold_names = [name for name, _, _ in folds(frames, "loco")]
     errors = [1 - r["iou"] for r in rows]
     print(f"\n{len(rows)} held-out predictions ({len(args.seeds)} seeds × 3 folds × 5 frames)")
@@ -374,6 +413,24 @@ def main() -> None:
             miou, med = np.mean([r["iou"] for r in mine]), np.nanmean([r["med"] for r in mine])
             cells.append(f"{miou:.3f} / {med:.1f}")
         print(f"  {fold:<10}" + "".join(f"{c:>18}" for c in cells))
+    print("\nthe mask from other outputs of the same students: mIoU per fold (mean over seeds)")
+    sources = ["iou"] + [k for k in rows[0] if k[:4] == "iou "]
+    print(
+        f"  {'mask':<22}"
+        + "".join(f"{f:>12}" for f in fold_names)
+        + f"{'mean':>9}"
+        + "".join(f"{'seed ' + str(s):>9}" for s in args.seeds)
+    )
+    for source in sources:
+        per_fold = [np.mean([r[source] for r in rows if r["fold"] == f]) for f in fold_names]
+        per_seed = [np.mean([r[source] for r in rows if r["seed"] == s]) for s in args.seeds]
+        label = "plain pass (shipped)" if source == "iou" else source[4:] + " ≥ 0.5"
+        print(
+            f"  {label:<22}"
+            + "".join(f"{v:>12.3f}" for v in per_fold)
+            + f"{np.mean(per_fold):>9.3f}"
+            + "".join(f"{v:>9.3f}" for v in per_seed)
+        )
     suffix = "" if args.tag == "default" else f"-{args.tag}"
     (args.cache / f"rows{suffix}.json").write_text(json.dumps(rows, indent=1))
 
