@@ -11,8 +11,9 @@ candidates are the parts of ``StudentPredictor.predict``'s uncertainty (``spread
 ``predict`` returns it), ``spread ⊕ novelty`` (the rule before 2026-12-05's geometric mean),
 ``geometric`` (√(spread × ambiguity), computed here apart from ``predict``), ``distance`` (to
 the nearest training frame, unshifted) and ``expected`` (1 − the soft IoU of the draws' mean
-mask with the plain pass's answer, its mask ≥ 0.5). The real-label counterpart is
-``bench/uncertainty.py``. About 3 minutes on 2 cores.
+mask with the plain pass's answer, its mask ≥ 0.5) and ``dropout`` (1 − the mean soft IoU of
+8 passes with feature dropout 0.2 with the plain pass, as in ``bench/uncertainty.py``, the
+real-label counterpart). About 3 minutes on 2 cores.
 
     PYTHONPATH=. .venv/bin/python bench/uncertainty_synthetic.py [--repeats 3] [--labels 10 30]
 """
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from active import CONDITIONS, RARE_RUNS, _rgb, _run, _train
 from scipy.stats import spearmanr
 
@@ -40,6 +42,12 @@ from weldpool_core.student.predict import (
 )
 
 SAMPLES = 8  # the app's latent draws per frame
+
+
+def soft_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Σ min ÷ Σ max of two probability maps (1 when both are empty)."""
+    union = float(np.maximum(a, b).sum())
+    return float(np.minimum(a, b).sum()) / union if union > 1e-6 else 1.0
 
 
 def signals(
@@ -60,9 +68,18 @@ def signals(
         drawn = predictive_mask(model, mean, logvar, SAMPLES, skips=skips).numpy()
         assert predictor.training_codes is not None
         distance = np.array(predictor.training_codes.distance(frame_codes(features)))
-    expected = []
+        torch.manual_seed(0)
+        dropped = []
+        for _ in range(SAMPLES):
+            kept, _ = model.posterior(F.dropout2d(features, 0.2, training=True))
+            dropped.append(torch.sigmoid(model.decode(kept, skips)[0].float()).numpy())
+    expected, dropout = [], []
     for index, geometry in enumerate(geometries):
         rows, columns = geometry.inner_rows, geometry.inner_columns
+        base = plain[index, rows, columns].astype(np.float64)
+        dropout.append(
+            1 - float(np.mean([soft_iou(d[index, rows, columns], base) for d in dropped]))
+        )
         p = drawn[index, rows, columns].astype(np.float64)
         answer = plain[index, rows, columns] >= 0.5
         common = float(p[answer].sum())
@@ -76,6 +93,7 @@ def signals(
         "geometric": np.sqrt(spread * ambiguity),
         "distance": distance,
         "expected": np.array(expected),
+        "dropout": np.array(dropout),
     }
 
 
