@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import datetime as dt
 import enum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
 from app.db import Base, UTCDateTime, utcnow
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np  # the web process loads NumPy once it reads a vector
 
 JSONType = sa.JSON()
 
@@ -25,20 +30,14 @@ class Float32Vector(sa.types.TypeDecorator[Any]):
     def process_bind_param(self, value: Any, dialect: Any) -> bytes | None:
         if value is None:
             return None
-        import numpy as np  # the web process needs NumPy only once it reads or writes one
-
         return np.asarray(value, "<f4").tobytes()
 
     def process_result_value(self, value: bytes | None, dialect: Any) -> Any:
         if value is None:
             return None
-        import numpy as np
-
         return np.frombuffer(value, "<f4")
 
     def compare_values(self, x: Any, y: Any) -> bool:  # arrays: not ``==``, which is elementwise
-        import numpy as np
-
         vectors = (list, tuple, np.ndarray)
         if isinstance(x, vectors) and isinstance(y, vectors):
             return bool(np.array_equal(np.asarray(x, "<f4"), np.asarray(y, "<f4")))

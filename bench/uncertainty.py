@@ -158,11 +158,10 @@ def candidates(
             found = predictor.predict(images, samples=samples)
             return [float(p.uncertainty or 0.0) for p in found]
 
-        passes = tta_passes(model, batch, samples)
-        masks["tta mean"] = tta_mean(passes, plain)
+        masks["tta mean"] = tta_mean(tta_passes(model, batch, samples), plain)
 
-        def before() -> list[float]:
-            spread = tta_disagreement(passes, plain, inside)
+        def before() -> list[float]:  # timed with its passes, as it runs in a queue
+            spread = tta_disagreement(tta_passes(model, batch, samples), plain, inside)
             return [1 - (1 - d) * (1 - r / (1 + r)) for d, r in zip(spread, distance, strict=True)]
 
         def ambiguity_of(probability: torch.Tensor) -> list[float]:

@@ -28,8 +28,9 @@ from app.errors import ConflictError, InvalidInputError, NotFoundError, Weldpool
 
 if TYPE_CHECKING:
     import cv2
+    import numpy as np
 else:
-    from weldpool_core.lazy import cv2
+    from weldpool_core.lazy import cv2, np
 
 log = structlog.get_logger(__name__)
 
@@ -84,8 +85,6 @@ class LiveView:
 
     def stats(self) -> dict[str, float | None]:
         """fps and p50 / p99 latency over the last frames."""
-        import numpy as np
-
         stamps, latencies = list(self.stamps), list(self.latencies)
         fps = None
         if len(stamps) > 1 and stamps[-1] > stamps[0]:
@@ -311,8 +310,6 @@ def _run(view: LiveView) -> None:
 
 def overlay_jpeg(result: Any) -> bytes:
     """The frame, at most ``OVERLAY_WIDTH`` wide, with the mask outline and keypoints drawn."""
-    import numpy as np
-
     bgr = result.frame.bgr
     height, width = bgr.shape[:2]
     factor = min(1.0, OVERLAY_WIDTH / width)
