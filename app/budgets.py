@@ -140,7 +140,7 @@ def interactive(settings: Settings) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def _lower_priority(nice: int) -> None:
+def lower_priority(nice: int) -> None:
     """This thread (only) ``nice`` lower than the process; never raised back (that would need
     privileges). Linux only: elsewhere a thread's priority is the process's."""
     if nice <= 0 or getattr(_local, "nice", 0) >= nice or not sys.platform.startswith("linux"):
@@ -157,7 +157,7 @@ def _lower_priority(nice: int) -> None:
 def start_batch(settings: Settings) -> None:
     """A job starts in this thread: lower its priority, give it the batch budget."""
     try:
-        _lower_priority(settings.batch_nice)
+        lower_priority(settings.batch_nice)
     except Exception:  # advice, never a failed job
         log.warning("budgets.start_failed", exc_info=True)
     batch_checkpoint(settings, force=True)

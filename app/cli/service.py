@@ -42,6 +42,13 @@ def prepare_instance(settings: Settings) -> Path | None:
         engine.dispose()
 
 
+def _prepare_below_the_imports(settings: Settings) -> Path | None:
+    from app.budgets import lower_priority  # imported by serve before the thread starts
+
+    lower_priority(settings.batch_nice)
+    return prepare_instance(settings)
+
+
 def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 8000) -> str:
     """How to log in, in one sentence, for the messages of serve and demo."""
     where = f"http://{host}:{port}"
@@ -59,6 +66,7 @@ def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 
 @friendly_errors
 def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
+    from app.budgets import lower_priority  # noqa: F401 (see below)
     from app.storage import Storage
     from app.users.service import ensure_initial_admin  # noqa: F401 (see below)
 
@@ -66,8 +74,10 @@ def serve(host: str, port: int, no_worker: bool) -> None:
     with ThreadPoolExecutor(1) as pool:
         # The migration check and a fresh instance's Argon2 hash (C, without the GIL) run
         # beside the imports of the service (Python, with it). What the thread imports is
-        # imported above: two threads importing the same modules can see them half-made.
-        prepared = pool.submit(prepare_instance, settings)
+        # imported above: two threads importing the same modules can see them half-made. The
+        # thread runs at a job's priority (its hash's threads inherit it), so the hash takes
+        # the core the imports leave rather than half of theirs; it ends with the pool.
+        prepared = pool.submit(_prepare_below_the_imports, settings)
         import uvicorn
 
         from app.housekeeping import prune_training_state, sweep_orphan_files

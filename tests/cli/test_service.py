@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
 from alembic.script import ScriptDirectory
+from click.testing import CliRunner
 from fastapi.testclient import TestClient
 
-from app.config import Settings
+from app.cli import main
+from app.config import Settings, get_settings
 from app.db import MIGRATIONS_DIR
 from app.main import create_app
 from tests.helpers import auth, make_settings, run_cli
@@ -144,3 +148,38 @@ def test_demo_on_a_fresh_home_needs_no_migrate_and_says_how_to_log_in(
         assert all(f["status"] == "accepted" for f in held_out)  # split: by its keypoints
     again = run(cli_settings, "demo", "--frames", "4")  # a second demo: users exist already
     assert again.returncode == 0 and "with your account" in again.stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a thread's nice is Linux's")
+def test_a_first_start_prepares_the_instance_below_the_serving_thread(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The migration and the new admin's Argon2 hash run beside the imports at a job's priority
+    (the hash's own threads inherit it); the thread that goes on to serve keeps the process's."""
+    import uvicorn
+
+    from app.cli import service
+
+    seen: dict[str, int] = {}
+    prepare = service.prepare_instance
+
+    def nice() -> int:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    def recording(settings: Settings) -> Path | None:
+        seen["prepare"] = nice()
+        return prepare(settings)
+
+    monkeypatch.setattr(service, "prepare_instance", recording)
+    monkeypatch.setattr(uvicorn, "run", lambda *args, **kwargs: seen.setdefault("serve", nice()))
+    get_settings.cache_clear()
+    monkeypatch.setenv("WELDPOOL_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("WELDPOOL_DATABASE_URL", raising=False)
+    try:
+        result = CliRunner().invoke(main, ["serve", "--no-worker"])
+    finally:
+        get_settings.cache_clear()
+    assert result.exit_code == 0, result.output
+    base = nice()
+    assert seen == {"prepare": min(19, base + Settings().batch_nice), "serve": base}
+    assert "created user 'admin'" in result.output
