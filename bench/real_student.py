@@ -104,7 +104,6 @@ VARIANTS = (
     "skips and wider geometry",
     "skips at strides 16 and 8, wider geometry",
     "skips 2, wider geometry, heatmap weight 3",
-    "three decoder heads",
 )
 
 
@@ -134,7 +133,6 @@ def variant(name: str) -> tuple[StudentConfig, TrainConfig]:
             {"skips": 2},
             {"augmentation": wider, "losses": replace(config.losses, heatmap=3.0)},
         ),
-        VARIANTS[13]: ({"heads": 3}, {}),
     }
     if name not in changes:
         raise SystemExit(f"unknown variant {name!r}; use one of: {', '.join(changes)}")

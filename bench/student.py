@@ -2,8 +2,7 @@
 
 Run: ``.venv/bin/python bench/student.py`` (about two minutes on 2 CPU threads; ``--threads``
 to change, ``--accuracy`` to also train every size on the synthetic learning test, which takes
-tens of minutes for the ResNet sizes on a CPU; ``--heads N`` adds the light size with N decoder
-heads).
+tens of minutes for the ResNet sizes on a CPU).
 
 For each size: FLOPs of one frame (convolutions and matrix products, counted by
 ``torch.utils.flop_counter``, 2 per multiply-add); the floor, FLOPs divided by this machine's
@@ -22,7 +21,6 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -130,15 +128,10 @@ def training_rate(model: ResNetVAE, device: torch.device, batch: int = 8) -> flo
     return batch / median_seconds(step, repeats=3, warmup=1)
 
 
-def size_rows(
-    threads: int, rate: float, devices: list[torch.device], heads: int = 1
-) -> list[list[str]]:
-    """One table row per model size and device (and the light size with ``heads`` heads)."""
+def size_rows(threads: int, rate: float, devices: list[torch.device]) -> list[list[str]]:
+    """One table row per model size and device."""
     rows = []
-    sizes = dict(STUDENT_SIZES)
-    if heads > 1:
-        sizes[f"light, {heads} heads"] = replace(STUDENT_SIZES["light"], heads=heads)
-    for name, config in sizes.items():
+    for name, config in STUDENT_SIZES.items():
         model = build_student(config, load_pretrained=False).model.eval()
         flops = frame_flops(model)
         floor_ms = flops / rate * 1e3
@@ -255,7 +248,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--accuracy", action="store_true", help="also train every size (slow)")
-    parser.add_argument("--heads", type=int, default=1, help="also the light size with N heads")
     arguments = parser.parse_args()
     torch.set_num_threads(arguments.threads)
     rate = matmul_rate()
@@ -278,7 +270,7 @@ def main() -> None:
             "train img/s",
             "b1 / floor",
         ],
-        size_rows(arguments.threads, rate, devices, arguments.heads),
+        size_rows(arguments.threads, rate, devices),
     )
     print("resnet18 at batch 1 on the CPU: what each speed-up gives (ms per frame, median of 7)")
     print_table(["setting", "ms"], speedup_rows(arguments.threads))

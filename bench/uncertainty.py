@@ -20,11 +20,7 @@ shipped before this bench: test-time-pass disagreement noisy-or'd with r / (1 + 
 ``latent`` (1 − soft IoU of the latent draws' mean mask with the plain one), ``expected`` (1 −
 soft IoU of the draws' mean mask with the plain pass's *answer*, its mask ≥ 0.5: the IoU the
 answer would lose if the draws' probabilities were calibrated), ``geometric`` (√(latent ×
-ambiguity), computed here apart from ``predict``), ``heads`` (for a student with several
-decoder heads: 1 − the mean soft IoU of each head's mask probability with their mean, the
-``heads`` part of ``predict``), ``heads_amb`` (√(heads × ambiguity)), ``heads_nov`` (heads
-noisy-or'd with novelty), ``heads_geo`` (√(heads × geometric) noisy-or'd with novelty),
-``dropout`` (the
+ambiguity), computed here apart from ``predict``), ``dropout`` (the
 same under feature dropout at test time), ``heatmap`` (1 − the strongest keypoint peak); and
 across the seeds' students: ``ensemble`` (1 − the mean soft IoU between each student's mask
 probability and the students' mean).
@@ -213,23 +209,6 @@ def candidates(
         ]
         cost["geometric"] = cost["latent"] + cost["ambiguity"]
         timed("dropout", dropout)
-        if model.more_heads:
-
-            def heads() -> list[float]:
-                each = torch.sigmoid(model.decode_heads(mean, skips)[:, :, 0].float())
-                spread = [1 - soft_iou(each[:, k], plain, inside) for k in range(each.shape[1])]
-                return [float(v) for v in torch.stack(spread).mean(0)]
-
-            timed("heads", heads)
-            novel = known.novelty(P.frame_codes(features))
-            out["heads_amb"] = [
-                float(np.sqrt(a * b)) for a, b in zip(out["heads"], out["ambiguity"], strict=True)
-            ]
-            out["heads_nov"] = [P.combine(h, n) for h, n in zip(out["heads"], novel, strict=True)]
-            out["heads_geo"] = [
-                P.combine(float(np.sqrt(h * g)), n)
-                for h, g, n in zip(out["heads"], out["geometric"], novel, strict=True)
-            ]
         timed("heatmap", lambda: [float(1 - v) for v in (heat * inside).flatten(1).max(1).values])
     return out, cost, plain, inside, masks
 

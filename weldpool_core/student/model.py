@@ -17,13 +17,6 @@ on the real labels two skips lift the mask across clips from 0.825 to 0.87 mIoU 
 clip from 0.938 to 0.959 (``bench/real_student.py``, README). With 0 everything the decoder
 draws passes through the latent.
 
-With ``heads`` > 1 (default 1) the student has that many decoders on the same encoder and latent,
-each from its own random start and trained on its own bootstrap weights of the batch's frames
-(``train.student_loss``): a small ensemble that costs one encoder. Its mask and heatmap are the
-logits of the heads' mean probability (``mean_probability_logits``), so every consumer (the
-predictor, the exports, the live view) runs the ensemble; where the heads disagree is a part of
-the uncertainty (``predict.heads_disagreement``).
-
 The encoder takes RGB in [0, 1]; the ImageNet normalisation happens inside the model, so an
 exported model needs nothing but the letterboxed (or resized) frame scaled to [0, 1].
 """
@@ -49,8 +42,6 @@ STRIDE = 32
 Aspect = Literal["letterbox", "resize"]
 KeypointSource = Literal["mask", "heatmap"]
 ModuleT = TypeVar("ModuleT", bound=nn.Module)
-MAX_HEADS = 8
-"""Most decoder heads a student may have (each is one more decoder pass per frame)."""
 
 
 @dataclass(frozen=True)
@@ -103,10 +94,6 @@ class StudentConfig:
         encoder_weights: where the ImageNet weights are, overriding the encoder's hub id.
         skips: how many of the encoder's finer maps (strides 16, 8, 4, in that order) feed the
             decoder beside the latent (default 2; see the module doc).
-        heads: decoders trained side by side on the same encoder and latent (default 1), each
-            from its own random start and with its own bootstrap weights of the batch's frames.
-            With more than one, the mask and heatmap are the heads' mean probability, and how
-            far the heads disagree is a part of the uncertainty (``student.predict``).
     """
 
     encoder: str = "resnet18"
@@ -120,7 +107,6 @@ class StudentConfig:
     encoder_weights: str | None = None
     skips: int = 2
     keypoints: KeypointSource = "mask"
-    heads: int = 1
 
     def __post_init__(self) -> None:
         problems = []
@@ -136,8 +122,6 @@ class StudentConfig:
             problems.append(f"skips must be 0 to 3, not {self.skips}")
         if self.keypoints not in ("mask", "heatmap"):
             problems.append(f"keypoints must be mask or heatmap, not {self.keypoints!r}")
-        if not 1 <= self.heads <= MAX_HEADS:
-            problems.append(f"heads must be 1 to {MAX_HEADS}, not {self.heads}")
         if len(self.decoder_channels) != 4 or min(self.decoder_channels) < 1:
             problems.append("decoder_channels must be four positive numbers")
         if problems:
@@ -200,23 +184,12 @@ class StudentOutput:
         heatmap_logits: N×H×W logits of the keypoint heatmap (``sigmoid`` gives [0, 1]).
         mean: N×C×h×w latent mean (h = H / 32).
         logvar: N×C×h×w latent log-variance.
-        head_logits: N×K×2×H×W logits of each of the K heads (mask, heatmap), when the
-            student has more than one (the two above are their mean probability's logits).
     """
 
     mask_logits: torch.Tensor
     heatmap_logits: torch.Tensor
     mean: torch.Tensor
     logvar: torch.Tensor
-    head_logits: torch.Tensor | None = None
-
-
-def mean_probability_logits(head_logits: torch.Tensor) -> torch.Tensor:
-    """The logits of the mean probability over dimension 1 (the heads) of logits:
-    log p̄ − log(1 − p̄), computed in log space so that confident heads do not saturate."""
-    return torch.logsumexp(F.logsigmoid(head_logits), 1) - torch.logsumexp(
-        F.logsigmoid(-head_logits), 1
-    )
 
 
 def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequential:
@@ -296,24 +269,18 @@ class ResNetVAE(nn.Module):
         features = config.channels(config.spec.widths[-1])
         self.to_latent = nn.Conv2d(features, 2 * config.latent_channels, 1)
         widths = [config.channels(w) for w in config.spec.widths]
-        decoders = [
-            Decoder(
-                config.latent_channels,
-                tuple(config.channels(c) for c in config.decoder_channels),
-                tuple(widths[2::-1][: config.skips]),
-            )
-            for _ in range(config.heads)
-        ]
-        self.decoder = decoders[0]
-        self.more_heads = nn.ModuleList(decoders[1:])
+        self.decoder = Decoder(
+            config.latent_channels,
+            tuple(config.channels(c) for c in config.decoder_channels),
+            tuple(widths[2::-1][: config.skips]),
+        )
         self.register_buffer("pixel_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
         self.register_buffer("pixel_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
         with torch.no_grad():
             self.to_latent.weight.zero_()  # start at mean 0, log-variance 0: the prior
             cast(torch.Tensor, self.to_latent.bias).zero_()
             # the heatmap is mostly 0: start it low (as CenterNet does)
-            for decoder in decoders:
-                cast(torch.Tensor, decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
+            cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
 
     def encoder_maps(self, images: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
         """The encoder's last feature map (N×F×S/32×S/32) of RGB images in [0, 1], and the
@@ -342,21 +309,11 @@ class ResNetVAE(nn.Module):
         mean, logvar = self.posterior(last)
         return mean, logvar, skips
 
-    def decode_heads(
-        self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()
-    ) -> torch.Tensor:
-        """Every head's logits (N×K×2×S×S: mask, heatmap) of a latent and its skip maps."""
-        return torch.stack([d(latent, skips) for d in (self.decoder, *self.more_heads)], 1)
-
     def decode(
         self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mask logits and heatmap logits (N×S×S each) of a latent (and the frame's skip maps);
-        with several heads, the logits of their mean probability."""
-        if self.more_heads:
-            logits = mean_probability_logits(self.decode_heads(latent, skips))
-        else:
-            logits = self.decoder(latent, skips)
+        """Mask logits and heatmap logits (N×S×S each) of a latent (and the frame's skip maps)."""
+        logits = self.decoder(latent, skips)
         return logits[:, 0], logits[:, 1]
 
     def forward(
@@ -370,12 +327,8 @@ class ResNetVAE(nn.Module):
                 mean.shape, generator=generator, device=mean.device, dtype=mean.dtype
             )
             latent = mean + noise * torch.exp(0.5 * logvar)
-        if not self.more_heads:
-            mask_logits, heatmap_logits = self.decode(latent, skips)
-            return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
-        heads = self.decode_heads(latent, skips)
-        logits = mean_probability_logits(heads)
-        return StudentOutput(logits[:, 0], logits[:, 1], mean, logvar, heads)
+        mask_logits, heatmap_logits = self.decode(latent, skips)
+        return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
 
 
 def kl_divergence(mean: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:

@@ -15,7 +15,7 @@ sub-pixel refinement of the small map; of modes closer than half Algorithm 1's k
 separation, only the strongest counts: the others are lobes of the same keypoint
 (``mode_distance``).
 
-Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from these
+Uncertainty (``samples`` > 0): how likely the student's mask is wrong, in [0, 1], from three
 signals (``uncertainty_parts`` holds them):
 
 - ``spread``: how much of the answer the student's own posterior moves. The frame's
@@ -42,9 +42,6 @@ signals (``uncertainty_parts`` holds them):
   student's errors backwards, ``bench/uncertainty.py``); a blank, noise or inverted frame,
   another camera, lies beyond and scores high even where the student answers confidently.
   None for a model folder without codes.
-- ``heads`` (a student with several decoder heads, ``StudentConfig.heads``): how far they
-  disagree, the mean over the heads of 1 − the soft IoU of each head's mask probability with
-  their mean (``heads_disagreement``); None for a one-head student.
 
 The mask's part is √(spread × ambiguity) (``mask_doubt``): both must be high, and a change of
 either by a factor counts the same whatever their scales. Each alone ranked the errors on one
@@ -80,13 +77,7 @@ from weldpool_core.io import to_rgb8
 from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
 from weldpool_core.student.checkpoint import load_codes, load_student
 from weldpool_core.student.data import FrameGeometry
-from weldpool_core.student.model import (
-    ResNetVAE,
-    StudentConfig,
-    channels_last,
-    fuse_batchnorm,
-    mean_probability_logits,
-)
+from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last, fuse_batchnorm
 
 if TYPE_CHECKING:
     import cv2
@@ -128,8 +119,8 @@ class StudentPrediction:
             ``StudentConfig.keypoints`` says (the mask's outline or the heatmap's modes).
         uncertainty: how likely the mask is wrong, in [0, 1] (see the module doc), or None
             when no samples were asked for.
-        uncertainty_parts: its parts (``spread``, ``ambiguity``, ``novelty``, ``heads``), or
-            None without samples.
+        uncertainty_parts: its parts (``spread``, ``ambiguity``, ``novelty``), or None
+            without samples.
     """
 
     mask: NDArray[np.bool_]
@@ -250,12 +241,6 @@ def mask_spread(drawn: NDArray[np.floating[Any]], plain: NDArray[np.floating[Any
     a, b = np.asarray(drawn, np.float64), np.asarray(plain, np.float64)
     union = float(np.maximum(a, b).sum())
     return 0.0 if union <= 1e-6 else 1.0 - float(np.minimum(a, b).sum()) / union
-
-
-def heads_disagreement(heads: NDArray[np.floating[Any]], mean: NDArray[np.floating[Any]]) -> float:
-    """How far a student's heads disagree on one frame: the mean over its K×H×W heads' mask
-    probabilities of 1 − the soft IoU of each with their mean (``mask_spread``)."""
-    return float(np.mean([mask_spread(head, mean) for head in heads]))
 
 
 def frame_codes(features: torch.Tensor) -> torch.Tensor:
@@ -401,28 +386,17 @@ class StudentPredictor:
         with torch.inference_mode(), autocast:
             features, skips = self.model.encoder_maps(batch)
             mean, logvar = self.model.posterior(features)
-            heads = None
-            if self.model.more_heads:
-                heads = self.model.decode_heads(mean, skips)
-                mask_logits, heatmap_logits = mean_probability_logits(heads).unbind(1)
-            else:
-                mask_logits, heatmap_logits = self.model.decode(mean, skips)
+            mask_logits, heatmap_logits = self.model.decode(mean, skips)
             masks = torch.sigmoid(mask_logits.float()).cpu().numpy()
             parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
                 predictive = predictive_mask(self.model, mean, logvar, samples, skips=skips)
                 drawn = predictive.cpu().numpy()
-                each = (
-                    np.zeros((len(batch), 0, *masks.shape[1:]), np.float32)
-                    if heads is None
-                    else torch.sigmoid(heads[:, :, 0].float()).cpu().numpy()
-                )
-                inner, inner_plain, inner_heads = list(drawn), list(masks), list(each)
+                inner, inner_plain = list(drawn), list(masks)
                 for index, geometry in enumerate(geometries):
                     rows, columns = geometry.inner_rows, geometry.inner_columns
                     inner[index] = drawn[index, rows, columns]
                     inner_plain[index] = masks[index, rows, columns]
-                    inner_heads[index] = each[index, :, rows, columns]
                 novel: list[float | None] = [None] * len(batch)
                 known = self.training_codes
                 codes = frame_codes(features)
@@ -433,9 +407,8 @@ class StudentPredictor:
                         "spread": mask_spread(d, p),
                         "ambiguity": mask_ambiguity(d),
                         "novelty": n,
-                        "heads": heads_disagreement(h, p) if len(h) else None,
                     }
-                    for d, p, n, h in zip(inner, inner_plain, novel, inner_heads, strict=True)
+                    for d, p, n in zip(inner, inner_plain, novel, strict=True)
                 ]
         heatmaps = torch.sigmoid(heatmap_logits.float()).cpu().numpy()
         return masks, heatmaps, parts

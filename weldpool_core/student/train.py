@@ -18,11 +18,7 @@ heatmap logits + β·KL. The heatmap term is a quality focal loss (|y − p|²·
 divided by the target's mass): the Gaussians cover well under 1 % of the pixels, and an
 unweighted loss would settle on an empty heatmap first. β ramps linearly from 0 to ``beta`` over
 the first ``beta_warmup`` of the steps (KL annealing), so the decoder learns to use the latent
-before the prior pulls on it. With several decoder heads (``StudentConfig.heads``) the mask and
-heatmap terms are the mean of each head's own, in which every frame weighs by its weight times
-a draw of Exp(1) for that head and step (a Bayesian bootstrap): the heads learn from differently
-weighted batches as well as from their own random starts, so they disagree where the labels
-leave the answer open.
+before the prior pulls on it.
 
 Round choice (``_score``): with ``selection="mED"`` the score is ``mED_penalised`` (a keypoint
 on a frame with IoU < 0.5 counts as the diagonal) plus ``IOU_TIE_BREAK_PX`` × (1 − mIoU), so
@@ -384,40 +380,17 @@ def student_loss(
 ) -> _Losses:
     """The training loss of one batch (see the module doc), with its parts."""
     output = model(batch.image, sample=True, generator=generator)
-    if output.head_logits is None:
-        mask, heat = _head_losses(
-            output.mask_logits, output.heatmap_logits, batch, weights, batch.weight
-        )
-    else:  # each head on its own bootstrap weights of the batch's frames (see the model doc)
-        parts = []
-        for head in output.head_logits.unbind(1):
-            draw = torch.empty(len(head), device=head.device).exponential_(generator=generator)
-            weight = draw if batch.weight is None else draw * batch.weight
-            parts.append(_head_losses(head[:, 0], head[:, 1], batch, weights, weight))
-        mask = torch.stack([m for m, _ in parts]).mean()
-        heat = torch.stack([h for _, h in parts]).mean()
-    kl = kl_divergence(output.mean, output.logvar)
-    return _Losses(mask + heat + beta * kl, mask, heat, kl)
-
-
-def _head_losses(
-    mask_logits: torch.Tensor,
-    heatmap_logits: torch.Tensor,
-    batch: TrainingTargets,
-    weights: LossWeights,
-    weight: torch.Tensor | None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The mask's and the heatmap's loss of one decoder's logits, each frame by its weight."""
-    bce = F.binary_cross_entropy_with_logits(mask_logits, batch.mask, reduction="none")
+    bce = F.binary_cross_entropy_with_logits(output.mask_logits, batch.mask, reduction="none")
     mask = weights.mask_bce * _weighted_mean(
-        bce.flatten(1).mean(1), weight
-    ) + weights.mask_dice * dice_loss(mask_logits, batch.mask, weight)
+        bce.flatten(1).mean(1), batch.weight
+    ) + weights.mask_dice * dice_loss(output.mask_logits, batch.mask, batch.weight)
     if weights.mask_boundary:
         band = boundary_band(batch.mask)
         per_frame = (bce * band).flatten(1).sum(1) / band.flatten(1).sum(1).clamp(min=1.0)
-        mask = mask + weights.mask_boundary * _weighted_mean(per_frame, weight)
-    heat = weights.heatmap * heatmap_loss(heatmap_logits, batch.heatmap, weight)
-    return mask, heat
+        mask = mask + weights.mask_boundary * _weighted_mean(per_frame, batch.weight)
+    heat = weights.heatmap * heatmap_loss(output.heatmap_logits, batch.heatmap, batch.weight)
+    kl = kl_divergence(output.mean, output.logvar)
+    return _Losses(mask + heat + beta * kl, mask, heat, kl)
 
 
 def validate(

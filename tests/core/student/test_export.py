@@ -3,25 +3,19 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from tests.core.student.common import TINY_STUDENT
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.student.checkpoint import load_student
 from weldpool_core.student.export import (
     StudentExport,
-    export_module,
-    export_onnx,
     export_student,
     load_torchscript,
     run_onnx,
 )
-from weldpool_core.student.model import build_student
 from weldpool_core.student.predict import StudentPredictor, frames_to_batch, to_frame
 from weldpool_core.student.train import TrainResult
 from weldpool_core.synth import SynthParams, synth_frame
@@ -59,21 +53,3 @@ def test_onnx_and_torchscript_match_pytorch(student: str, request: pytest.Fixtur
 def test_unknown_formats_are_refused(trained: TrainResult) -> None:
     with pytest.raises(InvalidInputError, match="Unknown export format"):
         export_student(trained.model_dir, ["tflite"])
-
-
-def test_a_student_with_several_heads_exports_their_mean(tmp_path: Path) -> None:
-    """The ONNX file of a three-head student answers with the heads' mean probability, as
-    PyTorch does (the controller beside the robot runs the same ensemble)."""
-    torch.manual_seed(0)
-    model = build_student(replace(TINY_STUDENT, heads=3), load_pretrained=False).model.eval()
-    path = tmp_path / "model.onnx"
-    export_onnx(model, path)
-    images = torch.rand(3, 3, 64, 64, generator=torch.Generator().manual_seed(1))
-    with torch.inference_mode():
-        mask, heatmap = export_module(model)(images)
-        mean, _, skips = model.encode(images)
-        each = torch.sigmoid(model.decode_heads(mean, skips))
-    torch.testing.assert_close(mask, each[:, :, 0].mean(1), atol=1e-5, rtol=0)
-    onnx_mask, onnx_heatmap = run_onnx(path, images.numpy())
-    assert np.abs(onnx_mask - mask.numpy()).max() <= 1e-4
-    assert np.abs(onnx_heatmap - heatmap.numpy()).max() <= 1e-4

@@ -18,7 +18,6 @@ from weldpool_core.student.model import (
     build_student,
     fuse_batchnorm,
     kl_divergence,
-    mean_probability_logits,
     student_config,
 )
 
@@ -158,42 +157,3 @@ def test_skips_carry_the_frames_own_detail_past_the_latent() -> None:
         if skips:
             with pytest.raises(ValueError, match=f"takes {skips} skip map"):
                 model.decode(mean)
-
-
-def test_several_heads_answer_with_their_mean_probability() -> None:
-    """Each head decodes from its own random start; the student's mask and heatmap are the
-    logits of the heads' mean probability (not one head's, not the mean logit). One head keeps
-    the layout of every folder saved before heads existed."""
-    torch.manual_seed(0)
-    model = build_student(student_config("light", input_size=64, heads=3)).model.eval()
-    images = torch.rand(2, 3, 64, 64)
-    with torch.no_grad():
-        output = model(images, sample=False)
-        mean, _, skips = model.encode(images)
-        each = model.decode_heads(mean, skips)
-    assert each.shape == (2, 3, 2, 64, 64) and output.head_logits is not None
-    torch.testing.assert_close(output.head_logits, each)
-    for channel, found in enumerate((output.mask_logits, output.heatmap_logits)):
-        expected = torch.sigmoid(each[:, :, channel]).mean(1)
-        torch.testing.assert_close(torch.sigmoid(found), expected)
-        assert (torch.sigmoid(each[:, :, channel].mean(1)) - expected).abs().max() > 1e-4
-    assert (each[:, 0] - each[:, 1]).abs().max() > 1e-3  # their own random starts
-    one = build_student(student_config("light", input_size=64)).model
-    assert set(one.state_dict()) < set(model.state_dict())
-    assert not any(key.startswith("more_heads") for key in one.state_dict())
-    assert one(images, sample=False).head_logits is None
-    # Confident heads do not saturate: ±40 average to p = 0.5, two at 40 stay at 40.
-    torch.testing.assert_close(
-        mean_probability_logits(torch.tensor([[40.0, -40.0], [40.0, 40.0]])),
-        torch.tensor([0.0, 40.0]),
-    )
-
-
-def test_head_counts_out_of_range_are_refused_and_old_folders_have_one() -> None:
-    for heads in (0, 9):
-        with pytest.raises(InvalidInputError, match="heads must be 1 to 8"):
-            StudentConfig(heads=heads)
-    saved_before = {k: v for k, v in StudentConfig().as_dict().items() if k != "heads"}
-    assert StudentConfig.from_dict(saved_before).heads == 1
-    config = StudentConfig(heads=3)
-    assert StudentConfig.from_dict(config.as_dict()) == config

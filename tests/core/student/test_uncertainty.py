@@ -4,9 +4,7 @@ its training frames, and what they add up to on frames the student gets wrong or
 
 from __future__ import annotations
 
-import copy
 import itertools
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,11 +12,10 @@ import torch
 from numpy.typing import NDArray
 from scipy.stats import spearmanr
 
-from tests.core.student.common import TINY_STUDENT, synthetic_frames
+from tests.core.student.common import synthetic_frames
 from weldpool_core.metrics import iou
 from weldpool_core.student.checkpoint import load_codes, save_codes
 from weldpool_core.student.data import TrainingFrame
-from weldpool_core.student.model import build_student
 from weldpool_core.student.predict import (
     FAMILIAR_DISTANCE,
     FOREIGN_MARGIN,
@@ -29,7 +26,6 @@ from weldpool_core.student.predict import (
     foreign_versions,
     frame_codes,
     frames_to_batch,
-    heads_disagreement,
     mask_ambiguity,
     mask_doubt,
     mask_spread,
@@ -217,31 +213,3 @@ def test_the_uncertainty_rises_on_frames_the_student_gets_wrong(sure_student: Tr
     scores = [p.uncertainty for p in plain + hard]
     errors = [1 - v for v in clean_iou + hard_iou]
     assert spearmanr(scores, errors)[0] >= 0.3
-
-
-def test_the_heads_part_is_how_far_a_students_heads_disagree() -> None:
-    """Three heads: copies of one decoder disagree nowhere (0), one head made to draw a bigger
-    pool raises it, and the mask is their mean; a one-head student has no such part."""
-    disc = _disc(12, 2)
-    assert heads_disagreement(np.stack([disc] * 3), disc) == 0.0
-    bigger = _disc(16, 2)
-    mean = (2 * disc + bigger) / 3
-    expected = (2 * mask_spread(disc, mean) + mask_spread(bigger, mean)) / 3
-    assert heads_disagreement(np.stack([disc, disc, bigger]), mean) == pytest.approx(expected)
-    frames = [f.image for f in synthetic_frames(2, first_seed=30)]
-    torch.manual_seed(0)
-    model = build_student(replace(TINY_STUDENT, heads=3), load_pretrained=False).model
-    for decoder in model.more_heads:
-        decoder.load_state_dict(model.decoder.state_dict())
-    copies = StudentPredictor(copy.deepcopy(model), torch.device("cpu")).predict(frames, samples=2)
-    with torch.no_grad():
-        model.more_heads[0].head.bias[0] += 3.0  # this head sees more pool everywhere
-    apart = StudentPredictor(model, torch.device("cpu")).predict(frames, samples=2)
-    for same, different in zip(copies, apart, strict=True):
-        assert same.uncertainty_parts is not None and different.uncertainty_parts is not None
-        assert same.uncertainty_parts["heads"] == pytest.approx(0.0, abs=1e-6)
-        assert different.uncertainty_parts["heads"] > 0.01  # type: ignore[operator]
-        assert different.mask.sum() >= same.mask.sum()  # the mean moved towards that head
-    one = build_student(TINY_STUDENT, load_pretrained=False).model
-    found = StudentPredictor(one, torch.device("cpu")).predict(frames[:1], samples=2)
-    assert found[0].uncertainty_parts is not None and found[0].uncertainty_parts["heads"] is None
