@@ -118,7 +118,8 @@ class Settings(BaseSettings):
         ge=0,
         le=19,
         description="How much lower the worker's job threads run than the web process's "
-        "(Linux nice), so a reviewer's click is never queued behind a job for the CPU.",
+        "(Linux nice), so a reviewer's click is never queued behind a job for the CPU; a fresh "
+        "instance's admin hash at start runs as low, beside the imports.",
     )
     reviewer_active_s: float = Field(
         default=0.0,
