@@ -7,12 +7,12 @@ The full-size sam2.1-hiera-tiny architecture with random weights encodes one 102
 click's first embedding and the teacher do: transformers' ``Sam2Model.get_image_embeddings``
 (the naive way) and ours, ``hiera.ImageEncoder`` (what ``Sam2Predictor.set_image`` runs),
 alternately. The floor is the encoder's FLOPs (``torch.utils.flop_counter``: matmuls,
-convolutions, and attention, whose CPU kernel the counter is taught here) at this machine's
-measured matmul rate in the same precision (a 2048³ product, same threads). In transformers'
-forward each Hiera block, the patch embedding and the neck are timed with forward hooks; ours is
-timed block by block around the same blocks (median of the runs); a ratio is the part's time
-over its own floor. Elementwise work (layer norms, GELU, window partition copies, softmax)
-counts no FLOPs, so it shows as the ratio above 1 of the blocks that do it.
+convolutions, and attention: ``floor.flop_counter``) at this machine's matmul rate in the same
+precision (a 2048³ product, same threads), read before each run (median of the readings). In
+transformers' forward each Hiera block, the patch embedding and the neck are timed with forward
+hooks; ours is timed block by block around the same blocks (median of the runs); a ratio is the
+part's time over its own floor. Elementwise work (layer norms, GELU, window partition copies,
+softmax) counts no FLOPs, so it shows as the ratio above 1 of the blocks that do it.
 """
 
 from __future__ import annotations
@@ -24,29 +24,7 @@ from collections import defaultdict
 from typing import Any
 
 import torch
-from torch.utils.flop_counter import FlopCounterMode, sdpa_flop_count
-
-
-def _cpu_attention_flops(query: Any, key: Any, value: Any, *args: Any, **kwargs: Any) -> int:
-    """The CPU attention kernel's FLOPs (QKᵀ and the weighted sum), which the counter's own
-    table (its GPU kernels) lacks."""
-    shapes = [getattr(x, "shape", x) for x in (query, key, value)]  # the counter passes shapes
-    return int(sdpa_flop_count(*shapes))
-
-
-CUSTOM = {torch.ops.aten._scaled_dot_product_flash_attention_for_cpu: _cpu_attention_flops}
-
-
-def matmul_rate(runs: int, dtype: torch.dtype = torch.float32) -> float:
-    """GFLOP/s of a 2048³ product in ``dtype`` on this machine (median of ``runs`` × 3)."""
-    a, b = torch.randn(2048, 2048, dtype=dtype), torch.randn(2048, 2048, dtype=dtype)
-    a @ b
-    times = []
-    for _ in range(3 * runs):
-        start = time.perf_counter()
-        a @ b
-        times.append(time.perf_counter() - start)
-    return 2 * 2048**3 / statistics.median(times) / 1e9
+from floor import flop_counter, matmul_rate
 
 
 def main() -> None:
@@ -75,7 +53,7 @@ def main() -> None:
         parts[f"block {index:2d} ({kind} {block.window_size}, dim {block.dim_out}{stride})"] = block
     parts["neck (FPN)"] = model.vision_encoder.neck
 
-    with torch.inference_mode(), FlopCounterMode(display=False, custom_mapping=CUSTOM) as counter:
+    with torch.inference_mode(), flop_counter() as counter:
         model.get_image_embeddings(pixels)
     by_module = counter.get_flop_counts()
     total_flops = counter.get_total_flops()
@@ -102,8 +80,10 @@ def main() -> None:
 
     whole: dict[str, list[float]] = defaultdict(list)
     paths = {"transformers": model.get_image_embeddings, "ours": encoder}
+    rates: list[float] = []  # read before each run's pair: the floor sees the runs' states
     with torch.inference_mode():
         for run in range(args.runs + 1):  # the first of each is a warm-up
+            rates.append(matmul_rate(dtype))
             for path, encode in paths.items():
                 hiera._block = timed_block if path == "ours" else plain_block
                 this_run.clear()
@@ -113,9 +93,9 @@ def main() -> None:
             for name, seconds in this_run.items():
                 ours[name].append(seconds)
             if run == 0:
-                timings.clear(), ours.clear(), whole.clear()
+                timings.clear(), ours.clear(), whole.clear(), rates.clear()
     hiera._block = plain_block
-    rate = matmul_rate(args.runs, dtype) * 1e9  # measured right after, in the same state
+    rate = statistics.median(rates)
     root = type(model.vision_encoder).__name__  # the counter names modules from the one called
     names = {module: f"{root}.{key}" for key, module in model.vision_encoder.named_modules()}
 

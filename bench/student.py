@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from floor import matmul_rate
 from torch.utils.flop_counter import FlopCounterMode
 
 from weldpool_core.student.data import TrainingTargets
@@ -50,12 +51,6 @@ def median_seconds(work: Callable[[], Any], repeats: int, warmup: int = 2) -> fl
         work()
         times.append(time.perf_counter() - started)
     return statistics.median(times)
-
-
-def matmul_rate(size: int = 2048, repeats: int = 7) -> float:
-    """This machine's fp32 matrix-multiply rate in FLOP/s (torch, current thread count)."""
-    a, b = torch.randn(size, size), torch.randn(size, size)
-    return 2 * size**3 / median_seconds(lambda: a @ b, repeats)
 
 
 def frame_flops(model: ResNetVAE) -> int:
@@ -250,7 +245,7 @@ def main() -> None:
     parser.add_argument("--accuracy", action="store_true", help="also train every size (slow)")
     arguments = parser.parse_args()
     torch.set_num_threads(arguments.threads)
-    rate = matmul_rate()
+    rate = matmul_rate(repeats=7)
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     print(
         f"student sizes, {arguments.threads} CPU threads; fp32 matmul rate {rate / 1e9:.0f} "

@@ -4,7 +4,9 @@ each case's peak memory measured in a process of its own.
 Cases: DINO ViT-S/8 at 224² and 480² (last-block-only attention, and the straightforward path
 that returns every attention, for the ratio), SAM2 hiera-tiny image encoder at 1024², one click
 decoded from a cached embedding (ours and transformers' Sam2Model.forward), and the whole teacher
-on a 1280×800 frame.
+on a 1280×800 frame. Each case's FLOP floor (``bench/floor.py``): its FLOPs (matmuls,
+convolutions, attention) at the fp32 matmul rate read before each of its runs; the rest of a
+case (resizing, prompts, Algorithm 1, elementwise work) counts none and shows as the ratio above 1.
 
     .venv/bin/python bench/teacher.py [--runs 5] [--device cpu|cuda] [--threads 2]
 """
@@ -21,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from floor import flop_counter, timed_against_floor
 
 FRAME_SHAPE = (800, 1280, 3)
 
@@ -108,9 +111,30 @@ def _case(name: str, runs: int, device: str, threads: int, queue: Any) -> None:
                 return teacher.run(frame)
 
     before = _rss_mb()
-    times = _timed(fn, runs, device)
+    if device == "cpu":  # the rate read before each run: the floor sees the runs' states
+        times, rate = timed_against_floor(fn, runs)
+    else:
+        times, rate = _timed(fn, runs, device), float("nan")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    queue.put((name, statistics.median(times), min(times), peak - before, peak))
+    flops = _flops(fn)
+    floor = flops / rate
+    queue.put((name, statistics.median(times), min(times), peak - before, peak, floor, rate))
+
+
+def _flops(fn: Callable[[], Any]) -> int:
+    """FLOPs of one call of ``fn`` (matmuls, convolutions, attention): counted with the SAM2
+    encoder's linear layers on ``F.linear`` (the counter does not see oneDNN's fused calls;
+    they multiply the same matrices)."""
+    from weldpool_core.teacher import hiera
+
+    fused = hiera._fused
+    hiera._fused = lambda hidden: False
+    try:
+        with flop_counter() as counter:
+            fn()
+    finally:
+        hiera._fused = fused
+    return int(counter.get_total_flops())
 
 
 CASES = [
@@ -148,13 +172,22 @@ def main() -> None:
         f"\nteacher on {args.device}, {args.threads} threads, random weights, median of "
         f"{args.runs} runs (3 for the slow cases)"
     )
-    print(f"{'case':<34} {'median':>10} {'best':>10} {'peak extra MB':>14} {'peak RSS MB':>12}")
-    for name, median, best, extra, peak in results:
+    print(
+        f"{'case':<34} {'median':>10} {'best':>10} {'GFLOP':>7} {'floor':>10} {'× floor':>8} "
+        f"{'peak extra MB':>14} {'peak RSS MB':>12}"
+    )
+    for name, median, best, extra, peak, floor, rate in results:
         unit, scale = ("ms", 1000) if median < 1 else ("s", 1)
         print(
             f"{name:<34} {median * scale:>8.1f}{unit:>2} {best * scale:>8.1f}{unit:>2} "
+            f"{floor * rate / 1e9:>7.1f} {floor * scale:>8.2f}{unit:>2} {median / floor:>7.2f}× "
             f"{extra:>14.0f} {peak:>12.0f}"
         )
+    rates = [r[-1] for r in results]
+    print(
+        f"floor: the case's FLOPs at the fp32 matmul rate read before each run "
+        f"({min(rates) / 1e9:.0f}–{max(rates) / 1e9:.0f} GFLOP/s, the cases' medians)"
+    )
     by_name = {r[0]: r[1] for r in results}
     pairs = [
         ("dino 480² (all attentions)", "dino 480² (last block only)"),

@@ -13,6 +13,7 @@ import copy
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from tests.models import randomize, tiny_sam2_config
 from weldpool_core.teacher import hiera
@@ -78,3 +79,30 @@ def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
         encoder(PIXELS)
         encoder(PIXELS)
     assert len(encoder._positions) == 1
+
+
+def test_bf16_attention_on_the_cpu_is_transformers_eager_attention() -> None:
+    """On the CPU, bf16 attention runs as matmuls and a bf16 softmax, a band of query rows at a
+    time: the numbers of transformers' own eager SAM2 attention in bf16 (scores rounded to bf16,
+    softmax accumulated in fp32), with several heads and bands (the last one short) and the
+    strided layout ``_attention`` passes; and fp32's kernel to bf16's precision of the scores.
+    Each query is twice its own key (a permutation): peaked enough that a wrong mix of rows or
+    a lost scale shows, not so peaked that the scale would not matter."""
+    from transformers.models.sam2.modeling_sam2 import eager_attention_forward
+
+    generator = torch.Generator().manual_seed(3)
+    batch, heads, tokens, dim = 2, 3, 3 * hiera.ATTENTION_ROWS + 17, 16
+    qkv = torch.randn(batch, tokens, 3, heads, dim, generator=generator).bfloat16()
+    _, key, value = qkv.permute(2, 0, 3, 1, 4)  # (B, heads, tokens, d) views, as _attention has
+    query = 2 * key[:, :, torch.randperm(tokens, generator=generator)]  # ~80 % on its own key
+    scale = dim**-0.5
+    with torch.inference_mode():
+        ours = hiera._scaled_attention(query, key, value, scale)
+        eager, _ = eager_attention_forward(torch.nn.Module().eval(), query, key, value, None, scale)
+        exact = [x.float() for x in (query, key, value)]
+        fp32 = F.scaled_dot_product_attention(*exact, scale=scale)
+        uniform = value.float().mean(dim=2, keepdim=True).expand_as(fp32)
+    assert ours.dtype == torch.bfloat16 and ours.shape == fp32.shape
+    torch.testing.assert_close(ours, eager.transpose(1, 2), rtol=0.01, atol=0.01)
+    torch.testing.assert_close(ours.float(), fp32, rtol=0.05, atol=0.05)
+    assert (fp32 - uniform).abs().mean() > 0.3  # the case is not one a wrong mix would pass
