@@ -23,7 +23,9 @@ answer would lose if the draws' probabilities were calibrated), ``geometric`` (�
 ambiguity), computed here apart from ``predict``), ``dropout`` (the
 same under feature dropout at test time), ``heatmap`` (1 − the strongest keypoint peak); and
 across the seeds' students: ``ensemble`` (1 − the mean soft IoU between each student's mask
-probability and the students' mean).
+probability and the students' mean); and across one run's rounds (a student trained here keeps
+each round's weights, ``rounds_kept``): ``rounds A-B`` (the same spread over the best round and
+the rounds of ``ROUND_SETS``), an ensemble that costs no extra training.
 
 It also prints the students' mIoU with the mask read from other outputs they compute anyway:
 the latent draws' mean and the test-time passes' mean (each ≥ 0.5), beside the plain pass's.
@@ -40,9 +42,11 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -52,11 +56,12 @@ from scipy.stats import spearmanr
 
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.metrics import iou
+from weldpool_core.student import checkpoint
 from weldpool_core.student import predict as P
-from weldpool_core.student.checkpoint import load_codes
+from weldpool_core.student.checkpoint import load_codes, read_student_config
 from weldpool_core.student.data import TrainingFrame, prepare_frame
 from weldpool_core.student.evaluate import labelled_frames, score_predictions
-from weldpool_core.student.model import StudentConfig
+from weldpool_core.student.model import StudentConfig, build_student
 from weldpool_core.student.predict import StudentPredictor, frames_to_batch
 from weldpool_core.student.train import TrainConfig, save_training_codes, train_student
 
@@ -256,16 +261,87 @@ def fold_folder(fold: str, seed: int, tag: str = "default") -> str:
     return f"{tag}-{fold.replace(':', '-')}-s{seed}"
 
 
+ROUNDS_FOLDER = "bench-rounds"
+"""Where a student trained here keeps each round's weights (``NN.pt``), for the candidates
+made of one run's rounds."""
+
+
+@contextmanager
+def rounds_kept(folder: Path) -> Iterator[None]:
+    """While a student trains into ``folder``, also keep each round's weights (the training
+    state ``train_student`` saves after every round; the run itself is unchanged)."""
+    save = checkpoint.save_state
+    kept = folder / ROUNDS_FOLDER
+
+    def keeping(model_dir: Path, state: dict[str, Any]) -> None:
+        save(model_dir, state)
+        kept.mkdir(exist_ok=True)
+        weights = {k: v.detach().clone().contiguous() for k, v in state["model"].items()}
+        torch.save(weights, kept / f"{int(state['epoch']):02d}.pt")
+
+    checkpoint.save_state = keeping
+    try:
+        yield
+    finally:
+        checkpoint.save_state = save
+
+
+def round_predictors(folder: Path, rounds: list[int]) -> list[StudentPredictor]:
+    """Predictors of the run's weights after each of ``rounds`` (kept by ``rounds_kept``)."""
+    config = read_student_config(folder)
+    out = []
+    for number in rounds:
+        model = build_student(config, load_pretrained=False).model
+        state = torch.load(folder / ROUNDS_FOLDER / f"{number:02d}.pt", weights_only=True)
+        model.load_state_dict(state)
+        out.append(StudentPredictor(model, torch.device("cpu")))
+    return out
+
+
+ROUND_SETS = {
+    "rounds 17-20": [17, 18, 19, 20],
+    "rounds 14-20": [14, 16, 18, 20],
+    "rounds 8-20": [8, 12, 16, 20],
+    "rounds 5-20": [5, 10, 15, 20],
+}
+"""The candidates made of one run's rounds (of the default 20): late, spread, and wide."""
+
+
+def rounds_spread(
+    folder: Path, batch: torch.Tensor, inside: torch.Tensor, best: torch.Tensor
+) -> tuple[dict[str, list[float]], dict[str, float]]:
+    """For each set in ``ROUND_SETS``: 1 − the mean soft IoU of each round's mask probability
+    (and the best round's, ``best``) with their mean, per frame; and its ms per frame (the
+    extra forward passes)."""
+    out, cost = {}, {}
+    for name, rounds in ROUND_SETS.items():
+        predictors = round_predictors(folder, rounds)
+        begun = time.perf_counter()
+        with torch.inference_mode():
+            stack = [best]
+            for predictor in predictors:
+                mean, _, skips = predictor.model.encode(batch)
+                logits, _ = predictor.model.decode(mean, skips)
+                stack.append(torch.sigmoid(logits.float()))
+            centre = torch.stack(stack).mean(0)
+            agreement = torch.stack([soft_iou(p, centre, inside) for p in stack]).mean(0)
+        cost[name] = 1000 * (time.perf_counter() - begun) / len(batch)
+        out[name] = [float(1 - v) for v in agreement]
+    return out, cost
+
+
 def train_fold(
     frames: list[TrainingFrame], train: list[int], folder: Path, seed: int
 ) -> tuple[StudentPredictor, float]:
-    """The fold's student, trained into ``folder`` unless it is there already."""
+    """The fold's student, trained into ``folder`` unless it is there already (each round's
+    weights kept as well)."""
     done = folder / "bench-done.json"
     if not done.is_file():
         config = replace(TrainConfig(device="cpu"), seed=seed)
         begun = time.perf_counter()
         chosen = [frames[i] for i in train]
-        train_student(chosen, folder, StudentConfig(), config, validation=chosen)
+        with rounds_kept(folder):
+            train_student(chosen, folder, StudentConfig(), config, validation=chosen)
         done.write_text(json.dumps({"seconds": time.perf_counter() - begun}))
     codes = load_codes(folder)
     if codes is not None and codes[1] is None:  # trained before students measured their own
@@ -308,7 +384,12 @@ def main() -> None:
             held = [frames[i] for i in test]
             images = [f.image for f in held]
             scores, cost, plain, inside, masks = candidates(predictor, images, args.samples)
-            _, geometries = frames_to_batch(images, predictor.config)
+            batch, geometries = frames_to_batch(images, predictor.config)
+            if (folder / ROUNDS_FOLDER).is_dir():
+                batch = batch.contiguous(memory_format=torch.channels_last)
+                spread, spent = rounds_spread(folder, batch, inside, plain)
+                scores |= spread
+                cost |= spent
             other_ious = {
                 source: [
                     iou(
