@@ -1,11 +1,12 @@
 """Benchmark how quickly `weldpool serve` is healthy and how much memory it holds when idle.
 
-Run: ``.venv/bin/python bench/serve_start.py [--runs 5]`` (about two minutes).
+Run: ``.venv/bin/python bench/serve_start.py [--runs 5]`` (about three minutes).
 
 Each run starts `weldpool serve` (``--no-worker``, and with its embedded worker) on a fresh
-SQLite home (the first start, which also creates the admin) or restarts it on a home an earlier
-start prepared, polls ``/api/v1/health`` every 20 ms, and reads the process's resident memory
-(VmRSS) after a second of idling. The floor is a bare ``python -c "import fastapi, sqlalchemy,
+SQLite home (the first start, which also creates the admin: on an empty home, where it makes the
+schema too, and after `weldpool migrate`) or restarts it on a home an earlier start prepared,
+polls ``/api/v1/health`` every 20 ms, and reads the process's resident memory (VmRSS) after a
+second of idling. The floor is a bare ``python -c "import fastapi, sqlalchemy,
 uvicorn"``: what any FastAPI service on this machine pays before its own code, measured just
 before each start (the ratio is the median of the pairs'). Median of the runs.
 
@@ -53,19 +54,22 @@ def python_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def one_start(worker: bool, restart: bool = False) -> tuple[float, float]:
+def one_start(worker: bool, restart: bool = False, migrated: bool = True) -> tuple[float, float]:
     """Seconds from ``serve`` to a healthy answer, and the idle RSS in MB; on a fresh home (the
-    first start creates the admin, an Argon2 hash) or, with ``restart``, the second start on a
-    home the first one prepared (what a restart behind a load balancer pays)."""
+    first start creates the admin, an Argon2 hash), migrated by ``weldpool migrate`` first unless
+    ``migrated`` is False (then the start makes the schema too: the README's first command on a
+    new machine), or, with ``restart``, the second start on a home the first one prepared (what
+    a restart behind a load balancer pays)."""
     with tempfile.TemporaryDirectory() as home:
         env = python_env(WELDPOOL_HOME=home, WELDPOOL_LOG_LEVEL="WARNING")
-        subprocess.run(
-            [sys.executable, "-m", "app", "migrate"],
-            env=env,
-            cwd=REPO,
-            check=True,
-            capture_output=True,
-        )
+        if migrated:
+            subprocess.run(
+                [sys.executable, "-m", "app", "migrate"],
+                env=env,
+                cwd=REPO,
+                check=True,
+                capture_output=True,
+            )
         if restart:
             _serve(env, worker, idle=0.0)
         return _serve(env, worker, idle=1.0)
@@ -113,22 +117,27 @@ def main() -> None:
     print("| serve | start to healthy s | idle RSS MB | floor s | start ÷ floor |")
     print("|---|---:|---:|---:|---:|")
     floors = []
-    for worker, restart in ((False, False), (False, True), (True, False), (True, True)):
-        runs, ratios = [], []
-        for _ in range(args.runs):  # the floor beside each start: this machine drifts
-            floors.append(floor())
-            runs.append(one_start(worker, restart))
-            ratios.append(runs[-1][0] / floors[-1])
-        start = statistics.median(r[0] for r in runs)
-        rss = statistics.median(r[1] for r in runs)
-        name = ("embedded worker" if worker else "--no-worker") + (
-            ", restart" if restart else ", first start"
-        )
-        print(
-            f"| {name} | {start:.2f} | {rss:.0f} | {statistics.median(floors[-args.runs :]):.2f} "
-            f"| {statistics.median(ratios):.1f}× |",
-            flush=True,
-        )
+    cases = {
+        "first start on an empty home": (False, False),
+        "first start after `weldpool migrate`": (False, True),
+        "restart": (True, True),
+    }
+    for worker in (False, True):
+        for case, (restart, migrated) in cases.items():
+            runs, ratios = [], []
+            for _ in range(args.runs):  # the floor beside each start: this machine drifts
+                floors.append(floor())
+                runs.append(one_start(worker, restart, migrated))
+                ratios.append(runs[-1][0] / floors[-1])
+            start = statistics.median(r[0] for r in runs)
+            rss = statistics.median(r[1] for r in runs)
+            name = ("embedded worker" if worker else "--no-worker") + f", {case}"
+            beside = statistics.median(floors[-args.runs :])
+            print(
+                f"| {name} | {start:.2f} | {rss:.0f} | {beside:.2f} | "
+                f"{statistics.median(ratios):.1f}× |",
+                flush=True,
+            )
     print(
         f"\nfloor (python -c 'import fastapi, sqlalchemy, uvicorn'): median "
         f"{statistics.median(floors):.2f} s; each ratio is the median of start ÷ the floor "

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import uuid
+from collections.abc import Iterator
+
 import pytest
 import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
@@ -65,9 +68,115 @@ def test_a_current_database_is_not_migrated_again(
     engine.dispose()
 
 
+def _upgrade_with_alembic(engine: sa.Engine) -> None:
+    """The migrations from nothing to head, one by one (``migrate`` makes an empty database's
+    schema from the models at once)."""
+    from alembic import command
+
+    from app.db import _alembic_config
+
+    command.upgrade(_alembic_config(engine), "head")
+
+
+def _schema(engine: sa.Engine) -> dict[str, object]:
+    """Everything the database says of its tables: columns (type, nullability, default),
+    primary and foreign keys, indexes and unique constraints with their names, and the
+    version alembic reads."""
+    inspector = sa.inspect(engine)
+    tables: dict[str, object] = {}
+    for table in sorted(inspector.get_table_names()):
+        tables[table] = {
+            "columns": sorted(  # by name: migrations add columns at the end, the models in place
+                (c["name"], str(c["type"]), c["nullable"], c.get("default"))
+                for c in inspector.get_columns(table)
+            ),
+            "primary": inspector.get_pk_constraint(table),
+            "foreign": sorted(
+                (f["name"] or "", f["constrained_columns"], f["referred_table"], f["options"])
+                for f in inspector.get_foreign_keys(table)
+            ),
+            "indexes": sorted(
+                (i["name"] or "", i["column_names"], i["unique"])
+                for i in inspector.get_indexes(table)
+            ),
+            "unique": sorted(
+                (u["name"] or "", u["column_names"])
+                for u in inspector.get_unique_constraints(table)
+            ),
+        }
+    with engine.connect() as connection:  # the catalog itself: expression indexes too
+        if engine.dialect.name == "sqlite":
+            catalog = connection.exec_driver_sql(
+                "SELECT type, name, tbl_name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"
+            ).all()
+        else:  # PostgreSQL writes each index's definition in one canonical form
+            catalog = connection.exec_driver_sql(
+                "SELECT indexname, replace(indexdef, current_schema() || '.', '') FROM pg_indexes "
+                "WHERE schemaname = current_schema()"
+            ).all()
+    return {
+        "tables": tables,
+        "catalog": sorted(tuple(row) for row in catalog),
+        "version": schema_revision(engine)[0],
+    }
+
+
+@pytest.fixture
+def second_database_url(database_url: str, tmp_path) -> Iterator[str]:
+    """Another empty database of the same kind: a SQLite file, or a fresh PostgreSQL schema."""
+    if database_url.startswith("sqlite"):
+        yield f"sqlite:///{tmp_path / 'second.sqlite3'}"
+        return
+    from tests.helpers import POSTGRES_URL
+
+    schema = f"wp_test_{uuid.uuid4().hex[:12]}"
+    admin = sa.create_engine(POSTGRES_URL)
+    with admin.begin() as connection:
+        connection.execute(sa.text(f'CREATE SCHEMA "{schema}"'))
+    url = sa.engine.make_url(POSTGRES_URL).update_query_dict({"options": f"-csearch_path={schema}"})
+    yield url.render_as_string(hide_password=False)
+    with admin.begin() as connection:
+        connection.execute(sa.text(f'DROP SCHEMA "{schema}" CASCADE'))
+    admin.dispose()
+
+
+def test_a_first_start_makes_the_schema_the_migrations_make(
+    database_url: str, second_database_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An empty database gets the models' schema at once, without alembic: the same tables,
+    columns, keys, indexes, constraint names and version as every migration from nothing."""
+    import alembic.command
+
+    def refuse(*args: object) -> None:
+        raise AssertionError("an empty database was migrated step by step")
+
+    created, migrated = create_db_engine(database_url), create_db_engine(second_database_url)
+    with monkeypatch.context() as patch:
+        patch.setattr(alembic.command, "upgrade", refuse)
+        migrate(created)
+    _upgrade_with_alembic(migrated)
+    made, stepped = _schema(created), _schema(migrated)
+    created.dispose(), migrated.dispose()
+    assert set(made["tables"]) >= CORE_TABLES | {"alembic_version"}  # type: ignore[call-overload]
+    assert made["version"] == head_revision()
+    assert made == stepped
+
+
+def test_a_database_with_some_of_our_tables_is_migrated_step_by_step(database_url: str) -> None:
+    """Where any of our tables is there without a version (a half-made database), nothing is
+    made from the models: alembic runs, and refuses as it always did."""
+    engine = create_db_engine(database_url)
+    with engine.begin() as connection:
+        connection.exec_driver_sql("CREATE TABLE users (id INTEGER PRIMARY KEY)")
+    with pytest.raises(sa.exc.SQLAlchemyError):
+        migrate(engine)
+    assert schema_revision(engine)[0] is None
+    engine.dispose()
+
+
 def test_migrations_match_the_models(database_url: str) -> None:
     engine = create_db_engine(database_url)
-    migrate(engine)
+    _upgrade_with_alembic(engine)
     with engine.connect() as connection:
         diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
     engine.dispose()
