@@ -303,7 +303,7 @@ def _scaled_attention(
     keys, value = key.contiguous().transpose(-1, -2), value.contiguous()
     bands = [
         torch.matmul(torch.softmax(torch.matmul(band, keys), dim=-1), value)
-        for band in query.split(ATTENTION_ROWS, dim=-2)
+        for band in torch.split(query, ATTENTION_ROWS, dim=-2)
     ]
     return bands[0] if len(bands) == 1 else torch.cat(bands, dim=-2)
 
