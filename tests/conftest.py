@@ -7,7 +7,6 @@ fail with a clear message (CI must not pass without them).
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,6 @@ from typing import Any
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 import pytest
-import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
@@ -23,7 +21,7 @@ from app.db import create_db_engine, create_session_factory, migrate
 from app.main import create_app
 from app.models import Role, User
 from app.security import hash_password, issue_token
-from tests.helpers import POSTGRES_URL, REDIS_URL, make_settings
+from tests.helpers import REDIS_URL, make_settings, postgres_schema
 from tests.mqtt import mqtt_broker  # noqa: F401 (the broker fixture for every test)
 from tests.s3 import s3_endpoint, s3_url  # noqa: F401 (fixtures for every test)
 
@@ -31,22 +29,8 @@ from tests.s3 import s3_endpoint, s3_url  # noqa: F401 (fixtures for every test)
 @pytest.fixture
 def postgres_url() -> Iterator[str]:
     """A URL whose connections live in a fresh schema of the real PostgreSQL, dropped after."""
-    schema = f"wp_test_{uuid.uuid4().hex[:12]}"
-    admin = sa.create_engine(POSTGRES_URL)
-    try:
-        with admin.begin() as connection:
-            connection.execute(sa.text(f'CREATE SCHEMA "{schema}"'))
-    except sa.exc.OperationalError as exc:
-        pytest.fail(
-            f"PostgreSQL at {POSTGRES_URL} is unreachable ({exc.orig}); start it or set "
-            "WELDPOOL_TEST_POSTGRES_URL. The suite must run against a real PostgreSQL.",
-            pytrace=False,
-        )
-    url = sa.engine.make_url(POSTGRES_URL).update_query_dict({"options": f"-csearch_path={schema}"})
-    yield url.render_as_string(hide_password=False)
-    with admin.begin() as connection:
-        connection.execute(sa.text(f'DROP SCHEMA "{schema}" CASCADE'))
-    admin.dispose()
+    with postgres_schema() as url:
+        yield url
 
 
 @pytest.fixture
