@@ -171,11 +171,12 @@ def migrate(engine: Engine, revision: str = "head") -> None:
 
 
 def _create_newest(engine: Engine) -> bool:
-    """On a database without any of our tables: the models' schema made in one transaction and
-    stamped with the head revision, the schema alembic's upgrade from nothing leaves
-    (``tests/test_migrations.py`` holds the two equal); False, and nothing done, where any of
-    our tables or alembic's version table is there. A first start then neither imports alembic
-    nor runs every migration in turn: 0.2 s of Python beside the serving thread's imports."""
+    """On a database without any of our tables: the models' schema made in one transaction (a
+    failure leaves the database empty) and stamped with the head revision, the schema alembic's
+    upgrade from nothing leaves (``tests/test_migrations.py`` holds the two equal); False, and
+    nothing done, where any of our tables or alembic's version table is there. A first start
+    then neither imports alembic nor runs every migration in turn: 0.2 s of Python beside the
+    serving thread's imports."""
     from app import models  # noqa: F401  (registers every table on Base.metadata)
 
     ours = set(Base.metadata.tables) | {"alembic_version"}
@@ -188,6 +189,8 @@ def _create_newest(engine: Engine) -> bool:
         sa.PrimaryKeyConstraint("version_num", name="alembic_version_pkc"),
     )
     with engine.begin() as connection:
+        if engine.dialect.name == "sqlite":  # its driver opens no transaction before DDL
+            connection.exec_driver_sql("BEGIN")
         Base.metadata.create_all(connection)
         version.create(connection)
         connection.execute(version.insert().values(version_num=head_revision()))

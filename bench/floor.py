@@ -55,13 +55,23 @@ def timed_against_floor(
     fn: Callable[[], Any], runs: int, dtype: torch.dtype = torch.float32, warmup: int = 1
 ) -> tuple[list[float], float]:
     """Seconds of each of ``runs`` calls of ``fn`` (after ``warmup`` untimed ones), and the
-    median matmul rate (FLOP/s) read right before each timed call."""
+    median matmul rate (FLOP/s) read right before each timed call. A call shorter than
+    ``REWARM_BELOW`` is run once more, untimed, between the reading and the timed call: the
+    reading's 2048³ product leaves the caches cold for it."""
+    started = time.perf_counter()
     for _ in range(warmup):
         fn()
+    rewarm = warmup > 0 and (time.perf_counter() - started) / warmup < REWARM_BELOW
     times, rates = [], []
     for _ in range(runs):
         rates.append(matmul_rate(dtype))
+        if rewarm:
+            fn()
         start = time.perf_counter()
         fn()
         times.append(time.perf_counter() - start)
     return times, statistics.median(rates)
+
+
+REWARM_BELOW = 0.5
+"""Seconds: a call this short gets a warm-up call after each rate reading."""

@@ -117,8 +117,7 @@ def _case(name: str, runs: int, device: str, threads: int, queue: Any) -> None:
         times, rate = _timed(fn, runs, device), float("nan")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     flops = _flops(fn)
-    floor = flops / rate
-    queue.put((name, statistics.median(times), min(times), peak - before, peak, floor, rate))
+    queue.put((name, statistics.median(times), min(times), peak - before, peak, flops, rate))
 
 
 def _flops(fn: Callable[[], Any]) -> int:
@@ -176,18 +175,20 @@ def main() -> None:
         f"{'case':<34} {'median':>10} {'best':>10} {'GFLOP':>7} {'floor':>10} {'× floor':>8} "
         f"{'peak extra MB':>14} {'peak RSS MB':>12}"
     )
-    for name, median, best, extra, peak, floor, rate in results:
+    for name, median, best, extra, peak, flops, rate in results:
         unit, scale = ("ms", 1000) if median < 1 else ("s", 1)
+        floor = flops / rate  # nan off the CPU: no rate read there
         print(
             f"{name:<34} {median * scale:>8.1f}{unit:>2} {best * scale:>8.1f}{unit:>2} "
-            f"{floor * rate / 1e9:>7.1f} {floor * scale:>8.2f}{unit:>2} {median / floor:>7.2f}× "
+            f"{flops / 1e9:>7.1f} {floor * scale:>8.2f}{unit:>2} {median / floor:>7.2f}× "
             f"{extra:>14.0f} {peak:>12.0f}"
         )
     rates = [r[-1] for r in results]
-    print(
-        f"floor: the case's FLOPs at the fp32 matmul rate read before each run "
-        f"({min(rates) / 1e9:.0f}–{max(rates) / 1e9:.0f} GFLOP/s, the cases' medians)"
-    )
+    if args.device == "cpu":
+        print(
+            f"floor: the case's FLOPs at the fp32 matmul rate read before each run "
+            f"({min(rates) / 1e9:.0f}–{max(rates) / 1e9:.0f} GFLOP/s, the cases' medians)"
+        )
     by_name = {r[0]: r[1] for r in results}
     pairs = [
         ("dino 480² (all attentions)", "dino 480² (last block only)"),

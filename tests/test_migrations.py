@@ -96,7 +96,12 @@ def _schema(engine: sa.Engine) -> dict[str, object]:
                 for f in inspector.get_foreign_keys(table)
             ),
             "indexes": sorted(
-                (i["name"] or "", i["column_names"], i["unique"])
+                (
+                    i["name"] or "",
+                    i["column_names"],
+                    i["unique"],
+                    {k: str(v) for k, v in i.get("dialect_options", {}).items()},  # partial: WHERE
+                )
                 for i in inspector.get_indexes(table)
             ),
             "unique": sorted(
@@ -106,9 +111,15 @@ def _schema(engine: sa.Engine) -> dict[str, object]:
         }
     with engine.connect() as connection:  # the catalog itself: expression indexes too
         if engine.dialect.name == "sqlite":
-            catalog = connection.exec_driver_sql(
-                "SELECT type, name, tbl_name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"
-            ).all()
+            catalog = [  # an index's definition as written, spacing and quotes aside
+                (kind, name, table, " ".join((sql or "").replace('"', "").split()))
+                if kind == "index"
+                else (kind, name, table)
+                for kind, name, table, sql in connection.exec_driver_sql(
+                    "SELECT type, name, tbl_name, sql FROM sqlite_master "
+                    "WHERE name NOT LIKE 'sqlite_%'"
+                )
+            ]
         else:  # PostgreSQL writes each index's definition in one canonical form
             catalog = connection.exec_driver_sql(
                 "SELECT indexname, replace(indexdef, current_schema() || '.', '') FROM pg_indexes "
@@ -151,6 +162,28 @@ def test_a_first_start_makes_the_schema_the_migrations_make(
     assert set(made["tables"]) >= CORE_TABLES | {"alembic_version"}  # type: ignore[call-overload]
     assert made["version"] == head_revision()
     assert made == stepped
+
+
+def test_a_first_start_that_fails_leaves_the_database_empty(
+    database_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The schema is made in one transaction (SQLite's driver opens none before DDL by itself):
+    a failure after the tables were made leaves none of them, and the next start makes it."""
+    made = Base.metadata.create_all
+
+    def fail_after(connection: sa.Connection, **kwargs: object) -> None:
+        made(connection, **kwargs)  # type: ignore[arg-type]
+        raise RuntimeError("the disk is full")
+
+    engine = create_db_engine(database_url)
+    with monkeypatch.context() as patch:
+        patch.setattr(Base.metadata, "create_all", fail_after)
+        with pytest.raises(RuntimeError, match="disk is full"):
+            migrate(engine)
+    assert sa.inspect(engine).get_table_names() == []
+    migrate(engine)
+    assert schema_revision(engine)[0] == head_revision()
+    engine.dispose()
 
 
 def test_a_database_with_some_of_our_tables_is_migrated_step_by_step(database_url: str) -> None:

@@ -293,9 +293,10 @@ def _scaled_attention(
     On the CPU in bf16 it is two bf16 matmuls and a bf16 softmax (which accumulates in fp32), a
     band of ``ATTENTION_ROWS`` query rows at a time: PyTorch's fused kernel runs bf16 about as
     fast as fp32 there (2.5–2.8× the bf16 floor on 4,096 tokens, 3.8–15× on SAM2's windows,
-    against 1.6× and 2.2–10× this way). Its precision is that of transformers' eager attention
-    in bf16 (the scores rounded to bf16, where the fused kernel keeps them in fp32). Elsewhere,
-    and in fp32, the fused kernel."""
+    against 1.6× and 2.2–10× this way). It lies as close to fp32 as transformers' eager
+    attention in bf16 (the scores rounded to bf16, where the fused kernel keeps them in fp32;
+    the query is scaled first, one rounding where eager makes two). Elsewhere, and in fp32, the
+    fused kernel."""
     if query.dtype != torch.bfloat16 or query.device.type != "cpu":
         return F.scaled_dot_product_attention(query, key, value, scale=scale)
     # Laid out once for the matmuls (strided views would be copied for every band).

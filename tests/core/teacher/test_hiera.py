@@ -81,20 +81,23 @@ def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
     assert len(encoder._positions) == 1
 
 
-def test_bf16_attention_on_the_cpu_is_transformers_eager_attention() -> None:
+@pytest.mark.parametrize("pooled", [False, True])
+def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool) -> None:
     """On the CPU, bf16 attention runs as matmuls and a bf16 softmax, a band of query rows at a
-    time: the numbers of transformers' own eager SAM2 attention in bf16 (scores rounded to bf16,
-    softmax accumulated in fp32), with several heads and bands (the last one short) and the
-    strided layout ``_attention`` passes; and fp32's kernel to bf16's precision of the scores.
-    Each query is twice its own key (a permutation): peaked enough that a wrong mix of rows or
-    a lost scale shows, not so peaked that the scale would not matter."""
+    time: it lies as close to fp32's kernel as transformers' own eager SAM2 attention in bf16
+    does (scores in bf16, softmax accumulated in fp32), on average and at worst, with several
+    heads and bands (the last one short), the strided layout ``_attention`` passes, a scale bf16
+    cannot hold exactly, and (``pooled``) fewer queries than keys. Each query is 1.6 × its own
+    key (a permutation): peaked enough that a wrong mix of rows or a lost scale shows, not so
+    peaked that the scale would not matter."""
     from transformers.models.sam2.modeling_sam2 import eager_attention_forward
 
     generator = torch.Generator().manual_seed(3)
-    batch, heads, tokens, dim = 2, 3, 3 * hiera.ATTENTION_ROWS + 17, 16
+    batch, heads, tokens, dim = 2, 3, 3 * hiera.ATTENTION_ROWS + 17, 24
     qkv = torch.randn(batch, tokens, 3, heads, dim, generator=generator).bfloat16()
     _, key, value = qkv.permute(2, 0, 3, 1, 4)  # (B, heads, tokens, d) views, as _attention has
-    query = 2 * key[:, :, torch.randperm(tokens, generator=generator)]  # ~80 % on its own key
+    order = torch.randperm(tokens, generator=generator)
+    query = 1.6 * key[:, :, order[: tokens // 4] if pooled else order]  # ~80 % on its own key
     scale = dim**-0.5
     with torch.inference_mode():
         ours = hiera._scaled_attention(query, key, value, scale)
@@ -103,6 +106,8 @@ def test_bf16_attention_on_the_cpu_is_transformers_eager_attention() -> None:
         fp32 = F.scaled_dot_product_attention(*exact, scale=scale)
         uniform = value.float().mean(dim=2, keepdim=True).expand_as(fp32)
     assert ours.dtype == torch.bfloat16 and ours.shape == fp32.shape
-    torch.testing.assert_close(ours, eager.transpose(1, 2), rtol=0.01, atol=0.01)
+    ours_off = (ours.float() - fp32).abs()
+    eager_off = (eager.transpose(1, 2).float() - fp32).abs()
+    assert ours_off.mean() <= 1.05 * eager_off.mean() and ours_off.max() <= 1.05 * eager_off.max()
     torch.testing.assert_close(ours.float(), fp32, rtol=0.05, atol=0.05)
     assert (fp32 - uniform).abs().mean() > 0.3  # the case is not one a wrong mix would pass
