@@ -118,7 +118,7 @@ def session_scope(factory: sessionmaker[Session]) -> Iterator[Session]:
         session.close()
 
 
-def _alembic_config(engine: Engine) -> Config:
+def alembic_config(engine: Engine) -> Config:
     from alembic.config import Config
 
     config = Config()
@@ -156,45 +156,6 @@ def current_revision(engine: Engine) -> str | None:
         return None
     with engine.connect() as connection:
         return connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar()
-
-
-def migrate(engine: Engine, revision: str = "head") -> None:
-    """Bring the schema to ``revision`` (default: the newest); nothing to do costs one query,
-    and an empty database gets the newest schema at once (``_create_newest``)."""
-    if revision == "head":
-        current = current_revision(engine)
-        if current == head_revision() or (current is None and _create_newest(engine)):
-            return
-    from alembic import command
-
-    command.upgrade(_alembic_config(engine), revision)
-
-
-def _create_newest(engine: Engine) -> bool:
-    """On a database without any of our tables: the models' schema made in one transaction (a
-    failure leaves the database empty) and stamped with the head revision, the schema alembic's
-    upgrade from nothing leaves (``tests/test_migrations.py`` holds the two equal); False, and
-    nothing done, where any of our tables or alembic's version table is there. A first start
-    then neither imports alembic nor runs every migration in turn: 0.2 s of Python beside the
-    serving thread's imports."""
-    from app import models  # noqa: F401  (registers every table on Base.metadata)
-
-    ours = set(Base.metadata.tables) | {"alembic_version"}
-    if ours & set(sa.inspect(engine).get_table_names()):
-        return False
-    version = sa.Table(  # alembic's own version table
-        "alembic_version",
-        sa.MetaData(),
-        sa.Column("version_num", sa.String(32), nullable=False),
-        sa.PrimaryKeyConstraint("version_num", name="alembic_version_pkc"),
-    )
-    with engine.begin() as connection:
-        if engine.dialect.name == "sqlite":  # its driver opens no transaction before DDL
-            connection.exec_driver_sql("BEGIN")
-        Base.metadata.create_all(connection)
-        version.create(connection)
-        connection.execute(version.insert().values(version_num=head_revision()))
-    return True
 
 
 def schema_revision(engine: Engine) -> tuple[str | None, str]:

@@ -43,9 +43,10 @@ def main() -> None:
     args = parser.parse_args()
 
     from app.config import Settings
-    from app.db import create_db_engine, create_session_factory, migrate
+    from app.db import create_db_engine, create_session_factory
     from app.main import create_app
     from app.models import Role, User
+    from app.schema import migrate
     from app.security import hash_password, issue_token
     from tests.helpers import corrected_label
     from weldpool_core.heatmap import heatmap_from_mask

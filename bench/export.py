@@ -32,9 +32,10 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.main import create_app
 from app.models import Frame, Label, LabelStatus, Role, Sequence, Split, User
+from app.schema import migrate
 from app.security import hash_password, issue_token
 from app.storage import Storage
 from weldpool_core.io import encode_png

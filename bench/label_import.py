@@ -27,11 +27,12 @@ import cv2
 import numpy as np
 
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.frames.ingest import IncomingFile, ingest_frames
 from app.frames.sequences import create_sequence
 from app.imports.service import ImportOptions, import_labels
 from app.models import Role, User
+from app.schema import migrate
 from app.security import hash_password
 from app.storage import Storage
 from weldpool_core.annotations import open_source

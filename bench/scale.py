@@ -28,12 +28,13 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.frames import listing
 from app.frames.listing import ORDERINGS
 from app.frames.schemas import FrameOut, FramePage
 from app.main import create_app
 from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
+from app.schema import migrate
 from app.security import hash_password, issue_token
 
 PAGE = 50

@@ -17,9 +17,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.main import create_app
 from app.models import Role, User
+from app.schema import migrate
 from app.security import hash_password, issue_token
 from tests.helpers import REDIS_URL, make_settings, postgres_schema
 from tests.mqtt import mqtt_broker  # noqa: F401 (the broker fixture for every test)

@@ -20,8 +20,8 @@ LAYERS = (
     ("proposals",),
     (
         *("jobs", "users", "system", "housekeeping", "queue", "security", "deps", "storage"),
-        *("models", "db", "config", "errors", "bounds", "openapi", "headers", "limits", "logs"),
-        *("periodic", "budgets"),
+        *("schema", "models", "db", "config", "errors", "bounds", "openapi", "headers", "limits"),
+        *("logs", "periodic", "budgets"),
     ),
 )
 """The app's packages from the top down (the README's Layout): each imports only from its own

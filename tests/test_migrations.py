@@ -10,7 +10,8 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy.orm import Session
 
-from app.db import MIGRATIONS_DIR, Base, create_db_engine, head_revision, migrate, schema_revision
+from app.db import MIGRATIONS_DIR, Base, create_db_engine, head_revision, schema_revision
+from app.schema import migrate
 from tests.helpers import postgres_schema
 
 CORE_TABLES = {
@@ -73,9 +74,9 @@ def _upgrade_with_alembic(engine: sa.Engine) -> None:
     schema from the models at once)."""
     from alembic import command
 
-    from app.db import _alembic_config
+    from app.db import alembic_config
 
-    command.upgrade(_alembic_config(engine), "head")
+    command.upgrade(alembic_config(engine), "head")
 
 
 def _schema(engine: sa.Engine) -> dict[str, object]:
@@ -212,9 +213,9 @@ def test_downgrade_to_base_and_back(database_url: str) -> None:
     migrate(engine)
     from alembic import command
 
-    from app.db import _alembic_config
+    from app.db import alembic_config
 
-    command.downgrade(_alembic_config(engine), "base")
+    command.downgrade(alembic_config(engine), "base")
     assert not CORE_TABLES & set(sa.inspect(engine).get_table_names())
     migrate(engine)
     assert set(sa.inspect(engine).get_table_names()) >= CORE_TABLES
@@ -255,7 +256,7 @@ def test_descriptors_stored_as_json_become_float32_and_back(
     import numpy as np
     from alembic import command
 
-    from app.db import _alembic_config
+    from app.db import alembic_config
     from app.models import Frame, Sequence
 
     engine = create_db_engine(database_url)
@@ -281,7 +282,7 @@ def test_descriptors_stored_as_json_become_float32_and_back(
                 )
             )
         session.commit()
-    command.downgrade(_alembic_config(engine), "0015")
+    command.downgrade(alembic_config(engine), "0015")
     json_column = sa.column("descriptor", sa.JSON())
     with engine.connect() as connection:
         query = sa.text("SELECT descriptor FROM frames ORDER BY id").columns(json_column)

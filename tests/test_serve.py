@@ -146,7 +146,8 @@ def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: P
     script = """
 import sys
 from fastapi.testclient import TestClient
-from app.db import create_db_engine, migrate
+from app.db import create_db_engine
+from app.schema import migrate
 from app.main import create_app
 from tests.helpers import make_settings
 settings = make_settings(__import__("pathlib").Path(sys.argv[1]))

@@ -9,7 +9,7 @@ import click
 
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.errors import WeldpoolError
 
 
@@ -17,6 +17,8 @@ from app.errors import WeldpoolError
 @friendly_errors
 def migrate_cmd() -> None:
     """Bring the database schema to the newest revision."""
+    from app.schema import migrate  # the models with it: imported by the commands that need them
+
     settings = load_settings()
     settings.ensure_home()
     migrate(create_db_engine(settings.resolved_database_url))
@@ -28,6 +30,7 @@ def prepare_instance(settings: Settings) -> Path | None:
 
     Returns the file holding the new admin's password, or None when users already existed.
     """
+    from app.schema import migrate
     from app.storage import Storage
     from app.users.service import ensure_initial_admin
 

@@ -74,7 +74,8 @@ def token_for(session_factory, name: str, role: Role = Role.reviewer) -> tuple[U
 def export_labels(home: Path, formats: list[str]) -> Exported:
     """A SQLite instance under ``home`` with three labelled frames of run "run-a" (a mask with
     a hole, two regions, keypoints given on one, validation keypoints on another), exported."""
-    from app.db import create_db_engine, create_session_factory, migrate
+    from app.db import create_db_engine, create_session_factory
+    from app.schema import migrate
 
     settings = make_settings(home, database_url=f"sqlite:///{home / 'source.sqlite3'}")
     engine = create_db_engine(settings.resolved_database_url)

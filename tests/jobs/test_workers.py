@@ -13,11 +13,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.db import create_db_engine, create_session_factory, migrate
+from app.db import create_db_engine, create_session_factory
 from app.jobs.service import create_job
 from app.main import create_app
 from app.models import Job, JobStatus, Role, User, Worker
 from app.queue import JobQueue
+from app.schema import migrate
 from tests.helpers import REPO, auth, make_settings, wait_for
 
 pytestmark = pytest.mark.slow
