@@ -314,8 +314,10 @@ def rounds_spread(
     (and the best round's, ``best``) with their mean, per frame; and its ms per frame (the
     extra forward passes)."""
     out, cost = {}, {}
+    needed = sorted({number for rounds in ROUND_SETS.values() for number in rounds})
+    loaded = dict(zip(needed, round_predictors(folder, needed), strict=True))  # each read once
     for name, rounds in ROUND_SETS.items():
-        predictors = round_predictors(folder, rounds)
+        predictors = [loaded[number] for number in rounds]
         begun = time.perf_counter()
         with torch.inference_mode():
             stack = [best]
