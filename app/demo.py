@@ -20,6 +20,7 @@ from app.jobs.service import create_job
 from app.models import LabelStatus, Role, User
 from app.queue import JobQueue
 from app.review.service import save_label, save_validation_keypoints
+from app.security import MADE_PASSWORD_BYTES
 from app.storage import Storage
 from app.users.service import create_user
 from weldpool_core.io import encode_mask_png
@@ -49,7 +50,9 @@ DEMO_RUN = {
 
 def _demo_user(session: Session) -> User:
     found = session.scalar(sa.select(User).where(User.username == DEMO_USER))
-    return found or create_user(session, DEMO_USER, secrets.token_urlsafe(16), Role.reviewer)
+    return found or create_user(
+        session, DEMO_USER, secrets.token_urlsafe(MADE_PASSWORD_BYTES), Role.reviewer, made=True
+    )
 
 
 def _label_frames(

@@ -30,12 +30,33 @@ CSRF_HEADER = "X-CSRF-Token"
 TOKEN_PREFIX = "wp_"
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
-_hasher = PasswordHasher()
+_hasher = PasswordHasher()  # RFC 9106's parameters (64 MiB, 3 passes, 4 lanes): ~0.1-0.2 s
+# A password the instance makes itself (the first admin's: 128 random bits, in a file) cannot be
+# guessed however fast its hash is; the memory-hard cost is for passwords people choose. So it
+# is hashed with Argon2id's cheapest parameters (~1 ms: a fresh instance's first start does not
+# wait for the standard hash), checking it costs the standard hash all the same, and its first
+# successful check re-hashes it with the standard parameters (`authenticate`).
+_made_secret_hasher = PasswordHasher(time_cost=1, memory_cost=1024, parallelism=1)
+MADE_PASSWORD_BYTES = 16
 
 
 def hash_password(password: str) -> str:
-    """An Argon2id hash of ``password``."""
+    """An Argon2id hash of ``password`` with the standard parameters."""
     return _hasher.hash(password)
+
+
+def hash_made_password(password: str) -> str:
+    """An Argon2id hash, with the cheapest parameters, of a password this instance made from
+    ``MADE_PASSWORD_BYTES`` random bytes (never of one a person chose)."""
+    return _made_secret_hasher.hash(password)
+
+
+def below_standard(password_hash: str) -> bool:
+    """Whether a stored hash has other parameters than the standard ones (a made password's)."""
+    try:
+        return _hasher.check_needs_rehash(password_hash)
+    except InvalidHashError:
+        return False
 
 
 def verify_password(password_hash: str, password: str) -> bool:
@@ -123,9 +144,17 @@ def _decoy_hash() -> str:
 
 def authenticate(session: Session, username: str, password: str) -> User | None:
     """The active user with these credentials, or None. An unknown name, a deactivated account
-    and a wrong password cost the same one hash check, so that timing tells none apart."""
+    and a wrong password cost the same one standard hash check, so that timing tells none apart;
+    a made password's cheap hash is re-hashed with the standard parameters when it matches (the
+    caller commits) and answered with a decoy check when it does not."""
     user = session.scalar(sa.select(User).where(User.username == username))
-    matches = verify_password(user.password_hash if user else _decoy_hash(), password)
+    stored = user.password_hash if user else _decoy_hash()
+    matches = verify_password(stored, password)
+    if user is not None and below_standard(stored):
+        if matches:
+            user.password_hash = hash_password(password)
+        else:
+            verify_password(_decoy_hash(), password)
     if user is None or not user.is_active or not matches:
         return None
     return user

@@ -13,7 +13,13 @@ from sqlalchemy.orm import Session
 from app.db import commit_or_conflict, utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import ApiToken, Role, User, WebSession
-from app.security import hash_password, issue_token, verify_password
+from app.security import (
+    MADE_PASSWORD_BYTES,
+    hash_made_password,
+    hash_password,
+    issue_token,
+    verify_password,
+)
 from app.users.schemas import USERNAME_PATTERN
 
 MIN_PASSWORD_LENGTH = 8
@@ -26,8 +32,12 @@ def _check_password(password: str) -> None:
         )
 
 
-def create_user(session: Session, username: str, password: str, role: Role) -> User:
-    """A new active user; the name must be free."""
+def create_user(
+    session: Session, username: str, password: str, role: Role, *, made: bool = False
+) -> User:
+    """A new active user; the name must be free. ``made``: the password was made here from
+    ``MADE_PASSWORD_BYTES`` random bytes, not chosen by a person (hashed cheaply, see
+    ``app.security``)."""
     if not re.fullmatch(USERNAME_PATTERN, username):
         raise InvalidInputError(
             "A user name has 1 to 64 letters, digits or the characters _ . @ -."
@@ -35,7 +45,8 @@ def create_user(session: Session, username: str, password: str, role: Role) -> U
     _check_password(password)
     if session.scalar(sa.select(User.id).where(User.username == username)) is not None:
         raise ConflictError(f"There is already a user named {username!r}.")
-    user = User(username=username, password_hash=hash_password(password), role=role)
+    password_hash = hash_made_password(password) if made else hash_password(password)
+    user = User(username=username, password_hash=password_hash, role=role)
     session.add(user)
     commit_or_conflict(session, f"There is already a user named {username!r}.")
     return user
@@ -163,8 +174,8 @@ def ensure_initial_admin(session: Session, home: Path) -> Path | None:
     """
     if session.scalar(sa.select(sa.func.count()).select_from(User)):
         return None
-    password = secrets.token_urlsafe(12)
-    create_user(session, INITIAL_ADMIN, password, Role.admin)
+    password = secrets.token_urlsafe(MADE_PASSWORD_BYTES)
+    create_user(session, INITIAL_ADMIN, password, Role.admin, made=True)
     path = home / INITIAL_PASSWORD_FILE
     descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(descriptor, "w") as handle:

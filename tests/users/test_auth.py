@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import re
 
+import httpx
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
+from app import security
 from app.models import Role, User
+from app.users.service import ensure_initial_admin
 from tests.helpers import auth
 
 PUBLIC_PATHS = {"/api/v1/health", "/login"}
@@ -297,3 +301,53 @@ def test_a_script_gets_a_token_with_its_password(client: TestClient, make_user) 
     mine = client.post("/api/v1/tokens", json={"name": "second"}, headers=auth(token))
     assert mine.status_code == 201
     assert client.get("/api/v1/users/me", headers=auth(mine.json()["token"])).status_code == 200
+
+
+def test_the_first_admins_made_password_is_hashed_cheaply_until_it_is_first_used(
+    client: TestClient, session_factory, settings, monkeypatch
+) -> None:
+    """A fresh instance's admin password (made here from 16 random bytes) is stored with
+    Argon2id's cheapest parameters, so a first start does not wait for the standard hash; a wrong
+    password against it still costs a standard check, the first right one re-hashes it with the
+    standard parameters, and a password a person chooses always gets the standard ones."""
+
+    def stored(name: str) -> str:
+        with session_factory() as session:
+            return session.scalar(sa.select(User.password_hash).where(User.username == name))
+
+    with session_factory() as session:
+        password = ensure_initial_admin(session, settings.home).read_text().strip()
+    made = stored("admin")
+    assert len(password) >= 22 and made.startswith("$argon2id$") and security.below_standard(made)
+
+    checks: list[str] = []
+    verify = security.verify_password
+
+    def counted(password_hash: str, given: str) -> bool:
+        checks.append(password_hash)
+        return verify(password_hash, given)
+
+    monkeypatch.setattr(security, "verify_password", counted)
+
+    def token_for(name: str, given: str) -> httpx.Response:
+        checks.clear()
+        return client.post("/api/v1/tokens", json={"username": name, "password": given})
+
+    assert token_for("admin", "not-the-password").status_code == 401
+    assert [security.below_standard(h) for h in checks] == [True, False]  # + a standard decoy
+    assert stored("admin") == made
+    answer = token_for("admin", password)
+    assert answer.status_code == 201
+    assert [security.below_standard(h) for h in checks] == [True]
+    now = stored("admin")
+    assert not security.below_standard(now) and verify(now, password)
+    assert token_for("admin", password).status_code == 201  # one standard check from now on
+    assert [security.below_standard(h) for h in checks] == [False]
+
+    added = client.post(
+        "/api/v1/users",
+        json={"username": "chosen", "password": "a person's choice"},
+        headers=auth(answer.json()["token"]),
+    )
+    assert added.status_code == 201, added.text
+    assert not security.below_standard(stored("chosen"))
