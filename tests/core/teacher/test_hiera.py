@@ -83,11 +83,11 @@ def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
 
 @pytest.mark.parametrize("pooled", [False, True])
 def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool) -> None:
-    """On the CPU, bf16 attention runs as matmuls and a bf16 softmax, a band of query rows at a
-    time: it lies as close to fp32's kernel as transformers' own eager SAM2 attention in bf16
-    does (scores in bf16, softmax accumulated in fp32), on average and at worst, with several
-    heads and bands (the last one short), the strided layout ``_attention`` passes, a scale bf16
-    cannot hold exactly, and (``pooled``) fewer queries than keys. Each query is 1.6 × its own
+    """On a CPU without AMX, bf16 attention runs as matmuls and a bf16 softmax, a band of query
+    rows at a time: it lies as close to fp32's kernel as transformers' own eager SAM2 attention
+    in bf16 does (scores in bf16, softmax accumulated in fp32), on average and at worst, with
+    several heads and bands (the last one short), the strided layout ``_attention`` passes, a
+    scale bf16 cannot hold exactly, and (``pooled``) fewer queries than keys. Each query is 1.6 × its own
     key (a permutation): peaked enough that a wrong mix of rows or a lost scale shows, not so
     peaked that the scale would not matter."""
     from transformers.models.sam2.modeling_sam2 import eager_attention_forward
@@ -100,7 +100,7 @@ def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool)
     query = 1.6 * key[:, :, order[: tokens // 4] if pooled else order]  # ~80 % on its own key
     scale = dim**-0.5
     with torch.inference_mode():
-        ours = hiera._scaled_attention(query, key, value, scale)
+        ours = hiera._banded_attention(query, key, value, scale)
         eager, _ = eager_attention_forward(torch.nn.Module().eval(), query, key, value, None, scale)
         exact = [x.float() for x in (query, key, value)]
         fp32 = F.scaled_dot_product_attention(*exact, scale=scale)
@@ -111,3 +111,25 @@ def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool)
     assert ours_off.mean() <= 1.05 * eager_off.mean() and ours_off.max() <= 1.05 * eager_off.max()
     torch.testing.assert_close(ours.float(), fp32, rtol=0.05, atol=0.05)
     assert (fp32 - uniform).abs().mean() > 0.3  # the case is not one a wrong mix would pass
+
+
+@pytest.mark.parametrize("amx", [False, True])
+def test_bf16_attention_takes_the_fused_kernel_where_the_cpu_has_amx(monkeypatch, amx) -> None:
+    """PyTorch's fused attention multiplies bf16 on AMX tiles and at fp32's speed without them:
+    with AMX the encoder's bf16 attention is that kernel, without it the banded matmuls; fp32
+    always takes the kernel."""
+    monkeypatch.setattr(hiera, "_AMX", amx)
+    generator = torch.Generator().manual_seed(4)
+    query, key, value = torch.randn(3, 1, 2, 2 * hiera.ATTENTION_ROWS, 24, generator=generator)
+    scale = 24**-0.5
+    with torch.inference_mode():
+        for dtype in (torch.bfloat16, torch.float32):
+            q, k, v = (x.to(dtype) for x in (query, key, value))
+            fused = F.scaled_dot_product_attention(q, k, v, scale=scale)
+            banded = hiera._banded_attention(q, k, v, scale)
+            ours = hiera._scaled_attention(q, k, v, scale)
+            expected = banded if dtype == torch.bfloat16 and not amx else fused
+            other = fused if expected is banded else banded
+            assert torch.equal(ours, expected), dtype
+            if dtype == torch.bfloat16:
+                assert not torch.equal(ours, other)  # the two differ: the test can tell them apart
