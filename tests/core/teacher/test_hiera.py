@@ -87,9 +87,9 @@ def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool)
     rows at a time: it lies as close to fp32's kernel as transformers' own eager SAM2 attention
     in bf16 does (scores in bf16, softmax accumulated in fp32), on average and at worst, with
     several heads and bands (the last one short), the strided layout ``_attention`` passes, a
-    scale bf16 cannot hold exactly, and (``pooled``) fewer queries than keys. Each query is 1.6 × its own
-    key (a permutation): peaked enough that a wrong mix of rows or a lost scale shows, not so
-    peaked that the scale would not matter."""
+    scale bf16 cannot hold exactly, and (``pooled``) fewer queries than keys. Each query is
+    1.6 × its own key (a permutation): peaked enough that a wrong mix of rows or a lost scale
+    shows, not so peaked that the scale would not matter."""
     from transformers.models.sam2.modeling_sam2 import eager_attention_forward
 
     generator = torch.Generator().manual_seed(3)
