@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import dataclasses
 import datetime as dt
 import functools
 import hashlib
@@ -14,8 +15,8 @@ import time
 from typing import Annotated
 
 import sqlalchemy as sa
-from argon2 import PasswordHasher
-from argon2.exceptions import InvalidHashError, VerificationError
+from argon2 import Parameters, PasswordHasher, extract_parameters, profiles
+from argon2.exceptions import VerificationError
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
@@ -30,14 +31,18 @@ CSRF_HEADER = "X-CSRF-Token"
 TOKEN_PREFIX = "wp_"
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
-_hasher = PasswordHasher()  # RFC 9106's parameters (64 MiB, 3 passes, 4 lanes): ~0.1-0.2 s
-# A password the instance makes itself (the first admin's: 128 random bits, in a file) cannot be
-# guessed however fast its hash is; the memory-hard cost is for passwords people choose. So it
-# is hashed with Argon2id's cheapest parameters (~1 ms: a fresh instance's first start does not
-# wait for the standard hash), checking it costs the standard hash all the same, and its first
-# successful check re-hashes it with the standard parameters (`authenticate`).
-_made_secret_hasher = PasswordHasher(time_cost=1, memory_cost=1024, parallelism=1)
+STANDARD = profiles.RFC_9106_LOW_MEMORY
+"""The parameters of every password a person sets: RFC 9106's (64 MiB, 3 passes, 4 lanes; ~0.1-0.2
+s a hash here)."""
+MADE = dataclasses.replace(STANDARD, time_cost=1, memory_cost=1024, parallelism=1)
+"""The parameters of a password weldpool makes itself from ``MADE_PASSWORD_BYTES`` random bytes
+(a fresh instance's admin's, in a file): 128 random bits cannot be guessed however fast their
+hash (the memory-hard cost is for passwords people choose), so a first start does not wait for
+the standard hash (~1 ms). Checking one still costs a standard hash (``authenticate``), and its
+first right use re-hashes it with ``STANDARD``."""
 MADE_PASSWORD_BYTES = 16
+_hasher = PasswordHasher.from_parameters(STANDARD)
+_made_hasher = PasswordHasher.from_parameters(MADE)
 
 
 def hash_password(password: str) -> str:
@@ -46,24 +51,24 @@ def hash_password(password: str) -> str:
 
 
 def hash_made_password(password: str) -> str:
-    """An Argon2id hash, with the cheapest parameters, of a password this instance made from
+    """An Argon2id hash, with the ``MADE`` parameters, of a password this instance made from
     ``MADE_PASSWORD_BYTES`` random bytes (never of one a person chose)."""
-    return _made_secret_hasher.hash(password)
+    return _made_hasher.hash(password)
 
 
-def below_standard(password_hash: str) -> bool:
-    """Whether a stored hash has other parameters than the standard ones (a made password's)."""
+def hash_parameters(password_hash: str) -> Parameters | None:
+    """A stored hash's parameters, or None where it does not parse."""
     try:
-        return _hasher.check_needs_rehash(password_hash)
-    except InvalidHashError:
-        return False
+        return extract_parameters(password_hash)
+    except ValueError:  # InvalidHashError, or text that is not ASCII
+        return None
 
 
 def verify_password(password_hash: str, password: str) -> bool:
     """Whether ``password`` matches; never raises for a wrong or malformed hash."""
     try:
         return _hasher.verify(password_hash, password)
-    except (VerificationError, InvalidHashError):
+    except (VerificationError, ValueError):  # ValueError: InvalidHashError, non-ASCII text
         return False
 
 
@@ -144,17 +149,18 @@ def _decoy_hash() -> str:
 
 def authenticate(session: Session, username: str, password: str) -> User | None:
     """The active user with these credentials, or None. An unknown name, a deactivated account
-    and a wrong password cost the same one standard hash check, so that timing tells none apart;
-    a made password's cheap hash is re-hashed with the standard parameters when it matches (the
-    caller commits) and answered with a decoy check when it does not."""
+    and a wrong password cost the same one standard hash check, so that timing tells none apart:
+    a wrong password against a hash cheaper to check (a made password's, or one that does not
+    parse) is checked against the decoy as well. A right password whose hash has other than the
+    standard parameters is re-hashed with them (the caller commits)."""
     user = session.scalar(sa.select(User).where(User.username == username))
     stored = user.password_hash if user else _decoy_hash()
     matches = verify_password(stored, password)
-    if user is not None and below_standard(stored):
-        if matches:
-            user.password_hash = hash_password(password)
-        else:
-            verify_password(_decoy_hash(), password)
+    parameters = hash_parameters(stored)
+    if user is not None and matches and parameters != STANDARD:
+        user.password_hash = hash_password(password)
+    elif not matches and parameters in (MADE, None):
+        verify_password(_decoy_hash(), password)
     if user is None or not user.is_active or not matches:
         return None
     return user

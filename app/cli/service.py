@@ -75,10 +75,9 @@ def serve(host: str, port: int, no_worker: bool) -> None:
 
     settings = load_settings()
     with ThreadPoolExecutor(1) as pool:
-        # The migration check and a fresh instance's Argon2 hash (C, without the GIL) run
-        # beside the imports of the service (Python, with it). What the thread imports is
-        # imported above: two threads importing the same modules can see them half-made. The
-        # thread runs at a job's priority (its hash's threads inherit it), so the hash takes
+        # The migration check (or a fresh instance's schema and admin) runs beside the imports
+        # of the service. What the thread imports is imported above: two threads importing the
+        # same modules can see them half-made. The thread runs at a job's priority, so it takes
         # the core the imports leave rather than half of theirs; it ends with the pool.
         prepared = pool.submit(_prepare_below_the_imports, settings)
         import uvicorn

@@ -36,8 +36,8 @@ def create_user(
     session: Session, username: str, password: str, role: Role, *, made: bool = False
 ) -> User:
     """A new active user; the name must be free. ``made``: the password was made here from
-    ``MADE_PASSWORD_BYTES`` random bytes, not chosen by a person (hashed cheaply, see
-    ``app.security``)."""
+    ``MADE_PASSWORD_BYTES`` random bytes, not chosen by a person (hashed with
+    ``app.security.MADE``'s cheap parameters)."""
     if not re.fullmatch(USERNAME_PATTERN, username):
         raise InvalidInputError(
             "A user name has 1 to 64 letters, digits or the characters _ . @ -."

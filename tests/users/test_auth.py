@@ -306,19 +306,27 @@ def test_a_script_gets_a_token_with_its_password(client: TestClient, make_user) 
 def test_the_first_admins_made_password_is_hashed_cheaply_until_it_is_first_used(
     client: TestClient, session_factory, settings, monkeypatch
 ) -> None:
-    """A fresh instance's admin password (made here from 16 random bytes) is stored with
-    Argon2id's cheapest parameters, so a first start does not wait for the standard hash; a wrong
-    password against it still costs a standard check, the first right one re-hashes it with the
-    standard parameters, and a password a person chooses always gets the standard ones."""
+    """A fresh instance's admin password (made here from 16 random bytes) is stored with cheap
+    Argon2id parameters, so a first start does not wait for the standard hash; a wrong password
+    against it (or against a hash that does not parse) still costs a standard check, the first
+    right one re-hashes it with the standard parameters, and a password a person chooses always
+    gets them."""
 
     def stored(name: str) -> str:
         with session_factory() as session:
             return session.scalar(sa.select(User.password_hash).where(User.username == name))
 
+    def kind(password_hash: str) -> str:
+        parameters = security.hash_parameters(password_hash)
+        names = [(security.STANDARD, "standard"), (security.MADE, "made"), (None, "malformed")]
+        return next((name for known, name in names if parameters == known), "other")
+
     with session_factory() as session:
         password = ensure_initial_admin(session, settings.home).read_text().strip()
+        session.add(User(username="broken", password_hash="!", role=Role.annotator))
+        session.commit()
     made = stored("admin")
-    assert len(password) >= 22 and made.startswith("$argon2id$") and security.below_standard(made)
+    assert len(password) >= 22 and made.startswith("$argon2id$") and kind(made) == "made"
 
     checks: list[str] = []
     verify = security.verify_password
@@ -334,15 +342,20 @@ def test_the_first_admins_made_password_is_hashed_cheaply_until_it_is_first_used
         return client.post("/api/v1/tokens", json={"username": name, "password": given})
 
     assert token_for("admin", "not-the-password").status_code == 401
-    assert [security.below_standard(h) for h in checks] == [True, False]  # + a standard decoy
+    assert [kind(h) for h in checks] == ["made", "standard"]  # and a standard decoy
     assert stored("admin") == made
     answer = token_for("admin", password)
     assert answer.status_code == 201
-    assert [security.below_standard(h) for h in checks] == [True]
+    assert [kind(h) for h in checks] == ["made"]
     now = stored("admin")
-    assert not security.below_standard(now) and verify(now, password)
+    assert kind(now) == "standard" and verify(now, password)
     assert token_for("admin", password).status_code == 201  # one standard check from now on
-    assert [security.below_standard(h) for h in checks] == [False]
+    assert [kind(h) for h in checks] == ["standard"]
+    for name in ("admin", "nobody"):  # a wrong password, an unknown name: one standard check
+        assert token_for(name, "not-the-password").status_code == 401
+        assert [kind(h) for h in checks] == ["standard"], name
+    assert token_for("broken", "not-the-password").status_code == 401
+    assert [kind(h) for h in checks] == ["malformed", "standard"]
 
     added = client.post(
         "/api/v1/users",
@@ -350,4 +363,4 @@ def test_the_first_admins_made_password_is_hashed_cheaply_until_it_is_first_used
         headers=auth(answer.json()["token"]),
     )
     assert added.status_code == 201, added.text
-    assert not security.below_standard(stored("chosen"))
+    assert kind(stored("chosen")) == "standard"

@@ -281,14 +281,15 @@ def _attention(
 
 
 ATTENTION_ROWS = 128
-"""Query rows a bf16 attention on the CPU takes at a time (its scores: rows × keys × heads;
-measured on 4,096 keys: 64 and 128 rows ran at 1.6× the floor, 256 and 512 at 3.1–3.2×)."""
+"""Query rows a bf16 attention on a CPU without AMX takes at a time (its scores: rows × keys ×
+heads; measured on 4,096 keys: 64 and 128 rows ran at 1.6× the floor, 256 and 512 at
+3.1–3.2×)."""
 
 
-_AMX: bool = bool(getattr(torch.cpu, "_is_amx_tile_supported", lambda: False)())
+_AMX: bool = bool(torch.cpu._is_amx_tile_supported())
 """Whether the CPU has AMX tiles, on which PyTorch's fused attention multiplies bf16 with oneDNN's
-brgemm (3.5× faster than the banded matmuls on 4,096 tokens here, the whole encoder 575 → 414 ms);
-without them that kernel computes bf16 at about fp32's speed."""
+brgemm (2.5–2.7× faster than the banded matmuls on 4,096 tokens, the whole encoder 575 → 414 ms,
+on an Intel CPU with them); without them that kernel computes bf16 at about fp32's speed."""
 
 
 def _scaled_attention(

@@ -54,9 +54,12 @@ def test_the_encoder_equals_transformers_forward_in_fp32(model) -> None:
     _compare(model, PIXELS, rtol=1e-5, atol=1e-5)
 
 
-def test_the_encoder_equals_transformers_forward_in_bf16(model) -> None:
+@pytest.mark.parametrize("amx", [False, True])
+def test_the_encoder_equals_transformers_forward_in_bf16(model, monkeypatch, amx) -> None:
     """bf16 (a GPU's precision, and CPUs with AMX): the fused kernels round once where the
-    separate ops round twice, so the two agree to bf16's precision, not to the bit."""
+    separate ops round twice, so the two agree to bf16's precision, not to the bit; with the
+    fused attention (a CPU with AMX) and with the banded one (without), whichever CPU runs it."""
+    monkeypatch.setattr(hiera, "_AMX", amx)
     _compare(copy.deepcopy(model).to(torch.bfloat16), PIXELS.bfloat16(), rtol=0.02, atol=0.02)
 
 
@@ -117,7 +120,8 @@ def test_bf16_attention_on_the_cpu_is_transformers_eager_attention(pooled: bool)
 def test_bf16_attention_takes_the_fused_kernel_where_the_cpu_has_amx(monkeypatch, amx) -> None:
     """PyTorch's fused attention multiplies bf16 on AMX tiles and at fp32's speed without them:
     with AMX the encoder's bf16 attention is that kernel, without it the banded matmuls; fp32
-    always takes the kernel."""
+    always takes the kernel. (The flag is the CPU's own, read from PyTorch.)"""
+    assert torch.cpu._is_amx_tile_supported() == hiera._AMX
     monkeypatch.setattr(hiera, "_AMX", amx)
     generator = torch.Generator().manual_seed(4)
     query, key, value = torch.randn(3, 1, 2, 2 * hiera.ATTENTION_ROWS, 24, generator=generator)
