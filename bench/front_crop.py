@@ -129,7 +129,8 @@ def main() -> None:
                             flush=True,
                         )
     print(
-        f"\n| fold | frames × seeds | first: mIoU | mED px | with the {args.crop}² front crop: mIoU "
+        f"\n| fold | frames × seeds | first: mIoU | mED px | with the {args.crop}² front crop: "
+        "mIoU "
         "| mED px |"
     )
     print("|---|---:|---:|---:|---:|---:|")
