@@ -130,8 +130,7 @@ def main() -> None:
                         )
     print(
         f"\n| fold | frames × seeds | first: mIoU | mED px | with the {args.crop}² front crop: "
-        "mIoU "
-        "| mED px |"
+        "mIoU | mED px |"
     )
     print("|---|---:|---:|---:|---:|---:|")
     for group in sorted({r[0].split()[0] for r in rows}):
