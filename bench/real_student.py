@@ -5,6 +5,7 @@ $WELDPOOL_SHARED_DATA) and their frames. Folds:
 
 - LOCO (leave one clip out): train on the 10 frames of two clips, test on the 5 of the third.
 - within-clip: train on the clip's other four frames, test on its f0250.
+- each (``--kinds each``): within-clip with every frame of a clip held out in turn (15 folds).
 
 Each fold trains a fresh student with the default settings (``StudentConfig()``,
 ``TrainConfig()``, random start as no ImageNet weights are here) on the CPU, on all of the
@@ -79,6 +80,12 @@ def folds(frames: list[TrainingFrame], kind: str) -> list[tuple[str, list[int], 
     out = []
     for held in CLIPS:
         short = held.removeprefix("compressed_")
+        if kind == "each":  # every frame of the clip held out in turn
+            mine = [i for i, c in enumerate(clip) if c == held]
+            for i in mine:
+                stem = frames[i].name.rsplit("_", 1)[-1]
+                out.append((f"each:{short}:{stem}", [j for j in mine if j != i], [i]))
+            continue
         if kind == "loco":
             train = [i for i, c in enumerate(clip) if c != held]
             test = [i for i, c in enumerate(clip) if c == held]
@@ -384,7 +391,11 @@ def main() -> None:
         help="run the default once per seed and print each fold's mean and range over them",
     )
     parser.add_argument(
-        "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
+        "--kinds",
+        nargs="+",
+        default=["loco", "within"],
+        choices=["loco", "within", "each"],
+        help="each: within a clip, every frame held out in turn (15 folds)",
     )
     parser.add_argument(
         "--no-default", action="store_true", help="skip the default run (ablation only)"
