@@ -30,13 +30,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from real_student import folds, shared_data
+from real_student import folds, real_frames
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, keypoints_from_mask
 from weldpool_core.metrics import iou, match_keypoints
 from weldpool_core.student.data import TrainingFrame
-from weldpool_core.student.evaluate import labelled_frames
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import StudentPredictor
 from weldpool_core.student.train import TrainConfig, train_student
@@ -84,10 +83,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    data = shared_data() / "waam"
-    if not (data / "labels").is_dir():
-        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
-    frames = labelled_frames(data / "frames", data / "labels")
+    frames = real_frames()
     student = StudentConfig()
     rows: list[tuple[str, int, float, float, float, float]] = []
     with tempfile.TemporaryDirectory() as scratch:

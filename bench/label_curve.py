@@ -40,11 +40,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from real_student import cached_fold, folds, shared_data
+from real_student import cached_fold, folds, real_frames
 
 from weldpool_core.active import combined_score, diverse_order
 from weldpool_core.student.data import TrainingFrame
-from weldpool_core.student.evaluate import labelled_frames
 from weldpool_core.student.model import StudentConfig
 from weldpool_core.student.predict import StudentPredictor, frame_codes, frames_to_batch
 from weldpool_core.student.train import TrainConfig
@@ -197,10 +196,7 @@ def main() -> None:
     parser.add_argument("--plot", type=Path, help="write the plot (PNG) here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    data = shared_data() / "waam"
-    if not (data / "labels").is_dir():
-        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
-    frames = labelled_frames(data / "frames", data / "labels")
+    frames = real_frames()
     args.cache.mkdir(parents=True, exist_ok=True)
     results = {}
     for seed in args.seeds:

@@ -71,6 +71,14 @@ def shared_data() -> Path:
     return Path(os.environ.get("WELDPOOL_SHARED_DATA") or REPO.parent / "shared" / "data")
 
 
+def real_frames() -> list[TrainingFrame]:
+    """The 15 labelled real frames with their masks, or an exit saying where they were sought."""
+    data = shared_data() / "waam"
+    if not (data / "labels").is_dir():
+        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
+    return labelled_frames(data / "frames", data / "labels")
+
+
 def folds(frames: list[TrainingFrame], kind: str) -> list[tuple[str, list[int], list[int]]]:
     """``(name, train indices, test indices)`` of the LOCO or within-clip folds."""
     clip = [
@@ -405,10 +413,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    data = shared_data() / "waam"
-    if not (data / "labels").is_dir():
-        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
-    frames = labelled_frames(data / "frames", data / "labels")
+    frames = real_frames()
     limit = 1 if args.quick else None
     started = time.perf_counter()
     student, config = variant("default")

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from real_student import bootstrap_rho, folds, shared_data
+from real_student import bootstrap_rho, folds, real_frames
 from scipy.stats import spearmanr
 
 from weldpool_core.heatmap import HeatmapParams
@@ -60,7 +60,7 @@ from weldpool_core.student import checkpoint
 from weldpool_core.student import predict as P
 from weldpool_core.student.checkpoint import load_codes, read_student_config
 from weldpool_core.student.data import TrainingFrame, prepare_frame
-from weldpool_core.student.evaluate import labelled_frames, score_predictions
+from weldpool_core.student.evaluate import score_predictions
 from weldpool_core.student.model import StudentConfig, build_student
 from weldpool_core.student.predict import StudentPredictor, frames_to_batch
 from weldpool_core.student.train import TrainConfig, save_training_codes, train_student
@@ -370,10 +370,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    data = shared_data() / "waam"
-    if not (data / "labels").is_dir():
-        raise SystemExit(f"no real labels at {data / 'labels'}; set WELDPOOL_SHARED_DATA")
-    frames = labelled_frames(data / "frames", data / "labels")
+    frames = real_frames()
     rows: list[dict] = []
     costs: dict[str, list[float]] = {}
     probabilities: dict[tuple[str, int], tuple[torch.Tensor, torch.Tensor]] = {}
