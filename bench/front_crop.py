@@ -4,11 +4,12 @@ Issue 31 asks whether the mask at the wire (where the keypoint error sits: the t
 gains from resolution at the front. The student sees a 1280×800 frame letterboxed to 256² (5
 frame pixels a model pixel); a second student of the same settings, trained on a ``--crop``-pixel
 square around each training frame's pool front (its rightmost extent, where the wire comes in,
-at mid-height of the pool), sees the front at ``--crop`` / 256 frame pixels a model pixel. At
+at the height of the pool there), sees the front at ``--crop`` / 256 frame pixels a model pixel. At
 test, the first student's mask places the crop; the second student's mask replaces the first's
-inside it, and the keypoints are Algorithm 1 on the combined mask (as the default student reads
-them from its own). Both students are trained like ``bench/real_student.py``'s folds (the
-default settings, the best round chosen on the training frames), on the same seeds.
+inside it. Both are scored with Algorithm 1's keypoints on the full-resolution mask (the
+default student reads its own from its mask at model resolution). Both students are trained
+like ``bench/real_student.py``'s folds (the default settings, the best round chosen on the
+training frames), on the same seeds.
 
     PYTHONPATH=bench:. .venv/bin/python bench/front_crop.py [--kinds within loco] [--seeds 0]
         [--crop 448] [--cache DIR]
