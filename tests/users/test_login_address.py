@@ -18,7 +18,6 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
-from app import security
 from app.config import Settings
 from app.models import Role
 from tests.helpers import auth, wait_for
@@ -106,7 +105,7 @@ def test_trusted_proxies_are_addresses_or_networks() -> None:
 
 
 def test_every_failed_login_checks_one_password_hash(
-    client: TestClient, make_user, monkeypatch: pytest.MonkeyPatch
+    client: TestClient, make_user, hash_checks: list[str]
 ) -> None:
     """An active user (wrong and right password), a deactivated one and an unknown name each
     cost exactly one hash check, so the time of the answer tells none of them apart."""
@@ -116,14 +115,7 @@ def test_every_failed_login_checks_one_password_hash(
     assert client.patch(
         f"/api/v1/users/{leaver.id}", json={"is_active": False}, headers=auth(admin)
     ).is_success
-    checks: list[str] = []
-    verify = security.verify_password
-
-    def counted(password_hash: str, password: str) -> bool:
-        checks.append(password_hash)
-        return verify(password_hash, password)
-
-    monkeypatch.setattr(security, "verify_password", counted)
+    checks = hash_checks
     for username, password, status in (
         ("active", "wrong-password", 401),
         ("leaver", "right-password", 401),
