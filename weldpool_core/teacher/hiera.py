@@ -10,12 +10,11 @@ output twice (the bias first), and the neck's 1×1 convolutions read channels-la
 strided images. ``ImageEncoder`` re-states the same computation with the same weights (a test
 holds it equal to transformers' forward in fp32 and bf16): the dropped work is skipped, the
 positional embedding is kept per input size, the window unpartition is fused into the residual
-sum, the patch embedding writes its map channels-last (transformers' is strided by channel through
-every first-stage block), the 1×1 convolutions and poolings run on the ``(B, H, W, C)`` maps as
-they are, and on the CPU each linear layer is one oneDNN call with its bias, GELU or residual
-sum fused in (the kernels PyTorch's own compiler emits for these layers; they round as the
-separate ops do in fp32),
-and the window-local first blocks (with the two finest FPN levels) run a band of rows at a time;
+sum, the patch embedding writes its map channels-last (not a permuted view strided by channel),
+the 1×1 convolutions and poolings run on the ``(B, H, W, C)`` maps as they are, and on the CPU
+each linear layer is one oneDNN call with its bias, GELU or residual sum fused in (the kernels
+PyTorch's own compiler emits for these layers; they round as the separate ops do in fp32), and
+the window-local first blocks (with the two finest FPN levels) run a band of rows at a time;
 in bf16 on a CPU without AMX, where PyTorch's fused attention kernel runs at fp32's speed,
 attention is two bf16 matmuls and a softmax a band of query rows at a time.
 The weights are read as they are at each call; only the positional embedding, a function of the
@@ -84,8 +83,7 @@ class ImageEncoder:
         """The Hiera blocks; the output of each stage's last block, ``(B, H, W, C)``, or for a
         stage in ``finished`` that function of it."""
         projection = backbone.patch_embed.projection
-        # Channels-last in and out: the map is (B, H, W, C) in memory, not a permuted view of
-        # (B, C, H, W) that every layer norm and linear layer of the first stage reads strided.
+        # Channels-last: the map is (B, H, W, C) in memory, not a permuted (B, C, H, W) view.
         pixels = pixels.to(projection.weight.dtype, memory_format=torch.channels_last)
         hidden = projection(pixels).permute(0, 2, 3, 1)
         hidden = hidden + self._position(backbone, hidden.shape[1], hidden.shape[2], hidden)

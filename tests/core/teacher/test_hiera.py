@@ -85,16 +85,16 @@ def test_the_positional_embedding_is_kept_per_size_and_precision(model) -> None:
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
-def test_every_block_reads_its_map_with_channels_last(model, monkeypatch, dtype) -> None:
+def test_every_block_reads_a_contiguous_map(model, monkeypatch, dtype) -> None:
     """The patch embedding writes its map channels-last, so each block's layer norms and linear
-    layers read whole channel vectors (a map strided by channel took 3.5× as long to normalise,
-    and each linear layer copied it first)."""
+    layers read whole channel vectors, not a permuted ``(B, C, H, W)`` view (one frame: a
+    larger batch's bands are strided views of the map by construction)."""
     seen: list[bool] = []
-    block = hiera._block
+    original = hiera._block
 
     def spy(module, hidden):
         seen.append(hidden.is_contiguous())
-        return block(module, hidden)
+        return original(module, hidden)
 
     monkeypatch.setattr(hiera, "_block", spy)
     with torch.inference_mode():
