@@ -152,13 +152,18 @@ def authenticate(session: Session, username: str, password: str) -> User | None:
     and a wrong password cost the same one standard hash check, so that timing tells none apart:
     a wrong password against a hash cheaper to check (a made password's, or one that does not
     parse) is checked against the decoy as well. A right password whose hash has other than the
-    standard parameters is re-hashed with them (the caller commits)."""
+    standard parameters is re-hashed with them (the caller commits), only where the stored hash
+    is still the one checked: a password changed meanwhile by another request stays changed."""
     user = session.scalar(sa.select(User).where(User.username == username))
     stored = user.password_hash if user else _decoy_hash()
     matches = verify_password(stored, password)
     parameters = hash_parameters(stored)
     if user is not None and matches and parameters != STANDARD:
-        user.password_hash = hash_password(password)
+        session.execute(
+            sa.update(User)
+            .where(User.id == user.id, User.password_hash == stored)
+            .values(password_hash=hash_password(password))
+        )
     elif not matches and parameters in (MADE, None):
         verify_password(_decoy_hash(), password)
     if user is None or not user.is_active or not matches:

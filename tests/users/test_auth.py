@@ -358,3 +358,33 @@ def test_the_first_admins_made_password_is_hashed_cheaply_until_it_is_first_used
     )
     assert added.status_code == 201, added.text
     assert kind(stored("chosen")) == "standard"
+
+
+def test_a_password_changed_while_the_made_one_is_re_hashed_stays_changed(
+    client: TestClient, session_factory, settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The first right use of a made password re-hashes it; a new password that another
+    request stores meanwhile (between the check and the re-hash's commit) is not overwritten
+    with the old one's hash."""
+    with session_factory() as session:
+        password = ensure_initial_admin(session, settings.home).read_text().strip()
+    rehash = security.hash_password
+
+    def changed_meanwhile(given: str) -> str:
+        with session_factory() as other:
+            admin = other.scalar(sa.select(User).where(User.username == "admin"))
+            admin.password_hash = rehash("changed meanwhile")
+            other.commit()
+        return rehash(given)
+
+    monkeypatch.setattr(security, "hash_password", changed_meanwhile)
+    answer = client.post("/api/v1/tokens", json={"username": "admin", "password": password})
+    assert answer.status_code == 201, answer.text
+    monkeypatch.setattr(security, "hash_password", rehash)
+    with session_factory() as session:
+        now = session.scalar(sa.select(User.password_hash).where(User.username == "admin"))
+    assert PasswordHasher().verify(now, "changed meanwhile")
+    assert (
+        client.post("/api/v1/tokens", json={"username": "admin", "password": password}).status_code
+        == 401
+    )
