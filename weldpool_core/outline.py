@@ -179,6 +179,28 @@ def _simplified(contour: NDArray[Any], tolerance: float, *, hole: bool = False) 
     return Polygon([(float(x), float(y)) for x, y in contour.reshape(-1, 2)], hole=hole)
 
 
+def check_editable(polygons: list[Polygon], traced: float | None = None) -> None:
+    """Refuse an outline with more polygons or vertices than an edited one may have (what
+    ``fill_polygons`` takes back); ``traced``: the tolerance a mask was traced at, which the
+    refusal then advises raising.
+
+    Raises:
+        InvalidInputError: more than ``MAX_POLYGONS`` polygons or ``MAX_VERTICES`` vertices.
+    """
+    vertices = sum(len(p.points) for p in polygons)
+    if len(polygons) <= MAX_POLYGONS and vertices <= MAX_VERTICES:
+        return
+    if traced is not None:
+        raise InvalidInputError(
+            f"The mask traces to {vertices:,} vertices in {len(polygons):,} polygons at tolerance "
+            f"{traced:g}, more than an outline may have ({MAX_VERTICES:,} vertices, "
+            f"{MAX_POLYGONS:,} polygons); raise the tolerance or edit the mask with the brush."
+        )
+    if len(polygons) > MAX_POLYGONS:
+        raise InvalidInputError(f"An outline has at most {MAX_POLYGONS:,} polygons.")
+    raise InvalidInputError(f"An outline has at most {MAX_VERTICES:,} vertices in all.")
+
+
 def fill_polygons(polygons: list[Polygon], height: int, width: int) -> NDArray[np.bool_]:
     """Rasterise an outline: every outer polygon filled with its edges, then every hole emptied
     inside its edges (even–odd: where outer polygons overlap, the overlap is outside). Vertices
@@ -190,10 +212,7 @@ def fill_polygons(polygons: list[Polygon], height: int, width: int) -> NDArray[n
             more than one frame size outside the frame, or edges crossing the frame's rows more
             than ``MAX_CROSSINGS_PER_PIXEL`` times per pixel (and ``MIN_CROSSINGS`` times).
     """
-    if len(polygons) > MAX_POLYGONS:
-        raise InvalidInputError(f"An outline has at most {MAX_POLYGONS:,} polygons.")
-    if sum(len(p.points) for p in polygons) > MAX_VERTICES:
-        raise InvalidInputError(f"An outline has at most {MAX_VERTICES:,} vertices in all.")
+    check_editable(polygons)
     if any(len(p.points) < 3 for p in polygons):
         raise InvalidInputError("Every polygon of an outline needs at least 3 vertices.")
     _check_near_frame(polygons, height, width)

@@ -3,6 +3,7 @@ display image, and the frames a run covers."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, undefer
 
+from app.bounds import MAX_ID
 from app.errors import InvalidInputError, NotFoundError
 from app.models import (
     UNREVIEWED_SQL,
@@ -125,21 +127,35 @@ def parse_cursor(after: str, order: str) -> list[Any] | int:
         if parts[0] != order:
             raise ValueError
         if order == "uncertainty" and len(parts) == 3 and parts[1] == _HEAD:
-            return int(parts[2])
+            return _bounded(int(parts[2]), low=0)
         if len(parts) != len(columns) + 1:
             raise ValueError
         floats = order == "uncertainty"
         values: list[Any] = []
-        for i, text in enumerate(parts[1:]):
-            if text == "null":
+        for (_, _, nullable), text in zip(columns, parts[1:], strict=True):
+            if text == "null" and nullable:
                 values.append(None)
+            elif floats and not values:
+                values.append(_finite(float(text)))
             else:
-                values.append(float(text) if floats and i == 0 else int(text))
-        if values[-1] is None:
-            raise ValueError
+                values.append(_bounded(int(text), low=-MAX_ID))
         return values
     except ValueError:
         raise InvalidInputError(_CURSOR_PROBLEM) from None
+
+
+def _bounded(value: int, low: int) -> int:
+    """``value`` where it lies in ``[low, MAX_ID]`` (no key or position of a list lies beyond:
+    a larger one would overflow the database's integers)."""
+    if not low <= value <= MAX_ID:
+        raise ValueError
+    return value
+
+
+def _finite(value: float) -> float:
+    if not math.isfinite(value):
+        raise ValueError
+    return value
 
 
 def after_condition(

@@ -50,7 +50,7 @@ from app.review.schemas import (
 from app.security import AdminUser, CurrentUser, ReviewerUser
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
-from weldpool_core.outline import Polygon, fill_polygons, mask_polygons
+from weldpool_core.outline import Polygon, check_editable, fill_polygons, mask_polygons
 
 if TYPE_CHECKING:
     import cv2
@@ -319,6 +319,7 @@ def outline(
     if mask.shape != (frame.height, frame.width):
         raise InvalidInputError("The mask must have the frame's size.")
     polygons = mask_polygons(mask, body.tolerance)
+    check_editable(polygons, traced=body.tolerance)
     return OutlineOut(
         polygons=[
             PolygonIO(points=[list(p) for p in poly.points], hole=poly.hole) for poly in polygons

@@ -544,6 +544,15 @@ def test_a_foreign_cursor_or_a_cursor_with_an_offset_is_a_clear_400(
         {"order": "frame_index", "after": "frame_index~1~2"},
         {"order": "id", "after": "id~null"},
         {"order": "id", "after": "id~3", "offset": 5},
+        # Beyond the database's integers, NULL where the key has none, a position before the head
+        {"order": "id", "after": "id~99999999999999999999999"},
+        {"order": "-id", "after": "-id~-99999999999999999999999"},
+        {"order": "frame_index", "after": "frame_index~1~99999999999999999999~2"},
+        {"order": "uncertainty", "after": "uncertainty~0.5~99999999999999999999999"},
+        {"order": "uncertainty", "after": "uncertainty~nan~3"},
+        {"order": "uncertainty", "after": "uncertainty~null~3"},
+        {"order": "uncertainty", "after": "uncertainty~head~99999999999999999999999"},
+        {"order": "uncertainty", "after": "uncertainty~head~-1"},
     ):
         answer = client.get("/api/v1/frames", params=params, headers=headers)
         assert answer.status_code == 400, params

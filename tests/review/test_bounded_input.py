@@ -101,6 +101,37 @@ def test_an_outline_has_at_most_10_000_vertices_in_all(client: TestClient, make_
     assert _fill(client, token, frame_id, one_polygon).status_code == 422
 
 
+def test_a_mask_that_traces_beyond_an_outline_s_cap_is_a_400_naming_the_tolerance(
+    client: TestClient, make_user
+) -> None:
+    """The outline of a checkerboard mask (one region, 7,742 one-pixel holes) has more than an
+    edited outline may, so the trace is refused (it was a 500), not sent only to be refused on
+    the way back; a pool's outline is traced as before."""
+    token = make_user("anna", Role.annotator)[1]
+    frame_id = _frame(client, token)
+
+    def trace(mask: np.ndarray) -> object:
+        png = base64.b64encode(cv2.imencode(".png", mask.astype(np.uint8) * 255)[1]).decode()
+        return client.post(
+            f"/api/v1/frames/{frame_id}/outline",
+            json={"mask_png": png, "tolerance": 0},
+            headers=auth(token),
+        )
+
+    checkerboard = np.indices((HEIGHT, WIDTH)).sum(axis=0) % 2 == 0
+    refused = trace(checkerboard)
+    assert refused.status_code == 400
+    assert refused.json()["detail"] == (
+        "The mask traces to 31,482 vertices in 7,743 polygons at tolerance 0, more than an "
+        f"outline may have ({MAX_VERTICES:,} vertices, 3,333 polygons); raise the tolerance or "
+        "edit the mask with the brush."
+    )
+    pool = np.zeros((HEIGHT, WIDTH), bool)
+    pool[20:80, 30:130] = True
+    traced = trace(pool)
+    assert traced.status_code == 200 and len(traced.json()["polygons"]) == 1
+
+
 def test_a_segment_box_outside_the_frame_is_refused(client: TestClient, make_user) -> None:
     """A box is checked against the frame like a click, before SAM2 sees it."""
     token = make_user("rita", Role.reviewer)[1]
