@@ -408,6 +408,8 @@ class ValidationKeypoints(Base):
     keypoints: Mapped[list[Any]] = mapped_column(JSONType)
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    revision: Mapped[int] = mapped_column(default=1, server_default=sa.text("1"))
+    """1 for the first keypoints, one more for each save after (a stale ``base_revision``: 409)."""
 
 
 ONE_AT_A_TIME = (

@@ -86,13 +86,20 @@ def test_first_validation_keypoints_at_once(client: TestClient, admin: str) -> N
     stored = client.post("/api/v1/frames", files=files, headers=auth(admin)).json()["stored"]
     for frame in stored:
         url = f"/api/v1/frames/{frame['id']}/validation-keypoints"
-        statuses = at_once(
-            RACERS,
-            lambda i, url=url: client.put(
-                url, json={"keypoints": [[5.0 + i, 6.0]]}, headers=auth(admin)
-            ),
-        )
-        assert set(statuses) <= {200, 409} and 200 in statuses, statuses
+        answers: dict[int, Any] = {}
+
+        def place(i: int, url: str = url, answers: dict[int, Any] = answers) -> Any:
+            body = {"keypoints": [[5.0 + i, 6.0]], "base_revision": 0}  # the first ones
+            answers[i] = client.put(url, json=body, headers=auth(admin))
+            return answers[i]
+
+        statuses = at_once(RACERS, place)
+        assert statuses == [200] + [409] * (RACERS - 1), statuses
+        winner = next(i for i, a in answers.items() if a.status_code == 200)
+        stored = client.get(url, headers=auth(admin)).json()
+        assert stored["keypoints"] == [[5.0 + winner, 6.0]] and stored["revision"] == 1
+        loser = next(a for a in answers.values() if a.status_code == 409)
+        assert loser.json()["revision"] == 1 and loser.json()["updated_by"] == "boss"
 
 
 def _delete_or_upload(

@@ -19,7 +19,7 @@ from app.frames.sequences import get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import Job, JobStatus, Proposal, Split, User
+from app.models import Job, JobStatus, Proposal, Split, User, ValidationKeypoints
 from app.proposals import policy
 from app.proposals.files import load_heatmap
 from app.review import runtime, service, warm
@@ -457,15 +457,20 @@ def get_label_history(
     ]
 
 
-@router.put("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
+@router.put(
+    "/frames/{frame_id}/validation-keypoints",
+    response_model=KeypointsOut,
+    responses={409: {"description": "base_revision is stale; the body has `revision`."}},
+)
 def put_validation_keypoints(
     frame_id: IdPath, body: KeypointsIn, session: SessionDep, user: CurrentUser
 ) -> KeypointsOut:
-    """Keypoints placed by hand; the frame joins the validation split."""
+    """Keypoints placed by hand; the frame joins the validation split. With `base_revision`
+    (0: none yet), a stale edit gets 409 with the current revision."""
     row = service.save_validation_keypoints(
-        session, get_frame(session, frame_id), user, body.keypoints
+        session, get_frame(session, frame_id), user, body.keypoints, body.base_revision
     )
-    return KeypointsOut(frame_id=frame_id, keypoints=row.keypoints, updated_at=row.updated_at)
+    return _keypoints_out(row)
 
 
 @router.get("/frames/{frame_id}/validation-keypoints", response_model=KeypointsOut)
@@ -473,8 +478,16 @@ def get_validation_keypoints(
     frame_id: IdPath, session: SessionDep, _user: CurrentUser
 ) -> KeypointsOut:
     get_frame(session, frame_id)
-    row = service.get_validation_keypoints(session, frame_id)
-    return KeypointsOut(frame_id=frame_id, keypoints=row.keypoints, updated_at=row.updated_at)
+    return _keypoints_out(service.get_validation_keypoints(session, frame_id))
+
+
+def _keypoints_out(row: ValidationKeypoints) -> KeypointsOut:
+    return KeypointsOut(
+        frame_id=row.frame_id,
+        keypoints=row.keypoints,
+        updated_at=row.updated_at,
+        revision=row.revision,
+    )
 
 
 @router.get(

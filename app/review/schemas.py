@@ -257,9 +257,17 @@ class LabelRevisionOut(BaseModel):
 
 class KeypointsIn(InputModel):
     keypoints: list[XY] = Field(min_length=1, max_length=MAX_KEYPOINTS)
+    base_revision: int | None = Field(
+        default=None,
+        ge=0,
+        le=MAX_ID,
+        description="The revision of the keypoints this edit started from (0: none yet); 409, "
+        "with the current `revision`, when they have changed since. Omitted: replace them.",
+    )
 
 
 class KeypointsOut(BaseModel):
     frame_id: int
     keypoints: list[list[float]]
     updated_at: dt.datetime
+    revision: int

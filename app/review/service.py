@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
 from app.config import Settings
-from app.db import commit_or_conflict, utcnow
+from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import (
     Frame,
@@ -434,37 +434,86 @@ def label_history(session: Session, frame_id: int) -> list[tuple[LabelRevision, 
 
 
 def save_validation_keypoints(
-    session: Session, frame: Frame, user: User, keypoints: list[list[float]]
+    session: Session,
+    frame: Frame,
+    user: User,
+    keypoints: list[list[float]],
+    base_revision: int | None = None,
 ) -> ValidationKeypoints:
-    """Manual keypoints; the frame moves to the validation split and never trains the student."""
+    """Manual keypoints; the frame moves to the validation split and never trains the student.
+    ``base_revision``: the revision the edit started from (0: none yet); a 409 when the stored
+    keypoints have moved on (``None``: they are replaced whatever they are)."""
     if not keypoints:
         raise InvalidInputError("Give at least one keypoint.")
     points = check_keypoints(frame, keypoints)
-    lock_frame(session, frame.id)
-    row = set_validation_keypoints(session, frame, user, points)
-    commit_or_conflict(
-        session,
-        f"Someone else saved validation keypoints of frame {frame.id} at the same moment; "
-        "reload them and save again.",
-    )
+    frame_id = frame.id
+    lock_frame(session, frame_id)
+    row = set_validation_keypoints(session, frame, user, points, base_revision)
+    try:
+        session.commit()
+    except sa.exc.IntegrityError:  # two first ones at once (SQLite, which locks no row)
+        session.rollback()
+        if not frame_exists(session, frame_id):
+            raise FrameDeleted(frame_id) from None
+        raise stale_keypoints(session, frame_id) from None
     return row
 
 
 def set_validation_keypoints(
-    session: Session, frame: Frame, user: User, points: list[list[float]]
+    session: Session,
+    frame: Frame,
+    user: User,
+    points: list[list[float]],
+    base_revision: int | None = None,
 ) -> ValidationKeypoints:
     """The frame's validation keypoints row, written (not committed), and its split moved to
-    validation. ``points`` are checked already (``check_keypoints``)."""
+    validation. ``points`` are checked already (``check_keypoints``); ``base_revision`` as in
+    ``save_validation_keypoints``."""
     row = session.scalar(
         sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
     )
+    if base_revision is not None and base_revision != (row.revision if row is not None else 0):
+        raise stale_keypoints(session, frame.id)
     if row is None:
-        row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id)
+        row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id, revision=1)
         session.add(row)
-    else:
-        row.keypoints, row.user_id, row.updated_at = points, user.id, utcnow()
+    else:  # where the revision is still the one read (a writer in between: stale)
+        moved = session.execute(
+            sa.update(ValidationKeypoints)
+            .where(ValidationKeypoints.id == row.id, ValidationKeypoints.revision == row.revision)
+            .values(
+                keypoints=points,
+                user_id=user.id,
+                updated_at=utcnow(),
+                revision=ValidationKeypoints.revision + 1,
+            )
+        )
+        if moved.rowcount != 1:  # type: ignore[attr-defined]
+            raise stale_keypoints(session, frame.id)
     frame.split = Split.validation
     return row
+
+
+def stale_keypoints(session: Session, frame_id: int) -> StaleKeypoints:
+    """The conflict for a stale save of validation keypoints: their revision and author now."""
+    found = session.execute(
+        sa.select(ValidationKeypoints.revision, User.username)
+        .outerjoin(User, User.id == ValidationKeypoints.user_id)
+        .where(ValidationKeypoints.frame_id == frame_id)
+    ).first()
+    return StaleKeypoints(found[0], found[1]) if found else StaleKeypoints(0)
+
+
+class StaleKeypoints(ConflictError):
+    """The validation keypoints changed since the client read them: who, and their revision."""
+
+    def __init__(self, current: int, by: str | None = None) -> None:
+        who = f"by {by}" if by else "by someone else"
+        super().__init__(
+            f"The validation keypoints were changed {who} (now at revision {current}); reload "
+            f"them and place yours again, or overwrite with base_revision {current}."
+        )
+        self.extra = {"revision": current, "updated_by": by}
 
 
 def get_validation_keypoints(session: Session, frame_id: int) -> ValidationKeypoints:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import io
+from typing import Any
 
 import cv2
 import numpy as np
@@ -312,6 +313,43 @@ def test_validation_keypoints_move_the_frame(client: TestClient, people) -> None
     assert client.get(url, headers=auth(token)).json()["keypoints"] == points
     outside = client.put(url, json={"keypoints": [[999, 1]]}, headers=auth(token))
     assert outside.status_code == 400
+
+
+def test_validation_keypoints_saved_from_a_stale_revision_are_a_409_naming_who(
+    client: TestClient, people
+) -> None:
+    """Each save moves the revision on; a save from an older one is refused with the current
+    revision and its author, and nothing is written; from the current one, or with no base
+    (the API's older callers), it replaces them."""
+    annotator, reviewer = people["annotator"], people["reviewer"]
+    frame_id = _upload_synthetic(client, annotator, 1)[0]
+    url = f"/api/v1/frames/{frame_id}/validation-keypoints"
+
+    def put(token: str, x: float, base: int | None) -> Any:
+        body: dict[str, Any] = {"keypoints": [[x, 20.0]]}
+        if base is not None:
+            body["base_revision"] = base
+        return client.put(url, json=body, headers=auth(token))
+
+    first = put(annotator, 10.0, 0)
+    assert first.status_code == 200 and first.json()["revision"] == 1
+    assert put(reviewer, 11.0, 1).json()["revision"] == 2
+    stale = put(annotator, 12.0, 1)
+    assert stale.status_code == 409
+    assert stale.json()["revision"] == 2 and stale.json()["updated_by"] == "rita"
+    assert stale.json()["detail"] == (
+        "The validation keypoints were changed by rita (now at revision 2); reload them and "
+        "place yours again, or overwrite with base_revision 2."
+    )
+    assert put(annotator, 13.0, 0).status_code == 409  # "the first ones": there are some
+    assert client.get(url, headers=auth(annotator)).json() | {"updated_at": None} == {
+        "frame_id": frame_id,
+        "keypoints": [[11.0, 20.0]],
+        "revision": 2,
+        "updated_at": None,
+    }
+    assert put(annotator, 14.0, 2).json()["revision"] == 3
+    assert put(reviewer, 15.0, None).json()["revision"] == 4
 
 
 def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_user, tmp_path):

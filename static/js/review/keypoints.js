@@ -1,6 +1,6 @@
 // Keypoints: the list, removing one, and the validation mode for keypoints placed by hand.
 
-import { api } from "../api.js";
+import { ApiError, api } from "../api.js";
 import { formatDate, h, toast } from "../ui.js";
 import { setMaskVisible } from "./display.js";
 import { changed, commit, manualDirty } from "./history.js";
@@ -101,9 +101,29 @@ export function deleteKeypoint(index) {
   changed();
 }
 
+/** Save the keypoints placed by hand from the revision they were read at; when someone else
+ *  saved theirs meanwhile (409), the user chooses: overwrite theirs, or load theirs. */
 export async function saveValidation() {
+  const put = (base) => api(`/frames/${FRAME_ID}/validation-keypoints`, { method: "PUT", json: { keypoints: S.edit.manual, base_revision: base } });
   try {
-    const saved = await api(`/frames/${FRAME_ID}/validation-keypoints`, { method: "PUT", json: { keypoints: S.edit.manual } });
+    let saved;
+    try {
+      saved = await put(S.manualRevision);
+    } catch (error) {
+      if (!(error instanceof ApiError && error.status === 409)) throw error;
+      const current = error.body?.revision ?? 0;
+      if (!confirm(`${error.message}\n\nOK: overwrite theirs with yours. Cancel: load theirs.`)) {
+        const theirs = await api(`/frames/${FRAME_ID}/validation-keypoints`);
+        S.manualRevision = theirs.revision;
+        commit({ ...S.edit, manual: theirs.keypoints.map((p) => [...p]) });
+        S.manualClean = S.edit.manual;
+        $("validation-state").textContent = `${theirs.keypoints.length} keypoints placed by hand (${formatDate(theirs.updated_at)}), loaded.`;
+        changed();
+        return;
+      }
+      saved = await put(current);
+    }
+    S.manualRevision = saved.revision;
     S.manualClean = S.edit.manual;
     S.frame.split = "validation";
     renderFrameInfo();

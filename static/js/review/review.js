@@ -289,6 +289,7 @@ export async function start() {
   };
   S.labelClean = S.edit;
   S.manualClean = S.edit.manual;
+  S.manualRevision = manual?.revision ?? 0;
   if (manual) $("validation-state").textContent = `${manual.keypoints.length} keypoints placed by hand (${formatDate(manual.updated_at)}).`;
   $("no-proposal").hidden = S.proposal !== null || S.revision > 0; // reviewed: nothing to propose
   $("teacher-error").hidden = !S.frame.teacher_error;

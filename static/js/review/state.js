@@ -17,6 +17,7 @@ export const S = {
   edit: null,
   labelClean: null,
   manualClean: null,
+  manualRevision: 0, // the revision of the keypoints placed by hand as loaded or saved (0: none)
   past: [],
   future: [],
   tool: "positive",
