@@ -153,6 +153,68 @@ def test_deleting_a_run_while_its_content_is_uploaded_to_another_loses_nothing(
     assert acknowledged == rounds * count and lost == 0
 
 
+def test_uploads_into_a_run_while_it_is_deleted_are_stored_and_counted_or_a_404(
+    client: TestClient, admin: str
+) -> None:
+    """Uploads into a run race its deletion: an upload that loses is told the run is gone (a
+    404, was a 500 on the foreign key), and the deletion counts every frame it took, those
+    uploaded after it listed the run's frames included (was: only the listed ones)."""
+    for round_ in range(ROUNDS):
+        run = client.post(
+            "/api/v1/sequences", json={"name": f"doomed {round_}"}, headers=auth(admin)
+        ).json()["id"]
+        first = [("files", ("0.png", image_bytes(seed=3000 + 10 * round_), "image/png"))]
+        assert (
+            client.post(
+                "/api/v1/frames", files=first, data={"sequence_id": str(run)}, headers=auth(admin)
+            ).status_code
+            == 201
+        )
+        answers: dict[int, Any] = {}
+
+        def racer(i: int, run: int = run, round_: int = round_, answers: dict = answers) -> Any:
+            if i == 0:
+                answers[i] = client.delete(
+                    f"/api/v1/sequences/{run}", params={"force": "true"}, headers=auth(admin)
+                )
+            else:
+                content = image_bytes(seed=3000 + 10 * round_ + i)
+                answers[i] = client.post(
+                    "/api/v1/frames",
+                    files=[("files", (f"{i}.png", content, "image/png"))],
+                    data={"sequence_id": str(run)},
+                    headers=auth(admin),
+                )
+            return answers[i]
+
+        statuses = at_once(RACERS, racer)
+        assert set(statuses) <= {200, 201, 404} and 500 not in statuses, statuses
+        assert answers[0].status_code == 200
+        for answer in (answers[i] for i in range(1, RACERS)):
+            if answer.status_code == 404:
+                assert answer.json()["detail"] == f"There is no sequence {run}."
+        stored = [a.json()["stored"][0]["id"] for a in answers.values() if a.status_code == 201]
+        alive = [
+            i
+            for i in stored
+            if client.get(f"/api/v1/frames/{i}", headers=auth(admin)).status_code == 200
+        ]
+        # Every frame stored into the run before the deletion's commit went with it, counted.
+        assert answers[0].json()["deleted_frames"] == 1 + len(stored) - len(alive)
+        assert alive == []  # none is stored into a run after it is gone
+
+
+def test_one_frame_deleted_by_several_at_once_is_one_200_and_404s(
+    client: TestClient, admin: str
+) -> None:
+    files = [("files", (f"d{i}.png", image_bytes(seed=70 + i), "image/png")) for i in range(ROUNDS)]
+    stored = client.post("/api/v1/frames", files=files, headers=auth(admin)).json()["stored"]
+    for frame in stored:
+        url = f"/api/v1/frames/{frame['id']}"
+        statuses = at_once(RACERS, lambda i, url=url: client.delete(url, headers=auth(admin)))
+        assert statuses == [200] + [404] * (RACERS - 1), statuses
+
+
 def _delete_or_label(
     client: TestClient, admin: str, frame_id: int, mask: np.ndarray, i: int
 ) -> Any:

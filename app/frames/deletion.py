@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
@@ -60,6 +61,25 @@ def _still_used(session: Session, paths: set[str]) -> set[str]:
     return used
 
 
+def _chunks(ids: list[int]) -> list[list[int]]:
+    return [ids[start : start + 500] for start in range(0, len(ids), 500)]
+
+
+def _all_there(session: Session, frame_ids: list[int]) -> None:
+    """Raise NotFoundError naming the first of ``frame_ids`` that is not stored."""
+    found: set[int] = set()
+    for chunk in _chunks(frame_ids):
+        found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
+    if missing := [i for i in frame_ids if i not in found]:
+        raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
+
+
+def _delete(session: Session, where: sa.ColumnElement[bool]) -> int:
+    """Delete the frames ``where`` holds; how many there were."""
+    result: sa.CursorResult[Any] = session.execute(sa.delete(Frame).where(where))  # type: ignore[assignment]
+    return result.rowcount
+
+
 def delete_frames(
     session: Session,
     storage: Storage,
@@ -78,12 +98,7 @@ def delete_frames(
     the collector sweeps later.
     """
     frame_ids = sorted(set(frame_ids))
-    found: set[int] = set()
-    for start in range(0, len(frame_ids), 500):
-        chunk = frame_ids[start : start + 500]
-        found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
-    if missing := [i for i in frame_ids if i not in found]:
-        raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
+    _all_there(session, frame_ids)
     reviewed = 0
     for start in range(0, len(frame_ids), 500):
         chunk = frame_ids[start : start + 500]
@@ -116,19 +131,26 @@ def delete_frames(
         else []
     )
     paths = _files_of(session, frame_ids, video_ids)
-    for start in range(0, len(frame_ids), 500):
-        session.execute(sa.delete(Frame).where(Frame.id.in_(frame_ids[start : start + 500])))
+    deleted = sum(_delete(session, Frame.id.in_(chunk)) for chunk in _chunks(frame_ids))
+    if deleted < len(frame_ids):  # another deletion took some since they were read
+        session.rollback()
+        _all_there(session, frame_ids)
+        raise ConflictError("The frames changed while they were deleted; nothing was deleted.")
     if sequence is not None:
+        # Frames uploaded into the run since its frames were read go with it (and are counted).
+        deleted += _delete(session, Frame.sequence_id == sequence.id)
         session.execute(sa.delete(Video).where(Video.sequence_id == sequence.id))
         session.execute(sa.delete(Sequence).where(Sequence.id == sequence.id))
     session.commit()
     removed = storage.collect(paths, _still_used(session, paths))
-    return Deletion(frames=len(frame_ids), reviewed=reviewed, files=len(removed))
+    return Deletion(frames=deleted, reviewed=reviewed, files=len(removed))
 
 
 def delete_sequence(
     session: Session, storage: Storage, sequence: Sequence, *, force: bool
 ) -> Deletion:
-    """A weld run with its frames and videos (see ``delete_frames`` for the guard)."""
+    """A weld run with its frames and videos (see ``delete_frames`` for the guard). The run's
+    row is locked first (PostgreSQL): an upload into it then waits, and finds it gone."""
+    session.execute(sa.select(Sequence.id).where(Sequence.id == sequence.id).with_for_update())
     frame_ids = list(session.scalars(sa.select(Frame.id).where(Frame.sequence_id == sequence.id)))
     return delete_frames(session, storage, frame_ids, force=force, sequence=sequence)

@@ -284,6 +284,8 @@ def _record_staged(
         except sa.exc.IntegrityError:
             session.rollback()
             storage.discard(written, _paths_in_use(session, [w.path for w in written]))
+            if sequence_id is not None:
+                get_sequence(session, sequence_id)  # deleted meanwhile: its 404
             if attempt == 2:
                 raise
             continue  # another upload stored some of this content meanwhile: look again
