@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import logging
+import threading
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -70,9 +71,22 @@ def _examples(size: int, batch: int, seed: int = 0) -> torch.Tensor:
     return torch.rand(batch, 3, size, size, generator=generator)
 
 
+EXPORTING = threading.RLock()
+"""Held while PyTorch exports or traces a model: its exporters keep global state (a mode stack,
+the tracing context) and fail when two threads of one process export at once (two live views
+of a student not yet exported, or a view beside the int8 job)."""
+
+
 @contextlib.contextmanager
 def quiet_exporter() -> Iterator[None]:
-    """Keep the ONNX exporter's progress notes (info logs, torch's pytree notices) off stderr."""
+    """One export at a time in this process (``EXPORTING``), its progress notes (info logs,
+    torch's pytree notices) kept off stderr."""
+    with EXPORTING, _quiet():
+        yield
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
     loggers = [logging.getLogger(name) for name in _EXPORTER_LOGGERS]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
@@ -110,18 +124,20 @@ def export_torchscript(model: ResNetVAE, path: Path) -> None:
     """Write ``model`` as traced TorchScript (see the module doc on its deprecation)."""
     module = export_module(model)
     example = _examples(model.config.input_size, 1)
-    with warnings.catch_warnings():
+    with EXPORTING, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the deprecation, and transformers' shape checks
         traced = torch.jit.trace(module, (example,))  # type: ignore[no-untyped-call]
     checkpoint.write_atomic(path, lambda p: traced.save(str(p)))
 
 
 def ensure_onnx(model_dir: str | Path) -> bool:
-    """Export MODEL_DIR's ONNX file when it is missing (checked against PyTorch); True if it did."""
-    if (Path(model_dir) / ONNX_FILE).is_file():
-        return False
-    export_student(model_dir, ["onnx"])
-    return True
+    """Export MODEL_DIR's ONNX file when it is missing (checked against PyTorch); True if it did
+    (of two threads asking at once, one exports and the other finds the file)."""
+    with EXPORTING:
+        if (Path(model_dir) / ONNX_FILE).is_file():
+            return False
+        export_student(model_dir, ["onnx"])
+        return True
 
 
 def onnx_session(path: Path, threads: int | None = None, spin: bool = True) -> Any:

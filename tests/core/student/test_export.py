@@ -53,3 +53,35 @@ def test_onnx_and_torchscript_match_pytorch(student: str, request: pytest.Fixtur
 def test_unknown_formats_are_refused(trained: TrainResult) -> None:
     with pytest.raises(InvalidInputError, match="Unknown export format"):
         export_student(trained.model_dir, ["tflite"])
+
+
+def test_two_threads_asking_for_a_missing_onnx_file_get_one_export(
+    trained: TrainResult, tmp_path
+) -> None:
+    """Two live views start at once on a student never exported: one thread exports, the other
+    waits and finds the file (PyTorch's exporter failed when two threads ran it at once)."""
+    import shutil
+    import threading
+
+    from weldpool_core.student.export import ensure_onnx
+
+    folder = tmp_path / "fresh"
+    shutil.copytree(
+        trained.model_dir, folder, ignore=shutil.ignore_patterns("*.onnx", "export.json")
+    )
+    barrier, answers, errors = threading.Barrier(2), [], []
+
+    def ask() -> None:
+        barrier.wait()
+        try:
+            answers.append(ensure_onnx(folder))
+        except Exception as exc:  # any failure fails the test below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=ask) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(300)
+    assert errors == [] and sorted(answers) == [False, True]
+    assert run_onnx(folder / "model.onnx", np.zeros((1, 3, 64, 64), np.float32))[0].shape[0] == 1
