@@ -141,11 +141,13 @@ def test_labelme_files_with_their_images_beside_or_inside(client, make_user) -> 
         "c.json": json.dumps(line).encode(),
         "c.png": image_bytes(W, H, seed=43),
         "d.json": b"{not json",
+        "e.json": b"[" * 100_000 + b"]" * 100_000,  # too deep to parse (the job failed)
     }
     result = start_import(client, token, zipped(files), "labelme")["result"]
     assert _reasons(result) == {
         "c.json: shape 1": "A line shape has no pool area to import.",
         "d.json": "The file is not valid JSON.",
+        "e.json": "The file is not valid JSON.",
     }
     assert result["labels"] == 2 and result["keypoints"] == 1 and result["frames"] == 2
     labels = _by_name(client, token)

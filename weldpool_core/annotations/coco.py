@@ -9,7 +9,6 @@ validation keypoints.
 
 from __future__ import annotations
 
-import json
 import posixpath
 from typing import Any
 
@@ -50,10 +49,7 @@ def read_coco(source: Source, category: str | None = None) -> Parsed:
         raise InvalidInputError("No COCO annotation file (a JSON file) was found.")
     for name in files:
         try:
-            document = json.loads(source.read(name))
-        except (ValueError, UnicodeDecodeError):
-            parsed.refuse(name, "The file is not valid JSON.")
-            continue
+            document = source.read_json(name)
         except InvalidInputError as exc:
             parsed.refuse(name, exc.message)
             continue

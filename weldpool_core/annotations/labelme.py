@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import base64
 import binascii
-import json
 import math
 import posixpath
 from typing import TYPE_CHECKING, Any
@@ -44,9 +43,9 @@ def read_labelme(source: Source, category: str | None = None) -> Parsed:
     documents = []
     for name in labelme_files(source):
         try:
-            document = json.loads(source.read(name))
-        except (ValueError, UnicodeDecodeError):
-            parsed.refuse(name, "The file is not valid JSON.")
+            document = source.read_json(name)
+        except InvalidInputError as exc:
+            parsed.refuse(name, exc.message)
             continue
         if not isinstance(document, dict) or not isinstance(document.get("shapes"), list):
             parsed.refuse(name, "The file is not LabelMe JSON: it needs a `shapes` list.")

@@ -6,7 +6,6 @@ image is not in the source is matched to a stored frame by its stem."""
 
 from __future__ import annotations
 
-import json
 import posixpath
 from typing import Any
 
@@ -26,9 +25,9 @@ def _manifest(source: Source, parsed: Parsed) -> dict[str, dict[str, Any]]:
     if "manifest.json" not in source:
         return {}
     try:
-        frames = json.loads(source.read("manifest.json")).get("frames", [])
+        frames = source.read_json("manifest.json").get("frames", [])
         return {str(f["stem"]): f for f in frames if isinstance(f, dict) and "stem" in f}
-    except (*DAMAGED, UnicodeDecodeError):
+    except (*DAMAGED, InvalidInputError):
         parsed.refuse(
             "manifest.json", "The manifest is not valid JSON; names and runs are not read."
         )
@@ -39,9 +38,12 @@ def _points(source: Source, path: str) -> list[list[float]] | None:
     if path not in source:
         return None
     try:
-        points = json.loads(source.read(path)).get("keypoints")
-    except (ValueError, AttributeError, UnicodeDecodeError):
-        raise InvalidInputError(f"{path} is not valid JSON.") from None
+        document = source.read_json(path)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{path}: {exc.message}") from None
+    if not isinstance(document, dict):
+        raise InvalidInputError(f"{path} is not a keypoints file: it needs a `keypoints` list.")
+    points = document.get("keypoints")
     if not points:
         return None
     if not all(isinstance(p, list) and len(p) == 2 for p in points):

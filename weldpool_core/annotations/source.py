@@ -9,6 +9,7 @@ declared size, so a zip bomb costs what its headers admit to and no more.
 
 from __future__ import annotations
 
+import json
 import posixpath
 import re
 import zipfile
@@ -16,6 +17,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
+from typing import Any
 
 from weldpool_core.errors import InvalidInputError
 
@@ -94,6 +96,18 @@ class Source:
 
     def read(self, name: str) -> bytes:
         return self._files[name]()
+
+    def read_json(self, name: str) -> Any:
+        """The JSON document in ``name``.
+
+        Raises:
+            InvalidInputError: the file cannot be read, or is not valid JSON (including JSON
+                nested deeper than the parser's recursion allows).
+        """
+        try:
+            return json.loads(self.read(name))
+        except (ValueError, UnicodeDecodeError, RecursionError):
+            raise InvalidInputError("The file is not valid JSON.") from None
 
     def find(self, name: str, beside: str = "") -> str | None:
         """The file an annotation names: ``name`` relative to the annotation file's folder
