@@ -49,6 +49,21 @@ def test_the_largest_id_is_a_plain_404(client: TestClient, admin: str) -> None:
         assert response.status_code == 404, (path, response.text)
 
 
+def test_an_unknown_run_named_in_a_body_or_query_is_its_404(client: TestClient, admin: str) -> None:
+    """Was a 400 that blamed the run's content ("has no frames", "no labels to export") or a
+    200 that assigned nothing."""
+    headers, run = auth(admin), MAX_ID
+    for method, url, body in (
+        ("POST", "/api/v1/teacher/runs", {"sequence_id": run}),
+        ("POST", "/api/v1/exports", {"sequence_id": run}),
+        ("GET", f"/api/v1/export?sequence_id={run}", None),
+        ("POST", "/api/v1/frames/assign", {"next": 2, "sequence_id": run, "assignee_id": None}),
+    ):
+        answer = client.request(method, url, json=body, headers=headers)
+        assert answer.status_code == 404, (url, answer.text)
+        assert answer.json()["detail"] == f"There is no sequence {run}.", url
+
+
 def test_null_nul_nan_and_oversized_bodies_are_422(client: TestClient, admin: str) -> None:
     created = client.post("/api/v1/sequences", json={"name": "run 1"}, headers=auth(admin))
     assert created.status_code == 201

@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session
 from app.db import utcnow
 from app.errors import InvalidInputError, NotFoundError
 from app.frames.listing import list_query
+from app.frames.sequences import get_sequence
 from app.models import Frame, User
 
 MAX_NEXT = 1000
@@ -43,9 +44,13 @@ def assign_frames(
     """Hand ``frame_ids`` (all must exist), or the next ``next_count`` unassigned frames of
     the queue (of ``sequence_id`` when given), to ``assignee_id`` (None: take them back).
     Returns the frames handed, in the order given or the queue's."""
-    if (frame_ids is None) == (next_count is None):
+    if frame_ids is not None and next_count is not None:
         raise InvalidInputError("Give either frame_ids or next, not both.")
+    if frame_ids is None and next_count is None:
+        raise InvalidInputError("Give frame_ids or next: which frames to hand.")
     person = assignee(session, assignee_id)
+    if sequence_id is not None:
+        get_sequence(session, sequence_id)
     if frame_ids is not None:
         ids = list(dict.fromkeys(frame_ids))
         found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(ids))))

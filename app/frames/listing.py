@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session, undefer
 
 from app.bounds import MAX_ID
 from app.errors import InvalidInputError, NotFoundError
+from app.frames.sequences import get_sequence
 from app.models import (
     UNREVIEWED_SQL,
     Frame,
@@ -347,6 +348,7 @@ def frames_for_run(
             raise NotFoundError(f"There is no frame {missing[0]}.")
         return list(dict.fromkeys(frame_ids))
     if sequence_id is not None:
+        get_sequence(session, sequence_id)
         ids = list(
             session.scalars(
                 sa.select(Frame.id).where(Frame.sequence_id == sequence_id).order_by(Frame.id)

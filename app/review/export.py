@@ -39,6 +39,7 @@ from sqlalchemy.orm import Session
 from app.budgets import shared_pool
 from app.errors import InvalidInputError
 from app.frames.schemas import stored_scale
+from app.frames.sequences import get_sequence
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
@@ -131,7 +132,9 @@ def _query(
 
 
 def export_size(session: Session, sequence_id: int | None, split: Split | None) -> int:
-    """How many labels an export of this sequence and split holds."""
+    """How many labels an export of this sequence and split holds (404 for no such run)."""
+    if sequence_id is not None:
+        get_sequence(session, sequence_id)
     subquery = _query(sequence_id, split).subquery()
     return session.scalar(sa.select(sa.func.count()).select_from(subquery)) or 0
 
@@ -149,7 +152,10 @@ def export_rows(
     session: Session, sequence_id: int | None = None, split: Split | None = None
 ) -> list[Any]:
     """The rows of an export (frame, label, sequence, validation keypoints), loaded now so that
-    writing the zip needs no database session; 400 when there is no label to export."""
+    writing the zip needs no database session; 400 when there is no label to export, 404 for
+    no such run."""
+    if sequence_id is not None:
+        get_sequence(session, sequence_id)
     rows = _rows(session, sequence_id, split)
     if not rows:
         raise InvalidInputError("There are no accepted or corrected labels to export.")

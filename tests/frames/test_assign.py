@@ -95,7 +95,8 @@ def test_only_reviewers_hand_out_and_refusals_change_nothing(
         ({"frame_ids": [frame["id"]], "assignee_id": 999999}, 404, "no user 999999"),
         ({"frame_ids": [frame["id"]], "assignee_id": gone.id}, 400, "gone is deactivated"),
         ({"frame_ids": [frame["id"]], "next": 2, "assignee_id": ann.id}, 400, "not both"),
-        ({"assignee_id": ann.id}, 400, "either frame_ids or next"),
+        ({"assignee_id": ann.id}, 400, "Give frame_ids or next: which frames to hand."),
+        ({"next": 2, "sequence_id": 999999, "assignee_id": ann.id}, 404, "no sequence 999999"),
     ]
     for payload, code, words in cases:
         refused = client.post("/api/v1/frames/assign", json=payload, headers=auth(reviewer))
