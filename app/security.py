@@ -279,11 +279,21 @@ def optional_user(
     if request.method not in SAFE_METHODS and not constant_time_equal(
         sent_csrf, web_session.csrf_token
     ):
-        raise PermissionDeniedError(
-            f"The {CSRF_HEADER} header is missing or wrong; reload the page and try again."
-        )
+        raise StaleCsrfToken()
     request.state.web_session = web_session
     return web_session.user
+
+
+class StaleCsrfToken(PermissionDeniedError):
+    """A browser request whose CSRF token is not its session's (the page was loaded under an
+    earlier login): the body says ``"reason": "csrf"``, so the page can fetch the session's
+    token (``GET /users/me/csrf``) and send the request again."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            f"The {CSRF_HEADER} header is missing or wrong; reload the page and try again."
+        )
+        self.extra = {"reason": "csrf"}
 
 
 def current_user(user: Annotated[User | None, Depends(optional_user)]) -> User:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request, status
+from fastapi import APIRouter, Depends, Request, Response, status
 
 from app.bounds import IdPath
 from app.db import utcnow
@@ -20,6 +20,7 @@ from app.security import (
 )
 from app.users import service
 from app.users.schemas import (
+    CsrfOut,
     PasswordChange,
     PasswordChanged,
     TokenCreated,
@@ -38,6 +39,15 @@ router = APIRouter(tags=["users"])
 def me(user: CurrentUser) -> UserOut:
     """The caller."""
     return UserOut.model_validate(user)
+
+
+@router.get("/users/me/csrf", response_model=CsrfOut)
+def my_csrf_token(request: Request, response: Response, _user: CurrentUser) -> CsrfOut:
+    """The CSRF token of the caller's browser session (null for an API token): a page loaded
+    under an earlier login sends its changes with it. Readable by this origin's pages only."""
+    response.headers["Cache-Control"] = "no-store"
+    web_session = getattr(request.state, "web_session", None)
+    return CsrfOut(csrf_token=web_session.csrf_token if web_session is not None else None)
 
 
 @router.post("/users/me/password", response_model=PasswordChanged)

@@ -12,6 +12,12 @@ from app.models import Role
 USERNAME_PATTERN = r"^[A-Za-z0-9_.@-]{1,64}$"
 
 
+class CsrfOut(BaseModel):
+    csrf_token: str | None = Field(
+        description="The browser session's CSRF token (null when called with an API token)."
+    )
+
+
 class UserOut(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 

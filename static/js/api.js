@@ -1,7 +1,9 @@
 // The REST API as the pages use it: same-origin fetches with the session cookie, the CSRF
 // header on state-changing calls, and errors as ApiError carrying the server's one sentence.
 
-const CSRF = document.querySelector('meta[name="csrf-token"]')?.content ?? "";
+// The session's CSRF token: the page's, until a request finds it stale (a new login in another
+// tab), when the session's own is fetched and the request sent once more.
+let CSRF = document.querySelector('meta[name="csrf-token"]')?.content ?? "";
 export const ROLE = document.querySelector('meta[name="user-role"]')?.content ?? "annotator";
 /** Why the teacher cannot run here (missing weights), or "" when it can (set by the server). */
 export const TEACHER_PROBLEM = document.querySelector('meta[name="teacher-problem"]')?.content ?? "";
@@ -22,26 +24,45 @@ export class ApiError extends Error {
   }
 }
 
+/** The login form in a new tab: this page keeps what is not saved yet. */
+export const LOGIN_AGAIN = "Your session has ended: log in again in another tab (this page keeps what you have not saved), then try again.";
+
 function describe(status, body) {
+  if (status === 401) return LOGIN_AGAIN; // the API's sentence speaks to API clients
   if (body && typeof body.detail === "string") return body.detail;
-  if (status === 401) return "Your session has ended; log in again.";
   return `The server answered ${status}.`;
+}
+
+const staleCsrf = (status, body) => status === 403 && body?.reason === "csrf";
+
+/** The session's CSRF token now (after a login in another tab); false when there is none. */
+async function refreshCsrf() {
+  try {
+    const response = await fetch("/api/v1/users/me/csrf", { headers: { Accept: "application/json" }, credentials: "same-origin" });
+    const token = response.ok ? (await response.json()).csrf_token : null;
+    if (!token) return false;
+    CSRF = token;
+    return true;
+  } catch {
+    return false;
+  }
 }
 
 /**
  * Call `/api/v1${path}`; `json` is sent as the body. Returns the parsed JSON (or the
  * Response itself with `raw: true`); throws ApiError for any non-2xx answer.
  */
-export async function api(path, { method = "GET", json, body, raw = false, signal } = {}) {
+export async function api(path, { method = "GET", json, body, raw = false, signal } = {}, retried = false) {
   const headers = { Accept: "application/json" };
   if (method !== "GET" && method !== "HEAD") headers["X-CSRF-Token"] = CSRF;
+  let sent = body;
   if (json !== undefined) {
     headers["Content-Type"] = "application/json";
-    body = JSON.stringify(json);
+    sent = JSON.stringify(json);
   }
   let response;
   try {
-    response = await fetch(`/api/v1${path}`, { method, headers, body, signal, credentials: "same-origin" });
+    response = await fetch(`/api/v1${path}`, { method, headers, body: sent, signal, credentials: "same-origin" });
   } catch (error) {
     if (error.name === "AbortError") throw error;
     throw new ApiError(0, "The server cannot be reached; check that weldpool is running.", null);
@@ -50,6 +71,9 @@ export async function api(path, { method = "GET", json, body, raw = false, signa
   const text = await response.text();
   let parsed = null;
   try { parsed = text ? JSON.parse(text) : null; } catch { parsed = null; }
+  if (!retried && staleCsrf(response.status, parsed) && (await refreshCsrf())) {
+    return api(path, { method, json, body, raw, signal }, true);
+  }
   if (!response.ok) throw new ApiError(response.status, describe(response.status, parsed), parsed);
   return parsed;
 }
@@ -59,7 +83,13 @@ export async function api(path, { method = "GET", json, body, raw = false, signa
  * `onProgress(fraction)` is called while the body is sent. Resolves with
  * `{status, body}` for any HTTP answer (the caller reads refusals from the body).
  */
-export function upload(path, formData, onProgress) {
+export async function upload(path, formData, onProgress) {
+  let answer = await send(path, formData, onProgress);
+  if (staleCsrf(answer.status, answer.body) && (await refreshCsrf())) answer = await send(path, formData, onProgress);
+  return answer.status === 401 ? { status: 401, body: { detail: LOGIN_AGAIN } } : answer;
+}
+
+function send(path, formData, onProgress) {
   return new Promise((resolve, reject) => {
     const xhr = new XMLHttpRequest();
     xhr.open("POST", `/api/v1${path}`);

@@ -130,3 +130,28 @@ def test_the_schema_offers_a_bearer_token_to_every_operation_but_health(
     assert schema["security"] == [{"bearer": []}]
     assert schema["paths"]["/api/v1/health"]["get"]["security"] == []
     assert "security" not in schema["paths"]["/api/v1/frames"]["get"]  # the global one holds
+
+
+def test_a_page_from_an_earlier_login_learns_the_sessions_csrf_token(
+    client: TestClient, make_user
+) -> None:
+    """A page holds the CSRF token of the login it was loaded under; after a new login its
+    changes are refused with ``reason: csrf``, and ``GET /users/me/csrf`` gives the session's
+    token, with which they pass (an API token has none; no session: 401)."""
+    _, token = make_user("ines", password="old-password")
+    assert _login(client, "ines", "old-password").status_code == 303
+    stale = _csrf(client)
+    client.post("/logout", data={"csrf_token": stale})
+    assert client.get("/api/v1/users/me/csrf").status_code == 401
+    assert _login(client, "ines", "old-password").status_code == 303
+    body = {"name": "a run"}
+    refused = client.post("/api/v1/sequences", json=body, headers={"X-CSRF-Token": stale})
+    assert refused.status_code == 403 and refused.json()["reason"] == "csrf"
+    fresh = client.get("/api/v1/users/me/csrf")
+    assert fresh.headers["cache-control"] == "no-store"
+    assert fresh.json()["csrf_token"] == _csrf(client) != stale
+    headers = {"X-CSRF-Token": fresh.json()["csrf_token"]}
+    assert client.post("/api/v1/sequences", json=body, headers=headers).status_code == 201
+    assert TestClient(client.app).get("/api/v1/users/me/csrf", headers=auth(token)).json() == {
+        "csrf_token": None
+    }

@@ -476,6 +476,78 @@ def test_box_negative_click_and_keypoint_removal(page: Any, server: LiveServer) 
         assert len(canvas_data(page, "keypoints")) == count - 1
 
 
+def test_a_session_ended_mid_edit_saves_after_a_login_in_another_tab(
+    page: Any, server: LiveServer
+) -> None:
+    """Logged out in another tab while a stroke is unsaved: the save says to log in again in
+    another tab (not the API's sentence for scripts); after that login the same page saves,
+    fetching the new session's CSRF token (it was refused as a wrong CSRF header)."""
+    frame_id = add_frame(server, 402)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.uncheck("#advance")
+    page.click("[data-testid=tool-brush]")
+    stroke(page, (100, 100), (300, 120))
+    other = page.context.new_page()
+    other.goto(f"{server.url}/")
+    other.click("[data-testid=logout]")
+    other.wait_for_url(f"{server.url}/login*")
+    page.click("[data-testid=save]")
+    page.wait_for_selector("[data-testid=toast-error]:has-text('log in again in another tab')")
+    assert not page.is_hidden("[data-testid=dirty]")  # the stroke is still there, unsaved
+    login(other, server, "rita")
+    page.click("[data-testid=save]")
+    page.wait_for_selector("[data-testid=toast-ok]")
+    label = server.api("GET", f"/frames/{frame_id}/label").json()
+    assert (label["status"], label["revision"]) == ("corrected", 1)
+
+
+def test_validation_keypoints_saved_meanwhile_are_overwritten_or_loaded_by_choice(
+    page: Any, server: LiveServer
+) -> None:
+    """Someone saves a frame's validation keypoints while the page places its own: the save
+    asks (was: theirs silently replaced); OK overwrites theirs, Cancel loads theirs."""
+    frame_id = add_frame(server, 403, teacher=False)
+    url = f"/frames/{frame_id}/validation-keypoints"
+    theirs = [[100.0, 100.0], [200.0, 100.0], [200.0, 200.0], [100.0, 200.0]]
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.click("[data-testid=validation-mode]")
+    mine = [(500, 300), (700, 320), (720, 500), (480, 520)]
+    for px, py in mine:
+        page.mouse.click(*to_page(page, px, py))
+    first = server.api("PUT", url, "ada", json={"keypoints": theirs, "base_revision": 0})
+    assert first.json()["revision"] == 1
+    answers: list[str] = []
+
+    def answer(dialog: Any) -> None:
+        answers.append(dialog.message)
+        dialog.accept() if len(answers) == 1 else dialog.dismiss()
+
+    page.on("dialog", answer)
+    page.click("[data-testid=save-validation]")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('Validation keypoints saved')")
+    assert "changed by ada (now at revision 1)" in answers[0]
+    stored = server.api("GET", url).json()
+    assert stored["revision"] == 2
+    assert [c for p in stored["keypoints"] for c in p] == pytest.approx(
+        [c for p in mine for c in p], abs=1.5
+    )
+    # Again: theirs saved over mine, mine moved; Cancel loads theirs and saves nothing.
+    server.api("PUT", url, "ada", json={"keypoints": theirs, "base_revision": 2})
+    page.click("#clear-validation")
+    for px, py in mine:
+        page.mouse.click(*to_page(page, px + 10, py))
+    page.click("[data-testid=save-validation]")
+    wait_until(page, lambda: len(answers) == 2)
+    page.wait_for_selector("#validation-state:has-text('loaded')")
+    assert server.api("GET", url).json()["revision"] == 3
+    assert page.inner_text("[data-testid=manual-count]") == "4 of 4 placed"
+    assert page.is_disabled("[data-testid=save-validation]")  # theirs, as stored: nothing to save
+
+
 def test_missing_frame_says_so(page: Any, server: LiveServer) -> None:
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/999999")
