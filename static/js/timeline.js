@@ -78,6 +78,7 @@ function renderCharts() {
 }
 
 function renderHead() {
+  if (!timeline) return;
   $("run-name").textContent = timeline.name;
   document.title = `${timeline.name} · weldpool`;
   const p = timeline.process;
@@ -103,9 +104,13 @@ async function load() {
     timeline = await api(`/sequences/${SEQUENCE_ID}/geometry`);
   } catch (error) {
     $("charts").replaceChildren(h("p", { class: "error" }, error instanceof ApiError ? error.message : String(error)));
+    // Nothing to act on: no run (or no answer), so its buttons and its CSV are not offered.
+    for (const id of ["embed-run", "propagate-run"]) Object.assign($(id), { disabled: true, title: "" });
+    $("geometry-csv").hidden = true;
     document.body.dataset.ready = "1";
     return;
   }
+  $("geometry-csv").hidden = false;
   renderHead();
   renderStrip();
   renderCharts();

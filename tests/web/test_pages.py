@@ -548,6 +548,41 @@ def test_validation_keypoints_saved_meanwhile_are_overwritten_or_loaded_by_choic
     assert page.is_disabled("[data-testid=save-validation]")  # theirs, as stored: nothing to save
 
 
+def test_the_timeline_of_a_missing_run_offers_nothing_to_run(page: Any, server: LiveServer) -> None:
+    """Its buttons threw on a null timeline and its CSV link fetched a 404."""
+    login(page, server, "rita")
+    page.goto(f"{server.url}/sequences/999999")
+    page.wait_for_selector("body[data-ready]")
+    assert "There is no sequence 999999." in page.inner_text("[data-testid=geometry-charts]")
+    assert page.is_disabled("#embed-run") and page.is_disabled("#propagate-run")
+    assert page.is_hidden("[data-testid=geometry-csv]")
+
+
+def test_a_reject_clears_the_mask_and_h_without_a_proposal_says_why(
+    page: Any, server: LiveServer
+) -> None:
+    """A rejected frame shows no pool at once (it showed the rejected mask until a reload), and
+    H on a frame without a proposal leaves the greyed-out heatmap box alone."""
+    frame_id = add_frame(server, 404)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.uncheck("#advance")
+    assert canvas_data(page, "mask-area") > 0 and len(canvas_data(page, "keypoints")) == 4
+    page.keyboard.press("r")
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('rejected')")
+    assert canvas_data(page, "mask-area") == 0 and canvas_data(page, "keypoints") == []
+    assert page.is_hidden("[data-testid=dirty]")
+
+    bare = add_frame(server, 405, teacher=False)
+    page.goto(f"{server.url}/frames/{bare}")
+    open_review(page)
+    assert page.is_disabled("#show-heatmap")
+    page.keyboard.press("h")
+    page.wait_for_selector("[data-testid=toast-info]:has-text('no heatmap')")
+    assert not page.is_checked("#show-heatmap")
+
+
 def test_missing_frame_says_so(page: Any, server: LiveServer) -> None:
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/999999")

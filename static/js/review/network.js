@@ -137,8 +137,10 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   renderReview();
   S.loadedLabel = label.status === "rejected" ? null : { mask: S.edit.mask, revision: label.revision };
   S.frame.status = label.status;
-  const keypoints = label.keypoints ?? S.edit.keypoints;
-  S.edit = { ...S.edit, keypoints, maskEdited: false, kpEdited: false, session: null };
+  const rejected = label.status === "rejected"; // "no pool here": nothing stays drawn over it
+  const keypoints = rejected ? [] : label.keypoints ?? S.edit.keypoints;
+  const mask = rejected ? new Mask(S.frame.width, S.frame.height) : S.edit.mask;
+  S.edit = { ...S.edit, mask, keypoints, outline: rejected ? null : S.edit.outline, maskEdited: false, kpEdited: false, session: null };
   S.labelClean = S.edit;
   changed();
   renderFrameInfo();

@@ -10,7 +10,7 @@
 
 import { ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
 import { score } from "../format.js";
-import { badge, formatDate, h } from "../ui.js";
+import { badge, formatDate, h, toast } from "../ui.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
@@ -140,7 +140,7 @@ export function onKey(event) {
     s: () => saveLabel("correct"),
     n: () => goNext(),
     m: () => setMaskVisible(!S.stage.showMask),
-    h: () => setHeatmapVisible(!S.stage.showHeatmap),
+    h: () => ($("show-heatmap").disabled ? toast("No proposal here: it has no heatmap to show.", "info") : setHeatmapVisible(!S.stage.showHeatmap)),
     f: () => S.stage.fit(),
     v: () => toggleValidation(),
     l: () => !$("measure-scale").disabled && S.ruler.toggle(),
