@@ -14,6 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.orm.exc import ObjectDeletedError, StaleDataError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.config import Settings, get_settings
 from app.db import create_db_engine, create_session_factory
@@ -37,7 +38,12 @@ from app.live.service import LiveViews
 from app.openapi import openapi_schema
 from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
-from app.security import LoginThrottle, current_user
+from app.security import (
+    SESSION_COOKIE,
+    LoginThrottle,
+    current_user,
+    web_session_for_cookie,
+)
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.timeline.routes import router as timeline_router
@@ -58,22 +64,49 @@ def _validation_sentence(exc: RequestValidationError) -> str:
     return f"{where or 'The request'}: {message}."
 
 
+_PAGE_TITLES = {404: "Not found", 422: "Not a valid address"}
+
+
+def _browser_page(request: Request) -> bool:
+    """Whether a person's browser asked for a page (not the API, not a script)."""
+    return (
+        request.method == "GET"
+        and "text/html" in request.headers.get("accept", "")
+        and not request.url.path.startswith("/api/")
+    )
+
+
+def _error_page(request: Request, status: int, message: str) -> Response:
+    """The error as a page with a way back (a browser was shown the API's JSON)."""
+    title = _PAGE_TITLES.get(status, "Not possible" if status < 500 else "Not available")
+    cookie = request.cookies.get(SESSION_COOKIE)
+    if getattr(request.state, "web_session", None) is not None or not cookie:
+        return render(request, "error.html", status, title=title, message=message)
+    with request.app.state.session_factory() as session:  # no route ran: who is this?
+        request.state.web_session = web_session_for_cookie(session, cookie)
+        return render(request, "error.html", status, title=title, message=message)
+
+
 def _install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> Response:
+        if _browser_page(request) and exc.status_code == 404:
+            return _error_page(request, 404, f"There is no page at {request.url.path}.")
+        return JSONResponse(
+            {"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers
+        )
+
     @app.exception_handler(WeldpoolError)
     async def weldpool_error(request: Request, exc: WeldpoolError) -> Response:
         status = http_status_of(exc)
-        wants_html = "text/html" in request.headers.get("accept", "")
-        if (
-            isinstance(exc, AuthenticationError)
-            and wants_html
-            and request.method == "GET"
-            and not request.url.path.startswith("/api/")
-        ):
+        if isinstance(exc, AuthenticationError) and _browser_page(request):
             return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
         if isinstance(exc, TooManyAttemptsError):
             headers = {"Retry-After": str(math.ceil(exc.retry_after))}
         detail = without_server_paths(exc.message, request.app.state.settings.home)
+        if _browser_page(request):
+            return _error_page(request, status, detail)
         body = {"detail": detail} | getattr(exc, "extra", {})
         return JSONResponse(body, status_code=status, headers=headers)
 
@@ -103,7 +136,11 @@ def _install_error_handlers(app: FastAPI) -> None:
             )
 
     @app.exception_handler(RequestValidationError)
-    async def validation_error(_request: Request, exc: RequestValidationError) -> Response:
+    async def validation_error(request: Request, exc: RequestValidationError) -> Response:
+        if _browser_page(request):
+            return _error_page(
+                request, 422, f"This address is not valid ({_validation_sentence(exc)})"
+            )
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]
         return JSONResponse(
             {"detail": _validation_sentence(exc), "errors": errors}, status_code=422

@@ -583,6 +583,23 @@ def test_a_reject_clears_the_mask_and_h_without_a_proposal_says_why(
     assert not page.is_checked("#show-heatmap")
 
 
+def test_a_wrong_address_is_a_page_with_a_way_back(page: Any, server: LiveServer) -> None:
+    """A browser got the API's JSON for an unknown page or a malformed id; the API still does."""
+    login(page, server, "rita")
+    for path, status, words in (
+        ("/nonexistent-page", 404, "There is no page at /nonexistent-page."),
+        ("/frames/abc", 422, "This address is not valid (frame_id: Input should be a valid"),
+    ):
+        answer = page.goto(f"{server.url}{path}")
+        assert answer.status == status
+        assert words in page.inner_text("[data-testid=error-page]")
+        assert page.is_visible("[data-testid=current-user]")  # the header, logged in
+    shoot(page, "error-page")
+    page.click("text=Back to the frames")
+    page.wait_for_url(f"{server.url}/")
+    assert server.api("GET", "/frames/abc").json()["detail"].startswith("frame_id: ")
+
+
 def test_missing_frame_says_so(page: Any, server: LiveServer) -> None:
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/999999")
