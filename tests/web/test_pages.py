@@ -583,6 +583,31 @@ def test_a_reject_clears_the_mask_and_h_without_a_proposal_says_why(
     assert not page.is_checked("#show-heatmap")
 
 
+def test_accept_or_save_of_an_untouched_label_writes_nothing(page: Any, server: LiveServer) -> None:
+    """A stored label without a proposal, left as it is: A and S say nothing changed (A saved
+    it again as "corrected", a new revision in the presser's name)."""
+    frame_id = add_frame(server, 406, teacher=False)
+    mask = np.zeros((800, 1280), bool)
+    mask[300:500, 400:800] = True
+    stored = server.api("PUT", f"/frames/{frame_id}/label", "ada", json=corrected_label(mask))
+    assert stored.json()["revision"] == 1
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame_id}")
+    open_review(page)
+    page.uncheck("#advance")
+    for key in ("a", "s"):
+        page.keyboard.press(key)
+        page.wait_for_selector(
+            "[data-testid=toast-info]:has-text('Nothing changed: the label stays corrected')"
+        )
+    label = server.api("GET", f"/frames/{frame_id}/label").json()
+    assert (label["revision"], label["updated_by"]) == (1, "ada")
+    page.click("[data-testid=tool-brush]")
+    stroke(page, (100, 100), (300, 120))
+    page.keyboard.press("s")  # a change is saved
+    page.wait_for_selector("[data-testid=toast-ok]:has-text('revision 2')")
+
+
 def test_a_wrong_address_is_a_page_with_a_way_back(page: Any, server: LiveServer) -> None:
     """A browser got the API's JSON for an unknown page or a malformed id; the API still does."""
     login(page, server, "rita")

@@ -122,6 +122,14 @@ export async function verdictBody(kind, baseRevision) {
 export async function saveLabel(kind, baseRevision = S.revision) {
   if (S.validation) toggleValidation();
   await Promise.allSettled([...S.inflight]);
+  // Accept (with no proposal to take) or save of a stored label left as it is: nothing to
+  // write (it was saved again as a new "corrected" revision, in the saver's name).
+  const unchanged = S.revision > 0 && S.labelStatus !== "rejected" && !labelDirty();
+  if (unchanged && (kind === "correct" || (kind === "accept" && !isProposal()))) {
+    toast(`Nothing changed: the label stays ${S.labelStatus} (revision ${S.revision}).`, "info");
+    if ($("advance").checked) await goNext({ afterSave: true });
+    return;
+  }
   const body = await verdictBody(kind, baseRevision);
   let label;
   try {
