@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 import sqlalchemy as sa
 import structlog
@@ -57,10 +59,29 @@ ROOT = Path(__file__).resolve().parent.parent
 log = structlog.get_logger(__name__)
 
 
+def _where(loc: Any) -> str:
+    """A field's place as a client names it: without the request part and pydantic's tags for
+    the members of a union (``str-enum[FrameStatus]``, ``literal['all']``)."""
+    return ".".join(str(p) for p in loc if p not in ("body", "query", "path") and "[" not in str(p))
+
+
 def _validation_sentence(exc: RequestValidationError) -> str:
-    first = exc.errors()[0]
-    where = ".".join(str(p) for p in first.get("loc", ()) if p not in ("body", "query", "path"))
-    message = str(first.get("msg", "is invalid")).rstrip(".")
+    errors = exc.errors()
+    first = errors[0]
+    if first.get("type") == "json_invalid":
+        return "The request body is not valid JSON."
+    where = _where(first.get("loc", ()))
+    # A value none of a union's choices takes: all of them in one list.
+    choices = [
+        value
+        for e in errors
+        if _where(e.get("loc", ())) == where and e.get("type") in ("enum", "literal_error")
+        for value in re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", "")))
+    ]
+    if len(errors) > 1 and choices:
+        message = f"Input should be one of {', '.join(choices)}"
+    else:
+        message = str(first.get("msg", "is invalid")).removeprefix("Value error, ").rstrip(".")
     return f"{where or 'The request'}: {message}."
 
 

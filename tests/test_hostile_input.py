@@ -64,6 +64,26 @@ def test_an_unknown_run_named_in_a_body_or_query_is_its_404(client: TestClient, 
         assert answer.json()["detail"] == f"There is no sequence {run}.", url
 
 
+def test_a_422_speaks_of_the_request_not_of_pydantic(client: TestClient, admin: str) -> None:
+    """A value outside a union of choices lists them all (it named pydantic's union member
+    and left two choices out); malformed JSON says so (it said "1: JSON decode error"). A
+    validator's sentence comes without pydantic's "Value error, " (test_bounded_input)."""
+    headers = auth(admin)
+    bogus = client.get("/api/v1/frames", params={"status": "bogus"}, headers=headers)
+    assert bogus.status_code == 422
+    assert bogus.json()["detail"] == (
+        "status: Input should be one of new, proposed, accepted, corrected, rejected, "
+        "unreviewed, all."
+    )
+    broken = client.post(
+        "/api/v1/sequences",
+        content=b'{"name": ',
+        headers=headers | {"Content-Type": "application/json"},
+    )
+    assert broken.status_code == 422
+    assert broken.json()["detail"] == "The request body is not valid JSON."
+
+
 def test_null_nul_nan_and_oversized_bodies_are_422(client: TestClient, admin: str) -> None:
     created = client.post("/api/v1/sequences", json={"name": "run 1"}, headers=auth(admin))
     assert created.status_code == 201

@@ -95,7 +95,7 @@ def test_an_outline_has_at_most_10_000_vertices_in_all(client: TestClient, make_
     over = _fill(client, token, frame_id, squares(MAX_VERTICES - 2))
     assert over.status_code == 422
     assert over.json()["detail"] == (
-        f"The request: Value error, an outline has at most {MAX_VERTICES:,} vertices in all."
+        f"The request: an outline has at most {MAX_VERTICES:,} vertices in all."
     )
     one_polygon = [{"points": [[x % WIDTH, x // WIDTH % HEIGHT] for x in range(MAX_VERTICES + 1)]}]
     assert _fill(client, token, frame_id, one_polygon).status_code == 422
