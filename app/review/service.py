@@ -132,7 +132,7 @@ def stored_mask(
     if label_revision is not None:
         label = current_label(session, frame.id)
         if label is None or label.revision != label_revision or label.mask_path is None:
-            raise StaleRevision(label.revision if label else 0)
+            raise MovedOn(label.revision if label else 0, label_revision)
         return load_mask(storage, label.mask_path)
     proposal = session.get(Proposal, proposal_id)
     if proposal is None or proposal.frame_id != frame.id:
@@ -389,6 +389,17 @@ def review_label(
         raise stale_revision(session, frame.id) from None
     session.refresh(label)
     return label
+
+
+class MovedOn(ConflictError):
+    """A click refines a label revision that is no longer the label's (or never was)."""
+
+    def __init__(self, current: int, named: int) -> None:
+        super().__init__(
+            f"The label is at revision {current}, not {named}; reload the frame and refine the "
+            "mask it shows."
+        )
+        self.extra = {"revision": current}
 
 
 class StaleRevision(ConflictError):

@@ -94,7 +94,11 @@ def test_a_click_names_the_mask_the_server_has_instead_of_sending_it(
         json={"points": points, "mask_from": {"label_revision": 7}},
         headers=auth(token),
     )
-    assert stale.status_code == 409 and stale.json()["revision"] == 1
+    assert stale.status_code == 409 and stale.json() == {
+        "detail": "The label is at revision 1, not 7; reload the frame and refine the mask it "
+        "shows.",  # not the save's advice to overwrite with a base_revision
+        "revision": 1,
+    }
     other = client.get(f"/api/v1/frames/{frame_ids[1]}/proposal", headers=auth(token)).json()
     foreign = client.post(
         f"/api/v1/frames/{frame_id}/segment",
