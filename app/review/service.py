@@ -190,7 +190,10 @@ def _label_content(
                 f"{frame.width}×{frame.height}."
             )
         if not mask.any():
-            raise InvalidInputError("The mask is empty; reject the frame instead.")
+            raise InvalidInputError(
+                "The mask is empty (pool pixels are 255, or 1 in a mask of 0 and 1; values "
+                "under 128 are outside); reject the frame if it shows no pool."
+            )
         return mask, None, check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)
     if proposal is not None:
         chosen = check_keypoints(frame, keypoints) if keypoints else proposal.keypoints

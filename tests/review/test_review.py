@@ -427,3 +427,25 @@ def test_outline_round_trip_through_the_api(client: TestClient, people) -> None:
         headers=auth(token),
     )
     assert short.status_code == 422
+
+
+def test_a_mask_of_faint_values_is_refused_naming_the_levels(client: TestClient, people) -> None:
+    """A mask whose pool is drawn at 77 has no pixel at or above 128: the refusal says which
+    values are pool (it only said the mask was empty), and nothing is stored."""
+    token = people["annotator"]
+    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame = client.get(f"/api/v1/frames/{frame_id}", headers=auth(token)).json()
+    faint = np.zeros((frame["height"], frame["width"]), np.uint8)
+    faint[10:40, 20:60] = 77
+    body = {
+        "status": "corrected",
+        "base_revision": 0,
+        "mask_png": base64.b64encode(cv2.imencode(".png", faint)[1].tobytes()).decode(),
+    }
+    refused = client.put(f"/api/v1/frames/{frame_id}/label", json=body, headers=auth(token))
+    assert refused.status_code == 400
+    assert refused.json()["detail"] == (
+        "The mask is empty (pool pixels are 255, or 1 in a mask of 0 and 1; values under 128 "
+        "are outside); reject the frame if it shows no pool."
+    )
+    assert client.get(f"/api/v1/frames/{frame_id}/label", headers=auth(token)).status_code == 404
