@@ -495,6 +495,7 @@ def test_a_session_ended_mid_edit_saves_after_a_login_in_another_tab(
     other.wait_for_url(f"{server.url}/login*")
     page.click("[data-testid=save]")
     page.wait_for_selector("[data-testid=toast-error]:has-text('log in again in another tab')")
+    shoot(page, "session-ended-toast")
     assert not page.is_hidden("[data-testid=dirty]")  # the stroke is still there, unsaved
     login(other, server, "rita")
     page.click("[data-testid=save]")
@@ -543,6 +544,7 @@ def test_validation_keypoints_saved_meanwhile_are_overwritten_or_loaded_by_choic
     page.click("[data-testid=save-validation]")
     wait_until(page, lambda: len(answers) == 2)
     page.wait_for_selector("#validation-state:has-text('loaded')")
+    shoot(page, "validation-theirs-loaded")
     assert server.api("GET", url).json()["revision"] == 3
     assert page.inner_text("[data-testid=manual-count]") == "4 of 4 placed"
     assert page.is_disabled("[data-testid=save-validation]")  # theirs, as stored: nothing to save
@@ -556,6 +558,7 @@ def test_the_timeline_of_a_missing_run_offers_nothing_to_run(page: Any, server: 
     assert "There is no sequence 999999." in page.inner_text("[data-testid=geometry-charts]")
     assert page.is_disabled("#embed-run") and page.is_disabled("#propagate-run")
     assert page.is_hidden("[data-testid=geometry-csv]")
+    shoot(page, "timeline-missing-run")
 
 
 def test_a_reject_clears_the_mask_and_h_without_a_proposal_says_why(
