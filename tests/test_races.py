@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.models import Role
-from tests.helpers import age_stored_files, auth, corrected_label, image_bytes
+from tests.helpers import age_stored_files, auth, corrected_label, image_bytes, write_video
 
 ROUNDS, RACERS = 5, 6
 
@@ -213,6 +214,69 @@ def test_one_frame_deleted_by_several_at_once_is_one_200_and_404s(
         url = f"/api/v1/frames/{frame['id']}"
         statuses = at_once(RACERS, lambda i, url=url: client.delete(url, headers=auth(admin)))
         assert statuses == [200] + [404] * (RACERS - 1), statuses
+
+
+def test_one_run_deleted_by_several_at_once_is_one_200_and_404s(
+    client: TestClient, admin: str
+) -> None:
+    """The losers waited on the run's row lock and then answered 200 with nothing deleted
+    (PostgreSQL), or a 404 naming a frame (SQLite)."""
+    for round_ in range(ROUNDS):
+        run = client.post(
+            "/api/v1/sequences", json={"name": f"twice {round_}"}, headers=auth(admin)
+        ).json()["id"]
+        files = [
+            ("files", (f"{i}.png", image_bytes(seed=4000 + 10 * round_ + i), "image/png"))
+            for i in range(3)
+        ]
+        client.post(
+            "/api/v1/frames", files=files, data={"sequence_id": str(run)}, headers=auth(admin)
+        )
+        answers: dict[int, Any] = {}
+
+        def delete(i: int, run: int = run, answers: dict = answers) -> Any:
+            answers[i] = client.delete(f"/api/v1/sequences/{run}", headers=auth(admin))
+            return answers[i]
+
+        assert at_once(RACERS, delete) == [200] + [404] * (RACERS - 1)
+        for answer in answers.values():
+            if answer.status_code == 200:
+                assert answer.json()["deleted_frames"] == 3
+            else:
+                assert answer.json()["detail"] == f"There is no sequence {run}."
+
+
+def test_a_video_uploaded_into_a_run_while_it_is_deleted_is_stored_or_a_404(
+    client: TestClient, admin: str, tmp_path: Path
+) -> None:
+    """The video's row met the foreign key of a run deleted while the upload was probed (a 500):
+    now the run's 404, or a 409 when the run went after the video's row was written."""
+    video = write_video(tmp_path / "run.avi", 12).read_bytes()
+    for round_ in range(ROUNDS):
+        run = client.post(
+            "/api/v1/sequences", json={"name": f"film {round_}"}, headers=auth(admin)
+        ).json()["id"]
+        answers: dict[int, Any] = {}
+
+        def racer(i: int, run: int = run, answers: dict = answers) -> Any:
+            if i == 0:
+                answers[i] = client.delete(f"/api/v1/sequences/{run}", headers=auth(admin))
+            else:
+                answers[i] = client.post(
+                    "/api/v1/videos",
+                    files=[("file", (f"v{i}.avi", video, "video/avi"))],
+                    data={"sequence_id": str(run)},
+                    headers=auth(admin),
+                )
+            return answers[i]
+
+        statuses = at_once(3, racer)
+        assert answers[0].status_code == 200 and set(statuses) <= {200, 202, 404, 409}, statuses
+        for answer in (answers[1], answers[2]):
+            if answer.status_code == 404:  # the run was gone when the video's row was written
+                assert answer.json()["detail"] == f"There is no sequence {run}."
+            if answer.status_code == 409:  # gone before the row took its extraction job
+                assert "changed or deleted by someone else meanwhile" in answer.json()["detail"]
 
 
 def _delete_or_label(

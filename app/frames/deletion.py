@@ -9,6 +9,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.errors import ConflictError, NotFoundError
+from app.frames.sequences import get_sequence
 from app.models import (
     STORED_PATH_COLUMNS,
     Frame,
@@ -65,12 +66,15 @@ def _chunks(ids: list[int]) -> list[list[int]]:
     return [ids[start : start + 500] for start in range(0, len(ids), 500)]
 
 
-def _all_there(session: Session, frame_ids: list[int]) -> None:
-    """Raise NotFoundError naming the first of ``frame_ids`` that is not stored."""
+def _all_there(session: Session, frame_ids: list[int], run_id: int | None) -> None:
+    """Raise NotFoundError naming the first of ``frame_ids`` that is not stored, or the run
+    ``run_id`` when it is gone (another deletion took it with them)."""
     found: set[int] = set()
     for chunk in _chunks(frame_ids):
         found.update(session.scalars(sa.select(Frame.id).where(Frame.id.in_(chunk))))
     if missing := [i for i in frame_ids if i not in found]:
+        if run_id is not None:
+            get_sequence(session, run_id)
         raise NotFoundError(f"There is no frame {missing[0]}; nothing was deleted.")
 
 
@@ -98,7 +102,8 @@ def delete_frames(
     the collector sweeps later.
     """
     frame_ids = sorted(set(frame_ids))
-    _all_there(session, frame_ids)
+    run_id = sequence.id if sequence is not None else None
+    _all_there(session, frame_ids, run_id)
     reviewed = 0
     for start in range(0, len(frame_ids), 500):
         chunk = frame_ids[start : start + 500]
@@ -134,13 +139,16 @@ def delete_frames(
     deleted = sum(_delete(session, Frame.id.in_(chunk)) for chunk in _chunks(frame_ids))
     if deleted < len(frame_ids):  # another deletion took some since they were read
         session.rollback()
-        _all_there(session, frame_ids)
+        _all_there(session, frame_ids, run_id)
         raise ConflictError("The frames changed while they were deleted; nothing was deleted.")
     if sequence is not None:
         # Frames uploaded into the run since its frames were read go with it (and are counted).
         deleted += _delete(session, Frame.sequence_id == sequence.id)
         session.execute(sa.delete(Video).where(Video.sequence_id == sequence.id))
-        session.execute(sa.delete(Sequence).where(Sequence.id == sequence.id))
+        gone = session.execute(sa.delete(Sequence).where(Sequence.id == run_id))
+        if gone.rowcount != 1:  # type: ignore[attr-defined]  # another deletion was first
+            session.rollback()
+            raise NotFoundError(f"There is no sequence {run_id}.")
     session.commit()
     removed = storage.collect(paths, _still_used(session, paths))
     return Deletion(frames=deleted, reviewed=reviewed, files=len(removed))
@@ -151,6 +159,8 @@ def delete_sequence(
 ) -> Deletion:
     """A weld run with its frames and videos (see ``delete_frames`` for the guard). The run's
     row is locked first (PostgreSQL): an upload into it then waits, and finds it gone."""
-    session.execute(sa.select(Sequence.id).where(Sequence.id == sequence.id).with_for_update())
+    locked = sa.select(Sequence.id).where(Sequence.id == sequence.id).with_for_update()
+    if session.execute(locked).first() is None:  # another deletion took it while this waited
+        raise NotFoundError(f"There is no sequence {sequence.id}.")
     frame_ids = list(session.scalars(sa.select(Frame.id).where(Frame.sequence_id == sequence.id)))
     return delete_frames(session, storage, frame_ids, force=force, sequence=sequence)

@@ -26,7 +26,9 @@ def create_sequence(session: Session, values: dict[str, Any], user: User | None)
 
 
 def get_sequence(session: Session, sequence_id: int) -> Sequence:
-    sequence = session.get(Sequence, sequence_id)
+    # A query, not session.get: a run this session loaded and another deleted since must read
+    # as gone, not raise on the refresh of its expired row.
+    sequence = session.scalar(sa.select(Sequence).where(Sequence.id == sequence_id))
     if sequence is None:
         raise NotFoundError(f"There is no sequence {sequence_id}.")
     return sequence

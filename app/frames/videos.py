@@ -66,10 +66,12 @@ def store_video(
         )
         session.add(video)
         session.commit()
-    except BaseException:
+    except BaseException as exc:
         session.rollback()
         in_use = set(session.scalars(sa.select(Video.path).where(Video.path == stored.path)))
         storage.discard([stored], in_use)
+        if isinstance(exc, sa.exc.IntegrityError) and sequence_id is not None:
+            get_sequence(session, sequence_id)  # deleted meanwhile: its 404
         raise
     return video
 
