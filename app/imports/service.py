@@ -630,5 +630,8 @@ class _Batch:
             write_label(self.session, frame, current, base, values, flush=False)
             counts[0] += 1
         if manual is not None and (frame.id not in self.has_manual or self.options.overwrite):
-            set_validation_keypoints(self.session, frame, self.user, manual)
+            # Without overwrite, only where there were none when read (0): keypoints a reviewer
+            # saved since make a conflict, and the batch is read again (``finish``).
+            base = None if self.options.overwrite else 0
+            set_validation_keypoints(self.session, frame, self.user, manual, base)
             counts[1] += 1

@@ -131,8 +131,13 @@ def stored_mask(
     has moved on: the page then sends what it shows), or its proposal ``proposal_id``."""
     if label_revision is not None:
         label = current_label(session, frame.id)
-        if label is None or label.revision != label_revision or label.mask_path is None:
+        if label is None or label.revision != label_revision:
             raise MovedOn(label.revision if label else 0, label_revision)
+        if label.mask_path is None:
+            raise InvalidInputError(
+                f"Label revision {label_revision} has no mask (the frame is rejected); send "
+                "the mask the page shows as mask_png."
+            )
         return load_mask(storage, label.mask_path)
     proposal = session.get(Proposal, proposal_id)
     if proposal is None or proposal.frame_id != frame.id:
@@ -406,27 +411,35 @@ class MovedOn(ConflictError):
 
 
 class StaleRevision(ConflictError):
-    """The label changed since the client read it: who changed it, and its revision now."""
+    """A label (or a frame's validation keypoints, ``what``) changed since the client read it:
+    who changed it, and its revision now."""
 
-    def __init__(self, current: int, by: str | None = None) -> None:
+    def __init__(self, current: int, by: str | None = None, what: str = "label") -> None:
         who = f"by {by}" if by else "by someone else"
+        were, it = ("were", "them") if what.endswith("s") else ("was", "it")
         super().__init__(
-            f"The label was changed {who} (now at revision {current}); reload it "
-            "and apply your change again, or overwrite with base_revision "
-            f"{current}."
+            f"The {what} {were} changed {who} (now at revision {current}); reload {it} and "
+            f"apply your change again, or overwrite with base_revision {current}."
         )
         self.current = current
         self.extra = {"revision": current, "updated_by": by}
 
 
-def stale_revision(session: Session, frame_id: int) -> StaleRevision:
-    """The conflict for a stale save, naming the label's current revision and its author."""
+def stale_revision(session: Session, frame_id: int, keypoints: bool = False) -> StaleRevision:
+    """The conflict for a stale save of a frame's label (or of its validation ``keypoints``),
+    naming the current revision and its author."""
+    table, author = (
+        (ValidationKeypoints, ValidationKeypoints.user_id)
+        if keypoints
+        else (Label, Label.updated_by_id)
+    )
     row = session.execute(
-        sa.select(Label.revision, User.username)
-        .outerjoin(User, User.id == Label.updated_by_id)
-        .where(Label.frame_id == frame_id)
+        sa.select(table.revision, User.username)
+        .outerjoin(User, User.id == author)
+        .where(table.frame_id == frame_id)
     ).first()
-    return StaleRevision(row[0], row[1]) if row else StaleRevision(0)
+    what = "validation keypoints" if keypoints else "label"
+    return StaleRevision(row[0], row[1], what) if row else StaleRevision(0, what=what)
 
 
 def current_revision(session: Session, frame_id: int) -> int:
@@ -461,16 +474,20 @@ def save_validation_keypoints(
         raise InvalidInputError("Give at least one keypoint.")
     points = check_keypoints(frame, keypoints)
     frame_id = frame.id
-    lock_frame(session, frame_id)
-    row = set_validation_keypoints(session, frame, user, points, base_revision)
-    try:
-        session.commit()
-    except sa.exc.IntegrityError:  # two first ones at once (SQLite, which locks no row)
-        session.rollback()
-        if not frame_exists(session, frame_id):
-            raise FrameDeleted(frame_id) from None
-        raise stale_keypoints(session, frame_id) from None
-    return row
+    for attempt in (1, 2):
+        lock_frame(session, frame_id)
+        row = set_validation_keypoints(session, frame, user, points, base_revision)
+        try:
+            session.commit()
+            return row
+        except sa.exc.IntegrityError:  # two first ones at once (SQLite, which locks no row)
+            session.rollback()
+            if not frame_exists(session, frame_id):
+                raise FrameDeleted(frame_id) from None
+            if base_revision is not None or attempt == 2:
+                raise stale_revision(session, frame_id, keypoints=True) from None
+            # Without a base the other's first ones are replaced: once more, as an update.
+    raise AssertionError("unreachable")
 
 
 def set_validation_keypoints(
@@ -487,7 +504,7 @@ def set_validation_keypoints(
         sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
     )
     if base_revision is not None and base_revision != (row.revision if row is not None else 0):
-        raise stale_keypoints(session, frame.id)
+        raise stale_revision(session, frame.id, keypoints=True)
     if row is None:
         row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id, revision=1)
         session.add(row)
@@ -501,33 +518,13 @@ def set_validation_keypoints(
                 updated_at=utcnow(),
                 revision=ValidationKeypoints.revision + 1,
             )
+            .execution_options(synchronize_session=False)
         )
         if moved.rowcount != 1:  # type: ignore[attr-defined]
-            raise stale_keypoints(session, frame.id)
+            raise stale_revision(session, frame.id, keypoints=True)
+        session.refresh(row)  # as written
     frame.split = Split.validation
     return row
-
-
-def stale_keypoints(session: Session, frame_id: int) -> StaleKeypoints:
-    """The conflict for a stale save of validation keypoints: their revision and author now."""
-    found = session.execute(
-        sa.select(ValidationKeypoints.revision, User.username)
-        .outerjoin(User, User.id == ValidationKeypoints.user_id)
-        .where(ValidationKeypoints.frame_id == frame_id)
-    ).first()
-    return StaleKeypoints(found[0], found[1]) if found else StaleKeypoints(0)
-
-
-class StaleKeypoints(ConflictError):
-    """The validation keypoints changed since the client read them: who, and their revision."""
-
-    def __init__(self, current: int, by: str | None = None) -> None:
-        who = f"by {by}" if by else "by someone else"
-        super().__init__(
-            f"The validation keypoints were changed {who} (now at revision {current}); reload "
-            f"them and place yours again, or overwrite with base_revision {current}."
-        )
-        self.extra = {"revision": current, "updated_by": by}
 
 
 def get_validation_keypoints(session: Session, frame_id: int) -> ValidationKeypoints:

@@ -339,7 +339,7 @@ def test_validation_keypoints_saved_from_a_stale_revision_are_a_409_naming_who(
     assert stale.json()["revision"] == 2 and stale.json()["updated_by"] == "rita"
     assert stale.json()["detail"] == (
         "The validation keypoints were changed by rita (now at revision 2); reload them and "
-        "place yours again, or overwrite with base_revision 2."
+        "apply your change again, or overwrite with base_revision 2."
     )
     assert put(annotator, 13.0, 0).status_code == 409  # "the first ones": there are some
     assert client.get(url, headers=auth(annotator)).json() | {"updated_at": None} == {
