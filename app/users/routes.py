@@ -42,12 +42,14 @@ def me(user: CurrentUser) -> UserOut:
 
 
 @router.get("/users/me/csrf", response_model=CsrfOut)
-def my_csrf_token(request: Request, response: Response, _user: CurrentUser) -> CsrfOut:
-    """The CSRF token of the caller's browser session (null for an API token): a page loaded
-    under an earlier login sends its changes with it. Readable by this origin's pages only."""
+def my_csrf_token(request: Request, response: Response, user: CurrentUser) -> CsrfOut:
+    """The CSRF token of the caller's browser session (null for an API token) and whose it is:
+    a page loaded under an earlier login of the same user sends its changes with it. Readable
+    by this origin's pages only."""
     response.headers["Cache-Control"] = "no-store"
     web_session = getattr(request.state, "web_session", None)
-    return CsrfOut(csrf_token=web_session.csrf_token if web_session is not None else None)
+    token = web_session.csrf_token if web_session is not None else None
+    return CsrfOut(csrf_token=token, username=user.username)
 
 
 @router.post("/users/me/password", response_model=PasswordChanged)

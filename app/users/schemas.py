@@ -16,6 +16,7 @@ class CsrfOut(BaseModel):
     csrf_token: str | None = Field(
         description="The browser session's CSRF token (null when called with an API token)."
     )
+    username: str = Field(description="Whose session it is (a page checks it is still its own).")
 
 
 class UserOut(BaseModel):

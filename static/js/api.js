@@ -35,17 +35,25 @@ function describe(status, body) {
 
 const staleCsrf = (status, body) => status === 403 && body?.reason === "csrf";
 
-/** The session's CSRF token now (after a login in another tab); false when there is none. */
+const USER = document.querySelector('meta[name="user-name"]')?.content ?? "";
+
+/** The session's CSRF token now (after a login in another tab), when the session is still
+ *  this page's user's; false when there is none. Throws when another user logged in since:
+ *  the page's work must not be saved in their name. */
 async function refreshCsrf() {
+  let session;
   try {
     const response = await fetch("/api/v1/users/me/csrf", { headers: { Accept: "application/json" }, credentials: "same-origin" });
-    const token = response.ok ? (await response.json()).csrf_token : null;
-    if (!token) return false;
-    CSRF = token;
-    return true;
+    session = response.ok ? await response.json() : null;
   } catch {
     return false;
   }
+  if (!session?.csrf_token) return false;
+  if (session.username !== USER) {
+    throw new ApiError(403, `${session.username} has logged in in this browser since this page was opened for ${USER}; log in as ${USER} again in another tab to save this page's work, or reload it to work as ${session.username}.`, null);
+  }
+  CSRF = session.csrf_token;
+  return true;
 }
 
 /**
@@ -85,7 +93,13 @@ export async function api(path, { method = "GET", json, body, raw = false, signa
  */
 export async function upload(path, formData, onProgress) {
   let answer = await send(path, formData, onProgress);
-  if (staleCsrf(answer.status, answer.body) && (await refreshCsrf())) answer = await send(path, formData, onProgress);
+  if (staleCsrf(answer.status, answer.body)) {
+    try {
+      if (await refreshCsrf()) answer = await send(path, formData, onProgress);
+    } catch (error) {
+      return { status: error.status, body: { detail: error.message } };
+    }
+  }
   return answer.status === 401 ? { status: 401, body: { detail: LOGIN_AGAIN } } : answer;
 }
 

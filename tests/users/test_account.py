@@ -150,8 +150,10 @@ def test_a_page_from_an_earlier_login_learns_the_sessions_csrf_token(
     fresh = client.get("/api/v1/users/me/csrf")
     assert fresh.headers["cache-control"] == "no-store"
     assert fresh.json()["csrf_token"] == _csrf(client) != stale
+    assert fresh.json()["username"] == "ines"
     headers = {"X-CSRF-Token": fresh.json()["csrf_token"]}
     assert client.post("/api/v1/sequences", json=body, headers=headers).status_code == 201
     assert TestClient(client.app).get("/api/v1/users/me/csrf", headers=auth(token)).json() == {
-        "csrf_token": None
+        "csrf_token": None,
+        "username": "ines",
     }

@@ -481,7 +481,8 @@ def test_a_session_ended_mid_edit_saves_after_a_login_in_another_tab(
 ) -> None:
     """Logged out in another tab while a stroke is unsaved: the save says to log in again in
     another tab (not the API's sentence for scripts); after that login the same page saves,
-    fetching the new session's CSRF token (it was refused as a wrong CSRF header)."""
+    fetching the new session's CSRF token (it was refused as a wrong CSRF header) — but not
+    while another user is the one logged in."""
     frame_id = add_frame(server, 402)
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{frame_id}")
@@ -497,11 +498,19 @@ def test_a_session_ended_mid_edit_saves_after_a_login_in_another_tab(
     page.wait_for_selector("[data-testid=toast-error]:has-text('log in again in another tab')")
     shoot(page, "session-ended-toast")
     assert not page.is_hidden("[data-testid=dirty]")  # the stroke is still there, unsaved
+    # Someone else logs in in this browser: the page does not save rita's work in ada's name.
+    login(other, server, "ada")
+    page.click("[data-testid=save]")
+    page.wait_for_selector(
+        "[data-testid=toast-error]:has-text('ada has logged in in this browser')"
+    )
+    assert server.api("GET", f"/frames/{frame_id}/label").status_code == 404
+    other.click("[data-testid=logout]")
     login(other, server, "rita")
     page.click("[data-testid=save]")
     page.wait_for_selector("[data-testid=toast-ok]")
     label = server.api("GET", f"/frames/{frame_id}/label").json()
-    assert (label["status"], label["revision"]) == ("corrected", 1)
+    assert (label["status"], label["revision"], label["updated_by"]) == ("corrected", 1, "rita")
 
 
 def test_validation_keypoints_saved_meanwhile_are_overwritten_or_loaded_by_choice(
