@@ -12,6 +12,7 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 from fastapi import Depends, FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -97,22 +98,36 @@ def _browser_page(request: Request) -> bool:
     )
 
 
-def _error_page(request: Request, status: int, message: str) -> Response:
-    """The error as a page with a way back (a browser was shown the API's JSON)."""
+async def _error_page(request: Request, status: int, message: str) -> Response:
+    """The error as a page with a way back (a browser was shown the API's JSON); its header
+    shows who is logged in, read from the cookie when no route did (off the event loop; a
+    database that does not answer leaves the header out, not the page)."""
     title = _PAGE_TITLES.get(status, "Not possible" if status < 500 else "Not available")
     cookie = request.cookies.get(SESSION_COOKIE)
+
+    def page() -> Response:
+        return render(request, "error.html", status, title=title, message=message)
+
+    def page_of_session() -> Response:
+        with request.app.state.session_factory() as session:
+            request.state.web_session = web_session_for_cookie(session, cookie or "")
+            return page()
+
     if getattr(request.state, "web_session", None) is not None or not cookie:
-        return render(request, "error.html", status, title=title, message=message)
-    with request.app.state.session_factory() as session:  # no route ran: who is this?
-        request.state.web_session = web_session_for_cookie(session, cookie)
-        return render(request, "error.html", status, title=title, message=message)
+        return page()
+    try:
+        return await run_in_threadpool(page_of_session)
+    except Exception:
+        log.warning("error_page.no_session", path=request.url.path, exc_info=True)
+        request.state.web_session = None
+        return page()
 
 
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> Response:
         if _browser_page(request) and exc.status_code == 404:
-            return _error_page(request, 404, f"There is no page at {request.url.path}.")
+            return await _error_page(request, 404, f"There is no page at {request.url.path}.")
         return JSONResponse(
             {"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers
         )
@@ -127,7 +142,7 @@ def _install_error_handlers(app: FastAPI) -> None:
             headers = {"Retry-After": str(math.ceil(exc.retry_after))}
         detail = without_server_paths(exc.message, request.app.state.settings.home)
         if _browser_page(request):
-            return _error_page(request, status, detail)
+            return await _error_page(request, status, detail)
         body = {"detail": detail} | getattr(exc, "extra", {})
         return JSONResponse(body, status_code=status, headers=headers)
 
@@ -159,9 +174,8 @@ def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> Response:
         if _browser_page(request):
-            return _error_page(
-                request, 422, f"This address is not valid ({_validation_sentence(exc)})"
-            )
+            sentence = _validation_sentence(exc)  # "frame_id: Input should be …"
+            return await _error_page(request, 422, f"This address is not valid: {sentence}")
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", "")} for e in exc.errors()]
         return JSONResponse(
             {"detail": _validation_sentence(exc), "errors": errors}, status_code=422

@@ -632,6 +632,6 @@ class _Batch:
         if manual is not None and (frame.id not in self.has_manual or self.options.overwrite):
             # Without overwrite, only where there were none when read (0): keypoints a reviewer
             # saved since make a conflict, and the batch is read again (``finish``).
-            base = None if self.options.overwrite else 0
-            set_validation_keypoints(self.session, frame, self.user, manual, base)
+            since = None if self.options.overwrite else 0
+            set_validation_keypoints(self.session, frame, self.user, manual, since)
             counts[1] += 1

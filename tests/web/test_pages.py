@@ -539,7 +539,7 @@ def test_validation_keypoints_saved_meanwhile_are_overwritten_or_loaded_by_choic
     page.on("dialog", answer)
     page.click("[data-testid=save-validation]")
     page.wait_for_selector("[data-testid=toast-ok]:has-text('Validation keypoints saved')")
-    assert "changed by ada (now at revision 1)" in answers[0]
+    assert answers[0].startswith("ada saved this frame's validation keypoints while you placed")
     stored = server.api("GET", url).json()
     assert stored["revision"] == 2
     assert [c for p in stored["keypoints"] for c in p] == pytest.approx(
@@ -625,7 +625,7 @@ def test_a_wrong_address_is_a_page_with_a_way_back(page: Any, server: LiveServer
     login(page, server, "rita")
     for path, status, words in (
         ("/nonexistent-page", 404, "There is no page at /nonexistent-page."),
-        ("/frames/abc", 422, "This address is not valid (frame_id: Input should be a valid"),
+        ("/frames/abc", 422, "This address is not valid: frame_id: Input should be a valid"),
     ):
         answer = page.goto(f"{server.url}{path}")
         assert answer.status == status

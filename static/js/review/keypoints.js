@@ -112,7 +112,8 @@ export async function saveValidation() {
     } catch (error) {
       if (!(error instanceof ApiError && error.status === 409)) throw error;
       const current = error.body?.revision ?? 0;
-      if (!confirm(`${error.message}\n\nOK: overwrite theirs with yours. Cancel: load theirs.`)) {
+      const who = error.body?.updated_by ?? "Someone else";
+      if (!confirm(`${who} saved this frame's validation keypoints while you placed yours.\n\nOK: overwrite theirs with yours. Cancel: load theirs.`)) {
         const theirs = await api(`/frames/${FRAME_ID}/validation-keypoints`);
         S.manualRevision = theirs.revision;
         commit({ ...S.edit, manual: theirs.keypoints.map((p) => [...p]) });

@@ -123,8 +123,10 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   if (S.validation) toggleValidation();
   await Promise.allSettled([...S.inflight]);
   // Accept (with no proposal to take) or save of a stored label left as it is: nothing to
-  // write (it was saved again as a new "corrected" revision, in the saver's name).
-  const unchanged = S.revision > 0 && S.labelStatus !== "rejected" && !labelDirty();
+  // write (it was saved again as a new "corrected" revision, in the saver's name). Not with
+  // the review stage's decision pending: an unchanged label sent back may be sent again.
+  const settled = !S.review || S.review.state === "approved";
+  const unchanged = S.revision > 0 && S.labelStatus !== "rejected" && !labelDirty() && settled;
   if (unchanged && (kind === "correct" || (kind === "accept" && !isProposal()))) {
     toast(`Nothing changed: the label stays ${S.labelStatus} (revision ${S.revision}).`, "info");
     if ($("advance").checked) await goNext({ afterSave: true });
