@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
@@ -23,6 +23,8 @@ from app.models import (
 )
 from app.storage import Storage
 
+T = TypeVar("T")
+
 REVIEWED = (FrameStatus.accepted, FrameStatus.corrected, FrameStatus.rejected)
 
 
@@ -35,10 +37,14 @@ class Deletion:
     files: int = 0
 
 
+def _chunks(items: list[T]) -> list[list[T]]:
+    """``items`` 500 at a time (an IN list each database takes)."""
+    return [items[start : start + 500] for start in range(0, len(items), 500)]
+
+
 def _files_of(session: Session, frame_ids: list[int], video_ids: list[int]) -> set[str]:
     paths: set[str] = set()
-    for start in range(0, len(frame_ids), 500):
-        chunk = frame_ids[start : start + 500]
+    for chunk in _chunks(frame_ids):
         for column, owner in (
             (Frame.path, Frame.id),
             (Proposal.mask_path, Proposal.frame_id),
@@ -56,14 +62,9 @@ def _still_used(session: Session, paths: set[str]) -> set[str]:
     used: set[str] = set()
     candidates = list(paths)
     for column in STORED_PATH_COLUMNS:
-        for start in range(0, len(candidates), 500):
-            chunk = candidates[start : start + 500]
+        for chunk in _chunks(candidates):
             used.update(p for p in session.scalars(sa.select(column).where(column.in_(chunk))) if p)
     return used
-
-
-def _chunks(ids: list[int]) -> list[list[int]]:
-    return [ids[start : start + 500] for start in range(0, len(ids), 500)]
 
 
 def _all_there(session: Session, frame_ids: list[int], run_id: int | None) -> None:
@@ -105,8 +106,7 @@ def delete_frames(
     run_id = sequence.id if sequence is not None else None
     _all_there(session, frame_ids, run_id)
     reviewed = 0
-    for start in range(0, len(frame_ids), 500):
-        chunk = frame_ids[start : start + 500]
+    for chunk in _chunks(frame_ids):
         reviewed += (
             session.scalar(
                 sa.select(sa.func.count())
