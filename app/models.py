@@ -512,3 +512,17 @@ STORED_PATH_COLUMNS = (
 )
 """Every column that names a stored file under WELDPOOL_HOME (the store is content-addressed,
 so one file may be named by several rows): what start-up sweeping and deletions consult."""
+
+
+def _ids_never_reused() -> None:
+    """SQLite hands the highest id out again after that row is deleted unless a table says
+    AUTOINCREMENT (PostgreSQL's sequences never do): every table with an integer id says it, so
+    a page still open on a deleted frame, run or job can never reach another's (migration 0018
+    rebuilds the tables of an older database)."""
+    for table in Base.metadata.tables.values():
+        key = list(table.primary_key.columns)
+        if len(key) == 1 and isinstance(key[0].type, sa.Integer):
+            table.dialect_kwargs["sqlite_autoincrement"] = True
+
+
+_ids_never_reused()

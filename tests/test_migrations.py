@@ -302,3 +302,138 @@ def test_descriptors_stored_as_json_become_float32_and_back(
         ).scalars()
         assert {"ix_frames_queue", "ix_frames_queue_sequence"} <= set(names)
     engine.dispose()
+
+
+def _index_definitions(engine: sa.Engine) -> set[str]:
+    """Every index and trigger as the database stores it (SQLite: its SQL; PostgreSQL: its
+    canonical definition)."""
+    with engine.connect() as connection:
+        if engine.dialect.name == "sqlite":
+            rows = connection.exec_driver_sql(
+                "SELECT sql FROM sqlite_master WHERE type IN ('index', 'trigger') "
+                "AND sql IS NOT NULL"
+            )
+        else:
+            rows = connection.exec_driver_sql(
+                "SELECT indexdef FROM pg_indexes WHERE schemaname = current_schema()"
+            )
+        return {" ".join(sql.replace('"', "").split()) for sql in rows.scalars()}
+
+
+def _fill(engine: sa.Engine) -> dict[str, int]:
+    """A user, a run, three frames with a proposal and a label each (revisions too), a job and
+    a model version; the row count of each of their tables."""
+    from app.models import (
+        Frame,
+        Job,
+        Label,
+        LabelRevision,
+        LabelStatus,
+        ModelVersion,
+        Proposal,
+        Sequence,
+        User,
+    )
+
+    with Session(engine) as session:
+        user = User(username="ada", password_hash="x", role="admin")
+        run = Sequence(name="r")
+        session.add_all([user, run])
+        session.flush()
+        for index in range(3):
+            frame = Frame(
+                sequence_id=run.id,
+                sha256=f"{index:064d}",
+                path=f"frames/{index}.png",
+                original_name=f"{index}.png",
+                media_type="image/png",
+                size_bytes=1,
+                width=2,
+                height=2,
+                channels=3,
+            )
+            session.add(frame)
+            session.flush()
+            proposal = Proposal(frame_id=frame.id, source="teacher", model_id="t", mask_path="m")
+            session.add(proposal)
+            session.flush()
+            session.add(
+                Label(
+                    frame_id=frame.id,
+                    status=LabelStatus.corrected,
+                    mask_path=f"labels/{index}.png",
+                    proposal_id=proposal.id,
+                    updated_by_id=user.id,
+                )
+            )
+            session.add(
+                LabelRevision(
+                    frame_id=frame.id,
+                    revision=1,
+                    status=LabelStatus.corrected,
+                    mask_path=f"labels/{index}.png",
+                    user_id=user.id,
+                )
+            )
+        session.add_all([Job(kind="teacher", params={}), ModelVersion(name="v1")])
+        session.commit()
+    with engine.connect() as connection:
+        return {
+            table: connection.exec_driver_sql(f"SELECT count(*) FROM {table}").scalar_one()
+            for table in (
+                "users",
+                "sequences",
+                "frames",
+                "proposals",
+                "labels",
+                "label_revisions",
+                "jobs",
+                "model_versions",
+            )
+        }
+
+
+def test_ids_are_never_reused_after_0018_on_a_filled_database(database_url: str) -> None:
+    """0018 rebuilds SQLite's tables with AUTOINCREMENT keeping every row, reference, index
+    (partial and expression ones too) and the foreign keys on; afterwards the id of a deleted
+    newest row is given to nobody (SQLite gave it to the next insert; PostgreSQL never did)."""
+    from alembic import command
+
+    from app.db import alembic_config
+
+    engine = create_db_engine(database_url)
+    migrate(engine, "0017")
+    counts = _fill(engine)
+    indexes = _index_definitions(engine)
+    assert any("coalesce" in sql.lower() for sql in indexes)  # the queue's expression indexes
+    command.upgrade(alembic_config(engine), "0018")
+    with engine.connect() as connection:
+        after = {
+            table: connection.exec_driver_sql(f"SELECT count(*) FROM {table}").scalar_one()
+            for table in counts
+        }
+        joined = connection.exec_driver_sql(
+            "SELECT count(*) FROM labels JOIN frames ON frames.id = labels.frame_id "
+            "JOIN proposals ON proposals.id = labels.proposal_id"
+        ).scalar_one()
+        if engine.dialect.name == "sqlite":
+            assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+            assert connection.exec_driver_sql("PRAGMA foreign_key_check").first() is None
+    assert after == counts and joined == 3
+    assert _index_definitions(engine) == indexes
+    with engine.begin() as connection:  # the newest frame deleted (its label goes with it)
+        newest = connection.exec_driver_sql("SELECT max(id) FROM frames").scalar_one()
+        connection.exec_driver_sql(f"DELETE FROM frames WHERE id = {newest}")
+        assert connection.exec_driver_sql("SELECT count(*) FROM labels").scalar_one() == 2
+        connection.exec_driver_sql(
+            "INSERT INTO frames (sequence_id, sha256, path, original_name, media_type, "
+            "size_bytes, width, height, channels, bit_depth, split, status, created_at) "
+            "SELECT sequence_id, 'f', path, original_name, media_type, size_bytes, width, "
+            "height, channels, bit_depth, split, status, created_at FROM frames LIMIT 1"
+        )
+        assert connection.exec_driver_sql("SELECT max(id) FROM frames").scalar_one() > newest
+    command.downgrade(alembic_config(engine), "0017")  # and back: the rows stay
+    with engine.connect() as connection:
+        assert connection.exec_driver_sql("SELECT count(*) FROM frames").scalar_one() == 3
+    assert _index_definitions(engine) == indexes
+    engine.dispose()

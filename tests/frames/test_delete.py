@@ -77,3 +77,34 @@ def test_deleting_frames_and_a_sequence(client: TestClient, make_user, settings)
     assert len(left) == 1 and left <= before  # only the keeper's image remains
     kept = client.get(f"/api/v1/frames/{shared['id']}/image", headers=auth(token))
     assert kept.status_code == 200
+
+
+def test_a_deleted_newest_frame_or_run_gives_its_id_to_nobody(
+    client: TestClient, make_user
+) -> None:
+    """A page still open on a deleted newest frame or run reaches nothing: the next upload and
+    the next run get new ids (SQLite reused the highest; PostgreSQL never did), so a label saved
+    from that page is the frame's 404 and an upload naming that run is the run's 404."""
+    _, token = make_user("rev", Role.reviewer)
+    run_id = client.post("/api/v1/sequences", json={"name": "r"}, headers=auth(token)).json()["id"]
+    (first,) = _upload(client, token, [("a.png", 1)], run_id)
+    assert client.delete(f"/api/v1/frames/{first['id']}", headers=auth(token)).status_code == 200
+    (second,) = _upload(client, token, [("b.png", 2)], run_id)
+    assert second["id"] > first["id"]
+    mask = np.zeros((48, 64), bool)
+    mask[10:30, 10:40] = True
+    stale = client.put(
+        f"/api/v1/frames/{first['id']}/label", json=corrected_label(mask), headers=auth(token)
+    )
+    assert stale.status_code == 404
+    kept = client.get(f"/api/v1/frames/{second['id']}/label", headers=auth(token))
+    assert kept.status_code == 404  # no label was saved onto the other image
+
+    assert client.delete(f"/api/v1/sequences/{run_id}", headers=auth(token)).status_code == 200
+    new_run = client.post("/api/v1/sequences", json={"name": "s"}, headers=auth(token)).json()
+    assert new_run["id"] > run_id
+    files = [("files", ("c.png", image_bytes(seed=3), "image/png"))]
+    into_old = client.post(
+        "/api/v1/frames", files=files, data={"sequence_id": str(run_id)}, headers=auth(token)
+    )
+    assert into_old.status_code == 404
