@@ -97,7 +97,15 @@ class Settings(BaseSettings):
     auto_promote: bool = Field(
         default=True, description="Promote a newly trained student when it beats the promoted one."
     )
-    workers: int = Field(default=1, ge=1, description="Worker threads of one worker process.")
+    workers: int = Field(
+        default=1, ge=1, description="Worker threads of one worker process's model lane."
+    )
+    quick_workers: int = Field(
+        default=1,
+        ge=1,
+        description="Worker threads of one worker process's quick lane (exports, label "
+        "imports, video extraction, int8), which never waits behind model work.",
+    )
     interactive_threads: int | None = Field(
         default=None,
         ge=1,

@@ -27,6 +27,16 @@ def utcnow() -> dt.datetime:
     return dt.datetime.now(dt.UTC)
 
 
+def db_now(dialect: str) -> Any:
+    """Now by the database's clock, for heartbeats and their staleness: workers on several
+    machines compare their beats on one clock (a worker whose clock ran 90 s behind had its live
+    job reaped). PostgreSQL's statement time in UTC; SQLite lives on one machine, whose clock
+    every process that writes it shares."""
+    if dialect == "postgresql":
+        return sa.func.timezone("UTC", sa.func.statement_timestamp(), type_=sa.DateTime)
+    return utcnow()
+
+
 class UTCDateTime(sa.types.TypeDecorator[dt.datetime]):
     """Stores naive UTC, returns aware UTC, on every backend (SQLite keeps no time zones)."""
 

@@ -452,6 +452,12 @@ class Job(Base):
     cancel_requested: Mapped[bool] = mapped_column(default=False)
     worker_id: Mapped[str | None] = mapped_column(sa.String(200))
     heartbeat_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+    # Within its lane a job a person asked for (1) goes before automatic work (0): the
+    # embedding a video import starts, auto-retraining (``app.jobs.service.priority_of``).
+    priority: Mapped[int] = mapped_column(default=0, server_default=sa.text("0"))
+    # When the queue last carried its id: a queued row not delivered for a while is sent
+    # again (the jobs table is the truth; a Redis restart loses what it held).
+    enqueued_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
     created_by_id: Mapped[int | None] = mapped_column(
         sa.ForeignKey("users.id", ondelete="SET NULL")
     )
@@ -477,6 +483,12 @@ class Worker(Base):
     threads: Mapped[int] = mapped_column(default=1)
     started_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
     last_seen_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    # The lanes it serves ("quick,model") and the job kinds it cannot run, each with the
+    # sentence that says why (no teacher weights, an unusable device), as its start-up found.
+    lanes: Mapped[str] = mapped_column(
+        sa.String(32), default="quick,model", server_default="quick,model"
+    )
+    unable: Mapped[dict[str, str] | None] = mapped_column(JSONType, default=dict)
 
 
 class ModelVersion(Base):

@@ -159,7 +159,7 @@ with TestClient(create_app(settings)) as client:
                              "numpy", "cv2", "PIL.Image", "yaml") if m in sys.modules))
     assert "<form" in client.get("/login").text
     print("jinja2" in sys.modules)
-create_app(settings).state.queue.enqueue(1)
+create_app(settings).state.queue.enqueue(1, "diagnostic")
 print("huey" in sys.modules)
 """
     env = {k: v for k, v in os.environ.items() if not k.startswith("WELDPOOL_")}

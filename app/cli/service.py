@@ -10,7 +10,7 @@ import click
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
-from app.errors import WeldpoolError
+from app.errors import ConfigurationError, WeldpoolError
 
 
 @main.command("migrate")
@@ -121,17 +121,39 @@ def serve(host: str, port: int, no_worker: bool) -> None:
 
 @main.command()
 @click.option("--threads", default=None, type=int, help="Worker threads [WELDPOOL_WORKERS].")
+@click.option(
+    "--lanes",
+    default="quick,model",
+    show_default=True,
+    help="The lanes this worker serves: quick (exports, imports, videos, int8), model "
+    "(training, the teacher, propagation, embeddings), or both.",
+)
 @friendly_errors
-def worker(threads: int | None) -> None:
-    """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM)."""
-    from app.queue import JobQueue, run_standalone_worker
+def worker(threads: int | None, lanes: str) -> None:
+    """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM).
+
+    At start it checks what it can run (the device, the teacher's and SAM2's weights) and
+    registers that with its lanes: it passes on the jobs it cannot run to a worker that can,
+    and refuses to start when it could run nothing at all."""
+    from app.jobs.registry import LANES, kinds_in
+    from app.queue import JobQueue, find_unable, run_standalone_worker
     from app.storage import Storage
 
+    served = tuple(lane for lane in LANES if lane in {p.strip() for p in lanes.split(",")})
+    if not served or len(served) != len({p.strip() for p in lanes.split(",") if p.strip()}):
+        raise ConfigurationError(f"--lanes takes quick, model or both, not {lanes!r}.")
     settings = load_settings()
     settings.ensure_home()
     Storage.of(settings).check()
     queue = JobQueue(settings, open_sessions(settings))
-    run_standalone_worker(queue, threads or settings.workers)
+    unable = find_unable(queue, served)
+    if len(unable) == len(kinds_in(served)):
+        raise ConfigurationError(
+            f"This worker can run no job of its lanes: {next(iter(unable.values()))}"
+        )
+    for kind, reason in sorted(unable.items()):
+        click.echo(f"this worker passes {kind} jobs on: {reason}", err=True)
+    run_standalone_worker(queue, threads or settings.workers, served)
 
 
 @main.group("storage")

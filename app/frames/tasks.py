@@ -15,7 +15,7 @@ from app.system.status import sam2_problem
 from weldpool_core.errors import InvalidInputError
 
 
-@job_handler("extract_video", max_attempts=2)
+@job_handler("extract_video", max_attempts=2, lane="quick")
 def extract_video(ctx: JobContext) -> dict[str, Any]:
     """Every n-th frame of a stored video into its sequence; a lost run is simply re-run
     (frames it already stored count as duplicates)."""

@@ -14,7 +14,7 @@ from weldpool_core.annotations import open_upload
 from weldpool_core.errors import InvalidInputError
 
 
-@job_handler("import_labels", max_attempts=1)
+@job_handler("import_labels", max_attempts=1, lane="quick")
 def import_labels_job(ctx: JobContext) -> dict[str, Any]:
     """Import the uploaded file's labels; the upload is removed when the job ends, whatever
     its outcome (a job that is not retried has no further use for it)."""

@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app import budgets
 from app.config import Settings
-from app.db import utcnow
+from app.db import db_now
 from app.models import Job, JobStatus
 
 # Modules whose import registers job handlers (each domain's tasks.py).
@@ -46,13 +46,20 @@ class JobLost(Exception):
     writes nothing more; the row belongs to the newer attempt."""
 
 
+LANES = ("quick", "model")
+"""The two lanes of the queue: quick jobs (exports, label imports, video extraction, int8) never
+wait behind model work (training, the teacher, propagation, embeddings). A worker serves one lane
+or both (``weldpool worker --lanes``); the embedded worker serves both."""
+
+
 @dataclass(frozen=True)
 class JobSpec:
-    """What a job kind runs, and how often a lost run may be tried again."""
+    """What a job kind runs, in which lane, and how often a lost run may be tried again."""
 
     kind: str
     handler: Callable[[JobContext], dict[str, Any] | None]
     max_attempts: int = 1
+    lane: str = "model"
 
 
 _HANDLERS: dict[str, JobSpec] = {}
@@ -60,14 +67,16 @@ _loaded = False
 
 
 def job_handler(
-    kind: str, *, max_attempts: int = 1
+    kind: str, *, max_attempts: int = 1, lane: str = "model"
 ) -> Callable[[Callable[[JobContext], dict[str, Any] | None]], Callable[..., Any]]:
-    """Register ``handler`` as what jobs of ``kind`` run (in a worker)."""
+    """Register ``handler`` as what jobs of ``kind`` run (in a worker serving ``lane``)."""
+    if lane not in LANES:
+        raise ValueError(f"lane must be one of {LANES}, not {lane!r}")
 
     def register(
         handler: Callable[[JobContext], dict[str, Any] | None],
     ) -> Callable[[JobContext], dict[str, Any] | None]:
-        _HANDLERS[kind] = JobSpec(kind, handler, max_attempts)
+        _HANDLERS[kind] = JobSpec(kind, handler, max_attempts, lane)
         return handler
 
     return register
@@ -95,6 +104,18 @@ def job_spec(kind: str) -> JobSpec | None:
     return _HANDLERS.get(kind)
 
 
+def kinds_in(lanes: tuple[str, ...]) -> list[tuple[str, str]]:
+    """Every registered (kind, lane) of ``lanes``."""
+    load_job_handlers()
+    return sorted((kind, spec.lane) for kind, spec in _HANDLERS.items() if spec.lane in lanes)
+
+
+def lane_of(kind: str) -> str:
+    """The lane a job kind runs in (an unknown kind: the model lane, whose worker fails it)."""
+    spec = job_spec(kind)
+    return spec.lane if spec is not None else "model"
+
+
 @dataclass
 class JobContext:
     """What a running handler may use: its parameters, the database and a progress reporter."""
@@ -109,6 +130,9 @@ class JobContext:
     attempt: int = 1
     """The fencing token: the row's ``attempts`` when this attempt claimed it. Every write of
     progress or outcome is conditional on it, so a reaped attempt that wakes up cannot write."""
+    kind: str = ""
+    priority: int = 0
+    """Its kind and priority, to put it on the queue again after a worker shutdown."""
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
     summary: str | None = None
@@ -132,7 +156,7 @@ class JobContext:
                 .values(
                     progress=min(max(fraction, 0.0), 1.0),
                     message=message[:500],
-                    heartbeat_at=utcnow(),
+                    heartbeat_at=db_now(session.get_bind().dialect.name),
                 )
             )
             session.commit()

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app import budgets
 from app.config import Settings
-from app.db import utcnow
+from app.db import db_now, utcnow
 from app.errors import without_server_paths
 from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, JobLost, job_spec
 from app.models import Job, JobStatus, Worker
@@ -49,12 +49,11 @@ def _finish(context: JobContext, **values: object) -> bool:
         return done.rowcount == 1  # type: ignore[attr-defined]
 
 
-def _claim(
-    session_factory: sessionmaker[Session], job_id: int, worker_id: str
-) -> tuple[str, dict[str, Any], int] | None:
-    """Take the job if it is still queued: its kind, parameters and attempt (None: it was
-    cancelled or another worker took it)."""
+def _claim(session_factory: sessionmaker[Session], job_id: int, worker_id: str) -> Job | None:
+    """Take the job if it is still queued: its row as claimed (None: it was cancelled or
+    another worker took it)."""
     with session_factory() as session:
+        now = db_now(session.get_bind().dialect.name)
         claimed = session.execute(
             sa.update(Job)
             .where(Job.id == job_id, Job.status == JobStatus.queued)
@@ -62,8 +61,8 @@ def _claim(
                 status=JobStatus.running,
                 worker_id=worker_id,
                 attempts=Job.attempts + 1,
-                started_at=utcnow(),
-                heartbeat_at=utcnow(),
+                started_at=now,
+                heartbeat_at=now,
                 progress=0.0,
                 message="",
             )
@@ -71,8 +70,7 @@ def _claim(
         session.commit()
         if claimed.rowcount != 1:  # type: ignore[attr-defined]
             return None
-        job = session.get_one(Job, job_id)
-        return job.kind, dict(job.params or {}), job.attempts
+        return session.get_one(Job, job_id)
 
 
 def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queue: Any) -> None:
@@ -93,7 +91,7 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
             message="interrupted by a worker shutdown; it will run again",
         )
         if requeued and queue is not None:
-            queue.enqueue(job_id)
+            queue.enqueue(job_id, context.kind, context.priority)
         log.info("job.interrupted", job_id=job_id)
     except JobCancelled:
         _finish(context, status=JobStatus.cancelled, message="cancelled by a user")
@@ -129,17 +127,19 @@ def execute_job(
     if claimed is None:
         log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
         return
-    kind, params, attempt = claimed
+    kind, attempt = claimed.kind, claimed.attempts
     log.info("job.started", job_id=job_id, kind=kind, worker=worker_id, attempt=attempt)
     context = JobContext(
         job_id,
-        params,
+        dict(claimed.params or {}),
         settings,
         session_factory,
         worker_id,
         stopping or threading.Event(),
         queue,
         attempt=attempt,
+        kind=kind,
+        priority=claimed.priority,
     )
     spec = job_spec(kind)
     budgets.start_batch(settings)  # this thread now runs below the web process's clicks
@@ -170,23 +170,40 @@ def _pid_is_dead(worker_id: str) -> bool:
 def reap_lost_jobs(
     session_factory: sessionmaker[Session],
     stale_after_s: float,
-    enqueue: Callable[[int], None],
+    enqueue: Callable[[int, str, int], None],
 ) -> list[int]:
-    """Fail or re-queue running jobs whose worker died (a dead pid here, or no heartbeat).
+    """Fail or re-queue running jobs whose worker died (a dead pid here, or no heartbeat by the
+    database's clock).
 
     Returns the ids of the jobs it handled. Safe to run in many workers at once: each job is
     taken by one conditional update.
     """
-    cutoff = utcnow() - dt.timedelta(seconds=stale_after_s)
     handled: list[int] = []
     with session_factory() as session:
+        cutoff = db_now(session.get_bind().dialect.name) - dt.timedelta(seconds=stale_after_s)
+        stale_beat = sa.or_(Job.heartbeat_at.is_(None), Job.heartbeat_at < cutoff)
         running = session.execute(
             sa.select(
-                Job.id, Job.worker_id, Job.heartbeat_at, Job.attempts, Job.max_attempts
+                Job.id,
+                Job.kind,
+                Job.priority,
+                Job.worker_id,
+                Job.heartbeat_at,
+                Job.attempts,
+                Job.max_attempts,
+                stale_beat.label("stale"),
             ).where(Job.status == JobStatus.running)
         ).all()
-        for job_id, worker_id, heartbeat_at, attempts, max_attempts in running:
-            stale = heartbeat_at is None or heartbeat_at < cutoff
+        for (
+            job_id,
+            kind,
+            priority,
+            worker_id,
+            heartbeat_at,
+            attempts,
+            max_attempts,
+            stale,
+        ) in running:
             if not stale and not _pid_is_dead(worker_id or ""):
                 continue
             seen = heartbeat_at.isoformat(timespec="seconds") if heartbeat_at else "never"
@@ -217,14 +234,14 @@ def reap_lost_jobs(
                 handled.append(job_id)
                 log.warning("job.lost", job_id=job_id, worker=worker_id, retry=retry)
                 if retry:
-                    enqueue(job_id)
+                    enqueue(job_id, kind, priority)
     return handled
 
 
 def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> None:
-    """Mark this worker and the jobs it runs as alive."""
-    now = utcnow()
+    """Mark this worker and the jobs it runs as alive (by the database's clock)."""
     with session_factory() as session:
+        now = db_now(session.get_bind().dialect.name)
         updated = session.execute(
             sa.update(Worker).where(Worker.id == worker.id).values(last_seen_at=now)
         )
@@ -237,6 +254,8 @@ def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> 
                     threads=worker.threads,
                     started_at=worker.started_at,
                     last_seen_at=now,
+                    lanes=worker.lanes,
+                    unable=worker.unable,
                 )
             )
         session.execute(
@@ -252,7 +271,46 @@ def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> 
 def live_workers(session_factory: sessionmaker[Session], stale_after_s: float) -> int:
     """How many workers reported a heartbeat within ``stale_after_s`` and, when they run on
     this host, still have a live process (a killed one is not counted until its beat ages)."""
-    cutoff = utcnow() - dt.timedelta(seconds=stale_after_s)
+    return len(worker_rows(session_factory, stale_after_s))
+
+
+def able_workers(session_factory: sessionmaker[Session], stale_after_s: float, kind: str) -> int:
+    """How many live workers serve ``kind``'s lane and can run it."""
+    from app.jobs.registry import lane_of
+
+    lane = lane_of(kind)
     with session_factory() as session:
-        ids = session.scalars(sa.select(Worker.id).where(Worker.last_seen_at >= cutoff))
-        return sum(1 for worker_id in ids if not _pid_is_dead(worker_id))
+        cutoff = db_now(session.get_bind().dialect.name) - dt.timedelta(seconds=stale_after_s)
+        rows = session.execute(
+            sa.select(Worker.id, Worker.lanes, Worker.unable).where(Worker.last_seen_at >= cutoff)
+        ).all()
+    return sum(
+        1
+        for worker_id, lanes, unable in rows
+        if lane in lanes.split(",") and kind not in (unable or {}) and not _pid_is_dead(worker_id)
+    )
+
+
+def worker_rows(session_factory: sessionmaker[Session], stale_after_s: float) -> list[Worker]:
+    """The live workers (as ``live_workers`` counts them), with their lanes and abilities."""
+    with session_factory() as session:
+        cutoff = db_now(session.get_bind().dialect.name) - dt.timedelta(seconds=stale_after_s)
+        rows = session.scalars(
+            sa.select(Worker).where(Worker.last_seen_at >= cutoff).order_by(Worker.started_at)
+        ).all()
+    return [row for row in rows if not _pid_is_dead(row.id)]
+
+
+def unserved_kinds(workers: list[Worker], kinds: list[tuple[str, str]]) -> dict[str, str]:
+    """The job kinds no live worker can run, each with why (one worker's reason, or that no
+    worker serves its lane); empty with no worker at all (health says that on its own)."""
+    if not workers:
+        return {}
+    unserved: dict[str, str] = {}
+    for kind, lane in kinds:
+        serving = [w for w in workers if lane in w.lanes.split(",")]
+        if not serving:
+            unserved[kind] = f"no live worker serves the {lane} lane"
+        elif all(kind in (w.unable or {}) for w in serving):
+            unserved[kind] = (serving[0].unable or {})[kind]
+    return unserved

@@ -33,6 +33,7 @@ def create_job(
         params=params,
         max_attempts=spec.max_attempts,
         created_by_id=user.id if user else None,
+        priority=priority_of(params, user),
     )
     session.add(job)
     try:
@@ -48,12 +49,21 @@ def create_job(
             ) from None
         return create_job(session, queue, kind, params, user)
     try:
-        queue.enqueue(job.id)
+        queue.enqueue(job.id, kind, job.priority)
     except ConfigurationError as exc:
         job.status, job.error, job.finished_at = JobStatus.failed, exc.message, utcnow()
         session.commit()
         raise
     return job
+
+
+PERSON, AUTOMATIC = 1, 0
+
+
+def priority_of(params: dict[str, Any], user: User | None) -> int:
+    """Within its lane, a job a person asked for goes before automatic work: the embedding a
+    video import starts (no user) and auto-retraining (``automatic``)."""
+    return AUTOMATIC if user is None or params.get("automatic") else PERSON
 
 
 def get_job(session: Session, job_id: int) -> Job:

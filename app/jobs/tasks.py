@@ -11,7 +11,7 @@ from app.errors import InvalidInputError, WeldpoolError
 from app.jobs.registry import JobContext, job_handler
 
 
-@job_handler("diagnostic")
+@job_handler("diagnostic", lane="quick")
 def diagnostic(ctx: JobContext) -> dict[str, Any]:
     """Prove that a worker runs jobs: wait ``seconds`` in steps with progress, optionally fail.
 

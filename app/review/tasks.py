@@ -137,7 +137,7 @@ def teacher_summary(
     return "; ".join(parts)
 
 
-@job_handler("export", max_attempts=1)
+@job_handler("export", max_attempts=1, lane="quick")
 def export_run(ctx: JobContext) -> dict[str, Any]:
     """Write an export zip with progress per label; ``GET /exports/{job id}`` downloads it."""
     storage = Storage.of(ctx.settings)

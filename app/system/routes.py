@@ -9,7 +9,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from app.db import schema_revision
-from app.jobs.runner import live_workers
+from app.jobs.registry import LANES, kinds_in
+from app.jobs.runner import unserved_kinds, worker_rows
 from app.queue import describe
 from app.system.status import teacher_problem
 from weldpool_core.teacher.weights import weights_status
@@ -32,15 +33,27 @@ def _database(request: Request) -> dict[str, Any]:
 
 
 def _workers(request: Request) -> dict[str, Any]:
-
+    """Live workers with their lanes and what each cannot run, and the job kinds that no
+    live worker can run (``unserved``)."""
     try:
-        return {
-            "alive": live_workers(
-                request.app.state.session_factory, request.app.state.settings.job_stale_after_s
-            )
-        }
+        workers = worker_rows(
+            request.app.state.session_factory, request.app.state.settings.job_stale_after_s
+        )
     except sa.exc.SQLAlchemyError:
         return {"alive": None}
+    return {
+        "alive": len(workers),
+        "workers": [
+            {
+                "host": worker.hostname,
+                "threads": worker.threads,
+                "lanes": worker.lanes.split(","),
+                "unable": worker.unable or {},
+            }
+            for worker in workers
+        ],
+        "unserved": unserved_kinds(workers, kinds_in(LANES)),
+    }
 
 
 @router.get("/health")
@@ -62,6 +75,12 @@ def health(request: Request) -> JSONResponse:
     problem = teacher_problem(settings)
     if problem:
         warnings.append(problem)
+    by_reason: dict[str, list[str]] = {}
+    for kind, reason in sorted(queue.get("unserved", {}).items()):
+        by_reason.setdefault(reason, []).append(kind)
+    for reason, kinds in by_reason.items():
+        if not (problem and "weights are missing" in reason):  # said once, above
+            warnings.append(f"No live worker can run {' or '.join(kinds)} jobs: {reason}")
     if queue.get("alive") == 0:
         warnings.append(
             "No worker is alive: jobs wait in the queue until `weldpool worker` (or `weldpool "

@@ -37,3 +37,24 @@ def sam2_problem(settings: Settings) -> str | None:
     return _missing(
         "Clicks, boxes and propagation need SAM2", [weights_status(settings.sam2, "WELDPOOL_SAM2")]
     )
+
+
+def unable_kinds(settings: Settings, kinds: list[tuple[str, str]]) -> dict[str, str]:
+    """The job kinds a worker with these settings cannot run, each with why in one sentence:
+    model-lane kinds without a usable device, the teacher without its weights, SAM2's kinds
+    (embeddings, propagation) without SAM2's. ``kinds`` is every (kind, lane) it would serve."""
+    from weldpool_core.device import resolve_device
+    from weldpool_core.errors import InvalidInputError
+
+    unable: dict[str, str] = {}
+    try:
+        resolve_device(settings.device)
+    except InvalidInputError as exc:
+        unable |= {kind: exc.message for kind, lane in kinds if lane == "model"}
+    needs = {"teacher": teacher_problem(settings)}
+    sam2 = sam2_problem(settings)
+    needs |= {"embed": sam2, "propagate": sam2}
+    for kind, problem in needs.items():
+        if problem and kind not in unable and any(kind == k for k, _ in kinds):
+            unable[kind] = problem
+    return unable

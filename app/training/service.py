@@ -204,19 +204,28 @@ def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: 
     """The promoted student's run over the unreviewed frames (proposals and uncertainty for the
     queue), queued at most once: a run that an earlier promotion queued and no worker has
     started yet is handed to ``model`` and today's unreviewed frames instead of queuing another
-    (a worker reads a job's parameters when it claims it). None when no frame awaits review."""
+    (a worker reads a job's parameters when it claims it), and a run of ``model`` already
+    running is the run (promoting the promoted version again). None when no frame awaits
+    review."""
     frame_ids = unreviewed_frame_ids(session)
     if not frame_ids:
         return None
     params = {"frame_ids": frame_ids, "model_version_id": model.id, PROMOTED_RUN: True}
     waiting = session.scalars(
         sa.select(Job)
-        .where(Job.kind == STUDENT_RUN_KIND, Job.status == JobStatus.queued)
+        .where(
+            Job.kind == STUDENT_RUN_KIND,
+            Job.status.in_([JobStatus.queued, JobStatus.running]),
+        )
         .order_by(Job.id)
     )
     for job in list(waiting):
         if not (job.params or {}).get(PROMOTED_RUN):
             continue  # a run a user asked for, on frames of their choice
+        if job.status == JobStatus.running:
+            if job.params.get("model_version_id") == model.id:
+                return job  # this version's run is running: not a second one beside it
+            continue
         handed = session.execute(
             sa.update(Job)
             .where(Job.id == job.id, Job.status == JobStatus.queued)

@@ -521,7 +521,7 @@ def _student_proposal(
     )
 
 
-@job_handler(service.QUANTIZE_KIND)
+@job_handler(service.QUANTIZE_KIND, lane="quick")
 def quantize_version(ctx: JobContext) -> dict[str, Any]:
     """Make a version's int8 student (``weldpool_core.student.quantize``), calibrated on frames
     spread over the project and checked against the float student on others; the version

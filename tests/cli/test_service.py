@@ -183,3 +183,20 @@ def test_a_first_start_prepares_the_instance_below_the_serving_thread(
     base = nice()
     assert seen == {"prepare": min(19, base + Settings().batch_nice), "serve": base}
     assert "created user 'admin'" in result.output
+
+
+def test_a_worker_that_could_run_nothing_refuses_to_start(tmp_path: Path) -> None:
+    """`weldpool worker` checks what it can run: a model-lane worker with a device this machine
+    lacks refuses to start in one sentence (it started, looked alive and failed every job);
+    lanes it does not know are refused too."""
+    settings = make_settings(tmp_path / "home")
+    assert run(settings, "migrate").returncode == 0
+    no_gpu = run(settings, "worker", "--lanes", "model", WELDPOOL_DEVICE="cuda:7")
+    assert no_gpu.returncode == 2
+    assert no_gpu.stderr.strip().splitlines()[-1] == (
+        "weldpool: This worker can run no job of its lanes: WELDPOOL_DEVICE='cuda:7' but no such "
+        "CUDA device is present; use cpu or auto."
+    )
+    unknown = run(settings, "worker", "--lanes", "fast")
+    assert unknown.returncode == 2
+    assert "--lanes takes quick, model or both, not 'fast'." in unknown.stderr

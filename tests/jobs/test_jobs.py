@@ -10,11 +10,12 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.db import utcnow
+from app.db import create_db_engine, create_session_factory, utcnow
 from app.jobs.registry import JobContext, JobLost, job_handler
 from app.jobs.runner import execute_job, reap_lost_jobs
 from app.jobs.service import cancel_job, create_job
 from app.models import Job, JobStatus, Role, User
+from app.schema import migrate
 from tests.helpers import auth, wait_for, wait_for_job
 
 release = threading.Event()
@@ -185,7 +186,9 @@ def test_reaper_fails_or_retries_jobs_of_silent_workers(
     silent = _running_job(session_factory, "diagnostic", "elsewhere:1:abc", seconds_ago=120)
     retried = _running_job(session_factory, "test-retry", "elsewhere:1:abc", seconds_ago=120)
     alive = _running_job(session_factory, "diagnostic", "elsewhere:2:def", seconds_ago=1)
-    handled = reap_lost_jobs(session_factory, 60.0, enqueued.append)
+    handled = reap_lost_jobs(
+        session_factory, 60.0, lambda job_id, kind, priority: enqueued.append(job_id)
+    )
     assert sorted(handled) == sorted([silent, retried])
     assert enqueued == [retried]
     with session_factory() as session:
@@ -207,7 +210,7 @@ def test_reaper_fails_or_retries_jobs_of_silent_workers(
 
 def test_stale_worker_cannot_overwrite_a_reaped_job(session_factory, settings: Settings) -> None:
     job_id = _running_job(session_factory, "diagnostic", "old:1:aaa", seconds_ago=120)
-    reap_lost_jobs(session_factory, 60.0, lambda _id: None)
+    reap_lost_jobs(session_factory, 60.0, lambda *_: None)
     from app.jobs.runner import _finish
 
     stale = JobContext(job_id, {}, settings, session_factory, "old:1:aaa", attempt=1)
@@ -256,7 +259,7 @@ def test_a_reaped_attempt_that_wakes_up_writes_nothing(session_factory, settings
     with session_factory() as session:
         session.get_one(Job, job_id).heartbeat_at = utcnow() - dt.timedelta(seconds=120)
         session.commit()
-    assert reap_lost_jobs(session_factory, 60.0, lambda _id: None) == [job_id]
+    assert reap_lost_jobs(session_factory, 60.0, lambda *_: None) == [job_id]
     second = threading.Thread(target=execute_job, args=(job_id, settings, session_factory, worker))
     second.start()
     assert second_runs.wait(20)
@@ -353,17 +356,23 @@ def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -
 
 def test_the_sqlite_queue_is_counted_as_huey_counts_it(tmp_path) -> None:
     """`/health` counts the SQLite queue without importing Huey; the count must be Huey's own,
-    for this queue's name only, and 0 before the queue file exists."""
+    for this queue's name and lane only, and 0 before the queue file exists."""
     from app.queue import JobQueue
     from tests.helpers import make_settings
 
-    queue = JobQueue(make_settings(tmp_path / "a"), None)  # type: ignore[arg-type]
-    other = JobQueue(make_settings(tmp_path / "a"), None)  # type: ignore[arg-type]
+    engine = create_db_engine(f"sqlite:///{tmp_path / 'db.sqlite3'}")
+    migrate(engine)
+    factory = create_session_factory(engine)
+    queue = JobQueue(make_settings(tmp_path / "a"), factory)
+    other = JobQueue(make_settings(tmp_path / "a"), factory)
     assert queue.pending() == 0  # no file yet
     for job_id in range(3):
-        queue.enqueue(job_id)
-    other.enqueue(99)
-    assert queue.pending() == queue.huey.pending_count() == 3
-    assert other.pending() == other.huey.pending_count() == 1
-    queue.huey.dequeue()
-    assert queue.pending() == queue.huey.pending_count() == 2
+        queue.enqueue(job_id, "teacher")
+    queue.enqueue(7, "export")
+    other.enqueue(99, "teacher")
+    assert queue.pending("model") == queue.huey("model").pending_count() == 3
+    assert queue.pending("quick") == queue.huey("quick").pending_count() == 1
+    assert queue.pending() == 4
+    assert other.pending() == other.huey("model").pending_count() == 1
+    queue.huey("model").dequeue()
+    assert queue.pending("model") == queue.huey("model").pending_count() == 2

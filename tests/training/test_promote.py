@@ -113,3 +113,37 @@ def test_a_promotion_that_cannot_read_the_weights_names_no_server_path(
     assert str(Path(settings.home).resolve()) not in detail and "/tmp" not in detail, detail
     assert detail.startswith("student-v9 cannot be measured: models/student-v9 ")
     assert "config.json is missing" in detail
+
+
+def test_promoting_the_promoted_version_again_queues_no_second_run(
+    idle_client: TestClient, make_user, session_factory
+) -> None:
+    """While the promoted version's run is running, promoting that version again queues
+    nothing beside it (it ran a second full student run); another version's promotion does."""
+    _, token = make_user("promoter", Role.reviewer)
+    files = [("files", ("a.png", image_bytes(32, 24, seed=1), "image/png"))]
+    assert idle_client.post("/api/v1/frames", files=files, headers=auth(token)).status_code == 201
+    first, second = _versions(session_factory, "student-a", "student-b")
+
+    def promote(version: int) -> None:
+        answer = idle_client.post(
+            f"/api/v1/models/{version}/promote", params={"force": True}, headers=auth(token)
+        )
+        assert answer.status_code == 200, answer.text
+
+    promote(first)
+    with session_factory() as session:  # a live worker (this process) runs it
+        claimed = {"status": JobStatus.running, "worker_id": new_worker_id()}
+        session.execute(
+            sa.update(Job).where(Job.kind == "student").values(**claimed, heartbeat_at=utcnow())
+        )
+        session.commit()
+    promote(first)
+    assert [(s, p["model_version_id"]) for s, p in _student_jobs(session_factory)] == [
+        ("running", first)
+    ]
+    promote(second)
+    assert [(s, p["model_version_id"]) for s, p in _student_jobs(session_factory)] == [
+        ("running", first),
+        ("queued", second),
+    ]

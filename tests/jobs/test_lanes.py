@@ -1,0 +1,173 @@
+"""Lanes, priorities and delivery: a quick job never waits behind model work, a person's job
+goes before automatic work, a queued row is delivered whatever the queue forgot, heartbeats
+are read on the database's clock, and a worker passes on what it cannot run."""
+
+from __future__ import annotations
+
+import datetime as dt
+import threading
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.db import create_db_engine, create_session_factory, utcnow
+from app.jobs import runner
+from app.jobs.delivery import deliver_again, pass_on
+from app.jobs.registry import JobContext, job_handler
+from app.jobs.service import create_job
+from app.models import Job, JobStatus, Role, Worker
+from app.queue import JobQueue
+from app.schema import migrate
+from tests.helpers import auth, make_settings, wait_for, wait_for_job
+
+gate = threading.Event()
+order: list[str] = []
+
+
+@job_handler("lane-block")
+def _block(ctx: JobContext) -> dict:
+    while not gate.wait(0.05):
+        ctx.progress(0.1, "holding the model lane")
+    return {}
+
+
+@job_handler("lane-record")
+def _record(ctx: JobContext) -> dict:
+    order.append(ctx.params["tag"])
+    return {}
+
+
+def _status(session_factory, job_id: int) -> JobStatus:
+    with session_factory() as session:
+        return session.get_one(Job, job_id).status
+
+
+def test_a_quick_job_never_waits_behind_model_work_and_a_person_goes_first(
+    client: TestClient, make_user, session_factory
+) -> None:
+    """With the defaults (the embedded worker, one model thread) held by model work, a quick
+    job (a diagnostic, like an export) runs at once; within the model lane a person's job goes
+    before automatic work queued before it."""
+    gate.clear()
+    order.clear()
+    user, token = make_user("admin", Role.admin)
+    queue = client.app.state.queue  # type: ignore[attr-defined]
+    with session_factory() as session:
+        blocker = create_job(session, queue, "lane-block", {}, user).id
+    wait_for(lambda: _status(session_factory, blocker) == JobStatus.running)
+    quick = client.post("/api/v1/jobs/diagnostic", json={"seconds": 0}, headers=auth(token))
+    assert wait_for_job(client, quick.json()["job_id"], token)["status"] == "succeeded"
+    assert _status(session_factory, blocker) == JobStatus.running
+
+    with session_factory() as session:
+        automatic = create_job(session, queue, "lane-record", {"tag": "automatic"}, None).id
+        person = create_job(session, queue, "lane-record", {"tag": "person"}, user).id
+    gate.set()
+    for job_id in (blocker, automatic, person):
+        wait_for(lambda job_id=job_id: _status(session_factory, job_id) == JobStatus.succeeded)
+    assert order == ["person", "automatic"]
+
+
+@pytest.fixture(params=["sqlite", pytest.param("redis", marks=pytest.mark.redis)])
+def idle_queue(request: pytest.FixtureRequest, tmp_path, database_url: str):
+    """A queue (a SQLite file, or the real Redis) that no worker consumes, over a database."""
+    queue_url = request.getfixturevalue("redis_url") if request.param == "redis" else None
+    settings = make_settings(tmp_path / "home", database_url=database_url, queue_url=queue_url)
+    engine = create_db_engine(settings.resolved_database_url)
+    migrate(engine)
+    queue = JobQueue(settings, create_session_factory(engine))
+    yield queue
+    queue.huey("quick").flush()
+    queue.huey("model").flush()
+    engine.dispose()
+
+
+def test_a_queued_job_the_queue_forgot_is_delivered_once(idle_queue: JobQueue) -> None:
+    """The queue emptied under a queued row (Redis restarted): the delivery pass sends it
+    again, once — a job its lane still holds is not sent twice — and an id delivered twice
+    runs once."""
+    queue = idle_queue
+    with queue.session_factory() as session:
+        job = create_job(session, queue, "diagnostic", {"seconds": 0}, None)
+    assert queue.pending("quick") == 1
+    assert deliver_again(queue, older_than_s=0) == []  # its lane holds it
+    assert queue.pending("quick") == 1
+    queue.huey("quick").flush()  # the restart
+    assert deliver_again(queue, older_than_s=3600) == []  # not overdue yet
+    assert deliver_again(queue, older_than_s=0) == [job.id]
+    assert queue.carried("quick") == {job.id}
+    queue.enqueue(job.id, "diagnostic")  # and once more: at least once, run once
+    huey = queue.huey("quick")
+    while (task := huey.dequeue()) is not None:
+        huey.execute(task)
+    with queue.session_factory() as session:
+        done = session.get_one(Job, job.id)
+        assert (done.status, done.attempts) == (JobStatus.succeeded, 1)
+
+
+@pytest.mark.postgres
+def test_a_worker_whose_clock_runs_behind_keeps_its_job(
+    postgres_url: str, tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A worker whose clock is 90 s behind writes its heartbeat on the database's clock, so
+    another machine's reaper (60 s) leaves its live job alone (it was reaped at once)."""
+    engine = create_db_engine(postgres_url)
+    migrate(engine)
+    factory = create_session_factory(engine)
+    worker = Worker(
+        id="elsewhere:1:abc",
+        hostname="elsewhere",
+        pid=1,
+        threads=1,
+        started_at=utcnow(),
+        lanes="quick,model",
+        unable={},
+    )
+    with factory() as session:
+        job = Job(kind="diagnostic", status=JobStatus.running, worker_id=worker.id, attempts=1)
+        session.add(job)
+        session.commit()
+    behind = utcnow() - dt.timedelta(seconds=90)
+    with monkeypatch.context() as patch:  # the worker's machine
+        patch.setattr(runner, "utcnow", lambda: behind)
+        patch.setattr("app.db.utcnow", lambda: behind)
+        runner.record_heartbeat(factory, worker)
+    assert runner.reap_lost_jobs(factory, 60.0, lambda *_: None) == []
+    with factory() as session:
+        assert session.get_one(Job, job.id).status == JobStatus.running
+    engine.dispose()
+
+
+def test_a_worker_passes_on_what_it_cannot_run(idle_queue: JobQueue) -> None:
+    """A worker without the teacher's weights takes no teacher job: with an able worker alive
+    the id goes back on the lane for it; with none the row stays queued saying what it waits
+    for, and /health's figures name the kind no worker can run."""
+    queue = idle_queue
+    queue.unable = {"teacher": "The teacher cannot run: its weights are missing."}
+    with queue.session_factory() as session:
+        job = create_job(session, queue, "teacher", {}, None)
+    queue.huey("model").flush()
+    assert pass_on(queue, job.id) is True
+    with queue.session_factory() as session:
+        row = session.get_one(Job, job.id)
+        assert row.status == JobStatus.queued and row.attempts == 0
+        assert row.message == (
+            "waiting for a worker that can run it (The teacher cannot run: its weights are "
+            "missing.)"
+        )
+    lacking = Worker(id="here:1:a", hostname="here", pid=1, threads=1, started_at=utcnow())
+    lacking.lanes, lacking.unable = "quick,model", dict(queue.unable)
+    able = Worker(id="there:2:b", hostname="there", pid=2, threads=1, started_at=utcnow())
+    able.lanes, able.unable = "model", {}
+    assert runner.unserved_kinds([lacking], [("teacher", "model"), ("export", "quick")]) == {
+        "teacher": "The teacher cannot run: its weights are missing."
+    }
+    assert runner.unserved_kinds([able], [("teacher", "model"), ("export", "quick")]) == {
+        "export": "no live worker serves the quick lane"
+    }
+    runner.record_heartbeat(queue.session_factory, able)
+    assert pass_on(queue, job.id) is True
+    assert queue.carried("model") == {job.id}  # back on the lane (after a delay), for the able one
+    assert pass_on(queue, job.id + 1000) is False  # no such queued job: nothing to pass on
+    queue.unable = {}
+    assert pass_on(queue, job.id) is False  # a worker that can run it runs it
