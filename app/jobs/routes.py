@@ -7,6 +7,7 @@ from fastapi import APIRouter, Query, status
 from app.bounds import IdPath, OffsetQuery
 from app.deps import QueueDep, SessionDep
 from app.jobs import service
+from app.jobs.registry import lane_of
 from app.jobs.schemas import DiagnosticJobIn, JobCreated, JobOut, JobPage
 from app.models import JobStatus
 from app.security import AdminUser, CurrentUser
@@ -25,13 +26,24 @@ def list_jobs(
 ) -> JobPage:
     """Recent jobs, newest first."""
     rows, total = service.list_jobs(session, kind, status, limit, offset)
-    return JobPage(items=[JobOut.model_validate(r) for r in rows], total=total)
+    return JobPage(items=_out(session, rows), total=total)
+
+
+def _out(session: SessionDep, jobs: list) -> list[JobOut]:
+    """Jobs as clients see them, with their lane and what a queued one waits behind."""
+    waiting = service.waiting_for(session, jobs)
+    return [
+        JobOut.model_validate(job).model_copy(
+            update={"lane": lane_of(job.kind), "waiting": waiting.get(job.id)}
+        )
+        for job in jobs
+    ]
 
 
 @router.get("/{job_id}", response_model=JobOut)
 def get_job(job_id: IdPath, session: SessionDep, _user: CurrentUser) -> JobOut:
     """One job's status, progress, result or error."""
-    return JobOut.model_validate(service.get_job(session, job_id))
+    return _out(session, [service.get_job(session, job_id)])[0]
 
 
 @router.post("/{job_id}/cancel", response_model=JobOut)

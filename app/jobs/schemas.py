@@ -35,6 +35,11 @@ class JobOut(BaseModel):
     created_at: dt.datetime
     started_at: dt.datetime | None
     finished_at: dt.datetime | None
+    lane: str = Field(default="model", description="The lane it runs in: quick or model.")
+    waiting: str | None = Field(
+        default=None,
+        description="A queued job: what it waits behind in its lane, and for about how long.",
+    )
 
 
 class JobPage(BaseModel):

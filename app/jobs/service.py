@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from typing import Any
 
 import sqlalchemy as sa
@@ -15,7 +16,7 @@ from app.errors import (
     NotFoundError,
     PermissionDeniedError,
 )
-from app.jobs.registry import job_spec
+from app.jobs.registry import counted, job_spec, lane_of
 from app.jobs.runner import reap_lost_jobs
 from app.models import Job, JobStatus, Role, User
 from app.queue import JobQueue
@@ -64,6 +65,53 @@ def priority_of(params: dict[str, Any], user: User | None) -> int:
     """Within its lane, a job a person asked for goes before automatic work: the embedding a
     video import starts (no user) and auto-retraining (``automatic``)."""
     return AUTOMATIC if user is None or params.get("automatic") else PERSON
+
+
+def _minutes_left(
+    started_at: dt.datetime | None, progress: float, now: dt.datetime
+) -> float | None:
+    """A running job's time left from its pace so far (None before it has a pace)."""
+    if started_at is None or progress < 0.02:
+        return None
+    elapsed = (now - started_at).total_seconds()
+    return elapsed * (1 - progress) / progress / 60
+
+
+def waiting_for(session: Session, jobs: list[Job]) -> dict[int, str]:
+    """For each queued job of ``jobs``: what it waits behind in its lane, in words ("behind
+    train_student #4 (about 3 min left) and 2 queued jobs"), from the lane's running jobs and
+    the queued jobs that go first (higher priority, else older)."""
+    queued = [job for job in jobs if job.status == JobStatus.queued]
+    if not queued:
+        return {}
+    active = session.execute(
+        sa.select(Job.id, Job.kind, Job.status, Job.priority, Job.progress, Job.started_at)
+        .where(Job.status.in_([JobStatus.queued, JobStatus.running]))
+        .order_by(Job.id)
+    ).all()
+    now, words = utcnow(), {}
+    for job in queued:
+        lane = lane_of(job.kind)
+        same = [row for row in active if lane_of(row.kind) == lane and row.id != job.id]
+        running = [row for row in same if row.status == JobStatus.running]
+        ahead = [
+            row
+            for row in same
+            if row.status == JobStatus.queued and (row.priority, -row.id) > (job.priority, -job.id)
+        ]
+        parts = []
+        for row in running[:2]:
+            left = _minutes_left(row.started_at, row.progress, now)
+            when = f" (about {max(1, round(left))} min left)" if left is not None else ""
+            parts.append(f"{row.kind} #{row.id}{when}")
+        if ahead:
+            parts.append(counted(len(ahead), "queued job"))
+        words[job.id] = (
+            f"queued in the {lane} lane behind " + " and ".join(parts)
+            if parts
+            else f"queued in the {lane} lane: next"
+        )
+    return words
 
 
 def get_job(session: Session, job_id: int) -> Job:

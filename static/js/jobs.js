@@ -16,7 +16,7 @@ let runs = new Map(); // sequence id → name, for the scope column
  * it succeeded (every kind writes one), its error when it failed. */
 function describe(job) {
   if (job.error) return h("span", { class: "error" }, job.error);
-  const parts = [job.message];
+  const parts = [job.message || job.waiting];
   if (job.cancel_requested && ACTIVE.has(job.status)) parts.push("cancelling…");
   return parts.filter(Boolean).join(" — ");
 }

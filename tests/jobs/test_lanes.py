@@ -171,3 +171,28 @@ def test_a_worker_passes_on_what_it_cannot_run(idle_queue: JobQueue) -> None:
     assert pass_on(queue, job.id + 1000) is False  # no such queued job: nothing to pass on
     queue.unable = {}
     assert pass_on(queue, job.id) is False  # a worker that can run it runs it
+
+
+def test_a_queued_job_says_what_it_waits_behind(session_factory) -> None:
+    """The Jobs page's words for a queued job: the running job of its own lane with the time
+    its pace leaves, and the queued jobs that go first (a person's before automatic work);
+    a quick job is next whatever the model lane does."""
+    from app.jobs.service import waiting_for
+
+    with session_factory() as session:
+        started = utcnow() - dt.timedelta(seconds=240)
+        training = Job(kind="train_student", status=JobStatus.running, progress=0.5)
+        training.started_at = started
+        automatic = Job(kind="teacher", priority=0)
+        person = Job(kind="teacher", priority=1)
+        export = Job(kind="export")
+        session.add_all([training, automatic, person, export])
+        session.commit()
+        words = waiting_for(session, [automatic, person, export])
+    assert words == {
+        person.id: f"queued in the model lane behind train_student #{training.id} "
+        "(about 4 min left)",
+        automatic.id: f"queued in the model lane behind train_student #{training.id} "
+        "(about 4 min left) and 1 queued job",
+        export.id: "queued in the quick lane: next",
+    }
