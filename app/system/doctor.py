@@ -62,12 +62,18 @@ def frame_file(storage: Storage, path: str, frame_id: int, kind: str = "image") 
 
 def _named(session: Session) -> Iterator[LostFile]:
     """Every stored file a row names, as the LostFile it would be."""
-    for frame_id, path in session.execute(sa.select(Frame.id, Frame.path)):
+    for frame_id, path in session.execute(sa.select(Frame.id, Frame.path).order_by(Frame.id)):
         yield LostFile("image", f"frame {frame_id}", path, frame_id)
-    labels = sa.select(Label.frame_id, Label.mask_path).where(Label.mask_path.is_not(None))
+    labels = (
+        sa.select(Label.frame_id, Label.mask_path)
+        .where(Label.mask_path.is_not(None))
+        .order_by(Label.frame_id)
+    )
     for frame_id, mask_path in session.execute(labels):
         yield LostFile("label mask", f"frame {frame_id}", str(mask_path), frame_id)
-    proposals = sa.select(Proposal.id, Proposal.frame_id, Proposal.mask_path, Proposal.heatmap_path)
+    proposals = sa.select(
+        Proposal.id, Proposal.frame_id, Proposal.mask_path, Proposal.heatmap_path
+    ).order_by(Proposal.id)
     for proposal_id, frame_id, mask, heatmap in session.execute(proposals):
         owner = f"proposal {proposal_id} of frame {frame_id}"
         yield LostFile("proposal mask", owner, mask, frame_id)
