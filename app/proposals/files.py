@@ -21,6 +21,7 @@ from sqlalchemy.orm.exc import StaleDataError
 from app.errors import NotFoundError
 from app.models import Frame, LabelRevision, Proposal
 from app.storage import Storage, StoredFile
+from app.system.doctor import frame_file
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
 
 if TYPE_CHECKING:
@@ -135,8 +136,9 @@ def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
 
 
 def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
-    """The frame as the models see it (RGB uint8, 16-bit stretched)."""
-    return stored_rgb(storage, frame.path)
+    """The frame as the models see it (RGB uint8, 16-bit stretched); a lost file is the
+    frame's MissingFile (which frame, what restores it)."""
+    return to_rgb8(read_image(frame_file(storage, frame.path, frame.id)))
 
 
 def stored_rgb(storage: Storage, path: str) -> NDArray[np.uint8]:
