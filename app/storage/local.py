@@ -158,7 +158,13 @@ class Storage:
     def lost(self, paths: Iterable[str]) -> set[str]:
         """Those of ``paths`` (files or folders) the store no longer holds, found without
         reading them (``weldpool doctor``)."""
-        return {p for p in paths if not self.absolute(p).exists()}
+        return {p for p in paths if not self._held(p)}
+
+    def _held(self, relative: str) -> bool:
+        try:
+            return self.absolute(relative).exists()
+        except ValueError:  # a row naming a path outside the store: nothing there to read
+            return False
 
     def _claimed(self, relative: str) -> bool:
         """Claim stored content (``_claim``); False when it is not there."""

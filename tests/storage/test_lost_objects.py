@@ -98,3 +98,21 @@ def test_an_object_the_bucket_lost_is_its_frames_409_a_listed_skip_and_doctors_l
         f"frame {lost}",
         f"frame {kept}",
     ]
+
+
+def test_a_trashed_object_is_not_lost_and_a_missing_key_is(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    """``lost`` answers from one listing: a key in the trash (a reader puts it back) is held;
+    a key in neither place is lost, and reading it is MissingFile (not a file of nothing)."""
+    from app.errors import MissingFile
+    from app.storage.s3 import ObjectStorage
+
+    storage = ObjectStorage(tmp_path / "home", s3_url, 60.0, s3_endpoint)
+    kept = storage.put(b"kept", "a" * 64, ".png").path
+    trashed = storage.put(b"trashed", "b" * 64, ".png").path
+    assert storage._remove_if(trashed, lambda _ns: True)  # the collector trashed it
+    assert storage.lost([kept, trashed, "frames/cc/cc/none.png"]) == {"frames/cc/cc/none.png"}
+    with pytest.raises(MissingFile):
+        storage.existing("frames/cc/cc/none.png")
+    assert storage.existing(trashed).read_bytes() == b"trashed"  # put back by the read
