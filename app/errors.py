@@ -13,6 +13,7 @@ __all__ = [
     "ConfigurationError",
     "ConflictError",
     "InvalidInputError",
+    "MissingFile",
     "NotFoundError",
     "PermissionDeniedError",
     "TooManyAttemptsError",
@@ -50,6 +51,27 @@ class NotFoundError(WeldpoolError):
 
 class ConflictError(WeldpoolError):
     """The request conflicts with the current state (a stale revision, a duplicate name)."""
+
+
+class MissingFile(ConflictError, FileNotFoundError):
+    """A row names a stored file the store no longer holds (lost from disk or from the bucket,
+    and absent from this machine's cache). The storage layer raises it with the path; a reader
+    that knows whose file it is says so (``about``). A FileNotFoundError too, so the code that
+    tells a frame deleted meanwhile from a lost file sees it as it saw the bare error."""
+
+    def __init__(self, path: str, message: str | None = None) -> None:
+        super().__init__(
+            message
+            or f"The stored file {path} is missing; run `weldpool doctor` to list the lost "
+            "files and what restores each."
+        )
+        self.path = path
+
+    def about(self, whose: str, restore: str) -> MissingFile:
+        """The same loss, said of its owner: ``whose`` ("Frame 12's image") and what restores
+        it ("upload the same image again")."""
+        sentence = f"{whose} ({self.path}) is missing from the store; {restore}."
+        return MissingFile(self.path, sentence)
 
 
 class AuthenticationError(WeldpoolError):

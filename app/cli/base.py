@@ -75,6 +75,7 @@ COMMANDS = {
     "worker": "service",
     "migrate": "service",
     "storage": "service",
+    "doctor": "doctor",
     "import": "frames",
     "import-labels": "frames",
     "export": "review",

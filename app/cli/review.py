@@ -40,6 +40,7 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
     from app.storage import Storage
 
     settings = load_settings()
+    skipped: list[tuple[int, str]] = []
     with open_sessions(settings)() as session:
         sequence_id = None
         if sequence_name:
@@ -54,9 +55,12 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
             fmt,  # type: ignore[arg-type]
             sequence_id=sequence_id,
             split=Split(split) if split else None,
+            skipped=skipped,
         )
     out_path.parent.mkdir(parents=True, exist_ok=True)
     shutil.move(temporary, out_path)
+    for _, reason in skipped:
+        click.echo(f"left out: {reason}", err=True)
     click.echo(f"wrote {out_path}", err=True)
 
 

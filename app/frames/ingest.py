@@ -274,10 +274,15 @@ def _record_staged(
                     strict=True,
                 )
             )
-            written = storage.install_many([staged.pop(f.sha256) for f in new.values()], DISK_POOL)
+            # A duplicate staged with a temporary was not in the store: its file was lost, and
+            # this upload puts it back (what `weldpool doctor` advises for a lost image).
+            lost = [staged.pop(sha) for sha in existing.keys() & staged.keys()]
+            written = storage.install_many(
+                [staged.pop(f.sha256) for f in new.values()] + lost, DISK_POOL
+            )
             rows = [
                 _frame_row(frame, stored.path, sequence_id, user, video_id)
-                for frame, stored in zip(new.values(), written, strict=True)
+                for frame, stored in zip(new.values(), written[: len(new)], strict=True)
             ]
             session.add_all(rows)
             session.commit()

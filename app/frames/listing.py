@@ -27,6 +27,7 @@ from app.models import (
 from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
+from app.system.doctor import frame_file
 from weldpool_core.io import encode_png, read_image
 
 if TYPE_CHECKING:
@@ -327,7 +328,7 @@ def display_image(storage: Storage, frame: Frame, variant: str) -> Path:
     relative = f"cache/{variant}/{frame.sha256[:2]}/{frame.sha256}.png"
     if (target := storage.absolute(relative)).exists():
         return target
-    rgb = to_rgb8(read_image(storage.absolute(frame.path)))
+    rgb = to_rgb8(read_image(frame_file(storage, frame.path, frame.id)))
     pixels: Any = rgb[:, :, 0] if frame.channels == 1 else rgb
     if variant == "thumb":
         scale = 256 / max(frame.width, frame.height)

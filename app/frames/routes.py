@@ -35,6 +35,7 @@ from app.frames.schemas import (
 from app.jobs.service import create_job
 from app.models import FrameStatus, ReviewState, Split
 from app.security import CurrentUser, ReviewerUser
+from app.system.doctor import frame_file
 
 router = APIRouter(tags=["frames"])
 
@@ -329,7 +330,7 @@ def get_frame_image(
     headers = {"Cache-Control": "private, max-age=31536000, immutable"}
     if variant == "original":
         return FileResponse(
-            storage.absolute(frame.path), media_type=frame.media_type, headers=headers
+            frame_file(storage, frame.path, frame.id), media_type=frame.media_type, headers=headers
         )
     path = listing.display_image(storage, frame, variant)
     return FileResponse(path, media_type="image/png", headers=headers)

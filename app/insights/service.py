@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.errors import MissingFile
 from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
 from app.proposals.policy import current, source_key, stored_iou
 from app.storage import Storage
@@ -68,9 +69,11 @@ def teacher_quality(session: Session, storage: Storage) -> dict[str, Any]:
     per_sequence: dict[tuple[int | None, str | None], list[float]] = defaultdict(list)
     for sequence_id, name, teacher_mask, label_mask in rows:
         if label_mask:
-            per_sequence[(sequence_id, name)].append(
-                stored_iou(storage.absolute(teacher_mask), storage.absolute(label_mask))
-            )
+            try:
+                iou = stored_iou(storage.existing(teacher_mask), storage.existing(label_mask))
+            except MissingFile:  # a lost mask scores nothing (`weldpool doctor` lists it)
+                continue
+            per_sequence[(sequence_id, name)].append(iou)
     everything = [v for values in per_sequence.values() for v in values]
     return {
         "overall": _summary(everything),

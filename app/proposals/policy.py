@@ -28,7 +28,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidInputError, NotFoundError
+from app.errors import InvalidInputError, MissingFile, NotFoundError
 from app.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
 from app.storage import Storage
 from weldpool_core.io import read_mask
@@ -129,9 +129,12 @@ def measure(session: Session, storage: Storage) -> Policy:
         seen = scores.setdefault(key, {}).get(proposal.frame_id)
         if seen is not None and seen[0] > proposal.id:
             continue
-        value = stored_iou(
-            storage.absolute(proposal.mask_path), storage.absolute(labels[proposal.frame_id])
-        )
+        try:
+            value = stored_iou(
+                storage.existing(proposal.mask_path), storage.existing(labels[proposal.frame_id])
+            )
+        except MissingFile:  # a lost mask scores nothing (`weldpool doctor` lists it)
+            continue
         scores[key][proposal.frame_id] = (proposal.id, value)
     teacher = {frame: value for frame, (_, value) in scores.get(TEACHER, {}).items()}
     sources = [

@@ -19,6 +19,10 @@ thread pool a few frames ahead of the writer (OpenCV and pycocotools release the
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
+
+A frame whose image or mask file the store lost is left out of the zip, never the whole export:
+``skipped.txt`` lists each such frame with what restores its file (the masks layout's
+``manifest.json`` under ``skipped`` too), and an export job's result counts them.
 """
 
 from __future__ import annotations
@@ -37,12 +41,13 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.budgets import shared_pool
-from app.errors import InvalidInputError
+from app.errors import InvalidInputError, MissingFile
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
+from app.system.doctor import frame_file, frame_file_missing
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
 
 if TYPE_CHECKING:
@@ -98,7 +103,7 @@ def _stored_rle(storage: Storage, label: Label) -> tuple[dict[str, Any], int, li
         return label.mask_rle, label.mask_area, label.mask_bbox
     assert label.mask_path is not None  # accepted and corrected labels have a mask
     try:
-        coco = coco_mask_png(storage.absolute(label.mask_path).read_bytes())
+        coco = coco_mask_png(storage.existing(label.mask_path).read_bytes())
     except InvalidInputError:
         coco = coco_mask(load_mask(storage, label.mask_path))  # says what is wrong with the file
     return coco.rle, coco.area, coco.bbox
@@ -170,9 +175,11 @@ def build_export(
     sequence_id: int | None = None,
     split: Split | None = None,
     progress: Progress | None = None,
+    skipped: Skipped | None = None,
 ) -> Path:
     """Write the export to a temporary zip file and return its path (the caller removes it).
-    ``progress(fraction, message)`` is called after every frame; raise from it to stop."""
+    ``progress(fraction, message)`` is called after every frame; raise from it to stop.
+    Frames whose files the store lost are left out, listed in ``skipped`` and the zip."""
     rows = export_rows(session, sequence_id, split)
     (storage.home / "tmp").mkdir(parents=True, exist_ok=True)
     descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.home / "tmp")
@@ -181,7 +188,7 @@ def build_export(
     report = progress or (lambda fraction, message: None)
     try:
         with zipfile.ZipFile(target, "w", zipfile.ZIP_STORED) as archive:
-            for done in WRITERS[fmt](archive, storage, rows):
+            for done in _written(archive, storage, fmt, rows, [] if skipped is None else skipped):
                 report(done / len(rows), f"{done} of {len(rows)} labels")
     except BaseException:
         target.unlink(missing_ok=True)
@@ -211,17 +218,34 @@ class _Sink(io.RawIOBase):
 
 def stream_export(storage: Storage, fmt: ExportFormat, rows: list[Any]) -> Iterator[bytes]:
     """The zip of ``rows`` (from ``export_rows``) as a stream of byte chunks, one or more per
-    frame: nothing is written to disk and nothing is held beyond the entry being written."""
+    frame: nothing is written to disk and nothing is held beyond the entry being written. A
+    frame whose files the store lost is left out and listed in the zip's ``skipped.txt``."""
     sink = _Sink()
     with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as archive:
-        for _ in WRITERS[fmt](archive, storage, rows):
+        for _ in _written(archive, storage, fmt, rows, []):
             if chunk := sink.drain():
                 yield chunk
     if chunk := sink.drain():
         yield chunk
 
 
-Writer = Callable[[zipfile.ZipFile, Storage, list[Any]], Iterator[int]]
+Skipped = list[tuple[int, str]]
+"""Frames an export left out: (frame id, the sentence saying which file is lost and what
+restores it)."""
+SKIPPED_LIST = "skipped.txt"
+
+
+def _written(
+    archive: zipfile.ZipFile, storage: Storage, fmt: str, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
+    """The format's writer, then ``skipped.txt`` (one frame a line) when frames were left out."""
+    yield from WRITERS[fmt](archive, storage, rows, skipped)
+    if skipped:
+        lines = [f"frame {frame_id}: {reason}\n" for frame_id, reason in skipped]
+        archive.writestr(SKIPPED_LIST, "".join(lines))
+
+
+Writer = Callable[[zipfile.ZipFile, Storage, list[Any], Skipped], Iterator[int]]
 _ENCODERS = shared_pool(max(2, os.cpu_count() or 2), "rle")  # the route's and the job's
 _AHEAD = 8
 
@@ -237,12 +261,50 @@ def _ahead(function: Callable[[Any], Any], items: list[Any]) -> Iterator[Any]:
         yield result
 
 
-def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
+def _trying(read: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    """``read``, returning the MissingFile it raises (the pool's result) instead of raising."""
+
+    def attempt(row: Any) -> Any:
+        try:
+            return read(row)
+        except MissingFile as missing:
+            return missing
+
+    return attempt
+
+
+def _readable(
+    storage: Storage, rows: list[Any], skipped: Skipped, read: Callable[[Any], Any] | None = None
+) -> Iterator[tuple[int, Any, Path | None, Any]]:
+    """(done, row, image file, ``read(row)``) for every row in order, ``read`` (of the label's
+    mask) run in the encoder pool a few rows ahead. A row whose image or mask the store lost
+    comes with no image: the writer leaves it out, and it is listed in ``skipped``."""
+    results = _ahead(_trying(read), rows) if read else [None] * len(rows)
+    for done, (row, result) in enumerate(zip(rows, results, strict=True), 1):
+        frame = row[0]
+        try:
+            if isinstance(result, MissingFile):
+                raise frame_file_missing(result, frame.id, "label mask")
+            image = frame_file(storage, frame.path, frame.id)
+        except MissingFile as missing:
+            skipped.append((frame.id, missing.message))
+            yield done, row, None, None
+            continue
+        yield done, row, image, result
+
+
+def _write_masks(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
     manifest = []
-    for done, (frame, label, sequence, manual) in enumerate(rows, 1):
+    masks = _readable(storage, rows, skipped, lambda row: storage.existing(row[1].mask_path))
+    for done, (frame, label, sequence, manual), image, mask in masks:
+        if image is None:
+            yield done
+            continue
         stem = _stem(frame)
-        archive.write(storage.absolute(frame.path), f"images/{stem}{_extension(frame)}")
-        archive.write(storage.absolute(label.mask_path), f"masks/{stem}.png")
+        archive.write(image, f"images/{stem}{_extension(frame)}")
+        archive.write(mask, f"masks/{stem}.png")
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
         if manual is not None:
             archive.writestr(
@@ -263,18 +325,24 @@ def _write_masks(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) ->
             }
         )
         yield done
-    archive.writestr("manifest.json", json.dumps({"frames": manifest}, indent=1))
+    left_out = [{"frame_id": frame_id, "reason": reason} for frame_id, reason in skipped]
+    archive.writestr(
+        "manifest.json", json.dumps({"frames": manifest, "skipped": left_out}, indent=1)
+    )
 
 
-def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
+def _write_coco(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
     images, annotations = [], []
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
-    masks = _ahead(lambda row: _stored_rle(storage, row[1]), rows)
-    for done, ((frame, label, sequence, manual), encoded) in enumerate(
-        zip(rows, masks, strict=True), 1
-    ):
+    masks = _readable(storage, rows, skipped, lambda row: _stored_rle(storage, row[1]))
+    for done, (frame, label, sequence, manual), image, encoded in masks:
+        if image is None:
+            yield done
+            continue
         file_name = f"images/{_stem(frame)}{_extension(frame)}"
-        archive.write(storage.absolute(frame.path), file_name)
+        archive.write(image, file_name)
         process = process_parameters(sequence) if sequence else {}
         images.append(
             {
@@ -330,7 +398,9 @@ def _write_coco(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
     archive.writestr("annotations.json", json.dumps(coco))
 
 
-def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
+def _write_yolo(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
     """Ultralytics YOLO segmentation: one polygon line per region (holes cannot be written),
     from the outlines stored with each label (traced from its mask for labels saved before)."""
     from weldpool_core.outline import normalised, region_outlines
@@ -347,13 +417,13 @@ def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
         return "\n".join(lines) + ("\n" if lines else "")
 
     used = set()
-    texts = _ahead(label_file, rows)
-    for done, ((frame, _, _, _), text) in enumerate(zip(rows, texts, strict=True), 1):
-        split = YOLO_SPLITS[frame.split.value]
-        used.add(split)
-        stem = _stem(frame)
-        archive.write(storage.absolute(frame.path), f"images/{split}/{stem}{_extension(frame)}")
-        archive.writestr(f"labels/{split}/{stem}.txt", text)
+    for done, (frame, _, _, _), image, text in _readable(storage, rows, skipped, label_file):
+        if image is not None:
+            split = YOLO_SPLITS[frame.split.value]
+            used.add(split)
+            stem = _stem(frame)
+            archive.write(image, f"images/{split}/{stem}{_extension(frame)}")
+            archive.writestr(f"labels/{split}/{stem}.txt", text)
         yield done
     splits = "".join(
         f"{name}: images/{name}\n" for name in ("train", "val", "test") if name in used
@@ -361,18 +431,23 @@ def _write_yolo(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n  0: weld_pool\n")
 
 
-def _write_cvat(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> Iterator[int]:
+def _write_cvat(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
     """CVAT for images 1.1: ``annotations.xml`` (each label one RLE ``<mask>``, holes kept;
     its keypoints and validation keypoints as ``<points>``) with the images beside it."""
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
-    elements = []
-    masks = _ahead(lambda row: _stored_mask(storage, row[1]), rows)
-    for done, ((frame, label, _, manual), mask) in enumerate(zip(rows, masks, strict=True), 1):
+    elements: list[Any] = []
+    masks = _readable(storage, rows, skipped, lambda row: _stored_mask(storage, row[1]))
+    for done, (frame, label, _, manual), path, mask in masks:
+        if path is None:
+            yield done
+            continue
         name = f"images/{_stem(frame)}{_extension(frame)}"
-        archive.write(storage.absolute(frame.path), name)
+        archive.write(path, name)
         image = CvatImage(
-            id=done - 1,
+            id=len(elements),
             name=name,
             width=frame.width,
             height=frame.height,
@@ -382,7 +457,7 @@ def _write_cvat(archive: zipfile.ZipFile, storage: Storage, rows: list[Any]) -> 
         )
         elements.append(cvat_image(image))
         yield done
-    archive.writestr("annotations.xml", cvat_document(elements, len(rows)))
+    archive.writestr("annotations.xml", cvat_document(elements, len(elements)))
 
 
 WRITERS: dict[str, Writer] = {

@@ -48,6 +48,7 @@ from app.review.schemas import (
     TeacherRunIn,
 )
 from app.security import AdminUser, CurrentUser, ReviewerUser
+from app.system.doctor import frame_file
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
 from weldpool_core.outline import Polygon, check_editable, fill_polygons, mask_polygons
@@ -144,7 +145,7 @@ def get_proposal(
     chosen = policy.pick(session, storage, frame_id)
     return ProposalOut(
         **_summary(proposal, chosen.id if chosen else None).model_dump(),
-        mask_png=_b64(storage.absolute(proposal.mask_path).read_bytes()),
+        mask_png=_b64(_proposal_mask(storage, proposal)),
         prompts=proposal.prompts,
         timings=proposal.timings,
     )
@@ -174,7 +175,11 @@ def list_proposals(
 )
 def get_proposal_mask(storage: StorageDep, _user: CurrentUser, proposal: ShownProposal) -> Response:
     """The shown proposal's mask as a PNG (0 / 255)."""
-    return Response(storage.absolute(proposal.mask_path).read_bytes(), media_type="image/png")
+    return Response(_proposal_mask(storage, proposal), media_type="image/png")
+
+
+def _proposal_mask(storage: StorageDep, proposal: Proposal) -> bytes:
+    return frame_file(storage, proposal.mask_path, proposal.frame_id, "proposal mask").read_bytes()
 
 
 @router.get(
@@ -340,7 +345,10 @@ def outline_mask(
 
 
 def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # type: ignore[no-untyped-def]
-    mask = _b64(storage.absolute(label.mask_path).read_bytes()) if label.mask_path else None
+    mask = None
+    if label.mask_path:
+        path = frame_file(storage, label.mask_path, label.frame_id, "label mask")
+        mask = _b64(path.read_bytes())
     return LabelOut(
         frame_id=label.frame_id,
         revision=label.revision,

@@ -22,7 +22,7 @@ from app.models import Frame
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
 from app.proposals.record import has_proposal, record_teacher_proposal
 from app.review import propagation, runtime
-from app.review.export import build_export, export_name
+from app.review.export import SKIPPED_LIST, Skipped, build_export, export_name
 from app.storage import Storage
 from weldpool_core.errors import WeldpoolError
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
@@ -141,6 +141,7 @@ def teacher_summary(
 def export_run(ctx: JobContext) -> dict[str, Any]:
     """Write an export zip with progress per label; ``GET /exports/{job id}`` downloads it."""
     storage = Storage.of(ctx.settings)
+    skipped: Skipped = []
     with ctx.session_factory() as session:
         written = build_export(
             session,
@@ -149,6 +150,7 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
             sequence_id=ctx.params.get("sequence_id"),
             split=ctx.params.get("split"),
             progress=ctx.progress,
+            skipped=skipped,
         )
     target = storage.home / export_name(ctx.job_id)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -157,8 +159,18 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
     size = target.stat().st_size
     if storage.remote:  # the web process serves it from the bucket: this machine keeps none
         target.unlink()
-    ctx.summary = f"{ctx.params['format']} export ready: {size / 1e6:.1f} MB"
-    return {"format": ctx.params["format"], "size_bytes": size}
+    ctx.summary = f"{ctx.params['format']} export ready: {size / 1e6:.1f} MB" + (
+        f"; {counted(len(skipped), 'frame')} left out, their files are missing "
+        f"(listed in {SKIPPED_LIST}; `weldpool doctor` says what restores them)"
+        if skipped
+        else ""
+    )
+    return {
+        "format": ctx.params["format"],
+        "size_bytes": size,
+        "skipped": len(skipped),
+        "skipped_frames": [{"frame_id": f, "reason": reason} for f, reason in skipped],
+    }
 
 
 @job_handler("propagate", max_attempts=1)

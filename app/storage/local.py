@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO
 
+from app.errors import MissingFile
+
 if TYPE_CHECKING:
     from app.config import Settings
 
@@ -143,6 +145,26 @@ class Storage:
         """Remove shared files of ``area`` older than ``older_than_s`` (none here: home's own
         pruning covers them); returns how many went."""
         return 0
+
+    def existing(self, relative: str) -> Path:
+        """The file behind a stored relative path, for reading it (fetched into the cache
+        first on an object store); MissingFile when the store no longer holds it. The one
+        place a lost file is found out: readers ask here, not ``absolute``."""
+        path = self.fetch(relative)
+        if not path.is_file():
+            raise MissingFile(relative)
+        return path
+
+    def lost(self, paths: Iterable[str]) -> set[str]:
+        """Those of ``paths`` (files or folders) the store no longer holds, found without
+        reading them (``weldpool doctor``)."""
+        return {p for p in paths if not self._held(p)}
+
+    def _held(self, relative: str) -> bool:
+        try:
+            return self.absolute(relative).exists()
+        except ValueError:  # a row naming a path outside the store: nothing there to read
+            return False
 
     def _claimed(self, relative: str) -> bool:
         """Claim stored content (``_claim``); False when it is not there."""

@@ -377,6 +377,21 @@ class ObjectStorage(Storage):
         self._count(path.stat().st_size)
         return True
 
+    def lost(self, paths: Iterable[str]) -> set[str]:
+        """Those of ``paths`` (files or folders) the bucket holds neither under their key nor
+        in the trash (a reader restores a trashed one); one listing per area, no download. A
+        copy in this machine's cache does not count: other machines cannot read it."""
+        wanted = set(paths)
+        held: set[str] = set()
+        for area in {p.split("/", 1)[0] for p in wanted}:
+            for prefix in (f"{area}/", f"{TRASH}/{area}/"):
+                held.update(
+                    self.relative_of(o["Key"]).removeprefix(f"{TRASH}/")
+                    for o in self._objects(prefix)
+                )
+        folders = {p.rsplit("/", i)[0] for p in held for i in range(1, p.count("/") + 1)}
+        return wanted - held - folders
+
     def _restore(self, relative: str) -> bool:
         """Put a trashed object back under its key; False when the trash has none."""
         return self._stamped_copy(f"{TRASH}/{relative}", relative)

@@ -22,6 +22,9 @@ class FrameGeometry(BaseModel):
     area_mm2: float | None
     length_mm: float | None
     width_mm: float | None
+    missing_file: str | None = Field(
+        None, description="Why the frame has no geometry when its mask file is lost."
+    )
 
 
 class Timeline(BaseModel):

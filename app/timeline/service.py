@@ -20,12 +20,14 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.errors import MissingFile
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.models import Frame, Label, LabelStatus, Proposal
 from app.proposals import policy
 from app.proposals.files import load_mask
 from app.storage import Storage
+from app.system.doctor import frame_file_missing
 from weldpool_core.geometry import PoolShape, pool_shape
 
 if TYPE_CHECKING:
@@ -38,14 +40,18 @@ _cache_lock = threading.Lock()
 _cache: OrderedDict[str, PoolShape] = OrderedDict()
 
 
-def _shape(storage: Storage, mask_path: str) -> PoolShape:
-    """A mask file's shape (area, centroid, axis, hull), decoded once per process."""
+def _shape(storage: Storage, mask_path: str) -> PoolShape | MissingFile:
+    """A mask file's shape (area, centroid, axis, hull), decoded once per process; the
+    MissingFile when the store lost it (its frame has no geometry, and says why)."""
     key = f"{storage.home}:{mask_path}"  # never a fetch: the shape may be cached
     with _cache_lock:
         if key in _cache:
             _cache.move_to_end(key)
             return _cache[key]
-    shape = pool_shape(load_mask(storage, mask_path))
+    try:
+        shape = pool_shape(load_mask(storage, mask_path))
+    except MissingFile as missing:
+        return missing
     with _cache_lock:
         _cache[key] = shape
         while len(_cache) > _CACHE_SIZE:
@@ -90,6 +96,10 @@ def _source(frame: Frame, label: Label | None, proposal: Proposal | None) -> Sou
 
 def _row(source: Source, label: Label | None, geometry: Any, scale: float | None) -> dict[str, Any]:
     frame, key, _, proposal = source
+    lost = None
+    if isinstance(geometry, MissingFile):
+        kind = "label mask" if key == "label" else "proposal mask"
+        lost, geometry = frame_file_missing(geometry, frame.id, kind).message, None
     if key == "label" and label:
         keypoints = label.keypoints
     else:
@@ -106,6 +116,7 @@ def _row(source: Source, label: Label | None, geometry: Any, scale: float | None
         "width_px": geometry.width_px if geometry else None,
         "centroid": list(geometry.centroid) if geometry and geometry.centroid else None,
         "keypoints": keypoints or [],
+        "missing_file": lost,
     }
     none = {"area_mm2": None, "length_mm": None, "width_mm": None}
     return row | (geometry.in_mm(scale) if geometry else none)
@@ -127,7 +138,8 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
     sources = [_source(f, labels.get(f.id), proposals.get(f.id)) for f in frames]
     scale = stored_scale(sequence.mm_per_px)  # one outside the physical range: no mm at all
     shapes = {path: _shape(storage, path) for _, _, path, _ in sources if path is not None}
-    travel = _median_axis([s.major_deg for s in shapes.values() if s.major_deg is not None])
+    measured = [s for s in shapes.values() if isinstance(s, PoolShape)]
+    travel = _median_axis([s.major_deg for s in measured if s.major_deg is not None])
     rows = [
         _row(source, labels.get(source[0].id), _measured(shapes, source[2], travel), scale)
         for source in sources
@@ -152,7 +164,11 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
 
 
 def _measured(shapes: dict[str, Any], path: str | None, travel: float | None) -> Any:
-    return shapes[path].measure(travel) if path is not None else None
+    """The frame's geometry along the travel axis; its MissingFile when its mask is lost."""
+    if path is None:
+        return None
+    shape = shapes[path]
+    return shape.measure(travel) if isinstance(shape, PoolShape) else shape
 
 
 def _median_axis(degrees: list[float]) -> float | None:

@@ -81,8 +81,9 @@ def taken_from(session: Session, frame_ids: list[int]) -> dict[int, tuple[str, i
 
 def _truth(session: Session, storage: Storage, frame_ids: list[int]) -> Truth:
     truth: Truth = {}
+    lost: list[tuple[int, str]] = []  # a frame whose files are lost is not measured on
     for frame_id, _, mask, keypoints in service.labelled_samples(
-        session, storage, frame_ids, with_images=False
+        session, storage, frame_ids, with_images=False, skipped=lost
     ):
         if mask is not None:
             truth[frame_id] = (mask, keypoints or [])

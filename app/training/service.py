@@ -11,7 +11,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError, NotFoundError
+from app.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
 from app.jobs.service import create_job
 from app.models import (
     Frame,
@@ -29,6 +29,7 @@ from app.models import (
 )
 from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
+from app.system.doctor import frame_file_missing
 
 if TYPE_CHECKING:
     import numpy as np
@@ -132,12 +133,18 @@ def existing_frame_ids(session: Session, frame_ids: list[int]) -> list[int]:
 
 
 def labelled_samples(
-    session: Session, storage: Storage, frame_ids: list[int], with_images: bool = True
+    session: Session,
+    storage: Storage,
+    frame_ids: list[int],
+    with_images: bool = True,
+    skipped: list[tuple[int, str]] | None = None,
 ) -> Iterator[tuple[int, NDArray[np.uint8] | None, NDArray[np.bool_] | None, Any]]:
     """(frame id, RGB image or None, reviewed mask or None, keypoints or None) for each frame.
 
     Keypoints: the manual validation keypoints when there are some, else the label's.
-    Frames deleted since their ids were read are left out.
+    Frames deleted since their ids were read are left out; so are frames whose image or mask
+    the store lost when ``skipped`` is given (each listed there with what restores its file),
+    else such a frame's MissingFile is raised.
     """
     for frame_id in frame_ids:
         frame = session.get(Frame, frame_id)
@@ -152,9 +159,16 @@ def labelled_samples(
             if label is not None and trainable(label) and label.mask_path:
                 mask = load_mask(storage, label.mask_path)
             image = frame_rgb(storage, frame) if with_images else None
-        except FileNotFoundError:  # its files went with the frame, deleted meanwhile
-            if frame_exists(session, frame_id):
-                raise
+            if skipped is not None and not with_images:
+                storage.existing(frame.path)  # a frame left out is one whose image is lost too
+        except MissingFile as missing:
+            if not frame_exists(session, frame_id):
+                continue  # its files went with the frame, deleted meanwhile
+            kind = "image" if missing.path == frame.path else "label mask"
+            lost = frame_file_missing(missing, frame_id, kind)
+            if skipped is None:
+                raise lost from None
+            skipped.append((frame_id, lost.message))
             continue
         keypoints = manual.keypoints if manual else (label.keypoints if label else None)
         yield frame_id, image, mask, keypoints

@@ -13,6 +13,7 @@ import sqlalchemy as sa
 import structlog
 
 from app.db import utcnow
+from app.errors import MissingFile
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import Frame, Job, ModelVersion
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
@@ -68,15 +69,31 @@ def _configs(ctx: JobContext) -> tuple[Any, Any]:
     return config, student_config(str(size)) if size else StudentConfig()
 
 
-def _samples(session: Any, storage: Storage, frame_ids: list[int]) -> list[tuple[int, Any]]:
-    """``(frame id, (image, mask, keypoints))`` of the labelled frames that have both."""
+Skipped = list[tuple[int, str]]
+
+
+def _samples(
+    session: Any, storage: Storage, frame_ids: list[int], skipped: Skipped
+) -> list[tuple[int, Any]]:
+    """``(frame id, (image, mask, keypoints))`` of the labelled frames that have both; those
+    whose files the store lost are listed in ``skipped`` instead."""
     return [
         (frame_id, (image, mask, keypoints))
         for frame_id, image, mask, keypoints in service.labelled_samples(
-            session, storage, frame_ids
+            session, storage, frame_ids, skipped=skipped
         )
         if mask is not None and image is not None
     ]
+
+
+def _anything_left(training: list[Any], skipped: Skipped) -> None:
+    """A clear failure when every frame to train on was left out for its lost files."""
+    if not training and skipped:
+        first = skipped[0][1]
+        raise InvalidInputError(
+            f"Every labelled frame to train on has lost files ({len(skipped)} frames), so "
+            f"nothing was trained; the first: {first}"
+        )
 
 
 def _record_version(
@@ -152,10 +169,12 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     train_ids, validation_ids, held_out = _training_split(ctx, models_dir)
     shutil.rmtree(work, ignore_errors=True)
     config, student = _configs(ctx)
+    skipped: Skipped = []
     with ctx.session_factory() as session:
-        training = _samples(session, storage, train_ids)
+        training = _samples(session, storage, train_ids, skipped)
+        _anything_left(training, skipped)
         validation = [
-            sample for _, sample in _samples(session, storage, validation_ids or held_out)
+            sample for _, sample in _samples(session, storage, validation_ids or held_out, skipped)
         ]
         pseudo = _pseudo_labels(ctx, session, storage, len(training))
         result = train_student(
@@ -177,13 +196,14 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     promoted = verdict["promote"] and ctx.settings.auto_promote
     ctx.summary = _summary(
         final.name, result.best_epoch, len(result.curve), version.metrics, verdict, promoted
-    )
+    ) + (f"; {counted(len(skipped), 'frame')} left out, their files are lost" if skipped else "")
     return {
         "model_version_id": version.id,
         "name": final.name,
         "metrics": version.metrics,
         "promoted": promoted,
         "gate": {k: verdict[k] for k in ("usable", "promote", "reason")},
+        "skipped_frames": [{"frame_id": f, "reason": reason} for f, reason in skipped],
     }
 
 
@@ -393,18 +413,14 @@ def _pseudo_labels(ctx: JobContext, session: Any, storage: Storage, labels: int)
             continue
         frame = session.get_one(Frame, proposal.frame_id)
         keypoints = np.asarray(proposal.keypoints, np.float64) if proposal.keypoints else None
-        frames.append(
-            (
-                frame.id,
-                TrainingFrame(
-                    frame_rgb(storage, frame),
-                    load_mask(storage, proposal.mask_path),
-                    keypoints,
-                    f"pseudo:{frame.id}",
-                    min(1.0, weight * confidence),
-                ),
-            )
+        try:
+            image, mask = frame_rgb(storage, frame), load_mask(storage, proposal.mask_path)
+        except MissingFile:  # an unreviewed guess: without its files it is simply not used
+            continue
+        weighted = TrainingFrame(
+            image, mask, keypoints, f"pseudo:{frame.id}", min(1.0, weight * confidence)
         )
+        frames.append((frame.id, weighted))
     return frames
 
 
@@ -461,7 +477,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
         name, path = version.name, service.model_folder(storage, version)
         version_id = version.id
     predictor = StudentPredictor.load(path, ctx.settings.device)
-    proposed = 0
+    proposed, lost = 0, []
     for done, frame_id in enumerate(frame_ids):
         with ctx.session_factory() as session:
             frame = session.get(Frame, frame_id)
@@ -471,14 +487,17 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
                     proposed += 1
             except FrameDeleted:
                 pass
-            except FileNotFoundError:  # its file went with the frame, deleted meanwhile
+            except MissingFile:  # its file went with the frame, deleted meanwhile, or was lost
                 if frame_exists(session, frame_id):
-                    raise
+                    lost.append(frame_id)
         ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
-    ctx.summary = f"{name} proposed {counted(proposed, 'frame')}" + (
-        f" ({len(frame_ids) - proposed} no longer exist)" if proposed < len(frame_ids) else ""
+    gone = len(frame_ids) - proposed - len(lost)
+    ctx.summary = (
+        f"{name} proposed {counted(proposed, 'frame')}"
+        + (f" ({gone} no longer exist)" if gone else "")
+        + (f"; {counted(len(lost), 'frame')} left out, their files are lost" if lost else "")
     )
-    return {"proposed": proposed, "model": name}
+    return {"proposed": proposed, "model": name, "skipped_frame_ids": lost}
 
 
 def _student_proposal(

@@ -111,3 +111,25 @@ def test_sweep_puts_back_a_file_a_dead_collector_left_aside(
     assert storage.sweep_orphans(["frames"], known={relative}) == []
     assert storage.absolute(relative).read_bytes() == b"named by a row"
     assert list(storage.tmp.glob("*.collect")) == []
+
+
+def test_a_lost_file_is_one_missing_file_error_and_lost_names_it(tmp_path: Path) -> None:
+    from app.errors import MissingFile, http_status_of
+
+    storage = Storage(tmp_path / "home")
+    kept, gone = _stored(storage, b"kept"), _stored(storage, b"gone")
+    assert storage.existing(kept).read_bytes() == b"kept"
+    (storage.home / gone).unlink()
+    with pytest.raises(MissingFile) as raised:
+        storage.existing(gone)
+    assert raised.value.path == gone and isinstance(raised.value, FileNotFoundError)
+    assert http_status_of(raised.value) == 409
+    assert raised.value.message == (
+        f"The stored file {gone} is missing; run `weldpool doctor` to list the lost files and "
+        "what restores each."
+    )
+    assert storage.lost([kept, gone, "../outside.png", "models/none"]) == {
+        gone,
+        "../outside.png",
+        "models/none",
+    }
