@@ -472,6 +472,21 @@ class Job(Base):
         return self.created_by.username if self.created_by else None
 
 
+class JobChunk(Base):
+    """A chunk of a job that several workers share (``app.jobs.fanout``): taken by the worker
+    whose insert won, done with its result, or taken over when that worker is gone."""
+
+    __tablename__ = "job_chunks"
+
+    job_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True
+    )
+    chunk: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    worker_id: Mapped[str] = mapped_column(sa.String(200))
+    done: Mapped[bool] = mapped_column(default=False)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
+
+
 class Worker(Base):
     """A worker process that is (or was) consuming the queue; ``last_seen_at`` is its heartbeat."""
 

@@ -18,7 +18,7 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import db_now
+from app.db import db_now, utcnow
 from app.jobs.registry import lane_of
 from app.models import Job, JobStatus
 
@@ -73,8 +73,8 @@ PASS_ON_DELAY_S = 2.0
 def pass_on(queue: Any, job_id: int) -> bool:
     """Whether this worker passes job ``job_id`` on instead of running it: it cannot run the
     job's kind (``queue.unable``). The id goes back on its lane for another worker when a live
-    one can run it; else the row stays queued, says what it waits for, and the delivery pass
-    sends it again later (a worker able to run it may start meanwhile)."""
+    one can run it; with none, the job fails at once with the reason (the one sentence a
+    one-machine install without weights always gave) instead of waiting for nobody."""
     from app.jobs.runner import able_workers
 
     with queue.session_factory() as session:
@@ -87,14 +87,13 @@ def pass_on(queue: Any, job_id: int) -> bool:
         return False
     reason = queue.unable[row.kind]
     if able_workers(queue.session_factory, queue.settings.job_stale_after_s, row.kind):
-        queue.huey(lane_of(row.kind))
         queue.enqueue_later(job_id, row.kind, row.priority, PASS_ON_DELAY_S)
         return True
     with queue.session_factory() as session:
         session.execute(
             sa.update(Job)
             .where(Job.id == job_id, Job.status == JobStatus.queued)
-            .values(message=f"waiting for a worker that can run it ({reason})"[:500])
+            .values(status=JobStatus.failed, error=reason, finished_at=utcnow())
         )
         session.commit()
     log.warning("job.no_able_worker", job_id=job_id, kind=row.kind, reason=reason)

@@ -60,6 +60,9 @@ class JobSpec:
     handler: Callable[[JobContext], dict[str, Any] | None]
     max_attempts: int = 1
     lane: str = "model"
+    fanout: bool = False
+    """Its handler shares its work in chunks with the workers its id reaches
+    (``app.jobs.fanout``): a worker that receives the id of such a running job helps."""
 
 
 _HANDLERS: dict[str, JobSpec] = {}
@@ -67,7 +70,7 @@ _loaded = False
 
 
 def job_handler(
-    kind: str, *, max_attempts: int = 1, lane: str = "model"
+    kind: str, *, max_attempts: int = 1, lane: str = "model", fanout: bool = False
 ) -> Callable[[Callable[[JobContext], dict[str, Any] | None]], Callable[..., Any]]:
     """Register ``handler`` as what jobs of ``kind`` run (in a worker serving ``lane``)."""
     if lane not in LANES:
@@ -76,7 +79,7 @@ def job_handler(
     def register(
         handler: Callable[[JobContext], dict[str, Any] | None],
     ) -> Callable[[JobContext], dict[str, Any] | None]:
-        _HANDLERS[kind] = JobSpec(kind, handler, max_attempts, lane)
+        _HANDLERS[kind] = JobSpec(kind, handler, max_attempts, lane, fanout)
         return handler
 
     return register
@@ -133,6 +136,9 @@ class JobContext:
     kind: str = ""
     priority: int = 0
     """Its kind and priority, to put it on the queue again after a worker shutdown."""
+    helper: bool = False
+    """A worker helping with another worker's running job (``app.jobs.fanout``): it checks
+    that the job still runs but writes neither its progress nor its outcome."""
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
     summary: str | None = None
@@ -145,6 +151,9 @@ class JobContext:
         if self.stopping.is_set():
             raise JobInterrupted()
         budgets.batch_checkpoint(self.settings)  # fewer threads while a reviewer clicks
+        if self.helper:
+            self.check_cancelled()
+            return
         now = time.monotonic()
         if now - self._last_write < self.min_interval_s and fraction < 1.0:
             return
@@ -186,7 +195,8 @@ class JobContext:
                     Job.id == self.job_id
                 )
             ).one_or_none()
-        if row is None or row.worker_id != self.worker_id or row.attempts != self.attempt:
+        owner = self.worker_id if not self.helper else (row.worker_id if row else None)
+        if row is None or row.worker_id != owner or row.attempts != self.attempt:
             raise JobLost()
         if row.cancel_requested or row.status != JobStatus.running:
             raise JobCancelled()

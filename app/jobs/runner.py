@@ -125,7 +125,9 @@ def execute_job(
     """Run job ``job_id`` if it is still queued; every outcome ends up in its row."""
     claimed = _claim(session_factory, job_id, worker_id)
     if claimed is None:
-        log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
+        joined = _join(job_id, settings, session_factory, worker_id, stopping, queue)
+        if not joined:
+            log.info("job.skipped", job_id=job_id, reason="not queued (cancelled or taken)")
         return
     kind, attempt = claimed.kind, claimed.attempts
     log.info("job.started", job_id=job_id, kind=kind, worker=worker_id, attempt=attempt)
@@ -151,6 +153,49 @@ def execute_job(
         )
         return
     _run_handler(context, spec.handler, queue)
+
+
+def _join(
+    job_id: int,
+    settings: Settings,
+    session_factory: sessionmaker[Session],
+    worker_id: str,
+    stopping: threading.Event | None,
+    queue: Any,
+) -> bool:
+    """Help with a running job whose kind fans out (``app.jobs.fanout``): its handler as a
+    helper, which takes free chunks and writes neither progress nor the job's outcome."""
+    with session_factory() as session:
+        row = session.execute(
+            sa.select(Job.kind, Job.params, Job.attempts, Job.priority, Job.worker_id).where(
+                Job.id == job_id, Job.status == JobStatus.running
+            )
+        ).one_or_none()
+    spec = job_spec(row.kind) if row is not None else None
+    if row is None or spec is None or not spec.fanout or row.worker_id == worker_id:
+        return False
+    context = JobContext(
+        job_id,
+        dict(row.params or {}),
+        settings,
+        session_factory,
+        worker_id,
+        stopping or threading.Event(),
+        queue,
+        attempt=row.attempts,
+        kind=row.kind,
+        priority=row.priority,
+        helper=True,
+    )
+    log.info("job.joined", job_id=job_id, kind=row.kind, worker=worker_id)
+    budgets.start_batch(settings)
+    try:
+        spec.handler(context)
+    except (JobCancelled, JobLost, JobInterrupted):
+        log.info("job.helper_stopped", job_id=job_id, worker=worker_id)
+    except Exception:  # the owner sees the chunk given back and works it itself
+        log.exception("job.helper_failed", job_id=job_id, worker=worker_id)
+    return True
 
 
 def _pid_is_dead(worker_id: str) -> bool:
@@ -274,19 +319,24 @@ def live_workers(session_factory: sessionmaker[Session], stale_after_s: float) -
     return len(worker_rows(session_factory, stale_after_s))
 
 
-def able_workers(session_factory: sessionmaker[Session], stale_after_s: float, kind: str) -> int:
-    """How many live workers serve ``kind``'s lane and can run it."""
+def able_workers(
+    session_factory: sessionmaker[Session], stale_after_s: float, kind: str, threads: bool = False
+) -> int:
+    """How many live workers serve ``kind``'s lane and can run it (with ``threads``: how many
+    of their threads)."""
     from app.jobs.registry import lane_of
 
     lane = lane_of(kind)
     with session_factory() as session:
         cutoff = db_now(session.get_bind().dialect.name) - dt.timedelta(seconds=stale_after_s)
         rows = session.execute(
-            sa.select(Worker.id, Worker.lanes, Worker.unable).where(Worker.last_seen_at >= cutoff)
+            sa.select(Worker.id, Worker.lanes, Worker.unable, Worker.threads).where(
+                Worker.last_seen_at >= cutoff
+            )
         ).all()
     return sum(
-        1
-        for worker_id, lanes, unable in rows
+        (count if threads else 1)
+        for worker_id, lanes, unable, count in rows
         if lane in lanes.split(",") and kind not in (unable or {}) and not _pid_is_dead(worker_id)
     )
 

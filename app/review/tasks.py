@@ -10,6 +10,7 @@ import sqlalchemy as sa
 import structlog
 
 from app.errors import without_server_paths
+from app.jobs.fanout import Fanout
 from app.jobs.registry import (
     JobCancelled,
     JobContext,
@@ -37,10 +38,15 @@ def _frame_error(exc: Exception) -> str:
     return f"Unexpected error ({type(exc).__name__}): {exc}"
 
 
-@job_handler("teacher", max_attempts=2)
+TEACHER_CHUNK = 4
+"""Frames per chunk of a teacher run that several workers share (about 16 s of CPU each)."""
+
+
+@job_handler("teacher", max_attempts=2, fanout=True)
 def teacher_run(ctx: JobContext) -> dict[str, Any]:
-    """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame; frames the
-    same teacher already saw are skipped, so a lost run is simply re-run."""
+    """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame, in chunks
+    that every worker the run reaches shares (``app.jobs.fanout``); frames the same teacher
+    already saw are skipped, so a lost run is simply re-run."""
     frame_ids: list[int] = [int(i) for i in ctx.params["frame_ids"]]
     prompts = ctx.params.get("prompts", DEFAULT_PROMPTS)
     force = bool(ctx.params.get("force", False))
@@ -48,8 +54,42 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
     ctx.check_cancelled()
     storage = Storage.of(ctx.settings)
+    fan = Fanout(ctx, len(frame_ids), TEACHER_CHUNK)
+    if not ctx.helper:
+        fan.invite()
+    for index in fan.chunks():
+        with fan.working(index) as result:
+            chunk = [frame_ids[i] for i in fan.items(index)]
+            result.update(_teacher_chunk(ctx, storage, teacher, chunk, force))
+        ctx.progress(fan.progress(), fan.message())
+    if ctx.helper:
+        return {}
+    results = fan.results()
+    proposed = sum(r["proposed"] for r in results)
+    skipped = sum(r["skipped"] for r in results)
+    failed = [f for r in results for f in r["failed"]]
+    deleted = [d for r in results for d in r["deleted"]]
+    if len(deleted) == len(frame_ids):
+        raise WeldpoolError("Every frame of this run was deleted before the teacher saw it.")
+    if failed and not proposed and not skipped and len(failed) + len(deleted) == len(frame_ids):
+        raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
+    ctx.summary = teacher_summary(proposed, skipped, failed, len(deleted))
+    return {
+        "proposed": proposed,
+        "skipped": skipped,
+        "failed": failed,
+        "deleted_frame_ids": deleted,
+        "model_id": teacher.model_id,
+        "workers": len(fan.workers()),
+    }
+
+
+def _teacher_chunk(
+    ctx: JobContext, storage: Storage, teacher: Any, frame_ids: list[int], force: bool
+) -> dict[str, Any]:
+    """The teacher on one chunk's frames: what it proposed, skipped, failed and found deleted."""
     proposed, skipped, failed, deleted = 0, 0, [], []
-    for done, frame_id in enumerate(frame_ids):
+    for frame_id in frame_ids:
         with ctx.session_factory() as session:
             frame = session.get(Frame, frame_id)
             if frame is None:
@@ -64,19 +104,8 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
                     deleted.append(frame_id)
                 else:
                     failed.append({"frame_id": frame_id, "error": outcome})
-        ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
-    if len(deleted) == len(frame_ids):
-        raise WeldpoolError("Every frame of this run was deleted before the teacher saw it.")
-    if failed and not proposed and not skipped and len(failed) + len(deleted) == len(frame_ids):
-        raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
-    ctx.summary = teacher_summary(proposed, skipped, failed, len(deleted))
-    return {
-        "proposed": proposed,
-        "skipped": skipped,
-        "failed": failed,
-        "deleted_frame_ids": deleted,
-        "model_id": teacher.model_id,
-    }
+        ctx.check_cancelled()
+    return {"proposed": proposed, "skipped": skipped, "failed": failed, "deleted": deleted}
 
 
 def _propose(

@@ -1,5 +1,6 @@
-"""Lanes and delivery: a job's priority within its lane and when the queue last carried it;
-a worker's lanes and the job kinds it cannot run.
+"""Lanes, delivery and fan-out: a job's priority within its lane and when the queue last
+carried it; a worker's lanes and the job kinds it cannot run; the chunks of a job that several
+workers share (``job_chunks``).
 
 Revision ID: 0019
 Revises: 0018
@@ -31,9 +32,22 @@ def upgrade() -> None:
         'workers', sa.Column('lanes', sa.String(32), nullable=False, server_default='quick,model')
     )
     op.add_column('workers', sa.Column('unable', sa.JSON(), nullable=True))
+    op.create_table(
+        'job_chunks',
+        sa.Column('job_id', sa.Integer(), nullable=False),
+        sa.Column('chunk', sa.Integer(), nullable=False),
+        sa.Column('worker_id', sa.String(200), nullable=False),
+        sa.Column('done', sa.Boolean(), nullable=False),
+        sa.Column('result', sa.JSON(), nullable=True),
+        sa.ForeignKeyConstraint(
+            ['job_id'], ['jobs.id'], name='fk_job_chunks_job_id_jobs', ondelete='CASCADE'
+        ),
+        sa.PrimaryKeyConstraint('job_id', 'chunk', name='pk_job_chunks'),
+    )
 
 
 def downgrade() -> None:  # DROP COLUMN in place: SQLite 3.35 or newer
+    op.drop_table('job_chunks')
     for table, column in (
         ('workers', 'unable'),
         ('workers', 'lanes'),

@@ -6,16 +6,19 @@ from __future__ import annotations
 
 import datetime as dt
 import threading
+import time
 
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.db import create_db_engine, create_session_factory, utcnow
 from app.jobs import runner
 from app.jobs.delivery import deliver_again, pass_on
+from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, job_handler
 from app.jobs.service import create_job
-from app.models import Job, JobStatus, Role, Worker
+from app.models import Job, JobChunk, JobStatus, Role, Worker
 from app.queue import JobQueue
 from app.schema import migrate
 from tests.helpers import auth, make_settings, wait_for, wait_for_job
@@ -140,21 +143,10 @@ def test_a_worker_whose_clock_runs_behind_keeps_its_job(
 
 def test_a_worker_passes_on_what_it_cannot_run(idle_queue: JobQueue) -> None:
     """A worker without the teacher's weights takes no teacher job: with an able worker alive
-    the id goes back on the lane for it; with none the row stays queued saying what it waits
-    for, and /health's figures name the kind no worker can run."""
+    the id goes back on the lane for it; with none the job fails at once with the reason, and
+    /health's figures name the kind no worker can run."""
     queue = idle_queue
     queue.unable = {"teacher": "The teacher cannot run: its weights are missing."}
-    with queue.session_factory() as session:
-        job = create_job(session, queue, "teacher", {}, None)
-    queue.huey("model").flush()
-    assert pass_on(queue, job.id) is True
-    with queue.session_factory() as session:
-        row = session.get_one(Job, job.id)
-        assert row.status == JobStatus.queued and row.attempts == 0
-        assert row.message == (
-            "waiting for a worker that can run it (The teacher cannot run: its weights are "
-            "missing.)"
-        )
     lacking = Worker(id="here:1:a", hostname="here", pid=1, threads=1, started_at=utcnow())
     lacking.lanes, lacking.unable = "quick,model", dict(queue.unable)
     able = Worker(id="there:2:b", hostname="there", pid=2, threads=1, started_at=utcnow())
@@ -165,12 +157,25 @@ def test_a_worker_passes_on_what_it_cannot_run(idle_queue: JobQueue) -> None:
     assert runner.unserved_kinds([able], [("teacher", "model"), ("export", "quick")]) == {
         "export": "no live worker serves the quick lane"
     }
+    with queue.session_factory() as session:
+        passed, failed = (create_job(session, queue, "teacher", {}, None) for _ in range(2))
+    queue.huey("model").flush()
     runner.record_heartbeat(queue.session_factory, able)
-    assert pass_on(queue, job.id) is True
-    assert queue.carried("model") == {job.id}  # back on the lane (after a delay), for the able one
-    assert pass_on(queue, job.id + 1000) is False  # no such queued job: nothing to pass on
+    assert pass_on(queue, passed.id) is True
+    assert queue.carried("model") == {passed.id}  # back on the lane (after a delay), for it
+    assert pass_on(queue, passed.id + 1000) is False  # no such queued job: nothing to pass on
     queue.unable = {}
-    assert pass_on(queue, job.id) is False  # a worker that can run it runs it
+    assert pass_on(queue, passed.id) is False  # a worker that can run it runs it
+    queue.unable = dict(lacking.unable or {})
+    with queue.session_factory() as session:
+        session.execute(sa.delete(Worker))
+        session.commit()
+    assert pass_on(queue, failed.id) is True
+    with queue.session_factory() as session:
+        row = session.get_one(Job, failed.id)
+        assert (row.status, row.attempts) == (JobStatus.failed, 0)
+        assert row.error == "The teacher cannot run: its weights are missing."
+        assert session.get_one(Job, passed.id).status == JobStatus.queued
 
 
 def test_a_queued_job_says_what_it_waits_behind(session_factory) -> None:
@@ -196,3 +201,62 @@ def test_a_queued_job_says_what_it_waits_behind(session_factory) -> None:
         "(about 4 min left) and 1 queued job",
         export.id: "queued in the quick lane: next",
     }
+
+
+fan_log: list[tuple[str, int]] = []
+
+
+@job_handler("fan-test", fanout=True)
+def _fan(ctx: JobContext) -> dict:
+    fan = Fanout(ctx, int(ctx.params["n"]), 2)
+    if not ctx.helper:
+        fan.invite()
+    for index in fan.chunks():
+        with fan.working(index) as result:
+            for item in fan.items(index):
+                time.sleep(0.05)
+                fan_log.append((ctx.worker_id, item))
+            result["items"] = list(fan.items(index))
+        ctx.progress(fan.progress(), fan.message())
+    if ctx.helper:
+        return {}
+    return {"items": sorted(i for r in fan.results() for i in r["items"]), "workers": fan.workers()}
+
+
+def _presence(queue: JobQueue) -> Worker:
+    host, pid, _ = queue.worker_id.split(":")
+    row = Worker(id=queue.worker_id, hostname="far-" + host, pid=int(pid), threads=1)
+    row.started_at, row.lanes, row.unable = utcnow(), "quick,model", {}
+    runner.record_heartbeat(queue.session_factory, row)
+    return row
+
+
+def test_one_run_is_shared_by_two_workers_each_item_once(idle_queue: JobQueue) -> None:
+    """A fan-out job's owner invites the other live worker (its id goes on the lane again);
+    that worker joins and takes free chunks; every item is worked once, by both workers, and
+    the owner alone writes one progress and one result — and takes over a chunk whose worker
+    is gone."""
+    fan_log.clear()
+    owner, other = idle_queue, JobQueue(idle_queue.settings, idle_queue.session_factory)
+    _presence(owner), _presence(other)
+    with owner.session_factory() as session:
+        job = create_job(session, owner, "fan-test", {"n": 20}, None)
+        session.add(JobChunk(job_id=job.id, chunk=3, worker_id="gone:1:dead"))  # a lost worker's
+        session.commit()
+    huey = owner.huey("model")
+    first = huey.dequeue()
+    owning = threading.Thread(target=huey.execute, args=(first,))
+    owning.start()
+    helping = other.huey("model")  # the same lane, read by the other worker
+    invited = wait_for(lambda: helping.dequeue(), timeout=20)  # the owner's invitation
+    helping.execute(invited)  # the other worker joins and helps
+    owning.join(timeout=60)
+    with owner.session_factory() as session:
+        done = session.get_one(Job, job.id)
+        assert done.status == JobStatus.succeeded, done.error
+        assert done.result["items"] == list(range(20))
+        assert sorted(done.result["workers"]) == sorted([owner.worker_id, other.worker_id])
+    items = [item for _, item in fan_log]
+    assert sorted(items) == list(range(20))  # each once
+    assert {worker for worker, _ in fan_log} == {owner.worker_id, other.worker_id}
+    assert (owner.worker_id, 6) in fan_log and (owner.worker_id, 7) in fan_log  # taken over
