@@ -54,6 +54,13 @@ class Settings(BaseSettings):
         description="With an object store: how much of it this machine keeps cached in home "
         "(least recently used files go first).",
     )
+    shared_embeddings_days: float = Field(
+        default=14.0,
+        gt=0,
+        description="With an object store: how long an embedding a machine computed stays "
+        "shared in the store's embeddings/ for the others' first clicks (a cache, pruned by age "
+        "after each teacher run).",
+    )
     queue_name: str = Field(
         default="weldpool",
         description="Queue name; instances sharing one Redis need distinct names.",

@@ -17,6 +17,7 @@ from app.config import Settings
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 if TYPE_CHECKING:
+    from app.storage import Storage
     from weldpool_core.teacher.cache import EmbeddingCache
     from weldpool_core.teacher.dino import DinoAttention
     from weldpool_core.teacher.propagate import Sam2Propagator
@@ -49,10 +50,49 @@ def _dino(ref: str, device: str, input_size: int) -> DinoAttention:
 
 
 @lru_cache(maxsize=4)
-def _cache(directory: Path, limit_bytes: int) -> EmbeddingCache:
+def _cache(directory: Path, limit_bytes: int, shared: SharedEmbeddings | None) -> EmbeddingCache:
     from weldpool_core.teacher.cache import EmbeddingCache
 
-    return EmbeddingCache(directory, disk_limit_bytes=limit_bytes)
+    return EmbeddingCache(directory, disk_limit_bytes=limit_bytes, shared=shared)
+
+
+EMBEDDINGS_AREA = "embeddings"
+"""Where embeddings are shared in an object store (``embeddings/<ab>/<key>.safetensors``)."""
+
+
+class SharedEmbeddings:
+    """The embedding cache's shared tier on an object store: an embedding a worker computed
+    is what another machine's first click reads (a fetch of ~8 MB, not an encoder pass)."""
+
+    def __init__(self, storage: Storage) -> None:
+        self.storage = storage
+
+    def push(self, name: str, path: Path) -> None:
+        self.storage.share(f"{EMBEDDINGS_AREA}/{name}", path)
+
+    def pull(self, name: str, path: Path) -> bool:
+        return self.storage.pull(f"{EMBEDDINGS_AREA}/{name}", path)
+
+    def prune(self, older_than_days: float) -> int:
+        """Remove shared embeddings not written for ``older_than_days``: the shared tier is a
+        cache, bounded by age (a frame's is written again when it is encoded again)."""
+        return self.storage.prune_published(EMBEDDINGS_AREA, older_than_days * 86_400)
+
+
+_shared_tiers: dict[str, SharedEmbeddings] = {}
+
+
+def shared_embeddings(settings: Settings) -> SharedEmbeddings | None:
+    """The shared tier of this instance's object store; None on home alone (its machines
+    share the disk cache already)."""
+    if not settings.storage_url:
+        return None
+    with _lock:
+        if settings.storage_url not in _shared_tiers:
+            from app.storage import Storage
+
+            _shared_tiers[settings.storage_url] = SharedEmbeddings(Storage.of(settings))
+        return _shared_tiers[settings.storage_url]
 
 
 def embedding_cache_limit(settings: Settings) -> int:
@@ -87,8 +127,11 @@ def clear_embedding_cache(settings: Settings) -> tuple[int, int]:
 
 
 def embedding_cache(settings: Settings) -> EmbeddingCache:
-    """The process's embedding cache (memory + WELDPOOL_HOME/cache/embeddings)."""
-    return _cache(_embedding_dir(settings), embedding_cache_limit(settings))
+    """The process's embedding cache (memory + WELDPOOL_HOME/cache/embeddings, and the object
+    store's ``embeddings/`` shared by every machine when there is one)."""
+    return _cache(
+        _embedding_dir(settings), embedding_cache_limit(settings), shared_embeddings(settings)
+    )
 
 
 def sam2_predictor(settings: Settings) -> Sam2Predictor:

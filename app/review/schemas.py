@@ -116,7 +116,7 @@ class SegmentOut(BaseModel):
     score: float = Field(description="SAM2's predicted IoU of the returned mask.")
     scores: list[float]
     elapsed_ms: float = Field(description="Server time for this click.")
-    embedding: Literal["memory", "disk", "computed"]
+    embedding: Literal["memory", "disk", "shared", "computed"]
 
 
 class PropagateIn(InputModel):

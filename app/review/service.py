@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 else:
     from weldpool_core.lazy import cv2, np
 
-EmbeddingSource = Literal["memory", "disk", "computed"]
+EmbeddingSource = Literal["memory", "disk", "shared", "computed"]
 
 # --- click corrections -------------------------------------------------------------------------
 

@@ -74,6 +74,8 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     if failed and not proposed and not skipped and len(failed) + len(deleted) == len(frame_ids):
         raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
     ctx.summary = teacher_summary(proposed, skipped, failed, len(deleted))
+    if (shared := runtime.shared_embeddings(ctx.settings)) is not None:
+        shared.prune(ctx.settings.shared_embeddings_days)
     return {
         "proposed": proposed,
         "skipped": skipped,

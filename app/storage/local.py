@@ -141,6 +141,15 @@ class Storage:
     def unpublish(self, relative: str) -> None:
         """Withdraw what ``publish`` shared (a no-op here; the caller removes the local copy)."""
 
+    def share(self, relative: str, path: Path) -> None:
+        """Upload a file of this machine's own cache (an embedding) for the instance's other
+        machines under ``relative`` (a no-op here: they share home)."""
+
+    def pull(self, relative: str, path: Path) -> bool:
+        """Fetch what ``share`` uploaded under ``relative`` into ``path``; False when the store
+        has none (always here: home is the store)."""
+        return False
+
     def prune_published(self, area: str, older_than_s: float) -> int:
         """Remove shared files of ``area`` older than ``older_than_s`` (none here: home's own
         pruning covers them); returns how many went."""

@@ -511,6 +511,12 @@ class ObjectStorage(Storage):
                     Delete={"Objects": [{"Key": k} for k in chunk], "Quiet": True},
                 )
 
+    def share(self, relative: str, path: Path) -> None:
+        self._upload_file(path, relative, time.time_ns())
+
+    def pull(self, relative: str, path: Path) -> bool:
+        return self._download(relative, path, restore=False)
+
     def prune_published(self, area: str, older_than_s: float) -> int:
         cutoff = time.time() - older_than_s
         old = [

@@ -13,13 +13,14 @@ pre-processing version) and says which tier served.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import threading
 import uuid
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 import torch
@@ -29,12 +30,25 @@ from safetensors.torch import load_file, save_file
 
 from weldpool_core.teacher.sam2 import ImageEmbedding
 
+log = logging.getLogger(__name__)
+
 if TYPE_CHECKING:
     from weldpool_core.teacher.sam2 import Sam2Predictor
 
 _NAMES = ("s0", "s1", "image")
-Tier = Literal["memory", "disk", "computed"]
-"""Where an embedding came from: the memory LRU, the disk cache, or the image encoder."""
+Tier = Literal["memory", "disk", "shared", "computed"]
+"""Where an embedding came from: the memory LRU, the disk cache, the shared store (another
+machine computed it), or the image encoder."""
+
+
+class SharedTier(Protocol):
+    """A store every machine of an instance reaches (an object store): each embedding file
+    written here is shared, and one this machine lacks is looked for there before the encoder
+    runs. ``name`` is the file's path relative to the cache's directory."""
+
+    def push(self, name: str, path: Path) -> None: ...
+
+    def pull(self, name: str, path: Path) -> bool: ...
 
 
 def embedding_key(image_sha256: str, identity: str) -> str:
@@ -50,6 +64,8 @@ class EmbeddingCache:
         directory: where fp16 copies live; None keeps the cache in memory only.
         memory_items: embeddings kept in memory (each about 17 MB in fp32).
         disk_limit_bytes: the disk part's size limit; oldest-used files go first.
+        shared: a tier shared with other machines (workers), below the disk: a file written
+            is pushed there, and a disk miss is pulled from it before it counts as a miss.
     """
 
     def __init__(
@@ -57,14 +73,16 @@ class EmbeddingCache:
         directory: Path | None = None,
         memory_items: int = 8,
         disk_limit_bytes: int = 20 * 2**30,
+        shared: SharedTier | None = None,
     ) -> None:
         self.directory = directory
+        self.shared = shared
         self.memory_items = memory_items
         self.disk_limit_bytes = disk_limit_bytes
         self._memory: OrderedDict[str, ImageEmbedding] = OrderedDict()
         self._lock = threading.Lock()
         self._computing: dict[str, threading.Lock] = {}
-        self.hits = {"memory": 0, "disk": 0, "miss": 0}
+        self.hits = {"memory": 0, "disk": 0, "shared": 0, "miss": 0}
         if directory is not None:
             directory.mkdir(parents=True, exist_ok=True)
 
@@ -92,6 +110,10 @@ class EmbeddingCache:
                 self._memory.move_to_end(key)
                 self.hits["memory"] += 1
                 return self._memory[key], "memory"
+        tier: Tier = "disk"
+        missing = self.directory is not None and not self._path(key).exists()
+        if missing and self.shared is not None and self._pull(key, self._path(key)):
+            tier = "shared"
         if self.directory is not None and (path := self._path(key)).exists():
             try:
                 tensors = load_file(str(path), device=str(device or "cpu"))
@@ -104,8 +126,8 @@ class EmbeddingCache:
                 embedding = ImageEmbedding(features, (size[0], size[1]))  # type: ignore[arg-type]
                 self._remember(key, embedding)
                 with self._lock:
-                    self.hits["disk"] += 1
-                return embedding, "disk"
+                    self.hits[tier] += 1
+                return embedding, tier
         with self._lock:
             self.hits["miss"] += 1
         return None
@@ -150,6 +172,22 @@ class EmbeddingCache:
         save_file(tensors, str(temporary))
         os.replace(temporary, path)
         self._enforce_limit()
+        if self.shared is not None:
+            try:
+                self.shared.push(self._name(key), path)
+            except Exception:  # the shared copy is an optimisation: a click computes without it
+                log.warning("sharing embedding %s failed", key, exc_info=True)
+
+    def _name(self, key: str) -> str:
+        return f"{key[:2]}/{key}.safetensors"
+
+    def _pull(self, key: str, path: Path) -> bool:
+        assert self.shared is not None
+        try:
+            return self.shared.pull(self._name(key), path)
+        except Exception:  # an unreachable store is a miss, never a failed click
+            log.warning("reading shared embedding %s failed", key, exc_info=True)
+            return False
 
     def _remember(self, key: str, embedding: ImageEmbedding) -> None:
         with self._lock:

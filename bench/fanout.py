@@ -1,0 +1,169 @@
+"""One teacher run on one worker and on two: the fan-out's speed-up (goal ≥ 1.7× on 2 workers).
+
+Full-size DINO ViT-S/8 and SAM2 hiera-tiny with random weights, saved as local folders; N
+frames of 640×400 uploaded to a throw-away home (SQLite, the SQLite queue); then for 1 and 2
+`weldpool worker` processes (one model thread each, one torch thread each) a forced teacher run
+over the frames, timed from the request to its end, median of runs. Each worker loads the
+teacher once before its timing starts (a warm-up run). Prints and saves a table
+(``bench/results/fanout.csv``).
+
+    .venv/bin/python bench/fanout.py [--frames 12] [--runs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from common import REPO, free_port
+
+WEIGHTS_ENV = ("WELDPOOL_DINO", "WELDPOOL_SAM2")
+
+
+def _save_teacher(directory: Path) -> dict[str, str]:
+    from transformers import Sam2Config, Sam2Model, ViTModel
+
+    from weldpool_core.teacher.dino import dino_vits8_config
+
+    ViTModel(dino_vits8_config(), add_pooling_layer=False).save_pretrained(directory / "dino")
+    Sam2Model(Sam2Config()).save_pretrained(directory / "sam2")
+    return {"WELDPOOL_DINO": str(directory / "dino"), "WELDPOOL_SAM2": str(directory / "sam2")}
+
+
+def _png(seed: int) -> bytes:
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(0, 60, (400, 640, 3), dtype=np.uint8)
+    cv2.ellipse(frame, (320, 200), (90, 50), 0, 0, 360, (250, 250, 250), -1)
+    return cv2.imencode(".png", frame)[1].tobytes()
+
+
+def _run(url: str, token: str, frame_ids: list[int]) -> float:
+    headers = {"Authorization": f"Bearer {token}"}
+    start = time.perf_counter()
+    job = httpx.post(
+        f"{url}/api/v1/teacher/runs",
+        json={"frame_ids": frame_ids, "force": True},
+        headers=headers,
+        timeout=30,
+    ).json()["job_id"]
+    while True:
+        state = httpx.get(f"{url}/api/v1/jobs/{job}", headers=headers, timeout=30).json()
+        if state["status"] in ("succeeded", "failed", "cancelled"):
+            break
+        time.sleep(0.2)
+    if state["status"] != "succeeded":
+        raise SystemExit(f"the teacher run ended {state['status']}: {state['error']}")
+    return time.perf_counter() - start
+
+
+def _workers(env: dict[str, str], count: int) -> list[subprocess.Popen[bytes]]:
+    return [
+        subprocess.Popen(
+            [sys.executable, "-m", "app", "worker", "--lanes", "model", "--threads", "1"],
+            env=env,
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for _ in range(count)
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--runs", type=int, default=2)
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(
+            os.environ,
+            WELDPOOL_HOME=str(Path(tmp) / "home"),
+            WELDPOOL_LOG_LEVEL="WARNING",
+            WELDPOOL_BATCH_THREADS="1",
+            HF_HUB_OFFLINE="1",
+            **_save_teacher(Path(tmp) / "weights"),
+        )
+        weldpool = [sys.executable, "-m", "app"]
+        subprocess.run([*weldpool, "migrate"], env=env, cwd=REPO, check=True)
+        port = free_port()
+        server = subprocess.Popen(
+            [*weldpool, "serve", "--no-worker", "--port", str(port)],
+            env=env,
+            cwd=REPO,
+            stderr=subprocess.DEVNULL,
+        )
+        url = f"http://127.0.0.1:{port}"
+        try:
+            for _ in range(600):
+                try:
+                    httpx.get(f"{url}/api/v1/health", timeout=1)
+                    break
+                except httpx.HTTPError:
+                    time.sleep(0.1)
+            token = subprocess.run(
+                [*weldpool, "token", "admin"],
+                env=env,
+                cwd=REPO,
+                text=True,
+                capture_output=True,
+                check=True,
+            ).stdout.strip()
+            files = [("files", (f"{i}.png", _png(i), "image/png")) for i in range(args.frames)]
+            stored = httpx.post(
+                f"{url}/api/v1/frames",
+                files=files,
+                headers={"Authorization": f"Bearer {token}"},
+                timeout=120,
+            ).json()["stored"]
+            frame_ids = [frame["id"] for frame in stored]
+            for count in (1, 2):
+                workers = _workers(env, count)
+                try:
+                    _run(url, token, frame_ids[: 4 * count])  # loads the teacher in each
+                    times = [_run(url, token, frame_ids) for _ in range(args.runs)]
+                finally:
+                    for worker in workers:
+                        worker.send_signal(signal.SIGTERM)
+                        worker.wait(timeout=60)
+                rows.append((count, statistics.median(times), times))
+        finally:
+            server.send_signal(signal.SIGTERM)
+            server.wait(timeout=60)
+    base = rows[0][1]
+    print(f"teacher run of {args.frames} frames (640×400, full-size random teacher, CPU)")
+    print(f"{'workers':>8} {'median s':>9} {'frames/s':>9} {'speed-up':>9}")
+    for count, median, _ in rows:
+        print(f"{count:>8} {median:>9.1f} {args.frames / median:>9.3f} {base / median:>8.2f}×")
+    out = REPO / "bench" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "fanout.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["workers", "frames", "median_s", "runs_s", "speedup", "cpus"])
+        for count, median, times in rows:
+            writer.writerow(
+                [
+                    count,
+                    args.frames,
+                    f"{median:.2f}",
+                    " ".join(f"{t:.2f}" for t in times),
+                    f"{base / median:.3f}",
+                    os.cpu_count(),
+                ]
+            )
+
+
+if __name__ == "__main__":
+    main()
