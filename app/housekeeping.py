@@ -28,16 +28,29 @@ def sweep_orphan_files(
     return len(storage.sweep_orphans(SWEPT_AREAS, known, older_than_s))
 
 
+FIRST_SWEEP_AFTER_S = 30.0
+"""The web process answers first: its first sweep (a listing of the store) waits this long."""
+
+
 class FileCollector(Periodic):
     """Sweeps the store three times per grace period, in a thread of the web process: files
-    whose claim was too fresh when their rows were deleted, and files a failed write left."""
+    whose claim was too fresh when their rows were deleted, and files a failed write left. The
+    first pass, a little after start, also prunes the training state recorded versions no
+    longer need: ``serve`` answers before any of it."""
 
     def __init__(self, session_factory: sessionmaker[Session], storage: Storage) -> None:
         self.session_factory, self.storage = session_factory, storage
-        super().__init__("files", storage.grace_s / 3, self.sweep)
+        self._first = True
+        interval = storage.grace_s / 3
+        super().__init__("files", interval, self.sweep, min(interval, FIRST_SWEEP_AFTER_S))
 
     def sweep(self) -> int:
         with self.session_factory() as session:
+            if self._first:
+                self._first = False
+                freed = prune_training_state(session, self.storage.home)
+                if freed:
+                    log.info("files.training_state_pruned", mb=round(freed / 2**20))
             removed = sweep_orphan_files(session, self.storage)
         if removed:
             log.info("files.collected", removed=removed)

@@ -13,15 +13,25 @@ log = structlog.get_logger(__name__)
 
 
 class Periodic:
-    """Runs ``run_once`` every ``interval_s`` seconds between ``start`` and ``stop``."""
+    """Runs ``run_once`` every ``interval_s`` seconds between ``start`` and ``stop`` (the first
+    time after ``first_after_s``, default ``interval_s``)."""
 
-    def __init__(self, name: str, interval_s: float, run_once: Callable[[], Any]) -> None:
+    def __init__(
+        self,
+        name: str,
+        interval_s: float,
+        run_once: Callable[[], Any],
+        first_after_s: float | None = None,
+    ) -> None:
         self.name, self.interval_s, self.run_once = name, interval_s, run_once
+        self.first_after_s = interval_s if first_after_s is None else first_after_s
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name=f"weldpool-{name}", daemon=True)
 
     def _loop(self) -> None:
-        while not self._stop.wait(self.interval_s):
+        wait = self.first_after_s
+        while not self._stop.wait(wait):
+            wait = self.interval_s
             try:
                 self.run_once()
             except Exception:  # a database hiccup must not end the pass

@@ -70,7 +70,6 @@ def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 
 def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
     from app.budgets import lower_priority  # noqa: F401 (see below)
-    from app.storage import Storage
     from app.users.service import ensure_initial_admin  # noqa: F401 (see below)
 
     settings = load_settings()
@@ -82,25 +81,9 @@ def serve(host: str, port: int, no_worker: bool) -> None:
         prepared = pool.submit(_prepare_below_the_imports, settings)
         import uvicorn
 
-        from app.housekeeping import prune_training_state, sweep_orphan_files
         from app.main import create_app
 
         password_file = prepared.result()
-    engine = create_db_engine(settings.resolved_database_url)
-    with create_session_factory(engine)() as session:
-        swept = sweep_orphan_files(session, Storage.of(settings))
-        freed = prune_training_state(session, settings.home)
-    engine.dispose()
-    if freed:
-        click.echo(
-            f"removed {freed / 2**20:.0f} MB of training state that recorded versions no longer "
-            "need",
-            err=True,
-        )
-    if swept:
-        click.echo(
-            f"removed {swept} stored files that no row named (an interrupted upload)", err=True
-        )
     if password_file:
         click.echo(login_hint(password_file, host, port), err=True)
     app = create_app(settings, embedded_worker=not no_worker)

@@ -20,7 +20,7 @@ from app.main import create_app
 from app.models import Frame, Role
 from app.storage import Storage
 from app.storage import local as storage_module
-from tests.helpers import age_stored_files, auth, image_bytes
+from tests.helpers import age_stored_files, auth, image_bytes, wait_for
 
 
 @pytest.fixture
@@ -661,3 +661,23 @@ def test_each_list_order_of_a_run_reads_its_index_instead_of_sorting(
         )
     assert any(name in plan for name in index), plan
     assert "TEMP B-TREE" not in plan and "Sort" not in plan, plan
+
+
+def test_the_first_sweep_runs_after_start_not_before_serve_answers(
+    settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`serve` answers before any sweep: the collector's first pass (orphans and training
+    state) runs in its thread a little after start, then every third of the grace period."""
+    import app.housekeeping as housekeeping
+
+    storage = Storage(settings.home)
+    orphan = storage.put(image_bytes(seed=53), "d" * 64, ".png")
+    age_stored_files(settings.home, storage.grace_s + 1)
+    monkeypatch.setattr(housekeeping, "FIRST_SWEEP_AFTER_S", 0.05)
+    collector = FileCollector(session_factory, storage)
+    assert collector.interval_s == storage.grace_s / 3 and collector.first_after_s == 0.05
+    collector.start()
+    try:
+        wait_for(lambda: not storage.absolute(orphan.path).exists(), timeout=10)
+    finally:
+        collector.stop()
