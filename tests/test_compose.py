@@ -25,7 +25,7 @@ def test_compose_file_follows_the_compose_specification() -> None:
     resolved = {k: v for k, v in COMPOSE.items() if not k.startswith("x-")}
     parsed = PyCompose.from_yaml(yaml.safe_dump(resolved))
     assert set(parsed.service_names()) == {
-        *("postgres", "redis", "minio", "minio-bucket", "api", "worker", "worker-gpu")
+        *("postgres", "redis", "minio", "minio-bucket", "weights", "api", "worker", "worker-gpu")
     }
 
 
@@ -42,13 +42,32 @@ def test_api_serves_without_worker_and_workers_scale() -> None:
     assert "--no-worker" in SERVICES["api"]["command"]
     for name in ("worker", "worker-gpu"):
         worker = SERVICES[name]
-        assert worker["command"] == ["weldpool", "worker"]
+        assert worker["command"][:2] == ["weldpool", "worker"]
         # --scale worker=N needs workers without fixed names or published ports.
         assert "container_name" not in worker and "ports" not in worker
     gpu = SERVICES["worker-gpu"]
     assert gpu["profiles"] == ["gpu"]  # optional: only with --profile gpu
     assert gpu["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
     assert gpu["environment"]["WELDPOOL_DEVICE"] == "cuda"
+    assert "cu" in gpu["build"]["args"]["TORCH_INDEX"].rsplit("/", 1)[-1]  # a CUDA build
+    assert gpu["command"][2:] == ["--lanes", "model"]
+
+
+def test_passwords_come_from_the_environment_and_weights_reach_every_worker() -> None:
+    """No password is written in the file: the database's, Redis's and MinIO's come from .env
+    (compose refuses to start without them); the weights volume is mounted read-only by the
+    api and every worker, and written only by the one-shot weights service."""
+    text = (REPO / "docker-compose.yml").read_text()
+    for variable in ("WELDPOOL_DB_PASSWORD", "WELDPOOL_REDIS_PASSWORD", "WELDPOOL_S3_PASSWORD"):
+        assert f"${{{variable}:?" in text
+        assert f"{variable}=" in (REPO / ".env.example").read_text()
+    assert "weldpool-secret" not in text and ":weldpool@" not in text
+    assert "--requirepass" in SERVICES["redis"]["command"]
+    for name in ("api", "worker", "worker-gpu"):
+        assert "weldpool-weights:/weights:ro" in SERVICES[name]["volumes"], name
+        assert SERVICES[name]["environment"]["HF_HUB_CACHE"] == "/weights"
+    assert SERVICES["weights"]["volumes"] == ["weldpool-weights:/weights"]
+    assert SERVICES["weights"]["command"] == ["weldpool", "weights", "fetch"]
 
 
 def test_commands_and_variables_exist_in_this_project() -> None:
@@ -76,6 +95,8 @@ def test_workers_share_no_volume_only_the_three_urls() -> None:
     for name in ("api", "worker", "worker-gpu"):
         service = SERVICES[name]
         for volume in service.get("volumes") or []:
+            if volume.endswith(":ro"):
+                continue  # read-only: the weights every worker reads
             source = volume.split(":")[0]
             assert source not in mounts, (name, mounts[source])
             mounts[source] = name
