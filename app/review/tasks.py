@@ -243,11 +243,16 @@ def propagate_run(ctx: JobContext) -> dict[str, Any]:
     return result
 
 
-@job_handler("embed", max_attempts=2)
+EMBED_CHUNK = 8
+"""Frames per chunk of an embedding run that several workers share."""
+
+
+@job_handler("embed", max_attempts=2, fanout=True)
 def embed_run(ctx: JobContext) -> dict[str, Any]:
-    """SAM2's image embedding of every frame of a weld run, into the embedding cache: the first
-    click on any of its frames is then as fast as the later ones, and propagation and the
-    teacher reuse them."""
+    """SAM2's image embedding of every frame of a weld run, into the embedding cache (shared
+    through the object store when there is one), in chunks every worker the run reaches shares:
+    the first click on any of its frames is then as fast as the later ones, and propagation and
+    the teacher reuse them."""
     from weldpool_core.teacher.cache import cached_embedding
 
     storage = Storage.of(ctx.settings)
@@ -256,17 +261,29 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
     cache = runtime.embedding_cache(ctx.settings)
     with ctx.session_factory() as session:
         frames = propagation.run_frames(session, int(ctx.params["sequence_id"]))
-        tiers = {"computed": 0, "memory": 0, "disk": 0}
-        for done, frame in enumerate(frames, 1):
-            _, tier = cached_embedding(
-                predictor,
-                cache,
-                frame.sha256,
-                functools.partial(frame_rgb, storage, frame),
-                (frame.height, frame.width),
-            )
-            tiers[tier] += 1
-            ctx.progress(done / len(frames), f"{done} of {len(frames)} frames")
+    fan = Fanout(ctx, len(frames), EMBED_CHUNK)
+    if not ctx.helper:
+        fan.invite()
+    for index in fan.chunks():
+        with fan.working(index) as tiers:
+            for position in fan.items(index):
+                frame = frames[position]
+                _, tier = cached_embedding(
+                    predictor,
+                    cache,
+                    frame.sha256,
+                    functools.partial(frame_rgb, storage, frame),
+                    (frame.height, frame.width),
+                )
+                tiers[tier] = tiers.get(tier, 0) + 1
+                ctx.check_cancelled()
+        ctx.progress(fan.progress(), fan.message())
+    if ctx.helper:
+        return {}
+    tiers = {name: 0 for name in ("computed", "memory", "disk", "shared")}
+    for result in fan.results():
+        for name, count in result.items():
+            tiers[name] += count
     ctx.summary = (
         f"{counted(tiers['computed'], 'embedding')} computed, "
         f"{len(frames) - tiers['computed']} already cached"
