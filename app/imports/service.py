@@ -15,15 +15,11 @@ import asks to ``overwrite``, which adds a revision.
 from __future__ import annotations
 
 import hashlib
-import multiprocessing
 import os
 import posixpath
 import shutil
-import threading
 import uuid
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -33,10 +29,11 @@ from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError
+from app.errors import ConflictError, InvalidInputError, PermissionDeniedError
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
 from app.frames.schemas import SequenceIn
+from app.imports.pool import BATCH, Check, Contents, computed
 from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeypoints
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
@@ -46,24 +43,15 @@ from app.review.service import (
 )
 from app.storage import CHUNK, Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
-from weldpool_core.annotations.content import (
-    LabelContent,
-    label_content,
-    many_contents,
-    shipped,
-    start_process,
-)
+from weldpool_core.annotations.content import LabelContent
 from weldpool_core.annotations.shapes import inside_frame
 
 IMPORTS_DIR = "imports"
 """Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
-BATCH = 64
 PROCESS_MIN = 256
 """Labels in an import from which their work (rasterise, encode, Algorithm 1) runs in processes,
 one per core, instead of the ingest threads, whose Python parts share one GIL: starting the
 processes costs about a second, which a few hundred labels repay."""
-PROCESS_CHUNK = 8
-"""Labels per task sent to a process (fewer round trips)."""
 RUN_NAME = 190
 """Longest run name an import makes (runs hold 200 characters; ``name (2)`` needs room)."""
 MAX_LISTED = 1000
@@ -153,8 +141,15 @@ def import_labels(
     options: ImportOptions,
     user: User,
     progress: Progress | None = None,
+    check: Check | None = None,
 ) -> ImportReport:
-    """Read ``source`` in ``options.format`` and import its labels batch by batch."""
+    """Read ``source`` in ``options.format`` and import its labels batch by batch; ``check``
+    (a job's cancel) is asked while each batch's labels are computed.
+
+    Raises:
+        PermissionDeniedError: ``user`` was deactivated during the import (the batches
+            written before stay).
+    """
     reader = READERS[checked_format(options.format)]
     if options.sequence_id is not None:
         sequences.get_sequence(session, options.sequence_id)
@@ -172,7 +167,8 @@ def import_labels(
     # are computed (in processes for a large import); each batch's labels in one transaction.
     pending: tuple[_Batch, int] | None = None
     for start in range(0, total, BATCH):
-        batch = _Batch(session, storage, source, options, user, report, processes)
+        still_active(session, user)
+        batch = _Batch(session, storage, source, options, user, report, processes, check)
         try:
             batch.prepare(parsed.labels[start : start + BATCH], runs)
         finally:
@@ -184,60 +180,19 @@ def import_labels(
     return report
 
 
+def still_active(session: Session, user: User) -> None:
+    """Refuse to go on in the name of a user deactivated (or deleted) since the import began."""
+    if not session.scalar(sa.select(User.is_active).where(User.id == user.id)):
+        raise PermissionDeniedError(
+            f"{user.username} was deactivated during the import; it stopped, and only the "
+            "labels written before stay."
+        )
+
+
 def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> None:
     batch.finish()
     if progress is not None:
         progress(done / total, f"{done} of {total} labels read")
-
-
-_pool_lock = threading.Lock()
-_processes: ProcessPoolExecutor | None = None
-
-
-def _process_pool() -> ProcessPoolExecutor:
-    """The processes label work runs in, started on the first large import (``spawn``: the
-    worker has threads, so never ``fork``) and kept for the process's life."""
-    global _processes
-    with _pool_lock:
-        if _processes is None:
-            _processes = ProcessPoolExecutor(
-                # one per core, no more than a batch has tasks (not 64 × ~150 MB on a big worker)
-                max_workers=min(max(2, os.cpu_count() or 2), -(-BATCH // PROCESS_CHUNK)),
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=start_process,
-            )
-        return _processes
-
-
-class _Contents:
-    """The contents of a batch's labels being computed: in the processes (``shipped`` labels,
-    a few per task) or in the ingest threads; a broken process pool falls back to threads."""
-
-    def __init__(self, jobs: list[tuple[ImportedLabel, tuple[int, int], bool]], processes: bool):
-        self.jobs = jobs
-        self.futures: list[Future[list[LabelContent]]] = []
-        if processes and jobs:
-            try:
-                pool = _process_pool()
-                self.futures = [
-                    pool.submit(
-                        many_contents,
-                        [(shipped(i), size, w) for i, size, w in jobs[at : at + PROCESS_CHUNK]],
-                    )
-                    for at in range(0, len(jobs), PROCESS_CHUNK)
-                ]
-            except (BrokenProcessPool, OSError, RuntimeError):
-                self.futures = []
-
-    def results(self) -> list[LabelContent]:
-        try:
-            if self.futures:
-                return [c for f in self.futures for c in f.result()]
-        except BrokenProcessPool:  # a process was killed: start afresh next time
-            global _processes
-            with _pool_lock:
-                _processes = None
-        return list(INGEST_POOL.map(lambda job: label_content(*job), self.jobs))
 
 
 class _Runs:
@@ -326,14 +281,15 @@ class _Batch:
         user: User,
         report: ImportReport,
         processes: bool = False,
+        check: Check | None = None,
     ) -> None:
         self.session, self.storage, self.source = session, storage, source
         self.options, self.user, self.report = options, user, report
-        self.processes = processes
+        self.processes, self.check = processes, check
         self.has_manual: set[int] = set()
         self.placed: list[_Target] = []
         self.early: dict[int, tuple[int, tuple[int, int], bool]] = {}
-        self.contents: _Contents | None = None
+        self.contents: Contents | None = None
 
     def refuse(self, label: ImportedLabel, reason: str) -> None:
         self.report.refused.append(Refusal(label.item, reason))
@@ -347,6 +303,7 @@ class _Batch:
             for label in labels:  # the file's hand-placed keypoints are the label's own
                 if label.validation_keypoints and not label.keypoints and label.shapes:
                     label.keypoints, label.validation_keypoints = label.validation_keypoints, None
+        labels = [loaded for label in labels if (loaded := self._loaded(label)) is not None]
         images = [self._image(label) for label in labels]
         digests = list(  # hashlib lets go of the GIL: the pool hashes a batch at once
             INGEST_POOL.map(
@@ -385,9 +342,10 @@ class _Batch:
                 )
                 self.early[id(target)] = (len(jobs), size, wants)
                 jobs.append((target.label, size, wants))
-        self.contents = _Contents(jobs, self.processes)
+        self.contents = Contents(jobs, self.processes)
 
     def finish(self) -> None:
+        still_active(self.session, self.user)
         listed = len(self.report.skipped), len(self.report.refused)
         for attempt in (1, 2):
             try:
@@ -403,12 +361,25 @@ class _Batch:
 
     # --- frames --------------------------------------------------------------------------
 
+    def _loaded(self, label: ImportedLabel) -> ImportedLabel | None:
+        """The label with its files read (with its batch, not before); None, refused, when
+        one cannot be read."""
+        try:
+            return label.loaded(self.source)
+        except InvalidInputError as exc:
+            self.refuse(label, exc.message)
+            return None
+
     def _image(self, label: ImportedLabel) -> bytes | InvalidInputError | None:
         """The label's image from the file: None when it is not in it, the error (already
-        listed as the item's refusal) when its entry is damaged."""
+        listed as the item's refusal) when its entry is damaged or its name ambiguous."""
         if label.image_data is not None:
             return label.image_data
-        path = self.source.find(label.image, label.beside)
+        try:
+            path = self.source.find(label.image, label.beside)
+        except InvalidInputError as exc:  # a bare name two folders hold: not a stored frame
+            self.refuse(label, exc.message)
+            return exc
         try:
             return self.source.read(path) if path is not None else None
         except InvalidInputError as exc:  # a damaged zip entry: this item, not the import
@@ -565,7 +536,7 @@ class _Batch:
     def _contents(self, work: list[tuple[_Target, Frame, bool]]) -> list[LabelContent]:
         """Each placed label's content: the one started in ``prepare`` when its frame and
         whether it is written are as they were then, else computed now."""
-        early = self.contents.results() if self.contents is not None else []
+        early = self.contents.results(self.check) if self.contents is not None else []
         found: list[LabelContent | None] = []
         late = []
         for target, frame, wants in work:
@@ -575,8 +546,8 @@ class _Batch:
             else:
                 found.append(None)
                 late.append((target.label, (frame.height, frame.width), wants))
-        computed = iter(INGEST_POOL.map(lambda job: label_content(*job), late))
-        return [c if c is not None else next(computed) for c in found]
+        made = iter(computed(late, self.check))
+        return [c if c is not None else next(made) for c in found]
 
     def _store_masks(
         self, contents: list[LabelContent]

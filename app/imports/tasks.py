@@ -36,7 +36,9 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
                 raise InvalidInputError("The user who started the import no longer exists.")
             source = open_upload(path, params["name"])
             try:
-                report = import_labels(session, storage, source, options, user, ctx.progress)
+                report = import_labels(
+                    session, storage, source, options, user, ctx.progress, ctx.check_cancelled
+                )
             finally:
                 source.close()
     finally:
