@@ -246,6 +246,7 @@ def _import_labels(
             category=category,
             max_pixels=settings.max_image_pixels,
             keypoints=keypoint_role,
+            review_stage=settings.review_stage,
         )
         source = open_source(path)
         try:

@@ -38,6 +38,7 @@ from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeyp
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
+    saved_review,
     set_validation_keypoints,
     write_label,
 )
@@ -97,6 +98,7 @@ class ImportOptions:
     category: str | None = None
     max_pixels: int = 25_000_000
     keypoints: str = "validation"  # KEYPOINT_ROLES
+    review_stage: bool = False  # settings.review_stage: labels go through ``saved_review``
 
 
 @dataclass
@@ -596,6 +598,8 @@ class _Batch:
                 "source": {"kind": "imported", "format": self.options.format, "file": item.item},
                 "updated_by_id": self.user.id,
                 "updated_at": utcnow(),
+                "review": saved_review(self.user, self.options.review_stage),
+                "review_comment": None,
             }
             base = current.revision if current is not None else 0
             write_label(self.session, frame, current, base, values, flush=False)
