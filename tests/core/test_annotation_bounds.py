@@ -153,3 +153,17 @@ def test_an_archive_with_two_entries_of_one_name_reads_neither(tmp_path: Path) -
     assert source.names == ["masks/b.png"]
     [refusal] = source.refused
     assert refusal.item == "masks/a.png" and "2 entries" in refusal.reason
+
+
+def test_many_coco_polygons_make_the_union_of_each_ones_mask() -> None:
+    from weldpool_core.annotations.shapes import CocoPolygons
+
+    height, width = 60, 80
+    squares = [
+        [x, y, x + 6.0, y, x + 6.0, y + 5.0, x, y + 5.0]
+        for x, y in ((2, 3), (5, 6), (40, 9), (60, 40), (61, 42))
+    ]
+    expected = np.zeros((height, width), bool)
+    for square in squares:
+        expected |= CocoPolygons([square]).mask(height, width)
+    assert np.array_equal(CocoPolygons(squares).mask(height, width), expected)

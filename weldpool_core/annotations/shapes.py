@@ -113,8 +113,9 @@ class CocoPolygons:
         for flat in self.polygons:
             _check_inside(np.asarray(flat, np.float64).reshape(-1, 2), height, width, "polygon's")
         rles = coco.frPyObjects([list(map(float, p)) for p in self.polygons], height, width)
-        merged = coco.merge(rles)
-        return {"size": [height, width], "counts": merged["counts"].decode("ascii")}
+        while len(rles) > 1:  # pairwise: merging a list adds each to a growing union (n²)
+            rles = [coco.merge(rles[i : i + 2]) for i in range(0, len(rles), 2)]
+        return {"size": [height, width], "counts": rles[0]["counts"].decode("ascii")}
 
     def mask(self, height: int, width: int) -> NDArray[np.bool_]:
         return rle_mask(self.rle(height, width))
