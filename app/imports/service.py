@@ -15,26 +15,21 @@ import asks to ``overwrite``, which adds a revision.
 from __future__ import annotations
 
 import hashlib
-import os
 import posixpath
-import shutil
-import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, BinaryIO
+from dataclasses import dataclass
 
 import sqlalchemy as sa
-from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError, PermissionDeniedError
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
-from app.frames.schemas import SequenceIn
 from app.imports.pool import BATCH, Check, Contents, computed
-from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeypoints
+from app.imports.runs import Runs
+from app.imports.schemas import ImportOptions, ImportReport, checked_format
+from app.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
@@ -42,98 +37,16 @@ from app.review.service import (
     set_validation_keypoints,
     write_label,
 )
-from app.storage import CHUNK, Storage, StoredFile
+from app.storage import Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
 from weldpool_core.annotations.content import LabelContent
 from weldpool_core.annotations.shapes import inside_frame
 
-IMPORTS_DIR = "imports"
-"""Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
 PROCESS_MIN = 256
 """Labels in an import from which their work (rasterise, encode, Algorithm 1) runs in processes,
 one per core, instead of the ingest threads, whose Python parts share one GIL: starting the
 processes costs about a second, which a few hundred labels repay."""
-RUN_NAME = 190
-"""Longest run name an import makes (runs hold 200 characters; ``name (2)`` needs room)."""
-MAX_LISTED = 1000
-"""Most skipped or refused items a job's result lists one by one (the rest are counted)."""
 Progress = Callable[[float, str], None]
-
-
-def upload_name(name: str) -> str:
-    """Where the file an import job reads is stored (``name`` is the job's, never a
-    client's)."""
-    return f"{IMPORTS_DIR}/{Path(name).name}"
-
-
-def keep_upload(storage: Storage, source: BinaryIO, suffix: str) -> str:
-    """Copy an uploaded file (a spooled part) under ``imports/``, flushed and published to
-    every machine (a worker elsewhere reads it); its name."""
-    folder = storage.home / IMPORTS_DIR
-    folder.mkdir(parents=True, exist_ok=True)
-    name = f"{uuid.uuid4().hex}{suffix}"
-    target = folder / name
-    try:
-        with open(target, "wb") as handle:
-            shutil.copyfileobj(source, handle, CHUNK)
-            handle.flush()
-            os.fsync(handle.fileno())
-        storage.publish(upload_name(name))
-    except BaseException:
-        target.unlink(missing_ok=True)
-        raise
-    return name
-
-
-KEYPOINT_ROLES = ("validation", "label")
-"""What a file's hand-placed pool keypoints become: validation keypoints (the frame joins the
-validation split and does not train), or the label's own keypoints (it trains on them)."""
-
-
-@dataclass(frozen=True)
-class ImportOptions:
-    format: str
-    sequence_id: int | None = None
-    overwrite: bool = False
-    category: str | None = None
-    max_pixels: int = 25_000_000
-    keypoints: str = "validation"  # KEYPOINT_ROLES
-    review_stage: bool = False  # settings.review_stage: labels go through ``saved_review``
-
-
-@dataclass
-class ImportReport:
-    """What an import did: frames stored, labels and validation keypoints written, and every
-    item it skipped or refused, with why."""
-
-    frames: int = 0
-    labels: int = 0
-    keypoints: int = 0
-    skipped: list[Refusal] = field(default_factory=list)
-    refused: list[Refusal] = field(default_factory=list)
-
-    def as_result(self) -> dict[str, Any]:
-        def listed(items: list[Refusal]) -> list[dict[str, str]]:
-            return [{"item": r.item, "reason": r.reason} for r in items[:MAX_LISTED]]
-
-        return {
-            "frames": self.frames,
-            "labels": self.labels,
-            "keypoints": self.keypoints,
-            "skipped": listed(self.skipped),
-            "skipped_count": len(self.skipped),
-            "refused": listed(self.refused),
-            "refused_count": len(self.refused),
-        }
-
-
-def checked_format(name: str) -> str:
-    """``name`` when it is a label format, else a one-sentence error."""
-    if name not in READERS:
-        raise InvalidInputError(
-            f"There is no label format {name!r}; use one of {', '.join(READERS)}."
-        )
-    return name
 
 
 def import_labels(
@@ -162,7 +75,7 @@ def import_labels(
             raise
         parsed = Parsed([], [Refusal(source.name, exc.message)])  # nothing left to read
     report = ImportReport(refused=[*source.refused, *parsed.refused])
-    runs = _Runs(session, source.name, options.sequence_id, user, report)
+    runs = Runs(session, source.name, options.sequence_id, user, report.refused)
     total = len(parsed.labels)
     processes = total >= PROCESS_MIN
     # A pipeline of two batches: the next one's frames are stored while this one's labels
@@ -195,70 +108,6 @@ def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> 
     batch.finish()
     if progress is not None:
         progress(done / total, f"{done} of {total} labels read")
-
-
-class _Runs:
-    """The run each label's new frame goes to: the one asked for; else the run the label
-    names (a weldpool export's, created with its process parameters when missing); else one
-    new run named after the import, made when first needed."""
-
-    def __init__(
-        self,
-        session: Session,
-        name: str,
-        sequence_id: int | None,
-        user: User,
-        report: ImportReport,
-    ) -> None:
-        self._session, self._user, self._report = session, user, report
-        self._name = posixpath.splitext(posixpath.basename(name))[0][:RUN_NAME] or "import"
-        self._fixed = sequence_id
-        self._by_name: dict[str, int] = {}
-        self._default: int | None = None
-
-    @property
-    def fixed(self) -> int | None:
-        return self._fixed
-
-    def for_label(self, label: ImportedLabel) -> int:
-        if self._fixed is not None:
-            return self._fixed
-        if label.sequence:
-            if label.sequence not in self._by_name:
-                self._by_name[label.sequence] = self._named(label.sequence, label.process)
-            return self._by_name[label.sequence]
-        if self._default is None:
-            self._default = self._new_run()
-        return self._default
-
-    def _new_run(self) -> int:
-        """A new run named after the import (``name (2)``… when taken, also meanwhile)."""
-        for _ in range(5):
-            name = sequences.unique_sequence_name(self._session, self._name)
-            try:
-                return sequences.create_sequence(self._session, {"name": name}, self._user).id
-            except ConflictError:  # another import took the name meanwhile
-                self._session.rollback()
-        raise ConflictError("Other imports kept taking the new run's name; import again.")
-
-    def _named(self, name: str, process: dict[str, Any] | None) -> int:
-        name = name[:RUN_NAME]
-        found = self._session.scalar(sa.select(Sequence).where(Sequence.name == name))
-        if found is not None:
-            return found.id
-        values: dict[str, Any] = {"name": name}
-        parameters = {k: v for k, v in (process or {}).items() if k != "name"}
-        try:
-            values = SequenceIn.model_validate(values | parameters).model_dump(exclude_unset=True)
-        except ValidationError:
-            self._report.refused.append(
-                Refusal(name, "Its process parameters are not valid; the run is made without.")
-            )
-        try:
-            return sequences.create_sequence(self._session, values, self._user).id
-        except ConflictError:  # made meanwhile by another import
-            self._session.rollback()
-            return self._session.scalars(sa.select(Sequence.id).where(Sequence.name == name)).one()
 
 
 @dataclass
@@ -296,11 +145,11 @@ class _Batch:
     def refuse(self, label: ImportedLabel, reason: str) -> None:
         self.report.refused.append(Refusal(label.item, reason))
 
-    def run(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+    def run(self, labels: list[ImportedLabel], runs: Runs) -> None:
         self.prepare(labels, runs)
         self.finish()
 
-    def prepare(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+    def prepare(self, labels: list[ImportedLabel], runs: Runs) -> None:
         if self.options.keypoints == "label":
             for label in labels:  # the file's hand-placed keypoints are the label's own
                 if label.validation_keypoints and not label.keypoints and label.shapes:
@@ -394,7 +243,7 @@ class _Batch:
         data: bytes | InvalidInputError | None,
         digest: str,
         stored: dict[str, int],
-        runs: _Runs,
+        runs: Runs,
     ) -> _Target | None:
         if isinstance(data, InvalidInputError):
             return None  # refused in ``_image``

@@ -6,7 +6,9 @@ from functools import partial
 from typing import Any
 
 from app.db import session_scope
-from app.imports.service import ImportOptions, import_labels, upload_name
+from app.imports.schemas import ImportOptions
+from app.imports.service import import_labels
+from app.imports.uploads import upload_name
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import User
 from app.storage import Storage, best_effort

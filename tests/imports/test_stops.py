@@ -14,7 +14,8 @@ import pytest
 import sqlalchemy as sa
 
 from app.errors import PermissionDeniedError
-from app.imports.service import ImportOptions, import_labels
+from app.imports.schemas import ImportOptions
+from app.imports.service import import_labels
 from app.models import Label, Role, User
 from app.storage import Storage
 from tests.helpers import auth, image_bytes, wait_for, wait_for_job
