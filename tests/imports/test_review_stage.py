@@ -4,12 +4,17 @@ train, an overwrite of an approved label awaits again, and a reviewer's import i
 
 from __future__ import annotations
 
+import io
+import zipfile
+from pathlib import Path
+
 import numpy as np
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.models import Label, ReviewState, Role
 from app.training.service import training_frame_ids
-from tests.helpers import auth, image_bytes
+from tests.helpers import auth, image_bytes, run_cli
 from tests.imports.common import H, W, label_mask, start_import, stored_labels, zipped
 from weldpool_core.io import encode_mask_png
 
@@ -68,3 +73,28 @@ def test_an_annotators_import_awaits_review_and_an_overwrite_of_an_approved_labe
 
     start_import(client, reviewer, _masks_zip(5), "masks", overwrite=True)
     assert {label["review"] for label in _labels(client, reviewer).values()} == {"approved"}
+
+
+def test_the_cli_imports_an_annotators_labels_to_await_review(
+    settings, session_factory, make_user, tmp_path: Path
+) -> None:
+    make_user("anna", Role.annotator)
+    folder = tmp_path / "set"
+    for name, data in zipped_files(_masks_zip(5)).items():
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(data)
+    env = {
+        "WELDPOOL_HOME": str(settings.home),
+        "WELDPOOL_DATABASE_URL": settings.resolved_database_url,
+        "WELDPOOL_REVIEW_STAGE": "true",
+    }
+    done = run_cli("import-labels", folder, "--format", "masks", "--user", "anna", env=env)
+    assert done.returncode == 0, done.stderr
+    with session_factory() as session:
+        states = session.scalars(sa.select(Label.review)).all()
+    assert states == [ReviewState.awaiting, ReviewState.awaiting]
+
+
+def zipped_files(data: bytes) -> dict[str, bytes]:
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        return {name: archive.read(name) for name in archive.namelist()}
