@@ -118,13 +118,15 @@ def test_many_keypoint_annotations_on_one_image_are_refused_as_the_reader_meets_
     assert "at most 64 keypoints" in parsed.refused[0].reason
 
 
-def test_many_tiny_polygons_are_each_filled_over_their_own_box(monkeypatch) -> None:
+@pytest.mark.parametrize("count", [5, 400])  # filled one by one; grouped where apart
+def test_many_tiny_polygons_cost_their_boxes_not_a_frame_each(monkeypatch, count: int) -> None:
     height, width = 400, 600
+    corners = [(x, y) for x in range(-1, width - 4, 23) for y in range(-1, height - 4, 19)]
     polygons = [
-        Polygon([(x, y), (x + 3, y), (x + 3, y + 2), (x, y + 3)])
-        for x in range(-1, width - 4, 37)
-        for y in range(-1, height - 4, 29)
+        Polygon([(x, y), (x + 3.5, y), (x + 3, y + 2.5), (x, y + 3)]) for x, y in corners[:count]
     ]
+    polygons += [Polygon([(50, 50), (60, 52), (55, 58)]), Polygon([(52, 49), (70, 60), (51, 61)])]
+    polygons.append(Polygon([(width - 2, 100), (width + 0.9, 100), (width, 110)]))  # on the edge
     expected = np.zeros((height, width), bool)
     for polygon in polygons:
         expected |= fill_polygons([polygon], height, width)
@@ -137,7 +139,7 @@ def test_many_tiny_polygons_are_each_filled_over_their_own_box(monkeypatch) -> N
     monkeypatch.setattr(shapes_module, "fill_polygons", fill)
     mask = Polygons(polygons).mask(height, width)
     assert np.array_equal(mask, expected)
-    assert canvases and max(h * w for h, w in canvases) <= 5 * 5
+    assert sum(h * w for h, w in canvases) <= height * width  # was a whole frame per polygon
 
 
 def test_an_archive_with_two_entries_of_one_name_reads_neither(tmp_path: Path) -> None:
