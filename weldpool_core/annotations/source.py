@@ -71,7 +71,7 @@ class Source:
 
     ``primary`` is the annotation file the user pointed at (a single file, or None for a folder
     or a zip). ``refused`` lists entries that were not admitted (unsafe paths, oversized or
-    over-compressed entries)."""
+    over-compressed entries, two entries of one name)."""
 
     def __init__(
         self,
