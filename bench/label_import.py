@@ -30,7 +30,8 @@ from app.config import Settings
 from app.db import create_db_engine, create_session_factory
 from app.frames.ingest import IncomingFile, ingest_frames
 from app.frames.sequences import create_sequence
-from app.imports.service import ImportOptions, import_labels
+from app.imports.schemas import ImportOptions
+from app.imports.service import import_labels
 from app.models import Role, User
 from app.schema import migrate
 from app.security import hash_password

@@ -205,7 +205,7 @@ def import_labels_cmd(
 ) -> None:
     """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images,
     here or in a bucket (s3://bucket/prefix)."""
-    from app.imports.service import checked_format
+    from app.imports.schemas import checked_format
 
     settings = load_settings()
     checked_format(fmt)
@@ -229,7 +229,8 @@ def _import_labels(
     username: str | None,
 ) -> None:
     from app.frames import sequences
-    from app.imports.service import ImportOptions, import_labels
+    from app.imports.schemas import ImportOptions
+    from app.imports.service import import_labels
     from app.storage import Storage
     from app.users.service import importing_user
     from weldpool_core.annotations import open_source
@@ -246,6 +247,7 @@ def _import_labels(
             category=category,
             max_pixels=settings.max_image_pixels,
             keypoints=keypoint_role,
+            review_stage=settings.review_stage,
         )
         source = open_source(path)
         try:

@@ -13,7 +13,8 @@ from app.errors import InvalidInputError
 from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
 from app.housekeeping import prune_shared
-from app.imports.service import IMPORTS_DIR, KEYPOINT_ROLES, keep_upload
+from app.imports.schemas import KEYPOINT_ROLES
+from app.imports.uploads import IMPORTS_DIR, keep_upload
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.security import CurrentUser

@@ -15,135 +15,38 @@ import asks to ``overwrite``, which adds a revision.
 from __future__ import annotations
 
 import hashlib
-import multiprocessing
-import os
 import posixpath
-import shutil
-import threading
-import uuid
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, BinaryIO
+from dataclasses import dataclass
 
 import sqlalchemy as sa
-from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError
+from app.errors import ConflictError, InvalidInputError, PermissionDeniedError
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
-from app.frames.schemas import SequenceIn
-from app.models import Frame, Label, LabelStatus, Sequence, User, ValidationKeypoints
+from app.imports.pool import BATCH, Check, Contents, computed
+from app.imports.runs import Runs
+from app.imports.schemas import ImportOptions, ImportReport, checked_format
+from app.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
     check_keypoints,
+    saved_review,
     set_validation_keypoints,
     write_label,
 )
-from app.storage import CHUNK, Storage, StoredFile
+from app.storage import Storage, StoredFile
 from weldpool_core.annotations import READERS, ImportedLabel, Parsed, Refusal, Source
-from weldpool_core.annotations.content import (
-    LabelContent,
-    label_content,
-    many_contents,
-    shipped,
-    start_process,
-)
+from weldpool_core.annotations.content import LabelContent
 from weldpool_core.annotations.shapes import inside_frame
 
-IMPORTS_DIR = "imports"
-"""Where an uploaded import waits for its job (removed when the job ends; a day at most)."""
-BATCH = 64
 PROCESS_MIN = 256
 """Labels in an import from which their work (rasterise, encode, Algorithm 1) runs in processes,
 one per core, instead of the ingest threads, whose Python parts share one GIL: starting the
 processes costs about a second, which a few hundred labels repay."""
-PROCESS_CHUNK = 8
-"""Labels per task sent to a process (fewer round trips)."""
-RUN_NAME = 190
-"""Longest run name an import makes (runs hold 200 characters; ``name (2)`` needs room)."""
-MAX_LISTED = 1000
-"""Most skipped or refused items a job's result lists one by one (the rest are counted)."""
 Progress = Callable[[float, str], None]
-
-
-def upload_name(name: str) -> str:
-    """Where the file an import job reads is stored (``name`` is the job's, never a
-    client's)."""
-    return f"{IMPORTS_DIR}/{Path(name).name}"
-
-
-def keep_upload(storage: Storage, source: BinaryIO, suffix: str) -> str:
-    """Copy an uploaded file (a spooled part) under ``imports/``, flushed and published to
-    every machine (a worker elsewhere reads it); its name."""
-    folder = storage.home / IMPORTS_DIR
-    folder.mkdir(parents=True, exist_ok=True)
-    name = f"{uuid.uuid4().hex}{suffix}"
-    target = folder / name
-    try:
-        with open(target, "wb") as handle:
-            shutil.copyfileobj(source, handle, CHUNK)
-            handle.flush()
-            os.fsync(handle.fileno())
-        storage.publish(upload_name(name))
-    except BaseException:
-        target.unlink(missing_ok=True)
-        raise
-    return name
-
-
-KEYPOINT_ROLES = ("validation", "label")
-"""What a file's hand-placed pool keypoints become: validation keypoints (the frame joins the
-validation split and does not train), or the label's own keypoints (it trains on them)."""
-
-
-@dataclass(frozen=True)
-class ImportOptions:
-    format: str
-    sequence_id: int | None = None
-    overwrite: bool = False
-    category: str | None = None
-    max_pixels: int = 25_000_000
-    keypoints: str = "validation"  # KEYPOINT_ROLES
-
-
-@dataclass
-class ImportReport:
-    """What an import did: frames stored, labels and validation keypoints written, and every
-    item it skipped or refused, with why."""
-
-    frames: int = 0
-    labels: int = 0
-    keypoints: int = 0
-    skipped: list[Refusal] = field(default_factory=list)
-    refused: list[Refusal] = field(default_factory=list)
-
-    def as_result(self) -> dict[str, Any]:
-        def listed(items: list[Refusal]) -> list[dict[str, str]]:
-            return [{"item": r.item, "reason": r.reason} for r in items[:MAX_LISTED]]
-
-        return {
-            "frames": self.frames,
-            "labels": self.labels,
-            "keypoints": self.keypoints,
-            "skipped": listed(self.skipped),
-            "skipped_count": len(self.skipped),
-            "refused": listed(self.refused),
-            "refused_count": len(self.refused),
-        }
-
-
-def checked_format(name: str) -> str:
-    """``name`` when it is a label format, else a one-sentence error."""
-    if name not in READERS:
-        raise InvalidInputError(
-            f"There is no label format {name!r}; use one of {', '.join(READERS)}."
-        )
-    return name
 
 
 def import_labels(
@@ -153,8 +56,15 @@ def import_labels(
     options: ImportOptions,
     user: User,
     progress: Progress | None = None,
+    check: Check | None = None,
 ) -> ImportReport:
-    """Read ``source`` in ``options.format`` and import its labels batch by batch."""
+    """Read ``source`` in ``options.format`` and import its labels batch by batch; ``check``
+    (a job's cancel) is asked while each batch's labels are computed.
+
+    Raises:
+        PermissionDeniedError: ``user`` was deactivated during the import (the batches
+            written before stay).
+    """
     reader = READERS[checked_format(options.format)]
     if options.sequence_id is not None:
         sequences.get_sequence(session, options.sequence_id)
@@ -165,14 +75,15 @@ def import_labels(
             raise
         parsed = Parsed([], [Refusal(source.name, exc.message)])  # nothing left to read
     report = ImportReport(refused=[*source.refused, *parsed.refused])
-    runs = _Runs(session, source.name, options.sequence_id, user, report)
+    runs = Runs(session, source.name, options.sequence_id, user, report.refused)
     total = len(parsed.labels)
     processes = total >= PROCESS_MIN
     # A pipeline of two batches: the next one's frames are stored while this one's labels
     # are computed (in processes for a large import); each batch's labels in one transaction.
     pending: tuple[_Batch, int] | None = None
     for start in range(0, total, BATCH):
-        batch = _Batch(session, storage, source, options, user, report, processes)
+        still_active(session, user)
+        batch = _Batch(session, storage, source, options, user, report, processes, check)
         try:
             batch.prepare(parsed.labels[start : start + BATCH], runs)
         finally:
@@ -184,124 +95,19 @@ def import_labels(
     return report
 
 
+def still_active(session: Session, user: User) -> None:
+    """Refuse to go on in the name of a user deactivated (or deleted) since the import began."""
+    if not session.scalar(sa.select(User.is_active).where(User.id == user.id)):
+        raise PermissionDeniedError(
+            f"{user.username} was deactivated during the import; it stopped, and only the "
+            "labels written before stay."
+        )
+
+
 def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> None:
     batch.finish()
     if progress is not None:
         progress(done / total, f"{done} of {total} labels read")
-
-
-_pool_lock = threading.Lock()
-_processes: ProcessPoolExecutor | None = None
-
-
-def _process_pool() -> ProcessPoolExecutor:
-    """The processes label work runs in, started on the first large import (``spawn``: the
-    worker has threads, so never ``fork``) and kept for the process's life."""
-    global _processes
-    with _pool_lock:
-        if _processes is None:
-            _processes = ProcessPoolExecutor(
-                # one per core, no more than a batch has tasks (not 64 × ~150 MB on a big worker)
-                max_workers=min(max(2, os.cpu_count() or 2), -(-BATCH // PROCESS_CHUNK)),
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=start_process,
-            )
-        return _processes
-
-
-class _Contents:
-    """The contents of a batch's labels being computed: in the processes (``shipped`` labels,
-    a few per task) or in the ingest threads; a broken process pool falls back to threads."""
-
-    def __init__(self, jobs: list[tuple[ImportedLabel, tuple[int, int], bool]], processes: bool):
-        self.jobs = jobs
-        self.futures: list[Future[list[LabelContent]]] = []
-        if processes and jobs:
-            try:
-                pool = _process_pool()
-                self.futures = [
-                    pool.submit(
-                        many_contents,
-                        [(shipped(i), size, w) for i, size, w in jobs[at : at + PROCESS_CHUNK]],
-                    )
-                    for at in range(0, len(jobs), PROCESS_CHUNK)
-                ]
-            except (BrokenProcessPool, OSError, RuntimeError):
-                self.futures = []
-
-    def results(self) -> list[LabelContent]:
-        try:
-            if self.futures:
-                return [c for f in self.futures for c in f.result()]
-        except BrokenProcessPool:  # a process was killed: start afresh next time
-            global _processes
-            with _pool_lock:
-                _processes = None
-        return list(INGEST_POOL.map(lambda job: label_content(*job), self.jobs))
-
-
-class _Runs:
-    """The run each label's new frame goes to: the one asked for; else the run the label
-    names (a weldpool export's, created with its process parameters when missing); else one
-    new run named after the import, made when first needed."""
-
-    def __init__(
-        self,
-        session: Session,
-        name: str,
-        sequence_id: int | None,
-        user: User,
-        report: ImportReport,
-    ) -> None:
-        self._session, self._user, self._report = session, user, report
-        self._name = posixpath.splitext(posixpath.basename(name))[0][:RUN_NAME] or "import"
-        self._fixed = sequence_id
-        self._by_name: dict[str, int] = {}
-        self._default: int | None = None
-
-    @property
-    def fixed(self) -> int | None:
-        return self._fixed
-
-    def for_label(self, label: ImportedLabel) -> int:
-        if self._fixed is not None:
-            return self._fixed
-        if label.sequence:
-            if label.sequence not in self._by_name:
-                self._by_name[label.sequence] = self._named(label.sequence, label.process)
-            return self._by_name[label.sequence]
-        if self._default is None:
-            self._default = self._new_run()
-        return self._default
-
-    def _new_run(self) -> int:
-        """A new run named after the import (``name (2)``… when taken, also meanwhile)."""
-        for _ in range(5):
-            name = sequences.unique_sequence_name(self._session, self._name)
-            try:
-                return sequences.create_sequence(self._session, {"name": name}, self._user).id
-            except ConflictError:  # another import took the name meanwhile
-                self._session.rollback()
-        raise ConflictError("Other imports kept taking the new run's name; import again.")
-
-    def _named(self, name: str, process: dict[str, Any] | None) -> int:
-        name = name[:RUN_NAME]
-        found = self._session.scalar(sa.select(Sequence).where(Sequence.name == name))
-        if found is not None:
-            return found.id
-        values: dict[str, Any] = {"name": name}
-        parameters = {k: v for k, v in (process or {}).items() if k != "name"}
-        try:
-            values = SequenceIn.model_validate(values | parameters).model_dump(exclude_unset=True)
-        except ValidationError:
-            self._report.refused.append(
-                Refusal(name, "Its process parameters are not valid; the run is made without.")
-            )
-        try:
-            return sequences.create_sequence(self._session, values, self._user).id
-        except ConflictError:  # made meanwhile by another import
-            self._session.rollback()
-            return self._session.scalars(sa.select(Sequence.id).where(Sequence.name == name)).one()
 
 
 @dataclass
@@ -326,27 +132,29 @@ class _Batch:
         user: User,
         report: ImportReport,
         processes: bool = False,
+        check: Check | None = None,
     ) -> None:
         self.session, self.storage, self.source = session, storage, source
         self.options, self.user, self.report = options, user, report
-        self.processes = processes
+        self.processes, self.check = processes, check
         self.has_manual: set[int] = set()
         self.placed: list[_Target] = []
         self.early: dict[int, tuple[int, tuple[int, int], bool]] = {}
-        self.contents: _Contents | None = None
+        self.contents: Contents | None = None
 
     def refuse(self, label: ImportedLabel, reason: str) -> None:
         self.report.refused.append(Refusal(label.item, reason))
 
-    def run(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+    def run(self, labels: list[ImportedLabel], runs: Runs) -> None:
         self.prepare(labels, runs)
         self.finish()
 
-    def prepare(self, labels: list[ImportedLabel], runs: _Runs) -> None:
+    def prepare(self, labels: list[ImportedLabel], runs: Runs) -> None:
         if self.options.keypoints == "label":
             for label in labels:  # the file's hand-placed keypoints are the label's own
                 if label.validation_keypoints and not label.keypoints and label.shapes:
                     label.keypoints, label.validation_keypoints = label.validation_keypoints, None
+        labels = [loaded for label in labels if (loaded := self._loaded(label)) is not None]
         images = [self._image(label) for label in labels]
         digests = list(  # hashlib lets go of the GIL: the pool hashes a batch at once
             INGEST_POOL.map(
@@ -385,9 +193,10 @@ class _Batch:
                 )
                 self.early[id(target)] = (len(jobs), size, wants)
                 jobs.append((target.label, size, wants))
-        self.contents = _Contents(jobs, self.processes)
+        self.contents = Contents(jobs, self.processes)
 
     def finish(self) -> None:
+        still_active(self.session, self.user)
         listed = len(self.report.skipped), len(self.report.refused)
         for attempt in (1, 2):
             try:
@@ -403,12 +212,25 @@ class _Batch:
 
     # --- frames --------------------------------------------------------------------------
 
+    def _loaded(self, label: ImportedLabel) -> ImportedLabel | None:
+        """The label with its files read (with its batch, not before); None, refused, when
+        one cannot be read."""
+        try:
+            return label.loaded(self.source)
+        except InvalidInputError as exc:
+            self.refuse(label, exc.message)
+            return None
+
     def _image(self, label: ImportedLabel) -> bytes | InvalidInputError | None:
         """The label's image from the file: None when it is not in it, the error (already
-        listed as the item's refusal) when its entry is damaged."""
+        listed as the item's refusal) when its entry is damaged or its name ambiguous."""
         if label.image_data is not None:
             return label.image_data
-        path = self.source.find(label.image, label.beside)
+        try:
+            path = self.source.find(label.image, label.beside)
+        except InvalidInputError as exc:  # a bare name two folders hold: not a stored frame
+            self.refuse(label, exc.message)
+            return exc
         try:
             return self.source.read(path) if path is not None else None
         except InvalidInputError as exc:  # a damaged zip entry: this item, not the import
@@ -421,7 +243,7 @@ class _Batch:
         data: bytes | InvalidInputError | None,
         digest: str,
         stored: dict[str, int],
-        runs: _Runs,
+        runs: Runs,
     ) -> _Target | None:
         if isinstance(data, InvalidInputError):
             return None  # refused in ``_image``
@@ -565,7 +387,7 @@ class _Batch:
     def _contents(self, work: list[tuple[_Target, Frame, bool]]) -> list[LabelContent]:
         """Each placed label's content: the one started in ``prepare`` when its frame and
         whether it is written are as they were then, else computed now."""
-        early = self.contents.results() if self.contents is not None else []
+        early = self.contents.results(self.check) if self.contents is not None else []
         found: list[LabelContent | None] = []
         late = []
         for target, frame, wants in work:
@@ -575,8 +397,8 @@ class _Batch:
             else:
                 found.append(None)
                 late.append((target.label, (frame.height, frame.width), wants))
-        computed = iter(INGEST_POOL.map(lambda job: label_content(*job), late))
-        return [c if c is not None else next(computed) for c in found]
+        made = iter(computed(late, self.check))
+        return [c if c is not None else next(made) for c in found]
 
     def _store_masks(
         self, contents: list[LabelContent]
@@ -625,6 +447,8 @@ class _Batch:
                 "source": {"kind": "imported", "format": self.options.format, "file": item.item},
                 "updated_by_id": self.user.id,
                 "updated_at": utcnow(),
+                "review": saved_review(self.user, self.options.review_stage),
+                "review_comment": None,
             }
             base = current.revision if current is not None else 0
             write_label(self.session, frame, current, base, values, flush=False)

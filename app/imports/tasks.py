@@ -6,7 +6,9 @@ from functools import partial
 from typing import Any
 
 from app.db import session_scope
-from app.imports.service import ImportOptions, import_labels, upload_name
+from app.imports.schemas import ImportOptions
+from app.imports.service import import_labels
+from app.imports.uploads import upload_name
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import User
 from app.storage import Storage, best_effort
@@ -27,6 +29,7 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
         category=params.get("category"),
         keypoints=params.get("keypoints", "validation"),
         max_pixels=ctx.settings.max_image_pixels,
+        review_stage=ctx.settings.review_stage,
     )
     try:
         path = storage.fetch(name)  # from the object store when the web process is elsewhere
@@ -36,7 +39,9 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
                 raise InvalidInputError("The user who started the import no longer exists.")
             source = open_upload(path, params["name"])
             try:
-                report = import_labels(session, storage, source, options, user, ctx.progress)
+                report = import_labels(
+                    session, storage, source, options, user, ctx.progress, ctx.check_cancelled
+                )
             finally:
                 source.close()
     finally:

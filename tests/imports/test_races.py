@@ -10,7 +10,8 @@ import numpy as np
 import sqlalchemy as sa
 
 from app.frames.sequences import create_sequence
-from app.imports.service import ImportOptions, import_labels
+from app.imports.schemas import ImportOptions
+from app.imports.service import import_labels
 from app.models import Frame, Label, LabelRevision, Role, Sequence, User
 from app.storage import Storage
 from tests.helpers import image_bytes

@@ -139,14 +139,14 @@ def test_a_large_imports_label_work_in_processes_gives_the_same_labels(
     """From ``PROCESS_MIN`` labels the work (rasterise, encode, Algorithm 1) runs in processes
     and comes back in order: the masks, keypoints and validation keypoints are the ones the
     threads give, frame by frame."""
-    from app.imports import service
+    from app.imports import pool, service
 
     monkeypatch.setattr(service, "PROCESS_MIN", 1)
-    monkeypatch.setattr(service, "PROCESS_CHUNK", 2)  # three labels: two tasks
+    monkeypatch.setattr(pool, "PROCESS_CHUNK", 2)  # three labels: two tasks
     _, token = make_user("importer", Role.reviewer)
     result = start_import(client, token, exported.archive["coco"], "coco")["result"]
     assert result["labels"] == 3 and result["keypoints"] == 1 and result["refused"] == []
-    assert service._processes is not None  # the processes did the work
+    assert pool._processes is not None  # the processes did the work
     for frame, label in stored_labels(client, token):
         name = frame["original_name"]
         assert label is not None and (label_mask(label) == exported.masks[name]).all(), name

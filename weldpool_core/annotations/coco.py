@@ -20,6 +20,7 @@ from weldpool_core.annotations.shapes import (
     ImportedLabel,
     Parsed,
     Shape,
+    check_vertices,
     text_or_none,
 )
 from weldpool_core.annotations.source import Source
@@ -106,6 +107,7 @@ def _read_document(
     categories = _categories(document)
     pool = pool_names(categories.values(), category)
     labels: dict[Any, ImportedLabel] = {}
+    refused: set[Any] = set()  # images whose label is refused whole (too many keypoints)
     for annotation in document["annotations"]:
         number = annotation.get("id", "?") if isinstance(annotation, dict) else "?"
         item = f"{name}: annotation {number}"
@@ -134,6 +136,8 @@ def _read_document(
         except DAMAGED:
             parsed.refuse(item, "It holds values of the wrong type or size.")
             continue
+        if image["id"] in refused:
+            continue
         label = labels.get(image["id"])
         if label is None:
             label = labels[image["id"]] = _label(image, name, own)
@@ -143,7 +147,12 @@ def _read_document(
             label.keypoints = points or label.keypoints
             label.validation_keypoints = manual or label.validation_keypoints
         elif points:  # several annotations' keypoints on one image: all of them
-            label.validation_keypoints = (label.validation_keypoints or []) + points
+            try:
+                label.add_keypoints(points, own=False)
+            except InvalidInputError as exc:
+                parsed.refuse(label.item, exc.message)
+                refused.add(image["id"])
+                del labels[image["id"]]
     parsed.labels.extend(labels.values())
 
 
@@ -178,6 +187,9 @@ def _shape(segmentation: Any) -> Shape | None:
         ):
             raise InvalidInputError("The RLE segmentation needs `size` [h, w] and `counts`.")
         return CocoRle({"size": size, "counts": counts})
+    if isinstance(segmentation, list):
+        for polygon in segmentation:
+            check_vertices(len(polygon) // 2 if isinstance(polygon, list) else 0)
     if isinstance(segmentation, list) and all(
         isinstance(p, list) and len(p) >= 6 and len(p) % 2 == 0 and all(_number(v) for v in p)
         for p in segmentation

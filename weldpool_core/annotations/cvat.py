@@ -29,6 +29,7 @@ from weldpool_core.annotations.shapes import (
     Parsed,
     PartialMask,
     Shape,
+    check_vertices,
     cvat_rle,
     to_cvat_rle,
 )
@@ -105,10 +106,7 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         try:
             if element.tag in ("points", "skeleton"):
                 points = [list(p) for p in _element_points(element)]
-                if _attribute(element, KIND) == "label":
-                    label.keypoints = (label.keypoints or []) + points
-                else:
-                    label.validation_keypoints = (label.validation_keypoints or []) + points
+                label.add_keypoints(points, own=_attribute(element, KIND) == "label")
             else:
                 label.shapes.append(_shape(element))
         except InvalidInputError as exc:
@@ -141,6 +139,7 @@ def _attribute(element: Any, name: str) -> str | None:
 
 
 def _points(text: str | None) -> list[tuple[float, float]]:
+    check_vertices((text or "").count(";") + 1)  # counted before anything is split
     try:
         pairs = [pair.split(",") for pair in (text or "").split(";") if pair.strip()]
         points = [(float(x), float(y)) for x, y in pairs]

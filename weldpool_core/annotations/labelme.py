@@ -18,6 +18,7 @@ from weldpool_core.annotations.shapes import (
     PartialMask,
     Polygons,
     Shape,
+    check_vertices,
 )
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
@@ -50,6 +51,9 @@ def read_labelme(source: Source, category: str | None = None) -> Parsed:
         if not isinstance(document, dict) or not isinstance(document.get("shapes"), list):
             parsed.refuse(name, "The file is not LabelMe JSON: it needs a `shapes` list.")
             continue
+        # The image is read again with its batch (``ImportedLabel.loaded``), not held by all.
+        data = document.pop("imageData", None)
+        document["imageData"] = bool(isinstance(data, str) and data)
         documents.append((name, document))
     if not documents and not parsed.refused:
         raise InvalidInputError("No LabelMe files (JSON with shapes) were found.")
@@ -70,22 +74,14 @@ def _label(
     name: str, document: dict[str, Any], pool: set[str], parsed: Parsed
 ) -> ImportedLabel | None:
     image = document.get("imagePath")
-    data = document.get("imageData")
     if not isinstance(image, str) or not image:
         image = posixpath.splitext(posixpath.basename(name))[0] + ".png"
-    embedded = None
-    if isinstance(data, str) and data:
-        try:
-            embedded = base64.b64decode(data, validate=True)
-        except (binascii.Error, ValueError):
-            parsed.refuse(name, "Its imageData is not base64.")
-            return None
     height, width = document.get("imageHeight"), document.get("imageWidth")
     label = ImportedLabel(
         item=name,
         image=posixpath.basename(image.replace("\\", "/")),
         size=(height, width) if isinstance(height, int) and isinstance(width, int) else None,
-        image_data=embedded,
+        embedded=name if document.get("imageData") is True else None,
         beside=posixpath.join(posixpath.dirname(name), image.replace("\\", "/")),
         original_name=posixpath.basename(image.replace("\\", "/")),
     )
@@ -113,6 +109,7 @@ def _label(
 
 
 def _xy(points: Any) -> list[tuple[float, float]]:
+    check_vertices(len(points) if isinstance(points, list) else 0)
     if not (
         isinstance(points, list)
         and points

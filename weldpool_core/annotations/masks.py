@@ -12,7 +12,7 @@ from typing import Any
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     ImportedLabel,
-    MaskImage,
+    MaskFile,
     Parsed,
     text_or_none,
 )
@@ -73,7 +73,6 @@ def read_masks(source: Source, category: str | None = None) -> Parsed:
         try:
             keypoints = _points(source, f"keypoints/{stem}.json")
             manual = _points(source, f"validation_keypoints/{stem}.json")
-            data = source.read(path)
         except InvalidInputError as exc:
             parsed.refuse(path, exc.message)
             continue
@@ -87,7 +86,7 @@ def read_masks(source: Source, category: str | None = None) -> Parsed:
             ImportedLabel(
                 item=path,
                 image=posixpath.basename(image) if image else original or stem,
-                shapes=[MaskImage(data)],
+                shapes=[MaskFile(path)],
                 keypoints=keypoints,
                 validation_keypoints=manual,
                 sequence=text_or_none(entry.get("sequence")),

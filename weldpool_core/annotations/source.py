@@ -3,8 +3,9 @@
 Every path inside a source is relative, POSIX-style and checked: an entry that would leave the
 source (``../x.png``, an absolute path, a drive letter, a link pointing out of the folder) is
 refused by name and never read. A zip is read entry by entry with its declared sizes bounded
-(``MAX_ENTRY_BYTES``, ``MAX_TOTAL_BYTES``, ``MAX_RATIO``), and no entry is read past its
-declared size, so a zip bomb costs what its headers admit to and no more.
+(``MAX_ENTRY_BYTES``, ``MAX_RATIO``) and all of its entries counted against one budget
+(``expansion_budget``) before any is read, and no entry is read past its declared size, so a
+zip bomb costs what its headers admit to and no more. Two entries of one name are both refused.
 """
 
 from __future__ import annotations
@@ -26,7 +27,9 @@ MAX_ENTRIES = 200_000
 MAX_ENTRY_BYTES = 512 * 1024 * 1024
 """Largest single file of an import (an annotation file of 1,000,000 polygons is ~300 MB)."""
 MAX_TOTAL_BYTES = 64 * 1024**3
-"""Most bytes all files of one zip may expand to."""
+"""Most bytes all files of one import may expand to."""
+FREE_EXPANSION = 64 * 1024**2
+"""Bytes any zip may expand to, however small (its entries' ratio aside)."""
 MAX_RATIO = 200
 """Largest compression ratio a zip entry over 1 MiB may declare: PNG and JPEG frames barely
 compress, JSON compresses ~10×; a bomb's entries compress 1000× and more."""
@@ -68,7 +71,7 @@ class Source:
 
     ``primary`` is the annotation file the user pointed at (a single file, or None for a folder
     or a zip). ``refused`` lists entries that were not admitted (unsafe paths, oversized or
-    over-compressed entries)."""
+    over-compressed entries, two entries of one name)."""
 
     def __init__(
         self,
@@ -112,7 +115,11 @@ class Source:
     def find(self, name: str, beside: str = "") -> str | None:
         """The file an annotation names: ``name`` relative to the annotation file's folder
         (``beside``), then from the source's root, then under ``images/``, then the only file
-        with that base name anywhere; None when there is none (or more than one)."""
+        with that base name anywhere; None when there is none.
+
+        Raises:
+            InvalidInputError: only its base name matches, and several files have it.
+        """
         cleaned = clean_name(name)
         if cleaned is None:
             return None
@@ -126,7 +133,13 @@ class Source:
             if candidate and candidate in self._files:
                 return candidate
         matches = self._by_base.get(posixpath.basename(cleaned).lower(), [])
-        return matches[0] if len(matches) == 1 else None
+        if len(matches) > 1:
+            shown = ", ".join(sorted(matches)[:3]) + (", …" if len(matches) > 3 else "")
+            raise InvalidInputError(
+                f"The name {name!r} is ambiguous: {len(matches)} files of the import have it "
+                f"({shown}); name the image with its folder."
+            )
+        return matches[0] if matches else None
 
     def close(self) -> None:
         if self._closer is not None:
@@ -144,24 +157,56 @@ def _zip_source(path: Path, name: str) -> Source:
         raise InvalidInputError(f"The archive holds more than {MAX_ENTRIES:,} files; split it.")
     files: dict[str, Callable[[], bytes]] = {}
     refused: list[Refusal] = []
-    total = 0
+    named: dict[str, int] = {}
+    sizes: dict[str, int] = {}
     for info in infos:
         cleaned = clean_name(info.filename)
         if cleaned is None:
             refused.append(Refusal(info.filename, "The path leaves the archive; it is not read."))
             continue
+        named[cleaned] = named.get(cleaned, 0) + 1
         problem = _size_problem(info)
         if problem:
             refused.append(Refusal(info.filename, problem))
             continue
-        total += info.file_size
-        if total > MAX_TOTAL_BYTES:
-            archive.close()
-            raise InvalidInputError(
-                f"The archive expands to more than {MAX_TOTAL_BYTES // 1024**3} GiB; split it."
-            )
         files[cleaned] = _entry_reader(archive, info)
+        sizes[cleaned] = info.file_size
+    for cleaned, count in named.items():
+        if count > 1:
+            files.pop(cleaned, None)
+            refused.append(
+                Refusal(
+                    cleaned,
+                    f"The archive holds {count} entries of this name; none is read (keep one).",
+                )
+            )
+    try:
+        _check_expansion(sum(sizes[n] for n in files), path.stat().st_size)
+    except InvalidInputError:
+        archive.close()
+        raise
     return Source(files, name, refused, closer=archive.close)
+
+
+def expansion_budget(stored: int) -> int:
+    """The most bytes the files of an import stored in ``stored`` bytes may expand to: what
+    ``MAX_RATIO`` allows (each entry's rule, over the whole archive), at least
+    ``FREE_EXPANSION``, at most ``MAX_TOTAL_BYTES``."""
+    return min(MAX_TOTAL_BYTES, max(FREE_EXPANSION, MAX_RATIO * stored))
+
+
+def _check_expansion(total: int, stored: int) -> None:
+    """Refuse an import whose files expand past ``expansion_budget``, before any is read."""
+    if total <= expansion_budget(stored):
+        return
+    if total > MAX_TOTAL_BYTES:
+        raise InvalidInputError(
+            f"The import expands to more than {MAX_TOTAL_BYTES // 1024**3} GiB; split it."
+        )
+    raise InvalidInputError(
+        f"The archive's {stored / 2**20:,.1f} MiB expand to {total / 2**20:,.0f} MiB "
+        f"({total / max(stored, 1):,.0f}×, a zip bomb?); it is not read."
+    )
 
 
 def _size_problem(info: zipfile.ZipInfo) -> str | None:
@@ -191,6 +236,7 @@ def _folder_source(root: Path, name: str, primary: str | None = None) -> Source:
     files: dict[str, Callable[[], bytes]] = {}
     refused: list[Refusal] = []
     resolved = root.resolve()
+    total = 0
     for path in sorted(root.rglob("*")):
         if len(files) >= MAX_ENTRIES:
             raise InvalidInputError(f"The folder holds more than {MAX_ENTRIES:,} files; split it.")
@@ -200,9 +246,12 @@ def _folder_source(root: Path, name: str, primary: str | None = None) -> Source:
         if not path.resolve().is_relative_to(resolved):
             refused.append(Refusal(relative, "The file links outside the folder; it is not read."))
             continue
-        if path.stat().st_size > MAX_ENTRY_BYTES:
+        size = path.stat().st_size
+        if size > MAX_ENTRY_BYTES:
             refused.append(Refusal(relative, "The file is too large to import."))
             continue
+        total += size
+        _check_expansion(total, MAX_TOTAL_BYTES)  # a folder's files are what they are
         files[relative] = path.read_bytes
     return Source(files, name, refused, primary)
 

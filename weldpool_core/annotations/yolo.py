@@ -16,6 +16,7 @@ from weldpool_core.annotations.shapes import (
     ImportedLabel,
     Parsed,
     Polygons,
+    check_vertices,
 )
 from weldpool_core.annotations.source import Source
 from weldpool_core.errors import InvalidInputError
@@ -52,13 +53,26 @@ class NormalisedPolygons:
         return Polygons(pixels).mask(height, width)
 
 
+def _yaml_without_aliases(text: bytes, name: str) -> Any:
+    """The YAML document in ``text``, refused when it holds an alias: aliases nested a few
+    deep expand a file of a few hundred bytes into gigabytes (each level multiplies), and a
+    class list never needs one. The events are read first, so nothing is expanded."""
+    try:
+        for event in yaml.parse(text, Loader=yaml.SafeLoader):
+            if isinstance(event, yaml.AliasEvent):
+                raise InvalidInputError(
+                    f"{name} uses YAML aliases (*name), which a class list never needs; "
+                    "write the names out."
+                )
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise InvalidInputError(f"{name} is not valid YAML.") from None
+
+
 def _names(source: Source) -> dict[int, str]:
     for candidate in ("data.yaml", "dataset.yaml"):
         if candidate in source:
-            try:
-                data = yaml.safe_load(source.read(candidate))
-            except yaml.YAMLError:
-                raise InvalidInputError(f"{candidate} is not valid YAML.") from None
+            data = _yaml_without_aliases(source.read(candidate), candidate)
             names: Any = data.get("names") if isinstance(data, dict) else None
             if isinstance(names, list):
                 return {i: str(n) for i, n in enumerate(names)}
@@ -131,6 +145,7 @@ def _lines(
         fields = line.split()
         if not fields:
             continue
+        check_vertices(len(fields) // 2)
         try:
             values = [float(v) for v in fields]
         except ValueError:
