@@ -12,7 +12,7 @@ PACKAGES = ("app", "weldpool_core")
 BELOW_REVIEW = ("frames", "training", "proposals")
 """App domains that ``app.review`` sits above: they never import it."""
 LAYERS = (
-    ("__main__", "cli", "main", "demo"),
+    ("__main__", "cli", "main", "demo", "manual"),
     ("imports",),
     ("review", "timeline", "insights", "web"),
     ("training", "live"),
