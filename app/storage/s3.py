@@ -156,6 +156,11 @@ class ObjectStorage(Storage):
         try:
             self.client.head_bucket(Bucket=self.bucket)
         except Exception as exc:
+            if _missing(exc):
+                raise ConfigurationError(
+                    f"The bucket {self.bucket} of {self.remote} does not exist; create it with "
+                    "`weldpool storage create-bucket` (or the store's own tools)."
+                ) from None
             raise ConfigurationError(
                 f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
                 "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."
