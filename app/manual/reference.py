@@ -125,7 +125,10 @@ def api_markdown(schema: dict[str, Any]) -> str:
                 continue
             tag = (operation.get("tags") or ["other"])[0]
             summary = operation.get("summary", "")
-            description = _cell(operation.get("description", "").split("\n\n")[0])
+            description = _cell(operation.get("description", ""))
+            query = [q["name"] for q in operation.get("parameters", []) if q.get("in") == "query"]
+            if query:
+                description += " Query: " + ", ".join(f"`{name}`" for name in query) + "."
             by_tag.setdefault(tag, []).append(
                 f"| `{method.upper()}` | `{path}` | **{_cell(summary)}** {description} |"
             )
@@ -142,12 +145,14 @@ def benchmark_files() -> dict[str, dict[str, Any]]:
 
 
 def _latest_tables(data: dict[str, Any]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
-    """Each table (by its columns and title) from the newest run that has it, with that run."""
-    latest: dict[tuple[str, ...], tuple[dict[str, Any], dict[str, Any]]] = {}
+    """Each table (by its title, the first column's header) from the newest run that has it,
+    with that run; a run's tables of one title are shown together."""
+    latest: dict[str, list[tuple[dict[str, Any], dict[str, Any]]]] = {}
     for run in sorted(data["runs"], key=lambda r: r["date"]):
-        for table in run["tables"]:
-            latest[(table["title"], *table["columns"])] = (run, table)
-    return list(latest.values())
+        titles = dict.fromkeys(table["title"] for table in run["tables"])
+        for title in titles:
+            latest[title] = [(run, table) for table in run["tables"] if table["title"] == title]
+    return [pair for pairs in latest.values() for pair in pairs]
 
 
 def _table(table: dict[str, Any]) -> str:
