@@ -26,6 +26,7 @@ def test_help_opens_the_topic_of_each_page_and_works_offline(page: Any, server: 
     page.route("**/*", only_this_server)
     login(page, server, "anna")
     page.goto(f"{server.url}/models")
+    assert page.get_attribute("[data-testid=help-student]", "href") == "/help/guides/student"
     page.click("[data-testid=nav-help]")
     page.wait_for_selector("[data-testid=manual-page]")
     assert page.url == f"{server.url}/help/guides/student"
@@ -34,10 +35,15 @@ def test_help_opens_the_topic_of_each_page_and_works_offline(page: Any, server: 
 
     page.goto(f"{server.url}/frames/1")
     assert page.get_attribute("[data-testid=nav-help]", "href") == "/help/guides/reviewing"
+    assert page.get_attribute("[data-testid=help-reviewing]", "href") == "/help/guides/reviewing"
     page.goto(f"{server.url}/help/guides/reviewing")
     picture = page.locator("[data-testid=manual-page] img").first
     picture.wait_for()
     assert page.evaluate("(img) => img.complete && img.naturalWidth", picture.element_handle())
+    shoot(page, "help-reviewing")
+    page.goto(f"{server.url}/help/reference/settings")
+    page.wait_for_selector("[data-testid=manual-page] table")
+    shoot(page, "help-settings")
     page.click("[data-testid=manual-nav] >> text=Weights")
     page.wait_for_selector("h1:has-text('Weights')")
     assert page.url == f"{server.url}/help/getting-started/weights"
