@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Callable, Iterator
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ def _code(text: object) -> str:
     return f"`{text}`" if "`" not in str(text) else f"`` {text} ``"
 
 
+@cache  # the code does not change while a process runs
 def settings_markdown() -> str:
     """Every field of ``Settings``: its variable, default and description."""
     from pydantic_core import PydanticUndefined
@@ -94,6 +96,7 @@ def _option_row(param: click.Parameter, ctx: click.Context) -> str | None:
     return f"| {names} | {shown} | {_cell(param.help or '')} |"
 
 
+@cache  # importing every command's module takes seconds: once per process
 def cli_markdown() -> str:
     """Every command: usage, its help text and its options."""
     parts = []
