@@ -158,8 +158,8 @@ class ObjectStorage(Storage):
         except Exception as exc:
             if _missing(exc):
                 raise ConfigurationError(
-                    f"The bucket {self.bucket} of {self.remote} does not exist; create it with "
-                    "`weldpool storage create-bucket` (or the store's own tools)."
+                    f"The object store {self.remote} cannot be used: its bucket {self.bucket} "
+                    "does not exist; create it with `weldpool storage create-bucket`."
                 ) from None
             raise ConfigurationError(
                 f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
