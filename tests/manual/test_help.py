@@ -75,3 +75,13 @@ def test_a_page_url_is_its_file() -> None:
     assert url_of("index.md") == "/help/"
     assert url_of("getting-started/index.md") == "/help/getting-started/"
     assert url_of("guides/reviewing.md") == "/help/guides/reviewing"
+
+
+def test_each_page_s_help_topic_is_a_page_and_heading_of_the_manual() -> None:
+    from app.manual.pages import render_page
+    from app.web.routes import HELP_TOPICS
+
+    for page, url in HELP_TOPICS.items():
+        path, _, anchor = url.removeprefix("/help/").partition("#")
+        html = render_page(path, dict).html
+        assert not anchor or f'id="{anchor}"' in html, (page, url)
