@@ -14,7 +14,8 @@ from weldpool_core.defaults import DEFAULT_MAX_PIXELS, DEFAULT_WEIGHTS
 
 
 class Settings(BaseSettings):
-    """Everything the service can be configured with; see the README's configuration table."""
+    """Everything the service can be configured with; each field's description is its row in the
+    manual's settings reference (docs/reference/settings.md, generated from here)."""
 
     model_config = SettingsConfigDict(
         env_prefix="WELDPOOL_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
@@ -26,7 +27,8 @@ class Settings(BaseSettings):
     )
     database_url: str | None = Field(
         default=None,
-        description="SQLAlchemy URL; default: SQLite file weldpool.sqlite3 in home.",
+        description="SQLAlchemy URL, e.g. postgresql+psycopg://user:pw@host/db; default: the "
+        "SQLite file weldpool.sqlite3 in home.",
     )
     queue_url: str | None = Field(
         default=None,
@@ -46,7 +48,8 @@ class Settings(BaseSettings):
         default=20480.0,
         gt=0,
         description="SAM2 embeddings kept on disk under WELDPOOL_HOME/cache/embeddings (about "
-        "4 MB a 1280×800 frame in fp16; least recently used out): the clicks' cache.",
+        "4 MB a 1280×800 frame in fp16; least recently used out): the clicks' and propagation's "
+        "cache; the Jobs page shows its size and (admins) clears it.",
     )
     storage_cache_mb: float = Field(
         default=10240.0,
@@ -86,7 +89,9 @@ class Settings(BaseSettings):
 
     uncertainty_weights: dict[str, float] = Field(
         default_factory=lambda: dict(DEFAULT_WEIGHTS),
-        description="Weights of the uncertainty components in the review queue's score (JSON).",
+        description="Weights of the uncertainty components in the review queue's score, as JSON "
+        "with the keys teacher_iou, instability, disagreement, student_uncertainty, "
+        "propagation_doubt (each 1.0 by default).",
     )
     queue_diversity: float = Field(
         default=0.5,
@@ -156,7 +161,8 @@ class Settings(BaseSettings):
         default=900.0,
         ge=60,
         description="A stored file that no row names is removed once nobody has claimed it "
-        "(written or reused it) for this long: far longer than any upload takes to commit.",
+        "(written or reused it) for this long, in seconds (at least 60): far longer than any "
+        "upload takes to commit.",
     )
     max_image_pixels: int = Field(
         default=DEFAULT_MAX_PIXELS,
@@ -190,15 +196,20 @@ class Settings(BaseSettings):
     live_bind_hosts: str = Field(
         default="127.0.0.1",
         description="Addresses the live view's ZeroMQ and OPC UA outputs may listen on "
-        "(comma-separated; 0.0.0.0 serves the cell's network); empty: the live view opens none.",
+        "(comma-separated; 0.0.0.0 serves the cell's network); empty: the live view opens none. "
+        "Always on ports ≥ 1024, and for ZeroMQ only tcp://.",
     )
     live_mqtt_brokers: str = Field(
         default="127.0.0.1,localhost",
         description="Broker hosts the live view's MQTT output may publish to (comma-separated); "
         "empty: none.",
     )
-    log_level: str = Field(default="INFO")
-    log_format: Literal["console", "json"] = Field(default="console")
+    log_level: str = Field(
+        default="INFO", description="DEBUG, INFO, WARNING or ERROR; logs go to stderr."
+    )
+    log_format: Literal["console", "json"] = Field(
+        default="console", description="console for people, json for log collectors."
+    )
 
     @field_validator("queue_url")
     @classmethod

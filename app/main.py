@@ -14,7 +14,7 @@ import structlog
 from fastapi import Depends, FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.responses import JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.orm.exc import ObjectDeletedError, StaleDataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -38,6 +38,7 @@ from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
 from app.live.routes import router as live_router
 from app.live.service import LiveViews
+from app.manual.routes import router as manual_router
 from app.openapi import openapi_schema
 from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
@@ -266,18 +267,13 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(timeline_router, prefix=api, dependencies=protected)
     app.include_router(live_router, prefix=api, dependencies=protected)
     app.include_router(web_router)
+    app.include_router(manual_router)
 
     app.openapi = lambda: openapi_schema(app)  # type: ignore[method-assign]
 
     @app.get("/api/v1/openapi.json", include_in_schema=False, dependencies=protected)
     def openapi() -> JSONResponse:
         return JSONResponse(app.openapi())
-
-    @app.get("/docs", include_in_schema=False, dependencies=protected)
-    def docs(request: Request) -> HTMLResponse:
-        """Swagger UI from the vendored copy under static/ (works offline); "Try it out" sends
-        the session's CSRF token, or the token given under Authorize."""
-        return render(request, "docs.html")
 
     app.mount("/static", StaticFiles(directory=ROOT / "static"), name="static")
     return app

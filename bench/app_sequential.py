@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from fastapi.testclient import TestClient
+from results import recorded
 
 REPO = Path(__file__).resolve().parents[1]
 CLIPS = ("0mm", "2mm", "mm")
@@ -144,4 +145,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from results import recorded
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -218,4 +219,5 @@ def report(args: argparse.Namespace, rows: list[Any], statuses: list[Any], clien
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
+from results import recorded
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
@@ -177,4 +178,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

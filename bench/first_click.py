@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import cv2
+from results import Table, record
 
 
 def main() -> None:
@@ -113,8 +114,11 @@ def main() -> None:
     later = medians["prepared: third click, mask named"]
     print(f"first click on a 1280×800 frame, full-size random SAM2 on CPU, median of {args.runs}")
     print(f"{'request':<40}{'ms':>10}{'× a later click':>17}")
+    table = Table("request", ["request", "ms", "× a later click"], [])
     for name, ms in medians.items():
         print(f"{name:<40}{ms:>10.1f}{ms / later:>17.2f}")
+        table.rows.append([name, f"{ms:.1f}", f"{ms / later:.2f}"])
+    print(f"written to {record('bench/first_click.py', [table])}")
 
 
 if __name__ == "__main__":

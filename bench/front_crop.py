@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from real_student import folds, real_frames
+from results import recorded
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, keypoints_from_mask
@@ -140,4 +141,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

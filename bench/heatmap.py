@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from results import Table, record
 
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.synth import SynthParams, synth_frame
@@ -89,6 +90,7 @@ def main() -> None:
     )
     print(f"{'mask':>10} | {'heatmap_from_mask':>17} | {'straightforward':>15} | {'ratio':>6}")
     print(f"{'-' * 10}-+-{'-' * 17}-+-{'-' * 15}-+-{'-' * 6}")
+    table = Table("mask", ["mask", "heatmap_from_mask ms", "straightforward ms", "ratio"], [])
     for width, height in ((1280, 800), (256, 256)):
         mask = synth_frame(0, SynthParams(width=width, height=height)).mask
         fast = median_ms(lambda mask=mask: heatmap_from_mask(mask, params))
@@ -96,6 +98,9 @@ def main() -> None:
         print(
             f"{width:>5}×{height:<4} | {fast:>14.2f} ms | {plain:>12.2f} ms | {plain / fast:>5.1f}×"
         )
+        ratio = f"{plain / fast:.1f}×"
+        table.rows.append([f"{width}×{height}", f"{fast:.2f}", f"{plain:.2f}", ratio])
+    print(f"written to {record('bench/heatmap.py', [table])}")
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from results import recorded
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import SHARED_DATA, local_server
@@ -198,4 +199,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

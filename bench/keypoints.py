@@ -31,6 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from results import Table, record
 
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.keypoints import order_by_angle
@@ -89,11 +90,15 @@ def main() -> None:
         f"ours (anchored groups, k={HeatmapParams().k})": ours,
         "paper's K-means (cv2.kmeans)": plain_kmeans,
     }
-    print(
-        "| Algorithm 1 | within a clip: mean / largest px | nudged 2 px | nudged 4 px "
-        "| nudged 8 px | ms per mask |"
+    table = Table(
+        "Algorithm 1",
+        [
+            *("Algorithm 1", "within a clip: mean / largest px", "nudged 2 px", "nudged 4 px"),
+            *("nudged 8 px", "ms per mask"),
+        ],
+        [],
     )
-    print("|---|---:|---:|---:|---:|---:|")
+    print(table.markdown())
     for name, method in methods.items():
         points = {stem: method(mask) for stem, mask in masks.items()}
         clips: dict[str, list[str]] = {}
@@ -121,7 +126,9 @@ def main() -> None:
             method(mask)
             times.append((time.perf_counter() - start) * 1000)
         cells.append(f"{statistics.median(times):.1f}")
+        table.rows.append([name, *cells])
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
+    print(f"written to {record('bench/keypoints.py', [table])}")
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ learnt from): a rerun only scores, trains again a folder whose strategy now pick
 (after a change of the score), and more seeds can be added later.
 
     PYTHONPATH=. .venv/bin/python bench/label_curve.py [--seeds 0 1 2] [--step 2]
-        [--plot docs/label-curve.png]
+        [--plot docs/images/label-curve.png]
 """
 
 from __future__ import annotations

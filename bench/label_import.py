@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import statistics
 import sys
 import tempfile
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from results import Table, record
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
@@ -172,11 +174,26 @@ def main() -> None:
     print(f"{n} labelled 1280×800 frames from one zip, median of {args.runs} runs, SQLite")
     print(f"{'import':<22}{'s':>8}{'frames/s':>10}{'goal':>8}{'× ingest':>10}")
     print(f"{'frames only (ingest)':<22}{ingest:8.2f}{n / ingest:10.0f}{'':>8}{1.0:10.2f}")
+    table = Table(
+        "import",
+        ["import", "s", "frames/s", "goal", "× ingest"],
+        [["frames only (ingest)", f"{ingest:.2f}", f"{n / ingest:.0f}", "", "1.00"]],
+    )
     for name, seconds in rows:
         print(
             f"{'COCO ' + name:<22}{seconds:8.2f}{n / seconds:10.0f}{GOALS[name]:8.0f}"
             f"{seconds / ingest:10.2f}"
         )
+        table.rows.append(
+            [
+                *(f"COCO {name}", f"{seconds:.2f}", f"{n / seconds:.0f}"),
+                *(f"{GOALS[name]:.0f}", f"{seconds / ingest:.2f}"),
+            ]
+        )
+    command = shlex.join(
+        ["PYTHONPATH=.", ".venv/bin/python", "bench/label_import.py", *sys.argv[1:]]
+    )
+    print(f"written to {record('bench/label_import.py', [table], command)}")
 
 
 if __name__ == "__main__":

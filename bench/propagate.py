@@ -152,7 +152,7 @@ def main() -> None:
     print(f"{'propagation, cached embeddings':46s} {step:11.0f} {step / floor_ms:8.2f}×")
     print(f"{'propagation, uncached (encoder + step)':46s} {encode + step:11.0f}")
     print(f"{'  encoder alone':46s} {encode:11.0f}")
-    print(f"{'per-frame teacher (README figure)':46s} {4200:11.0f}")
+    print(f"{'per-frame teacher (an earlier run)':46s} {4200:11.0f}")
     rate = f"({flops / 1e9:.0f} GFLOP at {MATMUL_GFLOPS:.0f} GFLOP/s)"
     print(f"{'FLOP floor of one step':46s} {floor_ms:11.0f}   {rate}")
     for length, mib in held.items():

@@ -25,8 +25,8 @@ stay affordable on a CPU; ``--every-fold`` runs them on all), and prints one row
 Measured on 2 CPU cores, 2026-12-02, 15 labels: LOCO mIoU 0.784 / 0.849 / 0.841 (held out
 0mm / 2mm / mm, mean of seeds 0–2; mean 0.825), mED 50.9 / 56.2 / 49.5 px; within-clip (seed 0)
 0.974 / 0.965 / 0.894, mED 9.5 / 9.8 / 38.2 px; 85–105 s per fold. The keypoint error sits on
-the front corners, where the predicted mask misses the wire (README, "The student on the real
-WAAM labels"). 2026-12-04, variant "skips at strides 16 and 8, wider geometry", seeds 0–2:
+the front corners, where the predicted mask misses the wire (docs/benchmarks, "The student on
+the real WAAM labels"). 2026-12-04, variant "skips at strides 16 and 8, wider geometry", seeds 0–2:
 LOCO mIoU 0.868 (0.859–0.877), mED 58.5 px, 42.8 px from Algorithm 1 on its own mask.
 2026-12-05, that variant as the default with keypoints from the mask, seeds 0–2: LOCO mIoU
 0.867 (0.865–0.869), mED 40.6 px; within-clip (seed 0) 0.959, 17.8 px; 104–145 s per fold.

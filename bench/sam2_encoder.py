@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 from floor import flop_counter, matmul_rate
+from results import recorded
 
 
 def main() -> None:
@@ -132,4 +133,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

@@ -26,6 +26,7 @@ from typing import Any
 
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
+from results import recorded
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
@@ -232,4 +233,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

@@ -11,6 +11,8 @@ clicks from a client; compares with the decoder alone in-process.
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -20,6 +22,7 @@ import httpx
 import numpy as np
 import torch
 from common import SHARED_DATA, local_server
+from results import Table, record
 
 REAL_FRAMES = SHARED_DATA / "waam" / "frames"
 
@@ -92,8 +95,14 @@ def main() -> None:
         ("server time (elapsed_ms)", server_ms),
         ("decoder + upsampling alone (in-process)", decoder),
     ]
+    table = Table("measure", ["measure", "p50 ms", "p95 ms"], [])
     for name, values in rows:
         print(f"{name:<44} {_percentile(values, 50):>8.1f} {_percentile(values, 95):>8.1f}")
+        table.rows.append(
+            [name, f"{_percentile(values, 50):.1f}", f"{_percentile(values, 95):.1f}"]
+        )
+    command = shlex.join([".venv/bin/python", "bench/segment.py", *sys.argv[1:]])
+    print(f"written to {record('bench/segment.py', [table], command)}")
     print(
         f"first click (loads SAM2, encodes, caches): {cold:.1f} s; first answer's embedding: "
         f"{first['embedding']}"

@@ -32,6 +32,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from results import recorded
 
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.metrics import proposal_quality
@@ -251,4 +252,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

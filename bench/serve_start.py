@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import httpx
+from results import recorded
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import REPO, free_port
@@ -146,4 +147,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from results import recorded
 
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
 from weldpool_core.stream import FrameSource, StreamStudent, run_stream, summary
@@ -258,4 +259,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

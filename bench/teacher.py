@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import resource
+import shlex
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -24,6 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 from floor import flop_counter, timed_against_floor
+from results import Table, record
 
 FRAME_SHAPE = (800, 1280, 3)
 
@@ -175,6 +178,8 @@ def main() -> None:
         f"{'case':<34} {'median':>10} {'best':>10} {'GFLOP':>7} {'floor':>10} {'× floor':>8} "
         f"{'peak extra MB':>14} {'peak RSS MB':>12}"
     )
+    columns = ["case", "median", "best", "GFLOP", "floor", "× floor", "peak extra MB"]
+    table = Table("case", [*columns, "peak RSS MB"], [])
     for name, median, best, extra, peak, flops, rate in results:
         unit, scale = ("ms", 1000) if median < 1 else ("s", 1)
         floor = flops / rate  # nan off the CPU: no rate read there
@@ -183,6 +188,15 @@ def main() -> None:
             f"{flops / 1e9:>7.1f} {floor * scale:>8.2f}{unit:>2} {median / floor:>7.2f}× "
             f"{extra:>14.0f} {peak:>12.0f}"
         )
+        table.rows.append(
+            [
+                *(name, f"{median * scale:.1f} {unit}", f"{best * scale:.1f} {unit}"),
+                *(f"{flops / 1e9:.1f}", f"{floor * scale:.2f} {unit}", f"{median / floor:.2f}×"),
+                *(f"{extra:.0f}", f"{peak:.0f}"),
+            ]
+        )
+    command = shlex.join([".venv/bin/python", "bench/teacher.py", *sys.argv[1:]])
+    print(f"written to {record('bench/teacher.py', [table], command)}")
     rates = [r[-1] for r in results]
     if args.device == "cpu":
         print(

@@ -20,6 +20,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from results import recorded
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.web.server import LiveServer, launch_chromium, login, missing_browser
@@ -113,4 +115,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

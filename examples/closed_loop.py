@@ -4,7 +4,7 @@ while a heat-input step hits it, reading the student's measurement over MQTT.
 Run (a broker first; ``weldpool_core/plant.py`` documents the plant and the controller):
 
     mosquitto -p 1883 &
-    .venv/bin/python examples/closed_loop.py --plot docs/closed-loop.png
+    .venv/bin/python examples/closed_loop.py --plot docs/images/closed-loop.png
 
 Each step of the process (``--fps`` 20 a second): the plant (``WeldPoolPlant``) advances with the
 arc power and the commanded travel speed; the camera (``PlantCamera``) renders the pool as a

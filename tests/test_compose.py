@@ -1,4 +1,4 @@
-"""docker-compose.yml is valid Compose and starts what the README says (no Docker engine here).
+"""docker-compose.yml is valid Compose and starts what the Deploy page says (no Docker engine here).
 
 The file is checked against the Compose specification (the compose-spec package, after YAML
 anchors and merge keys are resolved as `docker compose` resolves them), and cross-checked with

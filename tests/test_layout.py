@@ -1,5 +1,5 @@
 """The house's layout: no import loop between modules (imports inside functions count), and the
-app's domains point one way (README, "Layout")."""
+app's domains point one way (the manual's Development, "Layout and layering")."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ PACKAGES = ("app", "weldpool_core")
 BELOW_REVIEW = ("frames", "training", "proposals")
 """App domains that ``app.review`` sits above: they never import it."""
 LAYERS = (
-    ("__main__", "cli", "main", "demo"),
+    ("__main__", "cli", "main", "demo", "manual"),
     ("imports",),
     ("review", "timeline", "insights", "web"),
     ("training", "live"),
@@ -24,7 +24,7 @@ LAYERS = (
         *("logs", "periodic", "budgets"),
     ),
 )
-"""The app's packages from the top down (the README's Layout): each imports only from its own
+"""The app's packages from the top down (docs/development.md): each imports only from its own
 layer and those below."""
 
 

@@ -337,7 +337,7 @@ class StreamResult:
 
 
 def record_fields() -> tuple[str, ...]:
-    """The keys of every record, in order (the README documents each)."""
+    """The keys of every record, in order (docs/guides/live.md documents each)."""
     return (
         "frame",
         "captured_at",

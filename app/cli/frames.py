@@ -63,6 +63,25 @@ def _local(paths: tuple[str, ...], settings: Any) -> Iterator[tuple[str, ...]]:
         yield tuple(local)
 
 
+def prepare_fresh_home(settings: Any) -> None:
+    """A home with no database yet is made ready as `weldpool demo` makes it (migrated, with
+    `admin` as the first user), so an import is the first command a new instance may run; a
+    database at an older revision still asks for `weldpool migrate`."""
+    from app.cli.service import login_hint, prepare_instance
+    from app.db import create_db_engine, schema_revision
+
+    settings.ensure_home()
+    engine = create_db_engine(settings.resolved_database_url)
+    try:
+        current, _ = schema_revision(engine)
+    finally:
+        engine.dispose()
+    if current is None:
+        password_file = prepare_instance(settings)
+        if password_file is not None:
+            click.echo(f"a fresh home: {login_hint(password_file)}", err=True)
+
+
 def _bar_progress(bar: Any, total: int) -> Callable[[float, str], None]:
     """A progress callback (fraction, message) that advances a click progress bar."""
     done = 0
@@ -99,7 +118,7 @@ def import_cmd(
     """Import frames (PNG, JPEG, TIFF, BMP) and videos (MP4, AVI) from files, directories, or
     a bucket (s3://bucket/prefix: every object under it)."""
     settings = load_settings()
-    settings.ensure_home()
+    prepare_fresh_home(settings)
     with _local(paths, settings) as local:
         _import_frames(settings, local, sequence_name, every_nth, username)
 
@@ -209,7 +228,7 @@ def import_labels_cmd(
 
     settings = load_settings()
     checked_format(fmt)
-    settings.ensure_home()
+    prepare_fresh_home(settings)
     with _local((path,), settings) as (local,):
         if not Path(local).exists():
             raise WeldpoolError(f"{path} does not exist.")

@@ -162,3 +162,32 @@ def storage_push() -> None:
         f"{settings.home} is now its cache",
         err=True,
     )
+
+
+@storage_group.command("create-bucket")
+@friendly_errors
+def storage_create_bucket() -> None:
+    """Create the bucket of WELDPOOL_STORAGE_URL in the object store (a new deployment's first
+    step; a bucket that exists is left as it is)."""
+    from botocore.exceptions import ClientError
+
+    from app.storage import ObjectStorage, Storage
+
+    settings = load_settings()
+    storage = Storage.of(settings)
+    if not isinstance(storage, ObjectStorage):
+        raise WeldpoolError("WELDPOOL_STORAGE_URL is not set: there is no bucket to create.")
+    client, bucket = storage.client, storage.bucket
+    try:
+        client.head_bucket(Bucket=bucket)
+        click.echo(f"the bucket {bucket} exists already", err=True)
+        return
+    except ClientError as exc:
+        if exc.response.get("ResponseMetadata", {}).get("HTTPStatusCode") != 404:
+            raise WeldpoolError(
+                f"The bucket {bucket} cannot be checked ({exc}); check the AWS_* credentials."
+            ) from None
+    region = client.meta.region_name
+    where = {"CreateBucketConfiguration": {"LocationConstraint": region}}
+    client.create_bucket(Bucket=bucket, **({} if region in (None, "us-east-1") else where))
+    click.echo(f"created the bucket {bucket} in {storage.remote}", err=True)

@@ -156,6 +156,11 @@ class ObjectStorage(Storage):
         try:
             self.client.head_bucket(Bucket=self.bucket)
         except Exception as exc:
+            if _missing(exc):
+                raise ConfigurationError(
+                    f"The object store {self.remote} cannot be used: its bucket {self.bucket} "
+                    "does not exist; create it with `weldpool storage create-bucket`."
+                ) from None
             raise ConfigurationError(
                 f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
                 "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."

@@ -8,34 +8,44 @@ from app.config import Settings
 from weldpool_core.teacher.weights import weights_status
 
 
-def _missing(what: str, statuses: list[Any]) -> str | None:
-    """ "<what>: its weights are missing (settings) ..." with the fix, or None."""
+def _missing(what: str, statuses: list[Any], admin: bool) -> str | None:
+    """ "<what>: its weights are missing (settings) ..." with the fix, or None. Only an admin
+    can install weights: anyone else is told to ask one."""
     missing = [status for status in statuses if not status.available]
     if not missing:
         return None
     names = " and ".join(s.setting for s in missing)
+    if not admin:
+        return (
+            f"{what}: its weights are missing ({names}). Ask an admin to install them "
+            '(Help, "Weights").'
+        )
     return (
         f"{what}: its weights are missing ({names}). Run `weldpool weights fetch` on a machine "
         f"with internet access, or point {names} at a local folder, then restart."
     )
 
 
-def teacher_problem(settings: Settings) -> str | None:
-    """Why the teacher cannot run here (missing weights), in one sentence; None when it can."""
+def teacher_problem(settings: Settings, *, admin: bool = True) -> str | None:
+    """Why the teacher cannot run here (missing weights), in one sentence; None when it can.
+    ``admin``: the fix is the commands; otherwise, to ask an admin."""
     return _missing(
         "The teacher cannot run",
         [
             weights_status(settings.dino, "WELDPOOL_DINO"),
             weights_status(settings.sam2, "WELDPOOL_SAM2"),
         ],
+        admin,
     )
 
 
-def sam2_problem(settings: Settings) -> str | None:
+def sam2_problem(settings: Settings, *, admin: bool = True) -> str | None:
     """Why SAM2 alone cannot run (clicks, boxes, embeddings, propagation), or None when it can:
     those need no DINO."""
     return _missing(
-        "Clicks, boxes and propagation need SAM2", [weights_status(settings.sam2, "WELDPOOL_SAM2")]
+        "Clicks, boxes and propagation need SAM2",
+        [weights_status(settings.sam2, "WELDPOOL_SAM2")],
+        admin,
     )
 
 

@@ -52,15 +52,32 @@ def templates() -> Jinja2Templates:
     return Jinja2Templates(directory=Path(__file__).resolve().parents[2] / "templates")
 
 
+HELP_TOPICS = {
+    "frames": "/help/guides/ingest",
+    "review": "/help/guides/reviewing",
+    "jobs": "/help/operations/deploy#jobs-and-workers",
+    "models": "/help/guides/student",
+    "metrics": "/help/guides/student#the-models-and-metrics-pages",
+    "live": "/help/guides/live#the-live-view",
+    "users": "/help/guides/team#users",
+    "account": "/help/operations/security",
+    "tokens": "/help/operations/security",
+}
+"""The manual's page for each page of the app: the header's Help opens it (/help: the start)."""
+
+
 def render(request: Request, name: str, status_code: int = 200, **context: Any) -> HTMLResponse:
     """A page with the logged-in user and their CSRF token in its context."""
     web_session = getattr(request.state, "web_session", None)
     context.setdefault("user", web_session.user if web_session else None)
     context.setdefault("csrf_token", web_session.csrf_token if web_session else "")
     context.setdefault("review_stage", request.app.state.settings.review_stage)
+    context.setdefault("help_url", HELP_TOPICS.get(context.get("page", ""), "/help/"))
     if web_session is not None:
-        context.setdefault("teacher_problem", teacher_problem(request.app.state.settings))
-        context.setdefault("sam2_problem", sam2_problem(request.app.state.settings))
+        admin = web_session.user.role == Role.admin
+        settings = request.app.state.settings
+        context.setdefault("teacher_problem", teacher_problem(settings, admin=admin))
+        context.setdefault("sam2_problem", sam2_problem(settings, admin=admin))
     return templates().TemplateResponse(request, name, context, status_code=status_code)
 
 

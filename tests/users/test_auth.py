@@ -18,7 +18,10 @@ from tests.helpers import auth
 PUBLIC_PATHS = {"/api/v1/health", "/login"}
 
 
-PAGES = [("GET", "/"), ("POST", "/logout"), ("GET", "/docs"), ("GET", "/api/v1/openapi.json")]
+PAGES = [
+    *(("GET", "/"), ("POST", "/logout"), ("GET", "/docs"), ("GET", "/api/v1/openapi.json")),
+    *(("GET", "/help"), ("GET", "/help/guides/reviewing"), ("GET", "/help/images/review.png")),
+]
 
 
 def _protected_routes(client: TestClient) -> list[tuple[str, str]]:

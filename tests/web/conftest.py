@@ -3,6 +3,8 @@ Debian's Chromium by Playwright. Missing Chromium or Playwright fails these test
 
 from __future__ import annotations
 
+import os
+import shutil
 from collections.abc import Iterator
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
@@ -66,6 +68,10 @@ def screenshots() -> Path:
 
 
 SIZES = ((1280, 800), (1920, 1080))
+DOC_IMAGES = REPO / "docs" / "images"
+DOC_PICTURES = {"review", "frames", "models", "help"}
+"""Screenshots the manual shows: with WELDPOOL_DOC_SCREENSHOTS=1 their 1280×800 shot is also
+written to docs/images/<name>.png, so the manual's pictures are what the tests saw."""
 
 
 def shoot(page: Any, name: str, *, full_page: bool = False, idle: bool = False) -> None:
@@ -79,6 +85,8 @@ def shoot(page: Any, name: str, *, full_page: bool = False, idle: bool = False) 
         if idle:
             page.wait_for_load_state("networkidle")
         page.screenshot(path=str(SCREENSHOTS / f"{name}-{width}.png"), full_page=full_page)
+        if width == 1280 and name in DOC_PICTURES and os.environ.get("WELDPOOL_DOC_SCREENSHOTS"):
+            shutil.copyfile(SCREENSHOTS / f"{name}-{width}.png", DOC_IMAGES / f"{name}.png")
     page.set_viewport_size(VIEWPORT)
     page.wait_for_timeout(150)
 

@@ -913,9 +913,10 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
         page = context.new_page()
         login(page, bare, "rita")
         page.wait_for_selector("body[data-ready]")
+        # A reviewer cannot install weights: asked to get an admin, not told to run commands.
         banner = page.inner_text("[data-testid=teacher-banner]")
-        assert "weights are missing" in banner and "weldpool weights fetch" in banner
-        assert page.inner_text("[data-testid=teacher-banner] code") == "weldpool weights fetch"
+        assert "weights are missing" in banner and "Ask an admin" in banner
+        assert "weldpool weights fetch" not in banner
         sequence_button = page.locator("[data-testid=teacher-sequence]")
         assert sequence_button.count() == 0 or sequence_button.first.is_disabled()
         page.check("[data-testid=frame-row] input[type=checkbox]")
@@ -926,6 +927,7 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
         page.goto(f"{bare.url}/frames/{frame}")
         page.wait_for_selector("body[data-ready]")
         assert page.is_visible("[data-testid=teacher-banner]")
+        assert "weldpool weights fetch" not in page.inner_text("[data-testid=teacher-banner]")
         assert page.is_disabled("[data-testid=run-teacher]")
         assert "weights are missing" in page.get_attribute("[data-testid=run-teacher]", "title")
         # The tools that ask SAM2 for a mask say why they cannot; painting still works.
@@ -943,6 +945,11 @@ def test_missing_weights_show_a_banner_and_teacher_buttons_say_why(
         page.goto(bare.url)
         page.wait_for_selector("body[data-ready]")
         shoot(page, "no-weights-frames")
+        # An admin, who can install them, is told how.
+        page.click("[data-testid=logout]")
+        login(page, bare, "ada")
+        page.wait_for_selector("body[data-ready]")
+        assert page.inner_text("[data-testid=teacher-banner] code") == "weldpool weights fetch"
     finally:
         context.close()
         bare.stop()

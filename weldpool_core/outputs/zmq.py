@@ -1,5 +1,5 @@
 """Each record as one JSON message on a ZeroMQ XPUB socket (subscribers use a SUB socket and
-subscribe to ""; see the README for a five-line subscriber).
+subscribe to ""; the manual's "The live view and the welding cell" has a five-line subscriber).
 
 The socket is verbose (``XPUB_VERBOSER``): every subscribe and unsubscribe reaches it, so it counts
 its subscribers. A subscriber that stops reading fills its own queue (ZeroMQ's high-water mark)

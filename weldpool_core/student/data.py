@@ -480,7 +480,8 @@ def dataset_stems(folder: str | Path) -> list[str]:
     if not (root / "images").is_dir() or not (root / "masks").is_dir():
         raise InvalidInputError(
             f"{root} is not a DATASET folder; it needs images/<stem>.<png|jpg|tif> and "
-            "masks/<stem>.png."
+            "masks/<stem>.png (`weldpool export --format masks --out labels.zip` writes one from "
+            "an instance's reviewed labels: unzip it)."
         )
     images = [p.stem for p in (root / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
     twice = sorted({stem for stem in images if images.count(stem) > 1})

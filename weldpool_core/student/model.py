@@ -14,7 +14,7 @@ without learning it from scratch. With ``skips`` (default 2; 0–3) the encoder'
 (and 4) maps of the frame are added (after a 1×1 projection) to the decoder's input at the same
 scale, so fine detail (the pool's front at the wire) need not pass through the stride-32 grid:
 on the real labels two skips lift the mask across clips from 0.825 to 0.87 mIoU and within a
-clip from 0.938 to 0.959 (``bench/real_student.py``, README). With 0 everything the decoder
+clip from 0.938 to 0.959 (``bench/real_student.py``, docs/benchmarks). With 0 everything the decoder
 draws passes through the latent.
 
 The encoder takes RGB in [0, 1]; the ImageNet normalisation happens inside the model, so an

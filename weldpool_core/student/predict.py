@@ -9,7 +9,7 @@ Keypoints are read at model resolution and mapped to frame pixels (``frame_keypo
 where the student's ``config.keypoints`` says. ``mask`` (the default): Algorithm 1 on the
 predicted mask within the frame, the rule by which a label's keypoints are placed: on the real
 labels it places them nearer than the heatmap's modes do, within a clip and across clips
-(``bench/real_student.py``, README), and it costs ~0.5 ms a frame. ``heatmap`` (students saved
+(``bench/real_student.py``), and it costs ~0.5 ms a frame. ``heatmap`` (students saved
 before the choice): the modes of the predicted heatmap (``keypoints_from_heatmap``), with the
 sub-pixel refinement of the small map; of modes closer than half Algorithm 1's keypoint
 separation, only the strongest counts: the others are lobes of the same keypoint
@@ -49,13 +49,13 @@ test bed and not the other: on the 15 real labels (45 held-out predictions, leav
 the spread ranks them at ρ +0.54 and the ambiguity at +0.34, on the varied synthetic pool of
 ``bench/active.py`` the ambiguity at +0.44 and the spread at +0.22; their geometric mean ranks
 them at +0.58 and +0.38: above the spread on both, far above the ambiguity on the real frames
-(``bench/uncertainty.py``, ``bench/uncertainty_synthetic.py``, README).
+(``bench/uncertainty.py``, ``bench/uncertainty_synthetic.py``, docs/benchmarks).
 
 ``uncertainty`` = 1 − (1 − mask part)·(1 − novelty) (a noisy-or: either alone can raise
 it). The draws are seeded, so the same frame gets the same score, and they never change
 the answer itself (mask, heatmap, keypoints come from the latent mean). On the 15 real labels,
 leave-one-clip-out, it ranks the default student's errors (Spearman ρ over 45 held-out
-predictions, with its 95 % interval, in the README; ``bench/uncertainty.py``) where the score
+predictions, with its 95 % interval, in docs/benchmarks; ``bench/uncertainty.py``) where the score
 of two releases ago, test-time-pass disagreement noisy-or'd with unshifted novelty, ranked them
 backwards.
 """
@@ -97,7 +97,7 @@ blank, white, noise, inverted, darkened frames and another camera's at 5–15.""
 FOREIGN_MARGIN = 0.75
 """A student's familiar distance as a fraction of the distance of the nearest frame it could
 not read (``foreign_versions`` of its training frames). Measured on the real folds
-(``bench/uncertainty.py``, README): the held-out clips reach 0.22–0.69 of it (up to 6.1 in
+(``bench/uncertainty.py``, docs/benchmarks): the held-out clips reach 0.22–0.69 of it (up to 6.1 in
 absolute units for a skip student whose foreign frames lie at 8.9 and beyond), so a fixed
 distance either flags a real clip or lets a foreign frame through, depending on the student."""
 FOREIGN_FRAMES = 8
