@@ -4,16 +4,15 @@ Full-size DINO ViT-S/8 and SAM2 hiera-tiny with random weights, saved as local f
 frames of 640×400 uploaded to a throw-away home (SQLite, the SQLite queue); then for 1 and 2
 `weldpool worker` processes (one model thread each, one torch thread each) a forced teacher run
 over the frames, timed from the request to its end, median of runs. Each worker loads the
-teacher once before its timing starts (a warm-up run). Prints and saves a table
-(``bench/results/fanout.csv``).
+teacher once before its timing starts (a warm-up run). Prints the table and records it
+(``docs/benchmarks/fanout.json``).
 
-    .venv/bin/python bench/fanout.py [--frames 12] [--runs 2]
+    PYTHONPATH=. .venv/bin/python bench/fanout.py [--frames 12] [--runs 2]
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import signal
 import statistics
@@ -26,6 +25,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 from common import REPO, free_port
+from results import Table, record
 
 WEIGHTS_ENV = ("WELDPOOL_DINO", "WELDPOOL_SAM2")
 
@@ -143,26 +143,27 @@ def main() -> None:
             server.send_signal(signal.SIGTERM)
             server.wait(timeout=60)
     base = rows[0][1]
-    print(f"teacher run of {args.frames} frames (640×400, full-size random teacher, CPU)")
-    print(f"{'workers':>8} {'median s':>9} {'frames/s':>9} {'speed-up':>9}")
-    for count, median, _ in rows:
-        print(f"{count:>8} {median:>9.1f} {args.frames / median:>9.3f} {base / median:>8.2f}×")
-    out = REPO / "bench" / "results"
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "fanout.csv", "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["workers", "frames", "median_s", "runs_s", "speedup", "cpus"])
-        for count, median, times in rows:
-            writer.writerow(
-                [
-                    count,
-                    args.frames,
-                    f"{median:.2f}",
-                    " ".join(f"{t:.2f}" for t in times),
-                    f"{base / median:.3f}",
-                    os.cpu_count(),
-                ]
-            )
+    table = Table(
+        f"teacher run of {args.frames} frames (640×400, full-size random teacher, CPU)",
+        ["workers", "median s", "runs s", "frames/s", "speed-up"],
+        [
+            [
+                str(count),
+                f"{median:.1f}",
+                " ".join(f"{t:.1f}" for t in times),
+                f"{args.frames / median:.3f}",
+                f"{base / median:.2f}×",
+            ]
+            for count, median, times in rows
+        ],
+        align=["right"] * 5,
+    )
+    print(table.markdown())
+    record(
+        "bench/fanout.py",
+        [table],
+        f"PYTHONPATH=. .venv/bin/python bench/fanout.py --frames {args.frames} --runs {args.runs}",
+    )
 
 
 if __name__ == "__main__":

@@ -21,6 +21,8 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+from results import Table, record
+
 HEIGHT, WIDTH = 800, 1280
 CASES = ("yaml_aliases", "zip_of_1mib_masks", "cvat_2m_points", "coco_keypoints", "tiny_polygons")
 
@@ -159,7 +161,7 @@ def main() -> None:
     if args.case:
         print(json.dumps(run_case(args.case, args.folder)))
         return
-    print(f"{'case':20} {'seconds':>8} {'+RSS MiB':>9}  outcome (scale {args.scale})")
+    rows = []
     for case in args.only:
         with tempfile.TemporaryDirectory() as folder:
             globals()[f"_make_{case}"](Path(folder), args.scale)
@@ -171,7 +173,19 @@ def main() -> None:
             row = {}
         if not row:
             row = {"case": case, "s": f">{args.timeout:g}", "rss_mib": "?", "outcome": "failed"}
-        print(f"{row['case']:20} {row['s']:>8} {row['rss_mib']:>9}  {row['outcome']}")
+        rows.append([str(row["case"]), str(row["s"]), str(row["rss_mib"]), str(row["outcome"])])
+    table = Table(
+        f"hostile file (scale {args.scale:g})",
+        ["hostile file (scale)", "s", "+RSS MiB", "outcome"],
+        rows,
+        align=["left", "right", "right", "left"],
+    )
+    print(table.markdown())
+    record(
+        "bench/import_bounds.py",
+        [table],
+        f"PYTHONPATH=. .venv/bin/python bench/import_bounds.py --scale {args.scale:g}",
+    )
 
 
 def _child(command: list[str], timeout: float) -> subprocess.CompletedProcess[str] | None:
