@@ -473,8 +473,9 @@ class Job(Base):
 
 
 class JobChunk(Base):
-    """A chunk of a job that several workers share (``app.jobs.fanout``): taken by the worker
-    whose insert won, done with its result, or taken over when that worker is gone."""
+    """A chunk of a job that several workers share (``app.jobs.fanout``): its items (frame
+    ids), planned by the job's owner; free, taken by one worker, done with its result, or
+    taken over when that worker is gone."""
 
     __tablename__ = "job_chunks"
 
@@ -482,7 +483,8 @@ class JobChunk(Base):
         sa.ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True
     )
     chunk: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
-    worker_id: Mapped[str] = mapped_column(sa.String(200))
+    items: Mapped[list[int]] = mapped_column(JSONType, default=list)
+    worker_id: Mapped[str | None] = mapped_column(sa.String(200))  # None: free to take
     done: Mapped[bool] = mapped_column(default=False)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
 

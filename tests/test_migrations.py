@@ -406,7 +406,7 @@ def test_ids_are_never_reused_after_0018_on_a_filled_database(database_url: str)
     counts = _fill(engine)
     indexes = _index_definitions(engine)
     assert any("coalesce" in sql.lower() for sql in indexes)  # the queue's expression indexes
-    command.upgrade(alembic_config(engine), "head")
+    command.upgrade(alembic_config(engine), "0018")
     with engine.connect() as connection:
         after = {
             table: connection.exec_driver_sql(f"SELECT count(*) FROM {table}").scalar_one()

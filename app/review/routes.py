@@ -79,9 +79,11 @@ def start_teacher_run(
 ) -> JobCreated:
     """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
     frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
-    params: dict[str, Any] = {"frame_ids": frame_ids, "prompts": body.prompts, "force": body.force}
-    if body.sequence_id is not None and not body.frame_ids:  # the jobs page names the run
-        params["sequence_id"] = body.sequence_id
+    params: dict[str, Any] = {"prompts": body.prompts, "force": body.force}
+    if body.sequence_id is not None and not body.frame_ids:
+        params["sequence_id"] = body.sequence_id  # the run's scope, not its frames' ids
+    else:
+        params["frame_ids"] = frame_ids
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
 
 

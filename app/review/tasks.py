@@ -47,20 +47,19 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     """DINO → prompts → SAM2 → Algorithm 1 for each frame, one proposal per frame, in chunks
     that every worker the run reaches shares (``app.jobs.fanout``); frames the same teacher
     already saw are skipped, so a lost run is simply re-run."""
-    frame_ids: list[int] = [int(i) for i in ctx.params["frame_ids"]]
     prompts = ctx.params.get("prompts", DEFAULT_PROMPTS)
     force = bool(ctx.params.get("force", False))
     ctx.progress(0.0, "loading the teacher")
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
     ctx.check_cancelled()
     storage = Storage.of(ctx.settings)
-    fan = Fanout(ctx, len(frame_ids), TEACHER_CHUNK)
+    fan = Fanout(ctx, TEACHER_CHUNK)
     if not ctx.helper:
+        fan.plan(functools.partial(_teacher_frames, ctx))
         fan.invite()
     for index in fan.chunks():
         with fan.working(index) as result:
-            chunk = [frame_ids[i] for i in fan.items(index)]
-            result.update(_teacher_chunk(ctx, storage, teacher, chunk, force))
+            result.update(_teacher_chunk(ctx, storage, teacher, fan.items(index), force))
         ctx.progress(fan.progress(), fan.message())
     if ctx.helper:
         return {}
@@ -69,9 +68,9 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     skipped = sum(r["skipped"] for r in results)
     failed = [f for r in results for f in r["failed"]]
     deleted = [d for r in results for d in r["deleted"]]
-    if len(deleted) == len(frame_ids):
+    if len(deleted) == fan.size:
         raise WeldpoolError("Every frame of this run was deleted before the teacher saw it.")
-    if failed and not proposed and not skipped and len(failed) + len(deleted) == len(frame_ids):
+    if failed and not proposed and not skipped and len(failed) + len(deleted) == fan.size:
         raise WeldpoolError(f"The teacher failed on every frame; the first: {failed[0]['error']}")
     ctx.summary = teacher_summary(proposed, skipped, failed, len(deleted))
     if (shared := runtime.shared_embeddings(ctx.settings)) is not None:
@@ -84,6 +83,21 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
         "model_id": teacher.model_id,
         "workers": len(fan.workers()),
     }
+
+
+def _teacher_frames(ctx: JobContext) -> list[int]:
+    """The run's frames: those it names, else every frame of its weld run, in id order (a run
+    asked for a weld run stores the run, not its frames)."""
+    if "frame_ids" in ctx.params:
+        return [int(i) for i in ctx.params["frame_ids"]]
+    with ctx.session_factory() as session:
+        return list(
+            session.scalars(
+                sa.select(Frame.id)
+                .where(Frame.sequence_id == int(ctx.params["sequence_id"]))
+                .order_by(Frame.id)
+            )
+        )
 
 
 def _teacher_chunk(
@@ -260,14 +274,16 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
     predictor = runtime.sam2_predictor(ctx.settings)
     cache = runtime.embedding_cache(ctx.settings)
     with ctx.session_factory() as session:
-        frames = propagation.run_frames(session, int(ctx.params["sequence_id"]))
-    fan = Fanout(ctx, len(frames), EMBED_CHUNK)
+        frames = {f.id: f for f in propagation.run_frames(session, int(ctx.params["sequence_id"]))}
+    fan = Fanout(ctx, EMBED_CHUNK)
     if not ctx.helper:
+        fan.plan(lambda: list(frames))
         fan.invite()
     for index in fan.chunks():
         with fan.working(index) as tiers:
-            for position in fan.items(index):
-                frame = frames[position]
+            for frame_id in fan.items(index):
+                if (frame := frames.get(frame_id)) is None:
+                    continue  # uploaded after the owner planned, or deleted
                 _, tier = cached_embedding(
                     predictor,
                     cache,
@@ -286,6 +302,6 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
             tiers[name] += count
     ctx.summary = (
         f"{counted(tiers['computed'], 'embedding')} computed, "
-        f"{len(frames) - tiers['computed']} already cached"
+        f"{fan.size - tiers['computed']} already cached"
     )
-    return {"frames": len(frames), **tiers}
+    return {"frames": fan.size, **tiers}

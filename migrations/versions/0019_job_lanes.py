@@ -36,7 +36,8 @@ def upgrade() -> None:
         'job_chunks',
         sa.Column('job_id', sa.Integer(), nullable=False),
         sa.Column('chunk', sa.Integer(), nullable=False),
-        sa.Column('worker_id', sa.String(200), nullable=False),
+        sa.Column('items', sa.JSON(), nullable=False),
+        sa.Column('worker_id', sa.String(200), nullable=True),
         sa.Column('done', sa.Boolean(), nullable=False),
         sa.Column('result', sa.JSON(), nullable=True),
         sa.ForeignKeyConstraint(

@@ -208,8 +208,9 @@ fan_log: list[tuple[str, int]] = []
 
 @job_handler("fan-test", fanout=True)
 def _fan(ctx: JobContext) -> dict:
-    fan = Fanout(ctx, int(ctx.params["n"]), 2)
+    fan = Fanout(ctx, 2)
     if not ctx.helper:
+        fan.plan(lambda: list(range(int(ctx.params["n"]))))
         fan.invite()
     for index in fan.chunks():
         with fan.working(index) as result:
@@ -241,7 +242,14 @@ def test_one_run_is_shared_by_two_workers_each_item_once(idle_queue: JobQueue) -
     _presence(owner), _presence(other)
     with owner.session_factory() as session:
         job = create_job(session, owner, "fan-test", {"n": 20}, None)
-        session.add(JobChunk(job_id=job.id, chunk=3, worker_id="gone:1:dead"))  # a lost worker's
+        # a worker that is gone planned it and held chunk 3 (a retried job keeps its plan)
+        for chunk in range(10):
+            held = "gone:1:dead" if chunk == 3 else None
+            session.add(
+                JobChunk(
+                    job_id=job.id, chunk=chunk, items=[2 * chunk, 2 * chunk + 1], worker_id=held
+                )
+            )
         session.commit()
     huey = owner.huey("model")
     first = huey.dequeue()
