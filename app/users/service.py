@@ -72,6 +72,19 @@ def list_users(session: Session) -> list[User]:
     return list(session.scalars(sa.select(User).order_by(User.username)).all())
 
 
+def _lock_admins(session: Session, user: User) -> None:
+    """Lock the active admins' rows until the commit, then read ``user`` afresh: a concurrent
+    change of an admin waits here, and the count after it sees that change committed
+    (PostgreSQL: FOR UPDATE; SQLite: a write takes the database's one writer lock, so the
+    transaction begins with a write before anything is counted)."""
+    if session.get_bind().dialect.name == "sqlite":
+        session.execute(sa.update(User).where(User.id == user.id).values(role=User.role))
+    else:
+        admins = sa.select(User.id).where(User.role == Role.admin, User.is_active.is_(True))
+        session.execute(admins.order_by(User.id).with_for_update())
+    session.refresh(user)
+
+
 def update_user(
     session: Session,
     user: User,
@@ -84,7 +97,11 @@ def update_user(
 
     A new password or deactivation logs the user out everywhere: their browser sessions end and
     their API tokens are revoked (a reset after a leak must lock the old credentials out).
+    A change of role or activity first locks the active admins' rows (``_lock_admins``), so
+    two admins demoting each other at once cannot both pass the "one admin stays" count.
     """
+    if role is not None or is_active is not None:
+        _lock_admins(session, user)
     if role is not None:
         user.role = role
     if password is not None:
