@@ -83,6 +83,21 @@ def test_same_user_name_at_once(client: TestClient, admin: str) -> None:
         assert statuses == [201] + [409] * (RACERS - 1), statuses
 
 
+def test_one_user_name_in_several_cases_at_once(client: TestClient, admin: str) -> None:
+    """'Twin0', 'tWin0', … at once: one user, the others 409 (the index on lower(username))."""
+    for round_ in range(ROUNDS):
+        names = [f"twin{round_}"[:i] + f"twin{round_}"[i:].upper() for i in range(RACERS)]
+        statuses = at_once(
+            RACERS,
+            lambda i, names=names: client.post(
+                "/api/v1/users",
+                json={"username": names[i], "password": "long enough 1"},
+                headers=auth(admin),
+            ),
+        )
+        assert statuses == [201] + [409] * (RACERS - 1), statuses
+
+
 def test_first_validation_keypoints_at_once(client: TestClient, admin: str) -> None:
     files = [("files", (f"f{i}.png", image_bytes(seed=40 + i), "image/png")) for i in range(ROUNDS)]
     stored = client.post("/api/v1/frames", files=files, headers=auth(admin)).json()["stored"]
