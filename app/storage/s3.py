@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import shutil
 import threading
 import time
@@ -42,6 +41,7 @@ from urllib.parse import urlparse
 import structlog
 
 from app.budgets import shared_pool
+from app.errors import without_addresses
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
@@ -634,9 +634,6 @@ def _files(root: Path) -> Iterator[Path]:
     return (p for p in root.rglob("*") if p.is_file()) if root.is_dir() else iter(())
 
 
-_URL = re.compile(r"""["']?[a-z][a-z0-9+.-]*://[^\s"']+["']?""")
-
-
 def _reason(exc: Exception, waits: StoreWaits) -> str:
     """What the store answered, in words without its address (botocore's own messages name
     the endpoint's URL)."""
@@ -651,8 +648,7 @@ def _reason(exc: Exception, waits: StoreWaits) -> str:
         return f"it did not answer within {waits.longest_s:g} s"
     if isinstance(exc, NoConnection):
         return "nothing answers at its address"
-    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return _URL.sub("its address", first)
+    return without_addresses(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
 
 
 def download_prefix(url: str, folder: Path, endpoint_url: str | None, *, waits: StoreWaits) -> Path:
