@@ -32,6 +32,7 @@ from app.frames.routes import router as frames_router
 from app.headers import SecurityHeaders
 from app.housekeeping import FileCollector
 from app.imports.routes import router as imports_router
+from app.imports.service import stop_label_processes
 from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
@@ -242,6 +243,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
             collector.stop()
             background.stop()
             app.state.live_views.stop_all()
+            stop_label_processes()
             engine.dispose()
 
     app = FastAPI(
