@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ipaddress
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
@@ -11,6 +12,21 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from weldpool_core.defaults import DEFAULT_MAX_PIXELS, DEFAULT_WEIGHTS
+
+
+@dataclass(frozen=True)
+class StoreWaits:
+    """How long one call to the object store may wait: to connect, for its answer (each
+    attempt), and how many attempts."""
+
+    connect_s: float
+    read_s: float
+    attempts: int
+
+    @property
+    def longest_s(self) -> float:
+        """The longest one call waits on a store that never answers (backoff aside)."""
+        return self.attempts * (self.connect_s + self.read_s)
 
 
 class Settings(BaseSettings):
@@ -43,6 +59,36 @@ class Settings(BaseSettings):
         default=None,
         description="The object store's endpoint for a store other than AWS S3 (MinIO, Ceph), "
         "e.g. http://minio:9000; credentials come from AWS_ACCESS_KEY_ID and friends.",
+    )
+    storage_connect_timeout_s: float = Field(
+        default=3.0,
+        gt=0,
+        description="With an object store: how long a call waits to connect to it.",
+    )
+    storage_request_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="With an object store: how long a request's call (an upload, a read, "
+        "/health, the check at start) waits for its answer, per attempt.",
+    )
+    storage_request_attempts: int = Field(
+        default=2,
+        ge=1,
+        le=10,
+        description="With an object store: how often a request's call is tried before the "
+        "request answers 503.",
+    )
+    storage_job_timeout_s: float = Field(
+        default=60.0,
+        gt=0,
+        description="With an object store: how long a job's call (and the command line's) waits "
+        "for its answer, per attempt; workers may wait longer than a person.",
+    )
+    storage_job_attempts: int = Field(
+        default=5,
+        ge=1,
+        le=20,
+        description="With an object store: how often a job's call is tried before it fails.",
     )
     embedding_cache_mb: float = Field(
         default=20480.0,
@@ -250,6 +296,21 @@ class Settings(BaseSettings):
     def trusted_proxy_list(self) -> list[str]:
         """The trusted proxies' addresses and networks (none by default)."""
         return self.trusted_proxies.split(",") if self.trusted_proxies else []
+
+    def storage_waits(self, *, jobs: bool) -> StoreWaits:
+        """How long a call to the object store waits: a job's (and the command line's), or a
+        request's (the shorter bounds a person waits on)."""
+        if jobs:
+            return StoreWaits(
+                self.storage_connect_timeout_s,
+                self.storage_job_timeout_s,
+                self.storage_job_attempts,
+            )
+        return StoreWaits(
+            self.storage_connect_timeout_s,
+            self.storage_request_timeout_s,
+            self.storage_request_attempts,
+        )
 
     @property
     def resolved_database_url(self) -> str:

@@ -19,10 +19,13 @@ __all__ = [
     "TooManyAttemptsError",
     "WeightsUnavailableError",
     "WeldpoolError",
+    "failure_sentence",
     "http_status_of",
+    "without_addresses",
     "without_server_paths",
 ]
 
+_ADDRESS = re.compile(r"""["']?\bhttps?://[^\s"'<>]+["']?""")
 _ABSOLUTE_PATH = re.compile(r"(?<![\w.~:/])/([^\s/'\"]+)(?:/[^\s/'\"]+)+")
 
 
@@ -33,12 +36,36 @@ def _server_path_tail(match: re.Match[str]) -> str:
     return path.rsplit("/", 1)[-1] if os.path.isdir(f"/{match.group(1)}") else path
 
 
+def without_addresses(text: str) -> str:
+    """``text`` without the http(s) addresses of servers (botocore's messages quote the object
+    store's endpoint URL, credentials and all where it holds them)."""
+    return _ADDRESS.sub("its address", text)
+
+
 def without_server_paths(text: str, home: Path) -> str:
     """A message as any user may read it: paths under the home folder relative to it, other
-    absolute paths of the server reduced to their last part (the log keeps them whole)."""
+    absolute paths of the server reduced to their last part, no server's address (the log
+    keeps them whole)."""
     for prefix in {f"{home}{os.sep}", f"{home.resolve()}{os.sep}"}:
         text = text.replace(prefix, "")
-    return _ABSOLUTE_PATH.sub(_server_path_tail, text)
+    return _ABSOLUTE_PATH.sub(_server_path_tail, without_addresses(text))
+
+
+_STORE_CLIENTS = ("botocore", "boto3", "s3transfer")
+
+
+def failure_sentence(exc: BaseException) -> str:
+    """One sentence for a failure a user reads on a job or a frame: ours as written, the object
+    store's in words (what it answered, not where it is), anything else with its type."""
+    if isinstance(exc, WeldpoolError):
+        return exc.message
+    if type(exc).__module__.partition(".")[0] in _STORE_CLIENTS:
+        code = (getattr(exc, "response", None) or {}).get("Error", {}).get("Code")
+        return (
+            f"The object store failed ({code or type(exc).__name__}); check that it runs and "
+            "answers at WELDPOOL_S3_ENDPOINT_URL, then run this again."
+        )
+    return f"Unexpected error ({type(exc).__name__}): {exc}"
 
 
 class ConfigurationError(WeldpoolError):

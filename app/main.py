@@ -31,6 +31,7 @@ from app.errors import (
 from app.frames.routes import router as frames_router
 from app.headers import SecurityHeaders
 from app.housekeeping import FileCollector
+from app.imports.pool import stop_label_processes
 from app.imports.routes import router as imports_router
 from app.insights.routes import router as insights_router
 from app.jobs.registry import load_job_handlers
@@ -50,6 +51,7 @@ from app.security import (
 )
 from app.storage import Storage
 from app.system.routes import router as system_router
+from app.system.status import StoreCheck
 from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
@@ -202,6 +204,22 @@ def _install_error_handlers(app: FastAPI) -> None:
         )
 
 
+def _install_state(
+    app: FastAPI, settings: Settings, engine: sa.engine.Engine, queue: JobQueue
+) -> None:
+    """What the routes find on ``app.state`` (the store's calls wait a request's bounds)."""
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.session_factory = queue.session_factory
+    app.state.queue = queue
+    app.state.storage = Storage.of(settings, for_requests=True)
+    app.state.store_check = StoreCheck(app.state.storage)
+    app.state.live_views = LiveViews()
+    app.state.login_throttle = LoginThrottle(
+        settings.login_max_failures, settings.login_lockout_minutes * 60
+    )
+
+
 def create_app(settings: Settings | None = None, *, embedded_worker: bool = False) -> FastAPI:
     """Build the service; with ``embedded_worker`` it also runs jobs in this process."""
     settings = settings or get_settings()
@@ -226,6 +244,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
             collector.stop()
             background.stop()
             app.state.live_views.stop_all()
+            stop_label_processes()
             engine.dispose()
 
     app = FastAPI(
@@ -237,15 +256,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
         openapi_url=None,
         lifespan=lifespan,
     )
-    app.state.settings = settings
-    app.state.engine = engine
-    app.state.session_factory = session_factory
-    app.state.queue = queue
-    app.state.storage = Storage.of(settings)
-    app.state.live_views = LiveViews()
-    app.state.login_throttle = LoginThrottle(
-        settings.login_max_failures, settings.login_lockout_minutes * 60
-    )
+    _install_state(app, settings, engine, queue)
     app.add_middleware(BodySizeLimit, max_bytes=int(settings.max_request_mb * 2**20))
     app.add_middleware(SecurityHeaders)
     _install_error_handlers(app)

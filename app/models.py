@@ -122,7 +122,12 @@ def _enum(cls: type[enum.StrEnum], name: str) -> sa.Enum:
 
 
 class User(Base):
+    """Who may use weldpool. A name is one user in any case (``uq_users_lower_username``;
+    migration 0019 makes it only where no two names an older database holds differ by case
+    alone, and the service refuses such a name either way)."""
+
     __tablename__ = "users"
+    __table_args__ = (sa.Index("uq_users_lower_username", sa.text("lower(username)"), unique=True),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(sa.String(64), unique=True)

@@ -147,6 +147,17 @@ def _decoy_hash() -> str:
     return hash_password(secrets.token_urlsafe(32))
 
 
+def user_named(session: Session, username: str) -> User | None:
+    """The user a name means, in any case: the one whose name matches it in any case, or of
+    two such (a database older than migration 0019 may hold names differing by case alone)
+    the one named exactly so; another spelling then means neither."""
+    found = session.scalars(
+        sa.select(User).where(sa.func.lower(User.username) == username.lower())
+    ).all()
+    exact = [user for user in found if user.username == username]
+    return exact[0] if exact else (found[0] if len(found) == 1 else None)
+
+
 def authenticate(session: Session, username: str, password: str) -> User | None:
     """The active user with these credentials, or None. An unknown name, a deactivated account
     and a wrong password cost the same one standard hash check, so that timing tells none apart:
@@ -154,7 +165,7 @@ def authenticate(session: Session, username: str, password: str) -> User | None:
     parse) is checked against the decoy as well. A right password whose hash has other than the
     standard parameters is re-hashed with them (the caller commits), only where the stored hash
     is still the one checked: a password changed meanwhile by another request stays changed."""
-    user = session.scalar(sa.select(User).where(User.username == username))
+    user = user_named(session, username)
     stored = user.password_hash if user else _decoy_hash()
     matches = verify_password(stored, password)
     parameters = hash_parameters(stored)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -193,3 +195,48 @@ def write_video(
         writer.write(bgr)
     writer.release()
     return path
+
+
+@contextmanager
+def hanging_server() -> Iterator[str]:
+    """A TCP server on 127.0.0.1 that accepts every connection and never answers (a store that
+    hangs); yields its http:// address. Its connections close when the block ends."""
+    listener = socket.create_server(("127.0.0.1", 0), backlog=64)
+    listener.settimeout(0.1)
+    held: list[socket.socket] = []
+    done = threading.Event()
+
+    def accept() -> None:
+        while not done.is_set():
+            try:
+                held.append(listener.accept()[0])
+            except TimeoutError:
+                continue
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        done.set()
+        thread.join(5)
+        for connection in [*held, listener]:
+            connection.close()
+
+
+def within(seconds: float, call: Callable[[], Any]) -> Any:
+    """``call()``'s result (or the exception it raised, returned), failing when it has not
+    finished after ``seconds`` (a bound derived from settings, not a benchmark)."""
+    outcome: list[Any] = []
+
+    def run() -> None:
+        try:
+            outcome.append(call())
+        except Exception as exc:
+            outcome.append(exc)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert outcome, f"no answer within {seconds:.0f} s"
+    return outcome[0]

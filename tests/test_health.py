@@ -24,6 +24,7 @@ def test_health_reports_database_queue_and_teacher(client: TestClient) -> None:
     assert body["database"]["status"] == "ok" and body["database"]["revision"]
     assert body["queue"] == body["queue"] | {"status": "ok", "backend": "sqlite", "pending": 0}
     assert body["queue"]["alive"] == 1  # the embedded worker
+    assert body["storage"] == {"status": "ok", "backend": "local"}  # home can be written
     assert set(body["teacher"]) == {"dino", "sam2"}
     assert body["teacher"]["sam2"]["setting"] == "WELDPOOL_SAM2"
 
@@ -54,3 +55,10 @@ def test_health_is_ok_with_the_teacher_weights_and_a_worker(tmp_path: Path) -> N
     with TestClient(create_app(settings, embedded_worker=True)) as client:
         body = client.get("/api/v1/health").json()
     assert body["status"] == "ok" and body["warnings"] == []
+
+
+def test_health_checks_the_object_store(tmp_path: Path, s3_url: str, s3_endpoint: str) -> None:
+    settings = make_settings(tmp_path, storage_url=s3_url, s3_endpoint_url=s3_endpoint)
+    with TestClient(create_app(settings)) as client:
+        body = client.get("/api/v1/health").json()
+    assert body["storage"] == {"status": "ok", "backend": "s3"}

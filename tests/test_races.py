@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.models import Role, User
 from tests.helpers import age_stored_files, auth, corrected_label, image_bytes, write_video
 
 ROUNDS, RACERS = 5, 6
@@ -78,6 +79,21 @@ def test_same_user_name_at_once(client: TestClient, admin: str) -> None:
         statuses = at_once(
             RACERS,
             lambda _, body=body: client.post("/api/v1/users", json=body, headers=auth(admin)),
+        )
+        assert statuses == [201] + [409] * (RACERS - 1), statuses
+
+
+def test_one_user_name_in_several_cases_at_once(client: TestClient, admin: str) -> None:
+    """'Twin0', 'tWin0', … at once: one user, the others 409 (the index on lower(username))."""
+    for round_ in range(ROUNDS):
+        names = [f"twin{round_}"[:i] + f"twin{round_}"[i:].upper() for i in range(RACERS)]
+        statuses = at_once(
+            RACERS,
+            lambda i, names=names: client.post(
+                "/api/v1/users",
+                json={"username": names[i], "password": "long enough 1"},
+                headers=auth(admin),
+            ),
         )
         assert statuses == [201] + [409] * (RACERS - 1), statuses
 
@@ -317,3 +333,66 @@ def test_saving_labels_while_their_frames_are_deleted_never_answers_500(
         race = functools.partial(_delete_or_label, client, admin, frame["id"], mask)
         statuses += at_once(3, race)
     assert set(statuses) <= {200, 404, 409} and 200 in statuses, statuses
+
+
+def test_two_admins_demoting_each_other_at_once_leave_one_admin(
+    client: TestClient, make_user, session_factory
+) -> None:
+    """Each demotion counted the admins before the other's commit and both passed (PostgreSQL:
+    no admin left, 2 rounds of 5): the admins' rows are locked before the count."""
+    survivor = make_user("first", Role.admin)
+    for round_ in range(4 * ROUNDS):
+        rival = make_user(f"rival{round_}", Role.admin)
+        pair = [survivor, rival]
+
+        def demote(i: int, pair: list = pair) -> Any:
+            other = pair[1 - i][0].id
+            return client.patch(
+                f"/api/v1/users/{other}", json={"role": "reviewer"}, headers=auth(pair[i][1])
+            )
+
+        statuses = at_once(2, demote)
+        assert statuses in ([200, 403], [200, 409]), statuses  # 403: demoted before it asked
+        with session_factory() as session:
+            admins = session.scalars(
+                sa.select(User).where(User.role == Role.admin, User.is_active.is_(True))
+            ).all()
+        assert len(admins) == 1, [a.username for a in admins]
+        survivor = next(p for p in pair if p[0].id == admins[0].id)
+
+
+def test_reviewers_taking_the_next_frames_at_once_never_share_one(
+    client: TestClient, make_user
+) -> None:
+    """Each read the same head of the queue and handed it out (both backends): now a frame
+    goes to whoever's conditional update takes it first, and the others take the next ones."""
+    reviewers = [make_user(f"rev{i}", Role.reviewer) for i in range(RACERS)]
+    each = 3
+    for round_ in range(ROUNDS):
+        run = client.post(
+            "/api/v1/sequences", json={"name": f"queue {round_}"}, headers=auth(reviewers[0][1])
+        ).json()["id"]
+        files = [
+            ("files", (f"{i}.png", image_bytes(seed=5000 + 100 * round_ + i), "image/png"))
+            for i in range(RACERS * each)
+        ]
+        client.post(
+            "/api/v1/frames",
+            files=files,
+            data={"sequence_id": str(run)},
+            headers=auth(reviewers[0][1]),
+        )
+        answers: dict[int, Any] = {}
+
+        def take(i: int, run: int = run, answers: dict = answers) -> Any:
+            body = {"next": each, "sequence_id": run, "assignee_id": reviewers[i][0].id}
+            answers[i] = client.post(
+                "/api/v1/frames/assign", json=body, headers=auth(reviewers[i][1])
+            )
+            return answers[i]
+
+        assert at_once(RACERS, take) == [200] * RACERS
+        handed = [answers[i].json()["frame_ids"] for i in range(RACERS)]
+        assert all(len(ids) == each for ids in handed), handed
+        flat = [frame for ids in handed for frame in ids]
+        assert len(set(flat)) == len(flat) == RACERS * each, handed

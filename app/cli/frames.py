@@ -58,7 +58,8 @@ def _local(paths: tuple[str, ...], settings: Any) -> Iterator[tuple[str, ...]]:
                 click.echo(f"reading {path}", err=True)
                 folder = Path(tmp) / str(index)
                 folder.mkdir()
-                path = str(download_prefix(path, folder, settings.s3_endpoint_url))
+                waits = settings.storage_waits(jobs=True)
+                path = str(download_prefix(path, folder, settings.s3_endpoint_url, waits=waits))
             local.append(path)
         yield tuple(local)
 

@@ -35,7 +35,7 @@ def prepare_instance(settings: Settings) -> Path | None:
     from app.users.service import ensure_initial_admin
 
     settings.ensure_home()
-    Storage.of(settings).check()
+    Storage.of(settings, for_requests=True).check()  # waits a request's bound, not a job's
     engine = create_db_engine(settings.resolved_database_url)
     try:
         migrate(engine)
@@ -127,7 +127,7 @@ def worker(threads: int | None, lanes: str) -> None:
         raise ConfigurationError(f"--lanes takes quick, model or both, not {lanes!r}.")
     settings = load_settings()
     settings.ensure_home()
-    Storage.of(settings).check()
+    Storage.of(settings, for_requests=True).check()  # waits a request's bound, not a job's
     queue = JobQueue(settings, open_sessions(settings))
     unable = find_unable(queue, served)
     if len(unable) == len(kinds_in(served)):

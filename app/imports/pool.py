@@ -37,7 +37,8 @@ _processes: ProcessPoolExecutor | None = None
 
 def _process_pool() -> ProcessPoolExecutor:
     """The processes label work runs in, started on the first large import (``spawn``: the
-    worker has threads, so never ``fork``) and kept for the process's life."""
+    worker has threads, so never ``fork``) and kept until the service stops
+    (``stop_label_processes``)."""
     global _processes
     with _pool_lock:
         if _processes is None:
@@ -48,6 +49,16 @@ def _process_pool() -> ProcessPoolExecutor:
                 initializer=start_process,
             )
         return _processes
+
+
+def stop_label_processes() -> None:
+    """End the label processes, if started (the service stops: a graceful stop of ``serve``
+    leaves none behind); a later large import starts them again."""
+    global _processes
+    with _pool_lock:
+        pool, _processes = _processes, None
+    if pool is not None:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def waited(futures: list[Future[Any]], check: Check | None) -> None:

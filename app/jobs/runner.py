@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app import budgets
 from app.config import Settings
 from app.db import db_now, utcnow
-from app.errors import without_server_paths
+from app.errors import failure_sentence, without_server_paths
 from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, JobLost, job_spec
 from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
@@ -100,8 +100,7 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
         _finish(context, status=JobStatus.failed, error=exc.message)
         log.warning("job.failed", job_id=job_id, error=exc.message)
     except Exception as exc:
-        message = f"Unexpected error ({type(exc).__name__}): {exc}"
-        _finish(context, status=JobStatus.failed, error=message)
+        _finish(context, status=JobStatus.failed, error=failure_sentence(exc))
         log.exception("job.crashed", job_id=job_id)
     else:
         finished = _finish(

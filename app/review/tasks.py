@@ -9,7 +9,7 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 
-from app.errors import without_server_paths
+from app.errors import failure_sentence, without_server_paths
 from app.jobs.fanout import Fanout
 from app.jobs.registry import (
     JobCancelled,
@@ -29,13 +29,6 @@ from weldpool_core.errors import WeldpoolError
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 
 log = structlog.get_logger(__name__)
-
-
-def _frame_error(exc: Exception) -> str:
-    """One sentence for a frame's failure: ours as written, anything else with its type."""
-    if isinstance(exc, WeldpoolError):
-        return exc.message
-    return f"Unexpected error ({type(exc).__name__}): {exc}"
 
 
 TEACHER_CHUNK = 4
@@ -150,7 +143,7 @@ def _propose(
         session.rollback()
         if not frame_exists(session, frame_id):  # its file went with it
             return FrameDeleted(frame_id)
-        message = without_server_paths(_frame_error(exc), ctx.settings.home)
+        message = without_server_paths(failure_sentence(exc), ctx.settings.home)
         session.execute(
             sa.update(Frame).where(Frame.id == frame_id).values(teacher_error=message[:500])
         )

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
 import time
 import uuid
 from collections.abc import Callable, Collection, Iterable, Sequence
@@ -37,7 +38,7 @@ from typing import TYPE_CHECKING, BinaryIO
 from app.errors import MissingFile
 
 if TYPE_CHECKING:
-    from app.config import Settings
+    from app.config import Settings, StoreWaits
 
 CHUNK = 1024 * 1024
 SHARED_AREAS = ("frames", "videos", "artefacts", "models", "exports", "imports")
@@ -69,7 +70,7 @@ def best_effort(what: str, action: Callable[[], object]) -> None:
         structlog.get_logger(__name__).warning("storage.tidy_failed", what=what, error=str(exc))
 
 
-REMOTE_BACKENDS: dict[str, Callable[[Settings], Storage]] = {}
+REMOTE_BACKENDS: dict[str, Callable[[Settings, StoreWaits], Storage]] = {}
 """URL scheme → the store of an instance whose WELDPOOL_STORAGE_URL has it (``app.storage.s3``
 registers ``s3``; the package imports it, so it is there whenever this module is)."""
 
@@ -107,14 +108,31 @@ class Storage:
     """Where shared files live besides home (``s3://bucket/prefix``); None: home alone."""
 
     @classmethod
-    def of(cls, settings: Settings) -> Storage:
-        """The store of an instance (WELDPOOL_STORAGE_URL), with its grace period."""
+    def of(cls, settings: Settings, *, for_requests: bool = False) -> Storage:
+        """The store of an instance (WELDPOOL_STORAGE_URL), with its grace period; a remote
+        store's calls wait as a job's may (WELDPOOL_STORAGE_JOB_*), or ``for_requests`` the
+        short bounds a person waits on (WELDPOOL_STORAGE_REQUEST_*, also the checks')."""
         if settings.storage_url:  # s3://… (the settings allow no other scheme)
-            return REMOTE_BACKENDS[settings.storage_url.split("://", 1)[0]](settings)
+            waits = settings.storage_waits(jobs=not for_requests)
+            return REMOTE_BACKENDS[settings.storage_url.split("://", 1)[0]](settings, waits)
         return cls(settings.home, settings.file_grace_s)
 
     def check(self) -> None:
         """Raise ConfigurationError when the store cannot be used (home alone: always can)."""
+
+    def problem(self, *, named: bool = False) -> str | None:
+        """Why the store cannot be used right now, in one sentence, or None (``/health``):
+        here, that home cannot be written (``named``: a remote store's sentence names it)."""
+        try:
+            self.tmp.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=self.tmp, prefix="health-"):
+                pass
+        except OSError as exc:
+            return (
+                f"WELDPOOL_HOME cannot be written ({exc.strerror or type(exc).__name__}); give "
+                "the service a writable home folder."
+            )
+        return None
 
     # --- shared files that are not content-addressed: model folders, exports, imports ------
     # In home alone these are plain files; ``ObjectStorage`` keeps them in the bucket too.

@@ -41,6 +41,7 @@ from urllib.parse import urlparse
 import structlog
 
 from app.budgets import shared_pool
+from app.errors import without_addresses
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
@@ -52,7 +53,7 @@ from app.storage.local import (
 )
 
 if TYPE_CHECKING:
-    from app.config import Settings
+    from app.config import Settings, StoreWaits
 
 log = structlog.get_logger(__name__)
 CONTENT_AREAS = ("frames", "videos", "artefacts")
@@ -82,17 +83,18 @@ def parse_url(url: str) -> tuple[str, str]:
     return parsed.netloc, parsed.path.strip("/")
 
 
-@lru_cache(maxsize=8)
-def _client(endpoint_url: str | None, region: str | None) -> Any:
-    """One boto3 client per endpoint and process (making one costs ~50 ms; it is thread-safe)."""
+@lru_cache(maxsize=16)
+def _client(endpoint_url: str | None, region: str | None, waits: StoreWaits) -> Any:
+    """One boto3 client per endpoint, waits and process (making one costs ~50 ms; it is
+    thread-safe)."""
     import boto3
     from botocore.config import Config
 
     config = Config(
         max_pool_connections=16,
-        retries={"mode": "standard", "max_attempts": 5},
-        connect_timeout=10,
-        read_timeout=60,
+        retries={"mode": "standard", "total_max_attempts": waits.attempts},
+        connect_timeout=waits.connect_s,
+        read_timeout=waits.read_s,
     )
     return boto3.client(
         "s3", endpoint_url=endpoint_url or None, region_name=region or None, config=config
@@ -120,11 +122,14 @@ class ObjectStorage(Storage):
         endpoint_url: str | None = None,
         cache_bytes: int = 10 * 1024**3,
         region: str | None = None,
+        *,
+        waits: StoreWaits,
     ) -> None:
         super().__init__(home, grace_s)
         self.remote = url
         self.bucket, self.prefix = parse_url(url)
-        self.client = _client(endpoint_url, region or os.environ.get("AWS_REGION"))
+        self.waits = waits
+        self.client = _client(endpoint_url, region or os.environ.get("AWS_REGION"), waits)
         self.cache_bytes = cache_bytes
         self.reads = 0
         """Objects read from the bucket by this store (``bench/storage.py`` counts a click's)."""
@@ -133,7 +138,7 @@ class ObjectStorage(Storage):
         self._is_cache()  # marks a fresh home as this store's cache
 
     @classmethod
-    def for_settings(cls, settings: Settings) -> ObjectStorage:
+    def for_settings(cls, settings: Settings, waits: StoreWaits) -> ObjectStorage:
         assert settings.storage_url
         return _store(
             settings.home.resolve(),
@@ -141,6 +146,7 @@ class ObjectStorage(Storage):
             settings.file_grace_s,
             settings.s3_endpoint_url,
             int(settings.storage_cache_mb * 1024 * 1024),
+            waits,
         )
 
     def key(self, relative: str) -> str:
@@ -149,22 +155,33 @@ class ObjectStorage(Storage):
     def relative_of(self, key: str) -> str:
         return key.removeprefix(f"{self.prefix}/") if self.prefix else key
 
-    def check(self) -> None:
-        """Raise a clear error when the bucket cannot be reached (at start-up)."""
-        from app.errors import ConfigurationError
-
+    def problem(self, *, named: bool = False) -> str | None:
+        """Why the bucket cannot be used, in one sentence (one HEAD, waiting at most
+        ``waits.longest_s``), or None; ``named``: the sentence names the store's URL (not for
+        /health, which anyone may read)."""
         try:
             self.client.head_bucket(Bucket=self.bucket)
         except Exception as exc:
+            store = f"The object store {self.remote}" if named else "The object store"
             if _missing(exc):
-                raise ConfigurationError(
-                    f"The object store {self.remote} cannot be used: its bucket {self.bucket} "
-                    "does not exist; create it with `weldpool storage create-bucket`."
-                ) from None
-            raise ConfigurationError(
-                f"The object store {self.remote} cannot be used ({_reason(exc)}); check "
+                return (
+                    f"{store} cannot be used: its bucket does not exist; create it with "
+                    "`weldpool storage create-bucket`."
+                )
+            return (
+                f"{store} cannot be used ({_reason(exc, self.waits)}); check "
                 "WELDPOOL_STORAGE_URL, WELDPOOL_S3_ENDPOINT_URL and the AWS_* credentials."
-            ) from None
+            )
+        return None
+
+    def check(self) -> None:
+        """Raise a clear error when the bucket cannot be reached (at start-up), or home holds
+        files of its own."""
+        from app.errors import ConfigurationError
+
+        problem = self.problem(named=True)
+        if problem:
+            raise ConfigurationError(problem)
         if not self._is_cache():
             own = next((a for a in SHARED_AREAS if any(_files(self.home / a))), "files")
             raise ConfigurationError(
@@ -621,19 +638,21 @@ class ObjectStorage(Storage):
         return removed
 
 
-def _for_settings(settings: Settings) -> Storage:
-    return ObjectStorage.for_settings(settings)
+REMOTE_BACKENDS["s3"] = ObjectStorage.for_settings
 
 
-REMOTE_BACKENDS["s3"] = _for_settings
-
-
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=16)
 def _store(
-    home: Path, url: str, grace_s: float, endpoint_url: str | None, cache_bytes: int
+    home: Path,
+    url: str,
+    grace_s: float,
+    endpoint_url: str | None,
+    cache_bytes: int,
+    waits: StoreWaits,
 ) -> ObjectStorage:
-    """One store per process and configuration, so its cache accounting is shared."""
-    return ObjectStorage(home, url, grace_s, endpoint_url, cache_bytes)
+    """One store per process, configuration and waits (a request's, a job's), so its cache
+    accounting is shared."""
+    return ObjectStorage(home, url, grace_s, endpoint_url, cache_bytes, waits=waits)
 
 
 def _files(root: Path) -> Iterator[Path]:
@@ -641,15 +660,24 @@ def _files(root: Path) -> Iterator[Path]:
     return (p for p in root.rglob("*") if p.is_file()) if root.is_dir() else iter(())
 
 
-def _reason(exc: Exception) -> str:
+def _reason(exc: Exception, waits: StoreWaits) -> str:
+    """What the store answered, in words without its address (botocore's own messages name
+    the endpoint's URL)."""
+    from botocore.exceptions import ConnectionError as NoConnection
+    from botocore.exceptions import ConnectTimeoutError, ReadTimeoutError
+
     response = getattr(exc, "response", None)
     if response:
         error = response.get("Error", {})
-        return f"{error.get('Code', '')} {error.get('Message', '')}".strip() or str(exc)
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return f"{error.get('Code', '')} {error.get('Message', '')}".strip() or type(exc).__name__
+    if isinstance(exc, ConnectTimeoutError | ReadTimeoutError):
+        return f"it did not answer within {waits.longest_s:g} s"
+    if isinstance(exc, NoConnection):
+        return "nothing answers at its address"
+    return without_addresses(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
 
 
-def download_prefix(url: str, folder: Path, endpoint_url: str | None = None) -> Path:
+def download_prefix(url: str, folder: Path, endpoint_url: str | None, *, waits: StoreWaits) -> Path:
     """Copy ``s3://bucket/key`` (one object) or ``s3://bucket/prefix`` (every object under it,
     its folders kept) into ``folder``, streamed to disk; returns the local file or folder
     (named like the key's last part). For ``weldpool import`` and ``import-labels`` from a
@@ -661,7 +689,7 @@ def download_prefix(url: str, folder: Path, endpoint_url: str | None = None) -> 
     from app.errors import InvalidInputError
 
     bucket, key = parse_url(url)
-    client = _client(endpoint_url, os.environ.get("AWS_REGION"))
+    client = _client(endpoint_url, os.environ.get("AWS_REGION"), waits)
     target = folder / (posixpath.basename(key) or bucket)
     try:
         listed = [
@@ -685,9 +713,9 @@ def download_prefix(url: str, folder: Path, endpoint_url: str | None = None) -> 
     except ClientError as exc:
         if _missing(exc):
             raise InvalidInputError(f"{url} does not exist.") from None
-        raise InvalidInputError(f"{url} cannot be read ({_reason(exc)}).") from None
+        raise InvalidInputError(f"{url} cannot be read ({_reason(exc, waits)}).") from None
     except BotoCoreError as exc:
-        raise InvalidInputError(f"{url} cannot be read ({_reason(exc)}).") from None
+        raise InvalidInputError(f"{url} cannot be read ({_reason(exc, waits)}).") from None
     return target
 
 

@@ -58,7 +58,8 @@ def _workers(request: Request) -> dict[str, Any]:
 
 @router.get("/health")
 def health(request: Request) -> JSONResponse:
-    """Database, queue, workers and teacher weights; 200 when the service can work, else 503.
+    """Database, queue, workers, the file store and teacher weights; 200 when the service can
+    work, else 503 (the store's check waits a request's bound and is kept a few seconds).
 
     With no live worker, or without the teacher's weights, the API still works (200) but
     ``status`` is ``degraded`` and ``warnings`` says what will not work and how to fix it.
@@ -70,7 +71,8 @@ def health(request: Request) -> JSONResponse:
         "dino": weights_status(settings.dino, "WELDPOOL_DINO").as_dict(),
         "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").as_dict(),
     }
-    ok = database["status"] == "ok" and queue["status"] == "ok"
+    storage = request.app.state.store_check()
+    ok = database["status"] == "ok" and queue["status"] == "ok" and storage["status"] == "ok"
     warnings = []
     problem = teacher_problem(settings)
     if problem:
@@ -91,6 +93,7 @@ def health(request: Request) -> JSONResponse:
         "warnings": warnings,
         "database": database,
         "queue": queue,
+        "storage": storage,
         "teacher": teacher,
     }
     return JSONResponse(body, status_code=200 if ok else 503)

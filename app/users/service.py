@@ -18,6 +18,7 @@ from app.security import (
     hash_made_password,
     hash_password,
     issue_token,
+    user_named,
     verify_password,
 )
 from app.users.schemas import USERNAME_PATTERN
@@ -43,8 +44,11 @@ def create_user(
             "A user name has 1 to 64 letters, digits or the characters _ . @ -."
         )
     _check_password(password)
-    if session.scalar(sa.select(User.id).where(User.username == username)) is not None:
-        raise ConflictError(f"There is already a user named {username!r}.")
+    taken = session.scalar(  # a name is one user in any case
+        sa.select(User).where(sa.func.lower(User.username) == username.lower()).limit(1)
+    )
+    if taken is not None:
+        raise ConflictError(f"There is already a user named {taken.username!r}.")
     password_hash = hash_made_password(password) if made else hash_password(password)
     user = User(username=username, password_hash=password_hash, role=role)
     session.add(user)
@@ -60,7 +64,8 @@ def get_user(session: Session, user_id: int) -> User:
 
 
 def user_by_name(session: Session, username: str) -> User:
-    user = session.scalar(sa.select(User).where(User.username == username))
+    """The user of a name, in any case (``app.security.user_named``)."""
+    user = user_named(session, username)
     if user is None:
         raise NotFoundError(
             f"There is no user named {username!r}; add one with `weldpool user add`."
@@ -70,6 +75,30 @@ def user_by_name(session: Session, username: str) -> User:
 
 def list_users(session: Session) -> list[User]:
     return list(session.scalars(sa.select(User).order_by(User.username)).all())
+
+
+def _lock_admins(session: Session, user: User) -> None:
+    """Lock the active admins' rows until the commit, then read ``user`` afresh: a concurrent
+    change of an admin waits here, and the count after it sees that change committed
+    (PostgreSQL: FOR UPDATE; SQLite: a write takes the database's one writer lock, so the
+    transaction begins with a write before anything is counted)."""
+    if session.get_bind().dialect.name == "sqlite":
+        session.execute(sa.update(User).where(User.id == user.id).values(role=User.role))
+    else:
+        admins = sa.select(User.id).where(User.role == Role.admin, User.is_active.is_(True))
+        session.execute(admins.order_by(User.id).with_for_update())
+    session.refresh(user)
+
+
+def _log_out_everywhere(session: Session, user: User) -> None:
+    """End the user's browser sessions and revoke their API tokens (for good: a reactivation
+    revives none of them)."""
+    session.execute(sa.delete(WebSession).where(WebSession.user_id == user.id))
+    session.execute(
+        sa.update(ApiToken)
+        .where(ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None))
+        .values(revoked_at=utcnow())
+    )
 
 
 def update_user(
@@ -83,23 +112,22 @@ def update_user(
     """Change a user's role, activity or password.
 
     A new password or deactivation logs the user out everywhere: their browser sessions end and
-    their API tokens are revoked (a reset after a leak must lock the old credentials out).
+    their API tokens are revoked (a reset after a leak must lock the old credentials out; a
+    reactivation revives none of them).
+    A change of role or activity first locks the active admins' rows (``_lock_admins``), so
+    two admins demoting each other at once cannot both pass the "one admin stays" count.
     """
+    if role is not None or is_active is not None:
+        _lock_admins(session, user)
     if role is not None:
         user.role = role
     if password is not None:
         _check_password(password)
         user.password_hash = hash_password(password)
-        session.execute(sa.delete(WebSession).where(WebSession.user_id == user.id))
-        session.execute(
-            sa.update(ApiToken)
-            .where(ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None))
-            .values(revoked_at=utcnow())
-        )
     if is_active is not None:
         user.is_active = is_active
-        if not is_active:
-            session.execute(sa.delete(WebSession).where(WebSession.user_id == user.id))
+    if password is not None or is_active is False:
+        _log_out_everywhere(session, user)
     if not session.scalar(
         sa.select(sa.func.count()).where(User.role == Role.admin, User.is_active.is_(True))
     ):

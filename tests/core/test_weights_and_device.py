@@ -9,7 +9,7 @@ import torch
 
 from weldpool_core.device import inference_dtype, resolve_device
 from weldpool_core.errors import InvalidInputError, WeightsUnavailableError
-from weldpool_core.teacher.weights import fetch_weights, weights_status
+from weldpool_core.teacher.weights import fetch_weights, weights_name, weights_status
 
 
 def test_local_directory_with_weights_is_ready(tmp_path: Path) -> None:
@@ -85,3 +85,11 @@ def test_a_hub_snapshot_with_weights_is_ready(
     (snapshot / "model.safetensors").write_bytes(b"")
     status = weights_status("facebook/dino-vits8", "WELDPOOL_DINO")
     assert status.available and status.source == "hub" and status.path == str(snapshot)
+
+
+def test_weights_are_named_by_hub_id_or_folder_never_by_path(tmp_path: Path) -> None:
+    """What results record (a teacher's model_id): the same on workers whose folders differ."""
+    for home in ("one", "two"):
+        (tmp_path / home / "weights" / "sam2").mkdir(parents=True)
+        assert weights_name(str(tmp_path / home / "weights" / "sam2") + "/") == "sam2"
+    assert weights_name("facebook/sam2.1-hiera-tiny") == "facebook/sam2.1-hiera-tiny"

@@ -354,6 +354,44 @@ def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -
     )
 
 
+@job_handler("test-store-gone")
+def _store_gone(ctx: JobContext) -> dict:
+    from app.storage import Storage
+
+    Storage.of(ctx.settings).put(b"content", "ab" * 32, ".png")
+    return {}
+
+
+def test_a_job_error_names_no_store_address(session_factory, settings: Settings) -> None:
+    """A job failing on an object store that refuses connections says so in words: botocore's
+    message named the endpoint's URL (and the bucket's key), which any user reads."""
+    import socket
+
+    from tests.helpers import make_settings
+
+    with socket.create_server(("127.0.0.1", 0)) as closed:
+        endpoint = f"http://127.0.0.1:{closed.getsockname()[1]}"
+    store = make_settings(
+        settings.home,
+        database_url=settings.database_url,
+        storage_url="s3://gone/lab",
+        s3_endpoint_url=endpoint,
+        storage_job_attempts=1,
+    )
+    with session_factory() as session:
+        job = Job(kind="test-store-gone", params={})
+        session.add(job)
+        session.commit()
+        job_id = job.id
+    execute_job(job_id, store, session_factory, "here:1:store")
+    with session_factory() as session:
+        error = session.get_one(Job, job_id).error
+    assert error == (
+        "The object store failed (EndpointConnectionError); check that it runs and answers at "
+        "WELDPOOL_S3_ENDPOINT_URL, then run this again."
+    )
+
+
 def test_the_sqlite_queue_is_counted_as_huey_counts_it(tmp_path) -> None:
     """`/health` counts the SQLite queue without importing Huey; the count must be Huey's own,
     for this queue's name and lane only, and 0 before the queue file exists."""

@@ -13,12 +13,14 @@ from pathlib import Path
 import boto3
 import pytest
 
+from app.config import StoreWaits
 from app.storage import Storage
 from app.storage.s3 import TRASH, ObjectStorage
 from tests.s3 import bucket_keys
 
 
 def store(tmp_path: Path, name: str, url: str, endpoint: str, **kwargs: object) -> ObjectStorage:
+    kwargs.setdefault("waits", StoreWaits(connect_s=3.0, read_s=60.0, attempts=5))
     return ObjectStorage(tmp_path / name, url, 60.0, endpoint, **kwargs)  # type: ignore[arg-type]
 
 

@@ -391,3 +391,21 @@ def test_a_password_changed_while_the_made_one_is_re_hashed_stays_changed(
         client.post("/api/v1/tokens", json={"username": "admin", "password": password}).status_code
         == 401
     )
+
+
+def test_reactivating_a_user_does_not_revive_their_old_tokens(
+    client: TestClient, make_user
+) -> None:
+    """Tokens issued before a deactivation stay dead: the deactivation revokes them (they were
+    only refused while the user was inactive, and worked again after the reactivation)."""
+    _, admin = make_user("boss", Role.admin)
+    user, token = make_user("returner", password="right-password")
+    url = f"/api/v1/users/{user.id}"
+    assert client.patch(url, json={"is_active": False}, headers=auth(admin)).status_code == 200
+    assert client.patch(url, json={"is_active": True}, headers=auth(admin)).status_code == 200
+    assert client.get("/api/v1/users/me", headers=auth(token)).status_code == 401
+    fresh = client.post(
+        "/api/v1/tokens", json={"username": "returner", "password": "right-password"}
+    )
+    assert fresh.status_code == 201  # a new token, issued after the reactivation, works
+    assert client.get("/api/v1/users/me", headers=auth(fresh.json()["token"])).status_code == 200

@@ -23,6 +23,7 @@ from weldpool_core.teacher.sam2 import (
     Prompts,
     Sam2Predictor,
 )
+from weldpool_core.teacher.weights import weights_name
 
 
 @dataclass(frozen=True)
@@ -142,8 +143,10 @@ class Teacher:
 
     @property
     def model_id(self) -> str:
-        """Names this teacher's output: models, DINO input size and prompt configuration."""
-        return f"{self.dino_id}@{self.dino.input_size}+{self.sam2_id}+{self.config.prompts}"
+        """Names this teacher's output: models (by name, never a local path), DINO input size
+        and prompt configuration; the same on every worker with the same weights."""
+        dino, sam2 = weights_name(self.dino_id), weights_name(self.sam2_id)
+        return f"{dino}@{self.dino.input_size}+{sam2}+{self.config.prompts}"
 
     def embedding(
         self, image: NDArray[np.uint8], image_sha256: str | None = None

@@ -6,6 +6,7 @@ A hub id is looked up in the local hub cache; ``fetch_weights`` downloads it whe
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,15 @@ class WeightsStatus:
 
 def _looks_local(ref: str) -> bool:
     return ref.startswith(("/", ".", "~")) or Path(ref).expanduser().exists()
+
+
+def weights_name(ref: str) -> str:
+    """How recorded results name a model's weights: a hub id as it is, a local directory by its
+    folder's name (never the machine's path: workers keeping the same weights under other
+    paths name them alike, and users never read a server's paths)."""
+    if not _looks_local(ref):
+        return ref
+    return Path(os.path.abspath(Path(ref).expanduser())).name or ref
 
 
 def _weights_in(directory: Path) -> bool:
