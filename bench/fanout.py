@@ -24,7 +24,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
-from common import REPO, free_port
+from common import REPO, local_server
 from results import Table, record
 
 WEIGHTS_ENV = ("WELDPOOL_DINO", "WELDPOOL_SAM2")
@@ -96,31 +96,7 @@ def main() -> None:
             HF_HUB_OFFLINE="1",
             **_save_teacher(Path(tmp) / "weights"),
         )
-        weldpool = [sys.executable, "-m", "app"]
-        subprocess.run([*weldpool, "migrate"], env=env, cwd=REPO, check=True)
-        port = free_port()
-        server = subprocess.Popen(
-            [*weldpool, "serve", "--no-worker", "--port", str(port)],
-            env=env,
-            cwd=REPO,
-            stderr=subprocess.DEVNULL,
-        )
-        url = f"http://127.0.0.1:{port}"
-        try:
-            for _ in range(600):
-                try:
-                    httpx.get(f"{url}/api/v1/health", timeout=1)
-                    break
-                except httpx.HTTPError:
-                    time.sleep(0.1)
-            token = subprocess.run(
-                [*weldpool, "token", "admin"],
-                env=env,
-                cwd=REPO,
-                text=True,
-                capture_output=True,
-                check=True,
-            ).stdout.strip()
+        with local_server(env, worker=False, setup=[("migrate",)]) as (url, token):
             files = [("files", (f"{i}.png", _png(i), "image/png")) for i in range(args.frames)]
             stored = httpx.post(
                 f"{url}/api/v1/frames",
@@ -139,9 +115,6 @@ def main() -> None:
                         worker.send_signal(signal.SIGTERM)
                         worker.wait(timeout=60)
                 rows.append((count, statistics.median(times), times))
-        finally:
-            server.send_signal(signal.SIGTERM)
-            server.wait(timeout=60)
     base = rows[0][1]
     table = Table(
         f"teacher run of {args.frames} frames (640×400, full-size random teacher, CPU)",
