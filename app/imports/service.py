@@ -29,6 +29,7 @@ from app.frames.ingest import DISK_POOL, INGEST_POOL
 from app.imports.pool import BATCH, Check, Contents, computed
 from app.imports.runs import Runs
 from app.imports.schemas import ImportOptions, ImportReport, checked_format
+from app.jobs.registry import counted
 from app.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
 from app.review.service import (
@@ -108,6 +109,11 @@ def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> 
     batch.finish()
     if progress is not None:
         progress(done / total, f"{done} of {total} labels read")
+
+
+WRITE_ATTEMPTS = 3
+"""How often a batch's labels are read and written again when other writers changed its
+frames meanwhile, before the import stops saying what it wrote."""
 
 
 @dataclass
@@ -198,17 +204,27 @@ class _Batch:
     def finish(self) -> None:
         still_active(self.session, self.user)
         listed = len(self.report.skipped), len(self.report.refused)
-        for attempt in (1, 2):
+        for attempt in range(1, WRITE_ATTEMPTS + 1):
             try:
                 self._write_labels(self.placed)
                 return
             except (ConflictError, sa.exc.IntegrityError):
-                if attempt == 2:
-                    raise ConflictError(
-                        "Other writers kept labelling these frames; import again."
-                    ) from None
-                # another writer labelled one of these frames meanwhile: look again
+                self.session.rollback()
+                if attempt == WRITE_ATTEMPTS:
+                    raise ConflictError(self._stopped()) from None
+                # another writer labelled or deleted one of these frames meanwhile: look again
                 del self.report.skipped[listed[0] :], self.report.refused[listed[1] :]
+
+    def _stopped(self) -> str:
+        """Why the import stopped in a batch others kept changing, and what it left: the
+        labels of the batches before (kept) and this batch's new frames (kept, unlabelled; an
+        import again finds them by content and labels them)."""
+        report = self.report
+        return (
+            f"Other writers kept labelling or deleting these frames while the import wrote them; "
+            f"it stopped after writing {counted(report.labels, 'label')} and storing "
+            f"{counted(report.frames, 'new frame')} (those stay); import again to label the rest."
+        )
 
     # --- frames --------------------------------------------------------------------------
 

@@ -113,3 +113,51 @@ def test_two_imports_without_a_run_each_make_their_own(
     # stores the others in a run of its own, never of the same name; every frame one label.
     assert names in (["import-0"], ["import-0", "import-0 (2)"])
     assert labels == frames and 3 <= frames <= 3 * len(names)
+
+
+def test_an_import_others_keep_racing_stops_saying_what_it_wrote(
+    settings, session_factory, make_user, tmp_path: Path, monkeypatch
+) -> None:
+    """A batch whose frames other writers keep changing is read and written again; when they
+    never stop, the import stops with one sentence that says what it wrote and kept (it failed
+    after committing the first batch's labels with no word of them)."""
+    import app.imports.service as service
+    from app.errors import ConflictError
+
+    user, _ = make_user("racer", Role.annotator)
+    archive = _archive(tmp_path, 70)  # a batch of 64, then 6
+    written = service._Batch._write_labels
+    tries: list[int] = []
+
+    def raced(batch, targets) -> None:  # type: ignore[no-untyped-def]
+        if len(targets) < 64:  # the second batch: others change its frames every time
+            tries.append(len(targets))
+            raise ConflictError("someone labelled it meanwhile")
+        written(batch, targets)
+
+    monkeypatch.setattr(service._Batch, "_write_labels", raced)
+    with session_factory() as session:
+        source = open_source(archive)
+        try:
+            import_labels(
+                session,
+                Storage.of(settings),
+                source,
+                ImportOptions("masks"),
+                session.get_one(User, user.id),
+            )
+        except ConflictError as exc:
+            message = exc.message
+        else:
+            raise AssertionError("the import went on as if it had written every label")
+        finally:
+            source.close()
+    assert tries == [6] * service.WRITE_ATTEMPTS
+    assert message == (
+        "Other writers kept labelling or deleting these frames while the import wrote them; it "
+        "stopped after writing 64 labels and storing 70 new frames (those stay); import again "
+        "to label the rest."
+    )
+    with session_factory() as session:
+        assert session.scalar(sa.select(sa.func.count()).select_from(Label)) == 64
+        assert session.scalar(sa.select(sa.func.count()).select_from(Frame)) == 70
