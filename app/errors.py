@@ -54,6 +54,27 @@ def without_server_paths(text: str, home: Path) -> str:
 _STORE_CLIENTS = ("botocore", "boto3", "s3transfer")
 
 
+_OUTAGE_CODES = {"SlowDown", "ServiceUnavailable", "InternalError", "RequestTimeout", "Throttling"}
+_NO_ANSWER = {"ConnectionError", "HTTPClientError"}
+"""botocore's exceptions for a store that did not answer (connection refused or closed, timeouts):
+every one derives from one of these."""
+
+
+def store_outage(exc: BaseException) -> bool:
+    """Whether ``exc`` is the object store or the network failing (no answer, a timeout, a 5xx,
+    throttling), not the work: a job pauses and runs again rather than failing, and no frame is
+    marked as failed for it."""
+    if isinstance(exc, ConnectionError | TimeoutError):
+        return True
+    if type(exc).__module__.partition(".")[0] not in _STORE_CLIENTS:
+        return False
+    if any(cls.__name__ in _NO_ANSWER for cls in type(exc).__mro__):
+        return True
+    response = getattr(exc, "response", None) or {}
+    status = response.get("ResponseMetadata", {}).get("HTTPStatusCode") or 0
+    return int(status) >= 500 or response.get("Error", {}).get("Code") in _OUTAGE_CODES
+
+
 def failure_sentence(exc: BaseException) -> str:
     """One sentence for a failure a user reads on a job or a frame: ours as written, the object
     store's in words (what it answered, not where it is), anything else with its type."""

@@ -6,6 +6,7 @@ Also the reaper, which finds jobs whose worker died and fails or re-queues them.
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import os
 import socket
 import threading
@@ -19,7 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app import budgets
 from app.config import Settings
 from app.db import db_now, utcnow
-from app.errors import failure_sentence, without_server_paths
+from app.errors import failure_sentence, store_outage, without_server_paths
 from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, JobLost, job_spec
 from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
@@ -96,12 +97,18 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
     except JobCancelled:
         _finish(context, status=JobStatus.cancelled, message="cancelled by a user")
         log.info("job.cancelled", job_id=job_id)
-    except WeldpoolError as exc:
-        _finish(context, status=JobStatus.failed, error=exc.message)
-        log.warning("job.failed", job_id=job_id, error=exc.message)
     except Exception as exc:
-        _finish(context, status=JobStatus.failed, error=failure_sentence(exc))
-        log.exception("job.crashed", job_id=job_id)
+        if store_outage(exc):
+            _pause(context, queue, failure_sentence(exc))
+        else:
+            _finish(context, status=JobStatus.failed, error=failure_sentence(exc))
+            log.log(
+                logging.WARNING if isinstance(exc, WeldpoolError) else logging.ERROR,
+                "job.failed",
+                job_id=job_id,
+                error=failure_sentence(exc),
+                exc_info=not isinstance(exc, WeldpoolError),
+            )
     else:
         finished = _finish(
             context,
@@ -111,6 +118,34 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
             **({"message": context.summary[:500]} if context.summary else {}),
         )
         log.info("job.succeeded" if finished else "job.lost_lease", job_id=job_id)
+
+
+STORE_RETRIES = 5
+"""How often a job paused by the object store or the network runs again (beyond the attempts its
+kind allows a lost run) before it fails with the store's sentence."""
+PAUSE_S = 30.0
+"""How long a paused job waits before it runs again."""
+
+
+def _pause(context: JobContext, queue: Any, sentence: str) -> None:
+    """The store or the network failed under the job (not its work): queue it again after
+    ``PAUSE_S``, where it goes on from what it recorded (skipped frames, done chunks); fail it
+    with the sentence once it has paused ``STORE_RETRIES`` times."""
+    spec = job_spec(context.kind)
+    if context.attempt >= (spec.max_attempts if spec else 1) + STORE_RETRIES:
+        _finish(context, status=JobStatus.failed, error=sentence)
+        log.warning("job.failed", job_id=context.job_id, error=sentence)
+        return
+    paused = _finish(
+        context,
+        status=JobStatus.queued,
+        finished_at=None,
+        worker_id=None,
+        message=f"paused: {sentence} It runs again in {PAUSE_S:g} s."[:500],
+    )
+    if paused and queue is not None:
+        queue.enqueue_later(context.job_id, context.kind, context.priority, PAUSE_S)
+    log.warning("job.paused", job_id=context.job_id, error=sentence)
 
 
 def execute_job(

@@ -9,7 +9,7 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 
-from app.errors import failure_sentence, without_server_paths
+from app.errors import failure_sentence, store_outage, without_server_paths
 from app.jobs.fanout import Fanout
 from app.jobs.registry import (
     JobCancelled,
@@ -141,6 +141,8 @@ def _propose(
         return exc
     except Exception as exc:  # one bad frame must not end the run for the others
         session.rollback()
+        if store_outage(exc):
+            raise  # the store, not the frame: the job pauses and runs again
         if not frame_exists(session, frame_id):  # its file went with it
             return FrameDeleted(frame_id)
         message = without_server_paths(failure_sentence(exc), ctx.settings.home)

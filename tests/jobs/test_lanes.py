@@ -268,3 +268,55 @@ def test_one_run_is_shared_by_two_workers_each_item_once(idle_queue: JobQueue) -
     assert sorted(items) == list(range(20))  # each once
     assert {worker for worker, _ in fan_log} == {owner.worker_id, other.worker_id}
     assert (owner.worker_id, 6) in fan_log and (owner.worker_id, 7) in fan_log  # taken over
+
+
+@job_handler("store-blip")
+def _store_blip(ctx: JobContext) -> dict:
+    from botocore.exceptions import EndpointConnectionError
+
+    if ctx.params.get("broken") == "store":
+        raise EndpointConnectionError(endpoint_url="http://127.0.0.1:9/bucket")
+    raise ValueError("the work itself is wrong")
+
+
+class _Later:
+    def __init__(self) -> None:
+        self.later: list[tuple[int, float]] = []
+
+    def enqueue_later(self, job_id: int, kind: str, priority: int, delay_s: float) -> None:
+        self.later.append((job_id, delay_s))
+
+
+def test_a_store_that_does_not_answer_pauses_the_job_it_never_fails_it_at_once(
+    session_factory, settings
+) -> None:
+    """An outage of the store or the network (not the work) queues the job again after a pause,
+    saying so, until its retries are spent; an error of the work still fails it at once."""
+    from app.errors import store_outage
+    from app.jobs.runner import PAUSE_S, STORE_RETRIES, execute_job
+
+    queue = _Later()
+    with session_factory() as session:
+        blip = Job(kind="store-blip", params={"broken": "store"})
+        wrong = Job(kind="store-blip", params={})
+        session.add_all([blip, wrong])
+        session.commit()
+    execute_job(blip.id, settings, session_factory, "w:1:a", queue=queue)
+    with session_factory() as session:
+        row = session.get_one(Job, blip.id)
+        assert (row.status, row.attempts, row.error) == (JobStatus.queued, 1, None)
+        assert row.message.startswith("paused: The object store failed (EndpointConnectionError)")
+        assert row.message.endswith(f"It runs again in {PAUSE_S:g} s.")
+        assert "127.0.0.1:9" not in row.message  # no store address in what users read
+    assert queue.later == [(blip.id, PAUSE_S)]
+    for _ in range(STORE_RETRIES):
+        execute_job(blip.id, settings, session_factory, "w:1:a", queue=queue)
+    with session_factory() as session:
+        row = session.get_one(Job, blip.id)
+        assert (row.status, row.attempts) == (JobStatus.failed, 1 + STORE_RETRIES)
+        assert row.error.startswith("The object store failed (EndpointConnectionError)")
+    execute_job(wrong.id, settings, session_factory, "w:1:a", queue=queue)
+    with session_factory() as session:
+        row = session.get_one(Job, wrong.id)
+        assert row.status == JobStatus.failed and "the work itself is wrong" in row.error
+    assert not store_outage(ValueError("x")) and store_outage(ConnectionResetError())

@@ -33,3 +33,37 @@ def test_a_teacher_run_names_the_frame_whose_image_is_lost_and_does_the_others(
         f"Frame {lost}'s image ({path}) is missing from the store; upload the same image again "
         "(into any run) to restore it, or delete the frame."
     )
+
+
+def test_a_store_outage_pauses_the_teacher_run_and_fails_no_frame(
+    client: TestClient, settings, session_factory, make_user, monkeypatch
+) -> None:
+    """The store not answering while the teacher reads a frame is not the frame's failure: no
+    frame is marked "teacher failed", and the run pauses to run again (it 'succeeded' with the
+    frames reached meanwhile marked failed)."""
+    from botocore.exceptions import EndpointConnectionError
+
+    import app.review.tasks as tasks
+    from tests.helpers import wait_for
+
+    _, token = make_user("teacher", Role.annotator)
+    files = [("files", ("o.png", image_bytes(64, 48, seed=70), "image/png"))]
+    (frame,) = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
+
+    def unreachable(storage, row):  # type: ignore[no-untyped-def]
+        raise EndpointConnectionError(endpoint_url="http://127.0.0.1:9/bucket")
+
+    monkeypatch.setattr(tasks, "frame_rgb", unreachable)
+    started = client.post(
+        "/api/v1/teacher/runs", json={"frame_ids": [frame["id"]]}, headers=auth(token)
+    )
+    job_id = started.json()["job_id"]
+
+    def paused() -> dict | None:
+        job = client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json()
+        return job if job["message"].startswith("paused:") else None
+
+    job = wait_for(paused, timeout=120)
+    assert job["status"] == "queued" and job["error"] is None
+    with session_factory() as session:
+        assert session.get_one(Frame, frame["id"]).teacher_error is None
