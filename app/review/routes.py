@@ -82,6 +82,7 @@ def start_teacher_run(
     params: dict[str, Any] = {"prompts": body.prompts, "force": body.force}
     if body.sequence_id is not None and not body.frame_ids:
         params["sequence_id"] = body.sequence_id  # the run's scope, not its frames' ids
+        params["frames"] = len(frame_ids)  # how many it had when asked (the Jobs page says)
     else:
         params["frame_ids"] = frame_ids
     return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)

@@ -41,6 +41,7 @@ function scope(job) {
   if (job.kind === "export") return `${p.format ?? ""} export${p.sequence_id ? ` of ${run(p.sequence_id)}` : ""}${p.split ? `, ${p.split}` : ""}`;
   if (job.kind === "propagate") return `${run(p.sequence_id)} from ${count(p.from_frame_ids?.length ?? 0, "frame")}, ${p.direction ?? "both"}`;
   if (Array.isArray(p.frame_ids)) return `${p.sequence_id ? `${run(p.sequence_id)}, ` : ""}${count(p.frame_ids.length, "frame")}`;
+  if (p.sequence_id && Number.isInteger(p.frames)) return `${run(p.sequence_id)}, ${count(p.frames, "frame")}`;
   if (p.sequence_id) return run(p.sequence_id);
   if (p.video_id) return `video #${p.video_id}`;
   if (job.kind === "train_sequential") return `sequential cell of model #${p.model_version_id}`;

@@ -105,10 +105,12 @@ def test_a_trashed_object_is_not_lost_and_a_missing_key_is(
 ) -> None:
     """``lost`` answers from one listing: a key in the trash (a reader puts it back) is held;
     a key in neither place is lost, and reading it is MissingFile (not a file of nothing)."""
+    from app.config import StoreWaits
     from app.errors import MissingFile
     from app.storage.s3 import ObjectStorage
 
-    storage = ObjectStorage(tmp_path / "home", s3_url, 60.0, s3_endpoint)
+    waits = StoreWaits(connect_s=3.0, read_s=60.0, attempts=5)
+    storage = ObjectStorage(tmp_path / "home", s3_url, 60.0, s3_endpoint, waits=waits)
     kept = storage.put(b"kept", "a" * 64, ".png").path
     trashed = storage.put(b"trashed", "b" * 64, ".png").path
     assert storage._remove_if(trashed, lambda _ns: True)  # the collector trashed it

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from app.config import StoreWaits
 from app.review.runtime import EMBEDDINGS_AREA, SharedEmbeddings
 from app.storage.s3 import ObjectStorage
 from tests.models import tiny_sam2
@@ -17,7 +18,8 @@ from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding
 
 
 def _machine(tmp_path: Path, name: str, url: str, endpoint: str) -> EmbeddingCache:
-    store = ObjectStorage(tmp_path / name, url, 60.0, endpoint)  # type: ignore[arg-type]
+    waits = StoreWaits(connect_s=3.0, read_s=60.0, attempts=5)
+    store = ObjectStorage(tmp_path / name, url, 60.0, endpoint, waits=waits)
     return EmbeddingCache(tmp_path / name / "cache", shared=SharedEmbeddings(store))
 
 
