@@ -61,7 +61,8 @@ def unable_kinds(settings: Settings, kinds: list[tuple[str, str]]) -> dict[str, 
 
     unable: dict[str, str] = {}
     try:
-        resolve_device(settings.device)
+        if settings.device.strip().lower() != "auto":  # auto is always usable: no torch import
+            resolve_device(settings.device)
     except InvalidInputError as exc:
         unable |= {kind: exc.message for kind, lane in kinds if lane == "model"}
     needs = {"teacher": teacher_problem(settings)}
