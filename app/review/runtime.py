@@ -91,7 +91,9 @@ def shared_embeddings(settings: Settings) -> SharedEmbeddings | None:
         if settings.storage_url not in _shared_tiers:
             from app.storage import Storage
 
-            _shared_tiers[settings.storage_url] = SharedEmbeddings(Storage.of(settings))
+            # A person's short bounds: a click never waits on a store that hangs (a miss).
+            store = Storage.of(settings, for_requests=True)
+            _shared_tiers[settings.storage_url] = SharedEmbeddings(store)
         return _shared_tiers[settings.storage_url]
 
 

@@ -44,8 +44,7 @@ def _workers(request: Request) -> dict[str, Any]:
     return {
         "alive": len(workers),
         "workers": [
-            {
-                "host": worker.hostname,
+            {  # no host name: /health answers anyone
                 "threads": worker.threads,
                 "lanes": worker.lanes.split(","),
                 "unable": worker.unable or {},

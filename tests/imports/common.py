@@ -161,6 +161,21 @@ def zipped(files: dict[str, bytes]) -> bytes:
     return buffer.getvalue()
 
 
+def masks_archive(count: int, seed: int = 300) -> bytes:
+    """A zip in the masks layout: ``count`` frames, each with a pool mask a little unlike the
+    others (``count`` over 64 makes several batches)."""
+    from tests.helpers import image_bytes
+    from weldpool_core.io import encode_mask_png
+
+    files = {}
+    for i in range(count):
+        mask = np.zeros((H, W), bool)
+        mask[5 + i % 10 : 40, 10:60] = True
+        files[f"images/{i}.png"] = image_bytes(W, H, seed=seed + i)
+        files[f"masks/{i}.png"] = encode_mask_png(mask)
+    return zipped(files)
+
+
 def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-import numpy as np
 import sqlalchemy as sa
 
 from app.frames.sequences import create_sequence
@@ -14,21 +13,13 @@ from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
 from app.models import Frame, Label, LabelRevision, Role, Sequence, User
 from app.storage import Storage
-from tests.helpers import image_bytes
-from tests.imports.common import H, W, zipped
+from tests.imports.common import masks_archive
 from weldpool_core.annotations import open_source
-from weldpool_core.io import encode_mask_png
 
 
 def _archive(tmp_path: Path, count: int) -> Path:
-    files = {}
-    for i in range(count):
-        mask = np.zeros((H, W), bool)
-        mask[5 + i % 10 : 40, 10:60] = True
-        files[f"images/{i}.png"] = image_bytes(W, H, seed=300 + i)
-        files[f"masks/{i}.png"] = encode_mask_png(mask)
     path = tmp_path / "labels.zip"
-    path.write_bytes(zipped(files))
+    path.write_bytes(masks_archive(count))
     return path
 
 

@@ -9,7 +9,6 @@ import json
 import threading
 from pathlib import Path
 
-import numpy as np
 import pytest
 import sqlalchemy as sa
 
@@ -19,20 +18,9 @@ from app.imports.service import import_labels
 from app.models import Label, Role, User
 from app.storage import Storage
 from tests.helpers import auth, image_bytes, wait_for, wait_for_job
-from tests.imports.common import H, W, stored_labels, zipped
+from tests.imports.common import H, W, masks_archive, stored_labels, zipped
 from weldpool_core.annotations import open_source
 from weldpool_core.annotations import shapes as shapes_module
-from weldpool_core.io import encode_mask_png
-
-
-def _masks_zip(count: int) -> bytes:
-    files = {}
-    for i in range(count):
-        mask = np.zeros((H, W), bool)
-        mask[5 + i % 10 : 40, 10:60] = True
-        files[f"images/{i}.png"] = image_bytes(W, H, seed=500 + i)
-        files[f"masks/{i}.png"] = encode_mask_png(mask)
-    return zipped(files)
 
 
 def test_a_cancel_lands_while_a_label_is_being_computed(client, make_user, monkeypatch) -> None:
@@ -50,7 +38,7 @@ def test_a_cancel_lands_while_a_label_is_being_computed(client, make_user, monke
         response = client.post(
             "/api/v1/labels/import",
             data={"format": "masks"},
-            files={"file": ("labels.zip", _masks_zip(2), "application/zip")},
+            files={"file": ("labels.zip", masks_archive(2, seed=500), "application/zip")},
             headers=auth(token),
         )
         job_id = response.json()["job_id"]
@@ -73,7 +61,7 @@ def test_an_import_stops_when_its_user_is_deactivated(
 ) -> None:
     user, _ = make_user("leaver", Role.annotator)
     archive = tmp_path / "labels.zip"
-    archive.write_bytes(_masks_zip(70))  # two batches
+    archive.write_bytes(masks_archive(70, seed=500))  # two batches
 
     def deactivate(fraction: float, message: str) -> None:
         with session_factory() as other:
