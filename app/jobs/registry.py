@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import importlib
 import threading
 import time
@@ -15,7 +16,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from app import budgets
 from app.config import Settings
 from app.db import db_now
-from app.models import Job, JobStatus
+from app.models import Job, JobStatus, Worker
 
 # Modules whose import registers job handlers (each domain's tasks.py).
 HANDLER_MODULES = (
@@ -40,6 +41,18 @@ class JobInterrupted(Exception):
     """Raised inside a handler when its worker is shutting down; the job runs again later."""
 
 
+class JobYielded(JobInterrupted):
+    """Raised inside an automatic job's handler when a job a person asked for has waited in its
+    lane (``JobContext.check_cancelled``): the attempt gives its work back between two frames
+    and is queued again behind that job, going on from what it recorded (done chunks, proposed
+    frames). A subclass of JobInterrupted, so every handler that lets a shutdown through lets
+    this through too."""
+
+    def __init__(self, waiting: int) -> None:
+        super().__init__(waiting)
+        self.waiting = waiting
+
+
 class JobLost(Exception):
     """Raised inside a handler whose attempt no longer holds the job: it was reaped (its worker
     looked dead, e.g. frozen past the stale limit) and retried or failed. The attempt stops and
@@ -62,7 +75,9 @@ class JobSpec:
     lane: str = "model"
     fanout: bool = False
     """Its handler shares its work in chunks with the workers its id reaches
-    (``app.jobs.fanout``): a worker that receives the id of such a running job helps."""
+    (``app.jobs.fanout``): a worker that receives the id of such a running job helps. Such a
+    job goes on from what it recorded when it runs again, so an automatic one also yields to a
+    person's job between two frames (``JobYielded``)."""
 
 
 _HANDLERS: dict[str, JobSpec] = {}
@@ -113,6 +128,35 @@ def kinds_in(lanes: tuple[str, ...]) -> list[tuple[str, str]]:
     return sorted((kind, spec.lane) for kind, spec in _HANDLERS.items() if spec.lane in lanes)
 
 
+YIELD_AFTER_S = 3.0
+"""How long a person's job waits in its lane before automatic work there yields to it."""
+YIELD_CHECK_S = 1.0
+"""How often a running automatic job asks whether a person's job waits."""
+
+
+def person_waiting(
+    session_factory: sessionmaker[Session], lane: str, worker_id: str, above: int = 0
+) -> int | None:
+    """The oldest queued job of a priority over ``above`` (a person's, over automatic work) in
+    ``lane`` that has waited ``YIELD_AFTER_S`` by the database's clock and that worker ``worker_id``
+    can run; None when there is none."""
+    kinds = [kind for kind, _ in kinds_in((lane,))]
+    with session_factory() as session:
+        cutoff = db_now(session.get_bind().dialect.name) - dt.timedelta(seconds=YIELD_AFTER_S)
+        unable = session.scalar(sa.select(Worker.unable).where(Worker.id == worker_id)) or {}
+        return session.scalar(
+            sa.select(Job.id)
+            .where(
+                Job.status == JobStatus.queued,
+                Job.priority > above,
+                Job.kind.in_([kind for kind in kinds if kind not in unable]),
+                sa.func.coalesce(Job.enqueued_at, Job.created_at) <= cutoff,
+            )
+            .order_by(Job.priority.desc(), Job.id)
+            .limit(1)
+        )
+
+
 def lane_of(kind: str) -> str:
     """The lane a job kind runs in (an unknown kind: the model lane, whose worker fails it)."""
     spec = job_spec(kind)
@@ -141,6 +185,7 @@ class JobContext:
     that the job still runs but writes neither its progress nor its outcome."""
     min_interval_s: float = 0.25
     _last_write: float = field(default=0.0, repr=False)
+    _next_yield_check: float = field(default=0.0, repr=False)
     summary: str | None = None
     """What the job did, in one line: its message once it succeeded (else the last progress)."""
 
@@ -200,3 +245,19 @@ class JobContext:
             raise JobLost()
         if row.cancel_requested or row.status != JobStatus.running:
             raise JobCancelled()
+        self._yield_to_a_person()
+
+    def _yield_to_a_person(self) -> None:
+        """Raise JobYielded when this is automatic work of a kind that goes on from what it
+        recorded and a job a person asked for has waited ``YIELD_AFTER_S`` in its lane for a
+        worker (none was free); asked at most every ``YIELD_CHECK_S``."""
+        now = time.monotonic()
+        if self.priority > 0 or now < self._next_yield_check:
+            return
+        spec = job_spec(self.kind)
+        if spec is None or not spec.fanout:
+            return
+        self._next_yield_check = now + YIELD_CHECK_S
+        waiting = person_waiting(self.session_factory, spec.lane, self.worker_id, self.priority)
+        if waiting is not None:
+            raise JobYielded(waiting)

@@ -21,7 +21,14 @@ from app import budgets
 from app.config import Settings
 from app.db import db_now, utcnow
 from app.errors import failure_sentence, store_outage, without_server_paths
-from app.jobs.registry import JobCancelled, JobContext, JobInterrupted, JobLost, job_spec
+from app.jobs.registry import (
+    JobCancelled,
+    JobContext,
+    JobInterrupted,
+    JobLost,
+    JobYielded,
+    job_spec,
+)
 from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
 
@@ -83,6 +90,8 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
         result = handler(context)
     except JobLost:
         log.warning("job.lost_lease", job_id=job_id, attempt=context.attempt)
+    except JobYielded as exc:
+        _yield(context, queue, exc.waiting)
     except JobInterrupted:
         requeued = _finish(
             context,
@@ -118,6 +127,22 @@ def _run_handler(context: JobContext, handler: Callable[[JobContext], Any], queu
             **({"message": context.summary[:500]} if context.summary else {}),
         )
         log.info("job.succeeded" if finished else "job.lost_lease", job_id=job_id)
+
+
+def _yield(context: JobContext, queue: Any, waiting: int) -> None:
+    """Automatic work gave way to job ``waiting``, which a person asked for: queued again
+    behind it (its attempt not counted: it was not lost), going on from what it recorded."""
+    yielded = _finish(
+        context,
+        status=JobStatus.queued,
+        finished_at=None,
+        worker_id=None,
+        attempts=Job.attempts - 1,
+        message=f"waiting: job #{waiting}, which a person asked for, goes first",
+    )
+    if yielded and queue is not None:
+        queue.enqueue(context.job_id, context.kind, context.priority)
+    log.info("job.yielded", job_id=context.job_id, to=waiting)
 
 
 STORE_RETRIES = 5

@@ -71,6 +71,56 @@ def test_a_quick_job_never_waits_behind_model_work_and_a_person_goes_first(
     assert order == ["person", "automatic"]
 
 
+slow_log: list[int] = []
+
+
+@job_handler("fan-slow", fanout=True)
+def _fan_slow(ctx: JobContext) -> dict:
+    """Automatic work in chunks that records each item once it is done (as the teacher skips a
+    frame it already proposed), between items asking whether to give way."""
+    fan = Fanout(ctx, 3)
+    if not ctx.helper:
+        fan.plan(lambda: list(range(int(ctx.params["n"]))))
+    for index in fan.chunks():
+        with fan.working(index) as result:
+            for item in fan.items(index):
+                if item not in slow_log:
+                    time.sleep(0.1)
+                    slow_log.append(item)
+                ctx.check_cancelled()
+            result["items"] = list(fan.items(index))
+        ctx.progress(fan.progress(), fan.message())
+    return {"items": sorted(i for r in fan.results() for i in r["items"])}
+
+
+def test_automatic_work_gives_way_to_a_person_between_two_items(
+    client: TestClient, make_user, session_factory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With the one model thread busy with automatic work that goes on from what it recorded
+    (the import's embedding run), a person's job that has waited runs at once: the automatic
+    job is queued again behind it, its attempt not counted, and then finishes every item once."""
+    from app.jobs import registry
+
+    monkeypatch.setattr(registry, "YIELD_AFTER_S", 0.3)
+    monkeypatch.setattr(registry, "YIELD_CHECK_S", 0.1)
+    order.clear()
+    slow_log.clear()
+    user, _ = make_user("admin", Role.admin)
+    queue = client.app.state.queue  # type: ignore[attr-defined]
+    with session_factory() as session:
+        automatic = create_job(session, queue, "fan-slow", {"n": 40}, None).id
+    wait_for(lambda: len(slow_log) >= 2)
+    with session_factory() as session:
+        person = create_job(session, queue, "lane-record", {"tag": "person"}, user).id
+    wait_for(lambda: _status(session_factory, person) == JobStatus.succeeded)
+    assert len(slow_log) < 30  # it ran while the automatic job still had most of its work
+    wait_for(lambda: _status(session_factory, automatic) == JobStatus.succeeded, timeout=30)
+    with session_factory() as session:
+        done = session.get_one(Job, automatic)
+        assert done.attempts == 1 and done.result["items"] == list(range(40))
+    assert sorted(slow_log) == list(range(40))  # each item once
+
+
 @pytest.fixture(params=["sqlite", pytest.param("redis", marks=pytest.mark.redis)])
 def idle_queue(request: pytest.FixtureRequest, tmp_path, database_url: str):
     """A queue (a SQLite file, or the real Redis) that no worker consumes, over a database."""
