@@ -312,6 +312,20 @@ class Frame(Base):
     assignee: Mapped[User | None] = relationship(foreign_keys=[assignee_id], lazy="selectin")
 
 
+class ProposalClaim(Base):
+    """A run proposing a frame with one model right now (``app.proposals.record.claim``): two
+    runs of the same teacher over the same frames propose each frame once. Removed when the
+    proposal is recorded; one left by a run that stopped is taken over."""
+
+    __tablename__ = "proposal_claims"
+
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
+    )
+    model_id: Mapped[str] = mapped_column(sa.String(255), primary_key=True)
+    job_id: Mapped[int] = mapped_column(sa.ForeignKey("jobs.id", ondelete="CASCADE"))
+
+
 class Proposal(Base):
     """A teacher's or student's proposed mask, heatmap and keypoints for one frame. Every
     proposal is kept; ``app.review.policy`` picks the one a reviewer sees."""
@@ -470,6 +484,11 @@ class Job(Base):
     started_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
     finished_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
     created_by: Mapped[User | None] = relationship(lazy="joined", viewonly=True)
+    # The frames a person listed (``app.jobs.service.create_job``): written with the job, never
+    # loaded with it.
+    scope: Mapped[JobScope | None] = relationship(
+        lazy="raise", cascade="all, delete-orphan", passive_deletes=True
+    )
 
     @property
     def created_by_name(self) -> str | None:
@@ -492,6 +511,18 @@ class JobChunk(Base):
     worker_id: Mapped[str | None] = mapped_column(sa.String(200))  # None: free to take
     done: Mapped[bool] = mapped_column(default=False)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
+
+
+class JobScope(Base):
+    """The frames a job was asked to work on, where a person listed them: kept beside the job,
+    never in its parameters (which every Jobs-page poll reads), which say only how many."""
+
+    __tablename__ = "job_scopes"
+
+    job_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
+    )
+    frame_ids: Mapped[list[int]] = mapped_column(JSONType, default=list)
 
 
 class Worker(Base):

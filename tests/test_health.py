@@ -53,8 +53,11 @@ def test_health_is_ok_with_the_teacher_weights_and_a_worker(tmp_path: Path) -> N
     settings = make_settings(tmp_path / "home", dino=weights["dino"], sam2=weights["sam2"])
     migrate(create_db_engine(settings.resolved_database_url))
     with TestClient(create_app(settings, embedded_worker=True)) as client:
-        body = client.get("/api/v1/health").json()
+        answer = client.get("/api/v1/health")
+    body = answer.json()
     assert body["status"] == "ok" and body["warnings"] == []
+    assert str(tmp_path) not in answer.text  # /health answers anyone: no path of this machine
+    assert body["teacher"]["sam2"]["ref"] == Path(weights["sam2"]).name
 
 
 def test_health_checks_the_object_store(tmp_path: Path, s3_url: str, s3_endpoint: str) -> None:

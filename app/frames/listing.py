@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session, undefer
 from app.bounds import MAX_ID
 from app.errors import InvalidInputError, NotFoundError
 from app.frames.sequences import get_sequence
+from app.jobs.service import listed_frames
 from app.models import (
     UNREVIEWED_SQL,
     Frame,
@@ -359,6 +360,47 @@ def frames_for_run(
             raise InvalidInputError(f"Sequence {sequence_id} has no frames.")
         return ids
     raise InvalidInputError("Give frame_ids or a sequence_id.")
+
+
+def run_scope(
+    session: Session, frame_ids: list[int] | None, sequence_id: int | None
+) -> tuple[dict[str, Any], list[int] | None]:
+    """A run's scope as a job stores it: a weld run as its id and frame count (its parameters),
+    or the frames a person listed (checked; ``create_job`` keeps them in the job's scope row)."""
+    ids = frames_for_run(session, frame_ids, sequence_id)
+    if sequence_id is not None and not frame_ids:
+        return {"sequence_id": sequence_id, "frames": len(ids)}, None
+    return {}, ids
+
+
+UNREVIEWED = "unreviewed"
+"""A run's scope: the frames still to review when it starts (the promoted student's run)."""
+
+
+def unreviewed_frame_ids(session: Session) -> list[int]:
+    """Frames without an accepted, corrected or rejected label (the review queue)."""
+    reviewed = sa.select(Label.frame_id)
+    return list(
+        session.scalars(sa.select(Frame.id).where(Frame.id.not_in(reviewed)).order_by(Frame.id))
+    )
+
+
+def scope_frames(session: Session, job_id: int, params: dict[str, Any]) -> list[int]:
+    """The frames a run works on, read when it starts: those a person listed, the frames still
+    to review, or every frame of its weld run, in id order."""
+    if (listed := listed_frames(session, job_id, params)) is not None:
+        return listed
+    if params.get("scope") == UNREVIEWED:
+        return unreviewed_frame_ids(session)
+    if "sequence_id" in params:
+        return list(
+            session.scalars(
+                sa.select(Frame.id)
+                .where(Frame.sequence_id == int(params["sequence_id"]))
+                .order_by(Frame.id)
+            )
+        )
+    raise InvalidInputError("This run names no frames.")
 
 
 def also_in(session: Session, frames: list[Frame]) -> list[tuple[int, int, int | None, str | None]]:

@@ -18,17 +18,26 @@ from app.errors import (
 )
 from app.jobs.registry import counted, job_spec, lane_of
 from app.jobs.runner import reap_lost_jobs
-from app.models import Job, JobStatus, Role, User
+from app.models import Job, JobScope, JobStatus, Role, User
 from app.queue import JobQueue
 
 
 def create_job(
-    session: Session, queue: JobQueue, kind: str, params: dict[str, Any], user: User | None
+    session: Session,
+    queue: JobQueue,
+    kind: str,
+    params: dict[str, Any],
+    user: User | None,
+    frame_ids: list[int] | None = None,
 ) -> Job:
-    """Record a queued job and put it on the queue; a job that cannot be queued is failed."""
+    """Record a queued job and put it on the queue; a job that cannot be queued is failed.
+    ``frame_ids``, the frames a person listed, are kept in the job's own scope row
+    (``listed_frames`` reads them) and its parameters say only how many."""
     spec = job_spec(kind)
     if spec is None:
         raise InvalidInputError(f"There is no job kind {kind!r}.")
+    if frame_ids is not None:
+        params = params | {"frames": len(frame_ids), LISTED: True}
     job = Job(
         kind=kind,
         params=params,
@@ -37,6 +46,8 @@ def create_job(
         priority=priority_of(params, user),
     )
     session.add(job)
+    if frame_ids is not None:
+        job.scope = JobScope(frame_ids=list(frame_ids))
     try:
         session.commit()
     except sa.exc.IntegrityError:  # the one-training-job-at-a-time index
@@ -59,6 +70,19 @@ def create_job(
 
 
 PERSON, AUTOMATIC = 1, 0
+LISTED = "listed"
+"""The parameter that says a job's frames are listed in its scope row."""
+
+
+def listed_frames(session: Session, job_id: int, params: dict[str, Any]) -> list[int] | None:
+    """The frames a person listed for job ``job_id`` (its scope row; a job queued before the
+    scope had its own table lists them in its parameters), or None when it names none."""
+    if params.get(LISTED):
+        ids = session.scalar(sa.select(JobScope.frame_ids).where(JobScope.job_id == job_id))
+        return [int(i) for i in ids or []]
+    if "frame_ids" in params:
+        return [int(i) for i in params["frame_ids"]]
+    return None
 
 
 def priority_of(params: dict[str, Any], user: User | None) -> int:

@@ -8,9 +8,18 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
-from app.models import Frame, FrameStatus, Label, LabelRevision, Proposal
+from app.models import (
+    Frame,
+    FrameStatus,
+    Job,
+    JobStatus,
+    Label,
+    LabelRevision,
+    Proposal,
+    ProposalClaim,
+)
 from app.proposals.files import writing_for_frame
 from app.proposals.queue import rescore_frame
 from app.storage import Storage
@@ -34,6 +43,54 @@ def has_proposal(session: Session, frame_id: int, model_id: str) -> bool:
         )
         is not None
     )
+
+
+def claim(
+    session_factory: sessionmaker[Session], frame_id: int, model_id: str, job_id: int
+) -> bool:
+    """Whether job ``job_id`` may propose frame ``frame_id`` with ``model_id`` now: True once
+    it holds the frame's claim (new, already its own, or left by a run no longer running),
+    False while another running run holds it (that run records the proposal). Each step is one
+    guarded write, so of two runs racing for a frame one wins, on SQLite and PostgreSQL."""
+    key = (ProposalClaim.frame_id == frame_id, ProposalClaim.model_id == model_id)
+    with session_factory() as session:
+        for _ in range(2):
+            try:
+                session.add(ProposalClaim(frame_id=frame_id, model_id=model_id, job_id=job_id))
+                session.commit()
+                return True
+            except sa.exc.IntegrityError:
+                session.rollback()
+            holder = session.scalar(sa.select(ProposalClaim.job_id).where(*key))
+            if holder is None:
+                continue  # released meanwhile (or the frame is gone: its run finds that)
+            if holder == job_id:
+                return True
+            if session.scalar(sa.select(Job.status).where(Job.id == holder)) == JobStatus.running:
+                return False
+            taken = session.execute(
+                sa.update(ProposalClaim)
+                .where(*key, ProposalClaim.job_id == holder)
+                .values(job_id=job_id)
+            )
+            session.commit()
+            return bool(taken.rowcount == 1)  # type: ignore[attr-defined]
+    return True
+
+
+def release(
+    session_factory: sessionmaker[Session], frame_id: int, model_id: str, job_id: int
+) -> None:
+    """Give up job ``job_id``'s claim on the frame (its proposal is recorded, or it failed)."""
+    with session_factory() as session:
+        session.execute(
+            sa.delete(ProposalClaim).where(
+                ProposalClaim.frame_id == frame_id,
+                ProposalClaim.model_id == model_id,
+                ProposalClaim.job_id == job_id,
+            )
+        )
+        session.commit()
 
 
 def _drop_earlier(session: Session, frame_id: int, source: str) -> None:

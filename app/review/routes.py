@@ -14,7 +14,7 @@ from app import budgets
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.frames.listing import frames_for_run, get_frame
+from app.frames.listing import get_frame, run_scope
 from app.frames.sequences import get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
@@ -78,14 +78,10 @@ def start_teacher_run(
     body: TeacherRunIn, session: SessionDep, queue: QueueDep, user: CurrentUser
 ) -> JobCreated:
     """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
-    frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
-    params: dict[str, Any] = {"prompts": body.prompts, "force": body.force}
-    if body.sequence_id is not None and not body.frame_ids:
-        params["sequence_id"] = body.sequence_id  # the run's scope, not its frames' ids
-        params["frames"] = len(frame_ids)  # how many it had when asked (the Jobs page says)
-    else:
-        params["frame_ids"] = frame_ids
-    return JobCreated(job_id=create_job(session, queue, "teacher", params, user).id)
+    scope, listed = run_scope(session, body.frame_ids, body.sequence_id)
+    params: dict[str, Any] = {"prompts": body.prompts, "force": body.force} | scope
+    job = create_job(session, queue, "teacher", params, user, frame_ids=listed)
+    return JobCreated(job_id=job.id)
 
 
 SourceQuery = Annotated[

@@ -10,6 +10,7 @@ import sqlalchemy as sa
 import structlog
 
 from app.errors import failure_sentence, store_outage, without_server_paths
+from app.frames.listing import scope_frames
 from app.jobs.fanout import Fanout
 from app.jobs.registry import (
     JobCancelled,
@@ -21,7 +22,7 @@ from app.jobs.registry import (
 )
 from app.models import Frame
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
-from app.proposals.record import has_proposal, record_teacher_proposal
+from app.proposals.record import claim, has_proposal, record_teacher_proposal, release
 from app.review import propagation, runtime
 from app.review.export import SKIPPED_LIST, Skipped, build_export, export_name
 from app.storage import Storage
@@ -79,18 +80,9 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
 
 
 def _teacher_frames(ctx: JobContext) -> list[int]:
-    """The run's frames: those it names, else every frame of its weld run, in id order (a run
-    asked for a weld run stores the run, not its frames)."""
-    if "frame_ids" in ctx.params:
-        return [int(i) for i in ctx.params["frame_ids"]]
+    """The run's frames, read when it starts (``app.frames.listing.scope_frames``)."""
     with ctx.session_factory() as session:
-        return list(
-            session.scalars(
-                sa.select(Frame.id)
-                .where(Frame.sequence_id == int(ctx.params["sequence_id"]))
-                .order_by(Frame.id)
-            )
-        )
+        return scope_frames(session, ctx.job_id, ctx.params)
 
 
 def _teacher_chunk(
@@ -105,9 +97,20 @@ def _teacher_chunk(
                 deleted.append(frame_id)
             elif not force and has_proposal(session, frame_id, teacher.model_id):
                 skipped += 1
+            elif not claim(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id):
+                skipped += 1  # another run of this teacher is proposing it now
             else:
-                outcome = _propose(ctx, session, storage, teacher, frame)
-                if outcome is None:
+                try:  # a run that recorded it since this one looked is not done again
+                    outcome = (
+                        "seen"
+                        if not force and has_proposal(session, frame_id, teacher.model_id)
+                        else _propose(ctx, session, storage, teacher, frame)
+                    )
+                finally:
+                    release(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id)
+                if outcome == "seen":
+                    skipped += 1
+                elif outcome is None:
                     proposed += 1
                 elif isinstance(outcome, FrameDeleted):
                     deleted.append(frame_id)

@@ -67,8 +67,8 @@ def health(request: Request) -> JSONResponse:
     database = _database(request)
     queue = describe(request.app.state.queue) | _workers(request)
     teacher = {
-        "dino": weights_status(settings.dino, "WELDPOOL_DINO").as_dict(),
-        "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").as_dict(),
+        "dino": weights_status(settings.dino, "WELDPOOL_DINO").public(),
+        "sam2": weights_status(settings.sam2, "WELDPOOL_SAM2").public(),
     }
     storage = request.app.state.store_check()
     ok = database["status"] == "ok" and queue["status"] == "ok" and storage["status"] == "ok"

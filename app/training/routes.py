@@ -7,7 +7,7 @@ from fastapi import APIRouter, status
 from app.bounds import IdPath
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError
-from app.frames.listing import frames_for_run
+from app.frames.listing import run_scope
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.security import CurrentUser, ReviewerUser
@@ -37,10 +37,9 @@ def student_run(
     model = service.promoted_model(session)
     if model is None:
         raise InvalidInputError("No student is promoted yet; train one and promote it.")
-    frame_ids = frames_for_run(session, body.frame_ids, body.sequence_id)
-    job = create_job(
-        session, queue, "student", {"frame_ids": frame_ids, "model_version_id": model.id}, user
-    )
+    scope, listed = run_scope(session, body.frame_ids, body.sequence_id)
+    params = {"model_version_id": model.id} | scope
+    job = create_job(session, queue, "student", params, user, frame_ids=listed)
     return JobCreated(job_id=job.id)
 
 

@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 
 from app.db import utcnow
 from app.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
+from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
 from app.jobs.service import create_job
 from app.models import (
     Frame,
@@ -206,14 +207,6 @@ def pseudo_label_proposals(session: Session, min_confidence: float) -> list[tupl
     return chosen
 
 
-def unreviewed_frame_ids(session: Session) -> list[int]:
-    """Frames without an accepted, corrected or rejected label (the review queue)."""
-    reviewed = sa.select(Label.frame_id)
-    return list(
-        session.scalars(sa.select(Frame.id).where(Frame.id.not_in(reviewed)).order_by(Frame.id))
-    )
-
-
 def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: Any) -> Job | None:
     """The promoted student's run over the unreviewed frames (proposals and uncertainty for the
     queue), queued at most once: a run that an earlier promotion queued and no worker has
@@ -221,10 +214,15 @@ def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: 
     (a worker reads a job's parameters when it claims it), and a run of ``model`` already
     running is the run (promoting the promoted version again). None when no frame awaits
     review."""
-    frame_ids = unreviewed_frame_ids(session)
-    if not frame_ids:
+    frames = len(unreviewed_frame_ids(session))
+    if not frames:
         return None
-    params = {"frame_ids": frame_ids, "model_version_id": model.id, PROMOTED_RUN: True}
+    params = {
+        "scope": UNREVIEWED,  # read when it starts: the frames still to review then
+        "frames": frames,
+        "model_version_id": model.id,
+        PROMOTED_RUN: True,
+    }
     waiting = session.scalars(
         sa.select(Job)
         .where(

@@ -14,6 +14,8 @@ import structlog
 
 from app.db import utcnow
 from app.errors import MissingFile
+from app.frames.listing import scope_frames
+from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, counted, job_handler
 from app.models import Frame, Job, ModelVersion
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
@@ -461,15 +463,19 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     return verdict
 
 
-@job_handler("student", max_attempts=2)
+STUDENT_CHUNK = 16
+"""Frames per chunk of a student run that several workers share (a few seconds of CPU)."""
+
+
+@job_handler("student", max_attempts=2, fanout=True)
 def student_proposals(ctx: JobContext) -> dict[str, Any]:
     """The promoted student's mask, heatmap and keypoints for frames, with its uncertainty
     (√ of its latent draws' spread × its mask's ambiguity, ⊕ novelty,
-    ``weldpool_core.student.predict``) stored on the frame for the review queue."""
+    ``weldpool_core.student.predict``) stored on the frame for the review queue, in chunks
+    every worker the run reaches shares (``app.jobs.fanout``)."""
     from weldpool_core.student.predict import StudentPredictor
 
     storage = Storage.of(ctx.settings)
-    frame_ids = [int(i) for i in ctx.params["frame_ids"]]
     with ctx.session_factory() as session:
         version = session.get(ModelVersion, int(ctx.params["model_version_id"]))
         if version is None or version.checkpoint_path is None:
@@ -477,8 +483,47 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
         name, path = version.name, service.model_folder(storage, version)
         version_id = version.id
     predictor = StudentPredictor.load(path, ctx.settings.device)
+    fan = Fanout(ctx, STUDENT_CHUNK)
+    if not ctx.helper:
+        fan.plan(partial(_run_frames, ctx))
+        fan.invite()
+    for index in fan.chunks():
+        with fan.working(index) as result:
+            result.update(
+                _student_chunk(ctx, storage, predictor, fan.items(index), name, version_id)
+            )
+        ctx.progress(fan.progress(), fan.message())
+    if ctx.helper:
+        return {}
+    results = fan.results()
+    proposed = sum(r["proposed"] for r in results)
+    lost = [f for r in results for f in r["lost"]]
+    gone = fan.size - proposed - len(lost)
+    ctx.summary = (
+        f"{name} proposed {counted(proposed, 'frame')}"
+        + (f" ({gone} no longer exist)" if gone else "")
+        + (f"; {counted(len(lost), 'frame')} left out, their files are lost" if lost else "")
+    )
+    return {"proposed": proposed, "model": name, "skipped_frame_ids": lost}
+
+
+def _run_frames(ctx: JobContext) -> list[int]:
+    """The run's frames, read when it starts (``app.frames.listing.scope_frames``)."""
+    with ctx.session_factory() as session:
+        return scope_frames(session, ctx.job_id, ctx.params)
+
+
+def _student_chunk(
+    ctx: JobContext,
+    storage: Storage,
+    predictor: Any,
+    frame_ids: list[int],
+    name: str,
+    version_id: int,
+) -> dict[str, Any]:
+    """The student on one chunk's frames: how many it proposed, and those whose files are lost."""
     proposed, lost = 0, []
-    for done, frame_id in enumerate(frame_ids):
+    for frame_id in frame_ids:
         with ctx.session_factory() as session:
             frame = session.get(Frame, frame_id)
             try:
@@ -490,14 +535,8 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
             except MissingFile:  # its file went with the frame, deleted meanwhile, or was lost
                 if frame_exists(session, frame_id):
                     lost.append(frame_id)
-        ctx.progress((done + 1) / len(frame_ids), f"{done + 1} of {len(frame_ids)} frames")
-    gone = len(frame_ids) - proposed - len(lost)
-    ctx.summary = (
-        f"{name} proposed {counted(proposed, 'frame')}"
-        + (f" ({gone} no longer exist)" if gone else "")
-        + (f"; {counted(len(lost), 'frame')} left out, their files are lost" if lost else "")
-    )
-    return {"proposed": proposed, "model": name, "skipped_frame_ids": lost}
+        ctx.check_cancelled()
+    return {"proposed": proposed, "lost": lost}
 
 
 def _student_proposal(

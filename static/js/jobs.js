@@ -42,6 +42,8 @@ function scope(job) {
   if (job.kind === "propagate") return `${run(p.sequence_id)} from ${count(p.from_frame_ids?.length ?? 0, "frame")}, ${p.direction ?? "both"}`;
   if (Array.isArray(p.frame_ids)) return `${p.sequence_id ? `${run(p.sequence_id)}, ` : ""}${count(p.frame_ids.length, "frame")}`;
   if (p.sequence_id && Number.isInteger(p.frames)) return `${run(p.sequence_id)}, ${count(p.frames, "frame")}`;
+  if (p.scope === "unreviewed" && Number.isInteger(p.frames)) return `the ${count(p.frames, "frame")} still to review`;
+  if (Number.isInteger(p.frames)) return count(p.frames, "frame");
   if (p.sequence_id) return run(p.sequence_id);
   if (p.video_id) return `video #${p.video_id}`;
   if (job.kind === "train_sequential") return `sequential cell of model #${p.model_version_id}`;

@@ -9,7 +9,12 @@ import torch
 
 from weldpool_core.device import inference_dtype, resolve_device
 from weldpool_core.errors import InvalidInputError, WeightsUnavailableError
-from weldpool_core.teacher.weights import fetch_weights, weights_name, weights_status
+from weldpool_core.teacher.weights import (
+    fetch_weights,
+    weights_identity,
+    weights_name,
+    weights_status,
+)
 
 
 def test_local_directory_with_weights_is_ready(tmp_path: Path) -> None:
@@ -93,3 +98,19 @@ def test_weights_are_named_by_hub_id_or_folder_never_by_path(tmp_path: Path) -> 
         (tmp_path / home / "weights" / "sam2").mkdir(parents=True)
         assert weights_name(str(tmp_path / home / "weights" / "sam2") + "/") == "sam2"
     assert weights_name("facebook/sam2.1-hiera-tiny") == "facebook/sam2.1-hiera-tiny"
+
+
+def test_weights_are_identified_by_content_or_hub_revision(tmp_path: Path) -> None:
+    """The identity results are keyed by: equal for equal files under any folder name, other
+    for other bytes under the same name, a hub id with its snapshot's commit; never a path."""
+    for folder, weights in (("a/sam2", b"123"), ("b/copy", b"123"), ("c/sam2", b"124")):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "config.json").write_text("{}")
+        (tmp_path / folder / "model.safetensors").write_bytes(weights)
+    a, b, c = (
+        weights_identity(str(tmp_path / f), tmp_path / f) for f in ("a/sam2", "b/copy", "c/sam2")
+    )
+    assert a == b and a != c
+    assert str(tmp_path) not in a and "sam2" not in a
+    snapshot = tmp_path / "models--facebook--sam2" / "snapshots" / ("d" * 40)
+    assert weights_identity("facebook/sam2", snapshot) == "facebook/sam2@" + "d" * 12

@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.db import utcnow
+from app.frames.listing import scope_frames
 from app.jobs.runner import new_worker_id
 from app.main import create_app
 from app.models import Job, JobStatus, ModelVersion, Role
@@ -72,7 +73,15 @@ def test_promotions_queue_one_pending_student_run(
         ("queued", versions[-1]),  # the first promotion's run, handed on to the newest version
         ("queued", versions[0]),  # the user's own run
     ]
-    assert jobs[0][1]["frame_ids"] == frames and jobs[1][1]["frame_ids"] == frames[:1]
+    # each run's scope as a scope: the frames still to review when it starts, or the frames
+    # the user listed, kept beside the job; no parameters list frame ids
+    assert all("frame_ids" not in params for _, params in jobs)
+    assert (jobs[0][1]["scope"], jobs[0][1]["frames"]) == ("unreviewed", 2)
+    assert (jobs[1][1]["listed"], jobs[1][1]["frames"]) == (True, 1)
+    with session_factory() as session:
+        ids = [job.id for job in session.scalars(sa.select(Job).where(Job.kind == "student"))]
+        assert scope_frames(session, ids[0], jobs[0][1]) == frames
+        assert scope_frames(session, ids[1], jobs[1][1]) == frames[:1]
 
     with session_factory() as session:  # a live worker (this process) claims the runs
         claimed = {"status": JobStatus.running, "worker_id": new_worker_id()}

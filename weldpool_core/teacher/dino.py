@@ -84,6 +84,8 @@ class DinoAttention:
                 f"input_size {input_size} is not a multiple of the patch size {patch}."
             )
         self.device = device or torch.device("cpu")
+        self.weights_id: str | None = None
+        """Names its weights by content (the loader sets it: ``weights_identity``)."""
         self.model: Any = cast(Any, model)
         self.model.to(self.device).eval()
         self.input_size = input_size

@@ -25,7 +25,7 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
     from transformers.utils import logging as hf_logging
 
     from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights, weights_fingerprint
+    from weldpool_core.teacher.weights import resolve_weights, weights_identity
 
     torch_device = resolve_device(device)
     path = resolve_weights(ref, "WELDPOOL_SAM2")
@@ -39,7 +39,7 @@ def load_sam2(ref: str, device: str = "auto") -> Sam2Predictor:
         )
     finally:
         hf_logging.set_verbosity(verbosity)
-    return Sam2Predictor(model, torch_device, weights_id=f"{ref}#{weights_fingerprint(path)}")
+    return Sam2Predictor(model, torch_device, weights_id=weights_identity(ref, path))
 
 
 def load_sam2_video(
@@ -57,7 +57,7 @@ def load_sam2_video(
     from transformers import Sam2VideoModel
 
     from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights, weights_fingerprint
+    from weldpool_core.teacher.weights import resolve_weights, weights_identity
 
     torch_device = resolve_device(device)
     path = resolve_weights(ref, "WELDPOOL_SAM2")
@@ -65,7 +65,7 @@ def load_sam2_video(
         path, attn_implementation="sdpa", dtype=inference_dtype(torch_device)
     )
     if image_model is not None:
-        expected = f"{ref}#{weights_fingerprint(path)}"
+        expected = weights_identity(ref, path)
         if image_model.weights_id != expected:
             raise ValueError(
                 f"The image model ({image_model.weights_id}) is not from the video model's "
@@ -89,13 +89,16 @@ def load_dino(ref: str, device: str = "auto", input_size: int = 480) -> DinoAtte
     from transformers import ViTModel
 
     from weldpool_core.device import inference_dtype, resolve_device
-    from weldpool_core.teacher.weights import resolve_weights
+    from weldpool_core.teacher.weights import resolve_weights, weights_identity
 
     torch_device = resolve_device(device)
+    path = resolve_weights(ref, "WELDPOOL_DINO")
     model = ViTModel.from_pretrained(
-        resolve_weights(ref, "WELDPOOL_DINO"),
+        path,
         add_pooling_layer=False,
         attn_implementation="sdpa",
         dtype=inference_dtype(torch_device),
     )
-    return DinoAttention(model, input_size, torch_device)
+    dino = DinoAttention(model, input_size, torch_device)
+    dino.weights_id = weights_identity(ref, path)
+    return dino

@@ -142,6 +142,8 @@ class Sam2Predictor:
     def __init__(
         self, model: Sam2Model, device: torch.device | None = None, weights_id: str | None = None
     ) -> None:
+        self.identity = weights_id
+        """Its weights by content (``weights_identity``), where the loader named them."""
         self.weights_id = weights_id or f"unnamed-{uuid.uuid4().hex}"
         self.device = device or torch.device("cpu")
         self.model: Any = cast(Any, model)

@@ -143,9 +143,12 @@ class Teacher:
 
     @property
     def model_id(self) -> str:
-        """Names this teacher's output: models (by name, never a local path), DINO input size
-        and prompt configuration; the same on every worker with the same weights."""
-        dino, sam2 = weights_name(self.dino_id), weights_name(self.sam2_id)
+        """Names this teacher's output: its models by their weights' content when it loaded
+        them (``weights_identity``: a hub id and revision, or a hash; never a local path), else
+        by name; DINO's input size and the prompt configuration. The same on every worker with
+        the same weights, whatever their folders are called."""
+        dino = self.dino.weights_id or weights_name(self.dino_id)
+        sam2 = self.sam2.identity or weights_name(self.sam2_id)
         return f"{dino}@{self.dino.input_size}+{sam2}+{self.config.prompts}"
 
     def embedding(

@@ -34,6 +34,21 @@ class WeightsStatus:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def public(self) -> dict[str, Any]:
+        """As an answer that anyone may read (``/health``) says it: the weights by name
+        (``weights_name``), never this machine's path."""
+        name = weights_name(self.ref)
+        detail = self.detail
+        for where in {self.ref, self.path or self.ref, str(Path(self.ref).expanduser())}:
+            detail = detail.replace(where, name)
+        return {
+            "ref": name,
+            "setting": self.setting,
+            "source": self.source,
+            "available": self.available,
+            "detail": detail,
+        }
+
 
 def _looks_local(ref: str) -> bool:
     return ref.startswith(("/", ".", "~")) or Path(ref).expanduser().exists()
@@ -46,6 +61,19 @@ def weights_name(ref: str) -> str:
     if not _looks_local(ref):
         return ref
     return Path(os.path.abspath(Path(ref).expanduser())).name or ref
+
+
+def weights_identity(ref: str, path: Path) -> str:
+    """Names a model's weights by their content, alike on every machine that holds them: a hub
+    id with its revision (the snapshot's commit), else a hash of the folder's config and
+    weights (``weights_fingerprint``; its name and path play no part). Recorded results (a
+    teacher's ``model_id``) and cached embeddings are keyed by it, so a retried run on another
+    worker finds what the first one made, and other weights under the same name never do."""
+    if not _looks_local(ref):
+        if path.parent.name == "snapshots":
+            return f"{ref}@{path.name[:12]}"
+        return f"{ref}#{weights_fingerprint(path)}"
+    return f"weights#{weights_fingerprint(path)}"
 
 
 def _weights_in(directory: Path) -> bool:

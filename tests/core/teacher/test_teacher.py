@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from tests.helpers import SHARED_DATA
 from tests.models import full_dino, full_sam2, tiny_dino, tiny_sam2
@@ -133,6 +134,36 @@ def test_load_from_local_directories(models, frame, tmp_path: Path) -> None:
     loaded = teacher.run(frame, "a" * 64)
     original = Teacher(dino, sam2, "x").run(frame)
     assert np.array_equal(loaded.mask, original.mask)  # the same weights came back
+
+
+def test_a_loaded_teacher_is_named_by_its_weights_content(models, tmp_path: Path) -> None:
+    """Two workers holding the same weights in folders of other names and places propose under
+    one model_id (a retried run skips what the first proposed); other weights in a folder of the
+    same name do not; no path is in it."""
+    dino, sam2 = models
+    for folder in ("one/dino", "two/dino-copy"):
+        dino.model.save_pretrained(tmp_path / folder)
+    for folder in ("one/sam2", "two/sam2-copy"):
+        sam2.model.save_pretrained(tmp_path / folder)
+
+    def model_id(where: str, dino_folder: str, sam2_folder: str) -> str:
+        teacher = Teacher.load(
+            str(tmp_path / where / dino_folder),
+            str(tmp_path / where / sam2_folder),
+            device="cpu",
+            dino_input_size=64,
+        )
+        return teacher.model_id
+
+    first = model_id("one", "dino", "sam2")
+    assert first == model_id("two", "dino-copy", "sam2-copy")
+    assert str(tmp_path) not in first and "sam2" not in first.split("+")[1]
+    with torch.no_grad():  # other SAM2 weights, saved under the first folder's name
+        next(sam2.model.parameters()).add_(1.0)
+    sam2.model.save_pretrained(tmp_path / "three" / "sam2")
+    dino.model.save_pretrained(tmp_path / "three" / "dino")
+    other = model_id("three", "dino", "sam2")
+    assert other.split("+")[0] == first.split("+")[0] and other != first
 
 
 def test_missing_weights_name_the_variable(tmp_path: Path, monkeypatch) -> None:
