@@ -235,12 +235,16 @@ class JobReaper(Periodic):
         return upkeep(self.queue)
 
 
-def find_unable(queue: JobQueue, lanes: tuple[str, ...]) -> dict[str, str]:
+def find_unable(
+    queue: JobQueue, lanes: tuple[str, ...], standalone: bool = False
+) -> dict[str, str]:
     """What this process's worker cannot run (``app.system.status.unable_kinds``), recorded on
-    the queue so that it passes those jobs on instead of failing them."""
+    the queue so that it passes those jobs on instead of failing them; a ``standalone``
+    worker (on a machine of its own) also checks that its store is the web process's."""
     from app.system.status import unable_kinds
 
-    queue.unable = unable_kinds(queue.settings, kinds_in(lanes))
+    factory = queue.session_factory if standalone else None
+    queue.unable = unable_kinds(queue.settings, kinds_in(lanes), factory)
     return queue.unable
 
 

@@ -115,7 +115,8 @@ def serve(host: str, port: int, no_worker: bool) -> None:
 def worker(threads: int | None, lanes: str) -> None:
     """A standalone worker on WELDPOOL_QUEUE_URL (stops on Ctrl-C or SIGTERM).
 
-    At start it checks what it can run (the device, the teacher's and SAM2's weights) and
+    At start it checks what it can run (its file store is the web's, the device, the
+    teacher's and SAM2's weights) and
     registers that with its lanes: it passes on the jobs it cannot run to a worker that can,
     and refuses to start when it could run nothing at all."""
     from app.jobs.registry import LANES, kinds_in
@@ -129,7 +130,7 @@ def worker(threads: int | None, lanes: str) -> None:
     settings.ensure_home()
     Storage.of(settings, for_requests=True).check()  # waits a request's bound, not a job's
     queue = JobQueue(settings, open_sessions(settings))
-    unable = find_unable(queue, served)
+    unable = find_unable(queue, served, standalone=True)
     if len(unable) == len(kinds_in(served)):
         raise ConfigurationError(
             f"This worker can run no job of its lanes: {next(iter(unable.values()))}"

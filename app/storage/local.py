@@ -182,6 +182,10 @@ class Storage:
             raise MissingFile(relative)
         return path
 
+    def holds(self, relative: str) -> bool:
+        """Whether the store holds the file ``relative`` (one look, no read)."""
+        return self._held(relative)
+
     def lost(self, paths: Iterable[str]) -> set[str]:
         """Those of ``paths`` (files or folders) the store no longer holds, found without
         reading them (``weldpool doctor``)."""

@@ -399,6 +399,11 @@ class ObjectStorage(Storage):
         self._count(path.stat().st_size)
         return True
 
+    def holds(self, relative: str) -> bool:
+        """Whether the bucket holds the object ``relative`` (one HEAD; this machine's cached
+        copy does not count: other machines cannot read it)."""
+        return self._claim_ns(relative) is not None
+
     def lost(self, paths: Iterable[str]) -> set[str]:
         """Those of ``paths`` (files or folders) the bucket holds neither under their key nor
         in the trash (a reader restores a trashed one); one listing per area, no download. A

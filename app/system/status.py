@@ -52,13 +52,51 @@ def sam2_problem(settings: Settings, *, admin: bool = True) -> str | None:
     )
 
 
-def unable_kinds(settings: Settings, kinds: list[tuple[str, str]]) -> dict[str, str]:
+STORE_SAMPLE = 3
+"""How many of the newest frames a worker looks for in its store at start."""
+
+
+def foreign_store(settings: Settings, session_factory: Any) -> str | None:
+    """Why a worker with these settings does not share the web process's file store, in one
+    sentence, or None: its store holds none of the newest frames the database names (a worker
+    on another machine without WELDPOOL_STORAGE_URL, or with another bucket, would fail every
+    frame). No frames yet, or a store that does not answer, tells nothing: None."""
+    import sqlalchemy as sa
+
+    from app.models import Frame
+
+    with session_factory() as session:
+        paths = list(
+            session.scalars(sa.select(Frame.path).order_by(Frame.id.desc()).limit(STORE_SAMPLE))
+        )
+    if not paths:
+        return None
+    storage = Storage.of(settings, for_requests=True)
+    try:
+        if any(storage.holds(path) for path in paths):
+            return None
+    except Exception:  # an outage is not a foreign store: its jobs pause and retry
+        return None
+    where = "its object store" if storage.remote else "this machine's WELDPOOL_HOME"
+    return (
+        f"This worker's file store ({where}) holds none of the newest frames the database "
+        "names; give it the web process's WELDPOOL_STORAGE_URL."
+    )
+
+
+def unable_kinds(
+    settings: Settings, kinds: list[tuple[str, str]], session_factory: Any = None
+) -> dict[str, str]:
     """The job kinds a worker with these settings cannot run, each with why in one sentence:
-    model-lane kinds without a usable device, the teacher without its weights, SAM2's kinds
-    (embeddings, propagation) without SAM2's. ``kinds`` is every (kind, lane) it would serve."""
+    every kind when its file store is not the web process's (``foreign_store``, checked when
+    ``session_factory`` is given: a worker of its own), model-lane kinds without a usable
+    device, the teacher without its weights, SAM2's kinds (embeddings, propagation) without
+    SAM2's. ``kinds`` is every (kind, lane) it would serve."""
     from weldpool_core.device import resolve_device
     from weldpool_core.errors import InvalidInputError
 
+    if session_factory is not None and (problem := foreign_store(settings, session_factory)):
+        return {kind: problem for kind, _ in kinds}
     unable: dict[str, str] = {}
     try:
         if settings.device.strip().lower() != "auto":  # auto is always usable: no torch import

@@ -228,6 +228,31 @@ def test_a_worker_passes_on_what_it_cannot_run(idle_queue: JobQueue) -> None:
         assert session.get_one(Job, passed.id).status == JobStatus.queued
 
 
+def test_a_worker_whose_store_is_not_the_webs_takes_no_job(
+    client: TestClient, make_user, settings, database_url: str, tmp_path
+) -> None:
+    """A worker on another machine without the web process's store (here: a home of its own
+    over the same database) can run no kind once frames are stored; the web's own store can."""
+    from app.queue import find_unable
+    from app.system.status import unable_kinds
+    from tests.helpers import image_bytes
+
+    kinds = [("teacher", "model"), ("export", "quick")]
+    elsewhere = make_settings(tmp_path / "elsewhere", database_url=database_url)
+    queue = client.app.state.queue  # type: ignore[attr-defined]
+    assert "export" not in unable_kinds(elsewhere, kinds, queue.session_factory)  # no telling
+    _, token = make_user("admin", Role.admin)
+    files = [("files", ("w.png", image_bytes(32, 24, seed=3), "image/png"))]
+    assert client.post("/api/v1/frames", files=files, headers=auth(token)).status_code == 201
+    unable = unable_kinds(elsewhere, kinds, queue.session_factory)
+    assert set(unable) == {"teacher", "export"}
+    assert unable["export"].startswith("This worker's file store (this machine's WELDPOOL_HOME)")
+    assert "export" not in unable_kinds(settings, kinds, queue.session_factory)
+    other = JobQueue(elsewhere, queue.session_factory)
+    assert "export" in find_unable(other, ("quick",), standalone=True)
+    assert "export" not in find_unable(other, ("quick",))  # the embedded worker: the web's store
+
+
 def test_a_queued_job_says_what_it_waits_behind(session_factory) -> None:
     """The Jobs page's words for a queued job: the running job of its own lane with the time
     its pace leaves, and the queued jobs that go first (a person's before automatic work);
