@@ -1,5 +1,12 @@
-"""Housekeeping: the file collector (at start-up and in a thread of the web process), and
-training state and exports that are no longer needed."""
+"""Housekeeping: the file collector (in a thread of the web process), and training state and
+exports that are no longer needed.
+
+The collector works from the rows that changed: a transaction that deletes rows naming files
+(a frame, a run, a replaced proposal) writes their paths to ``doomed_files`` (``doom``); each
+pass looks at those files only (``collect_doomed``), removing those no row names any more once
+nobody claimed them for the grace period. A full sweep, which lists the store and reads every
+stored path, runs once a day for what a crash between a file's write and its row's commit
+left."""
 
 from __future__ import annotations
 
@@ -9,7 +16,8 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.models import STORED_PATH_COLUMNS, ModelVersion
+from app.db import utcnow
+from app.models import STORED_PATH_COLUMNS, DoomedFile, ModelVersion
 from app.periodic import Periodic
 from app.storage import EXPORTS_DIR, Storage
 
@@ -28,30 +36,87 @@ def sweep_orphan_files(
     return len(storage.sweep_orphans(SWEPT_AREAS, known, older_than_s))
 
 
+_CHUNK = 500
+
+
+def still_used(session: Session, paths: set[str]) -> set[str]:
+    """Those of ``paths`` that a committed row still names (content is shared by hash)."""
+    used: set[str] = set()
+    candidates = sorted(paths)
+    for column in STORED_PATH_COLUMNS:
+        for start in range(0, len(candidates), _CHUNK):
+            chunk = candidates[start : start + _CHUNK]
+            used.update(p for p in session.scalars(sa.select(column).where(column.in_(chunk))) if p)
+    return used
+
+
+def doom(session: Session, paths: set[str]) -> None:
+    """Record, in the caller's transaction, files whose naming rows it deletes: the collector
+    looks at them (a path recorded twice is kept once)."""
+    known = set()
+    candidates = sorted(p for p in paths if p)
+    for start in range(0, len(candidates), _CHUNK):
+        chunk = candidates[start : start + _CHUNK]
+        known.update(session.scalars(sa.select(DoomedFile.path).where(DoomedFile.path.in_(chunk))))
+    fresh = [{"path": p, "since": utcnow()} for p in candidates if p not in known]
+    if fresh:
+        session.execute(sa.insert(DoomedFile), fresh)
+
+
+def collect_doomed(session: Session, storage: Storage, paths: set[str] | None = None) -> list[str]:
+    """Remove the doomed files (``paths`` of them, or all) that no row names and nobody claimed
+    for the grace period, and forget them and those in use again; a file claimed too recently
+    stays doomed for a later pass. Returns the removed paths."""
+    query = sa.select(DoomedFile.path)
+    if paths is not None:
+        query = query.where(DoomedFile.path.in_(sorted(paths)))
+    doomed = set(session.scalars(query))
+    if not doomed:
+        return []
+    in_use = still_used(session, doomed)
+    removed = storage.collect(doomed, in_use)
+    settled = sorted(in_use | set(removed))
+    for start in range(0, len(settled), _CHUNK):
+        chunk = settled[start : start + _CHUNK]
+        session.execute(sa.delete(DoomedFile).where(DoomedFile.path.in_(chunk)))
+    session.commit()
+    return removed
+
+
 FIRST_SWEEP_AFTER_S = 30.0
-"""The web process answers first: its first sweep (a listing of the store) waits this long."""
+"""The web process answers first: its first pass waits this long."""
+FULL_SWEEP_EVERY_S = 86_400.0
+"""How often the collector lists the whole store (for what a crash left unrecorded)."""
 
 
 class FileCollector(Periodic):
-    """Sweeps the store three times per grace period, in a thread of the web process: files
-    whose claim was too fresh when their rows were deleted, and files a failed write left. The
-    first pass, a little after start, also prunes the training state recorded versions no
-    longer need: ``serve`` answers before any of it."""
+    """Collects doomed files three times per grace period, in a thread of the web process, and
+    lists the whole store once a day (not at start: a crash's leftovers wait a day). The first
+    pass, a little after start, also prunes the training state recorded versions no longer
+    need: ``serve`` answers before any of it."""
 
     def __init__(self, session_factory: sessionmaker[Session], storage: Storage) -> None:
+        import time
+
         self.session_factory, self.storage = session_factory, storage
         self._first = True
+        self._next_full = time.monotonic() + FULL_SWEEP_EVERY_S
         interval = storage.grace_s / 3
         super().__init__("files", interval, self.sweep, min(interval, FIRST_SWEEP_AFTER_S))
 
     def sweep(self) -> int:
+        import time
+
         with self.session_factory() as session:
             if self._first:
                 self._first = False
                 freed = prune_training_state(session, self.storage.home)
                 if freed:
                     log.info("files.training_state_pruned", mb=round(freed / 2**20))
-            removed = sweep_orphan_files(session, self.storage)
+            removed = len(collect_doomed(session, self.storage))
+            if time.monotonic() >= self._next_full:
+                self._next_full = time.monotonic() + FULL_SWEEP_EVERY_S
+                removed += sweep_orphan_files(session, self.storage)
         if removed:
             log.info("files.collected", removed=removed)
         return removed

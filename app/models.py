@@ -567,6 +567,17 @@ class ModelVersion(Base):
     promoted_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
 
 
+class DoomedFile(Base):
+    """A stored file whose last naming row may have gone (a deletion, a replaced proposal),
+    written in the same transaction: the collector looks at these files, not at the whole
+    store (``app.housekeeping``)."""
+
+    __tablename__ = "doomed_files"
+
+    path: Mapped[str] = mapped_column(sa.String(500), primary_key=True)
+    since: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
 STORED_PATH_COLUMNS = (
     Frame.path,
     Video.path,

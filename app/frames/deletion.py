@@ -10,8 +10,8 @@ from sqlalchemy.orm import Session
 
 from app.errors import ConflictError, NotFoundError
 from app.frames.sequences import get_sequence
+from app.housekeeping import collect_doomed, doom
 from app.models import (
-    STORED_PATH_COLUMNS,
     Frame,
     FrameStatus,
     Label,
@@ -56,15 +56,6 @@ def _files_of(session: Session, frame_ids: list[int], video_ids: list[int]) -> s
     if video_ids:
         paths.update(session.scalars(sa.select(Video.path).where(Video.id.in_(video_ids))))
     return paths
-
-
-def _still_used(session: Session, paths: set[str]) -> set[str]:
-    used: set[str] = set()
-    candidates = list(paths)
-    for column in STORED_PATH_COLUMNS:
-        for chunk in _chunks(candidates):
-            used.update(p for p in session.scalars(sa.select(column).where(column.in_(chunk))) if p)
-    return used
 
 
 def _all_there(session: Session, frame_ids: list[int], run_id: int | None) -> None:
@@ -149,8 +140,9 @@ def delete_frames(
         if gone.rowcount != 1:  # type: ignore[attr-defined]  # another deletion was first
             session.rollback()
             raise NotFoundError(f"There is no sequence {run_id}.")
+    doom(session, paths)  # with the rows: a crash after the commit leaves them recorded
     session.commit()
-    removed = storage.collect(paths, _still_used(session, paths))
+    removed = collect_doomed(session, storage, paths)
     return Deletion(frames=deleted, reviewed=reviewed, files=len(removed))
 
 

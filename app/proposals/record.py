@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.housekeeping import doom
 from app.models import (
     Frame,
     FrameStatus,
@@ -104,13 +105,14 @@ def _drop_earlier(session: Session, frame_id: int, source: str) -> None:
             LabelRevision.frame_id == frame_id, LabelRevision.proposal_id.is_not(None)
         ),
     )
-    session.execute(
-        sa.delete(Proposal).where(
-            Proposal.frame_id == frame_id,
-            Proposal.source == source,
-            Proposal.id.not_in(started_from),
-        )
+    dropped = (
+        Proposal.frame_id == frame_id,
+        Proposal.source == source,
+        Proposal.id.not_in(started_from),
     )
+    files = session.execute(sa.select(Proposal.mask_path, Proposal.heatmap_path).where(*dropped))
+    doom(session, {path for row in files for path in row if path})  # the collector's, later
+    session.execute(sa.delete(Proposal).where(*dropped))
 
 
 def record_proposal(

@@ -1,5 +1,6 @@
 """A job's listed frames in their own table (``job_scopes``), so its parameters stay small;
-the claims of runs proposing a frame (``proposal_claims``), so overlapping runs propose it once.
+the claims of runs proposing a frame (``proposal_claims``), so overlapping runs propose it once;
+the files whose rows went (``doomed_files``), so the collector need not list the whole store.
 
 Revision ID: 0024
 Revises: 0020
@@ -44,6 +45,15 @@ def upgrade() -> None:
     )
 
 
+    op.create_table(
+        'doomed_files',
+        sa.Column('path', sa.String(500), nullable=False),
+        sa.Column('since', sa.DateTime(), nullable=False),
+        sa.PrimaryKeyConstraint('path', name='pk_doomed_files'),
+    )
+
+
 def downgrade() -> None:
+    op.drop_table('doomed_files')
     op.drop_table('proposal_claims')
     op.drop_table('job_scopes')

@@ -17,7 +17,7 @@ from app.config import Settings
 from app.frames import deletion, ingest, listing, sequences
 from app.housekeeping import FileCollector, sweep_orphan_files
 from app.main import create_app
-from app.models import Frame, Role
+from app.models import DoomedFile, Frame, Role
 from app.storage import Storage
 from app.storage import local as storage_module
 from tests.helpers import age_stored_files, auth, image_bytes, wait_for
@@ -418,7 +418,9 @@ def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) ->
         assert sweep_orphan_files(session, storage, older_than_s=0) == 1
         again = storage.put(image_bytes(seed=52), "e" * 64, ".png")
     collector = FileCollector(session_factory, storage)  # the web process's thread
+    collector._next_full = 0.0  # its daily listing of the store is due
     assert collector.sweep() == 0  # claimed within the grace period
+    collector._next_full = 0.0
     age_stored_files(settings.home, storage.grace_s + 1)
     assert collector.sweep() == 1
     assert not storage.absolute(orphan.path).exists() and not storage.absolute(again.path).exists()
@@ -666,13 +668,22 @@ def test_each_list_order_of_a_run_reads_its_index_instead_of_sorting(
 def test_the_first_sweep_runs_after_start_not_before_serve_answers(
     settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """`serve` answers before any sweep: the collector's first pass (orphans and training
-    state) runs in its thread a little after start, then every third of the grace period."""
+    """`serve` answers before any sweep: the collector's first pass (doomed files and training
+    state) runs in its thread a little after start, then every third of the grace period; it
+    looks at the files whose rows went, never listing the whole store (that is daily)."""
     import app.housekeeping as housekeeping
 
     storage = Storage(settings.home)
     orphan = storage.put(image_bytes(seed=53), "d" * 64, ".png")
+    with session_factory() as session:  # a transaction deleted the row naming it
+        housekeeping.doom(session, {orphan.path})
+        session.commit()
     age_stored_files(settings.home, storage.grace_s + 1)
+
+    def listing(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("the collector listed the whole store")
+
+    monkeypatch.setattr(storage, "sweep_orphans", listing)
     monkeypatch.setattr(housekeeping, "FIRST_SWEEP_AFTER_S", 0.05)
     collector = FileCollector(session_factory, storage)
     assert collector.interval_s == storage.grace_s / 3 and collector.first_after_s == 0.05
@@ -681,3 +692,37 @@ def test_the_first_sweep_runs_after_start_not_before_serve_answers(
         wait_for(lambda: not storage.absolute(orphan.path).exists(), timeout=10)
     finally:
         collector.stop()
+    with session_factory() as session:  # collected, and forgotten
+        assert session.scalar(sa.select(sa.func.count()).select_from(DoomedFile)) == 0
+
+
+def test_a_deleted_frames_file_claimed_meanwhile_stays_doomed_until_its_grace_ends(
+    settings: Settings, session_factory
+) -> None:
+    """A deletion collects its frames' files at once unless an upload claimed one meanwhile:
+    that one stays recorded and a later pass collects it once its grace has passed; a file a
+    row names again is forgotten, never removed."""
+    from app.frames.deletion import delete_frames
+    from app.housekeeping import collect_doomed
+
+    storage = Storage(settings.home)
+    with session_factory() as session:
+        stored = ingest.ingest_frames(
+            session,
+            storage,
+            [ingest.IncomingFile(f"d{i}.png", image_bytes(seed=90 + i)) for i in range(2)],
+            sequence_id=None,
+            user=None,
+            max_pixels=10**6,
+        ).stored
+        age_stored_files(settings.home, storage.grace_s + 1)
+        again = storage.put(b"", stored[1].sha256, Path(stored[1].path).suffix)  # an upload
+        assert not again.created  # of the same content: it claims the stored file
+        assert delete_frames(session, storage, [f.id for f in stored], force=False).files == 1
+        doomed = set(session.scalars(sa.select(DoomedFile.path)))
+        assert doomed == {stored[1].path}
+        assert collect_doomed(session, storage) == []  # claimed within the grace period
+        age_stored_files(settings.home, storage.grace_s + 1)
+        assert collect_doomed(session, storage) == [stored[1].path]
+        assert not storage.absolute(stored[1].path).exists()
+        assert session.scalar(sa.select(sa.func.count()).select_from(DoomedFile)) == 0

@@ -5,9 +5,10 @@ records the proposal it came from."""
 from __future__ import annotations
 
 import pytest
+import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, ModelVersion, Role
+from app.models import Frame, ModelVersion, Proposal, Role
 from app.storage import Storage
 from tests.helpers import auth, corrected_label
 from tests.proposals.common import box, propose, upload
@@ -144,3 +145,41 @@ def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
     listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
     assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
     assert listing["items"][0]["chosen"]  # nothing measured: the teacher's is shown
+
+
+def test_a_replaced_proposals_files_are_doomed_for_the_collector(
+    client: TestClient, make_user, settings, session_factory
+) -> None:
+    """Propagation replaces a frame's earlier propagated proposal: its mask file is recorded
+    for the collector in the same transaction (no listing of the store finds it), and a pass
+    after the grace period removes it; the new proposal's file stays."""
+    from app.housekeeping import collect_doomed
+    from app.models import DoomedFile
+    from app.proposals.record import PROPAGATED, record_proposal
+    from tests.helpers import age_stored_files
+
+    _, token = make_user("doomed", Role.reviewer)
+    storage = Storage(settings.home)
+    (frame_id,) = upload(client, token, 300, 1)
+    first = propose(session_factory, storage, frame_id, PROPAGATED, "sam2-video:x", box(10, 40))
+    with session_factory() as session:
+        old = session.get_one(Proposal, first).mask_path
+        frame = session.get_one(Frame, frame_id)
+        new = record_proposal(
+            session,
+            storage,
+            frame,
+            source=PROPAGATED,
+            model_id="sam2-video:x",
+            mask=box(20, 60),
+            heatmap=None,
+            keypoints=[],
+            scores={},
+            weights={},
+            replace_earlier=True,
+        ).mask_path
+        session.commit()
+        assert set(session.scalars(sa.select(DoomedFile.path))) == {old}
+        age_stored_files(settings.home, storage.grace_s + 1)
+        assert collect_doomed(session, storage) == [old]
+    assert not storage.absolute(old).exists() and storage.absolute(new).exists()
