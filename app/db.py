@@ -8,7 +8,7 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
@@ -181,3 +181,16 @@ def require_current_schema(engine: Engine) -> None:
             f"The database schema is at revision {current or 'none'}, not {head}; "
             "run `weldpool migrate` first."
         )
+
+
+def changed(session: Session, statement: sa.Executable) -> int:
+    """Run an UPDATE or DELETE and say how many rows it changed: the one place that reads a
+    result's row count (a compare-and-set's conditional write took its row, or another writer
+    was first)."""
+    result = cast("sa.CursorResult[Any]", session.execute(statement))
+    return int(result.rowcount)
+
+
+def updated_one(session: Session, statement: sa.Executable) -> bool:
+    """Run a conditional UPDATE or DELETE (a compare-and-set): True when it took its one row."""
+    return changed(session, statement) == 1

@@ -53,7 +53,7 @@ def still_used(session: Session, paths: set[str]) -> set[str]:
 def doom(session: Session, paths: set[str]) -> None:
     """Record, in the caller's transaction, files whose naming rows it deletes: the collector
     looks at them (a path recorded twice is kept once)."""
-    known = set()
+    known: set[str] = set()
     candidates = sorted(p for p in paths if p)
     for start in range(0, len(candidates), _CHUNK):
         chunk = candidates[start : start + _CHUNK]

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
+from app.db import changed, updated_one
 from app.errors import ConflictError, NotFoundError
 from app.frames.sequences import get_sequence
 from app.housekeeping import collect_doomed, doom
@@ -72,8 +73,7 @@ def _all_there(session: Session, frame_ids: list[int], run_id: int | None) -> No
 
 def _delete(session: Session, where: sa.ColumnElement[bool]) -> int:
     """Delete the frames ``where`` holds; how many there were."""
-    result: sa.CursorResult[Any] = session.execute(sa.delete(Frame).where(where))  # type: ignore[assignment]
-    return result.rowcount
+    return changed(session, sa.delete(Frame).where(where))
 
 
 def delete_frames(
@@ -136,8 +136,8 @@ def delete_frames(
         # Frames uploaded into the run since its frames were read go with it (and are counted).
         deleted += _delete(session, Frame.sequence_id == sequence.id)
         session.execute(sa.delete(Video).where(Video.sequence_id == sequence.id))
-        gone = session.execute(sa.delete(Sequence).where(Sequence.id == run_id))
-        if gone.rowcount != 1:  # type: ignore[attr-defined]  # another deletion was first
+        if not updated_one(session, sa.delete(Sequence).where(Sequence.id == run_id)):
+            # another deletion was first
             session.rollback()
             raise NotFoundError(f"There is no sequence {run_id}.")
     doom(session, paths)  # with the rows: a crash after the commit leaves them recorded

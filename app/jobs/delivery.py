@@ -18,7 +18,7 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import db_now, utcnow
+from app.db import db_now, updated_one, utcnow
 from app.jobs.registry import lane_of
 from app.models import Job, JobStatus
 
@@ -53,13 +53,14 @@ def deliver_again(queue: Any, older_than_s: float) -> list[int]:
             lane = lane_of(kind)
             if lane not in carried:
                 carried[lane] = queue.carried(lane)
-            taken = session.execute(  # this pass's, not a concurrent one's
+            taken = updated_one(  # this pass's, not a concurrent one's
+                session,
                 sa.update(Job)
                 .where(Job.id == job_id, Job.status == JobStatus.queued, overdue)
-                .values(enqueued_at=db_now(session.get_bind().dialect.name))
+                .values(enqueued_at=db_now(session.get_bind().dialect.name)),
             )
             session.commit()
-            if taken.rowcount != 1 or job_id in carried[lane]:
+            if not taken or job_id in carried[lane]:
                 continue
             queue.enqueue(job_id, kind, priority)
             sent.append(job_id)

@@ -23,6 +23,7 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 
+from app.db import updated_one
 from app.jobs.registry import JobContext
 from app.models import JobChunk
 
@@ -108,7 +109,8 @@ class Fanout:
         """Take chunk ``index`` if nobody has (or ``worker``, gone, still holds it)."""
         held = JobChunk.worker_id.is_(None) if worker is None else JobChunk.worker_id == worker
         with self.ctx.session_factory() as session:
-            taken = session.execute(
+            taken = updated_one(
+                session,
                 sa.update(JobChunk)
                 .where(
                     JobChunk.job_id == self.ctx.job_id,
@@ -116,10 +118,10 @@ class Fanout:
                     JobChunk.done.is_(False),
                     held,
                 )
-                .values(worker_id=self.ctx.worker_id)
+                .values(worker_id=self.ctx.worker_id),
             )
             session.commit()
-        return bool(taken.rowcount == 1)  # type: ignore[attr-defined]
+        return taken
 
     def _taken(self) -> dict[int, tuple[str | None, bool]]:
         with self.ctx.session_factory() as session:

@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app import budgets
 from app.config import Settings
-from app.db import db_now
+from app.db import db_now, updated_one
 from app.models import Job, JobStatus, Worker
 
 # Modules whose import registers job handlers (each domain's tasks.py).
@@ -204,17 +204,18 @@ class JobContext:
             return
         self._last_write = now
         with self.session_factory() as session:
-            written = session.execute(
+            written = updated_one(
+                session,
                 sa.update(Job)
                 .where(self.holds())
                 .values(
                     progress=min(max(fraction, 0.0), 1.0),
                     message=message[:500],
                     heartbeat_at=db_now(session.get_bind().dialect.name),
-                )
+                ),
             )
             session.commit()
-        if written.rowcount != 1:  # type: ignore[attr-defined]
+        if not written:
             self.check_cancelled()  # says which: cancelled, or lost
             raise JobLost()
         self.check_cancelled()

@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app import budgets
 from app.config import Settings
-from app.db import db_now, utcnow
+from app.db import changed, db_now, updated_one, utcnow
 from app.errors import failure_sentence, store_outage, without_server_paths
 from app.jobs.registry import (
     JobCancelled,
@@ -48,13 +48,14 @@ def _finish(context: JobContext, **values: object) -> bool:
     if isinstance(error := values.get("error"), str):
         values["error"] = without_server_paths(error, context.settings.home)
     with context.session_factory() as session:
-        done = session.execute(
+        done = updated_one(
+            session,
             sa.update(Job)
             .where(context.holds())
-            .values(**({"finished_at": utcnow(), "heartbeat_at": utcnow()} | values))
+            .values(**({"finished_at": utcnow(), "heartbeat_at": utcnow()} | values)),
         )
         session.commit()
-        return done.rowcount == 1  # type: ignore[attr-defined]
+        return done
 
 
 def _claim(session_factory: sessionmaker[Session], job_id: int, worker_id: str) -> Job | None:
@@ -62,7 +63,8 @@ def _claim(session_factory: sessionmaker[Session], job_id: int, worker_id: str) 
     another worker took it)."""
     with session_factory() as session:
         now = db_now(session.get_bind().dialect.name)
-        claimed = session.execute(
+        claimed = updated_one(
+            session,
             sa.update(Job)
             .where(Job.id == job_id, Job.status == JobStatus.queued)
             .values(
@@ -73,10 +75,10 @@ def _claim(session_factory: sessionmaker[Session], job_id: int, worker_id: str) 
                 heartbeat_at=now,
                 progress=0.0,
                 message="",
-            )
+            ),
         )
         session.commit()
-        if claimed.rowcount != 1:  # type: ignore[attr-defined]
+        if not claimed:
             return None
         return session.get_one(Job, job_id)
 
@@ -326,15 +328,16 @@ def reap_lost_jobs(
                     f"(worker {worker_id}, last seen {seen}); start the job again.",
                 }
             )
-            taken = session.execute(
+            taken = updated_one(
+                session,
                 sa.update(Job)
                 .where(
                     Job.id == job_id, Job.status == JobStatus.running, Job.worker_id == worker_id
                 )
-                .values(**values)
+                .values(**values),
             )
             session.commit()
-            if taken.rowcount == 1:  # type: ignore[attr-defined]
+            if taken:
                 handled.append(job_id)
                 log.warning("job.lost", job_id=job_id, worker=worker_id, retry=retry)
                 if retry:
@@ -346,10 +349,8 @@ def record_heartbeat(session_factory: sessionmaker[Session], worker: Worker) -> 
     """Mark this worker and the jobs it runs as alive (by the database's clock)."""
     with session_factory() as session:
         now = db_now(session.get_bind().dialect.name)
-        updated = session.execute(
-            sa.update(Worker).where(Worker.id == worker.id).values(last_seen_at=now)
-        )
-        if updated.rowcount == 0:  # type: ignore[attr-defined]
+        seen = sa.update(Worker).where(Worker.id == worker.id).values(last_seen_at=now)
+        if not changed(session, seen):
             session.add(
                 Worker(
                     id=worker.id,

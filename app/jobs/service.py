@@ -8,7 +8,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
+from app.db import updated_one, utcnow
 from app.errors import (
     ConfigurationError,
     ConflictError,
@@ -172,7 +172,8 @@ def cancel_job(session: Session, job_id: int, user: User) -> Job:
         )
     # Two conditional updates, not a read then a write: the worker may claim a queued job
     # between the two, and then the request to stop must still reach the running job.
-    cancelled = session.execute(
+    cancelled = updated_one(
+        session,
         sa.update(Job)
         .where(Job.id == job_id, Job.status == JobStatus.queued)
         .values(
@@ -180,9 +181,9 @@ def cancel_job(session: Session, job_id: int, user: User) -> Job:
             cancel_requested=True,
             finished_at=utcnow(),
             message="cancelled before it started",
-        )
+        ),
     )
-    if not cancelled.rowcount:  # type: ignore[attr-defined]
+    if not cancelled:
         session.execute(
             sa.update(Job)
             .where(Job.id == job_id, Job.status == JobStatus.running)

@@ -11,12 +11,11 @@ from fastapi.responses import StreamingResponse
 from app.bounds import IdPath
 from app.config import Settings
 from app.deps import SessionDep, SettingsDep, StorageDep
-from app.errors import ConflictError, InvalidInputError, NotFoundError
+from app.errors import ConflictError, InvalidInputError
 from app.live.schemas import LiveIn, LiveOut, LiveOutputOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews, check_outputs
-from app.models import ModelVersion
 from app.security import CurrentUser, ReviewerUser
-from app.training.service import model_folder, promoted_model
+from app.training.service import get_model, model_folder, promoted_model
 from weldpool_core.outputs import OutputsConfig
 
 router = APIRouter(prefix="/live", tags=["live"])
@@ -78,9 +77,7 @@ def start_live(
         if model is None:
             raise ConflictError("No student is promoted yet; promote one or choose a version.")
     else:
-        model = session.get(ModelVersion, body.model_id)
-        if model is None:
-            raise NotFoundError(f"There is no model version {body.model_id}.")
+        model = get_model(session, body.model_id)
     folder = model_folder(storage, model)
     if body.int8 and body.sequential:
         raise InvalidInputError("The int8 student runs frame by frame; choose int8 or sequential.")

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.db import updated_one
 from app.housekeeping import doom
 from app.models import (
     Frame,
@@ -69,13 +70,14 @@ def claim(
                 return True
             if session.scalar(sa.select(Job.status).where(Job.id == holder)) == JobStatus.running:
                 return False
-            taken = session.execute(
+            taken = updated_one(
+                session,
                 sa.update(ProposalClaim)
                 .where(*key, ProposalClaim.job_id == holder)
-                .values(job_id=job_id)
+                .values(job_id=job_id),
             )
             session.commit()
-            return bool(taken.rowcount == 1)  # type: ignore[attr-defined]
+            return taken
     return True
 
 

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
 from app.config import Settings
-from app.db import utcnow
+from app.db import updated_one, utcnow
 from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.models import (
     Frame,
@@ -250,12 +250,13 @@ def write_label(
         if flush:
             session.flush()
     else:
-        updated = session.execute(
+        updated = updated_one(
+            session,
             sa.update(Label)
             .where(Label.frame_id == frame.id, Label.revision == base_revision)
-            .values(revision=base_revision + 1, **values)
+            .values(revision=base_revision + 1, **values),
         )
-        if updated.rowcount != 1:  # type: ignore[attr-defined]
+        if not updated:
             raise stale_revision(session, frame.id)
     session.add(
         LabelRevision(
@@ -509,7 +510,8 @@ def set_validation_keypoints(
         row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id, revision=1)
         session.add(row)
     else:  # where the revision is still the one read (a writer in between: stale)
-        moved = session.execute(
+        moved = updated_one(
+            session,
             sa.update(ValidationKeypoints)
             .where(ValidationKeypoints.id == row.id, ValidationKeypoints.revision == row.revision)
             .values(
@@ -518,9 +520,9 @@ def set_validation_keypoints(
                 updated_at=utcnow(),
                 revision=ValidationKeypoints.revision + 1,
             )
-            .execution_options(synchronize_session=False)
+            .execution_options(synchronize_session=False),
         )
-        if moved.rowcount != 1:  # type: ignore[attr-defined]
+        if not moved:
             raise stale_revision(session, frame.id, keypoints=True)
         session.refresh(row)  # as written
     frame.split = Split.validation

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
+from app.db import updated_one, utcnow
 from app.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
 from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
 from app.jobs.service import create_job
@@ -75,6 +75,8 @@ def list_models(session: Session) -> list[ModelVersion]:
 
 
 def get_model(session: Session, model_id: int) -> ModelVersion:
+    """A model version by id, or NotFoundError in one sentence: the one lookup routes and jobs
+    use (a job whose version was deleted fails with the same sentence)."""
     model = session.get(ModelVersion, model_id)
     if model is None:
         raise NotFoundError(f"There is no model version {model_id}.")
@@ -238,13 +240,14 @@ def queue_promoted_run(session: Session, queue: Any, model: ModelVersion, user: 
             if job.params.get("model_version_id") == model.id:
                 return job  # this version's run is running: not a second one beside it
             continue
-        handed = session.execute(
+        handed = updated_one(
+            session,
             sa.update(Job)
             .where(Job.id == job.id, Job.status == JobStatus.queued)
-            .values(params=params)
+            .values(params=params),
         )
         session.commit()
-        if handed.rowcount == 1:  # type: ignore[attr-defined]
+        if handed:
             session.refresh(job)
             return job
     return create_job(session, queue, STUDENT_RUN_KIND, params, user)

@@ -242,9 +242,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         config = replace(config, steps=int(ctx.params["steps"]))
     model_id = int(ctx.params["model_version_id"])
     with ctx.session_factory() as session:
-        version = session.get(ModelVersion, model_id)
-        if version is None:
-            raise InvalidInputError(f"Model version {model_id} no longer exists.")
+        version = service.get_model(session, model_id)
         root = service.model_folder(storage, version)
         name, trained = version.name, set(version.train_frame_ids or [])
         ctx.progress(0.0, "reading the labelled videos")
@@ -477,9 +475,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
 
     storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
-        version = session.get(ModelVersion, int(ctx.params["model_version_id"]))
-        if version is None or version.checkpoint_path is None:
-            raise InvalidInputError("The model version of this run no longer exists.")
+        version = service.get_model(session, int(ctx.params["model_version_id"]))
         name, path = version.name, service.model_folder(storage, version)
         version_id = version.id
     predictor = StudentPredictor.load(path, ctx.settings.device)
@@ -591,9 +587,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     storage = Storage.of(ctx.settings)
     model_id = int(ctx.params["model_version_id"])
     with ctx.session_factory() as session:
-        version = session.get(ModelVersion, model_id)
-        if version is None:
-            raise InvalidInputError(f"Model version {model_id} no longer exists.")
+        version = service.get_model(session, model_id)
         root = service.model_folder(storage, version)
         name = version.name
         frame_ids = service.calibration_frame_ids(session)
