@@ -276,10 +276,10 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         # changing the version's others).
         storage.publish(_stored(storage, root), _cell_names())
         with ctx.session_factory() as session:
-            version = session.get(ModelVersion, model_id)
-            if version is None:  # deleted while training: its folder went with it
+            again = session.get(ModelVersion, model_id)
+            if again is None:  # deleted while training: its folder went with it
                 raise InvalidInputError(f"Model version {model_id} was deleted during training.")
-            version.sequential = record
+            again.sequential = record
             session.commit()
     except BaseException:
         _restore_cell_files(root, previous)
@@ -604,10 +604,10 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
         record = {"made_at": utcnow().isoformat(), "job_id": ctx.job_id, **result.as_dict()}
         storage.publish(_stored(storage, root), files)  # the int8 file, before its record
         with ctx.session_factory() as session:
-            version = session.get(ModelVersion, model_id)
-            if version is None:  # deleted meanwhile: its folder went with it
+            again = session.get(ModelVersion, model_id)
+            if again is None:  # deleted meanwhile: its folder went with it
                 raise InvalidInputError(f"Model version {model_id} was deleted meanwhile.")
-            version.int8 = record
+            again.int8 = record
             session.commit()
     except BaseException:
         _put_back(root, previous, files)
