@@ -41,6 +41,7 @@ from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.openapi import openapi_schema
+from app.proposals.routes import router as proposals_router
 from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
 from app.security import (
@@ -52,6 +53,7 @@ from app.security import (
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.system.status import StoreCheck
+from app.teacher.routes import router as teacher_router
 from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
@@ -271,6 +273,8 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(tokens_router, prefix=api)  # a token by password, or for the caller
     app.include_router(jobs_router, prefix=api, dependencies=protected)
     app.include_router(frames_router, prefix=api, dependencies=protected)
+    app.include_router(proposals_router, prefix=api, dependencies=protected)
+    app.include_router(teacher_router, prefix=api, dependencies=protected)
     app.include_router(review_router, prefix=api, dependencies=protected)
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)

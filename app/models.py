@@ -7,9 +7,10 @@ import enum
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Mapped, mapped_column, relationship
+from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
 from app.db import Base, UTCDateTime, utcnow
+from app.errors import NotFoundError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -602,3 +603,11 @@ def _ids_never_reused() -> None:
 
 
 _ids_never_reused()
+
+
+def get_frame(session: Session, frame_id: int) -> Frame:
+    """A frame by id, or NotFoundError in one sentence: the one lookup every domain uses."""
+    frame = session.get(Frame, frame_id)
+    if frame is None:
+        raise NotFoundError(f"There is no frame {frame_id}.")
+    return frame

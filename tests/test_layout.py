@@ -15,7 +15,7 @@ LAYERS = (
     ("__main__", "cli", "main", "demo", "manual"),
     ("imports",),
     ("review", "timeline", "insights", "web"),
-    ("training", "live"),
+    ("teacher", "training", "live"),
     ("frames",),
     ("proposals",),
     (

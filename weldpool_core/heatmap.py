@@ -498,3 +498,12 @@ def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
             f"Keypoints cannot be computed for this mask: {exc.message}"
         ) from None
     return [[float(x), float(y)] for x, y in np.asarray(points)]
+
+
+def heatmap_rgba(heat: NDArray[Any]) -> NDArray[np.uint8]:
+    """A heatmap channel (H×W, ≥ 0) as an RGBA colour map for display: inferno scaled to its
+    maximum, transparent where it is zero (alpha = the scaled heat)."""
+    scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
+    level = (scaled * 255).astype(np.uint8)
+    colours = cv2.applyColorMap(level, cv2.COLORMAP_INFERNO)
+    return np.dstack([colours[:, :, ::-1], level]).astype(np.uint8)

@@ -189,7 +189,7 @@ def eval_teacher(images_dir: Path, masks_dir: Path, as_json: bool) -> None:
     """
     import hashlib
 
-    from app.review import runtime
+    from app.teacher import runtime
     from weldpool_core.io import read_image, read_mask, to_rgb8
     from weldpool_core.metrics import iou, segmentation_scores
     from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS

@@ -11,7 +11,7 @@ import click
 from app.cli.base import fail, friendly_errors, image_files, load_settings, main
 from app.config import Settings
 from app.errors import WeldpoolError
-from app.review import runtime
+from app.teacher import runtime
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PROMPT_NAMES, PromptName
 
 

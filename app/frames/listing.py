@@ -287,13 +287,6 @@ def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | No
     return "Most uncertain first; frames without a score last."
 
 
-def get_frame(session: Session, frame_id: int) -> Frame:
-    frame = session.get(Frame, frame_id)
-    if frame is None:
-        raise NotFoundError(f"There is no frame {frame_id}.")
-    return frame
-
-
 def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, Any]:
     """The frame's label, the proposal the policy shows and whether it has manual keypoints."""
     label = session.scalar(sa.select(Label).where(Label.frame_id == frame.id))
@@ -371,6 +364,17 @@ def run_scope(
     if sequence_id is not None and not frame_ids:
         return {"sequence_id": sequence_id, "frames": len(ids)}, None
     return {}, ids
+
+
+def run_frames(session: Session, sequence_id: int) -> list[Frame]:
+    """The run's frames in the order SAM2 walks them (its video's order, then by id)."""
+    return list(
+        session.scalars(
+            sa.select(Frame)
+            .where(Frame.sequence_id == sequence_id)
+            .order_by(Frame.frame_index.is_(None), Frame.frame_index, Frame.id)
+        )
+    )
 
 
 UNREVIEWED = "unreviewed"

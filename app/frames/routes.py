@@ -34,6 +34,7 @@ from app.frames.schemas import (
 )
 from app.jobs.service import create_job
 from app.models import FrameStatus, ReviewState, Split
+from app.models import get_frame as frame_by_id
 from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 
@@ -300,7 +301,7 @@ def get_frame(
     frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
 ) -> FrameDetail:
     """A frame's metadata with its label and the state of the proposal the policy shows."""
-    frame = listing.get_frame(session, frame_id)
+    frame = frame_by_id(session, frame_id)
     return FrameDetail.model_validate(
         FrameOut.model_validate(frame).model_dump() | listing.frame_state(session, storage, frame)
     )
@@ -326,7 +327,7 @@ def get_frame_image(
     ),
 ) -> Response:
     """The frame's image: the original file, or an 8-bit PNG for display."""
-    frame = listing.get_frame(session, frame_id)
+    frame = frame_by_id(session, frame_id)
     headers = {"Cache-Control": "private, max-age=31536000, immutable"}
     if variant == "original":
         return FileResponse(

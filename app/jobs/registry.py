@@ -23,6 +23,7 @@ HANDLER_MODULES = (
     "app.jobs.tasks",
     "app.frames.tasks",
     "app.review.tasks",
+    "app.teacher.tasks",
     "app.training.tasks",
     "app.imports.tasks",
 )

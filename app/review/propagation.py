@@ -23,6 +23,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.errors import InvalidInputError
+from app.frames.listing import run_frames
 from app.jobs.registry import counted
 from app.models import Frame, Label, LabelStatus, Proposal
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
@@ -46,17 +47,6 @@ STOP_AFTER = 3
 def model_id(sam2_ref: str) -> str:
     """What propagated proposals name as their model: SAM2's video model and its weights."""
     return f"sam2-video:{sam2_ref.rstrip('/').rsplit('/', 1)[-1]}"
-
-
-def run_frames(session: Session, sequence_id: int) -> list[Frame]:
-    """The run's frames in the order SAM2 walks them."""
-    return list(
-        session.scalars(
-            sa.select(Frame)
-            .where(Frame.sequence_id == sequence_id)
-            .order_by(Frame.frame_index.is_(None), Frame.frame_index, Frame.id)
-        )
-    )
 
 
 def check_prompts(session: Session, sequence_id: int, frame_ids: list[int]) -> None:

@@ -4,29 +4,24 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
-from fastapi import APIRouter, Depends, Query, Response, status
+from fastapi import APIRouter, Query, status
 from fastapi.responses import FileResponse, StreamingResponse
-from pydantic import BaseModel
 
 from app import budgets
 from app.bounds import MAX_ID, IdPath, check_in_frame
 from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.frames.listing import get_frame, run_scope
 from app.frames.sequences import get_sequence
 from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import Job, JobStatus, Proposal, Split, User, ValidationKeypoints
-from app.proposals import policy
-from app.proposals.files import load_heatmap
-from app.review import runtime, service, warm
+from app.models import Job, JobStatus, Split, User, ValidationKeypoints, get_frame
+from app.review import service
 from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
 from app.review.schemas import (
-    EmbeddingOut,
     ExportIn,
     KeypointsIn,
     KeypointsOut,
@@ -39,25 +34,20 @@ from app.review.schemas import (
     OutlineOut,
     PolygonIO,
     PropagateIn,
-    ProposalList,
-    ProposalOut,
-    ProposalSummary,
     ReviewIn,
     SegmentIn,
     SegmentOut,
-    TeacherRunIn,
 )
-from app.security import AdminUser, CurrentUser, ReviewerUser
+from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 from app.training.service import maybe_retrain
-from weldpool_core.io import decode_mask_png, encode_mask_png, encode_png
+from weldpool_core.io import decode_mask_png, encode_mask_png
 from weldpool_core.outline import Polygon, check_editable, fill_polygons, mask_polygons
 
 if TYPE_CHECKING:
-    import cv2
-    import numpy as np
+    pass
 else:
-    from weldpool_core.lazy import cv2, np
+    pass
 
 router = APIRouter(tags=["review"])
 
@@ -71,202 +61,6 @@ def _png_bytes(text: str, what: str) -> bytes:
         return base64.b64decode(text, validate=True)
     except (binascii.Error, ValueError):
         raise InvalidInputError(f"{what} is not valid base64.") from None
-
-
-@router.post("/teacher/runs", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
-def start_teacher_run(
-    body: TeacherRunIn, session: SessionDep, queue: QueueDep, user: CurrentUser
-) -> JobCreated:
-    """The teacher proposes a mask, heatmap and keypoints for each frame, in a worker job."""
-    scope, listed = run_scope(session, body.frame_ids, body.sequence_id)
-    params: dict[str, Any] = {"prompts": body.prompts, "force": body.force} | scope
-    job = create_job(session, queue, "teacher", params, user, frame_ids=listed)
-    return JobCreated(job_id=job.id)
-
-
-SourceQuery = Annotated[
-    str | None,
-    Query(
-        max_length=300,
-        description="A source key (`teacher`, `student:<version>`) instead of the policy's.",
-    ),
-]
-ProposalQuery = Annotated[
-    int | None, Query(ge=1, le=2**31 - 1, description="One proposal of the frame, by id.")
-]
-
-
-def _shown_proposal(
-    frame_id: IdPath,
-    session: SessionDep,
-    storage: StorageDep,
-    source: SourceQuery = None,
-    proposal_id: ProposalQuery = None,
-) -> Proposal:
-    """The proposal a request means: ``proposal_id``, else the newest of ``source``, else the
-    policy's pick; 404 when the frame has none."""
-    get_frame(session, frame_id)
-    proposal = policy.pick(session, storage, frame_id, source, proposal_id)
-    if proposal is None:
-        raise NotFoundError(f"Frame {frame_id} has no proposal yet; run the teacher on it.")
-    return proposal
-
-
-ShownProposal = Annotated[Proposal, Depends(_shown_proposal)]
-
-
-def _summary(proposal, chosen: int | None) -> ProposalSummary:  # type: ignore[no-untyped-def]
-    return ProposalSummary(
-        id=proposal.id,
-        frame_id=proposal.frame_id,
-        source=proposal.source,
-        source_key=policy.source_key(proposal),
-        model_id=proposal.model_id,
-        model_version_id=proposal.model_version_id,
-        job_id=proposal.job_id,
-        keypoints=proposal.keypoints,
-        scores=proposal.scores,
-        created_at=proposal.created_at,
-        chosen=proposal.id == chosen,
-    )
-
-
-@router.get("/frames/{frame_id}/proposal", response_model=ProposalOut)
-def get_proposal(
-    frame_id: IdPath,
-    session: SessionDep,
-    storage: StorageDep,
-    _user: CurrentUser,
-    proposal: ShownProposal,
-) -> ProposalOut:
-    """The proposal the policy picks for review (or the one asked for): mask (base64 PNG),
-    keypoints, prompts, scores and where it came from."""
-    chosen = policy.pick(session, storage, frame_id)
-    return ProposalOut(
-        **_summary(proposal, chosen.id if chosen else None).model_dump(),
-        mask_png=_b64(_proposal_mask(storage, proposal)),
-        prompts=proposal.prompts,
-        timings=proposal.timings,
-    )
-
-
-@router.get("/frames/{frame_id}/proposals", response_model=ProposalList)
-def list_proposals(
-    frame_id: IdPath, session: SessionDep, storage: StorageDep, _user: CurrentUser
-) -> ProposalList:
-    """Every proposal the frame has, newest first, with its source and scores; `chosen` marks
-    the one the policy shows, and `policy` says why that source."""
-    get_frame(session, frame_id)
-    chosen = policy.pick(session, storage, frame_id)
-    return ProposalList(
-        items=[
-            _summary(p, chosen.id if chosen else None)
-            for p in policy.frame_proposals(session, frame_id)
-        ],
-        policy=policy.current(session, storage).as_dict(),
-    )
-
-
-@router.get(
-    "/frames/{frame_id}/proposal/mask.png",
-    response_class=Response,
-    responses={200: {"content": {"image/png": {}}}},
-)
-def get_proposal_mask(storage: StorageDep, _user: CurrentUser, proposal: ShownProposal) -> Response:
-    """The shown proposal's mask as a PNG (0 / 255)."""
-    return Response(_proposal_mask(storage, proposal), media_type="image/png")
-
-
-def _proposal_mask(storage: StorageDep, proposal: Proposal) -> bytes:
-    return frame_file(storage, proposal.mask_path, proposal.frame_id, "proposal mask").read_bytes()
-
-
-@router.get(
-    "/frames/{frame_id}/proposal/heatmap.png",
-    response_class=Response,
-    responses={200: {"content": {"image/png": {}}}},
-)
-def get_proposal_heatmap_png(
-    storage: StorageDep, _user: CurrentUser, proposal: ShownProposal
-) -> Response:
-    """The heatmap as a colour map (RGBA, transparent where it is zero) for display."""
-    heat = load_heatmap(storage, proposal)[:, :, 0]
-    scaled = np.clip(heat / max(float(heat.max()), 1e-6), 0, 1)
-    colours = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
-    rgba = np.dstack([colours[:, :, ::-1], (scaled * 255).astype(np.uint8)])
-    return Response(encode_png(rgba), media_type="image/png")
-
-
-@router.get(
-    "/frames/{frame_id}/proposal/heatmap.npy",
-    response_class=Response,
-    responses={200: {"content": {"application/octet-stream": {}}}},
-)
-def get_proposal_heatmap_npy(
-    storage: StorageDep, _user: CurrentUser, proposal: ShownProposal
-) -> Response:
-    """The raw H×W×2 float32 array (heatmap, mask) as a .npy file."""
-    import io
-
-    buffer = io.BytesIO()
-    np.save(buffer, load_heatmap(storage, proposal))
-    return Response(buffer.getvalue(), media_type="application/octet-stream")
-
-
-class EmbeddingCacheOut(BaseModel):
-    files: int
-    bytes: int
-    limit_bytes: int
-
-
-class EmbeddingCacheCleared(BaseModel):
-    removed_files: int
-    removed_bytes: int
-
-
-@router.get("/system/embedding-cache", response_model=EmbeddingCacheOut, tags=["system"])
-def embedding_cache(settings: SettingsDep, _user: CurrentUser) -> EmbeddingCacheOut:
-    """The SAM2 embeddings cached on disk for clicks and propagation, and the size limit
-    (`WELDPOOL_EMBEDDING_CACHE_MB`; least recently used out)."""
-    files, size = runtime.embedding_cache_usage(settings)
-    return EmbeddingCacheOut(
-        files=files, bytes=size, limit_bytes=runtime.embedding_cache_limit(settings)
-    )
-
-
-@router.delete("/system/embedding-cache", response_model=EmbeddingCacheCleared, tags=["system"])
-def clear_embedding_cache(settings: SettingsDep, _admin: AdminUser) -> EmbeddingCacheCleared:
-    """Empty the embedding cache (admins): the next click on each frame computes it again."""
-    files, size = runtime.clear_embedding_cache(settings)
-    return EmbeddingCacheCleared(removed_files=files, removed_bytes=size)
-
-
-@router.post("/frames/{frame_id}/embedding", response_model=EmbeddingOut)
-def warm_embedding(
-    frame_id: IdPath,
-    session: SessionDep,
-    storage: StorageDep,
-    settings: SettingsDep,
-    _user: CurrentUser,
-) -> EmbeddingOut:
-    """Start computing the frame's SAM2 embedding in this web process (the review page asks
-    when it opens, then for the next frames of its queue), so its first click is as fast as
-    the later ones; at most a few at once (`busy`: ask again)."""
-    frame = get_frame(session, frame_id)
-    return EmbeddingOut(**vars(warm.warmth(storage, settings, frame, start=True)))
-
-
-@router.get("/frames/{frame_id}/embedding", response_model=EmbeddingOut)
-def embedding_state(
-    frame_id: IdPath,
-    session: SessionDep,
-    storage: StorageDep,
-    settings: SettingsDep,
-    _user: CurrentUser,
-) -> EmbeddingOut:
-    """Where the frame's embedding stands (nothing is started)."""
-    frame = get_frame(session, frame_id)
-    return EmbeddingOut(**vars(warm.warmth(storage, settings, frame, start=False)))
 
 
 @router.post("/frames/{frame_id}/segment", response_model=SegmentOut)
@@ -579,19 +373,4 @@ def propagate(
     check_prompts(session, sequence_id, body.from_frame_ids)
     params = body.model_dump(mode="json") | {"sequence_id": sequence_id}
     job = create_job(session, queue, "propagate", params, user)
-    return JobCreated(job_id=job.id)
-
-
-@router.post(
-    "/sequences/{sequence_id}/embeddings",
-    response_model=JobCreated,
-    status_code=status.HTTP_202_ACCEPTED,
-)
-def precompute_embeddings(
-    sequence_id: IdPath, session: SessionDep, queue: QueueDep, user: CurrentUser
-) -> JobCreated:
-    """Compute SAM2's embedding of every frame of the run ahead of review (a job): the first
-    click on any frame is then as fast as the later ones."""
-    get_sequence(session, sequence_id)
-    job = create_job(session, queue, "embed", {"sequence_id": sequence_id}, user)
     return JobCreated(job_id=job.id)

@@ -10,52 +10,9 @@ from pydantic import BaseModel, Field, model_validator
 from app.bounds import MAX_ID, XY, Id, InputModel
 from app.models import LabelStatus, ReviewState, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
-from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 MAX_KEYPOINTS = 64
 """Most keypoints a label or a validation set of one frame may hold."""
-
-
-class TeacherRunIn(InputModel):
-    """Which frames the teacher should propose masks for."""
-
-    frame_ids: list[Id] | None = Field(default=None, max_length=100_000)
-    sequence_id: Id | None = None
-    prompts: PromptName = DEFAULT_PROMPTS
-    force: bool = Field(default=False, description="Propose again for frames already seen.")
-
-
-class ProposalSummary(BaseModel):
-    """One proposal of a frame and where it came from."""
-
-    id: int
-    frame_id: int
-    source: str = Field(description="`teacher`, `student` or `propagated`.")
-    source_key: str = Field(description="`teacher` or `<source>:<model id>`; pass as ?source=.")
-    model_id: str = Field(description="The teacher's models and prompts, or the student version.")
-    model_version_id: int | None
-    job_id: int | None
-    keypoints: list[list[float]]
-    scores: dict[str, Any]
-    created_at: dt.datetime
-    chosen: bool = Field(description="Whether the policy shows this proposal for review.")
-
-
-class ProposalOut(ProposalSummary):
-    """A frame's proposal with its mask: the policy's pick unless one was asked for."""
-
-    mask_png: str = Field(description="Single-channel PNG (0 / 255), base64.")
-    prompts: dict[str, Any]
-    timings: dict[str, Any]
-
-
-class ProposalList(BaseModel):
-    """Every proposal of a frame, newest first, and the policy that picks the shown one."""
-
-    items: list[ProposalSummary]
-    policy: dict[str, Any] = Field(
-        description="`chosen` source key, `reason`, and each source's agreement with labels."
-    )
 
 
 class Point(InputModel):
@@ -75,17 +32,6 @@ class MaskFrom(InputModel):
         if (self.label_revision is None) == (self.proposal_id is None):
             raise ValueError("mask_from names either label_revision or proposal_id")
         return self
-
-
-class EmbeddingOut(BaseModel):
-    state: Literal["ready", "computing", "busy", "cold"] = Field(
-        description="ready: the next click reads it from memory; computing: on its way; busy: "
-        "not started, as many are being made as the budget allows (ask again); cold: neither."
-    )
-    elapsed_ms: float | None = Field(default=None, description="Since it was asked for.")
-    expected_ms: float | None = Field(
-        default=None, description="The median of the last embeddings' times here."
-    )
 
 
 class SegmentIn(InputModel):

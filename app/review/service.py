@@ -37,8 +37,8 @@ from app.proposals.files import (
     store_mask_file,
 )
 from app.proposals.policy import pick
-from app.review import runtime
 from app.storage import Storage, StoredFile
+from app.teacher import runtime
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import mask_record

@@ -191,7 +191,7 @@ def test_a_frame_whose_file_goes_before_the_teacher_reads_it_is_skipped(
 ) -> None:
     """The frame is deleted (and its old file collected) just before the teacher reads it:
     the read fails, the frame counts as deleted, the job goes on."""
-    import app.review.tasks as review_tasks
+    import app.teacher.tasks as review_tasks
 
     _, token = make_user("rev", Role.reviewer)
     _, ids, _ = _run(client, token, 2)

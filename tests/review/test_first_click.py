@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.review import warm
+from app.teacher import warm
 from tests.helpers import auth, corrected_label, wait_for
 from tests.review.test_review import _mask, _teacher, _upload_synthetic, people  # noqa: F401
 

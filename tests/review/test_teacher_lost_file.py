@@ -43,7 +43,7 @@ def test_a_store_outage_pauses_the_teacher_run_and_fails_no_frame(
     frames reached meanwhile marked failed)."""
     from botocore.exceptions import EndpointConnectionError
 
-    import app.review.tasks as tasks
+    import app.teacher.tasks as tasks
     from tests.helpers import wait_for
 
     _, token = make_user("teacher", Role.annotator)

@@ -10,8 +10,8 @@ import numpy as np
 import torch
 
 from app.config import StoreWaits
-from app.review.runtime import EMBEDDINGS_AREA, SharedEmbeddings
 from app.storage.s3 import ObjectStorage
+from app.teacher.runtime import EMBEDDINGS_AREA, SharedEmbeddings
 from tests.models import tiny_sam2
 from tests.s3 import bucket_keys
 from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding

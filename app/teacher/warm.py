@@ -23,8 +23,8 @@ from app import budgets
 from app.config import Settings
 from app.models import Frame
 from app.proposals.files import stored_rgb
-from app.review import runtime
 from app.storage import Storage
+from app.teacher import runtime
 
 MAX_PENDING = 3
 """Embeddings waiting or computing at once: the frame open and the next two of its queue."""
