@@ -31,6 +31,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from weldpool_core.student.data import TrainingTargets
 from weldpool_core.student.export import StudentExport, export_onnx
+from weldpool_core.student.losses import LossWeights, student_loss
 from weldpool_core.student.model import (
     STUDENT_SIZES,
     ResNetVAE,
@@ -38,7 +39,6 @@ from weldpool_core.student.model import (
     channels_last,
     fuse_batchnorm,
 )
-from weldpool_core.student.train import LossWeights, student_loss
 
 
 def median_seconds(work: Callable[[], Any], repeats: int, warmup: int = 2) -> float:

@@ -9,8 +9,8 @@ from tests.core.student.common import TINY_STUDENT, synthetic_frames
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.student.data import TrainingFrame, collate, make_targets, prepare_frame
+from weldpool_core.student.losses import LossWeights, boundary_band, student_loss
 from weldpool_core.student.model import build_student
-from weldpool_core.student.train import LossWeights, boundary_band, student_loss
 
 
 def _loss(frames: list[TrainingFrame], weights: list[float] | None) -> float:

@@ -155,7 +155,7 @@ def _example(
 def _loss(
     mask_logits: torch.Tensor, heat_logits: torch.Tensor, mask: torch.Tensor, heat: torch.Tensor
 ) -> torch.Tensor:
-    from weldpool_core.student.train import dice_loss, heatmap_loss
+    from weldpool_core.student.losses import dice_loss, heatmap_loss
 
     bce = F.binary_cross_entropy_with_logits(mask_logits, mask)
     return bce + dice_loss(mask_logits, mask) + heatmap_loss(heat_logits, heat)
