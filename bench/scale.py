@@ -39,7 +39,14 @@ from app.schema import migrate
 from app.security import hash_password, issue_token
 
 PAGE = 50
-ORDERS = ("id", "frame_index", "uncertainty")
+# (order, status): the plain list by id, by frame index, the queue (frames still to review) and
+# the uncertainty order of every frame (the home page's default list)
+LISTS = (
+    ("id", "all"),
+    ("frame_index", "all"),
+    ("uncertainty", "unreviewed"),
+    ("uncertainty", "all"),
+)
 POSTGRES = os.environ.get(
     "WELDPOOL_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
@@ -140,11 +147,30 @@ def rss_mb() -> float:
     return float("nan")
 
 
+def reverse_indexes(engine: Any) -> None:
+    """The frames table's indexes dropped and made again in the reverse order of their names."""
+    with engine.begin() as connection:
+        rows = connection.exec_driver_sql(
+            "SELECT name, sql FROM sqlite_master WHERE type = 'index' AND tbl_name = 'frames' "
+            "AND sql IS NOT NULL ORDER BY name DESC"
+        ).all()
+        for name, _ in rows:
+            connection.exec_driver_sql(f"DROP INDEX {name}")
+        for _, sql in rows:
+            connection.exec_driver_sql(sql)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=2000)
     parser.add_argument("--database", choices=["sqlite", "postgresql"], default="sqlite")
     parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument(
+        "--reverse-indexes",
+        action="store_true",
+        help="make the frames table's indexes again in the reverse order (SQLite): the plans "
+        "must not change",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as home:
         if args.database == "sqlite":
@@ -160,18 +186,21 @@ def main() -> None:
             migrate(engine)
             session_factory = create_session_factory(engine)
             run_id, token = fill(session_factory, args.frames)
+            if args.reverse_indexes and args.database == "sqlite":
+                reverse_indexes(engine)
             if args.database == "postgresql":  # the statistics autovacuum would have gathered
                 with engine.begin() as connection:
                     connection.execute(sa.text("ANALYZE frames"))
             headers = {"Authorization": f"Bearer {token}"}
             app = create_app(settings)
-            print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
-            print("| list | page | API ms | server ms | SQL floor ms |")
-            print("|---|---|---:|---:|---:|")
+            made = "indexes made in reverse order" if args.reverse_indexes else "indexes by name"
+            print(f"{args.frames} frames in one run, {args.database} ({made}); page of {PAGE}\n")
+            print("| list | page | API ms | server ms | SQL floor ms | server ÷ by id's |")
+            print("|---|---|---:|---:|---:|---:|")
             firsts: dict[str, float] = {}
+            plain: dict[str, float] = {}
             with TestClient(app) as client, engine.connect() as connection:
-                for order in ORDERS:
-                    status = "unreviewed" if order == "uncertainty" else "all"
+                for order, status in LISTS:
                     where = [Frame.sequence_id == run_id]
                     if status == "unreviewed":
                         where.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
@@ -213,16 +242,18 @@ def main() -> None:
                         )
                         how = "cursor" if after else f"offset {offset}"
                         if name == "first":
-                            firsts[order] = server
+                            firsts[f"{order} ({status})"] = server
+                        plain.setdefault(how if after else name, server)
+                        ratio = server / plain[how if after else name]
                         print(
                             f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
-                            f"{server:.1f} | {floor:.2f} |",
+                            f"{server:.1f} | {floor:.2f} | {ratio:.2f}× |",
                             flush=True,
                         )
-            others = statistics.median(firsts[o] for o in ORDERS if o != "uncertainty")
+            others = statistics.median(firsts[o] for o in ("id (all)", "frame_index (all)"))
             print(
                 f"\nthe queue's first page (its diversity pick included) ÷ the other lists' first "
-                f"pages, server time: {firsts['uncertainty'] / others:.2f}×"
+                f"pages, server time: {firsts['uncertainty (unreviewed)'] / others:.2f}×"
             )
             print(f"RSS of this process: {rss_mb():.0f} MB")
             engine.dispose()
