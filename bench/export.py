@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import sqlalchemy as sa
+from common import SHARED_DATA
 from fastapi.testclient import TestClient
 from results import recorded
 
@@ -43,7 +44,7 @@ from weldpool_core.io import encode_png
 from weldpool_core.outline import coco_mask, region_outlines
 
 REPO = Path(__file__).resolve().parents[1]
-FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
+FRAMES = SHARED_DATA / "waam" / "frames"
 
 
 def fill(settings: Settings, count: int) -> tuple[str, list[str]]:

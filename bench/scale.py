@@ -31,7 +31,6 @@ from results import recorded
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
 from app.frames import listing
-from app.frames.listing import ORDERINGS
 from app.frames.schemas import FrameOut, FramePage
 from app.main import create_app
 from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
@@ -227,7 +226,12 @@ def main() -> None:
                             ),
                             args.runs,
                         )
-                        floor_query = sa.select(Frame.id).where(*where).order_by(*ORDERINGS[order])
+                        ordered, _ = listing.list_query(
+                            sequence_id=run_id,
+                            status=None if status == "all" else "unreviewed",
+                            order=order,
+                        )  # the page's query (with the index it names), reading the ids alone
+                        floor_query = ordered.with_only_columns(Frame.id)
                         if after:
                             key = listing.parse_cursor(after, order)
                             assert isinstance(key, list)

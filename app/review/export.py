@@ -48,7 +48,7 @@ from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKey
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_box, rle_mask
 
 if TYPE_CHECKING:
     import numpy as np
@@ -439,7 +439,7 @@ def _write_cvat(
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
     elements: list[Any] = []
-    masks = _readable(storage, rows, skipped, lambda row: _stored_mask(storage, row[1]))
+    masks = _readable(storage, rows, skipped, lambda row: _cvat_mask(storage, row[1]))
     for done, (frame, label, _, manual), path, mask in masks:
         if path is None:
             yield done
@@ -458,6 +458,17 @@ def _write_cvat(
         elements.append(cvat_image(image))
         yield done
     archive.writestr("annotations.xml", cvat_document(elements, len(elements)))
+
+
+def _cvat_mask(storage: Storage, label: Label) -> Any:
+    """A label's ``CvatMask``, in the encoder pool: from the RLE and box stored with it (only
+    the box's pixels put in row order), else from its mask."""
+    from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
+
+    box = label.mask_bbox
+    if label.mask_rle is not None and box and box[2] > 0 and box[3] > 0:
+        return cvat_box_mask(rle_box(label.mask_rle, box), int(box[0]), int(box[1]))
+    return cvat_mask(_stored_mask(storage, label))
 
 
 WRITERS: dict[str, Writer] = {
