@@ -42,8 +42,8 @@ def test_the_cvat_mask_from_the_stored_box_is_the_one_from_the_whole_frame() -> 
         # and CVAT's reader gives the mask back, holes kept
         runs = [int(v) for v in whole.rle.split(", ")]
         back = np.zeros_like(mask)
-        back[
-            whole.top : whole.top + whole.height, whole.left : whole.left + whole.width
-        ] = cvat_rle(runs, whole.width, whole.height)
+        back[whole.top : whole.top + whole.height, whole.left : whole.left + whole.width] = (
+            cvat_rle(runs, whole.width, whole.height)
+        )
         assert np.array_equal(back, mask)
     assert cvat_mask(np.zeros((4, 4), bool)) is None
