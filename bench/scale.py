@@ -15,6 +15,7 @@ of several runs, milliseconds, and the process's RSS.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import random
 import statistics
@@ -139,6 +140,19 @@ def median_ms(call: Any, runs: int) -> float:
     return 1000 * statistics.median(times)
 
 
+def paired_ratio(call: Any, plain: Any, runs: int) -> float:
+    """The median over ``runs`` of ``call``'s time over ``plain``'s, timed back to back: a
+    loaded machine's swings hit both alike."""
+    ratios = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        plain()
+        middle = time.perf_counter()
+        call()
+        ratios.append((time.perf_counter() - middle) / (middle - start))
+    return statistics.median(ratios)
+
+
 def rss_mb() -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -194,10 +208,10 @@ def main() -> None:
             app = create_app(settings)
             made = "indexes made in reverse order" if args.reverse_indexes else "indexes by name"
             print(f"{args.frames} frames in one run, {args.database} ({made}); page of {PAGE}\n")
-            print("| list | page | API ms | server ms | SQL floor ms | server ÷ by id's |")
+            print("| list | page | API ms | server ms | SQL floor ms | server ÷ by id's, paired |")
             print("|---|---|---:|---:|---:|---:|")
             firsts: dict[str, float] = {}
-            plain: dict[str, float] = {}
+            plain_pages: dict[str, Any] = {}
             with TestClient(app) as client, engine.connect() as connection:
                 for order, status in LISTS:
                     where = [Frame.sequence_id == run_id]
@@ -220,12 +234,13 @@ def main() -> None:
                             f"&limit={PAGE}&" + (f"after={after}" if after else f"offset={offset}")
                         )
                         api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
-                        server = median_ms(
-                            lambda o=order, s=status, x=offset, a=after: page_json(
-                                app, run_id, o, s, x, a
-                            ),
-                            args.runs,
+                        page = functools.partial(
+                            page_json, app, run_id, order, status, offset, after
                         )
+                        server = median_ms(page, args.runs)
+                        kind = "cursor" if after else name
+                        plain_pages.setdefault(kind, page)  # the plain list's (by id) first
+                        ratio = paired_ratio(page, plain_pages[kind], args.runs)
                         ordered, _ = listing.list_query(
                             sequence_id=run_id,
                             status=None if status == "all" else "unreviewed",
@@ -247,8 +262,6 @@ def main() -> None:
                         how = "cursor" if after else f"offset {offset}"
                         if name == "first":
                             firsts[f"{order} ({status})"] = server
-                        plain.setdefault(how if after else name, server)
-                        ratio = server / plain[how if after else name]
                         print(
                             f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
                             f"{server:.1f} | {floor:.2f} | {ratio:.2f}× |",
