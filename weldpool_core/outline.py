@@ -114,8 +114,8 @@ def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
         "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
     }
     columns = coco.decode(encoded)  # H×W, column-major: its .T is a row-major W×H
-    box: NDArray[np.bool_] = cv2.transpose(columns.T[x : x + width, y : y + height]).view(bool)
-    return box
+    pixels: NDArray[np.bool_] = cv2.transpose(columns.T[x : x + width, y : y + height]).view(bool)
+    return pixels
 
 
 def coco_rle(rle: dict[str, Any]) -> CocoMask:
