@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import sqlalchemy as sa
+from sqlalchemy.dialects.sqlite.base import SQLiteCompiler
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 
@@ -68,6 +69,14 @@ class Base(DeclarativeBase):
     )
 
 
+class _SQLiteCompiler(SQLiteCompiler):
+    """SQLite's compiler, writing a query's table hint (``with_hint(…, "sqlite")``) after the
+    table's name, where SQLAlchemy's drops it: ``INDEXED BY`` names the index a list reads."""
+
+    def get_from_hint_text(self, table: Any, text: str | None) -> str | None:
+        return text
+
+
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA journal_mode=WAL")
@@ -101,6 +110,7 @@ def create_db_engine(url: str) -> Engine:
             Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
         engine = sa.create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
         sa.event.listen(engine, "connect", _sqlite_pragmas)
+        engine.dialect.statement_compiler = _SQLiteCompiler
         return engine
     if parsed.get_backend_name() != "postgresql":
         raise ConfigurationError(

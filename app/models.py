@@ -265,6 +265,14 @@ class Frame(Base):
             sqlite_where=sa.text(UNREVIEWED_SQL),
             postgresql_where=sa.text(UNREVIEWED_SQL),
         ),
+        # The uncertainty order without a status filter (the home page's default list).
+        sa.Index(
+            "ix_frames_sequence_uncertainty",
+            "sequence_id",
+            sa.text("coalesce(uncertainty, -1.0) DESC"),
+            "id",
+        ),
+        sa.Index("ix_frames_uncertainty_order", sa.text("coalesce(uncertainty, -1.0) DESC"), "id"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)

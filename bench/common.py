@@ -15,7 +15,7 @@ from pathlib import Path
 import httpx
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("WELDPOOL_SHARED_DATA") or REPO.parent / "shared" / "data")
 
 
 def free_port() -> int:

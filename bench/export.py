@@ -1,6 +1,6 @@
 """Benchmark the streamed export of reviewed labels against the zip-copy floor.
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/export.py [--labels 400] [--runs 3]``
+Run: ``PYTHONPATH=. .venv/bin/python bench/export.py [--labels 400] [--runs 3] [--s3 URL]``
 
 It stores N labelled frames as review leaves them (the real WAAM frames, cycled, as the images;
 a different hand-drawn-like pool mask per label, as a 0/255 PNG), then times ``GET
@@ -11,7 +11,10 @@ least do); the ratio is the export's total over it. Median of ``--runs``. Labels
 area, box and outlines that saving stores with them; ``yolo unstored`` is the YOLO export after
 the outlines are dropped (labels saved before revision 0011: every mask decoded from its RLE and
 traced during the export), ``coco unstored`` the COCO export after the RLE, area and box are
-dropped too (labels saved before revision 0008: every mask PNG decoded and encoded).
+dropped too (labels saved before revision 0008: every mask PNG decoded and encoded). With
+``--s3 ENDPOINT`` the same labels are stored in an object store (a fresh bucket) and exported
+by a process whose cache is cold (the home's copies removed before each run), beside the home
+folder's export (goal ≤ 1.5×).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import argparse
 import io
 import resource
+import shutil
 import statistics
 import sys
 import tempfile
@@ -29,6 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import sqlalchemy as sa
+from common import SHARED_DATA
 from fastapi.testclient import TestClient
 from results import recorded
 
@@ -43,12 +48,12 @@ from weldpool_core.io import encode_png
 from weldpool_core.outline import coco_mask, region_outlines
 
 REPO = Path(__file__).resolve().parents[1]
-FRAMES = REPO.parent / "shared" / "data" / "waam" / "frames"
+FRAMES = SHARED_DATA / "waam" / "frames"
 
 
 def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
     """``count`` labelled frames; returns an admin token and the stored files (the floor's)."""
-    storage = Storage(settings.home)
+    storage = Storage.of(settings)
     sources = sorted(FRAMES.glob("*.png"))
     if not sources:
         sys.exit(f"no frames in {FRAMES}")
@@ -130,51 +135,103 @@ def floor_s(storage: Storage, files: list[str]) -> float:
     return time.perf_counter() - start
 
 
+FORMATS = ("coco", "masks", "yolo", "cvat", "yolo unstored", "coco unstored")
+
+
+def export_times(
+    settings: Settings, token: str, formats: tuple[str, ...], runs: int, cold: bool = False
+) -> dict[str, tuple[float, float, int, int]]:
+    """(first byte s, total s, bytes, most temporary files) of each format's export, median of
+    ``runs``; ``cold``: the home's cached copies of the store's files removed before each run
+    (a process that has not read them yet)."""
+    found = {}
+    with TestClient(create_app(settings, embedded_worker=False)) as client:
+        for fmt in formats:
+            if fmt == "yolo unstored":  # labels saved before their outlines were (0011)
+                forget(settings, mask_outlines=None)
+            if fmt == "coco unstored":  # … and before their RLE was stored (0008)
+                forget(settings, mask_rle=None, mask_area=None, mask_bbox=None)
+            firsts, totals, size, leftovers = [], [], 0, 0
+            for _ in range(runs):
+                if cold:
+                    for area in ("frames", "labels"):
+                        shutil.rmtree(settings.home / area, ignore_errors=True)
+                start = time.perf_counter()
+                first = None
+                size = 0
+                with client.stream(
+                    "GET",
+                    "/api/v1/export",
+                    params={"format": fmt.split()[0]},
+                    headers={"Authorization": f"Bearer {token}"},
+                ) as response:
+                    assert response.status_code == 200, response.read()
+                    for chunk in response.iter_raw():
+                        first = first or time.perf_counter()
+                        size += len(chunk)
+                        leftovers = max(leftovers, len(list((settings.home / "tmp").glob("*"))))
+                totals.append(time.perf_counter() - start)
+                firsts.append((first or time.perf_counter()) - start)
+            found[fmt] = statistics.median(firsts), statistics.median(totals), size, leftovers
+    return found
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--labels", type=int, default=400)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument(
+        "--s3",
+        metavar="ENDPOINT",
+        help="also export from an object store at ENDPOINT (moto: http://127.0.0.1:5000) "
+        "in a process whose cache is cold, beside the home folder's export",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as home:
         settings = Settings(_env_file=None, home=Path(home))  # type: ignore[call-arg]
         token, files = fill(settings, args.labels)
         storage = Storage(settings.home)
         floor = statistics.median(floor_s(storage, files) for _ in range(args.runs))
-        print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")
-        print("| format | first byte ms | total ms | × floor | MB | temporary files |")
-        print("|---|---:|---:|---:|---:|---:|")
-        with TestClient(create_app(settings, embedded_worker=False)) as client:
-            for fmt in ("coco", "masks", "yolo", "yolo unstored", "coco unstored"):
-                if fmt == "yolo unstored":  # labels saved before their outlines were (0011)
-                    forget(settings, mask_outlines=None)
-                if fmt == "coco unstored":  # … and before their RLE was stored (0008)
-                    forget(settings, mask_rle=None, mask_area=None, mask_bbox=None)
-                firsts, totals, size, leftovers = [], [], 0, 0
-                for _ in range(args.runs):
-                    start = time.perf_counter()
-                    first = None
-                    size = 0
-                    with client.stream(
-                        "GET",
-                        "/api/v1/export",
-                        params={"format": fmt.split()[0]},
-                        headers={"Authorization": f"Bearer {token}"},
-                    ) as response:
-                        assert response.status_code == 200, response.read()
-                        for chunk in response.iter_raw():
-                            first = first or time.perf_counter()
-                            size += len(chunk)
-                            leftovers = max(leftovers, len(list((settings.home / "tmp").glob("*"))))
-                    totals.append(time.perf_counter() - start)
-                    firsts.append((first or time.perf_counter()) - start)
-                total = statistics.median(totals)
-                print(
-                    f"| {fmt} | {statistics.median(firsts) * 1000:.0f} | {total * 1000:.0f} | "
-                    f"{total / floor:.1f}× | {size / 1e6:.0f} | {leftovers} |",
-                    flush=True,
-                )
+        local = export_times(settings, token, FORMATS, args.runs)
+    print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")
+    print("| format | first byte ms | total ms | × floor | MB | temporary files |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for fmt, (first, total, size, leftovers) in local.items():
+        print(
+            f"| {fmt} | {first * 1000:.0f} | {total * 1000:.0f} | "
+            f"{total / floor:.1f}× | {size / 1e6:.0f} | {leftovers} |",
+            flush=True,
+        )
+    if args.s3:
+        cold_exports(args, local)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"\npeak RSS of this process: {peak:.0f} MB")
+
+
+def cold_exports(args: argparse.Namespace, local: dict[str, tuple[float, float, int, int]]) -> None:
+    """The same exports from an object store, each from a cold cache, beside the local ones."""
+    from storage import bucket  # bench/storage.py: a fresh bucket on the endpoint
+
+    formats = ("coco", "masks", "cvat")
+    with tempfile.TemporaryDirectory() as home:
+        settings = Settings(  # type: ignore[call-arg]
+            _env_file=None,
+            home=Path(home),
+            storage_url=f"s3://{bucket(args.s3)}/bench",
+            s3_endpoint_url=args.s3,
+        )
+        token, _ = fill(settings, args.labels)
+        remote = export_times(settings, token, formats, args.runs, cold=True)
+    print(f"\nthe object store at {args.s3}, cache cold before each export\n")
+    print("| format | first byte ms | total ms | × local |")
+    print("|---|---:|---:|---:|")
+    for fmt in formats:
+        first, total, _, _ = remote[fmt]
+        print(
+            f"| {fmt} (cold) | {first * 1000:.0f} | {total * 1000:.0f} | "
+            f"{total / local[fmt][1]:.2f}× |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

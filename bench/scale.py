@@ -15,6 +15,7 @@ of several runs, milliseconds, and the process's RSS.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import random
 import statistics
@@ -31,7 +32,6 @@ from results import recorded
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
 from app.frames import listing
-from app.frames.listing import ORDERINGS
 from app.frames.schemas import FrameOut, FramePage
 from app.main import create_app
 from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
@@ -39,7 +39,14 @@ from app.schema import migrate
 from app.security import hash_password, issue_token
 
 PAGE = 50
-ORDERS = ("id", "frame_index", "uncertainty")
+# (order, status): the plain list by id, by frame index, the queue (frames still to review) and
+# the uncertainty order of every frame (the home page's default list)
+LISTS = (
+    ("id", "all"),
+    ("frame_index", "all"),
+    ("uncertainty", "unreviewed"),
+    ("uncertainty", "all"),
+)
 POSTGRES = os.environ.get(
     "WELDPOOL_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
@@ -133,6 +140,19 @@ def median_ms(call: Any, runs: int) -> float:
     return 1000 * statistics.median(times)
 
 
+def paired_ratio(call: Any, plain: Any, runs: int) -> float:
+    """The median over ``runs`` of ``call``'s time over ``plain``'s, timed back to back: a
+    loaded machine's swings hit both alike."""
+    ratios = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        plain()
+        middle = time.perf_counter()
+        call()
+        ratios.append((time.perf_counter() - middle) / (middle - start))
+    return statistics.median(ratios)
+
+
 def rss_mb() -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -140,11 +160,30 @@ def rss_mb() -> float:
     return float("nan")
 
 
+def reverse_indexes(engine: Any) -> None:
+    """The frames table's indexes dropped and made again in the reverse order of their names."""
+    with engine.begin() as connection:
+        rows = connection.exec_driver_sql(
+            "SELECT name, sql FROM sqlite_master WHERE type = 'index' AND tbl_name = 'frames' "
+            "AND sql IS NOT NULL ORDER BY name DESC"
+        ).all()
+        for name, _ in rows:
+            connection.exec_driver_sql(f"DROP INDEX {name}")
+        for _, sql in rows:
+            connection.exec_driver_sql(sql)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=2000)
     parser.add_argument("--database", choices=["sqlite", "postgresql"], default="sqlite")
     parser.add_argument("--runs", type=int, default=7)
+    parser.add_argument(
+        "--reverse-indexes",
+        action="store_true",
+        help="make the frames table's indexes again in the reverse order (SQLite): the plans "
+        "must not change",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as home:
         if args.database == "sqlite":
@@ -160,18 +199,21 @@ def main() -> None:
             migrate(engine)
             session_factory = create_session_factory(engine)
             run_id, token = fill(session_factory, args.frames)
+            if args.reverse_indexes and args.database == "sqlite":
+                reverse_indexes(engine)
             if args.database == "postgresql":  # the statistics autovacuum would have gathered
                 with engine.begin() as connection:
                     connection.execute(sa.text("ANALYZE frames"))
             headers = {"Authorization": f"Bearer {token}"}
             app = create_app(settings)
-            print(f"{args.frames} frames in one run, {args.database}; page of {PAGE}\n")
-            print("| list | page | API ms | server ms | SQL floor ms |")
-            print("|---|---|---:|---:|---:|")
+            made = "indexes made in reverse order" if args.reverse_indexes else "indexes by name"
+            print(f"{args.frames} frames in one run, {args.database} ({made}); page of {PAGE}\n")
+            print("| list | page | API ms | server ms | SQL floor ms | server ÷ by id's, paired |")
+            print("|---|---|---:|---:|---:|---:|")
             firsts: dict[str, float] = {}
+            plain_pages: dict[str, Any] = {}
             with TestClient(app) as client, engine.connect() as connection:
-                for order in ORDERS:
-                    status = "unreviewed" if order == "uncertainty" else "all"
+                for order, status in LISTS:
                     where = [Frame.sequence_id == run_id]
                     if status == "unreviewed":
                         where.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
@@ -192,13 +234,19 @@ def main() -> None:
                             f"&limit={PAGE}&" + (f"after={after}" if after else f"offset={offset}")
                         )
                         api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
-                        server = median_ms(
-                            lambda o=order, s=status, x=offset, a=after: page_json(
-                                app, run_id, o, s, x, a
-                            ),
-                            args.runs,
+                        page = functools.partial(
+                            page_json, app, run_id, order, status, offset, after
                         )
-                        floor_query = sa.select(Frame.id).where(*where).order_by(*ORDERINGS[order])
+                        server = median_ms(page, args.runs)
+                        kind = "cursor" if after else name
+                        plain_pages.setdefault(kind, page)  # the plain list's (by id) first
+                        ratio = paired_ratio(page, plain_pages[kind], args.runs)
+                        ordered, _ = listing.list_query(
+                            sequence_id=run_id,
+                            status=None if status == "all" else "unreviewed",
+                            order=order,
+                        )  # the page's query (with the index it names), reading the ids alone
+                        floor_query = ordered.with_only_columns(Frame.id)
                         if after:
                             key = listing.parse_cursor(after, order)
                             assert isinstance(key, list)
@@ -213,16 +261,16 @@ def main() -> None:
                         )
                         how = "cursor" if after else f"offset {offset}"
                         if name == "first":
-                            firsts[order] = server
+                            firsts[f"{order} ({status})"] = server
                         print(
                             f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
-                            f"{server:.1f} | {floor:.2f} |",
+                            f"{server:.1f} | {floor:.2f} | {ratio:.2f}× |",
                             flush=True,
                         )
-            others = statistics.median(firsts[o] for o in ORDERS if o != "uncertainty")
+            others = statistics.median(firsts[o] for o in ("id (all)", "frame_index (all)"))
             print(
                 f"\nthe queue's first page (its diversity pick included) ÷ the other lists' first "
-                f"pages, server time: {firsts['uncertainty'] / others:.2f}×"
+                f"pages, server time: {firsts['uncertainty (unreviewed)'] / others:.2f}×"
             )
             print(f"RSS of this process: {rss_mb():.0f} MB")
             engine.dispose()

@@ -102,6 +102,22 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
     return rows
 
 
+def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
+    """The pixels of a compressed RLE's mask inside ``box`` ``[x, y, width, height]`` (as
+    ``CocoMask.bbox`` holds it), row-major: only the box is put in row order, not the frame."""
+    from pycocotools import mask as coco
+
+    x, y, width, height = (int(v) for v in box)
+    counts = rle["counts"]
+    encoded = {
+        "size": list(rle["size"]),
+        "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
+    }
+    columns = coco.decode(encoded)  # H×W, column-major: its .T is a row-major W×H
+    pixels: NDArray[np.bool_] = cv2.transpose(columns.T[x : x + width, y : y + height]).view(bool)
+    return pixels
+
+
 def coco_rle(rle: dict[str, Any]) -> CocoMask:
     """``CocoMask`` of a compressed RLE as it is (area and box read from the runs)."""
     from pycocotools import mask as coco

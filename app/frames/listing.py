@@ -80,7 +80,35 @@ def list_query(
     if split is not None:
         conditions.append(Frame.split == split)
     count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
-    return sa.select(Frame).where(*conditions).order_by(*ORDERINGS[order]), count
+    ordered = sa.select(Frame).where(*conditions).order_by(*ORDERINGS[order])
+    plain = review is None and assignee is None and split is None
+    page_index, count_index = _sqlite_indexes(order, status, sequence_id is not None, plain)
+    if page_index:
+        ordered = ordered.with_hint(Frame, f"INDEXED BY {page_index}", "sqlite")
+    if count_index:
+        count = count.with_hint(Frame, f"INDEXED BY {count_index}", "sqlite")
+    return ordered, count
+
+
+def _sqlite_indexes(
+    order: str, status: FrameStatus | Literal["unreviewed"] | None, one_run: bool, plain: bool
+) -> tuple[str | None, str | None]:
+    """The index a page and the count of a run's list or the queue read on SQLite, named: its
+    planner has no statistics, and among indexes it costs alike (each that starts with
+    ``sequence_id``) it takes the first in ``sqlite_master``, whose order differs between homes
+    — the queue's count then read every row of the run instead of the partial index alone.
+    ``plain``: no filter but the run and the status (others leave the choice to the planner)."""
+    if not plain:
+        return None, None
+    if status == "unreviewed":  # the partial index holds exactly these rows: nothing else read
+        queue = "ix_frames_queue_sequence" if one_run else "ix_frames_queue"
+        return (queue if order == "uncertainty" else None), queue
+    if status is None:
+        by_score = "ix_frames_sequence_uncertainty" if one_run else "ix_frames_uncertainty_order"
+        return (by_score if order == "uncertainty" else None), (
+            "ix_frames_sequence_id" if one_run else None
+        )
+    return None, None
 
 
 # Keyset pagination: a page after a cursor reads only its own rows through the order's index,

@@ -31,7 +31,7 @@ from app.imports.runs import Runs
 from app.imports.schemas import ImportOptions, ImportReport, checked_format
 from app.jobs.registry import counted
 from app.models import Frame, Label, LabelStatus, User, ValidationKeypoints
-from app.proposals.files import FrameDeleted, lock_frame, masks_in_use
+from app.proposals.files import lock_frames, masks_in_use
 from app.review.service import (
     check_keypoints,
     saved_review,
@@ -105,6 +105,11 @@ def still_active(session: Session, user: User) -> None:
         )
 
 
+def _names(label: ImportedLabel) -> set[str]:
+    """The names a label gives its image (its original name, the file's base name)."""
+    return {name for name in (label.original_name, posixpath.basename(label.image)) if name}
+
+
 def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> None:
     batch.finish()
     if progress is not None:
@@ -168,10 +173,14 @@ class _Batch:
             )
         )
         stored = self._stored_with(digests, runs.fixed)
+        named = self._stored_by_name(
+            [label for label, data in zip(labels, images, strict=True) if data is None],
+            runs.fixed,
+        )
         targets = [
             t
             for label, data, digest in zip(labels, images, digests, strict=True)
-            if (t := self._target(label, data, digest, stored, runs)) is not None
+            if (t := self._target(label, data, digest, stored, named, runs)) is not None
         ]
         self._store_frames(targets)
         self.placed = [t for t in targets if t.frame_id is not None]
@@ -259,6 +268,7 @@ class _Batch:
         data: bytes | InvalidInputError | None,
         digest: str,
         stored: dict[str, int],
+        named: dict[str, list[int]],
         runs: Runs,
     ) -> _Target | None:
         if isinstance(data, InvalidInputError):
@@ -271,7 +281,7 @@ class _Batch:
             if target.frame_id is None:
                 target.sequence_id = runs.for_label(label)
             return target
-        frame_id, problem = self._stored_named(label, runs.fixed)
+        frame_id, problem = self._stored_named(label, named, runs.fixed)
         if problem:
             self.refuse(label, problem)
             return None
@@ -291,14 +301,27 @@ class _Batch:
             query = query.where(Frame.sequence_id == sequence_id)
         return {sha: frame_id for sha, frame_id in self.session.execute(query)}
 
-    def _stored_named(
-        self, label: ImportedLabel, sequence_id: int | None
-    ) -> tuple[int | None, str]:
-        names = {label.original_name, posixpath.basename(label.image)} - {None, ""}
-        query = sa.select(Frame.id).where(Frame.original_name.in_(names)).limit(2)
+    def _stored_by_name(
+        self, labels: list[ImportedLabel], sequence_id: int | None
+    ) -> dict[str, list[int]]:
+        """The stored frames (up to two each: one more than a match) that bear each name the
+        labels give their image (in ``sequence_id`` when given): one query."""
+        names = set().union(*(_names(label) for label in labels)) if labels else set()
+        if not names:
+            return {}
+        query = sa.select(Frame.original_name, Frame.id).where(Frame.original_name.in_(names))
         if sequence_id is not None:
             query = query.where(Frame.sequence_id == sequence_id)
-        found = list(self.session.scalars(query))
+        found: dict[str, list[int]] = {}
+        for name, frame_id in self.session.execute(query.order_by(Frame.id)):
+            if len(ids := found.setdefault(name, [])) < 2:
+                ids.append(frame_id)
+        return found
+
+    def _stored_named(
+        self, label: ImportedLabel, named: dict[str, list[int]], sequence_id: int | None
+    ) -> tuple[int | None, str]:
+        found = sorted({i for name in _names(label) for i in named.get(name, [])})
         if not found:
             where = f" in sequence {sequence_id}" if sequence_id is not None else ""
             return None, (
@@ -352,11 +375,9 @@ class _Batch:
         )
         written: list[StoredFile] = []
         try:
-            for frame_id in ids:
-                try:
-                    lock_frame(session, frame_id)  # a deletion waits for this batch (PostgreSQL)
-                except FrameDeleted:
-                    frames.pop(frame_id, None)
+            present = lock_frames(session, ids)  # a deletion waits for this batch (PostgreSQL)
+            for frame_id in set(ids) - present:
+                frames.pop(frame_id, None)
             work = self._placed(targets, frames, labels)
             contents = self._contents(work)
             written, mask_paths = self._store_masks(contents)

@@ -48,7 +48,7 @@ from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKey
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_box, rle_mask
 
 if TYPE_CHECKING:
     import numpy as np
@@ -246,18 +246,21 @@ def _written(
 
 
 Writer = Callable[[zipfile.ZipFile, Storage, list[Any], Skipped], Iterator[int]]
-_ENCODERS = shared_pool(max(2, os.cpu_count() or 2), "rle")  # the route's and the job's
-_AHEAD = 8
+_READERS = shared_pool(8, "export")  # the route's and the job's
+"""Where an export reads its rows' files ahead of the writer: from an object store a frame's
+image and mask are GETs that wait on the network (8 at once), and their decoding (OpenCV,
+pycocotools) lets go of the GIL."""
+_AHEAD = 16
 
 
 def _ahead(function: Callable[[Any], Any], items: list[Any]) -> Iterator[Any]:
-    """``map(function, items)`` computed in the encoder pool at most ``_AHEAD`` items ahead of
-    the consumer (so a big export holds a few results, not all)."""
-    pending = [_ENCODERS.submit(function, item) for item in items[:_AHEAD]]
+    """``map(function, items)`` computed in the readers' pool at most ``_AHEAD`` items ahead
+    of the consumer (so a big export holds a few results, not all)."""
+    pending = [_READERS.submit(function, item) for item in items[:_AHEAD]]
     for index in range(len(items)):
         result = pending.pop(0).result()
         if index + _AHEAD < len(items):
-            pending.append(_ENCODERS.submit(function, items[index + _AHEAD]))
+            pending.append(_READERS.submit(function, items[index + _AHEAD]))
         yield result
 
 
@@ -276,18 +279,25 @@ def _trying(read: Callable[[Any], Any]) -> Callable[[Any], Any]:
 def _readable(
     storage: Storage, rows: list[Any], skipped: Skipped, read: Callable[[Any], Any] | None = None
 ) -> Iterator[tuple[int, Any, Path | None, Any]]:
-    """(done, row, image file, ``read(row)``) for every row in order, ``read`` (of the label's
-    mask) run in the encoder pool a few rows ahead. A row whose image or mask the store lost
-    comes with no image: the writer leaves it out, and it is listed in ``skipped``."""
-    results = _ahead(_trying(read), rows) if read else [None] * len(rows)
-    for done, (row, result) in enumerate(zip(rows, results, strict=True), 1):
-        frame = row[0]
+    """(done, row, image file, ``read(row)``) for every row in order, the image fetched and
+    ``read`` (of the label's mask) run in the readers' pool a few rows ahead (an object store's
+    GETs overlap). A row whose image or mask the store lost comes with no image: the writer
+    leaves it out, and it is listed in ``skipped``."""
+    attempt = _trying(read) if read else None
+
+    def fetched(row: Any) -> tuple[Path | MissingFile, Any]:
+        result = attempt(row) if attempt else None
         try:
-            if isinstance(result, MissingFile):
-                raise frame_file_missing(result, frame.id, "label mask")
-            image = frame_file(storage, frame.path, frame.id)
+            return frame_file(storage, row[0].path, row[0].id), result
         except MissingFile as missing:
-            skipped.append((frame.id, missing.message))
+            return missing, result
+
+    for done, (row, (image, result)) in enumerate(zip(rows, _ahead(fetched, rows), strict=True), 1):
+        frame = row[0]
+        if isinstance(result, MissingFile):
+            image = frame_file_missing(result, frame.id, "label mask")
+        if isinstance(image, MissingFile):
+            skipped.append((frame.id, image.message))
             yield done, row, None, None
             continue
         yield done, row, image, result
@@ -439,7 +449,7 @@ def _write_cvat(
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
     elements: list[Any] = []
-    masks = _readable(storage, rows, skipped, lambda row: _stored_mask(storage, row[1]))
+    masks = _readable(storage, rows, skipped, lambda row: _cvat_mask(storage, row[1]))
     for done, (frame, label, _, manual), path, mask in masks:
         if path is None:
             yield done
@@ -458,6 +468,17 @@ def _write_cvat(
         elements.append(cvat_image(image))
         yield done
     archive.writestr("annotations.xml", cvat_document(elements, len(elements)))
+
+
+def _cvat_mask(storage: Storage, label: Label) -> Any:
+    """A label's ``CvatMask``, in the encoder pool: from the RLE and box stored with it (only
+    the box's pixels put in row order), else from its mask."""
+    from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
+
+    box = label.mask_bbox
+    if label.mask_rle is not None and box and box[2] > 0 and box[3] > 0:
+        return cvat_box_mask(rle_box(label.mask_rle, box), int(box[0]), int(box[1]))
+    return cvat_mask(_stored_mask(storage, label))
 
 
 WRITERS: dict[str, Writer] = {

@@ -173,6 +173,11 @@ class Storage:
         pruning covers them); returns how many went."""
         return 0
 
+    def fetch_ahead(self, paths: Iterable[str]) -> None:
+        """Start bringing these files into this machine's cache, to be read soon (an object
+        store's GETs, several at once in the background); home's files are here already."""
+        return None
+
     def existing(self, relative: str) -> Path:
         """The file behind a stored relative path, for reading it (fetched into the cache
         first on an object store); MissingFile when the store no longer holds it. The one

@@ -69,7 +69,7 @@ TOUCH_EVERY_S = 60.0
 IN_USE_S = 600.0
 """The cache never evicts a file written, fetched or read within this long: a request or job
 that was just handed its path is still reading it (the bound may be passed meanwhile)."""
-_PUBLISH_POOL = shared_pool(8, "storage-publish")
+_PUBLISH_POOL = shared_pool(8, "storage-publish")  # publishing, and reading ahead
 
 
 def parse_url(url: str) -> tuple[str, str]:
@@ -361,6 +361,15 @@ class ObjectStorage(Storage):
         if relative.split("/", 1)[0] in SHARED_AREAS:
             self._ensure(relative, path)
         return path
+
+    def fetch_ahead(self, paths: Iterable[str]) -> None:
+        for relative in paths:
+            _PUBLISH_POOL.submit(self._fetched_ahead, relative)
+
+    def _fetched_ahead(self, relative: str) -> None:
+        """A file read ahead: whatever goes wrong is met again by the read that wants it."""
+        with contextlib.suppress(Exception):
+            self.fetch(relative)
 
     def _ensure(self, relative: str, path: Path) -> None:
         try:

@@ -135,6 +135,24 @@ def existing_frame_ids(session: Session, frame_ids: list[int]) -> list[int]:
     return [f for f in frame_ids if f in found]
 
 
+FETCH_AHEAD = 16
+"""Frames whose files (image, label mask) a training set's reading asks the store for ahead."""
+
+
+def _stored_paths(session: Session, frame_ids: list[int], with_images: bool) -> list[str]:
+    """The stored files a training set reads of these frames: their label masks, and their
+    images when ``with_images``."""
+    if not frame_ids:
+        return []
+    masks = sa.select(Label.mask_path).where(
+        Label.frame_id.in_(frame_ids), Label.mask_path.is_not(None)
+    )
+    paths = [p for p in session.scalars(masks) if p]
+    if with_images:
+        paths += session.scalars(sa.select(Frame.path).where(Frame.id.in_(frame_ids)))
+    return paths
+
+
 def labelled_samples(
     session: Session,
     storage: Storage,
@@ -149,7 +167,11 @@ def labelled_samples(
     the store lost when ``skipped`` is given (each listed there with what restores its file),
     else such a frame's MissingFile is raised.
     """
-    for frame_id in frame_ids:
+    for index, frame_id in enumerate(frame_ids):
+        if index % FETCH_AHEAD == 0:  # the next frames' files come while these are read
+            start = index + FETCH_AHEAD if index else 0
+            ahead = frame_ids[start : index + 2 * FETCH_AHEAD]
+            storage.fetch_ahead(_stored_paths(session, ahead, with_images))
         frame = session.get(Frame, frame_id)
         if frame is None:
             continue

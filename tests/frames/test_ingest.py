@@ -617,6 +617,7 @@ def test_start_up_prunes_training_state_of_recorded_versions(
         ("id", None, ("ix_frames_sequence_id", "pk_frames")),
         ("frame_index", None, ("ix_frames_sequence_index",)),
         ("uncertainty", "unreviewed", ("ix_frames_queue_sequence",)),
+        ("uncertainty", None, ("ix_frames_sequence_uncertainty",)),
     ],
 )
 def test_each_list_order_of_a_run_reads_its_index_instead_of_sorting(

@@ -366,3 +366,43 @@ def test_one_annotation_file_labels_the_frames_already_stored_by_name(client, ma
         headers=auth(token),
     ).json()["items"]
     assert [f["original_name"] for f in left] == ["shared.png"]
+
+
+def test_a_batch_finds_its_frames_by_name_in_one_query(client, make_user) -> None:
+    """An annotation file alone: its batch's frames are looked up by name in one query and
+    locked in one, not one of each per label (a thousand labels were two thousand queries)."""
+    from sqlalchemy.engine import Engine
+
+    _, token = make_user("namer", Role.annotator)
+    names = [f"n{i}.png" for i in range(6)]
+    files = [
+        ("files", (n, image_bytes(W, H, seed=600 + i), "image/png")) for i, n in enumerate(names)
+    ]
+    assert client.post("/api/v1/frames", files=files, headers=auth(token)).status_code == 201
+    box = [[10, 10, 40, 10, 40, 30, 10, 30]]
+    coco = {
+        "images": [{"id": i, "file_name": n, "width": W, "height": H} for i, n in enumerate(names)],
+        "annotations": [
+            {"id": i, "image_id": i, "category_id": 7, "segmentation": box}
+            for i in range(len(names))
+        ],
+        "categories": [{"id": 7, "name": "pool"}],
+    }
+    statements: list[str] = []
+
+    def seen(_conn, _cursor, statement, *_args) -> None:
+        statements.append(statement)
+
+    sa.event.listen(Engine, "before_cursor_execute", seen)
+    try:
+        job = start_import(client, token, json.dumps(coco).encode(), "coco", name="n.json")
+    finally:
+        sa.event.remove(Engine, "before_cursor_execute", seen)
+    assert job["result"]["labels"] == len(names)
+    by_name = [s for s in statements if "frames.original_name IN" in s]
+    assert len(by_name) == 1, by_name
+    one_each = [
+        s for s in statements if s.startswith("SELECT frames.id \nFROM frames \nWHERE frames.id = ")
+    ]
+    assert not one_each, one_each  # no lock (or look-up) per frame
+    assert len([s for s in statements if "FOR UPDATE" in s]) <= 1  # PostgreSQL: the batch's

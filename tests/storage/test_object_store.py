@@ -367,3 +367,26 @@ def test_a_home_with_files_of_its_own_is_pushed_before_it_becomes_a_cache(
     dead = run_cli("storage", "push", env={**env, "WELDPOOL_S3_ENDPOINT_URL": "http://127.0.0.1:9"})
     assert dead.returncode == 2 and "Traceback" not in dead.stderr
     assert dead.stderr.strip().splitlines()[-1].startswith("weldpool: The object store")
+
+
+def test_files_fetched_ahead_are_read_from_the_cache(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    """``fetch_ahead`` brings files into a machine's cache in the background (an export's or
+    a training set's next files): reading them then asks the store for nothing; a key nobody
+    stored is left for the read to find missing."""
+    from tests.helpers import wait_for
+
+    web, worker = (
+        store(tmp_path, "web", s3_url, s3_endpoint),
+        store(tmp_path, "worker", s3_url, s3_endpoint),
+    )
+    paths = [web.put(*content(40 + i), ".png").path for i in range(5)]
+    worker.fetch_ahead([*paths, "frames/00/00/none.png"])
+    wait_for(lambda: worker.reads == 5, timeout=30)
+    assert [worker.existing(p).read_bytes() for p in paths] == [
+        web.absolute(p).read_bytes() for p in paths
+    ]
+    assert worker.reads == 5  # each fetched once, ahead
+    assert not worker.absolute("frames/00/00/none.png").exists()
+    Storage(tmp_path / "home").fetch_ahead(paths)  # home's files: nothing to do

@@ -181,6 +181,38 @@ def _shape(element: Any) -> Shape:
 
 
 @dataclass(frozen=True)
+class CvatMask:
+    """A mask as CVAT writes it: the runs of its box's pixels (row-major, starting with 0s)
+    and the box."""
+
+    rle: str
+    left: int
+    top: int
+    width: int
+    height: int
+
+
+def cvat_mask(mask: NDArray[np.bool_]) -> CvatMask | None:
+    """The ``CvatMask`` of a frame's mask (None when it is empty)."""
+    rows, columns = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return None
+    top, bottom, left, right = (
+        int(rows[0]),
+        int(rows[-1]) + 1,
+        int(columns[0]),
+        int(columns[-1]) + 1,
+    )
+    return cvat_box_mask(mask[top:bottom, left:right], left, top)
+
+
+def cvat_box_mask(pixels: NDArray[np.bool_], left: int, top: int) -> CvatMask:
+    """The ``CvatMask`` of a box's pixels whose top-left is at (``left``, ``top``)."""
+    height, width = pixels.shape
+    return CvatMask(", ".join(map(str, to_cvat_rle(pixels))), left, top, width, height)
+
+
+@dataclass(frozen=True)
 class CvatImage:
     """One frame of a CVAT export: its file in the zip, size, mask and keypoints."""
 
@@ -188,7 +220,7 @@ class CvatImage:
     name: str
     width: int
     height: int
-    mask: NDArray[np.bool_]
+    mask: CvatMask | None
     keypoints: list[list[float]] | None
     validation_keypoints: list[list[float]] | None
 
@@ -210,21 +242,18 @@ def cvat_image(image: CvatImage) -> ET.Element:
     element = ET.Element(
         "image", id=str(image.id), name=image.name, width=str(image.width), height=str(image.height)
     )
-    rows, columns = np.flatnonzero(image.mask.any(axis=1)), np.flatnonzero(image.mask.any(axis=0))
-    if rows.size:
-        top, bottom, left, right = rows[0], rows[-1] + 1, columns[0], columns[-1] + 1
-        box = image.mask[top:bottom, left:right]
+    if (mask := image.mask) is not None:
         ET.SubElement(
             element,
             "mask",
             label=POOL_LABEL,
             source="manual",
             occluded="0",
-            rle=", ".join(map(str, to_cvat_rle(box))),
-            left=str(left),
-            top=str(top),
-            width=str(right - left),
-            height=str(bottom - top),
+            rle=mask.rle,
+            left=str(mask.left),
+            top=str(mask.top),
+            width=str(mask.width),
+            height=str(mask.height),
             z_order="0",
         )
     if image.keypoints:

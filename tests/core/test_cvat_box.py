@@ -1,0 +1,49 @@
+"""A CVAT mask built from the stored COCO RLE over its box is the one built from the whole
+decoded frame: same runs, same box, holes and regions touching the frame's edges kept."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
+from weldpool_core.annotations.shapes import cvat_rle
+from weldpool_core.outline import coco_mask, rle_box, rle_mask
+
+
+def _masks() -> list[np.ndarray]:
+    ring = np.zeros((60, 80), bool)
+    ring[10:40, 20:70] = True
+    ring[20:30, 30:50] = False  # a hole
+    edges = np.zeros((60, 80), bool)
+    edges[0:5, 0:10] = True  # touches the top-left corner
+    edges[50:60, 75:80] = True  # and the bottom-right one
+    rng = np.random.default_rng(3)
+    speckled = rng.random((60, 80)) > 0.7
+    return [ring, edges, speckled]
+
+
+def test_rle_box_is_the_decoded_mask_cropped_to_the_box() -> None:
+    for mask in _masks():
+        coco = coco_mask(mask)
+        x, y, w, h = coco.bbox
+        box = rle_box(coco.rle, coco.bbox)
+        assert box.dtype == np.bool_ and box.flags.c_contiguous
+        assert np.array_equal(box, rle_mask(coco.rle)[y : y + h, x : x + w])
+        assert box[0].any() and box[-1].any() and box[:, 0].any() and box[:, -1].any()  # tight
+
+
+def test_the_cvat_mask_from_the_stored_box_is_the_one_from_the_whole_frame() -> None:
+    for mask in _masks():
+        coco = coco_mask(mask)
+        whole = cvat_mask(mask)
+        from_box = cvat_box_mask(rle_box(coco.rle, coco.bbox), coco.bbox[0], coco.bbox[1])
+        assert whole == from_box
+        assert whole is not None
+        # and CVAT's reader gives the mask back, holes kept
+        runs = [int(v) for v in whole.rle.split(", ")]
+        back = np.zeros_like(mask)
+        back[whole.top : whole.top + whole.height, whole.left : whole.left + whole.width] = (
+            cvat_rle(runs, whole.width, whole.height)
+        )
+        assert np.array_equal(back, mask)
+    assert cvat_mask(np.zeros((4, 4), bool)) is None
