@@ -12,7 +12,7 @@ from app.config import Settings
 from app.storage import Storage
 
 if TYPE_CHECKING:
-    from app.queue import JobQueue
+    from app.jobs.queue import JobQueue
 
 
 def get_settings_dep(request: Request) -> Settings:

@@ -34,6 +34,7 @@ from app.housekeeping import FileCollector
 from app.imports.pool import stop_label_processes
 from app.imports.routes import router as imports_router
 from app.insights.routes import router as insights_router
+from app.jobs.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
 from app.limits import BodySizeLimit
@@ -42,7 +43,6 @@ from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.openapi import openapi_schema
 from app.proposals.routes import router as proposals_router
-from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
 from app.security import (
     SESSION_COOKIE,

@@ -18,10 +18,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.db import create_db_engine, create_session_factory
+from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
 from app.main import create_app
 from app.models import Job, JobStatus, ModelVersion, Role, User
-from app.queue import JobQueue
 from app.schema import migrate
 from app.security import issue_token
 from tests.helpers import REPO, auth, corrected_label, make_settings, wait_for, wait_for_job

@@ -19,7 +19,7 @@ LAYERS = (
     ("frames",),
     ("proposals",),
     (
-        *("jobs", "users", "system", "housekeeping", "queue", "security", "deps", "storage"),
+        *("jobs", "users", "system", "housekeeping", "security", "deps", "storage"),
         *("schema", "models", "db", "config", "errors", "bounds", "openapi", "headers", "limits"),
         *("logs", "periodic", "budgets"),
     ),

@@ -119,8 +119,8 @@ def worker(threads: int | None, lanes: str) -> None:
     teacher's and SAM2's weights) and
     registers that with its lanes: it passes on the jobs it cannot run to a worker that can,
     and refuses to start when it could run nothing at all."""
+    from app.jobs.queue import JobQueue, find_unable, run_standalone_worker
     from app.jobs.registry import LANES, kinds_in
-    from app.queue import JobQueue, find_unable, run_standalone_worker
     from app.storage import Storage
 
     served = tuple(lane for lane in LANES if lane in {p.strip() for p in lanes.split(",")})

@@ -16,10 +16,10 @@ from app.errors import (
     NotFoundError,
     PermissionDeniedError,
 )
+from app.jobs.queue import JobQueue
 from app.jobs.registry import counted, job_spec, lane_of
 from app.jobs.runner import reap_lost_jobs
 from app.models import Job, JobScope, JobStatus, Role, User
-from app.queue import JobQueue
 
 
 def create_job(

@@ -9,9 +9,9 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
 from app.db import schema_revision
+from app.jobs.queue import describe
 from app.jobs.registry import LANES, kinds_in
 from app.jobs.runner import unserved_kinds, worker_rows
-from app.queue import describe
 from app.system.status import teacher_problem
 from weldpool_core.teacher.weights import weights_status
 

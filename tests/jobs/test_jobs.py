@@ -403,7 +403,7 @@ def test_a_job_error_names_no_store_address(session_factory, settings: Settings)
 def test_the_sqlite_queue_is_counted_as_huey_counts_it(tmp_path) -> None:
     """`/health` counts the SQLite queue without importing Huey; the count must be Huey's own,
     for this queue's name and lane only, and 0 before the queue file exists."""
-    from app.queue import JobQueue
+    from app.jobs.queue import JobQueue
     from tests.helpers import make_settings
 
     engine = create_db_engine(f"sqlite:///{tmp_path / 'db.sqlite3'}")

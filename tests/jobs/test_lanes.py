@@ -16,10 +16,10 @@ from app.db import create_db_engine, create_session_factory, utcnow
 from app.jobs import runner
 from app.jobs.delivery import deliver_again, pass_on
 from app.jobs.fanout import Fanout
+from app.jobs.queue import JobQueue
 from app.jobs.registry import JobContext, job_handler
 from app.jobs.service import create_job
 from app.models import Job, JobChunk, JobStatus, Role, Worker
-from app.queue import JobQueue
 from app.schema import migrate
 from tests.helpers import auth, make_settings, wait_for, wait_for_job
 
@@ -233,7 +233,7 @@ def test_a_worker_whose_store_is_not_the_webs_takes_no_job(
 ) -> None:
     """A worker on another machine without the web process's store (here: a home of its own
     over the same database) can run no kind once frames are stored; the web's own store can."""
-    from app.queue import find_unable
+    from app.jobs.queue import find_unable
     from app.system.status import unable_kinds
     from tests.helpers import image_bytes
 

@@ -14,10 +14,10 @@ from fastapi.testclient import TestClient
 
 from app.config import Settings
 from app.db import create_db_engine, create_session_factory
+from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
 from app.main import create_app
 from app.models import Job, JobStatus, Role, User, Worker
-from app.queue import JobQueue
 from app.schema import migrate
 from tests.helpers import REPO, auth, make_settings, wait_for
 
