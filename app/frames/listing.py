@@ -27,6 +27,7 @@ from app.models import (
 from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
+from app.users.work import work_of, work_order
 from app.system.doctor import frame_file
 from weldpool_core.io import encode_png, read_image
 
@@ -56,11 +57,17 @@ def list_query(
     order: str = "id",
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    work_for: int | None = None,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
     ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
-    frames whose label is in that state of the review stage (approved: NULL too)."""
+    frames whose label is in that state of the review stage (approved: NULL too);
+    ``work_for``: that user's work (``app.users.work``), what was sent back to them first."""
     conditions: list[Any] = []
+    first: tuple[Any, ...] = ()
+    if work_for is not None:
+        conditions.append(work_of(work_for))
+        first = (work_order(),)
     if review is not None:
         state = Label.review == review
         if review == ReviewState.approved:
@@ -79,7 +86,8 @@ def list_query(
     if split is not None:
         conditions.append(Frame.split == split)
     count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
-    return sa.select(Frame).where(*conditions).order_by(*ORDERINGS[order]), count
+    ordered = sa.select(Frame).where(*conditions).order_by(*first, *ORDERINGS[order])
+    return ordered, count
 
 
 # Keyset pagination: a page after a cursor reads only its own rows through the order's index,
@@ -218,13 +226,17 @@ def list_frames(
     diversity_pool: int = 50,
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    work_for: int | None = None,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
     frames without a score last), whose first ``diversity_pool`` frames are reordered for
-    diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
+    diversity (``diversity`` > 0) so that near-identical frames do not follow each other.
+    A person's work list (``work_for``) pages by offset alone (its order leads with a case)."""
     if after is not None and offset:
         raise InvalidInputError("Use either `offset` or `after`, not both.")
+    if work_for is not None and after is not None:
+        raise InvalidInputError("A work list pages by `offset`; it has no cursor.")
     ordered, count = list_query(
         sequence_id=sequence_id,
         status=status,
@@ -232,8 +244,12 @@ def list_frames(
         order=order,
         assignee=assignee,
         review=review,
+        work_for=work_for,
     )
     total = session.scalar(count) or 0
+    if work_for is not None:
+        rows = list(session.scalars(ordered.limit(limit).offset(offset)))
+        return FramePageResult(rows, total, None)
     position = offset
     key: list[Any] | None = None
     if after is not None:
@@ -284,6 +300,16 @@ def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | No
             "spread apart (no near-copies in a row), so a score can be lower than the next one's."
         )
     return "Most uncertain first; frames without a score last."
+
+
+def review_states(session: Session, frame_ids: list[int]) -> dict[int, dict[str, Any]]:
+    """Per frame with a label in the review stage: its state and the reviewer's comment."""
+    rows = session.execute(
+        sa.select(Label.frame_id, Label.review, Label.review_comment).where(
+            Label.frame_id.in_(frame_ids), Label.review.is_not(None)
+        )
+    )
+    return {f: {"review": r, "review_comment": c} for f, r, c in rows}
 
 
 def get_frame(session: Session, frame_id: int) -> Frame:

@@ -239,7 +239,9 @@ def list_frames(
         str | None,
         Query(
             pattern=r"^(me|none|[1-9][0-9]{0,8})$",
-            description="`me`: the frames handed to the caller; `none`: to nobody; a user id.",
+            description="`me`: the frames handed to the caller (with no `status` or `review`: "
+            "the caller's work, what was sent back to them first, then what is still to "
+            "review); `none`: to nobody; a user id.",
         ),
     ] = None,
     review: Annotated[
@@ -261,6 +263,7 @@ def list_frames(
     ] = None,
 ) -> FramePage:
     """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
+    work = assignee == "me" and status is None and review is None
     page = listing.list_frames(
         session,
         sequence_id=sequence_id,
@@ -274,7 +277,7 @@ def list_frames(
         diversity_pool=settings.queue_diversity_pool,
         assignee=(
             None
-            if assignee is None
+            if assignee is None or work
             else user.id
             if assignee == "me"
             else "none"
@@ -282,9 +285,14 @@ def list_frames(
             else int(assignee)
         ),
         review=review,
+        work_for=user.id if work else None,
     )
+    reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(
-        items=[FrameOut.model_validate(r) for r in page.rows],
+        items=[
+            FrameOut.model_validate(r).model_copy(update=reviews.get(r.id, {}))
+            for r in page.rows
+        ],
         total=page.total,
         limit=limit,
         offset=offset,

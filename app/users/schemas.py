@@ -85,3 +85,11 @@ class TokenIn(InputModel):
 
 class TokenCreated(TokenOut):
     token: str = Field(description="The token itself; shown only in this answer.")
+
+
+class WorkOut(BaseModel):
+    sent_back: int = Field(description="Labels a reviewer sent back to the caller, to correct.")
+    assigned: int = Field(description="Frames handed to the caller, still to review.")
+    awaiting_review: int = Field(
+        description="Labels awaiting a reviewer's approval (reviewers; 0 for annotators)."
+    )
