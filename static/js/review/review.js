@@ -8,9 +8,9 @@
 // (preferences and overlays); this module renders the side panel, binds the controls and
 // starts the page.
 
-import { ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
+import { REVIEW_STAGE, ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
 import { score } from "../format.js";
-import { badge, formatDate, h, toast } from "../ui.js";
+import { badge, formatDate, h, reviewBadge, toast } from "../ui.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
@@ -22,16 +22,38 @@ import { Stage } from "./stage.js";
 import { S } from "./state.js";
 import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setTool, toolUsable } from "./tools.js";
 
+/** One set of verdicts per role and state. With the review stage on an annotator submits
+ * (Save), and a reviewer facing an awaiting label approves it, sends it back, or corrects it
+ * and approves it in one step; on labels of his own he accepts, rejects or saves as before
+ * (approved as he saves them). */
 export function renderVerdictNote() {
   const note = $("verdict-note");
-  if (!isReviewer()) {
+  const deciding = REVIEW_STAGE && isReviewer() && S.review?.state === "awaiting";
+  const submitting = REVIEW_STAGE && !isReviewer();
+  for (const id of ["accept", "reject"]) {
+    $(id).hidden = deciding || submitting;
+    $(id).disabled = !isReviewer() || deciding;
+  }
+  $("save").hidden = deciding;
+  $("save").firstChild.textContent = submitting ? "Submit for review " : "Save as corrected ";
+  $("save").title = submitting ? "Submit for review (S): a reviewer approves it or sends it back" : "Save as corrected (S)";
+  $("approve-corrected").disabled = !labelDirty();
+  $("approve-corrected").title = labelDirty()
+    ? "Save the label as you corrected it, approved, in one step (S)"
+    : "Correct the mask or keypoints first; Approve keeps the annotator's label as it is";
+  if (deciding) {
+    note.textContent = "Approve keeps the annotator's label; Send back returns it with what to change; or correct it here and “Correct and approve” saves yours, approved.";
+  } else if (submitting) {
+    note.textContent = S.review?.state === "returned"
+      ? "Change what the reviewer asked, then submit again."
+      : "A reviewer approves your label (it trains from then on) or sends it back with a comment.";
+  } else if (!isReviewer()) {
     note.textContent = `As ${ROLE} you save corrections; a reviewer accepts or rejects.`;
-  } else if (!S.proposal) {
-    note.textContent = "No proposal: Accept saves what you drew as corrected.";
-  } else if (!isProposal()) {
-    note.textContent = "The label shown differs from the proposal: Accept saves it as corrected.";
   } else {
-    note.textContent = "Accept keeps the proposal as it is.";
+    const own = REVIEW_STAGE ? "Your own labels count as approved. " : "";
+    note.textContent = own + (!S.proposal || !S.edit ? "No proposal: Accept saves what you drew as corrected."
+      : !isProposal() ? "The label shown differs from the proposal: Accept saves it as corrected."
+        : "Accept keeps the proposal as it is.");
   }
 }
 
@@ -49,8 +71,10 @@ export function renderFrameInfo() {
   if (S.frame.frame_index !== null) parts.push(`index ${S.frame.frame_index}`);
   if (S.frame.assignee) parts.push(`assigned to ${S.frame.assignee}`);
   $("frame-meta").textContent = parts.filter(Boolean).join(" · ");
-  const pieces = [badge(S.frame.status)];
-  if (S.revision) pieces.push(h("span", { class: "muted" }, ` revision ${S.revision}`));
+  // With the review stage, the badge says where the label stands; its verdict follows.
+  const stage = REVIEW_STAGE && S.review;
+  const pieces = [stage ? reviewBadge(S.review.state) : badge(S.frame.status)];
+  if (S.revision) pieces.push(h("span", { class: "muted" }, stage ? ` ${S.frame.status} · revision ${S.revision}` : ` revision ${S.revision}`));
   if (S.proposal) {
     const iou = S.proposal.scores?.sam2_iou;
     pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(S.proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : ""));
@@ -212,10 +236,7 @@ export function bindControls() {
     if (!S.leaving && (labelDirty() || manualDirty())) { event.preventDefault(); event.returnValue = ""; }
   });
   if (!isReviewer()) {
-    for (const id of ["accept", "reject"]) {
-      $(id).disabled = true;
-      $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
-    }
+    for (const id of ["accept", "reject"]) $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
   }
 }
 
