@@ -15,6 +15,13 @@ export const mmPerPx = (v) => (typeof v === "number" ? String(Number(v.toPrecisi
 export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
 /** "1 job", "3 jobs", "1 frame". */
 export const count = (n, word, plural = `${word}s`) => `${n} ${n === 1 ? word : plural}`;
+/** A duration given in seconds: "45 s", "9.5 min", "2.1 h". */
+export function duration(seconds) {
+  if (typeof seconds !== "number") return "–";
+  if (seconds < 90) return `${Math.round(seconds)} s`;
+  if (seconds < 5400) return `${(seconds / 60).toFixed(1)} min`;
+  return `${(seconds / 3600).toFixed(1)} h`;
+}
 /** "every frame", "every 2nd frame", "every 25th frame". */
 export function everyNth(n) {
   if (n <= 1) return "every frame";
