@@ -290,8 +290,12 @@ def _sort_position(frame: Frame) -> tuple[float, int]:
     return -score, frame_id
 
 
-def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:
+def ordering_note(
+    order: str, diversity: float, diversity_pool: int, work: bool = False
+) -> str | None:
     """How a list is ordered, in words, where the order is not evident from the scores shown."""
+    if work:
+        return "What was sent back to you first, then the frames handed to you still to review."
     if order != "uncertainty":
         return None
     if diversity > 0:

@@ -298,7 +298,7 @@ def list_frames(
         offset=offset,
         next_after=page.next_after,
         ordering=listing.ordering_note(
-            order, settings.queue_diversity, settings.queue_diversity_pool
+            order, settings.queue_diversity, settings.queue_diversity_pool, work=work
         ),
     )
 

@@ -5,7 +5,7 @@ import { api, query } from "./api.js";
 import { count, decimal, duration, iou, pct, px } from "./format.js";
 import { h } from "./ui.js";
 
-const PERIODS = { all: "all time", 1: "last 24 hours", 7: "last 7 days", 30: "last 30 days" };
+const PERIODS = [["all", "all time"], ["1", "last 24 hours"], ["7", "last 7 days"], ["30", "last 30 days"]];
 
 function since(period) {
   if (period === "all") return {};
@@ -20,8 +20,9 @@ function row(p) {
     h("td", {}, h("strong", {}, p.username), " ", h("span", { class: "muted" }, p.role)),
     h("td", { class: "num" }, String(p.labels_saved)),
     h("td", { class: "num" }, p.submitted ? `${p.sent_back} of ${p.submitted} · ${pct(p.sent_back_rate)}` : "–"),
-    h("td", { class: "num", title: `${decimal(p.active_hours, 2)} active hours` }, decimal(p.frames_per_hour)),
-    h("td", { class: "num" }, duration(p.seconds_per_frame)),
+    // Under a minute of active time says nothing about a pace (a script's saves, a first try).
+    h("td", { class: "num", title: `${decimal(p.active_hours, 2)} active hours` }, p.active_hours * 3600 < 60 ? "–" : decimal(p.frames_per_hour)),
+    h("td", { class: "num" }, p.active_hours * 3600 < 60 ? "–" : duration(p.seconds_per_frame)),
     h("td", { class: "num", title: count(p.compared_with_approved, "submission") + " compared" }, iou(p.iou_vs_approved)),
     h("td", { class: "num" }, px(p.keypoint_px_vs_approved)),
     h("td", {}, decided),
@@ -31,7 +32,7 @@ function row(p) {
 /** Fill `root` with the people table and keep it in step with its period filter. */
 export function peopleSection(root) {
   const select = h("select", { "data-testid": "people-period", "aria-label": "Period" },
-    ...Object.entries(PERIODS).map(([value, words]) => h("option", { value }, words)));
+    ...PERIODS.map(([value, words]) => h("option", { value }, words)));
   const csv = h("a", { href: "/api/v1/metrics/people?format=csv", "data-testid": "people-csv", download: "" }, "CSV");
   const body = h("tbody", {}, h("tr", {}, h("td", { colspan: "9", class: "muted" }, "Loading…")));
   const table = h("table", { class: "table people", "data-testid": "people-table" },
