@@ -27,8 +27,8 @@ from app.models import (
 from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
-from app.users.work import work_of, work_order
 from app.system.doctor import frame_file
+from app.users.work import work_of, work_order
 from weldpool_core.io import encode_png, read_image
 
 if TYPE_CHECKING:

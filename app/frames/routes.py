@@ -33,7 +33,7 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
-from app.models import FrameStatus, ReviewState, Split
+from app.models import FrameStatus, ReviewState, Split, User
 from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 
@@ -216,6 +216,15 @@ async def upload_frames(
     return JSONResponse(payload, status_code=code)
 
 
+def _assignee(value: str | None, user: User) -> int | Literal["none"] | None:
+    """The `assignee` filter as the list takes it: a user id, `none`, or no filter."""
+    if value is None:
+        return None
+    if value == "none":
+        return "none"
+    return user.id if value == "me" else int(value)
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
@@ -275,23 +284,14 @@ def list_frames(
         after=after,
         diversity=settings.queue_diversity,
         diversity_pool=settings.queue_diversity_pool,
-        assignee=(
-            None
-            if assignee is None or work
-            else user.id
-            if assignee == "me"
-            else "none"
-            if assignee == "none"
-            else int(assignee)
-        ),
+        assignee=None if work else _assignee(assignee, user),
         review=review,
         work_for=user.id if work else None,
     )
     reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(
         items=[
-            FrameOut.model_validate(r).model_copy(update=reviews.get(r.id, {}))
-            for r in page.rows
+            FrameOut.model_validate(r).model_copy(update=reviews.get(r.id, {})) for r in page.rows
         ],
         total=page.total,
         limit=limit,

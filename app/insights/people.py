@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import io
+import itertools
 import statistics
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -88,8 +89,7 @@ def _nearest_distance(approved: list[Any] | None, submitted: list[Any] | None) -
     if not approved or not submitted:
         return None
     return statistics.fmean(
-        min(((ax - sx) ** 2 + (ay - sy) ** 2) ** 0.5 for sx, sy in submitted)
-        for ax, ay in approved
+        min(((ax - sx) ** 2 + (ay - sy) ** 2) ** 0.5 for sx, sy in submitted) for ax, ay in approved
     )
 
 
@@ -100,7 +100,9 @@ def _iou(storage: Storage, submitted: LabelRevision, approved: LabelRevision) ->
     if submitted.mask_path is None or approved.mask_path is None:
         return 0.0
     try:
-        return stored_iou(storage.existing(submitted.mask_path), storage.existing(approved.mask_path))
+        return stored_iou(
+            storage.existing(submitted.mask_path), storage.existing(approved.mask_path)
+        )
     except MissingFile:  # a lost mask scores nothing (`weldpool doctor` lists it)
         return None
 
@@ -130,8 +132,10 @@ class _Walk:
                 self.decision(previous, revision)
             if not (decision and previous is not None and _same_content(previous, revision)):
                 self.save(revision, chain[index + 1 :])
-            if revision.user_id is not None and revision.source is None and self.within(
-                revision.created_at
+            if (
+                revision.user_id is not None
+                and revision.source is None
+                and self.within(revision.created_at)
             ):
                 self.people[revision.user_id].actions.append(revision.created_at)
             previous = revision
@@ -181,7 +185,7 @@ def _active(person: _Person) -> tuple[float, int]:
     moments = sorted(person.actions)
     saves = set(person.saves)
     seconds, timed = 0.0, 0
-    for before, moment in zip(moments, moments[1:], strict=False):
+    for before, moment in itertools.pairwise(moments):
         gap = (moment - before).total_seconds()
         if moment in saves and gap <= IDLE_GAP_S:
             seconds += gap

@@ -53,7 +53,7 @@ def work_counts(session: Session, user: User) -> Work:
     mine = Frame.assignee_id == user.id
     returned = session.scalar(sa.select(sa.func.count(Frame.id)).where(mine, sent_back()))
     assigned = session.scalar(sa.select(sa.func.count(Frame.id)).where(mine, still_to_review()))
-    awaiting = 0
+    awaiting: int | None = 0
     if user.role.rank >= Role.reviewer.rank:
         awaiting = session.scalar(
             sa.select(sa.func.count(Label.id)).where(Label.review == ReviewState.awaiting)

@@ -45,7 +45,9 @@ def _save(client: TestClient, token: str, frame: int, base: int, wide: bool) -> 
 def _decide(client: TestClient, token: str, frame: int, base: int, comment: str = "") -> None:
     body = {"decision": "return" if comment else "approve", "base_revision": base}
     answer = client.post(
-        f"/api/v1/frames/{frame}/label/review", json=body | {"comment": comment}, headers=auth(token)
+        f"/api/v1/frames/{frame}/label/review",
+        json=body | {"comment": comment},
+        headers=auth(token),
     )
     assert answer.status_code == 200, answer.text
 

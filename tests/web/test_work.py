@@ -24,7 +24,9 @@ def _badge(page: Any, key: str) -> str:
 
 
 def _ids(page: Any) -> list[int]:
-    return [int(r.get_attribute("data-frame-id")) for r in page.locator("[data-testid=frame-row]").all()]
+    return [
+        int(r.get_attribute("data-frame-id")) for r in page.locator("[data-testid=frame-row]").all()
+    ]
 
 
 @pytest.fixture
@@ -34,7 +36,9 @@ def stage_server(tmp_path: Any) -> Any:
     try:
         files = [("files", (f"w{i}.png", synthetic_png(900 + i), "image/png")) for i in range(3)]
         a, b, c = (f["id"] for f in server.api("POST", "/frames", files=files).json()["stored"])
-        anna = next(u for u in server.api("GET", "/users/assignable").json() if u["username"] == "anna")
+        anna = next(
+            u for u in server.api("GET", "/users/assignable").json() if u["username"] == "anna"
+        )
         server.api("POST", "/frames/assign", json={"frame_ids": [b, c], "assignee_id": anna["id"]})
         mask = synth_frame(seed=900, params=SynthParams(1280, 800)).mask
         for frame in (a, b):
@@ -64,8 +68,12 @@ def test_each_role_lands_on_its_work(browser: Any, stage_server: LiveServer) -> 
         assert _ids(page) == [a, c]  # sent back first, then her frame still to review
         first = page.locator("[data-testid=frame-row]").first
         assert first.locator("[data-testid=review-badge]").inner_text() == "sent back"
-        assert "The wire tip is inside." in first.locator("[data-testid=review-comment]").inner_text()
-        assert _badge(page, "sent-back") == "sent back 1" and _badge(page, "assigned") == "assigned 1"
+        assert (
+            "The wire tip is inside." in first.locator("[data-testid=review-comment]").inner_text()
+        )
+        assert (
+            _badge(page, "sent-back") == "sent back 1" and _badge(page, "assigned") == "assigned 1"
+        )
         assert page.locator("[data-testid=work-awaiting-review]").count() == 0
         shoot(page, "work-annotator-frames", idle=True)
 
@@ -81,7 +89,9 @@ def test_each_role_lands_on_its_work(browser: Any, stage_server: LiveServer) -> 
         shoot(page, "work-annotator-review")
         page.goto(f"{stage_server.url}/metrics")
         page.locator("[data-testid=people-row]").first.wait_for()
-        assert [r.get_attribute("data-username") for r in page.locator("[data-testid=people-row]").all()] == ["anna"]
+        assert [
+            r.get_attribute("data-username") for r in page.locator("[data-testid=people-row]").all()
+        ] == ["anna"]
         shoot(page, "work-annotator-metrics", full_page=True)
 
         page.context.clear_cookies()
@@ -97,12 +107,18 @@ def test_each_role_lands_on_its_work(browser: Any, stage_server: LiveServer) -> 
         assert page.inner_text("#frame-state [data-testid=review-badge]") == "awaiting review"
         for hidden in ("accept", "reject", "save"):
             assert page.is_hidden(f"[data-testid={hidden}]"), hidden
-        assert page.is_visible("[data-testid=approve]") and page.is_visible("[data-testid=send-back]")
+        assert page.is_visible("[data-testid=approve]") and page.is_visible(
+            "[data-testid=send-back]"
+        )
         assert page.is_disabled("[data-testid=approve-corrected]")  # nothing corrected yet
         shoot(page, "work-reviewer-review")
         page.click("[data-testid=approve]")
         page.locator("[data-testid=toast-ok]", has_text="Approved").wait_for()
-        wait_for_js(page, "document.querySelector('[data-testid=work-awaiting-review]')?.textContent === 'to approve 0'")
+        wait_for_js(
+            page,
+            "document.querySelector('[data-testid=work-awaiting-review]')?.textContent"
+            " === 'to approve 0'",
+        )
         assert page.inner_text("#frame-state [data-testid=review-badge]") == "approved"
         assert page.is_visible("[data-testid=accept]")  # his own verdicts again
 
