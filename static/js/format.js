@@ -32,6 +32,24 @@ export function everyNth(n) {
 
 const COUNTS = /^(frames|validation_frames|pseudo_labels|best_epoch|missed|epochs|steps|labels)$/;
 
+/** What a stored metric's key means, in the words the pages show (the key stays in the tooltip). */
+const METRIC_NAMES = {
+  mIoU: "mIoU (mask overlap)",
+  mED: "mED (mean keypoint distance)",
+  mED_k: "mED per keypoint (1, 2, …)",
+  mED_penalised: "mED, a missed keypoint counted as far off",
+  std: "spread of keypoint distances (std)",
+  missed: "keypoints missed",
+  frames: "frames measured",
+  validation_frames: "held-out frames",
+  best_epoch: "best epoch (the one kept)",
+  pseudo_labels: "teacher pseudo-labels",
+  epochs: "epochs",
+};
+
+/** A metric's key as words: the known ones by name, any other with its underscores as spaces. */
+export const metricName = (key) => METRIC_NAMES[key] ?? key.replaceAll("_", " ");
+
 /** A metric of a student version or a run, by its name: mIoU, distances, counts, flags. */
 export function metric(name, value) {
   if (Array.isArray(value)) return value.map((v) => metric(name, v)).join(" · ");

@@ -63,6 +63,7 @@ export const REASONS = {
   instability: "the mask changing when the prompts move slightly",
   disagreement: "the student disagreeing with the teacher",
   student_uncertainty: "the student's own doubt (unstable under small changes, or unlike what it learnt from)",
+  propagation_doubt: "SAM2's doubt about the mask it carried here from a reviewed frame",
 };
 
 export function renderFrameInfo() {
@@ -80,7 +81,8 @@ export function renderFrameInfo() {
     pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(S.proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : ""));
     if (S.proposal.scores?.low_confidence) pieces.push(h("br"), h("span", { class: "warning" }, "SAM2 lost confidence here: correct this frame and propagate again from it."));
     if (S.frame.uncertainty !== null) {
-      const reason = REASONS[S.frame.uncertainty_reason] ?? S.frame.uncertainty_reason;
+      // A component this page has no words for yet reads as words, never as a raw key.
+      const reason = REASONS[S.frame.uncertainty_reason] ?? S.frame.uncertainty_reason?.replaceAll("_", " ");
       pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
         `uncertainty ${score(S.frame.uncertainty)}`, reason ? ` — mostly ${reason}` : ""));
     }
