@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session, aliased
 from app.errors import MissingFile
 from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
 from app.proposals.policy import current, source_key, stored_iou
+from app.review.agreement import run_agreement
 from app.storage import Storage
 
 if TYPE_CHECKING:
@@ -154,5 +155,6 @@ def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
         "student": student_curve(session),
         "teacher": teacher_quality(session, storage),
         "review": review_figures(session),
+        "agreement": run_agreement(session, storage),
         "queue": {"scored_frames": int(scored or 0)},
     }
