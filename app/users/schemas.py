@@ -89,7 +89,10 @@ class TokenCreated(TokenOut):
 
 class WorkOut(BaseModel):
     sent_back: int = Field(description="Labels a reviewer sent back to the caller, to correct.")
-    assigned: int = Field(description="Frames handed to the caller, still to review.")
+    assigned: int = Field(
+        description="Frames for the caller to label: handed to them still to review, or given "
+        "to several annotators with the caller's own label not saved yet."
+    )
     awaiting_review: int = Field(
         description="Labels awaiting a reviewer's approval (reviewers; 0 for annotators)."
     )

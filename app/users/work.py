@@ -3,8 +3,9 @@
 
 A frame is a person's work while it is handed to them (``Frame.assignee_id``) and either still
 to review (new or proposed) or sent back to them: a reviewer who sends a label back hands the
-frame to the annotator who saved it. A label awaiting approval is every reviewer's work (any
-reviewer may decide), none of its annotator's.
+frame to the annotator who saved it. A frame given to several annotators for agreement
+(``OverlapLabel``) is each one's work until she has saved her own label of it. A label awaiting
+approval is every reviewer's work (any reviewer may decide), none of its annotator's.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.models import UNREVIEWED, Frame, Label, ReviewState, Role, User
+from app.models import UNREVIEWED, Frame, Label, OverlapLabel, ReviewState, Role, User
 
 
 def sent_back() -> Any:
@@ -28,9 +29,23 @@ def still_to_review() -> Any:
     return Frame.status.in_(UNREVIEWED)
 
 
+def own_label_due(user_id: int) -> Any:
+    """Frames given to ``user_id`` among several whose own label she has not saved yet."""
+    return Frame.id.in_(
+        sa.select(OverlapLabel.frame_id).where(
+            OverlapLabel.user_id == user_id, OverlapLabel.mask_path.is_(None)
+        )
+    )
+
+
+def to_label(user_id: int) -> Any:
+    """Frames ``user_id`` is to label: handed to them still to review, or their own label due."""
+    return sa.or_(sa.and_(Frame.assignee_id == user_id, still_to_review()), own_label_due(user_id))
+
+
 def work_of(user_id: int) -> Any:
-    """The frames that are ``user_id``'s to do: handed to them, and sent back or still to review."""
-    return sa.and_(Frame.assignee_id == user_id, sa.or_(sent_back(), still_to_review()))
+    """The frames that are ``user_id``'s to do: sent back to them, or to label."""
+    return sa.or_(sa.and_(Frame.assignee_id == user_id, sent_back()), to_label(user_id))
 
 
 def work_order() -> Any:
@@ -48,11 +63,12 @@ class Work:
 
 
 def work_counts(session: Session, user: User) -> Work:
-    """The caller's work: labels sent back to them, frames handed to them still to review, and
-    (reviewers) labels awaiting a reviewer's approval."""
+    """The caller's work: labels sent back to them, frames to label (handed to them still to
+    review, or given to several with their own label due), and (reviewers) labels awaiting a
+    reviewer's approval."""
     mine = Frame.assignee_id == user.id
     returned = session.scalar(sa.select(sa.func.count(Frame.id)).where(mine, sent_back()))
-    assigned = session.scalar(sa.select(sa.func.count(Frame.id)).where(mine, still_to_review()))
+    assigned = session.scalar(sa.select(sa.func.count(Frame.id)).where(to_label(user.id)))
     awaiting: int | None = 0
     if user.role.rank >= Role.reviewer.rank:
         awaiting = session.scalar(

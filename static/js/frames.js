@@ -213,6 +213,7 @@ async function loadFrames() {
 function updateSelection() {
   document.getElementById("selection-count").textContent = `${selected.size} selected`;
   document.getElementById("assign-selection").disabled = selected.size === 0;
+  document.getElementById("overlap-selection").disabled = selected.size === 0;
   document.getElementById("delete-selection").disabled = selected.size === 0;
   const teacherButton = document.getElementById("teacher-selection");
   teacherButton.disabled = selected.size === 0 || Boolean(TEACHER_PROBLEM);
@@ -544,6 +545,8 @@ async function loadAssignees() {
     h("option", { value: NOBODY }, "nobody (take them back)"));
   const filter = document.getElementById("filter-assignee");
   for (const user of users) filter.append(h("option", { value: String(user.id) }, `to ${user.username}`));
+  document.getElementById("overlap-people").replaceChildren(...users.map((user) =>
+    h("label", { class: "check" }, h("input", { type: "checkbox", name: "user", value: String(user.id), checked: user.role === "annotator" }), ` ${user.username} (${user.role})`)));
   document.getElementById("assign-controls").hidden = false;
 }
 
@@ -569,6 +572,26 @@ async function assign(body) {
 }
 
 document.getElementById("assign-selection").addEventListener("click", () => assign({ frame_ids: [...selected] }));
+
+// --- agreement: frames given to several annotators -------------------------------------------
+
+const overlapDialog = document.getElementById("overlap-dialog");
+document.getElementById("overlap-selection").addEventListener("click", () => overlapDialog.showModal());
+document.getElementById("overlap-cancel").addEventListener("click", () => overlapDialog.close());
+document.getElementById("overlap-form").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const people = [...event.target.querySelectorAll("input[name=user]:checked")].map((box) => Number(box.value));
+  try {
+    const result = await api("/frames/overlap", { method: "POST", json: { frame_ids: [...selected], user_ids: people } });
+    overlapDialog.close();
+    toast(`${count(selected.size, "frame")} given to ${people.length} people (${count(result.given, "new label")} to make).`, "ok");
+    selected.clear();
+    updateSelection();
+    loadFrames();
+  } catch (error) {
+    toast(error.message, "error");
+  }
+});
 document.getElementById("assign-next").addEventListener("click", () => {
   const next = Math.min(1000, Math.max(1, Math.round(Number(document.getElementById("assign-count").value) || 1)));
   const sequenceId = filters().sequence_id;

@@ -48,6 +48,12 @@ function render(data) {
     teacher.left_out ? h("p", { class: "muted small-text", "data-testid": "teacher-fair-note" },
       `These figures leave out the ${count(teacher.left_out, "label")} accepted unchanged from the teacher (they are its own masks, IoU 1.000 by construction), as the promotion gate does. `,
       `With them: mIoU ${iou(teacher.including_unchanged.mIoU)} over ${count(teacher.including_unchanged.frames, "frame")}.`) : "",
+    h("h2", {}, "Agreement between annotators"),
+    data.agreement?.length
+      ? table(["sequence", "frames", "mask IoU", "keypoints apart"],
+        data.agreement.map((r) => [r.sequence ?? "(no sequence)", String(r.frames), iou(r.mask_iou), px(r.keypoint_px)]),
+        "agreement-table")
+      : h("p", { class: "muted" }, "No frame has been labelled by two annotators yet (Frames page: select frames, “Give to several…”)."),
     h("h2", {}, "Review"),
     h("p", { "data-testid": "acceptance" },
       `Current labels: ${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,

@@ -9,7 +9,7 @@ const box = document.getElementById("work");
 /** Each count, the words it shows and the list it opens (the frames page's filters). */
 const ITEMS = [
   { key: "sent_back", words: "sent back", href: "/?assignee=me&review=returned&status=all&order=id", title: "Labels a reviewer sent back to you, with what to change", show: (n) => REVIEW_STAGE && (!isReviewer() || n > 0) },
-  { key: "assigned", words: "assigned", href: "/?assignee=me&status=unreviewed&order=uncertainty", title: "Frames handed to you, still to review", show: () => true },
+  { key: "assigned", words: "assigned", href: "/?assignee=work&order=uncertainty", title: "Frames for you to label: handed to you, or given to several annotators with yours still due", show: () => true },
   { key: "awaiting_review", words: "to approve", href: "/?review=awaiting&status=all&order=id", title: "Annotators' labels awaiting a reviewer's approval", show: () => REVIEW_STAGE && isReviewer() },
 ];
 

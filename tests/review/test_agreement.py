@@ -54,8 +54,15 @@ def test_labels_kept_apart_measured_and_merged(
     )
     assert by_annotator.status_code == 403
 
+    def due(token: str) -> tuple[int, list[int]]:
+        work = client.get("/api/v1/users/me/work", headers=auth(token)).json()
+        page = client.get("/api/v1/frames", params={"assignee": "me"}, headers=auth(token))
+        return work["assigned"], [f["id"] for f in page.json()["items"]]
+
+    assert due(people["otto"][1]) == (2, [f1, f2])  # each one's own label is her work
     for name, (_, token) in people.items():
         assert _own(client, token, f1, name).status_code == 200
+    assert due(people["otto"][1]) == (1, [f2])
     assert _own(client, people["anna"][1], f2, "anna").status_code == 200
     _, stranger = make_user("sam")
     refused = _own(client, stranger, f1, "anna")

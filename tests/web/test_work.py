@@ -137,3 +137,77 @@ def test_each_role_lands_on_its_work(browser: Any, stage_server: LiveServer) -> 
     finally:
         context.close()
     assert not errors, errors
+
+
+def test_agreement_in_the_browser(browser: Any, stage_server: LiveServer) -> None:
+    """Frame c given to anna and otto: anna's page keeps her label apart ("Save my label"),
+    rita's shows both labels and their agreement and merges them into the frame's label."""
+    from tests.helpers import mask_b64
+
+    _, _, c = stage_server.frames  # type: ignore[attr-defined]
+    otto = stage_server.api(
+        "POST", "/users", user="ada", json={"username": "otto", "password": "otto-password"}
+    ).json()
+    anna = next(
+        u for u in stage_server.api("GET", "/users/assignable").json() if u["username"] == "anna"
+    )
+    given = stage_server.api(
+        "POST", "/frames/overlap", json={"frame_ids": [c], "user_ids": [anna["id"], otto["id"]]}
+    )
+    assert given.json()["given"] == 2
+    wide = synth_frame(seed=902, params=SynthParams(1280, 800)).mask
+    narrow = wide.copy()
+    narrow[:, 640:] = False
+    stage_server.api(
+        "PUT", f"/frames/{c}/overlap/mine", user="anna", json={"mask_png": mask_b64(wide)}
+    )
+    token = stage_server.api(
+        "POST", "/tokens", user="ada", json={"username": "otto", "password": "otto-password"}
+    ).json()["token"]
+    stage_server.tokens["otto"] = token
+    stage_server.api(
+        "PUT", f"/frames/{c}/overlap/mine", user="otto", json={"mask_png": mask_b64(narrow)}
+    )
+
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    try:
+        login(page, stage_server, "anna")
+        page.goto(f"{stage_server.url}/frames/{c}")
+        page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        page.locator("[data-testid=agreement-own]").wait_for()
+        assert "Your label is saved" in page.inner_text("[data-testid=agreement-own]")
+        wait_for_js(
+            page,
+            "document.querySelector('[data-testid=save]').textContent.includes('Save my label')",
+        )
+        area = int(page.get_attribute("[data-testid=frame-canvas]", "data-mask-area") or 0)
+        assert area == int(wide.sum())  # her own label, not anyone else's
+        shoot(page, "agreement-annotator")
+
+        page.context.clear_cookies()
+        login(page, stage_server, "rita")
+        page.goto(f"{stage_server.url}/frames/{c}")
+        page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        figures = page.locator("[data-testid=agreement-figures]")
+        figures.wait_for()
+        expected = f"mask IoU {narrow.sum() / wide.sum():.3f}"
+        assert "2 of 2 annotators labelled" in figures.inner_text()
+        assert expected in figures.inner_text()
+        shoot(page, "agreement-reviewer")
+        page.click("[data-testid=agreement-merge]")
+        page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
+        wait_for_js(
+            page, "document.querySelector('[data-testid=frame-canvas]').dataset.revision === '1'"
+        )
+        label = stage_server.api("GET", f"/frames/{c}/label").json()
+        assert label["updated_by"] == "rita" and label["review"] == "approved"
+        page.goto(f"{stage_server.url}/metrics")
+        page.locator("[data-testid=agreement-table]").wait_for()
+        assert expected.split()[-1] in page.inner_text("[data-testid=agreement-table]")
+        shoot(page, "agreement-metrics", full_page=True)
+    finally:
+        context.close()
+    assert not errors, errors

@@ -11,6 +11,7 @@ import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { renderFrameInfo, renderPropagate, renderProposals, renderVerdictNote } from "./review.js";
 import { S } from "./state.js";
 import { refreshWork } from "../work.js";
+import { saveOwn } from "./agreement.js";
 
 export async function loadHistory() {
   try {
@@ -129,6 +130,10 @@ export async function verdictBody(kind, baseRevision) {
 export async function saveLabel(kind, baseRevision = S.revision) {
   if (S.validation) toggleValidation();
   await Promise.allSettled([...S.inflight]);
+  if (S.overlapMine) { // given to several: her own label, kept apart (agreement.js)
+    if (await saveOwn() && $("advance").checked) await goNext({ afterSave: true });
+    return;
+  }
   // Accept (with no proposal to take) or save of a stored label left as it is: nothing to
   // write (it was saved again as a new "corrected" revision, in the saver's name). Not with
   // the review stage's decision pending: an unchanged label sent back may be sent again.

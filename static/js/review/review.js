@@ -11,6 +11,7 @@
 import { REVIEW_STAGE, ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
 import { score } from "../format.js";
 import { badge, formatDate, h, reviewBadge, toast } from "../ui.js";
+import { loadAgreement } from "./agreement.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
@@ -29,19 +30,21 @@ import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointer
 export function renderVerdictNote() {
   const note = $("verdict-note");
   const deciding = REVIEW_STAGE && isReviewer() && S.review?.state === "awaiting";
-  const submitting = REVIEW_STAGE && !isReviewer();
+  const submitting = (REVIEW_STAGE || S.overlapMine) && !isReviewer();
   for (const id of ["accept", "reject"]) {
     $(id).hidden = deciding || submitting;
     $(id).disabled = !isReviewer() || deciding;
   }
   $("save").hidden = deciding;
-  $("save").firstChild.textContent = submitting ? "Submit for review " : "Save as corrected ";
+  $("save").firstChild.textContent = S.overlapMine ? "Save my label " : submitting ? "Submit for review " : "Save as corrected ";
   $("save").title = submitting ? "Submit for review (S): a reviewer approves it or sends it back" : "Save as corrected (S)";
   $("approve-corrected").disabled = !labelDirty();
   $("approve-corrected").title = labelDirty()
     ? "Save the label as you corrected it, approved, in one step (S)"
     : "Correct the mask or keypoints first; Approve keeps the annotator's label as it is";
-  if (deciding) {
+  if (S.overlapMine) {
+    note.textContent = "Your own label of a frame given to several annotators: a reviewer approves one of them or merges them.";
+  } else if (deciding) {
     note.textContent = "Approve keeps the annotator's label; Send back returns it with what to change; or correct it here and “Correct and approve” saves yours, approved.";
   } else if (submitting) {
     note.textContent = S.review?.state === "returned"
@@ -340,6 +343,7 @@ export async function start() {
   performance.mark("weldpool:interactive");
   showQueuePosition();
   loadHistory();
+  loadAgreement();
   if (!SAM2_PROBLEM) warmEmbedding();
 }
 
