@@ -45,6 +45,17 @@ const METRIC_NAMES = {
   best_epoch: "best epoch (the one kept)",
   pseudo_labels: "teacher pseudo-labels",
   epochs: "epochs",
+  med: "mED",
+  med_k: "mED per keypoint",
+  mask_loss: "mask loss",
+  heatmap_loss: "heatmap loss",
+  kl: "KL divergence",
+  beta: "β (KL weight)",
+  learning_rate: "learning rate",
+  seconds: "seconds per round",
+  step: "steps",
+  score: "selection score",
+  pretrained: "pretrained encoder",
 };
 
 /** A metric's key as words: the known ones by name, any other with its underscores as spaces. */

@@ -19,13 +19,13 @@ export function curveCharts(curve) {
     { title: "Validation mED", keys: keys.filter((k) => /med/i.test(k)), unit: "px" },
   ];
   const used = new Set(groups.flatMap((g) => g.keys));
-  for (const key of keys.filter((k) => !used.has(k))) groups.push({ title: key, keys: [key] });
+  for (const key of keys.filter((k) => !used.has(k))) groups.push({ title: metricName(key), keys: [key] });
   return groups.filter((g) => g.keys.length).map((g) => lineChart({
     title: g.title,
     unit: g.unit,
     domain: g.domain,
     series: g.keys.map((key, i) => ({
-      name: key,
+      name: metricName(key),
       colour: PALETTE[i % PALETTE.length],
       points: curve.filter((row) => typeof row[key] === "number").map((row) => [row.epoch, row[key]]),
     })),
