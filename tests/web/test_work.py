@@ -197,7 +197,8 @@ def test_agreement_in_the_browser(browser: Any, stage_server: LiveServer) -> Non
         assert "2 of 2 annotators labelled" in figures.inner_text()
         assert expected in figures.inner_text()
         shoot(page, "agreement-reviewer")
-        page.click("[data-testid=agreement-merge]")
+        with page.expect_navigation():  # the page reloads on the frame's new label
+            page.click("[data-testid=agreement-merge]")
         page.wait_for_selector("[data-testid=frame-canvas][data-ready]")
         wait_for_js(
             page, "document.querySelector('[data-testid=frame-canvas]').dataset.revision === '1'"
