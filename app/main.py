@@ -43,6 +43,7 @@ from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.openapi import openapi_schema
 from app.proposals.routes import router as proposals_router
+from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
 from app.security import (
     SESSION_COOKIE,
@@ -276,6 +277,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(proposals_router, prefix=api, dependencies=protected)
     app.include_router(teacher_router, prefix=api, dependencies=protected)
     app.include_router(review_router, prefix=api, dependencies=protected)
+    app.include_router(agreement_router, prefix=api, dependencies=protected)
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)
     app.include_router(insights_router, prefix=api, dependencies=protected)

@@ -424,6 +424,26 @@ class LabelRevision(Base):
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class OverlapLabel(Base):
+    """One annotator's own label of a frame given to several (``app.review.agreement``): kept
+    apart from the frame's label, never trained on, until a reviewer approves one of them or
+    merges them into the frame's label; kept after that, for the agreement figures. A row
+    without a mask is a frame given to that annotator and not labelled yet."""
+
+    __tablename__ = "overlap_labels"
+    __table_args__ = (sa.UniqueConstraint("frame_id", "user_id"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), index=True
+    )
+    user_id: Mapped[int] = mapped_column(sa.ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    mask_path: Mapped[str | None] = mapped_column(sa.String(500))
+    keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    updated_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
+
+
 class ValidationKeypoints(Base):
     """Keypoints placed by hand; their frame is in the validation split."""
 
@@ -594,6 +614,7 @@ STORED_PATH_COLUMNS = (
     Proposal.heatmap_path,
     Label.mask_path,
     LabelRevision.mask_path,
+    OverlapLabel.mask_path,
 )
 """Every column that names a stored file under WELDPOOL_HOME (the store is content-addressed,
 so one file may be named by several rows): what start-up sweeping and deletions consult."""

@@ -29,6 +29,7 @@ from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
 from app.system.doctor import frame_file
+from app.users.work import work_of, work_order
 from weldpool_core.io import encode_png, read_image
 
 if TYPE_CHECKING:
@@ -57,11 +58,17 @@ def list_query(
     order: str = "id",
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    work_for: int | None = None,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
     ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
-    frames whose label is in that state of the review stage (approved: NULL too)."""
+    frames whose label is in that state of the review stage (approved: NULL too);
+    ``work_for``: that user's work (``app.users.work``), what was sent back to them first."""
     conditions: list[Any] = []
+    first: tuple[Any, ...] = ()
+    if work_for is not None:
+        conditions.append(work_of(work_for))
+        first = (work_order(),)
     if review is not None:
         state = Label.review == review
         if review == ReviewState.approved:
@@ -80,7 +87,7 @@ def list_query(
     if split is not None:
         conditions.append(Frame.split == split)
     count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
-    ordered = sa.select(Frame).where(*conditions).order_by(*ORDERINGS[order])
+    ordered = sa.select(Frame).where(*conditions).order_by(*first, *ORDERINGS[order])
     plain = review is None and assignee is None and split is None
     page_index, count_index = _sqlite_indexes(order, status, sequence_id is not None, plain)
     if page_index:
@@ -247,13 +254,17 @@ def list_frames(
     diversity_pool: int = 50,
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    work_for: int | None = None,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
     frames without a score last), whose first ``diversity_pool`` frames are reordered for
-    diversity (``diversity`` > 0) so that near-identical frames do not follow each other."""
+    diversity (``diversity`` > 0) so that near-identical frames do not follow each other.
+    A person's work list (``work_for``) pages by offset alone (its order leads with a case)."""
     if after is not None and offset:
         raise InvalidInputError("Use either `offset` or `after`, not both.")
+    if work_for is not None and after is not None:
+        raise InvalidInputError("A work list pages by `offset`; it has no cursor.")
     ordered, count = list_query(
         sequence_id=sequence_id,
         status=status,
@@ -261,8 +272,12 @@ def list_frames(
         order=order,
         assignee=assignee,
         review=review,
+        work_for=work_for,
     )
     total = session.scalar(count) or 0
+    if work_for is not None:
+        rows = list(session.scalars(ordered.limit(limit).offset(offset)))
+        return FramePageResult(rows, total, None)
     position = offset
     key: list[Any] | None = None
     if after is not None:
@@ -303,8 +318,12 @@ def _sort_position(frame: Frame) -> tuple[float, int]:
     return -score, frame_id
 
 
-def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | None:
+def ordering_note(
+    order: str, diversity: float, diversity_pool: int, work: bool = False
+) -> str | None:
     """How a list is ordered, in words, where the order is not evident from the scores shown."""
+    if work:
+        return "What was sent back to you first, then the frames handed to you still to review."
     if order != "uncertainty":
         return None
     if diversity > 0:
@@ -313,6 +332,16 @@ def ordering_note(order: str, diversity: float, diversity_pool: int) -> str | No
             "spread apart (no near-copies in a row), so a score can be lower than the next one's."
         )
     return "Most uncertain first; frames without a score last."
+
+
+def review_states(session: Session, frame_ids: list[int]) -> dict[int, dict[str, Any]]:
+    """Per frame with a label in the review stage: its state and the reviewer's comment."""
+    rows = session.execute(
+        sa.select(Label.frame_id, Label.review, Label.review_comment).where(
+            Label.frame_id.in_(frame_ids), Label.review.is_not(None)
+        )
+    )
+    return {f: {"review": r, "review_comment": c} for f, r, c in rows}
 
 
 def frame_state(session: Session, storage: Storage, frame: Frame) -> dict[str, Any]:

@@ -33,7 +33,7 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
-from app.models import FrameStatus, ReviewState, Split
+from app.models import FrameStatus, ReviewState, Split, User
 from app.models import get_frame as frame_by_id
 from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
@@ -217,6 +217,15 @@ async def upload_frames(
     return JSONResponse(payload, status_code=code)
 
 
+def _assignee(value: str | None, user: User) -> int | Literal["none"] | None:
+    """The `assignee` filter as the list takes it: a user id, `none`, or no filter."""
+    if value is None:
+        return None
+    if value == "none":
+        return "none"
+    return user.id if value == "me" else int(value)
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
@@ -240,7 +249,9 @@ def list_frames(
         str | None,
         Query(
             pattern=r"^(me|none|[1-9][0-9]{0,8})$",
-            description="`me`: the frames handed to the caller; `none`: to nobody; a user id.",
+            description="`me`: the frames handed to the caller (with no `status` or `review`: "
+            "the caller's work, what was sent back to them first, then what is still to "
+            "review); `none`: to nobody; a user id.",
         ),
     ] = None,
     review: Annotated[
@@ -262,6 +273,7 @@ def list_frames(
     ] = None,
 ) -> FramePage:
     """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
+    work = assignee == "me" and status is None and review is None
     page = listing.list_frames(
         session,
         sequence_id=sequence_id,
@@ -273,25 +285,21 @@ def list_frames(
         after=after,
         diversity=settings.queue_diversity,
         diversity_pool=settings.queue_diversity_pool,
-        assignee=(
-            None
-            if assignee is None
-            else user.id
-            if assignee == "me"
-            else "none"
-            if assignee == "none"
-            else int(assignee)
-        ),
+        assignee=None if work else _assignee(assignee, user),
         review=review,
+        work_for=user.id if work else None,
     )
+    reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(
-        items=[FrameOut.model_validate(r) for r in page.rows],
+        items=[
+            FrameOut.model_validate(r).model_copy(update=reviews.get(r.id, {})) for r in page.rows
+        ],
         total=page.total,
         limit=limit,
         offset=offset,
         next_after=page.next_after,
         ordering=listing.ordering_note(
-            order, settings.queue_diversity, settings.queue_diversity_pool
+            order, settings.queue_diversity, settings.queue_diversity_pool, work=work
         ),
     )
 

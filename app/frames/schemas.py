@@ -176,6 +176,14 @@ class FrameOut(BaseModel):
         default=None, description="The user the frame is handed to (`POST /frames/assign`)."
     )
     assignee: str | None = Field(default=None, description="That user's name.")
+    review: ReviewState | None = Field(
+        default=None,
+        description="In lists: where the label stands in the review stage (`awaiting`, "
+        "`returned`: sent back, `approved`); null without one.",
+    )
+    review_comment: str | None = Field(
+        default=None, description="In lists: why a reviewer sent the label back."
+    )
 
     @field_validator("assignee", mode="before")
     @classmethod

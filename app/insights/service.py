@@ -7,11 +7,12 @@ from collections import defaultdict
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, aliased
 
 from app.errors import MissingFile
 from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
 from app.proposals.policy import current, source_key, stored_iou
+from app.review.agreement import run_agreement
 from app.storage import Storage
 
 if TYPE_CHECKING:
@@ -51,38 +52,51 @@ def _summary(values: list[float]) -> dict[str, Any]:
 
 
 def teacher_quality(session: Session, storage: Storage) -> dict[str, Any]:
-    """The teacher's mask against the reviewed mask (accepted or corrected), per sequence."""
+    """The teacher's mask against the reviewed mask (accepted or corrected), per sequence.
+
+    As the training gate does, the fair figures (``overall``, ``by_sequence``) leave out the
+    labels that *are* the teacher's mask, accepted unchanged from a teacher proposal (the
+    teacher scores 1.0 on them by construction); ``including_unchanged`` has every label and
+    ``left_out`` counts those left out."""
     newest_teacher = (
         sa.select(Proposal.frame_id, sa.func.max(Proposal.id).label("proposal_id"))
         .where(Proposal.source == "teacher")
         .group_by(Proposal.frame_id)
         .subquery()
     )
+    started_from = aliased(Proposal)
+    taken = sa.and_(Label.mask_changed.is_(False), started_from.source == "teacher")
     rows = session.execute(
-        sa.select(Sequence.id, Sequence.name, Proposal.mask_path, Label.mask_path)
+        sa.select(Sequence.id, Sequence.name, Proposal.mask_path, Label.mask_path, taken)
         .join(Frame, Frame.id == Label.frame_id)
         .outerjoin(Sequence, Sequence.id == Frame.sequence_id)
         .join(newest_teacher, newest_teacher.c.frame_id == Frame.id)
         .join(Proposal, Proposal.id == newest_teacher.c.proposal_id)
+        .outerjoin(started_from, started_from.id == Label.proposal_id)
         .where(Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]))
     )
     per_sequence: dict[tuple[int | None, str | None], list[float]] = defaultdict(list)
-    for sequence_id, name, teacher_mask, label_mask in rows:
+    everything: list[float] = []
+    for sequence_id, name, teacher_mask, label_mask, unchanged in rows:
         if label_mask:
             try:
                 iou = stored_iou(storage.existing(teacher_mask), storage.existing(label_mask))
             except MissingFile:  # a lost mask scores nothing (`weldpool doctor` lists it)
                 continue
-            per_sequence[(sequence_id, name)].append(iou)
-    everything = [v for values in per_sequence.values() for v in values]
+            everything.append(iou)
+            if not unchanged:
+                per_sequence[(sequence_id, name)].append(iou)
+    fair = [v for values in per_sequence.values() for v in values]
     return {
-        "overall": _summary(everything),
+        "overall": _summary(fair),
         "by_sequence": [
             {"sequence_id": sid, "sequence": name} | _summary(values)
             for (sid, name), values in sorted(
                 per_sequence.items(), key=lambda item: str(item[0][1])
             )
         ],
+        "including_unchanged": _summary(everything),
+        "left_out": len(everything) - len(fair),
     }
 
 
@@ -141,5 +155,6 @@ def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
         "student": student_curve(session),
         "teacher": teacher_quality(session, storage),
         "review": review_figures(session),
+        "agreement": run_agreement(session, storage),
         "queue": {"scored_frames": int(scored or 0)},
     }

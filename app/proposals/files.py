@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
 from app.errors import NotFoundError
-from app.models import Frame, LabelRevision, Proposal
+from app.models import Frame, LabelRevision, OverlapLabel, Proposal
 from app.storage import Storage, StoredFile
 from app.system.doctor import frame_file
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
@@ -43,13 +43,16 @@ def store_mask(storage: Storage, mask: NDArray[np.bool_]) -> str:
 
 
 def masks_in_use(session: Session, paths: list[str]) -> set[str]:
-    """Which of ``paths`` a committed label revision or proposal names."""
+    """Which of ``paths`` a committed label revision, proposal or annotator's own label names."""
     used = set(
         session.scalars(
             sa.select(LabelRevision.mask_path).where(LabelRevision.mask_path.in_(paths))
         )
     )
     used |= set(session.scalars(sa.select(Proposal.mask_path).where(Proposal.mask_path.in_(paths))))
+    used |= set(
+        session.scalars(sa.select(OverlapLabel.mask_path).where(OverlapLabel.mask_path.in_(paths)))
+    )
     return {p for p in used if p}
 
 

@@ -357,7 +357,8 @@ def review_label(
     review_stage: bool,
 ) -> Label:
     """A reviewer approves an annotator's label, or sends it back with a comment: a new
-    revision with the same content, by the reviewer (the history shows who decided)."""
+    revision with the same content, by the reviewer (the history shows who decided). Sent
+    back, the frame is handed to the annotator who saved the label (``app.users.work``)."""
     if not review_stage:
         raise InvalidInputError(
             "The review stage is off (WELDPOOL_REVIEW_STAGE): saved labels count at once."
@@ -390,8 +391,11 @@ def review_label(
         "review": wanted,
         "review_comment": text or None,
     }
+    submitter = label.updated_by_id
     try:
         label = write_label(session, frame, label, base_revision, values)
+        if not approve and submitter is not None:
+            frame.assignee_id, frame.assigned_at = submitter, utcnow()
         session.commit()
     except sa.exc.IntegrityError:
         session.rollback()

@@ -382,7 +382,7 @@ def _summary(
     med = metrics.get("mED")
     scores = f"mIoU {metrics.get('mIoU', 0.0):.3f}" + (f", mED {med:.1f} px" if med else "")
     if not verdict["promote"]:
-        verdict_text = f"not promoted: {verdict['reason']}"
+        verdict_text = f"not promoted: {verdict['reason'].removeprefix('Not promoted: ')}"
     elif promoted:
         verdict_text = "promoted"
     else:

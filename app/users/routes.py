@@ -18,7 +18,7 @@ from app.security import (
     authenticate_throttled,
     optional_user,
 )
-from app.users import service
+from app.users import service, work
 from app.users.schemas import (
     CsrfOut,
     PasswordChange,
@@ -30,6 +30,7 @@ from app.users.schemas import (
     UserIn,
     UserOut,
     UserPatch,
+    WorkOut,
 )
 
 router = APIRouter(tags=["users"])
@@ -39,6 +40,18 @@ router = APIRouter(tags=["users"])
 def me(user: CurrentUser) -> UserOut:
     """The caller."""
     return UserOut.model_validate(user)
+
+
+@router.get("/users/me/work", response_model=WorkOut)
+def my_work(session: SessionDep, user: CurrentUser) -> WorkOut:
+    """The caller's work as counts (the header's badge): labels sent back to them, frames handed
+    to them still to review, and (reviewers) labels awaiting approval. Each opens its list:
+    `GET /frames?assignee=me&review=returned`, `?assignee=me&status=unreviewed`,
+    `?review=awaiting`; `GET /frames?assignee=me` alone lists the first two, sent back first."""
+    counts = work.work_counts(session, user)
+    return WorkOut(
+        sent_back=counts.sent_back, assigned=counts.assigned, awaiting_review=counts.awaiting_review
+    )
 
 
 @router.get("/users/me/csrf", response_model=CsrfOut)

@@ -85,3 +85,14 @@ class TokenIn(InputModel):
 
 class TokenCreated(TokenOut):
     token: str = Field(description="The token itself; shown only in this answer.")
+
+
+class WorkOut(BaseModel):
+    sent_back: int = Field(description="Labels a reviewer sent back to the caller, to correct.")
+    assigned: int = Field(
+        description="Frames for the caller to label: handed to them still to review, or given "
+        "to several annotators with the caller's own label not saved yet."
+    )
+    awaiting_review: int = Field(
+        description="Labels awaiting a reviewer's approval (reviewers; 0 for annotators)."
+    )

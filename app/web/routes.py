@@ -82,11 +82,18 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
 
 
 def _login_page(
-    request: Request, next_url: str, error: str = "", status_code: int = 200
+    request: Request, next_url: str, error: str = "", status_code: int = 200, username: str = ""
 ) -> Response:
+    """The login form; after a refusal it keeps the name typed (only the password is retyped)."""
     token = new_csrf_token()
     response = render(
-        request, "login.html", status_code, next=next_url, error=error, login_csrf=token
+        request,
+        "login.html",
+        status_code,
+        next=next_url,
+        error=error,
+        login_csrf=token,
+        username=username[:64],
     )
     response.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict", path="/login")
     return response
@@ -117,11 +124,11 @@ def login(
     try:
         user = authenticate_throttled(request, session, username, password)
     except TooManyAttemptsError as exc:
-        response = _login_page(request, _safe_next(next), exc.message, 429)
+        response = _login_page(request, _safe_next(next), exc.message, 429, username)
         response.headers["Retry-After"] = str(math.ceil(exc.retry_after))
         return response
     except AuthenticationError as exc:
-        return _login_page(request, _safe_next(next), exc.message, 401)
+        return _login_page(request, _safe_next(next), exc.message, 401, username)
     _, cookie = open_web_session(session, user, settings.session_ttl_hours)
     user.last_login_at = utcnow()
     session.commit()

@@ -15,6 +15,13 @@ export const mmPerPx = (v) => (typeof v === "number" ? String(Number(v.toPrecisi
 export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
 /** "1 job", "3 jobs", "1 frame". */
 export const count = (n, word, plural = `${word}s`) => `${n} ${n === 1 ? word : plural}`;
+/** A duration given in seconds: "45 s", "9.5 min", "2.1 h". */
+export function duration(seconds) {
+  if (typeof seconds !== "number") return "–";
+  if (seconds < 90) return `${Math.round(seconds)} s`;
+  if (seconds < 5400) return `${(seconds / 60).toFixed(1)} min`;
+  return `${(seconds / 3600).toFixed(1)} h`;
+}
 /** "every frame", "every 2nd frame", "every 25th frame". */
 export function everyNth(n) {
   if (n <= 1) return "every frame";
@@ -24,6 +31,35 @@ export function everyNth(n) {
 }
 
 const COUNTS = /^(frames|validation_frames|pseudo_labels|best_epoch|missed|epochs|steps|labels)$/;
+
+/** What a stored metric's key means, in the words the pages show (the key stays in the tooltip). */
+const METRIC_NAMES = {
+  mIoU: "mIoU (mask overlap)",
+  mED: "mED (mean keypoint distance)",
+  mED_k: "mED per keypoint (1, 2, …)",
+  mED_penalised: "mED, a missed keypoint counted as far off",
+  std: "spread of keypoint distances (std)",
+  missed: "keypoints missed",
+  frames: "frames measured",
+  validation_frames: "held-out frames",
+  best_epoch: "best epoch (the one kept)",
+  pseudo_labels: "teacher pseudo-labels",
+  epochs: "epochs",
+  med: "mED",
+  med_k: "mED per keypoint",
+  mask_loss: "mask loss",
+  heatmap_loss: "heatmap loss",
+  kl: "KL divergence",
+  beta: "β (KL weight)",
+  learning_rate: "learning rate",
+  seconds: "seconds per round",
+  step: "steps",
+  score: "selection score",
+  pretrained: "pretrained encoder",
+};
+
+/** A metric's key as words: the known ones by name, any other with its underscores as spaces. */
+export const metricName = (key) => METRIC_NAMES[key] ?? key.replaceAll("_", " ");
 
 /** A metric of a student version or a run, by its name: mIoU, distances, counts, flags. */
 export function metric(name, value) {

@@ -3,7 +3,7 @@
 
 import { api, ApiError, isReviewer, jobFromButton, query, ROLE, TEACHER_PROBLEM, upload, waitForJob } from "./api.js";
 import { count, decimal, everyNth, mmPerPx, score } from "./format.js";
-import { badge, formatBytes, h, progressBar, setProgress, toast } from "./ui.js";
+import { badge, formatBytes, h, progressBar, reviewBadge, setProgress, toast } from "./ui.js";
 import { probeVideo } from "./video.js";
 
 const PAGE_SIZE = 50;
@@ -23,10 +23,34 @@ let nextAfter = null;
 
 // --- filters and the URL ----------------------------------------------------------------------
 
-function filters() {
+/** The filters as the form holds them (and the URL keeps them). */
+function formValues() {
   const values = Object.fromEntries(new FormData(filterForm));
   values.order ||= "uncertainty";
   return values;
+}
+
+/** The filters as the API takes them: "my work" is the assignee filter `me` with no status
+ * or review filter (the server's list: sent back to me first, then still to review). */
+function filters() {
+  const values = formValues();
+  if (values.assignee === WORK) {
+    values.assignee = "me";
+    delete values.status;
+    delete values.review;
+  }
+  return values;
+}
+
+const WORK = "work";
+
+/** Status and review do not apply to "my work": the list is the person's work itself. */
+function syncWorkFilter() {
+  const work = filterForm.elements.assignee.value === WORK;
+  for (const name of ["status", "review"]) {
+    const field = filterForm.elements[name];
+    if (field) { field.disabled = work; field.title = work ? "“Assigned: my work” lists what was sent back to you, then what is still to review" : ""; }
+  }
 }
 
 /** The list's filters as the review page's queue context. */
@@ -44,7 +68,7 @@ function restoreFilters() {
 }
 
 function syncUrl() {
-  history.replaceState(null, "", `/${query({ ...filters(), offset: offset || "" })}`);
+  history.replaceState(null, "", `/${query({ ...formValues(), offset: offset || "" })}`);
 }
 
 // --- sequences --------------------------------------------------------------------------------
@@ -145,7 +169,9 @@ function frameRow(frame) {
     h("td", {}, h("a", { href, class: "frame-link" }, `#${frame.id}`), " ",
       h("span", { class: "muted name" }, frame.original_name || (frame.frame_index !== null ? `frame ${frame.frame_index}` : ""))),
     h("td", { class: "muted" }, `${frame.width}×${frame.height}`, frame.bit_depth === 16 ? " · 16-bit" : "", h("br"), formatBytes(frame.size_bytes)),
-    h("td", {}, badge(frame.status)),
+    h("td", {}, badge(frame.status), frame.review ? [" ", reviewBadge(frame.review)] : null,
+      frame.review === "returned" && frame.review_comment
+        ? h("span", { class: "review-comment", "data-testid": "review-comment" }, `“${frame.review_comment}”`) : null),
     h("td", {}, frame.split),
     h("td", { "data-testid": "frame-assignee" }, frame.assignee ?? h("span", { class: "muted" }, "—")),
     h("td", { class: "num" }, uncertainty),
@@ -168,7 +194,9 @@ async function loadFrames() {
   rows.replaceChildren(...(lastPage.items.length
     ? lastPage.items.map(frameRow)
     : [h("tr", {}, h("td", { colspan: "8", class: "empty", "data-testid": "frames-empty" },
-        filters().status === "unreviewed"
+        formValues().assignee === WORK
+          ? "Nothing is waiting for you: nothing was sent back, and every frame handed to you is labelled."
+        : filters().status === "unreviewed"
           ? "Nothing left to review here. Status “all” shows the frames already reviewed; drop frames above to add more."
           : "No frames match. Drop frames above, or import labels made elsewhere, to start."))]));
   const note = document.getElementById("order-note");
@@ -185,6 +213,7 @@ async function loadFrames() {
 function updateSelection() {
   document.getElementById("selection-count").textContent = `${selected.size} selected`;
   document.getElementById("assign-selection").disabled = selected.size === 0;
+  document.getElementById("overlap-selection").disabled = selected.size === 0;
   document.getElementById("delete-selection").disabled = selected.size === 0;
   const teacherButton = document.getElementById("teacher-selection");
   teacherButton.disabled = selected.size === 0 || Boolean(TEACHER_PROBLEM);
@@ -192,6 +221,7 @@ function updateSelection() {
 }
 
 async function refresh() {
+  syncWorkFilter();
   syncUrl();
   updateUploadTarget();
   await loadFrames();
@@ -510,15 +540,25 @@ async function loadAssignees() {
   if (!isReviewer()) return;
   const users = await api("/users/assignable");
   assignTo.replaceChildren(
+    h("option", { value: "", disabled: true, selected: true }, "choose a person…"),
     ...users.map((user) => h("option", { value: String(user.id) }, `${user.username} (${user.role})`)),
-    h("option", { value: "" }, "nobody (take them back)"));
+    h("option", { value: NOBODY }, "nobody (take them back)"));
   const filter = document.getElementById("filter-assignee");
   for (const user of users) filter.append(h("option", { value: String(user.id) }, `to ${user.username}`));
+  document.getElementById("overlap-people").replaceChildren(...users.map((user) =>
+    h("label", { class: "check" }, h("input", { type: "checkbox", name: "user", value: String(user.id), checked: user.role === "annotator" }), ` ${user.username} (${user.role})`)));
   document.getElementById("assign-controls").hidden = false;
 }
 
+const NOBODY = "nobody";
+
 async function assign(body) {
-  const assigneeId = assignTo.value ? Number(assignTo.value) : null;
+  if (!assignTo.value) {
+    toast("Choose who to hand the frames to (“Hand to”).", "error");
+    assignTo.focus();
+    return;
+  }
+  const assigneeId = assignTo.value === NOBODY ? null : Number(assignTo.value);
   try {
     const result = await api("/frames/assign", { method: "POST", json: { ...body, assignee_id: assigneeId } });
     if (!result.assigned) toast("Nobody's frames are left in this queue to hand out.", "info");
@@ -532,19 +572,48 @@ async function assign(body) {
 }
 
 document.getElementById("assign-selection").addEventListener("click", () => assign({ frame_ids: [...selected] }));
+
+// --- agreement: frames given to several annotators -------------------------------------------
+
+const overlapDialog = document.getElementById("overlap-dialog");
+document.getElementById("overlap-selection").addEventListener("click", () => overlapDialog.showModal());
+document.getElementById("overlap-cancel").addEventListener("click", () => overlapDialog.close());
+document.getElementById("overlap-form").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const people = [...event.target.querySelectorAll("input[name=user]:checked")].map((box) => Number(box.value));
+  try {
+    const result = await api("/frames/overlap", { method: "POST", json: { frame_ids: [...selected], user_ids: people } });
+    overlapDialog.close();
+    toast(`${count(selected.size, "frame")} given to ${people.length} people (${count(result.given, "new label")} to make).`, "ok");
+    selected.clear();
+    updateSelection();
+    loadFrames();
+  } catch (error) {
+    toast(error.message, "error");
+  }
+});
 document.getElementById("assign-next").addEventListener("click", () => {
   const next = Math.min(1000, Math.max(1, Math.round(Number(document.getElementById("assign-count").value) || 1)));
   const sequenceId = filters().sequence_id;
   assign({ next, ...(sequenceId ? { sequence_id: Number(sequenceId) } : {}) });
 });
 
-/** An annotator with frames handed to them starts on those (unless the URL says otherwise). */
-async function assignedFirst() {
-  if (ROLE !== "annotator" || new URLSearchParams(location.search).has("assignee")) return;
-  const mine = await api("/frames?assignee=me&status=unreviewed&limit=1").catch(() => null);
-  if (mine?.total) {
-    filterForm.elements.assignee.value = "me";
-    toast(`${count(mine.total, "frame")} to review ${mine.total > 1 ? "are" : "is"} assigned to you: shown first. “Assigned: to anyone” shows all.`, "info", 6000);
+/** Where a person lands (unless the URL names filters): an annotator on her work (what was
+ * sent back to her, then what is handed to her); a reviewer on what awaits his approval, else
+ * on the frames handed to him. */
+async function landing() {
+  if (FILTERS.some((name) => new URLSearchParams(location.search).has(name))) return;
+  const work = await api("/users/me/work").catch(() => null);
+  if (!work) return;
+  if (isReviewer() && work.awaiting_review && filterForm.elements.review) {
+    filterForm.elements.review.value = "awaiting";
+    filterForm.elements.status.value = "all";
+    filterForm.elements.order.value = "id";
+    toast(`${count(work.awaiting_review, "label")} await${work.awaiting_review > 1 ? "" : "s"} your approval: shown first. “Review: any” shows every frame.`, "info", 6000);
+  } else if (work.sent_back || work.assigned) {
+    filterForm.elements.assignee.value = WORK;
+    const parts = [work.sent_back ? `${count(work.sent_back, "label")} sent back to you` : "", work.assigned ? `${count(work.assigned, "frame")} handed to you` : ""];
+    toast(`Your work first: ${parts.filter(Boolean).join(", then ")}. “Assigned: to anyone” shows all.`, "info", 6000);
   }
 }
 
@@ -552,7 +621,7 @@ async function assignedFirst() {
 
 await loadAssignees().catch((error) => toast(error.message, "error"));
 restoreFilters();
-await assignedFirst();
+await landing();
 await loadSequences().catch((error) => toast(error.message, "error"));
 restoreFilters();
 await refresh();

@@ -2,7 +2,8 @@
 
 import { api } from "./api.js";
 import { lineChart } from "./chart.js";
-import { iou, pct, px } from "./format.js";
+import { count, iou, pct, px } from "./format.js";
+import { peopleSection } from "./people.js";
 import { h } from "./ui.js";
 
 const root = document.getElementById("metrics");
@@ -41,7 +42,18 @@ function render(data) {
         [...teacher.by_sequence, { sequence: "all", ...teacher.overall }].map((r) => [
           r.sequence ?? "(no sequence)", String(r.frames), iou(r.mIoU), iou(r.q1), iou(r.median), iou(r.q3)]),
         "teacher-table")
-      : h("p", { class: "muted" }, "No reviewed frame has a teacher proposal yet."),
+      : h("p", { class: "muted" }, teacher.left_out
+        ? "Every reviewed frame kept the teacher's mask unchanged: nothing fair to measure the teacher on yet."
+        : "No reviewed frame has a teacher proposal yet."),
+    teacher.left_out ? h("p", { class: "muted small-text", "data-testid": "teacher-fair-note" },
+      `These figures leave out the ${count(teacher.left_out, "label")} accepted unchanged from the teacher (they are its own masks, IoU 1.000 by construction), as the promotion gate does. `,
+      `With them: mIoU ${iou(teacher.including_unchanged.mIoU)} over ${count(teacher.including_unchanged.frames, "frame")}.`) : "",
+    h("h2", {}, "Agreement between annotators"),
+    data.agreement?.length
+      ? table(["sequence", "frames", "mask IoU", "keypoints apart"],
+        data.agreement.map((r) => [r.sequence ?? "(no sequence)", String(r.frames), iou(r.mask_iou), px(r.keypoint_px)]),
+        "agreement-table")
+      : h("p", { class: "muted" }, "No frame has been labelled by two annotators yet (Frames page: select frames, “Give to several…”)."),
     h("h2", {}, "Review"),
     h("p", { "data-testid": "acceptance" },
       `Current labels: ${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,
@@ -64,6 +76,8 @@ function render(data) {
       : "",
     h("p", { class: "muted" }, `${data.queue.scored_frames} frames have an uncertainty score in the review queue.`));
 }
+
+peopleSection(document.getElementById("people"));
 
 api("/metrics").then(render).catch((error) => {
   root.replaceChildren(h("p", { class: "error" }, error.message));

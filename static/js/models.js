@@ -2,7 +2,7 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
-import { count, gateLine, int8Line, metric, sequentialLine } from "./format.js";
+import { count, gateLine, int8Line, metric, metricName, sequentialLine } from "./format.js";
 import { lineChart } from "./chart.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
@@ -19,13 +19,13 @@ export function curveCharts(curve) {
     { title: "Validation mED", keys: keys.filter((k) => /med/i.test(k)), unit: "px" },
   ];
   const used = new Set(groups.flatMap((g) => g.keys));
-  for (const key of keys.filter((k) => !used.has(k))) groups.push({ title: key, keys: [key] });
+  for (const key of keys.filter((k) => !used.has(k))) groups.push({ title: metricName(key), keys: [key] });
   return groups.filter((g) => g.keys.length).map((g) => lineChart({
     title: g.title,
     unit: g.unit,
     domain: g.domain,
     series: g.keys.map((key, i) => ({
-      name: key,
+      name: metricName(key),
       colour: PALETTE[i % PALETTE.length],
       points: curve.filter((row) => typeof row[key] === "number").map((row) => [row.epoch, row[key]]),
     })),
@@ -125,7 +125,7 @@ export function modelCard(model) {
     h("div", { class: "model-body" },
       h("table", { class: "metrics" },
         h("tbody", {}, metrics.length
-          ? metrics.map(([name, value]) => h("tr", {}, h("th", {}, name), h("td", { class: "num" }, metric(name, value))))
+          ? metrics.map(([name, value]) => h("tr", {}, h("th", { title: name }, metricName(name)), h("td", { class: "num" }, metric(name, value))))
           : h("tr", {}, h("td", { class: "muted" }, "no metrics recorded")))),
       h("div", { class: "charts" }, charts.length ? charts : h("p", { class: "muted" }, "no training curve recorded"))),
   );

@@ -55,3 +55,11 @@ export function setProgress(bar, fraction) {
   bar.setAttribute("aria-valuenow", String(Math.round(fraction * 100)));
   bar.firstElementChild.style.width = `${(fraction * 100).toFixed(1)}%`;
 }
+
+/** Where a label stands in the review stage, in words. */
+export const REVIEW_WORDS = { awaiting: "awaiting review", returned: "sent back", approved: "approved" };
+
+/** A pill for a label's review state (awaiting · sent back · approved). */
+export function reviewBadge(state) {
+  return h("span", { class: `badge review-${state}`, "data-testid": "review-badge" }, REVIEW_WORDS[state] ?? state);
+}

@@ -2,6 +2,7 @@
 // role, deactivate or reactivate, set a new password. Each refusal is the server's sentence.
 
 import { api } from "./api.js";
+import { peopleSection } from "./people.js";
 import { badge, formatDate, h, toast } from "./ui.js";
 
 const rows = document.getElementById("user-rows");
@@ -92,3 +93,4 @@ document.getElementById("new-user").addEventListener("submit", async (event) => 
 });
 
 load();
+peopleSection(document.getElementById("people"));

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
@@ -67,9 +68,14 @@ def test_metrics_figures(client: TestClient, make_user) -> None:
     figures = client.get("/api/v1/metrics", headers=auth(token)).json()
     assert figures["review"]["labels"] == {"accepted": 1, "corrected": 1, "rejected": 0}
     assert figures["review"]["teacher_acceptance_rate"] == 0.5
-    teacher = figures["teacher"]["overall"]
-    assert teacher["frames"] == 2 and 0 <= teacher["q1"] <= teacher["mIoU"] <= 1.0
-    assert teacher["mIoU"] >= 0.5  # the accepted proposal matches its label exactly (IoU 1)
+    # The label accepted unchanged *is* the teacher's mask (IoU 1 by construction): the fair
+    # figure leaves it out, as the training gate does; `including_unchanged` keeps it.
+    teacher, everything = figures["teacher"]["overall"], figures["teacher"]["including_unchanged"]
+    assert teacher["frames"] == 1 and figures["teacher"]["left_out"] == 1
+    assert everything["frames"] == 2
+    assert 0 <= teacher["mIoU"] < 1.0
+    assert everything["mIoU"] == pytest.approx((teacher["mIoU"] + 1.0) / 2)
+    assert [s["frames"] for s in figures["teacher"]["by_sequence"]] == [1]
     assert figures["student"] == [] and figures["queue"]["scored_frames"] == 2
     assert figures["review"]["over_time"][0]["accepted"] == 1
 

@@ -246,6 +246,10 @@ def test_the_train_job_says_which_round_it_kept_and_the_verdict() -> None:
         _summary("student-v3", 3, 5, metrics, no, False) == "student-v3 keeps round 3 of 5 "
         "(mIoU 0.874, mED 11.4 px); not promoted: Worse than the teacher on 4 frames."
     )
+    gate = {"promote": False, "reason": "Not promoted: worse than the teacher on 4 frames."}
+    assert _summary("v", 1, 1, metrics, gate, False).endswith(
+        "; not promoted: worse than the teacher on 4 frames."
+    )  # the gate's own "Not promoted: " is not said twice
     yes = {"promote": True, "reason": ""}
     assert _summary("v", 5, 5, {"mIoU": 0.5, "mED": None}, yes, True).endswith(
         "(mIoU 0.500); promoted"

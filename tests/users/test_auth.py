@@ -206,6 +206,12 @@ def test_wrong_password_and_forged_login_form(client: TestClient, make_user) -> 
     assert response.status_code == 401
     assert "Wrong user name or password." in response.text
     assert "weldpool_session" not in response.cookies
+    # The form keeps the name typed (escaped), so only the password is typed again.
+    assert 'name="username" autocomplete="username" required maxlength="64" value="dora"' in (
+        response.text
+    )
+    odd = _login(client, '"><b>x', "whatever1")
+    assert 'value="&#34;&gt;&lt;b&gt;x"' in odd.text and "<b>x" not in odd.text
     response = _login(client, "nobody", "whatever1")
     assert response.status_code == 401
 

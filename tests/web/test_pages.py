@@ -157,7 +157,9 @@ def test_models_page_shows_a_trained_version_and_promotes_it(page: Any, server: 
         " k.querySelectorAll('svg').forEach((s) => s.remove()); return k.textContent; }"
     )
     assert not re.search(r"\d\.\d{4,}", words), words
-    assert re.search(r"missed\s+\d+\n", text) and re.search(r"mED_k\s+[\d.]+ px ·", text)
+    assert re.search(r"keypoints missed\s+\d+\n", text)
+    assert re.search(r"mED per keypoint \(1, 2, …\)\s+[\d.]+ px ·", text)
+    assert not re.search(r"mED_k|mED_penalised|best_epoch", words), words  # words, not keys
     ticks = card.locator("svg.chart .grid text[text-anchor=middle]").evaluate_all(
         "nodes => nodes.map((n) => n.textContent)"
     )

@@ -225,8 +225,8 @@ def test_a_reviewer_hands_frames_to_an_annotator_who_starts_on_them(
     page.context.clear_cookies()
     login(page, server, "anna")
     page.wait_for_selector("body[data-ready]")
-    assert page.input_value("[data-testid=filter-assignee]") == "me"
-    page.locator("[data-testid=toast-info]", has_text="assigned to you").wait_for()
+    assert page.input_value("[data-testid=filter-assignee]") == "work"
+    page.locator("[data-testid=toast-info]", has_text="3 frames handed to you").wait_for()
     wait_for_js(page, "document.querySelectorAll('[data-testid=frame-row]').length > 0")
     listed = [
         int(row.get_attribute("data-frame-id"))

@@ -8,8 +8,10 @@ import { changed, commit, isProposal, labelDirty, manualDirty } from "./history.
 import { toggleValidation } from "./keypoints.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
-import { renderFrameInfo, renderPropagate, renderProposals } from "./review.js";
+import { renderFrameInfo, renderPropagate, renderProposals, renderVerdictNote } from "./review.js";
 import { S } from "./state.js";
+import { refreshWork } from "../work.js";
+import { saveOwn } from "./agreement.js";
 
 export async function loadHistory() {
   try {
@@ -17,7 +19,9 @@ export async function loadHistory() {
     const list = $("history");
     list.replaceChildren(...rows.slice().reverse().slice(0, 8).map((r) =>
       h("li", {}, `rev ${r.revision} · `, badge(r.status), r.review ? ` · ${REVIEW_WORDS[r.review]}` : "",
-        ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`, r.review_comment ? h("br") : "",
+        ` · ${r.user ?? "?"} · ${formatDate(r.created_at)}`,
+        r.source?.kind === "imported" ? h("span", { class: "muted", "data-testid": "history-source" }, ` · imported from ${r.source.format ?? "a file"}${r.source.file ? ` (${r.source.file})` : ""}`) : "",
+        r.review_comment ? h("br") : "",
         r.review_comment ? h("span", { class: "muted" }, `“${r.review_comment}”`) : "")));
     if (!rows.length) list.append(h("li", {}, "no label yet"));
   } catch { /* the history is a convenience */ }
@@ -74,11 +78,13 @@ export function renderReview() {
   const text = {
     awaiting: "Awaiting a reviewer's approval: it trains once approved.",
     approved: `Approved${review.by ? ` by ${review.by}` : ""}: the student learns from it.`,
-    returned: `Sent back${review.by ? ` by ${review.by}` : ""}: “${review.comment ?? ""}” — correct it and save again.`,
+    returned: `Sent back${review.by ? ` by ${review.by}` : ""}: “${review.comment ?? ""}” — correct it and submit again.`,
   }[review.state];
   $("review-state").textContent = text;
   $("review-actions").hidden = !isReviewer() || review.state === "approved";
   $("send-back").hidden = review.state === "returned";
+  $("approve-corrected").hidden = review.state !== "awaiting";
+  renderVerdictNote();
 }
 
 async function decide(decision, comment) {
@@ -91,6 +97,7 @@ async function decide(decision, comment) {
     renderFrameInfo();
     loadHistory();
     toast(decision === "approve" ? "Approved: it trains from now on." : "Sent back to its annotator.", "ok");
+    refreshWork();
   } catch (error) {
     toast(error.message, "error");
   }
@@ -98,6 +105,7 @@ async function decide(decision, comment) {
 
 export function bindReview() {
   $("approve").addEventListener("click", () => decide("approve"));
+  $("approve-corrected").addEventListener("click", () => saveLabel("correct"));
   $("send-back").addEventListener("click", () => { $("send-back-form").hidden = false; $("send-back-form").elements.comment.focus(); });
   $("send-back-cancel").addEventListener("click", () => { $("send-back-form").hidden = true; });
   $("send-back-form").addEventListener("submit", (event) => {
@@ -122,6 +130,10 @@ export async function verdictBody(kind, baseRevision) {
 export async function saveLabel(kind, baseRevision = S.revision) {
   if (S.validation) toggleValidation();
   await Promise.allSettled([...S.inflight]);
+  if (S.overlapMine) { // given to several: her own label, kept apart (agreement.js)
+    if (await saveOwn() && $("advance").checked) await goNext({ afterSave: true });
+    return;
+  }
   // Accept (with no proposal to take) or save of a stored label left as it is: nothing to
   // write (it was saved again as a new "corrected" revision, in the saver's name). Not with
   // the review stage's decision pending: an unchanged label sent back may be sent again.
@@ -156,7 +168,9 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   renderFrameInfo();
   renderPropagate();
   loadHistory();
-  toast(`Saved as ${label.status} (revision ${label.revision}).`, "ok");
+  const where = label.review === "awaiting" ? " — submitted for review" : label.review === "approved" && REVIEW_STAGE ? " — approved" : "";
+  toast(`Saved as ${label.status} (revision ${label.revision})${where}.`, "ok");
+  refreshWork();
   if ($("advance").checked) await goNext({ afterSave: true });
 }
 

@@ -9,4 +9,7 @@ export const $ = (id) => document.getElementById(id);
 /** The list's filters this frame was opened from: the queue that "next" walks. */
 export const CONTEXT = new URLSearchParams(location.search);
 if (!CONTEXT.has("order")) CONTEXT.set("order", "uncertainty");
-if (!CONTEXT.has("status")) CONTEXT.set("status", "unreviewed"); // the queue: what is still to review
+// The queue: what is still to review; "my work" (assigned to me, no status or review filter)
+// is the server's own list of what was sent back to me, then what is still to review.
+const WORK = CONTEXT.get("assignee") === "me" && !CONTEXT.has("review");
+if (!CONTEXT.has("status") && !WORK) CONTEXT.set("status", "unreviewed");

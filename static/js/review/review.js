@@ -8,9 +8,10 @@
 // (preferences and overlays); this module renders the side panel, binds the controls and
 // starts the page.
 
-import { ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
+import { REVIEW_STAGE, ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
 import { score } from "../format.js";
-import { badge, formatDate, h, toast } from "../ui.js";
+import { badge, formatDate, h, reviewBadge, toast } from "../ui.js";
+import { loadAgreement } from "./agreement.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
 import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
@@ -22,16 +23,40 @@ import { Stage } from "./stage.js";
 import { S } from "./state.js";
 import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setTool, toolUsable } from "./tools.js";
 
+/** One set of verdicts per role and state. With the review stage on an annotator submits
+ * (Save), and a reviewer facing an awaiting label approves it, sends it back, or corrects it
+ * and approves it in one step; on labels of his own he accepts, rejects or saves as before
+ * (approved as he saves them). */
 export function renderVerdictNote() {
   const note = $("verdict-note");
-  if (!isReviewer()) {
+  const deciding = REVIEW_STAGE && isReviewer() && S.review?.state === "awaiting";
+  const submitting = (REVIEW_STAGE || S.overlapMine) && !isReviewer();
+  for (const id of ["accept", "reject"]) {
+    $(id).hidden = deciding || submitting;
+    $(id).disabled = !isReviewer() || deciding;
+  }
+  $("save").hidden = deciding;
+  $("save").firstChild.textContent = S.overlapMine ? "Save my label " : submitting ? "Submit for review " : "Save as corrected ";
+  $("save").title = submitting ? "Submit for review (S): a reviewer approves it or sends it back" : "Save as corrected (S)";
+  $("approve-corrected").disabled = !labelDirty();
+  $("approve-corrected").title = labelDirty()
+    ? "Save the label as you corrected it, approved, in one step (S)"
+    : "Correct the mask or keypoints first; Approve keeps the annotator's label as it is";
+  if (S.overlapMine) {
+    note.textContent = "Your own label of a frame given to several annotators: a reviewer approves one of them or merges them.";
+  } else if (deciding) {
+    note.textContent = "Approve keeps the annotator's label; Send back returns it with what to change; or correct it here and “Correct and approve” saves yours, approved.";
+  } else if (submitting) {
+    note.textContent = S.review?.state === "returned"
+      ? "Change what the reviewer asked, then submit again."
+      : "A reviewer approves your label (it trains from then on) or sends it back with a comment.";
+  } else if (!isReviewer()) {
     note.textContent = `As ${ROLE} you save corrections; a reviewer accepts or rejects.`;
-  } else if (!S.proposal) {
-    note.textContent = "No proposal: Accept saves what you drew as corrected.";
-  } else if (!isProposal()) {
-    note.textContent = "The label shown differs from the proposal: Accept saves it as corrected.";
   } else {
-    note.textContent = "Accept keeps the proposal as it is.";
+    const own = REVIEW_STAGE ? "Your own labels count as approved. " : "";
+    note.textContent = own + (!S.proposal || !S.edit ? "No proposal: Accept saves what you drew as corrected."
+      : !isProposal() ? "The label shown differs from the proposal: Accept saves it as corrected."
+        : "Accept keeps the proposal as it is.");
   }
 }
 
@@ -41,6 +66,7 @@ export const REASONS = {
   instability: "the mask changing when the prompts move slightly",
   disagreement: "the student disagreeing with the teacher",
   student_uncertainty: "the student's own doubt (unstable under small changes, or unlike what it learnt from)",
+  propagation_doubt: "SAM2's doubt about the mask it carried here from a reviewed frame",
 };
 
 export function renderFrameInfo() {
@@ -49,14 +75,17 @@ export function renderFrameInfo() {
   if (S.frame.frame_index !== null) parts.push(`index ${S.frame.frame_index}`);
   if (S.frame.assignee) parts.push(`assigned to ${S.frame.assignee}`);
   $("frame-meta").textContent = parts.filter(Boolean).join(" · ");
-  const pieces = [badge(S.frame.status)];
-  if (S.revision) pieces.push(h("span", { class: "muted" }, ` revision ${S.revision}`));
+  // With the review stage, the badge says where the label stands; its verdict follows.
+  const stage = REVIEW_STAGE && S.review;
+  const pieces = [stage ? reviewBadge(S.review.state) : badge(S.frame.status)];
+  if (S.revision) pieces.push(h("span", { class: "muted" }, stage ? ` ${S.frame.status} · revision ${S.revision}` : ` revision ${S.revision}`));
   if (S.proposal) {
     const iou = S.proposal.scores?.sam2_iou;
     pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(S.proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : ""));
     if (S.proposal.scores?.low_confidence) pieces.push(h("br"), h("span", { class: "warning" }, "SAM2 lost confidence here: correct this frame and propagate again from it."));
     if (S.frame.uncertainty !== null) {
-      const reason = REASONS[S.frame.uncertainty_reason] ?? S.frame.uncertainty_reason;
+      // A component this page has no words for yet reads as words, never as a raw key.
+      const reason = REASONS[S.frame.uncertainty_reason] ?? S.frame.uncertainty_reason?.replaceAll("_", " ");
       pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
         `uncertainty ${score(S.frame.uncertainty)}`, reason ? ` — mostly ${reason}` : ""));
     }
@@ -212,10 +241,7 @@ export function bindControls() {
     if (!S.leaving && (labelDirty() || manualDirty())) { event.preventDefault(); event.returnValue = ""; }
   });
   if (!isReviewer()) {
-    for (const id of ["accept", "reject"]) {
-      $(id).disabled = true;
-      $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
-    }
+    for (const id of ["accept", "reject"]) $(id).title = "Accepting and rejecting need the reviewer role; save as corrected instead.";
   }
 }
 
@@ -317,6 +343,7 @@ export async function start() {
   performance.mark("weldpool:interactive");
   showQueuePosition();
   loadHistory();
+  loadAgreement();
   if (!SAM2_PROBLEM) warmEmbedding();
 }
 

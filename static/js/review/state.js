@@ -11,6 +11,8 @@ export const S = {
   labelStatus: null,
   loadedLabel: null, // { mask, revision } of the label as loaded: clicks on it name it, not send it
   review: null, // the review stage: { state, comment, by } of the label, or null
+  overlap: null, // the frame's labels by several annotators (GET /frames/{id}/overlap), or null
+  overlapMine: false, // an annotator given this frame among several: saves go to her own label
   stage: null,
   ruler: null, // measuring the run's scale: two ends of a known length
   overlay: null,

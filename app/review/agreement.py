@@ -1,0 +1,242 @@
+"""Agreement: one frame labelled by several annotators, each label kept apart
+(``OverlapLabel``), until a reviewer approves one of them or merges them into the frame's label.
+
+- A reviewer gives frames to two or more annotators (``give_to_several``); each saves her own
+  label of it (``save_own``), which never trains and which the others do not see.
+- The frame's **agreement** is the mean over every pair of labelled annotators of the mask IoU,
+  and of the keypoint distance (px: the mean distance from each keypoint of one to the nearest
+  of the other, both ways); ``run_agreement`` averages it per weld run over the frames with two
+  labels or more — the figure a lab quotes for its dataset.
+- ``settle`` makes the frame's label (approved, by the reviewer) from the label of the
+  annotator he chose, or from all of them merged: a pixel is pool where at least half of the
+  labelled masks say so, and its keypoints are Algorithm 1's on that mask. Training takes the
+  frame's label only, as ever.
+"""
+
+from __future__ import annotations
+
+import itertools
+import statistics
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import sqlalchemy as sa
+from sqlalchemy.orm import Session
+
+from app.db import utcnow
+from app.errors import InvalidInputError, NotFoundError, PermissionDeniedError
+from app.models import Frame, Label, LabelStatus, OverlapLabel, Role, Sequence, User
+from app.proposals.files import load_mask, store_mask
+from app.proposals.policy import stored_iou
+from app.review.service import check_keypoints, current_label, save_label
+from app.storage import Storage
+from weldpool_core.heatmap import mask_keypoints
+from weldpool_core.io import decode_mask_png, encode_mask_png
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    from weldpool_core.lazy import np
+
+MAX_ANNOTATORS = 10
+"""Most annotators one frame is given to."""
+
+
+def give_to_several(session: Session, frame_ids: list[int], user_ids: list[int]) -> int:
+    """Give each frame to each of the annotators (two or more, active); returns how many
+    (frame, annotator) pairs are new. A pair given already keeps its label."""
+    people = list(dict.fromkeys(user_ids))
+    if not 2 <= len(people) <= MAX_ANNOTATORS:
+        raise InvalidInputError(f"Give the frames to 2 to {MAX_ANNOTATORS} different people.")
+    users = {u.id: u for u in session.scalars(sa.select(User).where(User.id.in_(people)))}
+    for user_id in people:
+        user = users.get(user_id)
+        if user is None:
+            raise NotFoundError(f"There is no user {user_id}.")
+        if not user.is_active:
+            raise InvalidInputError(f"{user.username} is deactivated; reactivate them first.")
+    ids = list(dict.fromkeys(frame_ids))
+    found = set(session.scalars(sa.select(Frame.id).where(Frame.id.in_(ids))))
+    if missing := [i for i in ids if i not in found]:
+        raise NotFoundError(f"There is no frame {missing[0]}.")
+    given: set[tuple[int, int]] = set(
+        session.execute(
+            sa.select(OverlapLabel.frame_id, OverlapLabel.user_id).where(
+                OverlapLabel.frame_id.in_(ids), OverlapLabel.user_id.in_(people)
+            )
+        ).all()
+    )
+    new = [(f, u) for f in ids for u in people if (f, u) not in given]
+    session.add_all(OverlapLabel(frame_id=f, user_id=u) for f, u in new)
+    session.commit()
+    return len(new)
+
+
+def own_row(session: Session, frame_id: int, user: User) -> OverlapLabel:
+    """The caller's own label of a frame given to several (403 when it is not given to her)."""
+    row = session.scalar(
+        sa.select(OverlapLabel).where(
+            OverlapLabel.frame_id == frame_id, OverlapLabel.user_id == user.id
+        )
+    )
+    if row is None:
+        raise PermissionDeniedError(
+            f"Frame {frame_id} is not given to you for agreement; save its label instead."
+        )
+    return row
+
+
+def save_own(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    user: User,
+    mask_png: bytes,
+    keypoints: list[list[float]] | None,
+) -> OverlapLabel:
+    """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's)."""
+    row = own_row(session, frame.id, user)
+    mask = decode_mask_png(mask_png)
+    if mask.shape != (frame.height, frame.width):
+        raise InvalidInputError(
+            f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
+            f"{frame.width}×{frame.height}."
+        )
+    if not mask.any():
+        raise InvalidInputError("The mask is empty: draw the pool before saving.")
+    row.keypoints = check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)
+    row.mask_path = store_mask(storage, mask)
+    row.updated_at = utcnow()
+    session.commit()
+    return row
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """How far a frame's labels agree: mean pairwise mask IoU and keypoint distance (px)."""
+
+    labelled: int
+    mask_iou: float | None
+    keypoint_px: float | None
+
+
+def _keypoint_px(a: list[Any] | None, b: list[Any] | None) -> float | None:
+    """Mean distance from each keypoint of one set to the nearest of the other, both ways."""
+    if not a or not b:
+        return None
+    one = np.asarray(a, float)[:, None, :] - np.asarray(b, float)[None, :, :]
+    distances = np.linalg.norm(one, axis=2)
+    return float((distances.min(axis=1).mean() + distances.min(axis=0).mean()) / 2)
+
+
+def agreement_of(storage: Storage, rows: list[OverlapLabel]) -> Agreement:
+    """The agreement of one frame's labelled rows (module doc)."""
+    done = [r for r in rows if r.mask_path]
+    ious: list[float] = []
+    distances: list[float] = []
+    for a, b in itertools.combinations(done, 2):
+        assert a.mask_path and b.mask_path
+        ious.append(stored_iou(storage.existing(a.mask_path), storage.existing(b.mask_path)))
+        if (distance := _keypoint_px(a.keypoints, b.keypoints)) is not None:
+            distances.append(distance)
+    return Agreement(
+        len(done),
+        statistics.fmean(ious) if ious else None,
+        statistics.fmean(distances) if distances else None,
+    )
+
+
+def frame_rows(session: Session, frame_id: int) -> list[tuple[OverlapLabel, str]]:
+    """The frame's rows with each annotator's name, by name."""
+    return [
+        (row, name)
+        for row, name in session.execute(
+            sa.select(OverlapLabel, User.username)
+            .join(User, User.id == OverlapLabel.user_id)
+            .where(OverlapLabel.frame_id == frame_id)
+            .order_by(sa.func.lower(User.username))
+        )
+    ]
+
+
+def merged_mask(storage: Storage, rows: list[OverlapLabel]) -> np.ndarray:
+    """Pool where at least half of the labelled masks say so."""
+    masks = [load_mask(storage, r.mask_path) for r in rows if r.mask_path]
+    votes = np.sum(masks, axis=0)
+    return np.asarray(votes * 2 >= len(masks))
+
+
+def settle(
+    session: Session,
+    storage: Storage,
+    frame: Frame,
+    reviewer: User,
+    *,
+    choose: int | None,
+    review_stage: bool,
+) -> Label:
+    """The frame's label from the annotator ``choose`` (a user id), or (None) from every
+    labelled one merged: saved by the reviewer as corrected (approved with the review stage)."""
+    if reviewer.role.rank < Role.reviewer.rank:
+        raise PermissionDeniedError("Only reviewers approve or merge annotators' labels.")
+    rows = [row for row, _ in frame_rows(session, frame.id) if row.mask_path]
+    if choose is not None:
+        picked = next((r for r in rows if r.user_id == choose), None)
+        if picked is None:
+            raise InvalidInputError(f"User {choose} has no label of frame {frame.id} to approve.")
+        mask, keypoints = load_mask(storage, picked.mask_path or ""), picked.keypoints
+    else:
+        if len(rows) < 2:
+            raise InvalidInputError("Merging needs two labels or more; approve the one there is.")
+        mask = merged_mask(storage, rows)
+        if not mask.any():
+            raise InvalidInputError("The labels share no pixel a majority agrees on.")
+        keypoints = None
+    label = current_label(session, frame.id)
+    return save_label(
+        session,
+        storage,
+        frame,
+        reviewer,
+        status=LabelStatus.corrected,
+        base_revision=label.revision if label else 0,
+        mask_png=encode_mask_png(mask),
+        keypoints=keypoints,
+        review_stage=review_stage,
+    )
+
+
+def run_agreement(session: Session, storage: Storage) -> list[dict[str, Any]]:
+    """Per weld run (and frames in none): the frames labelled by two annotators or more and
+    the mean of their agreement (mask IoU, keypoint distance in px)."""
+    rows = session.execute(
+        sa.select(OverlapLabel, Frame.sequence_id, Sequence.name)
+        .join(Frame, Frame.id == OverlapLabel.frame_id)
+        .outerjoin(Sequence, Sequence.id == Frame.sequence_id)
+        .where(OverlapLabel.mask_path.is_not(None))
+        .order_by(OverlapLabel.frame_id)
+    )
+    frames: dict[int, list[OverlapLabel]] = {}
+    runs: dict[int, tuple[int | None, str | None]] = {}
+    for row, sequence_id, name in rows:
+        frames.setdefault(row.frame_id, []).append(row)
+        runs[row.frame_id] = (sequence_id, name)
+    per_run: dict[tuple[int | None, str | None], list[Agreement]] = {}
+    for frame_id, labelled in frames.items():
+        if len(labelled) >= 2:
+            per_run.setdefault(runs[frame_id], []).append(agreement_of(storage, labelled))
+    return [
+        {
+            "sequence_id": sequence_id,
+            "sequence": name,
+            "frames": len(values),
+            "mask_iou": statistics.fmean(v.mask_iou for v in values if v.mask_iou is not None),
+            "keypoint_px": _mean([v.keypoint_px for v in values]),
+        }
+        for (sequence_id, name), values in sorted(per_run.items(), key=lambda i: str(i[0][1]))
+    ]
+
+
+def _mean(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return statistics.fmean(present) if present else None
