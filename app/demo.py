@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import LabelStatus, Role, User
+from app.core.security import MADE_PASSWORD_BYTES
 from app.frames.ingest import IncomingFile, ingest_frames
 from app.frames.sequences import create_sequence, unique_sequence_name
 from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
-from app.models import LabelStatus, Role, User
 from app.review.service import save_label, save_validation_keypoints
-from app.security import MADE_PASSWORD_BYTES
 from app.storage import Storage
 from app.users.service import create_user
 from weldpool_core.io import encode_mask_png

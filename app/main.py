@@ -19,38 +19,38 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.orm.exc import ObjectDeletedError, StaleDataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from app.config import Settings, get_settings
-from app.db import create_db_engine, create_session_factory
-from app.errors import (
+from app.core.config import Settings, get_settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.errors import (
     AuthenticationError,
     TooManyAttemptsError,
     WeldpoolError,
     http_status_of,
     without_server_paths,
 )
+from app.core.headers import SecurityHeaders
+from app.core.housekeeping import FileCollector
+from app.core.limits import BodySizeLimit
+from app.core.openapi import openapi_schema
+from app.core.security import (
+    SESSION_COOKIE,
+    LoginThrottle,
+    current_user,
+    web_session_for_cookie,
+)
 from app.frames.routes import router as frames_router
-from app.headers import SecurityHeaders
-from app.housekeeping import FileCollector
 from app.imports.pool import stop_label_processes
 from app.imports.routes import router as imports_router
 from app.insights.routes import router as insights_router
 from app.jobs.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
-from app.limits import BodySizeLimit
 from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
-from app.openapi import openapi_schema
 from app.proposals.routes import router as proposals_router
 from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
-from app.security import (
-    SESSION_COOKIE,
-    LoginThrottle,
-    current_user,
-    web_session_for_cookie,
-)
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.system.status import StoreCheck

@@ -43,12 +43,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="cell steps (default 200)")
     args = parser.parse_args()
 
-    from app.config import Settings
-    from app.db import create_db_engine, create_session_factory
+    from app.core.config import Settings
+    from app.core.db import create_db_engine, create_session_factory
+    from app.core.models import Role, User
+    from app.core.schema import migrate
+    from app.core.security import hash_password, issue_token
     from app.main import create_app
-    from app.models import Role, User
-    from app.schema import migrate
-    from app.security import hash_password, issue_token
     from tests.helpers import corrected_label
     from weldpool_core.heatmap import heatmap_from_mask
 

@@ -67,10 +67,10 @@ def local_server(
 
 def admin_token(database_url: str) -> str:
     """A migrated database at ``database_url`` with an admin ``bench``; its API token."""
-    from app.db import create_db_engine, create_session_factory
-    from app.models import Role, User
-    from app.schema import migrate
-    from app.security import issue_token
+    from app.core.db import create_db_engine, create_session_factory
+    from app.core.models import Role, User
+    from app.core.schema import migrate
+    from app.core.security import issue_token
 
     engine = create_db_engine(database_url)
     migrate(engine)

@@ -37,12 +37,12 @@ from common import SHARED_DATA
 from fastapi.testclient import TestClient
 from results import recorded
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Frame, Label, LabelStatus, Role, Sequence, Split, User
+from app.core.schema import migrate
+from app.core.security import hash_password, issue_token
 from app.main import create_app
-from app.models import Frame, Label, LabelStatus, Role, Sequence, Split, User
-from app.schema import migrate
-from app.security import hash_password, issue_token
 from app.storage import Storage
 from weldpool_core.io import encode_png
 from weldpool_core.outline import coco_mask, region_outlines

@@ -35,7 +35,7 @@ def main() -> None:
     from fastapi.testclient import TestClient
     from transformers import Sam2Config, Sam2Model
 
-    from app.config import Settings
+    from app.core.config import Settings
     from app.main import create_app
     from bench.common import admin_token
     from tests.helpers import corrected_label

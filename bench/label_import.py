@@ -29,15 +29,15 @@ import numpy as np
 from common import SHARED_DATA
 from results import Table, record
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Role, User
+from app.core.schema import migrate
+from app.core.security import hash_password
 from app.frames.ingest import IncomingFile, ingest_frames
 from app.frames.sequences import create_sequence
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
-from app.models import Role, User
-from app.schema import migrate
-from app.security import hash_password
 from app.storage import Storage
 from weldpool_core.annotations import open_source
 from weldpool_core.outline import coco_mask, region_outlines

@@ -29,14 +29,14 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 from results import recorded
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
+from app.core.schema import migrate
+from app.core.security import hash_password, issue_token
 from app.frames import listing
 from app.frames.schemas import FrameOut, FramePage
 from app.main import create_app
-from app.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
-from app.schema import migrate
-from app.security import hash_password, issue_token
 
 PAGE = 50
 # (order, status): the plain list by id, by frame index, the queue (frames still to review) and

@@ -164,7 +164,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
     from fastapi.testclient import TestClient
     from transformers import Sam2Config, Sam2Model
 
-    from app.config import Settings
+    from app.core.config import Settings
     from app.main import create_app
     from app.storage import Storage
 

@@ -1,16 +1,16 @@
-"""Alembic environment: uses the engine handed over by ``app.db.migrate`` or the settings."""
+"""Alembic environment: uses the engine handed over by ``app.core.db.migrate`` or the settings."""
 
 from __future__ import annotations
 
 from alembic import context
 
-from app import models  # noqa: F401  (registers every table on Base.metadata)
-from app.db import Base, create_db_engine
+from app.core import models  # noqa: F401  (registers every table on Base.metadata)
+from app.core.db import Base, create_db_engine
 
 config = context.config
 engine = config.attributes.get("engine")
 if engine is None:  # run through the `alembic` command line: read the settings
-    from app.config import get_settings
+    from app.core.config import get_settings
 
     engine = create_db_engine(get_settings().resolved_database_url)
 

@@ -16,12 +16,12 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Role, User
+from app.core.schema import migrate
+from app.core.security import hash_password, issue_token
 from app.main import create_app
-from app.models import Role, User
-from app.schema import migrate
-from app.security import hash_password, issue_token
 from tests.helpers import REDIS_URL, make_settings, postgres_schema
 from tests.mqtt import mqtt_broker  # noqa: F401 (the broker fixture for every test)
 from tests.s3 import s3_endpoint, s3_url  # noqa: F401 (fixtures for every test)

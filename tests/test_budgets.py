@@ -13,9 +13,9 @@ import pytest
 import torch
 from fastapi.testclient import TestClient
 
-from app import budgets
-from app.config import Settings
-from app.models import Role
+from app.core import budgets
+from app.core.config import Settings
+from app.core.models import Role
 from tests.helpers import auth, make_settings, wait_for_job
 
 

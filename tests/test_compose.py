@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from compose_spec import PyCompose
 
 from app.cli import main
-from app.config import Settings
+from app.core.config import Settings
 from tests.helpers import REPO
 
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())

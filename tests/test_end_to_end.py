@@ -17,13 +17,13 @@ import cv2
 import pytest
 from fastapi.testclient import TestClient
 
-from app.db import create_db_engine, create_session_factory
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Job, JobStatus, ModelVersion, Role, User
+from app.core.schema import migrate
+from app.core.security import issue_token
 from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
 from app.main import create_app
-from app.models import Job, JobStatus, ModelVersion, Role, User
-from app.schema import migrate
-from app.security import issue_token
 from tests.helpers import REPO, auth, corrected_label, make_settings, wait_for, wait_for_job
 from tests.models import save_tiny_teacher
 from weldpool_core.synth import SynthParams, synth_sequence

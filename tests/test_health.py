@@ -45,8 +45,8 @@ def test_health_is_503_when_the_schema_is_not_migrated(tmp_path: Path) -> None:
 
 
 def test_health_is_ok_with_the_teacher_weights_and_a_worker(tmp_path: Path) -> None:
-    from app.db import create_db_engine
-    from app.schema import migrate
+    from app.core.db import create_db_engine
+    from app.core.schema import migrate
     from tests.models import save_tiny_teacher
 
     weights = save_tiny_teacher(tmp_path / "weights")

@@ -8,8 +8,8 @@ import re
 import pytest
 from fastapi.testclient import TestClient
 
-from app.bounds import MAX_ID
-from app.models import Role
+from app.core.bounds import MAX_ID
+from app.core.models import Role
 from tests.helpers import auth
 
 

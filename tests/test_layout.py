@@ -18,11 +18,7 @@ LAYERS = (
     ("teacher", "training", "live"),
     ("frames",),
     ("proposals",),
-    (
-        *("jobs", "users", "system", "housekeeping", "security", "deps", "storage"),
-        *("schema", "models", "db", "config", "errors", "bounds", "openapi", "headers", "limits"),
-        *("logs", "periodic", "budgets"),
-    ),
+    ("jobs", "users", "system", "storage", "core"),
 )
 """The app's packages from the top down (docs/development.md): each imports only from its own
 layer and those below."""

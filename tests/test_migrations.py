@@ -10,8 +10,8 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy.orm import Session
 
-from app.db import MIGRATIONS_DIR, Base, create_db_engine, head_revision, schema_revision
-from app.schema import migrate
+from app.core.db import MIGRATIONS_DIR, Base, create_db_engine, head_revision, schema_revision
+from app.core.schema import migrate
 from tests.helpers import postgres_schema
 
 CORE_TABLES = {
@@ -74,7 +74,7 @@ def _upgrade_with_alembic(engine: sa.Engine) -> None:
     schema from the models at once)."""
     from alembic import command
 
-    from app.db import alembic_config
+    from app.core.db import alembic_config
 
     command.upgrade(alembic_config(engine), "head")
 
@@ -213,7 +213,7 @@ def test_downgrade_to_base_and_back(database_url: str) -> None:
     migrate(engine)
     from alembic import command
 
-    from app.db import alembic_config
+    from app.core.db import alembic_config
 
     command.downgrade(alembic_config(engine), "base")
     assert not CORE_TABLES & set(sa.inspect(engine).get_table_names())
@@ -256,8 +256,8 @@ def test_descriptors_stored_as_json_become_float32_and_back(
     import numpy as np
     from alembic import command
 
-    from app.db import alembic_config
-    from app.models import Frame, Sequence
+    from app.core.db import alembic_config
+    from app.core.models import Frame, Sequence
 
     engine = create_db_engine(database_url)
     migrate(engine)
@@ -323,7 +323,7 @@ def _index_definitions(engine: sa.Engine) -> set[str]:
 def _fill(engine: sa.Engine) -> dict[str, int]:
     """A user, a run, three frames with a proposal and a label each (revisions too), a job and
     a model version; the row count of each of their tables."""
-    from app.models import Frame, Label, LabelRevision, LabelStatus, Proposal, Sequence, User
+    from app.core.models import Frame, Label, LabelRevision, LabelStatus, Proposal, Sequence, User
 
     with Session(engine) as session:
         user = User(username="ada", password_hash="x", role="admin")
@@ -399,7 +399,7 @@ def test_ids_are_never_reused_after_0018_on_a_filled_database(database_url: str)
     newest row is given to nobody (SQLite gave it to the next insert; PostgreSQL never did)."""
     from alembic import command
 
-    from app.db import alembic_config
+    from app.core.db import alembic_config
 
     engine = create_db_engine(database_url)
     migrate(engine, "0017")

@@ -17,7 +17,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Role, User
+from app.core.models import Role, User
 from tests.helpers import age_stored_files, auth, corrected_label, image_bytes, write_video
 
 ROUNDS, RACERS = 5, 6

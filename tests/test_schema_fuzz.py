@@ -18,8 +18,8 @@ from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 from schemathesis.specs.openapi.checks import positive_data_acceptance
 
+from app.core.models import Role
 from app.main import create_app
-from app.models import Role
 from tests.helpers import auth
 
 EXAMPLES = int(os.environ.get("WELDPOOL_FUZZ_EXAMPLES", "5"))

@@ -146,8 +146,8 @@ def test_a_web_process_answers_health_without_huey_or_the_hub_client(tmp_path: P
     script = """
 import sys
 from fastapi.testclient import TestClient
-from app.db import create_db_engine
-from app.schema import migrate
+from app.core.db import create_db_engine
+from app.core.schema import migrate
 from app.main import create_app
 from tests.helpers import make_settings
 settings = make_settings(__import__("pathlib").Path(sys.argv[1]))
@@ -176,7 +176,7 @@ def test_logs_keep_tracebacks_without_rich() -> None:
 import sys
 import app
 import structlog
-from app.logs import configure_logging
+from app.core.logs import configure_logging
 print("rich" in sys.modules)
 log = structlog.get_logger("check")
 for fmt in ("console", "json"):

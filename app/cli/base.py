@@ -15,10 +15,10 @@ import click
 import sqlalchemy as sa
 from pydantic import ValidationError
 
-from app.config import Settings, get_settings
-from app.db import create_db_engine, create_session_factory, require_current_schema
-from app.errors import WeldpoolError
-from app.logs import configure_logging
+from app.core.config import Settings, get_settings
+from app.core.db import create_db_engine, create_session_factory, require_current_schema
+from app.core.errors import WeldpoolError
+from app.core.logs import configure_logging
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -12,7 +12,7 @@ from typing import Any
 import click
 
 from app.cli.base import IMAGE_SUFFIXES, friendly_errors, load_settings, main, open_sessions
-from app.errors import WeldpoolError
+from app.core.errors import WeldpoolError
 
 IMPORT_BATCH = 64
 
@@ -69,7 +69,7 @@ def prepare_fresh_home(settings: Any) -> None:
     `admin` as the first user), so an import is the first command a new instance may run; a
     database at an older revision still asks for `weldpool migrate`."""
     from app.cli.service import login_hint, prepare_instance
-    from app.db import create_db_engine, schema_revision
+    from app.core.db import create_db_engine, schema_revision
 
     settings.ensure_home()
     engine = create_db_engine(settings.resolved_database_url)

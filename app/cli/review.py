@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
-from app.errors import WeldpoolError
+from app.core.errors import WeldpoolError
 
 
 @main.command("export")
@@ -35,7 +35,7 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
     """Export the accepted and corrected labels as a zip."""
     import sqlalchemy as sa
 
-    from app.models import Sequence, Split
+    from app.core.models import Sequence, Split
     from app.review.export import build_export
     from app.storage import Storage
 

@@ -8,16 +8,18 @@ from pathlib import Path
 import click
 
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
-from app.errors import ConfigurationError, WeldpoolError
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.errors import ConfigurationError, WeldpoolError
 
 
 @main.command("migrate")
 @friendly_errors
 def migrate_cmd() -> None:
     """Bring the database schema to the newest revision."""
-    from app.schema import migrate  # the models with it: imported by the commands that need them
+    from app.core.schema import (
+        migrate,  # the models with it: imported by the commands that need them
+    )
 
     settings = load_settings()
     settings.ensure_home()
@@ -30,7 +32,7 @@ def prepare_instance(settings: Settings) -> Path | None:
 
     Returns the file holding the new admin's password, or None when users already existed.
     """
-    from app.schema import migrate
+    from app.core.schema import migrate
     from app.storage import Storage
     from app.users.service import ensure_initial_admin
 
@@ -46,7 +48,7 @@ def prepare_instance(settings: Settings) -> Path | None:
 
 
 def _prepare_below_the_imports(settings: Settings) -> Path | None:
-    from app.budgets import lower_priority  # imported by serve before the thread starts
+    from app.core.budgets import lower_priority  # imported by serve before the thread starts
 
     lower_priority(settings.batch_nice)
     return prepare_instance(settings)
@@ -69,7 +71,7 @@ def login_hint(password_file: Path | None, host: str = "127.0.0.1", port: int = 
 @friendly_errors
 def serve(host: str, port: int, no_worker: bool) -> None:
     """Migrate, then serve the API and the browser UI (with an embedded worker)."""
-    from app.budgets import lower_priority  # noqa: F401 (see below)
+    from app.core.budgets import lower_priority  # noqa: F401 (see below)
     from app.users.service import ensure_initial_admin  # noqa: F401 (see below)
 
     settings = load_settings()

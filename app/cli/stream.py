@@ -13,7 +13,7 @@ from typing import IO, Any
 import click
 
 from app.cli.base import fail, friendly_errors, load_settings, main, open_sessions
-from app.errors import WeldpoolError
+from app.core.errors import WeldpoolError
 
 
 def promoted_model_dir() -> tuple[Path, bool]:

@@ -20,7 +20,7 @@ from app.cli.base import (
     main,
     named_files,
 )
-from app.errors import WeldpoolError
+from app.core.errors import WeldpoolError
 
 MODEL_SIZES = ("resnet18", "resnet34", "light")
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import click
 
 from app.cli.base import fail, friendly_errors, image_files, load_settings, main
-from app.config import Settings
-from app.errors import WeldpoolError
+from app.core.config import Settings
+from app.core.errors import WeldpoolError
 from app.teacher import runtime
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PROMPT_NAMES, PromptName
 

@@ -7,7 +7,7 @@ import sys
 import click
 
 from app.cli.base import friendly_errors, load_settings, main, open_sessions
-from app.models import Role
+from app.core.models import Role
 
 
 @main.group()

@@ -12,11 +12,11 @@ from __future__ import annotations
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
-from app.errors import InvalidInputError, NotFoundError
+from app.core.db import utcnow
+from app.core.errors import InvalidInputError, NotFoundError
+from app.core.models import Frame, User
 from app.frames.listing import list_query
 from app.frames.sequences import get_sequence
-from app.models import Frame, User
 
 MAX_NEXT = 1000
 """Most frames one "next N of the queue" hands out."""

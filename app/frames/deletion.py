@@ -8,11 +8,10 @@ from typing import TypeVar
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import changed, updated_one
-from app.errors import ConflictError, NotFoundError
-from app.frames.sequences import get_sequence
-from app.housekeeping import collect_doomed, doom
-from app.models import (
+from app.core.db import changed, updated_one
+from app.core.errors import ConflictError, NotFoundError
+from app.core.housekeeping import collect_doomed, doom
+from app.core.models import (
     Frame,
     FrameStatus,
     Label,
@@ -22,6 +21,7 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
+from app.frames.sequences import get_sequence
 from app.storage import Storage
 
 T = TypeVar("T")

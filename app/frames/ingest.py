@@ -16,10 +16,10 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.budgets import shared_pool
-from app.errors import InvalidInputError
+from app.core.budgets import shared_pool
+from app.core.errors import InvalidInputError
+from app.core.models import Frame, FrameStatus, Split, User
 from app.frames.sequences import get_sequence
-from app.models import Frame, FrameStatus, Split, User
 from app.storage import StagedFile, Storage, StoredFile, best_effort
 from weldpool_core.io import ImageInfo, check_image
 

@@ -12,11 +12,9 @@ from typing import TYPE_CHECKING, Any, Literal
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, undefer
 
-from app.bounds import MAX_ID
-from app.errors import InvalidInputError, NotFoundError
-from app.frames.sequences import get_sequence
-from app.jobs.service import listed_frames
-from app.models import (
+from app.core.bounds import MAX_ID
+from app.core.errors import InvalidInputError, NotFoundError
+from app.core.models import (
     UNREVIEWED_SQL,
     Frame,
     FrameStatus,
@@ -25,6 +23,8 @@ from app.models import (
     Split,
     ValidationKeypoints,
 )
+from app.frames.sequences import get_sequence
+from app.jobs.service import listed_frames
 from app.proposals.policy import pick
 from app.proposals.queue import diverse_head
 from app.storage import Storage
@@ -467,7 +467,7 @@ def scope_frames(session: Session, job_id: int, params: dict[str, Any]) -> list[
 def also_in(session: Session, frames: list[Frame]) -> list[tuple[int, int, int | None, str | None]]:
     """For each of ``frames`` whose content another frame holds (in another run, or in none):
     (frame id, the first such other frame's id, its run's id and name). One query."""
-    from app.models import Sequence
+    from app.core.models import Sequence
 
     if not frames:
         return []

@@ -26,8 +26,8 @@ from python_multipart.multipart import MultipartParser, MultipartState, parse_op
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
-from app.bounds import MAX_ID
-from app.errors import InvalidInputError
+from app.core.bounds import MAX_ID
+from app.core.errors import InvalidInputError
 
 MAX_FIELD_BYTES = 1024 * 1024
 """The largest plain (non-file) field: a form's fields are ids and options, never data."""

@@ -9,9 +9,12 @@ from fastapi import APIRouter, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
 
-from app.bounds import MAX_ID, IdPath, OffsetQuery
-from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import InvalidInputError
+from app.core.bounds import MAX_ID, IdPath, OffsetQuery
+from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.errors import InvalidInputError
+from app.core.models import FrameStatus, ReviewState, Split, User
+from app.core.models import get_frame as frame_by_id
+from app.core.security import CurrentUser, ReviewerUser
 from app.frames import assignments, deletion, ingest, listing, sequences, videos
 from app.frames.multipart import StreamedForm, one_spooled_file, openapi_form, optional_int
 from app.frames.schemas import (
@@ -33,9 +36,6 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
-from app.models import FrameStatus, ReviewState, Split, User
-from app.models import get_frame as frame_by_id
-from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 
 router = APIRouter(tags=["frames"])

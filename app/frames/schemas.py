@@ -9,9 +9,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from app.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX, XY, Id, InputModel
-from app.errors import InvalidInputError
-from app.models import FrameStatus, LabelStatus, ReviewState, Split
+from app.core.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX, XY, Id, InputModel
+from app.core.errors import InvalidInputError
+from app.core.models import FrameStatus, LabelStatus, ReviewState, Split
 from weldpool_core.geometry import scale_from_points
 
 

@@ -8,10 +8,10 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.bounds import MAX_MM_PER_PX
-from app.db import commit_or_conflict
-from app.errors import ConflictError, InvalidInputError, NotFoundError
-from app.models import Frame, Sequence, User
+from app.core.bounds import MAX_MM_PER_PX
+from app.core.db import commit_or_conflict
+from app.core.errors import ConflictError, InvalidInputError, NotFoundError
+from app.core.models import Frame, Sequence, User
 from weldpool_core.geometry import scale_from_points
 
 

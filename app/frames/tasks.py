@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.db import session_scope
+from app.core.db import session_scope
+from app.core.models import User, Video
 from app.frames.videos import extract_video_frames
 from app.jobs.registry import JobContext, counted, job_handler
 from app.jobs.service import create_job
-from app.models import User, Video
 from app.storage import Storage
 from app.system.status import sam2_problem
 from weldpool_core.errors import InvalidInputError

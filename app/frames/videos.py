@@ -10,10 +10,10 @@ from typing import Any, BinaryIO
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidInputError
+from app.core.errors import InvalidInputError
+from app.core.models import User, Video
 from app.frames.ingest import INGEST_POOL, CheckedFrame, name_problem, record_frames
 from app.frames.sequences import create_sequence, get_sequence, unique_sequence_name
-from app.models import User, Video
 from app.storage import Storage
 from weldpool_core.io import EXTENSIONS, MEDIA_TYPES, ImageInfo, encode_png
 from weldpool_core.video import probe_video, sniff_container

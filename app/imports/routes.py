@@ -8,16 +8,16 @@ from typing import Any
 from fastapi import APIRouter, Request, status
 from fastapi.concurrency import run_in_threadpool
 
-from app.deps import QueueDep, SessionDep, StorageDep
-from app.errors import InvalidInputError
+from app.core.deps import QueueDep, SessionDep, StorageDep
+from app.core.errors import InvalidInputError
+from app.core.housekeeping import prune_shared
+from app.core.security import CurrentUser
 from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
-from app.housekeeping import prune_shared
 from app.imports.schemas import KEYPOINT_ROLES
 from app.imports.uploads import IMPORTS_DIR, keep_upload
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.security import CurrentUser
 from weldpool_core.annotations import ARCHIVE_ONLY, READERS
 from weldpool_core.annotations.source import is_zip
 

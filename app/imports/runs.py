@@ -10,10 +10,10 @@ import sqlalchemy as sa
 from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
-from app.errors import ConflictError
+from app.core.errors import ConflictError
+from app.core.models import Sequence, User
 from app.frames import sequences
 from app.frames.schemas import SequenceIn
-from app.models import Sequence, User
 from weldpool_core.annotations import ImportedLabel, Refusal
 
 RUN_NAME = 190

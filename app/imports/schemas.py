@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from app.errors import InvalidInputError
+from app.core.errors import InvalidInputError
 from weldpool_core.annotations import READERS, Refusal
 
 MAX_LISTED = 1000

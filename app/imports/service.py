@@ -22,15 +22,15 @@ from dataclasses import dataclass
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError, PermissionDeniedError
+from app.core.db import utcnow
+from app.core.errors import ConflictError, InvalidInputError, PermissionDeniedError
+from app.core.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
 from app.imports.pool import BATCH, Check, Contents, computed
 from app.imports.runs import Runs
 from app.imports.schemas import ImportOptions, ImportReport, checked_format
 from app.jobs.registry import counted
-from app.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.proposals.files import lock_frames, masks_in_use
 from app.review.service import (
     check_keypoints,

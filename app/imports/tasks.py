@@ -5,12 +5,12 @@ from __future__ import annotations
 from functools import partial
 from typing import Any
 
-from app.db import session_scope
+from app.core.db import session_scope
+from app.core.models import User
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
 from app.imports.uploads import upload_name
 from app.jobs.registry import JobContext, counted, job_handler
-from app.models import User
 from app.storage import Storage, best_effort
 from weldpool_core.annotations import open_upload
 from weldpool_core.errors import InvalidInputError

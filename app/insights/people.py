@@ -35,8 +35,8 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import MissingFile
-from app.models import LabelRevision, LabelStatus, ReviewState, Role, User
+from app.core.errors import MissingFile
+from app.core.models import LabelRevision, LabelStatus, ReviewState, Role, User
 from app.proposals.policy import stored_iou
 from app.storage import Storage
 

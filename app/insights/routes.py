@@ -7,11 +7,11 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Response
 
-from app.deps import SessionDep, StorageDep
-from app.errors import InvalidInputError
+from app.core.deps import SessionDep, StorageDep
+from app.core.errors import InvalidInputError
+from app.core.security import CurrentUser
 from app.insights.people import IDLE_GAP_S, people_csv, people_figures
 from app.insights.service import all_metrics
-from app.security import CurrentUser
 
 router = APIRouter(tags=["metrics"])
 

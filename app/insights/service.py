@@ -9,8 +9,16 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, aliased
 
-from app.errors import MissingFile
-from app.models import Frame, Label, LabelRevision, LabelStatus, ModelVersion, Proposal, Sequence
+from app.core.errors import MissingFile
+from app.core.models import (
+    Frame,
+    Label,
+    LabelRevision,
+    LabelStatus,
+    ModelVersion,
+    Proposal,
+    Sequence,
+)
 from app.proposals.policy import current, source_key, stored_iou
 from app.review.agreement import run_agreement
 from app.storage import Storage

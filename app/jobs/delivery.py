@@ -18,9 +18,9 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import db_now, updated_one, utcnow
+from app.core.db import db_now, updated_one, utcnow
+from app.core.models import Job, JobStatus
 from app.jobs.registry import lane_of
-from app.models import Job, JobStatus
 
 log = structlog.get_logger(__name__)
 

@@ -23,9 +23,9 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 
-from app.db import updated_one
+from app.core.db import updated_one
+from app.core.models import JobChunk
 from app.jobs.registry import JobContext
-from app.models import JobChunk
 
 log = structlog.get_logger(__name__)
 

@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.config import Settings
-from app.db import utcnow
-from app.errors import ConfigurationError
+from app.core.config import Settings
+from app.core.db import utcnow
+from app.core.errors import ConfigurationError
+from app.core.models import Worker
+from app.core.periodic import Periodic
 from app.jobs.delivery import deliver_again, mark_enqueued, pass_on
 from app.jobs.registry import LANES, kinds_in, lane_of
 from app.jobs.runner import execute_job, new_worker_id, reap_lost_jobs, record_heartbeat
-from app.models import Worker
-from app.periodic import Periodic
 
 if TYPE_CHECKING:
     from huey import Huey

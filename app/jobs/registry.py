@@ -13,10 +13,10 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
-from app import budgets
-from app.config import Settings
-from app.db import db_now, updated_one
-from app.models import Job, JobStatus, Worker
+from app.core import budgets
+from app.core.config import Settings
+from app.core.db import db_now, updated_one
+from app.core.models import Job, JobStatus, Worker
 
 # Modules whose import registers job handlers (each domain's tasks.py).
 HANDLER_MODULES = (

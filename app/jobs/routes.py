@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Query, status
 
-from app.bounds import IdPath, OffsetQuery
-from app.deps import QueueDep, SessionDep
+from app.core.bounds import IdPath, OffsetQuery
+from app.core.deps import QueueDep, SessionDep
+from app.core.models import JobStatus
+from app.core.security import AdminUser, CurrentUser
 from app.jobs import service
 from app.jobs.registry import lane_of
 from app.jobs.schemas import DiagnosticJobIn, JobCreated, JobOut, JobPage
-from app.models import JobStatus
-from app.security import AdminUser, CurrentUser
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

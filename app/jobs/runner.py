@@ -17,10 +17,11 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app import budgets
-from app.config import Settings
-from app.db import changed, db_now, updated_one, utcnow
-from app.errors import failure_sentence, store_outage, without_server_paths
+from app.core import budgets
+from app.core.config import Settings
+from app.core.db import changed, db_now, updated_one, utcnow
+from app.core.errors import failure_sentence, store_outage, without_server_paths
+from app.core.models import Job, JobStatus, Worker
 from app.jobs.registry import (
     JobCancelled,
     JobContext,
@@ -29,7 +30,6 @@ from app.jobs.registry import (
     JobYielded,
     job_spec,
 )
-from app.models import Job, JobStatus, Worker
 from weldpool_core.errors import WeldpoolError
 
 log = structlog.get_logger(__name__)

@@ -7,8 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.bounds import InputModel
-from app.models import JobStatus
+from app.core.bounds import InputModel
+from app.core.models import JobStatus
 
 
 class JobOut(BaseModel):

@@ -8,18 +8,18 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import updated_one, utcnow
-from app.errors import (
+from app.core.db import updated_one, utcnow
+from app.core.errors import (
     ConfigurationError,
     ConflictError,
     InvalidInputError,
     NotFoundError,
     PermissionDeniedError,
 )
+from app.core.models import Job, JobScope, JobStatus, Role, User
 from app.jobs.queue import JobQueue
 from app.jobs.registry import counted, job_spec, lane_of
 from app.jobs.runner import reap_lost_jobs
-from app.models import Job, JobScope, JobStatus, Role, User
 
 
 def create_job(

@@ -7,7 +7,7 @@ import socket
 import time
 from typing import Any
 
-from app.errors import InvalidInputError, WeldpoolError
+from app.core.errors import InvalidInputError, WeldpoolError
 from app.jobs.registry import JobContext, job_handler
 
 

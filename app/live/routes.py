@@ -8,13 +8,13 @@ from collections.abc import AsyncIterator
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import StreamingResponse
 
-from app.bounds import IdPath
-from app.config import Settings
-from app.deps import SessionDep, SettingsDep, StorageDep
-from app.errors import ConflictError, InvalidInputError
+from app.core.bounds import IdPath
+from app.core.config import Settings
+from app.core.deps import SessionDep, SettingsDep, StorageDep
+from app.core.errors import ConflictError, InvalidInputError
+from app.core.security import CurrentUser, ReviewerUser
 from app.live.schemas import LiveIn, LiveOut, LiveOutputOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews, check_outputs
-from app.security import CurrentUser, ReviewerUser
 from app.training.service import get_model, model_folder, promoted_model
 from weldpool_core.outputs import OutputsConfig
 

@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from app.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX
+from app.core.bounds import MAX_MM_PER_PX, MIN_MM_PER_PX
 
 
 class LiveIn(BaseModel):

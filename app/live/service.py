@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError, NotFoundError, WeldpoolError
+from app.core.db import utcnow
+from app.core.errors import ConflictError, InvalidInputError, NotFoundError, WeldpoolError
 
 if TYPE_CHECKING:
     import cv2

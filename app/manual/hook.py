@@ -18,7 +18,7 @@ from app.manual.reference import expand
 @cache
 def openapi_schema() -> dict[str, Any]:
     """The app's OpenAPI schema, from an app made on a throw-away home (nothing is served)."""
-    from app.config import Settings
+    from app.core.config import Settings
     from app.main import create_app
 
     with tempfile.TemporaryDirectory() as home:

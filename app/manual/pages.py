@@ -12,7 +12,7 @@ from functools import cache
 from pathlib import PurePosixPath
 from typing import Any
 
-from app.errors import NotFoundError
+from app.core.errors import NotFoundError
 from app.manual.reference import DOCS, REPO, Schema, expand
 
 PREFIX = "/help"

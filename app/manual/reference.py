@@ -35,7 +35,7 @@ def settings_markdown() -> str:
     """Every field of ``Settings``: its variable, default and description."""
     from pydantic_core import PydanticUndefined
 
-    from app.config import Settings
+    from app.core.config import Settings
 
     rows = ["| variable | default | meaning |", "|---|---|---|"]
     for name, field in Settings.model_fields.items():

@@ -8,9 +8,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request, Response
 
+from app.core.models import User
+from app.core.security import current_user
 from app.manual.pages import IMAGE_TYPES, nav, picture, render_page
-from app.models import User
-from app.security import current_user
 from app.web.routes import render
 
 router = APIRouter(include_in_schema=False)

@@ -18,8 +18,8 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
-from app.errors import NotFoundError
-from app.models import Frame, LabelRevision, OverlapLabel, Proposal
+from app.core.errors import NotFoundError
+from app.core.models import Frame, LabelRevision, OverlapLabel, Proposal
 from app.storage import Storage, StoredFile
 from app.system.doctor import frame_file
 from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8

@@ -28,8 +28,8 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidInputError, MissingFile, NotFoundError
-from app.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
+from app.core.errors import InvalidInputError, MissingFile, NotFoundError
+from app.core.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
 from app.storage import Storage
 from weldpool_core.io import read_mask
 from weldpool_core.metrics import iou

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.models import Frame, Proposal
+from app.core.models import Frame, Proposal
 from weldpool_core.active import (
     combined_score,
     diverse_order,

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import updated_one
-from app.housekeeping import doom
-from app.models import (
+from app.core.db import updated_one
+from app.core.housekeeping import doom
+from app.core.models import (
     Frame,
     FrameStatus,
     Job,

@@ -8,14 +8,14 @@ from typing import TYPE_CHECKING, Annotated
 
 from fastapi import APIRouter, Depends, Query, Response
 
-from app.bounds import IdPath
-from app.deps import SessionDep, StorageDep
-from app.errors import NotFoundError
-from app.models import Proposal, get_frame
+from app.core.bounds import IdPath
+from app.core.deps import SessionDep, StorageDep
+from app.core.errors import NotFoundError
+from app.core.models import Proposal, get_frame
+from app.core.security import CurrentUser
 from app.proposals import policy
 from app.proposals.files import load_heatmap
 from app.proposals.schemas import ProposalList, ProposalOut, ProposalSummary
-from app.security import CurrentUser
 from app.system.doctor import frame_file
 from weldpool_core.heatmap import heatmap_rgba
 from weldpool_core.io import encode_png

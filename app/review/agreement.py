@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
-from app.errors import InvalidInputError, NotFoundError, PermissionDeniedError
-from app.models import Frame, Label, LabelStatus, OverlapLabel, Role, Sequence, User
+from app.core.db import utcnow
+from app.core.errors import InvalidInputError, NotFoundError, PermissionDeniedError
+from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Role, Sequence, User
 from app.proposals.files import load_mask, store_mask
 from app.proposals.policy import stored_iou
 from app.review.service import check_keypoints, current_label, save_label

@@ -8,14 +8,14 @@ import base64
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from app.bounds import MAX_ID, XY, Id, IdPath, InputModel
-from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import InvalidInputError
-from app.models import Role, get_frame
+from app.core.bounds import MAX_ID, XY, Id, IdPath, InputModel
+from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.errors import InvalidInputError
+from app.core.models import Role, get_frame
+from app.core.security import CurrentUser, ReviewerUser
 from app.review import agreement
 from app.review.routes import _label_out, _png_bytes
 from app.review.schemas import MAX_KEYPOINTS, LabelOut
-from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 from app.training.service import maybe_retrain
 

@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING, Any, Literal
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.budgets import shared_pool
-from app.errors import InvalidInputError, MissingFile
+from app.core.budgets import shared_pool
+from app.core.errors import InvalidInputError, MissingFile
+from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
-from app.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.proposals.files import load_mask
 from app.storage import EXPORTS_DIR, Storage
 from app.system.doctor import frame_file, frame_file_missing

@@ -22,10 +22,10 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
 
-from app.errors import InvalidInputError
+from app.core.errors import InvalidInputError
+from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.listing import run_frames
 from app.jobs.registry import counted
-from app.models import Frame, Label, LabelStatus, Proposal
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.record import PROPAGATED, record_proposal
 from app.storage import Storage

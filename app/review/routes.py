@@ -9,15 +9,16 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from fastapi import APIRouter, Query, status
 from fastapi.responses import FileResponse, StreamingResponse
 
-from app import budgets
-from app.bounds import MAX_ID, IdPath, check_in_frame
-from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import ConflictError, InvalidInputError, NotFoundError
+from app.core import budgets
+from app.core.bounds import MAX_ID, IdPath, check_in_frame
+from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.errors import ConflictError, InvalidInputError, NotFoundError
+from app.core.housekeeping import prune_exports
+from app.core.models import Job, JobStatus, Split, User, ValidationKeypoints, get_frame
+from app.core.security import CurrentUser, ReviewerUser
 from app.frames.sequences import get_sequence
-from app.housekeeping import prune_exports
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import Job, JobStatus, Split, User, ValidationKeypoints, get_frame
 from app.review import service
 from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
@@ -38,7 +39,6 @@ from app.review.schemas import (
     SegmentIn,
     SegmentOut,
 )
-from app.security import CurrentUser, ReviewerUser
 from app.system.doctor import frame_file
 from app.training.service import maybe_retrain
 from weldpool_core.io import decode_mask_png, encode_mask_png

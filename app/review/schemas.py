@@ -7,8 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field, model_validator
 
-from app.bounds import MAX_ID, XY, Id, InputModel
-from app.models import LabelStatus, ReviewState, Split
+from app.core.bounds import MAX_ID, XY, Id, InputModel
+from app.core.models import LabelStatus, ReviewState, Split
 from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES
 
 MAX_KEYPOINTS = 64

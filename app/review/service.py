@@ -11,10 +11,10 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
-from app.config import Settings
-from app.db import updated_one, utcnow
-from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
-from app.models import (
+from app.core.config import Settings
+from app.core.db import updated_one, utcnow
+from app.core.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
+from app.core.models import (
     Frame,
     FrameStatus,
     Label,

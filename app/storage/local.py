@@ -35,10 +35,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO
 
-from app.errors import MissingFile
+from app.core.errors import MissingFile
 
 if TYPE_CHECKING:
-    from app.config import Settings, StoreWaits
+    from app.core.config import Settings, StoreWaits
 
 CHUNK = 1024 * 1024
 SHARED_AREAS = ("frames", "videos", "artefacts", "models", "exports", "imports")

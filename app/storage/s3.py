@@ -40,8 +40,8 @@ from urllib.parse import urlparse
 
 import structlog
 
-from app.budgets import shared_pool
-from app.errors import without_addresses
+from app.core.budgets import shared_pool
+from app.core.errors import without_addresses
 from app.storage.local import (
     CHUNK,
     PART_LIFETIME_S,
@@ -53,7 +53,7 @@ from app.storage.local import (
 )
 
 if TYPE_CHECKING:
-    from app.config import Settings, StoreWaits
+    from app.core.config import Settings, StoreWaits
 
 log = structlog.get_logger(__name__)
 CONTENT_AREAS = ("frames", "videos", "artefacts")
@@ -177,7 +177,7 @@ class ObjectStorage(Storage):
     def check(self) -> None:
         """Raise a clear error when the bucket cannot be reached (at start-up), or home holds
         files of its own."""
-        from app.errors import ConfigurationError
+        from app.core.errors import ConfigurationError
 
         problem = self.problem(named=True)
         if problem:
@@ -700,7 +700,7 @@ def download_prefix(url: str, folder: Path, endpoint_url: str | None, *, waits: 
 
     from botocore.exceptions import BotoCoreError, ClientError
 
-    from app.errors import InvalidInputError
+    from app.core.errors import InvalidInputError
 
     bucket, key = parse_url(url)
     client = _client(endpoint_url, os.environ.get("AWS_REGION"), waits)

@@ -14,8 +14,8 @@ from pathlib import Path
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import MissingFile
-from app.models import Frame, Label, ModelVersion, Proposal
+from app.core.errors import MissingFile
+from app.core.models import Frame, Label, ModelVersion, Proposal
 from app.storage import Storage
 
 RESTORE = {

@@ -8,7 +8,7 @@ import sqlalchemy as sa
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from app.db import schema_revision
+from app.core.db import schema_revision
 from app.jobs.queue import describe
 from app.jobs.registry import LANES, kinds_in
 from app.jobs.runner import unserved_kinds, worker_rows

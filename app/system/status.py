@@ -6,7 +6,7 @@ import threading
 import time
 from typing import Any
 
-from app.config import Settings
+from app.core.config import Settings
 from app.storage import Storage
 from weldpool_core.teacher.weights import weights_status
 
@@ -63,7 +63,7 @@ def foreign_store(settings: Settings, session_factory: Any) -> str | None:
     frame). No frames yet, or a store that does not answer, tells nothing: None."""
     import sqlalchemy as sa
 
-    from app.models import Frame
+    from app.core.models import Frame
 
     with session_factory() as session:
         paths = list(

@@ -8,14 +8,14 @@ from typing import Any
 from fastapi import APIRouter, status
 from pydantic import BaseModel
 
-from app.bounds import IdPath
-from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.bounds import IdPath
+from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.models import get_frame
+from app.core.security import AdminUser, CurrentUser
 from app.frames.listing import run_scope
 from app.frames.sequences import get_sequence
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.models import get_frame
-from app.security import AdminUser, CurrentUser
 from app.teacher import runtime, warm
 from app.teacher.schemas import EmbeddingOut, TeacherRunIn
 

@@ -13,7 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from app.config import Settings
+from app.core.config import Settings
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 if TYPE_CHECKING:

@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-from app.bounds import Id, InputModel
+from app.core.bounds import Id, InputModel
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS, PromptName
 
 

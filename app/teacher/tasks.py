@@ -9,7 +9,8 @@ from typing import Any
 import sqlalchemy as sa
 import structlog
 
-from app.errors import failure_sentence, store_outage, without_server_paths
+from app.core.errors import failure_sentence, store_outage, without_server_paths
+from app.core.models import Frame
 from app.frames.listing import run_frames, scope_frames
 from app.jobs.fanout import Fanout
 from app.jobs.registry import (
@@ -20,7 +21,6 @@ from app.jobs.registry import (
     counted,
     job_handler,
 )
-from app.models import Frame
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
 from app.proposals.record import claim, has_proposal, record_teacher_proposal, release
 from app.storage import Storage

@@ -19,9 +19,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Literal
 
-from app import budgets
-from app.config import Settings
-from app.models import Frame
+from app.core import budgets
+from app.core.config import Settings
+from app.core.models import Frame
 from app.proposals.files import stored_rgb
 from app.storage import Storage
 from app.teacher import runtime

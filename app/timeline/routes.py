@@ -6,9 +6,9 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, Response
 
-from app.bounds import IdPath
-from app.deps import SessionDep, StorageDep
-from app.security import CurrentUser
+from app.core.bounds import IdPath
+from app.core.deps import SessionDep, StorageDep
+from app.core.security import CurrentUser
 from app.timeline import service
 from app.timeline.schemas import Timeline
 

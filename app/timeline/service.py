@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.errors import MissingFile
+from app.core.errors import MissingFile
+from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
-from app.models import Frame, Label, LabelStatus, Proposal
 from app.proposals import policy
 from app.proposals.files import load_mask
 from app.storage import Storage

@@ -35,9 +35,9 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
 
-from app.db import utcnow
-from app.errors import ConflictError, InvalidInputError
-from app.models import Frame, Label, ModelVersion, Proposal
+from app.core.db import utcnow
+from app.core.errors import ConflictError, InvalidInputError
+from app.core.models import Frame, Label, ModelVersion, Proposal
 from app.proposals.files import frame_rgb, load_mask
 from app.storage import Storage
 from app.training import service

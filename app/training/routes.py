@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.bounds import IdPath
-from app.deps import QueueDep, SessionDep, SettingsDep, StorageDep
-from app.errors import ConflictError, InvalidInputError
+from app.core.bounds import IdPath
+from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
+from app.core.errors import ConflictError, InvalidInputError
+from app.core.security import CurrentUser, ReviewerUser
 from app.frames.listing import run_scope
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
-from app.security import CurrentUser, ReviewerUser
 from app.training import gate, service
 from app.training.schemas import ModelVersionOut, SequentialIn, StudentRunIn, TrainIn
 from weldpool_core.student.quantize import MIN_FRAMES

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.bounds import Id, InputModel
+from app.core.bounds import Id, InputModel
 
 
 class TrainIn(InputModel):

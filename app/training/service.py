@@ -10,11 +10,9 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import updated_one, utcnow
-from app.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
-from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
-from app.jobs.service import create_job
-from app.models import (
+from app.core.db import updated_one, utcnow
+from app.core.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
+from app.core.models import (
     Frame,
     Job,
     JobStatus,
@@ -28,6 +26,8 @@ from app.models import (
     ValidationKeypoints,
     Video,
 )
+from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
+from app.jobs.service import create_job
 from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
 from app.system.doctor import frame_file_missing

@@ -12,12 +12,12 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 import structlog
 
-from app.db import utcnow
-from app.errors import MissingFile
+from app.core.db import utcnow
+from app.core.errors import MissingFile
+from app.core.models import Frame, Job, ModelVersion
 from app.frames.listing import scope_frames
 from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, counted, job_handler
-from app.models import Frame, Job, ModelVersion
 from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.queue import latest_teacher_proposal
 from app.proposals.record import STUDENT, record_proposal

@@ -6,12 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request, Response, status
 
-from app.bounds import IdPath
-from app.db import utcnow
-from app.deps import SessionDep
-from app.errors import AuthenticationError, PermissionDeniedError
-from app.models import User
-from app.security import (
+from app.core.bounds import IdPath
+from app.core.db import utcnow
+from app.core.deps import SessionDep
+from app.core.errors import AuthenticationError, PermissionDeniedError
+from app.core.models import User
+from app.core.security import (
     AdminUser,
     CurrentUser,
     ReviewerUser,

@@ -6,8 +6,8 @@ import datetime as dt
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.bounds import InputModel
-from app.models import Role
+from app.core.bounds import InputModel
+from app.core.models import Role
 
 USERNAME_PATTERN = r"^[A-Za-z0-9_.@-]{1,64}$"
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.db import commit_or_conflict, utcnow
-from app.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
-from app.models import ApiToken, Role, User, WebSession
-from app.security import (
+from app.core.db import commit_or_conflict, utcnow
+from app.core.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
+from app.core.models import ApiToken, Role, User, WebSession
+from app.core.security import (
     MADE_PASSWORD_BYTES,
     hash_made_password,
     hash_password,
@@ -38,7 +38,7 @@ def create_user(
 ) -> User:
     """A new active user; the name must be free. ``made``: the password was made here from
     ``MADE_PASSWORD_BYTES`` random bytes, not chosen by a person (hashed with
-    ``app.security.MADE``'s cheap parameters)."""
+    ``app.core.security.MADE``'s cheap parameters)."""
     if not re.fullmatch(USERNAME_PATTERN, username):
         raise InvalidInputError(
             "A user name has 1 to 64 letters, digits or the characters _ . @ -."
@@ -64,7 +64,7 @@ def get_user(session: Session, user_id: int) -> User:
 
 
 def user_by_name(session: Session, username: str) -> User:
-    """The user of a name, in any case (``app.security.user_named``)."""
+    """The user of a name, in any case (``app.core.security.user_named``)."""
     user = user_named(session, username)
     if user is None:
         raise NotFoundError(

@@ -16,7 +16,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.models import UNREVIEWED, Frame, Label, OverlapLabel, ReviewState, Role, User
+from app.core.models import UNREVIEWED, Frame, Label, OverlapLabel, ReviewState, Role, User
 
 
 def sent_back() -> Any:

@@ -13,12 +13,12 @@ from typing import TYPE_CHECKING, Annotated, Any
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from app.bounds import IdPath
-from app.db import utcnow
-from app.deps import SessionDep, SettingsDep
-from app.errors import AuthenticationError, TooManyAttemptsError
-from app.models import Role, User
-from app.security import (
+from app.core.bounds import IdPath
+from app.core.db import utcnow
+from app.core.deps import SessionDep, SettingsDep
+from app.core.errors import AuthenticationError, TooManyAttemptsError
+from app.core.models import Role, User
+from app.core.security import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
     authenticate_throttled,

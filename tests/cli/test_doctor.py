@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import sqlalchemy as sa
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import Frame, Label, Proposal
 from app.demo import fill_demo
-from app.models import Frame, Label, Proposal
 from tests.helpers import run_cli
 
 

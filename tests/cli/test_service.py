@@ -14,8 +14,8 @@ from click.testing import CliRunner
 from fastapi.testclient import TestClient
 
 from app.cli import main
-from app.config import Settings, get_settings
-from app.db import MIGRATIONS_DIR
+from app.core.config import Settings, get_settings
+from app.core.db import MIGRATIONS_DIR
 from app.main import create_app
 from tests.helpers import auth, make_settings, run_cli
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, Role
+from app.core.models import Frame, Role
 from tests.frames.test_delete import _upload
 from tests.helpers import auth, image_bytes
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import age_stored_files, auth, corrected_label, image_bytes
 
 

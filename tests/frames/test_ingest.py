@@ -13,11 +13,11 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.housekeeping import FileCollector, sweep_orphan_files
+from app.core.models import DoomedFile, Frame, Role
 from app.frames import deletion, ingest, listing, sequences
-from app.housekeeping import FileCollector, sweep_orphan_files
 from app.main import create_app
-from app.models import DoomedFile, Frame, Role
 from app.storage import Storage
 from app.storage import local as storage_module
 from tests.helpers import age_stored_files, auth, image_bytes, wait_for
@@ -564,7 +564,7 @@ def test_a_foreign_cursor_or_a_cursor_with_an_offset_is_a_clear_400(
 def test_the_unreviewed_filter_is_new_and_proposed_frames(
     client: TestClient, token: str, session_factory
 ) -> None:
-    from app.models import Frame, FrameStatus
+    from app.core.models import Frame, FrameStatus
 
     stored = _upload(client, token, [(f"u{i}.png", image_bytes(seed=60 + i)) for i in range(5)])
     ids = [f["id"] for f in stored.json()["stored"]]
@@ -591,8 +591,8 @@ def test_start_up_prunes_training_state_of_recorded_versions(
 ) -> None:
     """Versions made before the training job pruned its state lose it at the next start-up;
     the weights stay, and folders without a version (a run to resume) are left alone."""
-    from app.housekeeping import prune_training_state
-    from app.models import ModelVersion
+    from app.core.housekeeping import prune_training_state
+    from app.core.models import ModelVersion
 
     recorded, unrecorded = settings.home / "models" / "student-v1", settings.home / "work" / "run"
     for folder in (recorded, unrecorded):
@@ -625,8 +625,8 @@ def test_each_list_order_of_a_run_reads_its_index_instead_of_sorting(
 ) -> None:
     """With a run's worth of frames, the planner walks the list's index in order (no sort of
     the run) on SQLite and PostgreSQL: a page stays as quick at frame 50,000 as at frame 50."""
+    from app.core.models import Frame, FrameStatus, Sequence
     from app.frames.listing import list_query
-    from app.models import Frame, FrameStatus, Sequence
 
     with session_factory() as session:
         runs = [Sequence(name=f"run {i}") for i in range(3)]
@@ -672,7 +672,7 @@ def test_the_first_sweep_runs_after_start_not_before_serve_answers(
     """`serve` answers before any sweep: the collector's first pass (doomed files and training
     state) runs in its thread a little after start, then every third of the grace period; it
     looks at the files whose rows went, never listing the whole store (that is daily)."""
-    import app.housekeeping as housekeeping
+    import app.core.housekeeping as housekeeping
 
     storage = Storage(settings.home)
     orphan = storage.put(image_bytes(seed=53), "d" * 64, ".png")
@@ -703,8 +703,8 @@ def test_a_deleted_frames_file_claimed_meanwhile_stays_doomed_until_its_grace_en
     """A deletion collects its frames' files at once unless an upload claimed one meanwhile:
     that one stays recorded and a later pass collects it once its grace has passed; a file a
     row names again is forgotten, never removed."""
+    from app.core.housekeeping import collect_doomed
     from app.frames.deletion import delete_frames
-    from app.housekeeping import collect_doomed
 
     storage = Storage(settings.home)
     with session_factory() as session:

@@ -9,10 +9,10 @@ from typing import Any
 import pytest
 import sqlalchemy as sa
 
-from app.db import create_db_engine, create_session_factory
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Frame, FrameStatus, Sequence
+from app.core.schema import migrate
 from app.frames.listing import list_query
-from app.models import Frame, FrameStatus, Sequence
-from app.schema import migrate
 
 # (order, status, run or all, the page's index or None where any index in order will do,
 # the count's index or None where the planner's choice is free)

@@ -8,7 +8,7 @@ import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, Label, Role
+from app.core.models import Frame, Label, Role
 from tests.helpers import auth, corrected_label, image_bytes
 
 

@@ -10,7 +10,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from app.errors import InvalidInputError
+from app.core.errors import InvalidInputError
 from app.frames import ingest
 from app.frames.multipart import StreamedForm
 from app.storage import Storage

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth
 
 

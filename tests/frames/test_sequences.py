@@ -13,7 +13,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Role, Sequence
+from app.core.models import Role, Sequence
 from tests.helpers import auth, corrected_label, image_bytes
 
 

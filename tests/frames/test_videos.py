@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.models import Role
+from app.core.config import Settings
+from app.core.models import Role
 from tests.helpers import SHARED_DATA, auth, image_bytes, run_cli, wait_for_job
 
 

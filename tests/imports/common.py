@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 from fastapi.testclient import TestClient
 
+from app.core.models import Role, User
+from app.core.security import hash_password, issue_token
 from app.main import create_app
-from app.models import Role, User
-from app.security import hash_password, issue_token
 from tests.helpers import auth, corrected_label, image_bytes, make_settings, wait_for_job
 from weldpool_core.io import decode_mask_png
 
@@ -74,8 +74,8 @@ def token_for(session_factory, name: str, role: Role = Role.reviewer) -> tuple[U
 def export_labels(home: Path, formats: list[str]) -> Exported:
     """A SQLite instance under ``home`` with three labelled frames of run "run-a" (a mask with
     a hole, two regions, keypoints given on one, validation keypoints on another), exported."""
-    from app.db import create_db_engine, create_session_factory
-    from app.schema import migrate
+    from app.core.db import create_db_engine, create_session_factory
+    from app.core.schema import migrate
 
     settings = make_settings(home, database_url=f"sqlite:///{home / 'source.sqlite3'}")
     engine = create_db_engine(settings.resolved_database_url)

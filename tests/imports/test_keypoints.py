@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth, image_bytes
 from tests.imports.common import H, W, start_import, stored_labels, zipped
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import sqlalchemy as sa
 
+from app.core.models import Frame, Label, LabelRevision, Role, Sequence, User
 from app.frames.sequences import create_sequence
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
-from app.models import Frame, Label, LabelRevision, Role, Sequence, User
 from app.storage import Storage
 from tests.imports.common import masks_archive
 from weldpool_core.annotations import open_source
@@ -113,7 +113,7 @@ def test_an_import_others_keep_racing_stops_saying_what_it_wrote(
     never stop, the import stops with one sentence that says what it wrote and kept (it failed
     after committing the first batch's labels with no word of them)."""
     import app.imports.service as service
-    from app.errors import ConflictError
+    from app.core.errors import ConflictError
 
     user, _ = make_user("racer", Role.annotator)
     archive = _archive(tmp_path, 70)  # a batch of 64, then 6

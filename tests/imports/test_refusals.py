@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import sqlalchemy as sa
 
-from app.models import Frame, Label, LabelRevision, Role
+from app.core.models import Frame, Label, LabelRevision, Role
 from tests.helpers import auth, image_bytes, wait_for_job
 from tests.imports.common import H, W, label_mask, start_import, stored_labels, zipped
 from weldpool_core.annotations.shapes import cvat_rle, to_cvat_rle

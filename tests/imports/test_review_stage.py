@@ -12,7 +12,7 @@ import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Label, ReviewState, Role
+from app.core.models import Label, ReviewState, Role
 from app.training.service import training_frame_ids
 from tests.helpers import auth, image_bytes, run_cli
 from tests.imports.common import H, W, label_mask, start_import, stored_labels, zipped

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from scipy.ndimage import binary_fill_holes
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth, run_cli
 from tests.imports.common import (
     PROCESS,

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from app.errors import PermissionDeniedError
+from app.core.errors import PermissionDeniedError
+from app.core.models import Label, Role, User
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
-from app.models import Label, Role, User
 from app.storage import Storage
 from tests.helpers import auth, image_bytes, wait_for, wait_for_job
 from tests.imports.common import H, W, masks_archive, stored_labels, zipped

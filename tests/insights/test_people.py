@@ -13,7 +13,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import LabelRevision, Role
+from app.core.models import LabelRevision, Role
 from tests.frames.test_delete import _upload
 from tests.helpers import auth, mask_b64
 

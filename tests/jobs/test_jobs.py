@@ -9,13 +9,13 @@ import time
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory, utcnow
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory, utcnow
+from app.core.models import Job, JobStatus, Role, User
+from app.core.schema import migrate
 from app.jobs.registry import JobContext, JobLost, job_handler
 from app.jobs.runner import execute_job, reap_lost_jobs
 from app.jobs.service import cancel_job, create_job
-from app.models import Job, JobStatus, Role, User
-from app.schema import migrate
 from tests.helpers import auth, wait_for, wait_for_job
 
 release = threading.Event()
@@ -337,7 +337,7 @@ def _missing_file(ctx: JobContext) -> dict:
 def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -> None:
     """Every user reads a job's error: paths under the home folder are relative, other server
     paths only their last part."""
-    from app.errors import without_server_paths
+    from app.core.errors import without_server_paths
 
     with session_factory() as session:
         job = Job(kind="test-missing-file", params={})

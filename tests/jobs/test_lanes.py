@@ -12,15 +12,15 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.db import create_db_engine, create_session_factory, utcnow
+from app.core.db import create_db_engine, create_session_factory, utcnow
+from app.core.models import Job, JobChunk, JobStatus, Role, Worker
+from app.core.schema import migrate
 from app.jobs import runner
 from app.jobs.delivery import deliver_again, pass_on
 from app.jobs.fanout import Fanout
 from app.jobs.queue import JobQueue
 from app.jobs.registry import JobContext, job_handler
 from app.jobs.service import create_job
-from app.models import Job, JobChunk, JobStatus, Role, Worker
-from app.schema import migrate
 from tests.helpers import auth, make_settings, wait_for, wait_for_job
 
 gate = threading.Event()
@@ -183,7 +183,7 @@ def test_a_worker_whose_clock_runs_behind_keeps_its_job(
     behind = utcnow() - dt.timedelta(seconds=90)
     with monkeypatch.context() as patch:  # the worker's machine
         patch.setattr(runner, "utcnow", lambda: behind)
-        patch.setattr("app.db.utcnow", lambda: behind)
+        patch.setattr("app.core.db.utcnow", lambda: behind)
         runner.record_heartbeat(factory, worker)
     assert runner.reap_lost_jobs(factory, 60.0, lambda *_: None) == []
     with factory() as session:
@@ -367,7 +367,7 @@ def test_a_store_that_does_not_answer_pauses_the_job_it_never_fails_it_at_once(
 ) -> None:
     """An outage of the store or the network (not the work) queues the job again after a pause,
     saying so, until its retries are spent; an error of the work still fails it at once."""
-    from app.errors import store_outage
+    from app.core.errors import store_outage
     from app.jobs.runner import PAUSE_S, STORE_RETRIES, execute_job
 
     queue = _Later()

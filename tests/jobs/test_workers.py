@@ -12,13 +12,13 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Job, JobStatus, Role, User, Worker
+from app.core.schema import migrate
 from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
 from app.main import create_app
-from app.models import Job, JobStatus, Role, User, Worker
-from app.schema import migrate
 from tests.helpers import REPO, auth, make_settings, wait_for
 
 pytestmark = pytest.mark.slow
@@ -99,7 +99,7 @@ def test_job_through_real_redis_and_a_separate_worker(
 
     # The API, without an embedded worker, sees the worker and enqueues through Redis too.
     with factory() as session:
-        from app.security import issue_token
+        from app.core.security import issue_token
 
         _, token = issue_token(session, session.get_one(User, admin.id), "t")
         session.commit()
@@ -145,7 +145,7 @@ def test_with_no_worker_left_the_server_reaps_and_health_says_so(
     settings = make_settings(tmp_path / "home", database_url=database_url)
     factory, admin = _setup(settings)
     with factory() as session:
-        from app.security import issue_token
+        from app.core.security import issue_token
 
         _, token = issue_token(session, session.get_one(User, admin.id), "t")
         session.commit()

@@ -12,9 +12,9 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import ModelVersion, Role
 from app.live.service import MAX_RUNNING, overlay_jpeg
-from app.models import ModelVersion, Role
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
 from tests.helpers import auth, run_cli, wait_for, write_video
 from weldpool_core.stream import CapturedFrame, StreamResult
@@ -237,7 +237,7 @@ def test_a_sequential_cell_learns_from_video_labels_is_measured_and_runs_live(
     """From the models page's button to a live view: the cell trains on the training split's
     reviewed video frames (decoding the stored video at its own rate), is measured on the
     validation split's against the per-frame student, and a live view runs it."""
-    from app.models import Frame, Split
+    from app.core.models import Frame, Split
     from tests.helpers import corrected_label, wait_for_job
     from weldpool_core.synth import SynthParams, synth_frame
 
@@ -527,7 +527,7 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
 
 
 def test_an_admin_opens_the_cells_network_to_the_live_views_outputs(settings: Settings) -> None:
-    from app.errors import InvalidInputError
+    from app.core.errors import InvalidInputError
     from app.live.service import check_outputs
 
     opened = settings.model_copy(

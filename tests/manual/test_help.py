@@ -8,10 +8,10 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import Role
 from app.manual.pages import nav, url_of
 from app.manual.reference import cli_commands
-from app.models import Role
 
 HREF = re.compile(r'(?:href|src)="([^"#]*)(?:#[^"]*)?"')
 LOADED = re.compile(r'(?:src="|<link[^>]*href=")([^"]*)"')

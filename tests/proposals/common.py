@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.models import Proposal
+from app.core.models import Proposal
 from app.proposals.files import store_mask
 from app.storage import Storage
 from tests.helpers import auth, image_bytes

@@ -8,7 +8,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, ModelVersion, Proposal, Role
+from app.core.models import Frame, ModelVersion, Proposal, Role
 from app.storage import Storage
 from tests.helpers import auth, corrected_label
 from tests.proposals.common import box, propose, upload
@@ -153,8 +153,8 @@ def test_a_replaced_proposals_files_are_doomed_for_the_collector(
     """Propagation replaces a frame's earlier propagated proposal: its mask file is recorded
     for the collector in the same transaction (no listing of the store finds it), and a pass
     after the grace period removes it; the new proposal's file stays."""
-    from app.housekeeping import collect_doomed
-    from app.models import DoomedFile
+    from app.core.housekeeping import collect_doomed
+    from app.core.models import DoomedFile
     from app.proposals.record import PROPAGATED, record_proposal
     from tests.helpers import age_stored_files
 

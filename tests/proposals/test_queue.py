@@ -8,7 +8,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, Proposal, Role
+from app.core.models import Frame, Proposal, Role
 from app.proposals.queue import rescore_frame
 from app.review import propagation
 from app.storage import Storage

@@ -7,8 +7,8 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
+from app.core.models import Job, JobStatus, Role
 from app.main import create_app
-from app.models import Job, JobStatus, Role
 from tests.helpers import auth, corrected_label
 from tests.proposals.test_queue import _frames
 from tests.review.test_review import _teacher, _upload_synthetic
@@ -86,7 +86,7 @@ def test_an_untrained_new_model_is_not_promoted(
     """One epoch on three frames: the gate measures it on the held-out frame and refuses it
     (tests/training/test_gate.py covers each rule of the gate). A model folder left by
     a crash does not block the new version's name."""
-    from app.models import ModelVersion
+    from app.core.models import ModelVersion
     from tests.helpers import wait_for_job
 
     _, token = make_user("promoter", Role.reviewer)

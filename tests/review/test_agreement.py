@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from app.training.service import training_frame_ids
 from tests.frames.test_delete import _upload
 from tests.helpers import auth, mask_b64

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth
 from weldpool_core.io import decode_mask_png
 from weldpool_core.synth import SynthParams, synth_frame

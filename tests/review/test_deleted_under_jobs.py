@@ -10,7 +10,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import STORED_PATH_COLUMNS, ModelVersion, Proposal, Role
+from app.core.models import STORED_PATH_COLUMNS, ModelVersion, Proposal, Role
 from tests.helpers import age_stored_files, auth, corrected_label, wait_for_job
 from weldpool_core.synth import SynthParams, synth_frame
 

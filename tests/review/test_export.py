@@ -11,9 +11,9 @@ import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import Role
 from app.demo import fill_demo
-from app.models import Role
 from tests.helpers import auth, run_cli
 from weldpool_core.io import decode_mask_png
 
@@ -182,7 +182,7 @@ def test_yolo_export_as_a_job_reads_back_as_the_masks(
 
     # Labels saved before their outlines were stored trace the mask decoded from their RLE,
     # and those saved before that the mask PNG: the same lines either way.
-    from app.models import Label
+    from app.core.models import Label
 
     def yolo_labels() -> dict[str, bytes]:
         got = client.get("/api/v1/export", params={"format": "yolo"}, headers=auth(token))
@@ -278,7 +278,7 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
     import sqlalchemy as sa
     from pycocotools import mask as coco_api
 
-    from app.models import Label, Proposal
+    from app.core.models import Label, Proposal
     from app.proposals.files import store_mask
     from app.storage import Storage
     from tests.helpers import corrected_label, image_bytes

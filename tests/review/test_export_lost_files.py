@@ -10,9 +10,9 @@ import zipfile
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
+from app.core.config import Settings
+from app.core.models import Frame, Label, LabelStatus, Role
 from app.demo import fill_demo
-from app.models import Frame, Label, LabelStatus, Role
 from tests.helpers import auth, wait_for_job
 
 

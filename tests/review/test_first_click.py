@@ -129,7 +129,7 @@ def test_the_embedding_cache_is_sized_listed_and_cleared_by_admins(
     people,  # noqa: F811
     make_user,
 ) -> None:
-    from app.models import Role
+    from app.core.models import Role
 
     _, admin = make_user("ada", Role.admin)
     token = people["annotator"]

@@ -8,9 +8,9 @@ import threading
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
+from app.core.models import Job, JobStatus, Proposal, ProposalClaim, Role
 from app.jobs.runner import execute_job, new_worker_id
 from app.main import create_app
-from app.models import Job, JobStatus, Proposal, ProposalClaim, Role
 from app.proposals.record import claim, release
 from tests.helpers import auth, image_bytes
 

@@ -9,7 +9,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Job, Proposal, Role
+from app.core.models import Job, Proposal, Role
 from tests.helpers import auth, corrected_label, wait_for_job
 from weldpool_core.synth import SynthParams, synth_frame
 

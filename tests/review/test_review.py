@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth, corrected_label, mask_b64, wait_for_job
 from weldpool_core.io import decode_mask_png
 from weldpool_core.synth import SynthParams, synth_frame
@@ -166,7 +166,7 @@ def test_cancel_stops_the_teacher_inside_a_frame(
     is running (not after the frame, nor the run), as cancelled: no proposal, no frame error."""
     import sqlalchemy as sa
 
-    from app.models import Job
+    from app.core.models import Job
     from weldpool_core.teacher.teacher import Teacher
 
     token = people["reviewer"]

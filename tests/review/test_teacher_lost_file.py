@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
-from app.models import Frame, Role
+from app.core.models import Frame, Role
 from tests.helpers import auth, image_bytes, wait_for_job
 
 

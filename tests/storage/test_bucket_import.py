@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import sqlalchemy as sa
 
-from app.db import create_db_engine, create_session_factory
-from app.models import Frame, Label, LabelStatus, Role, Sequence, User
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Frame, Label, LabelStatus, Role, Sequence, User
 from tests.helpers import run_cli
 from tests.s3 import bucket_keys, make_bucket
 from weldpool_core.synth import SynthParams, synth_sequence

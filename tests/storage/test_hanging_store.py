@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.errors import ConfigurationError
-from app.models import Role
+from app.core.config import Settings
+from app.core.errors import ConfigurationError
+from app.core.models import Role
 from app.storage import Storage
 from tests.helpers import auth, hanging_server, image_bytes, make_settings, within
 

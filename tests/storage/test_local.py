@@ -114,7 +114,7 @@ def test_sweep_puts_back_a_file_a_dead_collector_left_aside(
 
 
 def test_a_lost_file_is_one_missing_file_error_and_lost_names_it(tmp_path: Path) -> None:
-    from app.errors import MissingFile, http_status_of
+    from app.core.errors import MissingFile, http_status_of
 
     storage = Storage(tmp_path / "home")
     kept, gone = _stored(storage, b"kept"), _stored(storage, b"gone")

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.models import Frame, Role
+from app.core.config import Settings
+from app.core.models import Frame, Role
 from app.storage.s3 import parse_url
 from tests.helpers import auth, corrected_label, image_bytes, make_settings, run_cli
 
@@ -105,8 +105,8 @@ def test_a_trashed_object_is_not_lost_and_a_missing_key_is(
 ) -> None:
     """``lost`` answers from one listing: a key in the trash (a reader puts it back) is held;
     a key in neither place is lost, and reading it is MissingFile (not a file of nothing)."""
-    from app.config import StoreWaits
-    from app.errors import MissingFile
+    from app.core.config import StoreWaits
+    from app.core.errors import MissingFile
     from app.storage.s3 import ObjectStorage
 
     waits = StoreWaits(connect_s=3.0, read_s=60.0, attempts=5)

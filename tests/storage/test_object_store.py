@@ -13,7 +13,7 @@ from pathlib import Path
 import boto3
 import pytest
 
-from app.config import StoreWaits
+from app.core.config import StoreWaits
 from app.storage import Storage
 from app.storage.s3 import TRASH, ObjectStorage
 from tests.s3 import bucket_keys
@@ -235,7 +235,7 @@ def test_settings_choose_the_backend_and_a_bad_store_is_one_sentence(
 ) -> None:
     from pydantic import ValidationError
 
-    from app.errors import ConfigurationError
+    from app.core.errors import ConfigurationError
     from tests.helpers import make_settings
 
     assert type(Storage.of(make_settings(tmp_path / "a"))) is Storage
@@ -283,9 +283,9 @@ def test_a_store_that_stops_answering_is_a_503_and_stores_nothing(
     import sqlalchemy as sa
     from fastapi.testclient import TestClient
 
+    from app.core.models import Frame, Role, User
+    from app.core.security import issue_token
     from app.main import create_app
-    from app.models import Frame, Role, User
-    from app.security import issue_token
     from tests.helpers import auth, make_settings
     from tests.web.server import free_port
 
@@ -344,7 +344,7 @@ def test_two_jobs_publishing_one_model_folder_keep_each_others_files(
 def test_a_home_with_files_of_its_own_is_pushed_before_it_becomes_a_cache(
     tmp_path: Path, s3_url: str, s3_endpoint: str
 ) -> None:
-    from app.errors import ConfigurationError
+    from app.core.errors import ConfigurationError
     from tests.helpers import make_settings, run_cli
 
     home = tmp_path / "home"

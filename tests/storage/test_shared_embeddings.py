@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from app.config import StoreWaits
+from app.core.config import StoreWaits
 from app.storage.s3 import ObjectStorage
 from app.teacher.runtime import EMBEDDINGS_AREA, SharedEmbeddings
 from tests.models import tiny_sam2

@@ -20,12 +20,12 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.db import create_db_engine, create_session_factory
+from app.core.config import Settings
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Frame, ModelVersion, Proposal, Role, User
+from app.core.schema import migrate
+from app.core.security import issue_token
 from app.main import create_app
-from app.models import Frame, ModelVersion, Proposal, Role, User
-from app.schema import migrate
-from app.security import issue_token
 from tests.helpers import REPO, auth, corrected_label, make_settings, wait_for, wait_for_job
 from tests.s3 import bucket_keys
 from weldpool_core.synth import SynthParams, synth_sequence

@@ -7,7 +7,7 @@ import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Label, Role
+from app.core.models import Label, Role
 from tests.helpers import auth, corrected_label, image_bytes
 
 

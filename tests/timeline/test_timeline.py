@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.models import Proposal, Role
+from app.core.models import Proposal, Role
 from app.proposals.files import store_mask
 from app.storage import Storage
 from tests.helpers import auth, corrected_label, image_bytes

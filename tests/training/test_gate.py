@@ -18,7 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 from safetensors.torch import load_file, save_file
 
-from app.models import Frame, ModelVersion, Proposal, Role
+from app.core.models import Frame, ModelVersion, Proposal, Role
 from app.proposals.files import store_mask
 from app.storage import Storage
 from app.training import gate
@@ -177,7 +177,7 @@ def test_a_usable_first_version_is_promoted_and_an_equal_one_is_not(
 def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
-    from app.models import Split
+    from app.core.models import Split
     from app.training.service import pseudo_label_proposals, teacher_confidence
 
     _, token = make_user("distiller", Role.reviewer)

@@ -7,7 +7,7 @@ import numpy as np
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.models import Frame, Label, ModelVersion, Role
+from app.core.models import Frame, Label, ModelVersion, Role
 from tests.helpers import auth, corrected_label, image_bytes, wait_for_job
 
 

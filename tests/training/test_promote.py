@@ -10,12 +10,12 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.db import utcnow
+from app.core.config import Settings
+from app.core.db import utcnow
+from app.core.models import Job, JobStatus, ModelVersion, Role
 from app.frames.listing import scope_frames
 from app.jobs.runner import new_worker_id
 from app.main import create_app
-from app.models import Job, JobStatus, ModelVersion, Role
 from tests.helpers import auth, corrected_label, image_bytes
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from app import security
+from app.core import security
 
 
 @pytest.fixture

@@ -7,7 +7,7 @@ import re
 
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.helpers import auth
 from tests.users.test_auth import _login
 

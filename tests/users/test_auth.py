@@ -10,8 +10,8 @@ import sqlalchemy as sa
 from argon2 import PasswordHasher
 from fastapi.testclient import TestClient
 
-from app import security
-from app.models import Role, User
+from app.core import security
+from app.core.models import Role, User
 from app.users.service import ensure_initial_admin
 from tests.helpers import auth
 
@@ -127,7 +127,7 @@ def test_last_admin_cannot_be_demoted(client: TestClient, make_user) -> None:
 def test_passwords_and_tokens_are_stored_hashed(client: TestClient, make_user, session_factory):
     _, token = make_user("hashy", password="correct horse")
     with session_factory() as session:
-        from app.models import ApiToken
+        from app.core.models import ApiToken
 
         user = session.query(User).filter_by(username="hashy").one()
         assert user.password_hash.startswith("$argon2id$")

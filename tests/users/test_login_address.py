@@ -18,8 +18,8 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
-from app.config import Settings
-from app.models import Role
+from app.core.config import Settings
+from app.core.models import Role
 from tests.helpers import auth, wait_for
 
 

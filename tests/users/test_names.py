@@ -7,11 +7,11 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.db import create_db_engine, head_revision, schema_revision
-from app.errors import ConflictError
-from app.models import Role, User
-from app.schema import migrate
-from app.security import hash_password
+from app.core.db import create_db_engine, head_revision, schema_revision
+from app.core.errors import ConflictError
+from app.core.models import Role, User
+from app.core.schema import migrate
+from app.core.security import hash_password
 from app.users.service import create_user
 from tests.helpers import auth
 
@@ -47,7 +47,7 @@ def test_a_database_holding_names_that_differ_only_by_case_still_migrates(
     """Two such names from before stay two users, each logging in by its exact name (another
     spelling matches neither: 401); the index that keeps names unique in any case waits until
     one is renamed, and the service refuses a third."""
-    from app.security import authenticate
+    from app.core.security import authenticate
 
     engine = create_db_engine(database_url)
     migrate(engine, "0018")

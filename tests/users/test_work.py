@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.models import Role
+from app.core.models import Role
 from tests.frames.test_delete import _upload
 from tests.helpers import auth, corrected_label
 

@@ -13,9 +13,9 @@ from typing import Any
 
 import httpx
 
-from app.db import create_db_engine, create_session_factory
-from app.models import Role
-from app.security import issue_token
+from app.core.db import create_db_engine, create_session_factory
+from app.core.models import Role
+from app.core.security import issue_token
 from app.users.service import create_user
 from tests.helpers import wait_for
 from tests.models import save_tiny_teacher

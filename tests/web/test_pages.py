@@ -1623,8 +1623,8 @@ def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path
     camera the int8 student is calibrated on."""
     import shutil
 
-    from app.db import create_db_engine, create_session_factory
-    from app.models import ModelVersion
+    from app.core.db import create_db_engine, create_session_factory
+    from app.core.models import ModelVersion
     from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
     from weldpool_core.student.train import train_student
 

@@ -15,12 +15,12 @@ from sqlalchemy.dialects.sqlite.base import SQLiteCompiler
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 
-from app.errors import ConfigurationError, ConflictError
+from app.core.errors import ConfigurationError, ConflictError
 
 if TYPE_CHECKING:  # alembic is imported only when a schema must change (0.1–0.2 s at start-up)
     from alembic.config import Config
 
-MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
+MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
 
 
 def utcnow() -> dt.datetime:

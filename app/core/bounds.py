@@ -14,7 +14,7 @@ from typing import Annotated, Any
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from app.errors import InvalidInputError
+from app.core.errors import InvalidInputError
 
 MAX_ID = 2**31 - 1
 """Largest id or offset the API accepts (PostgreSQL INTEGER)."""
@@ -49,7 +49,7 @@ def _has_nul(value: Any) -> bool:
 
 
 NO_NUL_PATTERN = "^[^\\x00]*$"
-"""The schema's pattern for text (``app.openapi`` adds it to every string it documents)."""
+"""The schema's pattern for text (``app.core.openapi`` adds it to every string it documents)."""
 
 
 class InputModel(BaseModel):

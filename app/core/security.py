@@ -20,10 +20,10 @@ from argon2.exceptions import VerificationError
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
-from app.db import utcnow
-from app.deps import SessionDep
-from app.errors import AuthenticationError, PermissionDeniedError, TooManyAttemptsError
-from app.models import ApiToken, Role, User, WebSession
+from app.core.db import utcnow
+from app.core.deps import SessionDep
+from app.core.errors import AuthenticationError, PermissionDeniedError, TooManyAttemptsError
+from app.core.models import ApiToken, Role, User, WebSession
 
 SESSION_COOKIE = "weldpool_session"
 LOGIN_CSRF_COOKIE = "weldpool_login_csrf"

@@ -39,7 +39,7 @@ from typing import Any
 
 import structlog
 
-from app.config import Settings
+from app.core.config import Settings
 
 ACTIVE_FILE = "reviewer-active"
 """In the home folder: its modification time is the last interactive request on this machine."""

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
-from app.db import Base, UTCDateTime, utcnow
-from app.errors import NotFoundError
+from app.core.db import Base, UTCDateTime, utcnow
+from app.core.errors import NotFoundError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -599,7 +599,7 @@ class ModelVersion(Base):
 class DoomedFile(Base):
     """A stored file whose last naming row may have gone (a deletion, a replaced proposal),
     written in the same transaction: the collector looks at these files, not at the whole
-    store (``app.housekeeping``)."""
+    store (``app.core.housekeeping``)."""
 
     __tablename__ = "doomed_files"
 

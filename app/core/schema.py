@@ -1,6 +1,6 @@
 """The database's schema brought to a revision: alembic's migrations, or on an empty database
-the models' schema at once (``app.db`` holds the engine and the revision checks; this module sits
-above ``app.models``, whose tables it makes)."""
+the models' schema at once (``app.core.db`` holds the engine and the revision checks; this
+module sits above ``app.core.models``, whose tables it makes)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 from sqlalchemy.util import OrderedSet
 
-from app import models  # noqa: F401  (registers every table on Base.metadata)
-from app.db import Base, alembic_config, current_revision, head_revision
+from app.core import models  # noqa: F401  (registers every table on Base.metadata)
+from app.core.db import Base, alembic_config, current_revision, head_revision
 
 # A table keeps its indexes in a set, whose order changes from one process to the next, and
 # ``create_all`` makes them in that order; SQLite breaks ties between equally costed indexes by

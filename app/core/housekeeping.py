@@ -16,9 +16,9 @@ import sqlalchemy as sa
 import structlog
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.db import utcnow
-from app.models import STORED_PATH_COLUMNS, DoomedFile, ModelVersion
-from app.periodic import Periodic
+from app.core.db import utcnow
+from app.core.models import STORED_PATH_COLUMNS, DoomedFile, ModelVersion
+from app.core.periodic import Periodic
 from app.storage import EXPORTS_DIR, Storage
 
 SWEPT_AREAS = ("frames", "videos", "artefacts")

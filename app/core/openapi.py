@@ -1,7 +1,7 @@
 """The OpenAPI schema as the API really answers: every error's body and status documented.
 
 FastAPI documents a 422 whose ``detail`` is a list; ours is one sentence plus the list under
-``errors`` (``main._install_error_handlers``), and the typed errors (``app.errors``) answer
+``errors`` (``main._install_error_handlers``), and the typed errors (``app.core.errors``) answer
 400/401/403/404/409/503 with ``{"detail": "<sentence>"}`` and sometimes more fields (a 409
 on a label carries the current ``revision``). This module rewrites the generated schema to say
 so, once, for every operation.
@@ -14,7 +14,7 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
-from app.bounds import NO_NUL_PATTERN
+from app.core.bounds import NO_NUL_PATTERN
 
 ERROR_SCHEMA: dict[str, Any] = {
     "title": "Error",
