@@ -41,13 +41,13 @@ from app.core.security import (
 from app.frames.routes import router as frames_router
 from app.imports.pool import stop_label_processes
 from app.imports.routes import router as imports_router
-from app.insights.routes import router as insights_router
 from app.jobs.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
 from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
+from app.metrics.routes import router as metrics_router
 from app.proposals.routes import router as proposals_router
 from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
@@ -280,7 +280,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(agreement_router, prefix=api, dependencies=protected)
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)
-    app.include_router(insights_router, prefix=api, dependencies=protected)
+    app.include_router(metrics_router, prefix=api, dependencies=protected)
     app.include_router(timeline_router, prefix=api, dependencies=protected)
     app.include_router(live_router, prefix=api, dependencies=protected)
     app.include_router(web_router)

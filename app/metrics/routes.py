@@ -10,8 +10,8 @@ from fastapi import APIRouter, Query, Response
 from app.core.deps import SessionDep, StorageDep
 from app.core.errors import InvalidInputError
 from app.core.security import CurrentUser
-from app.insights.people import IDLE_GAP_S, people_csv, people_figures
-from app.insights.service import all_metrics
+from app.metrics.people import IDLE_GAP_S, people_csv, people_figures
+from app.metrics.service import all_metrics
 
 router = APIRouter(tags=["metrics"])
 
