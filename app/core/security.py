@@ -23,7 +23,8 @@ from sqlalchemy.orm import Session
 from app.core.db import utcnow
 from app.core.deps import SessionDep
 from app.core.errors import AuthenticationError, PermissionDeniedError, TooManyAttemptsError
-from app.core.models import ApiToken, Role, User, WebSession
+from app.core.models import ApiToken, User, WebSession
+from app.core.permissions import PERMISSIONS, Action, may
 
 SESSION_COOKIE = "weldpool_session"
 LOGIN_CSRF_COOKIE = "weldpool_login_csrf"
@@ -319,18 +320,20 @@ def current_user(user: Annotated[User | None, Depends(optional_user)]) -> User:
 CurrentUser = Annotated[User, Depends(current_user)]
 
 
-def require_role(minimum: Role) -> object:
-    """A dependency that lets through users whose role is ``minimum`` or higher."""
+def require(action: Action) -> object:
+    """A dependency that lets through users whose role may do ``action``
+    (``app.core.permissions``)."""
 
     def check(user: CurrentUser) -> User:
-        if user.role.rank < minimum.rank:
+        if not may(user, action):
             raise PermissionDeniedError(
-                f"This needs the {minimum.value} role or higher; you are {user.role.value}."
+                f"This needs the {PERMISSIONS[action].value} role or higher; "
+                f"you are {user.role.value}."
             )
         return user
 
     return Depends(check)
 
 
-ReviewerUser = Annotated[User, require_role(Role.reviewer)]
-AdminUser = Annotated[User, require_role(Role.admin)]
+ReviewerUser = Annotated[User, require(Action.review)]
+AdminUser = Annotated[User, require(Action.administer)]

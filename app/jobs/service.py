@@ -16,7 +16,8 @@ from app.core.errors import (
     NotFoundError,
     PermissionDeniedError,
 )
-from app.core.models import Job, JobScope, JobStatus, Role, User
+from app.core.models import Job, JobScope, JobStatus, User
+from app.core.permissions import Action, may
 from app.jobs.queue import JobQueue
 from app.jobs.registry import counted, job_spec, lane_of
 from app.jobs.runner import reap_lost_jobs
@@ -165,7 +166,7 @@ def cancel_job(session: Session, job_id: int, user: User) -> Job:
     Annotators may cancel only the jobs they started; reviewers and admins any job.
     """
     job = get_job(session, job_id)
-    if user.role.rank < Role.reviewer.rank and job.created_by_id != user.id:
+    if not may(user, Action.cancel_any_job) and job.created_by_id != user.id:
         raise PermissionDeniedError(
             f"Job {job_id} was started by someone else; only they, a reviewer or an admin may "
             "cancel it."

@@ -36,7 +36,8 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
 from app.core.errors import MissingFile
-from app.core.models import LabelRevision, LabelStatus, ReviewState, Role, User
+from app.core.models import LabelRevision, LabelStatus, ReviewState, User
+from app.core.permissions import Action, may
 from app.proposals.policy import stored_iou
 from app.storage import Storage
 
@@ -249,7 +250,7 @@ def people_figures(
     if chain:
         walk.frame(chain)
     users = sa.select(User).order_by(sa.func.lower(User.username))
-    if viewer.role.rank < Role.reviewer.rank:
+    if not may(viewer, Action.review):
         users = users.where(User.id == viewer.id)
     return [_row(user, walk.people.get(user.id, _Person())) for user in session.scalars(users)]
 

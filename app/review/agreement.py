@@ -25,7 +25,8 @@ from sqlalchemy.orm import Session
 
 from app.core.db import utcnow
 from app.core.errors import InvalidInputError, NotFoundError, PermissionDeniedError
-from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Role, Sequence, User
+from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, User
+from app.core.permissions import Action, may
 from app.proposals.files import load_mask, store_mask
 from app.proposals.policy import stored_iou
 from app.review.service import check_keypoints, current_label, save_label
@@ -177,7 +178,7 @@ def settle(
 ) -> Label:
     """The frame's label from the annotator ``choose`` (a user id), or (None) from every
     labelled one merged: saved by the reviewer as corrected (approved with the review stage)."""
-    if reviewer.role.rank < Role.reviewer.rank:
+    if not may(reviewer, Action.review):
         raise PermissionDeniedError("Only reviewers approve or merge annotators' labels.")
     rows = [row for row, _ in frame_rows(session, frame.id) if row.mask_path]
     if choose is not None:

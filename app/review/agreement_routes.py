@@ -11,7 +11,8 @@ from pydantic import BaseModel, Field
 from app.core.bounds import MAX_ID, XY, Id, IdPath, InputModel
 from app.core.deps import QueueDep, SessionDep, SettingsDep, StorageDep
 from app.core.errors import InvalidInputError
-from app.core.models import Role, get_frame
+from app.core.models import get_frame
+from app.core.permissions import Action, may
 from app.core.security import CurrentUser, ReviewerUser
 from app.review import agreement
 from app.review.routes import _label_out, _png_bytes
@@ -106,7 +107,7 @@ def frame_overlap(
     label; an annotator her own, and no figure until a reviewer decides)."""
     get_frame(session, frame_id)
     rows = agreement.frame_rows(session, frame_id)
-    reviewer = user.role.rank >= Role.reviewer.rank
+    reviewer = may(user, Action.review)
     measured = agreement.agreement_of(storage, [r for r, _ in rows])
     shown = rows if reviewer else [(r, n) for r, n in rows if r.user_id == user.id]
     return OverlapOut(

@@ -22,11 +22,11 @@ from app.core.models import (
     LabelStatus,
     Proposal,
     ReviewState,
-    Role,
     Split,
     User,
     ValidationKeypoints,
 )
+from app.core.permissions import Action, may
 from app.proposals.files import (
     FrameDeleted,
     frame_exists,
@@ -166,10 +166,7 @@ def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[flo
 
 
 def _check_role(status: LabelStatus, user: User) -> None:
-    if (
-        status in (LabelStatus.accepted, LabelStatus.rejected)
-        and user.role.rank < Role.reviewer.rank
-    ):
+    if status in (LabelStatus.accepted, LabelStatus.rejected) and not may(user, Action.review):
         raise PermissionDeniedError(
             f"Only reviewers may mark a label {status.value}; save it as corrected instead."
         )
@@ -343,7 +340,7 @@ def saved_review(user: User, review_stage: bool) -> ReviewState | None:
     """The review state of a label ``user`` saves: the stage's one rule."""
     if not review_stage:
         return None
-    return ReviewState.approved if user.role.rank >= Role.reviewer.rank else ReviewState.awaiting
+    return ReviewState.approved if may(user, Action.review) else ReviewState.awaiting
 
 
 def review_label(
@@ -363,7 +360,7 @@ def review_label(
         raise InvalidInputError(
             "The review stage is off (WELDPOOL_REVIEW_STAGE): saved labels count at once."
         )
-    if user.role.rank < Role.reviewer.rank:
+    if not may(user, Action.review):
         raise PermissionDeniedError("Only reviewers approve labels or send them back.")
     lock_frame(session, frame.id)
     label = current_label(session, frame.id)

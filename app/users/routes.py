@@ -11,6 +11,7 @@ from app.core.db import utcnow
 from app.core.deps import SessionDep
 from app.core.errors import AuthenticationError, PermissionDeniedError
 from app.core.models import User
+from app.core.permissions import allowed
 from app.core.security import (
     AdminUser,
     CurrentUser,
@@ -21,6 +22,7 @@ from app.core.security import (
 from app.users import service, work
 from app.users.schemas import (
     CsrfOut,
+    MeOut,
     PasswordChange,
     PasswordChanged,
     TokenCreated,
@@ -36,10 +38,12 @@ from app.users.schemas import (
 router = APIRouter(tags=["users"])
 
 
-@router.get("/users/me", response_model=UserOut)
-def me(user: CurrentUser) -> UserOut:
-    """The caller."""
-    return UserOut.model_validate(user)
+@router.get("/users/me", response_model=MeOut)
+def me(user: CurrentUser) -> MeOut:
+    """The caller, and the actions their role allows (`may`)."""
+    return MeOut.model_validate(
+        UserOut.model_validate(user).model_dump() | {"may": allowed(user.role)}
+    )
 
 
 @router.get("/users/me/work", response_model=WorkOut)

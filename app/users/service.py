@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session
 from app.core.db import commit_or_conflict, utcnow
 from app.core.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
 from app.core.models import ApiToken, Role, User, WebSession
+from app.core.permissions import Action, may
 from app.core.security import (
     MADE_PASSWORD_BYTES,
     hash_made_password,
@@ -182,7 +183,7 @@ def revoke_token(session: Session, token_id: int, actor: User | None) -> ApiToke
     row = session.get(ApiToken, token_id)
     if row is None:
         raise NotFoundError(f"There is no token {token_id}.")
-    if actor is not None and row.user_id != actor.id and actor.role != Role.admin:
+    if actor is not None and row.user_id != actor.id and not may(actor, Action.administer):
         raise PermissionDeniedError("Only admins may revoke other users' tokens.")
     if row.revoked_at is None:
         row.revoked_at = utcnow()

@@ -16,7 +16,8 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.orm import Session
 
-from app.core.models import UNREVIEWED, Frame, Label, OverlapLabel, ReviewState, Role, User
+from app.core.models import UNREVIEWED, Frame, Label, OverlapLabel, ReviewState, User
+from app.core.permissions import Action, may
 
 
 def sent_back() -> Any:
@@ -70,7 +71,7 @@ def work_counts(session: Session, user: User) -> Work:
     returned = session.scalar(sa.select(sa.func.count(Frame.id)).where(mine, sent_back()))
     assigned = session.scalar(sa.select(sa.func.count(Frame.id)).where(to_label(user.id)))
     awaiting: int | None = 0
-    if user.role.rank >= Role.reviewer.rank:
+    if may(user, Action.review):
         awaiting = session.scalar(
             sa.select(sa.func.count(Label.id)).where(Label.review == ReviewState.awaiting)
         )

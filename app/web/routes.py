@@ -17,7 +17,8 @@ from app.core.bounds import IdPath
 from app.core.db import utcnow
 from app.core.deps import SessionDep, SettingsDep
 from app.core.errors import AuthenticationError, TooManyAttemptsError
-from app.core.models import Role, User
+from app.core.models import User
+from app.core.permissions import Action, allowed, may
 from app.core.security import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
@@ -70,11 +71,12 @@ def render(request: Request, name: str, status_code: int = 200, **context: Any) 
     """A page with the logged-in user and their CSRF token in its context."""
     web_session = getattr(request.state, "web_session", None)
     context.setdefault("user", web_session.user if web_session else None)
+    context.setdefault("may", ",".join(allowed(web_session.user.role)) if web_session else "")
     context.setdefault("csrf_token", web_session.csrf_token if web_session else "")
     context.setdefault("review_stage", request.app.state.settings.review_stage)
     context.setdefault("help_url", HELP_TOPICS.get(context.get("page", ""), "/help/"))
     if web_session is not None:
-        admin = web_session.user.role == Role.admin
+        admin = may(web_session.user, Action.administer)
         settings = request.app.state.settings
         context.setdefault("teacher_problem", teacher_problem(settings, admin=admin))
         context.setdefault("sam2_problem", sam2_problem(settings, admin=admin))
@@ -203,7 +205,7 @@ def account(request: Request, _user: LoggedIn) -> Response:
 @router.get("/users")
 def users(request: Request, user: LoggedIn) -> Response:
     """The lab's users (admins): add, change role, deactivate, set a new password."""
-    if user.role != Role.admin:
+    if not may(user, Action.administer):
         return render(request, "forbidden.html", 403, page="users", what="manage users")
     return render(request, "users.html", page="users")
 

@@ -11,10 +11,14 @@ export const TEACHER_PROBLEM = document.querySelector('meta[name="teacher-proble
 export const SAM2_PROBLEM = document.querySelector('meta[name="sam2-problem"]')?.content ?? "";
 /** Whether annotators' labels await a reviewer's approval (WELDPOOL_REVIEW_STAGE). */
 export const REVIEW_STAGE = document.querySelector('meta[name="review-stage"]')?.content === "on";
-const RANK = { annotator: 1, reviewer: 2, admin: 3 };
+/** What the logged-in user's role allows, as the server's one table says (`user-may`). */
+const MAY = new Set((document.querySelector('meta[name="user-may"]')?.content ?? "").split(",").filter(Boolean));
 
-/** Whether the logged-in user is a reviewer or admin. */
-export const isReviewer = () => (RANK[ROLE] ?? 0) >= RANK.reviewer;
+/** Whether the logged-in user may do `action` (app/core/permissions.py names them). */
+export const may = (action) => MAY.has(action);
+
+/** Whether the logged-in user may review others' labels (reviewers and admins). */
+export const isReviewer = () => may("review");
 
 export class ApiError extends Error {
   constructor(status, detail, body) {
