@@ -304,8 +304,7 @@ def save_label(
     proposal = pick(session, storage, frame.id, proposal_id=proposal_id)
     mask, mask_path, keypoints = _label_content(frame, status, mask_png, keypoints, proposal)
     label = current_label(session, frame.id)
-    if base_revision != (label.revision if label else 0):  # refused before anything is written
-        raise stale_revision(session, frame.id)
+    check_base(session, frame.id, label, base_revision)  # refused before anything is written
     fields, stored = mask_fields(storage, mask, mask_path, proposal)
     values = fields | {
         "status": status,
@@ -366,8 +365,7 @@ def review_label(
     label = current_label(session, frame.id)
     if label is None:
         raise NotFoundError(f"Frame {frame.id} has no label to review.")
-    if base_revision != label.revision:
-        raise stale_revision(session, frame.id)
+    check_base(session, frame.id, label, base_revision)
     wanted = ReviewState.approved if approve else ReviewState.returned
     if label.review in (None, ReviewState.approved) and approve:
         raise ConflictError("This label is approved already.")
@@ -425,6 +423,19 @@ class StaleRevision(ConflictError):
         )
         self.current = current
         self.extra = {"revision": current, "updated_by": by}
+
+
+def check_base(
+    session: Session,
+    frame_id: int,
+    row: Label | ValidationKeypoints | None,
+    base_revision: int,
+    keypoints: bool = False,
+) -> None:
+    """The one base-revision rule: a save names the revision it started from (0 when there was
+    none); any other is stale, a 409 naming the current revision and its author."""
+    if base_revision != (row.revision if row is not None else 0):
+        raise stale_revision(session, frame_id, keypoints)
 
 
 def stale_revision(session: Session, frame_id: int, keypoints: bool = False) -> StaleRevision:
@@ -505,8 +516,8 @@ def set_validation_keypoints(
     row = session.scalar(
         sa.select(ValidationKeypoints).where(ValidationKeypoints.frame_id == frame.id)
     )
-    if base_revision is not None and base_revision != (row.revision if row is not None else 0):
-        raise stale_revision(session, frame.id, keypoints=True)
+    if base_revision is not None:  # None: overwrite whatever is there
+        check_base(session, frame.id, row, base_revision, keypoints=True)
     if row is None:
         row = ValidationKeypoints(frame_id=frame.id, keypoints=points, user_id=user.id, revision=1)
         session.add(row)
