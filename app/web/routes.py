@@ -31,6 +31,7 @@ from app.core.security import (
     optional_user,
 )
 from app.system.status import sam2_problem, teacher_problem
+from weldpool_core.heatmap import HeatmapParams
 
 if TYPE_CHECKING:
     from fastapi.templating import Jinja2Templates
@@ -173,7 +174,8 @@ def home(request: Request, _user: LoggedIn) -> Response:
 @router.get("/frames/{frame_id}")
 def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
     """Review one frame: mask, keypoints, click corrections, verdict; validation keypoints."""
-    return render(request, "review.html", page="review", frame_id=frame_id)
+    keypoints = HeatmapParams().k  # Algorithm 1's k: the validation set places as many
+    return render(request, "review.html", page="review", frame_id=frame_id, keypoints=keypoints)
 
 
 @router.get("/sequences/{sequence_id}")

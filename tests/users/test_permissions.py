@@ -37,3 +37,19 @@ def test_the_table_decides_routes_and_services(
     allowed = client.post("/api/v1/frames/delete", json={"frame_ids": [1]}, headers=auth(token))
     assert allowed.status_code == 404  # past the role check: there is no frame 1
     assert "review" in client.get("/api/v1/users/me", headers=auth(token)).json()["may"]
+
+
+def test_pages_carry_what_the_server_decides(client: TestClient, make_user) -> None:
+    """Each page says what its user may do (the table's actions) and the review page how many
+    keypoints a validation set places (Algorithm 1's k): nothing of either is typed into the
+    pages' JavaScript."""
+    import re
+
+    from tests.users.test_auth import _login
+    from weldpool_core.heatmap import HeatmapParams
+
+    make_user("rev", Role.reviewer, password="correct horse")
+    assert _login(client, "rev", "correct horse").status_code == 303
+    page = client.get("/frames/1").text
+    assert re.search(r'<meta name="user-may" content="label,review,cancel_any_job">', page)
+    assert f'data-keypoints="{HeatmapParams().k}"' in page

@@ -1,7 +1,8 @@
 // The review page's constants: the frame shown, the queue it was opened from, the limits.
 
 export const FRAME_ID = Number(document.getElementById("review").dataset.frameId);
-export const K = 4;
+/** Algorithm 1's k, as the server says: the keypoints a validation set places. */
+export const K = Number(document.getElementById("review").dataset.keypoints);
 export const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
 export const OUTLINE_TOLERANCE = 1; // pixels: a vertex where the boundary turns, not on every pixel
 export const $ = (id) => document.getElementById(id);
