@@ -7,7 +7,7 @@ import enum
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Mapped, mapped_column, relationship
+from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
 from app.db import Base, UTCDateTime, utcnow
 
@@ -536,6 +536,58 @@ class ModelVersion(Base):
     promoted_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
 
 
+class RunSignature(Base):
+    """A weld run's signature (``weldpool_core.signature``), stored so the process map reads
+    rows instead of masks: the figures the map plots in columns (in ``unit``: mm with the run's
+    scale, else px), everything else (trends, stretches with their frames, the rolling CV) in
+    ``detail``. ``stale`` is set by ``_signatures_go_stale`` in the transaction that changes the
+    run's labels, proposals or frames; the next read computes it again."""
+
+    __tablename__ = "run_signatures"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE"), unique=True
+    )
+    stale: Mapped[bool] = mapped_column(default=False)
+    policy_source: Mapped[str] = mapped_column(sa.String(300))
+    """The proposal source the policy showed when it was computed (a new one: stale)."""
+    unit: Mapped[str] = mapped_column(sa.String(8))
+    frames: Mapped[int]
+    measured: Mapped[int]
+    width: Mapped[float | None] = mapped_column(sa.Float)
+    width_q1: Mapped[float | None] = mapped_column(sa.Float)
+    width_q3: Mapped[float | None] = mapped_column(sa.Float)
+    length: Mapped[float | None] = mapped_column(sa.Float)
+    length_q1: Mapped[float | None] = mapped_column(sa.Float)
+    length_q3: Mapped[float | None] = mapped_column(sa.Float)
+    area: Mapped[float | None] = mapped_column(sa.Float)
+    area_q1: Mapped[float | None] = mapped_column(sa.Float)
+    area_q3: Mapped[float | None] = mapped_column(sa.Float)
+    width_cv: Mapped[float | None] = mapped_column(sa.Float)
+    oscillation_hz: Mapped[float | None] = mapped_column(sa.Float)
+    oscillation_strength: Mapped[float | None] = mapped_column(sa.Float)
+    unstable_frames: Mapped[int] = mapped_column(default=0)
+    first_unstable_frame_id: Mapped[int | None]
+    detail: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    computed_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class UnstableFrame(Base):
+    """A frame inside one of its run's unstable stretches (the stored signature's): what the
+    frames list filters on and the review queue can favour."""
+
+    __tablename__ = "unstable_frames"
+
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
+    )
+    sequence_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE"), index=True
+    )
+    rolling_cv: Mapped[float | None] = mapped_column(sa.Float)
+
+
 STORED_PATH_COLUMNS = (
     Frame.path,
     Video.path,
@@ -560,3 +612,70 @@ def _ids_never_reused() -> None:
 
 
 _ids_never_reused()
+
+
+_signature_table: set[int] = set()
+"""Engines known to hold ``run_signatures`` (an older schema, mid-migration, has none)."""
+
+
+def _has_signatures(session: Any) -> bool:
+    bind = session.get_bind()
+    engine = getattr(bind, "engine", bind)
+    if id(engine) not in _signature_table:
+        if not sa.inspect(session.connection()).has_table(RunSignature.__tablename__):
+            return False
+        _signature_table.add(id(engine))
+    return True
+
+
+def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
+    """The runs and the frames whose pending changes move a signature: labels, their revisions
+    and proposals added, changed or deleted; frames added, deleted, moved or re-timed."""
+    frames: set[int] = set()
+    runs: set[int] = set()
+    for row in (*session.new, *session.dirty, *session.deleted):
+        if isinstance(row, (Label, LabelRevision, Proposal)) and row.frame_id is not None:
+            frames.add(row.frame_id)
+        elif isinstance(row, Frame):
+            state = sa.inspect(row)
+            moved = any(
+                state.attrs[name].history.has_changes()
+                for name in ("sequence_id", "frame_index", "timestamp_s")
+            )
+            if row in session.new or row in session.deleted or moved:
+                runs.update(
+                    run
+                    for run in (row.sequence_id, *state.attrs.sequence_id.history.deleted)
+                    if run is not None
+                )
+    return runs, frames
+
+
+@sa.event.listens_for(Session, "before_flush")
+def _signatures_go_stale(session: Any, _context: Any, _instances: Any) -> None:
+    """Mark the signatures of the runs a flush changes stale, in the same transaction (bulk
+    label updates and proposal deletions always come with a new revision or proposal row,
+    which this sees; a bulk frame deletion is ``_frames_deleted``'s)."""
+    runs, frames = _changed_runs(session)
+    if not (runs or frames) or not _has_signatures(session):
+        return
+    where = RunSignature.sequence_id.in_(runs)
+    if frames:
+        owners = sa.select(Frame.sequence_id).where(Frame.id.in_(frames))
+        where = sa.or_(where, RunSignature.sequence_id.in_(owners))
+    with session.no_autoflush:
+        session.execute(
+            sa.update(RunSignature).where(where, ~RunSignature.stale).values(stale=True)
+        )
+
+
+@sa.event.listens_for(Session, "do_orm_execute")
+def _frames_deleted(state: Any) -> None:
+    """A bulk frame deletion (``app.frames.deletion``) may touch any run: every signature goes
+    stale (deletions are rare; each run is computed again once, when read)."""
+    if not state.is_delete or state.bind_mapper is None or state.bind_mapper.class_ is not Frame:
+        return
+    if _has_signatures(state.session):
+        state.session.execute(
+            sa.update(RunSignature).where(~RunSignature.stale).values(stale=True)
+        )
