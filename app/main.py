@@ -52,6 +52,7 @@ from app.security import (
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.system.status import StoreCheck
+from app.process.routes import router as process_router
 from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router
@@ -275,6 +276,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)
     app.include_router(insights_router, prefix=api, dependencies=protected)
+    app.include_router(process_router, prefix=api, dependencies=protected)
     app.include_router(timeline_router, prefix=api, dependencies=protected)
     app.include_router(live_router, prefix=api, dependencies=protected)
     app.include_router(web_router)

@@ -630,12 +630,16 @@ def _has_signatures(session: Any) -> bool:
 
 def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
     """The runs and the frames whose pending changes move a signature: labels, their revisions
-    and proposals added, changed or deleted; frames added, deleted, moved or re-timed."""
+    and proposals added, changed or deleted; frames added, deleted, moved or re-timed; a run's
+    scale changed."""
     frames: set[int] = set()
     runs: set[int] = set()
     for row in (*session.new, *session.dirty, *session.deleted):
         if isinstance(row, (Label, LabelRevision, Proposal)) and row.frame_id is not None:
             frames.add(row.frame_id)
+        elif isinstance(row, Sequence):
+            if sa.inspect(row).attrs.mm_per_px.history.has_changes():
+                runs.add(row.id)
         elif isinstance(row, Frame):
             state = sa.inspect(row)
             moved = any(

@@ -14,7 +14,7 @@ BELOW_REVIEW = ("frames", "training", "proposals")
 LAYERS = (
     ("__main__", "cli", "main", "demo", "manual"),
     ("imports",),
-    ("review", "timeline", "insights", "web"),
+    ("review", "timeline", "insights", "process", "web"),
     ("training", "live"),
     ("frames",),
     ("proposals",),

@@ -22,6 +22,7 @@ from app.models import (
     Label,
     ReviewState,
     Split,
+    UnstableFrame,
     ValidationKeypoints,
 )
 from app.proposals.policy import pick
@@ -56,11 +57,15 @@ def list_query(
     order: str = "id",
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    unstable: bool = False,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
     ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
-    frames whose label is in that state of the review stage (approved: NULL too)."""
+    frames whose label is in that state of the review stage (approved: NULL too); ``unstable``:
+    only frames inside their run's unstable stretches (``app.process``)."""
     conditions: list[Any] = []
+    if unstable:
+        conditions.append(Frame.id.in_(sa.select(UnstableFrame.frame_id)))
     if review is not None:
         state = Label.review == review
         if review == ReviewState.approved:
@@ -218,6 +223,7 @@ def list_frames(
     diversity_pool: int = 50,
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
+    unstable: bool = False,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
@@ -232,6 +238,7 @@ def list_frames(
         order=order,
         assignee=assignee,
         review=review,
+        unstable=unstable,
     )
     total = session.scalar(count) or 0
     position = offset

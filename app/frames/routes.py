@@ -249,6 +249,13 @@ def list_frames(
             "or is approved (labels saved with the stage off count as approved)."
         ),
     ] = None,
+    unstable: Annotated[
+        bool,
+        Query(
+            description="Only frames inside their run's unstable stretches (as its stored "
+            "signature last found them); with `order=uncertainty`: the review queue kept to them."
+        ),
+    ] = False,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -282,6 +289,7 @@ def list_frames(
             else int(assignee)
         ),
         review=review,
+        unstable=unstable,
     )
     return FramePage(
         items=[FrameOut.model_validate(r) for r in page.rows],
