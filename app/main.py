@@ -41,6 +41,7 @@ from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.openapi import openapi_schema
+from app.process.routes import router as process_router
 from app.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.review.routes import router as review_router
 from app.security import (
@@ -52,7 +53,6 @@ from app.security import (
 from app.storage import Storage
 from app.system.routes import router as system_router
 from app.system.status import StoreCheck
-from app.process.routes import router as process_router
 from app.timeline.routes import router as timeline_router
 from app.training.routes import router as training_router
 from app.users.routes import router as users_router

@@ -663,7 +663,7 @@ def _signatures_go_stale(session: Any, _context: Any, _instances: Any) -> None:
     runs, frames = _changed_runs(session)
     if not (runs or frames) or not _has_signatures(session):
         return
-    where = RunSignature.sequence_id.in_(runs)
+    where: sa.ColumnElement[bool] = RunSignature.sequence_id.in_(runs)
     if frames:
         owners = sa.select(Frame.sequence_id).where(Frame.id.in_(frames))
         where = sa.or_(where, RunSignature.sequence_id.in_(owners))
@@ -680,6 +680,4 @@ def _frames_deleted(state: Any) -> None:
     if not state.is_delete or state.bind_mapper is None or state.bind_mapper.class_ is not Frame:
         return
     if _has_signatures(state.session):
-        state.session.execute(
-            sa.update(RunSignature).where(~RunSignature.stale).values(stale=True)
-        )
+        state.session.execute(sa.update(RunSignature).where(~RunSignature.stale).values(stale=True))

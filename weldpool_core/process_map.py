@@ -44,17 +44,14 @@ def derived_parameters(params: dict[str, Any]) -> dict[str, float | None]:
     ``wire_per_travel`` (wire feed m/min over travel speed m/min); None where a parameter is
     missing or the speed is not positive."""
     volts, amps = params.get("voltage_v"), params.get("current_a")
-    speed = params.get("robot_speed_cm_min")
-    wire = params.get("wire_feed_m_min")
-    moving = speed is not None and speed > 0
-    return {
-        "heat_input_j_mm": (
-            volts * amps / (speed * 10.0 / 60.0)
-            if moving and volts is not None and amps is not None
-            else None
-        ),
-        "wire_per_travel": wire / (speed / 100.0) if moving and wire is not None else None,
-    }
+    speed, wire = params.get("robot_speed_cm_min"), params.get("wire_feed_m_min")
+    heat = per_travel = None
+    if speed is not None and speed > 0:
+        if volts is not None and amps is not None:
+            heat = float(volts) * float(amps) / (float(speed) * 10.0 / 60.0)
+        if wire is not None:
+            per_travel = float(wire) / (float(speed) / 100.0)
+    return {"heat_input_j_mm": heat, "wire_per_travel": per_travel}
 
 
 @dataclass(frozen=True)
@@ -90,10 +87,7 @@ def _log_fit(lx: Any, ly: Any) -> tuple[float, float, float, float]:
         raise ValueError("a power law needs two runs at different x")
     fit = stats.linregress(lx, ly)
     r2 = float(fit.rvalue**2) if np.ptp(ly) > 0 else 1.0
-    if len(lx) > 2:
-        half = float(stats.t.ppf(0.975, len(lx) - 2) * fit.stderr)
-    else:
-        half = math.inf
+    half = float(stats.t.ppf(0.975, len(lx) - 2) * fit.stderr) if len(lx) > 2 else math.inf
     return float(fit.intercept), float(fit.slope), r2, half
 
 

@@ -222,7 +222,7 @@ def rolling_cv(
         var = np.maximum(squares - count * mean**2, 0.0) / (count - 1)
         cv = np.sqrt(var) / mean
     cv[(count < 3) | ~np.isfinite(cv)] = np.nan
-    return cv
+    return np.asarray(cv, dtype=np.float64)
 
 
 def unstable_stretches(

@@ -86,7 +86,7 @@ def demo_cmd(frames: int, seed: int, process_frames: int) -> None:
     student can be trained at once; the rest wait in the review queue. When the teacher's
     weights are present, a teacher job is queued for the unlabelled frames.
 
-    Before it, six runs at heat inputs from about 430 to 860 J/mm are filled from the simulated
+    Before it, six runs at heat inputs from 360 to 1110 J/mm are filled from the simulated
     plant (weldpool_core.plant), one of them oscillating at 3 Hz, for the process map (/process).
     """
     from app.cli.service import login_hint, prepare_instance

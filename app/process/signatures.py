@@ -84,7 +84,9 @@ def _store(session: Session, sequence_id: int, chosen: str, timeline: dict[str, 
         frame_id: cv
         for stretch in detail["stretches"]
         for frame_id, cv in zip(
-            stretch["frame_ids"], signature.rolling_cv[stretch["start"] : stretch["end"] + 1]
+            stretch["frame_ids"],
+            signature.rolling_cv[stretch["start"] : stretch["end"] + 1],
+            strict=True,
         )
     }
     values = {
@@ -123,11 +125,15 @@ def fresh_signatures(
     """Compute and store the signatures of the runs (all when None) that have none, a stale
     one, or one made under another policy source; commits; how many were computed."""
     chosen = policy.current(session, storage).chosen
-    runs = sa.select(Sequence.id).outerjoin(RunSignature).where(
-        sa.or_(
-            RunSignature.id.is_(None),
-            RunSignature.stale,
-            RunSignature.policy_source != chosen,
+    runs = (
+        sa.select(Sequence.id)
+        .outerjoin(RunSignature)
+        .where(
+            sa.or_(
+                RunSignature.id.is_(None),
+                RunSignature.stale,
+                RunSignature.policy_source != chosen,
+            )
         )
     )
     if sequence_ids is not None:
