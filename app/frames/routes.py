@@ -216,6 +216,12 @@ async def upload_frames(
     return JSONResponse(payload, status_code=code)
 
 
+UNSTABLE_NOTE = (
+    "Only frames inside their run's unstable stretches (as its stored signature last found "
+    "them); with `order=uncertainty`: the review queue kept to them."
+)
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
@@ -249,13 +255,7 @@ def list_frames(
             "or is approved (labels saved with the stage off count as approved)."
         ),
     ] = None,
-    unstable: Annotated[
-        bool,
-        Query(
-            description="Only frames inside their run's unstable stretches (as its stored "
-            "signature last found them); with `order=uncertainty`: the review queue kept to them."
-        ),
-    ] = False,
+    unstable: Annotated[bool, Query(description=UNSTABLE_NOTE)] = False,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
