@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import enum
+import weakref
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
@@ -614,17 +615,17 @@ def _ids_never_reused() -> None:
 _ids_never_reused()
 
 
-_signature_table: set[int] = set()
+_signature_table: weakref.WeakSet[Any] = weakref.WeakSet()
 """Engines known to hold ``run_signatures`` (an older schema, mid-migration, has none)."""
 
 
 def _has_signatures(session: Any) -> bool:
     bind = session.get_bind()
     engine = getattr(bind, "engine", bind)
-    if id(engine) not in _signature_table:
+    if engine not in _signature_table:
         if not sa.inspect(session.connection()).has_table(RunSignature.__tablename__):
             return False
-        _signature_table.add(id(engine))
+        _signature_table.add(engine)
     return True
 
 

@@ -75,7 +75,7 @@ export async function renderStability(sequenceId, timeline, reviewUrl) {
     h("div", { class: "stability-row" }, summary(sig), h("figure", { class: "chart-box" }, chart)),
     ...note,
     sig.stretches.length ? stretchList(sig, reviewUrl) : h("p", { class: "muted" }, "No unstable stretch: the width's rolling CV stays under 8 %."),
-    h("p", { class: "muted small-text" }, h("a", { href: `/?sequence_id=${sequenceId}&unstable=1` }, "Unstable frames in the frame list"), " · ",
+    h("p", { class: "muted small-text" }, h("a", { href: `/?sequence_id=${sequenceId}&unstable=true&status=all` }, "Unstable frames in the frame list"), " · ",
       h("a", { href: "/process" }, "Compare runs on the process map")),
   );
   markStrip(sig);
