@@ -12,7 +12,8 @@ joins them.
 - **Outliers**: a run whose log residual is over ``outlier_sigma`` robust standard deviations
   (1.4826 · median absolute residual) *and* over ``min_off`` (a relative distance: runs a few
   % apart on a near-perfect law are not outliers) is flagged; the law is then fitted again
-  without the flagged runs, so one bad run does not bend it. Defaults: 3 σ, 5 %.
+  without the flagged runs and every run is judged again against it, until the flags settle —
+  so one far-off run neither bends the law nor drags good runs out with it. Defaults: 3 σ, 5 %.
 """
 
 from __future__ import annotations
@@ -91,6 +92,23 @@ def _log_fit(lx: Any, ly: Any) -> tuple[float, float, float, float]:
     return float(fit.intercept), float(fit.slope), r2, half
 
 
+MAX_ROUNDS = 10
+"""Fits and flags in turn until the flags settle (they do in two or three rounds)."""
+
+
+def _outliers(lx: Any, ly: Any, off: Any, sigmas: float, min_off: float) -> Any:
+    """The runs off the law fitted on the others (``off``: flagged so far): their log residual
+    over ``sigmas`` robust standard deviations of the others' and over ``min_off``."""
+    log_a, b, _, _ = _log_fit(lx[~off], ly[~off])
+    residual = ly - (log_a + b * lx)
+    inside = residual[~off]
+    sigma = 1.4826 * float(np.median(np.abs(inside - np.median(inside))))
+    flagged = (np.abs(residual) > sigmas * sigma) & (np.abs(residual) > math.log1p(min_off))
+    if len(lx) - int(flagged.sum()) < 2 or np.ptp(lx[~flagged]) == 0:
+        return np.zeros(len(lx), bool)
+    return flagged
+
+
 def power_fit(
     x: ArrayLike,
     y: ArrayLike,
@@ -107,12 +125,12 @@ def power_fit(
     if len(index) < 2 or np.ptp(xs[index]) == 0:
         return None, flags
     lx, ly = np.log(xs[index]), np.log(ys[index])
-    log_a, b, _, _ = _log_fit(lx, ly)
-    residual = ly - (log_a + b * lx)
-    sigma = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
-    off = (np.abs(residual) > outlier_sigma * sigma) & (np.abs(residual) > math.log1p(min_off))
-    if len(index) - int(off.sum()) < 2 or np.ptp(lx[~off]) == 0:
-        off[:] = False
+    off = np.zeros(len(index), bool)
+    for _ in range(MAX_ROUNDS):
+        flagged = _outliers(lx, ly, off, outlier_sigma, min_off)
+        if np.array_equal(flagged, off):
+            break
+        off = flagged
     for position in index[off]:
         flags[int(position)] = True
     log_a, b, r2, half = _log_fit(lx[~off], ly[~off])

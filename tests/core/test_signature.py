@@ -158,3 +158,14 @@ def test_the_fit_is_exact_on_an_exact_law_and_skips_unusable_runs() -> None:
     assert power_fit([1.0, 1.0], [2.0, 3.0]) == (None, [False, False])
     two, _ = power_fit([1.0, 2.0], [1.0, 2.0])
     assert two is not None and two.as_dict()["b_low"] is None  # no interval from two runs
+
+
+def test_a_far_off_run_does_not_drag_good_runs_out_with_it() -> None:
+    """One run at a sixth of the law bends the first fit so far that good runs look off it;
+    judged again against the law fitted without it, they are back in."""
+    x = np.array([31.0, 34.0, 37.0, 40.0, 45.0, 50.0, 40.0])
+    y = np.array([0.0874, 0.0873, 0.1064, 0.0880, 0.0875, 0.0866, 0.0133])
+    fit, flags = power_fit(x, y)
+    assert fit is not None
+    assert flags == [False, False, True, False, False, False, True]
+    assert fit.excluded == [2, 6]
