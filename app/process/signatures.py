@@ -69,6 +69,11 @@ def _detail(signature: Signature, rows: list[dict]) -> dict[str, Any]:
         stretch["frame_ids"] = [r["frame_id"] for r in inside]
         stretch["start_frame_index"] = inside[0]["frame_index"]
         stretch["end_frame_index"] = inside[-1]["frame_index"]
+        # its place among the run's counted frames (1-based), for frames without an index
+        stretch["start_position"], stretch["end_position"] = (
+            stretch["start"] + 1,
+            stretch["end"] + 1,
+        )
     detail["rolling_cv"] = [
         {"frame_id": r["frame_id"], "cv": cv}
         for r, cv in zip(rows, signature.rolling_cv, strict=True)

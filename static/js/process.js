@@ -141,6 +141,7 @@ async function load() {
     state.map = await api(`/process-map${query(params)}`);
   } catch (error) {
     $("fit").textContent = error instanceof ApiError ? error.message : String(error);
+    document.body.dataset.ready = "1";
     return;
   }
   draw();

@@ -30,7 +30,8 @@ function summary(sig) {
 function stretchList(sig, reviewUrl) {
   return h("ul", { class: "stretches", "data-testid": "unstable-stretches" }, ...sig.stretches.map((s, i) => h("li", {},
     h("a", { href: reviewUrl(s.frame_ids[0]), "data-testid": "unstable-stretch" },
-      `Stretch ${i + 1}: frames ${s.start_frame_index ?? "?"}–${s.end_frame_index ?? "?"}`
+      `Stretch ${i + 1}: ` + (s.start_frame_index !== null && s.end_frame_index !== null
+        ? `frames ${s.start_frame_index}–${s.end_frame_index}` : `frames ${s.start_position}–${s.end_position} of the run`)
       + (s.start_s !== null ? ` (${decimal(s.start_s, 2)}–${decimal(s.end_s, 2)} s)` : "")),
     ` · ${count(s.frame_ids.length, "frame")}, rolling CV up to ${decimal(100 * s.peak_cv, 1)} %`)));
 }
