@@ -48,6 +48,7 @@ from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.metrics.routes import router as metrics_router
+from app.process.routes import router as process_router
 from app.proposals.routes import router as proposals_router
 from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
@@ -281,6 +282,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)
     app.include_router(metrics_router, prefix=api, dependencies=protected)
+    app.include_router(process_router, prefix=api, dependencies=protected)
     app.include_router(timeline_router, prefix=api, dependencies=protected)
     app.include_router(live_router, prefix=api, dependencies=protected)
     app.include_router(web_router)

@@ -14,7 +14,7 @@ BELOW_REVIEW = ("frames", "training", "proposals")
 LAYERS = (
     ("__main__", "cli", "main", "demo", "manual"),
     ("imports",),
-    ("review", "timeline", "metrics", "web"),
+    ("review", "timeline", "metrics", "process", "web"),
     ("teacher", "training", "live"),
     ("frames",),
     ("proposals",),
@@ -172,7 +172,7 @@ def test_no_function_over_80_lines() -> None:
 LONG_MODULES = {
     "app/storage/s3.py": 741,
     "weldpool_core/student/train.py": 697,
-    "app/core/models.py": 642,
+    "app/core/models.py": 629,
     "app/training/tasks.py": 622,
 }
 """Modules over ``MAX_MODULE_LINES`` and the lines each may have at most: they may only shrink

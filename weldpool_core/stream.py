@@ -16,7 +16,8 @@ from one delivered frame to the next; ``reset()`` starts a new stream.
 
 ``run_stream`` joins them: per frame one ``StreamResult`` whose ``record`` is what a controller
 reads (``record_fields``): capture time, frame index, keypoints in frame pixels, pool area,
-length, width and centroid (pixels, and millimetres with a scale), ambiguity, uncertainty,
+length, width and centroid (pixels, and millimetres with a scale), the width's rolling
+stability (``stability_cv``, ``unstable``: ``signature.RollingStability``), ambiguity, uncertainty,
 frames dropped before it, and the latency from capture to the record. Geometry is measured on
 the model's mask placed in frame pixels (``geometry.pool_shape`` with origin and pixel size), so
 no full-resolution mask is made per frame. ``ambiguity`` is cheap and always there: the mask
@@ -42,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
+from weldpool_core.signature import RollingStability
 from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
 from weldpool_core.student.checkpoint import ONNX_FILE, read_student_config
 from weldpool_core.student.data import FrameGeometry
@@ -352,6 +354,8 @@ def record_fields() -> tuple[str, ...]:
         "area_mm2",
         "length_mm",
         "width_mm",
+        "stability_cv",
+        "unstable",
         "ambiguity",
         "uncertainty",
         "dropped",
@@ -378,8 +382,12 @@ def analyse(
     smoother: KeypointSmoother | None = None,
     mm_per_px: float | None = None,
     travel_deg: float | None = None,
+    stability: RollingStability | None = None,
 ) -> StreamResult:
-    """One frame's record from the student's S×S outputs (see ``record_fields``)."""
+    """One frame's record from the student's S×S outputs (see ``record_fields``); with
+    ``stability``, the width's rolling coefficient of variation (``signature.RollingStability``:
+    the run signature's rule over the last ``window_s``) and whether it is over the unstable
+    threshold."""
     raw = frame_keypoints(mask_probability, heatmap, geometry, config)
     inner = mask_probability[geometry.inner_rows, geometry.inner_columns]
     sx, sy = geometry.scale_x, geometry.scale_y
@@ -389,6 +397,7 @@ def analyse(
     pool = shape.measure(travel_deg)
     raw_list: list[list[float] | None] = [[float(x), float(y)] for x, y in raw]
     keypoints = raw_list if smoother is None else smoother.update(raw, frame.time_s)
+    cv = None if stability is None else stability.update(frame.time_s, pool.width_px)
     record: dict[str, Any] = {
         "frame": frame.index,
         "captured_at": round(frame.wall_time, 6),
@@ -401,6 +410,8 @@ def analyse(
         "centroid": _rounded(list(pool.centroid)) if pool.centroid else None,
         "travel_deg": _rounded(pool.travel_deg),
         **{key: _rounded(value, 4) for key, value in pool.in_mm(mm_per_px).items()},
+        "stability_cv": None if cv is None else round(cv, 4),
+        "unstable": stability is not None and stability.unstable(cv),
         "ambiguity": round(mask_ambiguity(inner), 4),
         "uncertainty": None if uncertainty is None else round(uncertainty, 4),
         "dropped": frame.dropped,
@@ -419,7 +430,9 @@ def run_stream(
     samples: int = 0,
     stop: threading.Event | None = None,
 ) -> Iterator[StreamResult]:
-    """The student on every delivered frame of ``source``; each record ends with its latency."""
+    """The student on every delivered frame of ``source``; each record ends with its latency
+    and carries the width's rolling stability (``analyse``)."""
+    stability = RollingStability()
     for frame in source:
         if stop is not None and stop.is_set():
             return
@@ -435,6 +448,7 @@ def run_stream(
             smoother=smoother,
             mm_per_px=mm_per_px,
             travel_deg=travel_deg,
+            stability=stability,
         )
         result.record["latency_ms"] = round(1000.0 * (time.perf_counter() - frame.captured), 3)
         yield result

@@ -80,6 +80,7 @@ COMMANDS = {
     "import-labels": "frames",
     "export": "review",
     "demo": "review",
+    "process-map": "process",
     "teacher": "teacher",
     "weights": "teacher",
     "train": "student",

@@ -67,8 +67,15 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
 @main.command("demo")
 @click.option("--frames", default=24, show_default=True, type=click.IntRange(4, 500))
 @click.option("--seed", default=0, show_default=True, type=int)
+@click.option(
+    "--process-frames",
+    default=45,
+    show_default=True,
+    type=click.IntRange(0, 500),
+    help="Frames of each process-map run at 15 fps (0: no process runs).",
+)
 @friendly_errors
-def demo_cmd(frames: int, seed: int) -> None:
+def demo_cmd(frames: int, seed: int, process_frames: int) -> None:
     """Fill this instance with a synthetic weld run, so the whole loop shows at once.
 
     Works on a fresh home: the database is migrated and, when there is no user yet, ``admin`` is
@@ -78,21 +85,28 @@ def demo_cmd(frames: int, seed: int) -> None:
     truth (user `demo`, status accepted) and a few get manual validation keypoints, so the
     student can be trained at once; the rest wait in the review queue. When the teacher's
     weights are present, a teacher job is queued for the unlabelled frames.
+
+    Before it, six runs at heat inputs from 360 to 1110 J/mm are filled from the simulated
+    plant (weldpool_core.plant), one of them oscillating at 3 Hz, for the process map (/process).
     """
     from app.cli.service import login_hint, prepare_instance
-    from app.demo import fill_demo
+    from app.demo import fill_demo, fill_process_runs
 
     settings = load_settings()
     password_file = prepare_instance(settings)  # a fresh home needs no `weldpool migrate`
+    progress = lambda text: click.echo(text, err=True)  # noqa: E731
     with open_sessions(settings)() as session:
+        runs = ""
+        if process_frames:
+            runs = fill_process_runs(session, settings, frames=process_frames, progress=progress)
         summary = fill_demo(
             session,
             settings,
             frames=frames,
             seed=seed,
-            progress=lambda text: click.echo(text, err=True),
+            progress=progress,
         )
-    click.echo(summary, err=True)
+    click.echo(summary + runs, err=True)
     click.echo("Start it with `weldpool serve`, then:", err=True)
     click.echo(login_hint(password_file), err=True)
     sys.exit(0)

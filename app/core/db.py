@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import enum
 import functools
 import re
 from collections.abc import Iterator
@@ -204,3 +205,20 @@ def changed(session: Session, statement: sa.Executable) -> int:
 def updated_one(session: Session, statement: sa.Executable) -> bool:
     """Run a conditional UPDATE or DELETE (a compare-and-set): True when it took its one row."""
     return changed(session, statement) == 1
+
+
+JSONType = sa.JSON()
+"""The JSON column type of every table."""
+
+
+def enum_type(cls: type[enum.StrEnum], name: str) -> sa.Enum:
+    """An enum column type: stored as plain strings with a CHECK constraint (portable, and easy
+    to extend by migration)."""
+    return sa.Enum(
+        cls,
+        name=name,
+        native_enum=False,
+        length=16,
+        validate_strings=True,
+        values_callable=lambda e: [m.value for m in e],
+    )

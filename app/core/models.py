@@ -4,20 +4,25 @@ from __future__ import annotations
 
 import datetime as dt
 import enum
+import weakref
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
-from app.core.db import Base, UTCDateTime, utcnow
+from app.core.db import Base, JSONType, UTCDateTime, enum_type, utcnow
 from app.core.errors import NotFoundError
+from app.core.job_tables import ONE_AT_A_TIME as ONE_AT_A_TIME  # the jobs' tables, re-exported:
+from app.core.job_tables import Job as Job  # every table is imported from here
+from app.core.job_tables import JobChunk as JobChunk
+from app.core.job_tables import JobScope as JobScope
+from app.core.job_tables import JobStatus as JobStatus
+from app.core.job_tables import Worker as Worker
 
 if TYPE_CHECKING:
     import numpy as np
 else:
     from weldpool_core.lazy import np  # the web process loads NumPy once it reads a vector
-
-JSONType = sa.JSON()
 
 
 class Float32Vector(sa.types.TypeDecorator[Any]):
@@ -87,20 +92,6 @@ class LabelStatus(enum.StrEnum):
     rejected = "rejected"
 
 
-class JobStatus(enum.StrEnum):
-    """The life of a background job."""
-
-    queued = "queued"
-    running = "running"
-    succeeded = "succeeded"
-    failed = "failed"
-    cancelled = "cancelled"
-
-    @property
-    def finished(self) -> bool:
-        return self in (JobStatus.succeeded, JobStatus.failed, JobStatus.cancelled)
-
-
 class ReviewState(enum.StrEnum):
     """Where an annotator's label stands in the review stage (``WELDPOOL_REVIEW_STAGE``);
     a label without one (the stage off, or saved before it was on) counts as approved."""
@@ -108,18 +99,6 @@ class ReviewState(enum.StrEnum):
     awaiting = "awaiting"
     approved = "approved"
     returned = "returned"
-
-
-def _enum(cls: type[enum.StrEnum], name: str) -> sa.Enum:
-    # Stored as plain strings with a CHECK constraint: portable and easy to extend by migration.
-    return sa.Enum(
-        cls,
-        name=name,
-        native_enum=False,
-        length=16,
-        validate_strings=True,
-        values_callable=lambda e: [m.value for m in e],
-    )
 
 
 class User(Base):
@@ -133,7 +112,7 @@ class User(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(sa.String(64), unique=True)
     password_hash: Mapped[str] = mapped_column(sa.String(255))
-    role: Mapped[Role] = mapped_column(_enum(Role, "role"))
+    role: Mapped[Role] = mapped_column(enum_type(Role, "role"))
     is_active: Mapped[bool] = mapped_column(default=True)
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
     last_login_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
@@ -293,9 +272,9 @@ class Frame(Base):
     )
     frame_index: Mapped[int | None]
     timestamp_s: Mapped[float | None] = mapped_column(sa.Float)
-    split: Mapped[Split] = mapped_column(_enum(Split, "split"), default=Split.train, index=True)
+    split: Mapped[Split] = mapped_column(enum_type(Split, "split"), default=Split.train, index=True)
     status: Mapped[FrameStatus] = mapped_column(
-        _enum(FrameStatus, "frame_status"), default=FrameStatus.new, index=True
+        enum_type(FrameStatus, "frame_status"), default=FrameStatus.new, index=True
     )
     uncertainty: Mapped[float | None] = mapped_column(sa.Float, index=True)
     uncertainty_components: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
@@ -371,7 +350,7 @@ class Label(Base):
         sa.ForeignKey("frames.id", ondelete="CASCADE"), unique=True
     )
     revision: Mapped[int] = mapped_column(default=1)
-    status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
+    status: Mapped[LabelStatus] = mapped_column(enum_type(LabelStatus, "label_status"))
     mask_path: Mapped[str | None] = mapped_column(sa.String(500))
     keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
     proposal_id: Mapped[int | None] = mapped_column(
@@ -395,7 +374,7 @@ class Label(Base):
     updated_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
     # The review stage (off: all NULL): awaiting a reviewer, approved, or returned with a
     # comment; who decided last (``updated_by`` of that revision) is in the history.
-    review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
+    review: Mapped[ReviewState | None] = mapped_column(enum_type(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
 
 
@@ -410,7 +389,7 @@ class LabelRevision(Base):
         sa.ForeignKey("frames.id", ondelete="CASCADE"), index=True
     )
     revision: Mapped[int]
-    status: Mapped[LabelStatus] = mapped_column(_enum(LabelStatus, "label_status"))
+    status: Mapped[LabelStatus] = mapped_column(enum_type(LabelStatus, "label_status"))
     mask_path: Mapped[str | None] = mapped_column(sa.String(500))
     keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
     proposal_id: Mapped[int | None] = mapped_column(
@@ -418,7 +397,7 @@ class LabelRevision(Base):
     )
     mask_changed: Mapped[bool | None]
     source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
-    review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
+    review: Mapped[ReviewState | None] = mapped_column(enum_type(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
@@ -460,119 +439,6 @@ class ValidationKeypoints(Base):
     """1 for the first keypoints, one more for each save after (a stale ``base_revision``: 409)."""
 
 
-ONE_AT_A_TIME = (
-    "kind IN ('train_student', 'train_sequential', 'quantize_student') "
-    "AND status IN ('queued', 'running')"
-)
-"""The jobs of which at most one of each kind is queued or running (``uq_jobs_one_training``)."""
-
-
-class Job(Base):
-    """A background job: the row is the truth about its state, the queue only carries its id.
-
-    At most one job of each kind that makes a version's files (a student, a sequential cell, an
-    int8 student) is queued or running at a time (a partial unique index).
-    """
-
-    __tablename__ = "jobs"
-    __table_args__ = (
-        sa.Index(
-            "uq_jobs_one_training",
-            "kind",
-            unique=True,
-            sqlite_where=sa.text(ONE_AT_A_TIME),
-            postgresql_where=sa.text(ONE_AT_A_TIME),
-        ),
-    )
-
-    id: Mapped[int] = mapped_column(primary_key=True)
-    kind: Mapped[str] = mapped_column(sa.String(32), index=True)
-    status: Mapped[JobStatus] = mapped_column(
-        _enum(JobStatus, "job_status"), default=JobStatus.queued, index=True
-    )
-    progress: Mapped[float] = mapped_column(sa.Float, default=0.0)
-    message: Mapped[str] = mapped_column(sa.String(500), default="")
-    params: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
-    result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
-    error: Mapped[str | None] = mapped_column(sa.Text)
-    attempts: Mapped[int] = mapped_column(default=0)
-    max_attempts: Mapped[int] = mapped_column(default=1)
-    cancel_requested: Mapped[bool] = mapped_column(default=False)
-    worker_id: Mapped[str | None] = mapped_column(sa.String(200))
-    heartbeat_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
-    # Within its lane a job a person asked for (1) goes before automatic work (0): the
-    # embedding a video import starts, auto-retraining (``app.jobs.service.priority_of``).
-    priority: Mapped[int] = mapped_column(default=0, server_default=sa.text("0"))
-    # When the queue last carried its id: a queued row not delivered for a while is sent
-    # again (the jobs table is the truth; a Redis restart loses what it held).
-    enqueued_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
-    created_by_id: Mapped[int | None] = mapped_column(
-        sa.ForeignKey("users.id", ondelete="SET NULL")
-    )
-    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
-    started_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
-    finished_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
-    created_by: Mapped[User | None] = relationship(lazy="joined", viewonly=True)
-    # The frames a person listed (``app.jobs.service.create_job``): written with the job, never
-    # loaded with it.
-    scope: Mapped[JobScope | None] = relationship(
-        lazy="raise", cascade="all, delete-orphan", passive_deletes=True
-    )
-
-    @property
-    def created_by_name(self) -> str | None:
-        """Who started the job (None: the system, or a deleted user)."""
-        return self.created_by.username if self.created_by else None
-
-
-class JobChunk(Base):
-    """A chunk of a job that several workers share (``app.jobs.fanout``): its items (frame
-    ids), planned by the job's owner; free, taken by one worker, done with its result, or
-    taken over when that worker is gone."""
-
-    __tablename__ = "job_chunks"
-
-    job_id: Mapped[int] = mapped_column(
-        sa.ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True
-    )
-    chunk: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
-    items: Mapped[list[int]] = mapped_column(JSONType, default=list)
-    worker_id: Mapped[str | None] = mapped_column(sa.String(200))  # None: free to take
-    done: Mapped[bool] = mapped_column(default=False)
-    result: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
-
-
-class JobScope(Base):
-    """The frames a job was asked to work on, where a person listed them: kept beside the job,
-    never in its parameters (which every Jobs-page poll reads), which say only how many."""
-
-    __tablename__ = "job_scopes"
-
-    job_id: Mapped[int] = mapped_column(
-        sa.ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
-    )
-    frame_ids: Mapped[list[int]] = mapped_column(JSONType, default=list)
-
-
-class Worker(Base):
-    """A worker process that is (or was) consuming the queue; ``last_seen_at`` is its heartbeat."""
-
-    __tablename__ = "workers"
-
-    id: Mapped[str] = mapped_column(sa.String(200), primary_key=True)
-    hostname: Mapped[str] = mapped_column(sa.String(200))
-    pid: Mapped[int]
-    threads: Mapped[int] = mapped_column(default=1)
-    started_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
-    last_seen_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
-    # The lanes it serves ("quick,model") and the job kinds it cannot run, each with the
-    # sentence that says why (no teacher weights, an unusable device), as its start-up found.
-    lanes: Mapped[str] = mapped_column(
-        sa.String(32), default="quick,model", server_default="quick,model"
-    )
-    unable: Mapped[dict[str, str] | None] = mapped_column(JSONType, default=dict)
-
-
 class ModelVersion(Base):
     """A trained student: its checkpoint, metrics and training curve."""
 
@@ -605,6 +471,58 @@ class DoomedFile(Base):
 
     path: Mapped[str] = mapped_column(sa.String(500), primary_key=True)
     since: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class RunSignature(Base):
+    """A weld run's signature (``weldpool_core.signature``), stored so the process map reads
+    rows instead of masks: the figures the map plots in columns (in ``unit``: mm with the run's
+    scale, else px), everything else (trends, stretches with their frames, the rolling CV) in
+    ``detail``. ``stale`` is set by ``_signatures_go_stale`` in the transaction that changes the
+    run's labels, proposals or frames; the next read computes it again."""
+
+    __tablename__ = "run_signatures"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE"), unique=True
+    )
+    stale: Mapped[bool] = mapped_column(default=False)
+    policy_source: Mapped[str] = mapped_column(sa.String(300))
+    """The proposal source the policy showed when it was computed (a new one: stale)."""
+    unit: Mapped[str] = mapped_column(sa.String(8))
+    frames: Mapped[int]
+    measured: Mapped[int]
+    width: Mapped[float | None] = mapped_column(sa.Float)
+    width_q1: Mapped[float | None] = mapped_column(sa.Float)
+    width_q3: Mapped[float | None] = mapped_column(sa.Float)
+    length: Mapped[float | None] = mapped_column(sa.Float)
+    length_q1: Mapped[float | None] = mapped_column(sa.Float)
+    length_q3: Mapped[float | None] = mapped_column(sa.Float)
+    area: Mapped[float | None] = mapped_column(sa.Float)
+    area_q1: Mapped[float | None] = mapped_column(sa.Float)
+    area_q3: Mapped[float | None] = mapped_column(sa.Float)
+    width_cv: Mapped[float | None] = mapped_column(sa.Float)
+    oscillation_hz: Mapped[float | None] = mapped_column(sa.Float)
+    oscillation_strength: Mapped[float | None] = mapped_column(sa.Float)
+    unstable_frames: Mapped[int] = mapped_column(default=0)
+    first_unstable_frame_id: Mapped[int | None]
+    detail: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
+    computed_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class UnstableFrame(Base):
+    """A frame inside one of its run's unstable stretches (the stored signature's): what the
+    frames list filters on and the review queue can favour."""
+
+    __tablename__ = "unstable_frames"
+
+    frame_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
+    )
+    sequence_id: Mapped[int] = mapped_column(
+        sa.ForeignKey("sequences.id", ondelete="CASCADE"), index=True
+    )
+    rolling_cv: Mapped[float | None] = mapped_column(sa.Float)
 
 
 STORED_PATH_COLUMNS = (
@@ -640,3 +558,72 @@ def get_frame(session: Session, frame_id: int) -> Frame:
     if frame is None:
         raise NotFoundError(f"There is no frame {frame_id}.")
     return frame
+
+
+_signature_table: weakref.WeakSet[Any] = weakref.WeakSet()
+"""Engines known to hold ``run_signatures`` (an older schema, mid-migration, has none)."""
+
+
+def _has_signatures(session: Any) -> bool:
+    bind = session.get_bind()
+    engine = getattr(bind, "engine", bind)
+    if engine not in _signature_table:
+        if not sa.inspect(session.connection()).has_table(RunSignature.__tablename__):
+            return False
+        _signature_table.add(engine)
+    return True
+
+
+def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
+    """The runs and the frames whose pending changes move a signature: labels, their revisions
+    and proposals added, changed or deleted; frames added, deleted, moved or re-timed; a run's
+    scale changed."""
+    frames: set[int] = set()
+    runs: set[int] = set()
+    for row in (*session.new, *session.dirty, *session.deleted):
+        if isinstance(row, (Label, LabelRevision, Proposal)) and row.frame_id is not None:
+            frames.add(row.frame_id)
+        elif isinstance(row, Sequence):
+            if sa.inspect(row).attrs.mm_per_px.history.has_changes():
+                runs.add(row.id)
+        elif isinstance(row, Frame):
+            state = sa.inspect(row)
+            moved = any(
+                state.attrs[name].history.has_changes()
+                for name in ("sequence_id", "frame_index", "timestamp_s")
+            )
+            if row in session.new or row in session.deleted or moved:
+                runs.update(
+                    run
+                    for run in (row.sequence_id, *state.attrs.sequence_id.history.deleted)
+                    if run is not None
+                )
+    return runs, frames
+
+
+@sa.event.listens_for(Session, "before_flush")
+def _signatures_go_stale(session: Any, _context: Any, _instances: Any) -> None:
+    """Mark the signatures of the runs a flush changes stale, in the same transaction (bulk
+    label updates and proposal deletions always come with a new revision or proposal row,
+    which this sees; a bulk frame deletion is ``_frames_deleted``'s)."""
+    runs, frames = _changed_runs(session)
+    if not (runs or frames) or not _has_signatures(session):
+        return
+    where: sa.ColumnElement[bool] = RunSignature.sequence_id.in_(runs)
+    if frames:
+        owners = sa.select(Frame.sequence_id).where(Frame.id.in_(frames))
+        where = sa.or_(where, RunSignature.sequence_id.in_(owners))
+    with session.no_autoflush:
+        session.execute(
+            sa.update(RunSignature).where(where, ~RunSignature.stale).values(stale=True)
+        )
+
+
+@sa.event.listens_for(Session, "do_orm_execute")
+def _frames_deleted(state: Any) -> None:
+    """A bulk frame deletion (``app.frames.deletion``) may touch any run: every signature goes
+    stale (deletions are rare; each run is computed again once, when read)."""
+    if not state.is_delete or state.bind_mapper is None or state.bind_mapper.class_ is not Frame:
+        return
+    if _has_signatures(state.session):
+        state.session.execute(sa.update(RunSignature).where(~RunSignature.stale).values(stale=True))

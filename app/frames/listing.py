@@ -21,6 +21,7 @@ from app.core.models import (
     Label,
     ReviewState,
     Split,
+    UnstableFrame,
     ValidationKeypoints,
 )
 from app.frames.sequences import get_sequence
@@ -59,16 +60,20 @@ def list_query(
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
     work_for: int | None = None,
+    unstable: bool = False,
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
     ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
     frames whose label is in that state of the review stage (approved: NULL too);
-    ``work_for``: that user's work (``app.users.work``), what was sent back to them first."""
+    ``work_for``: that user's work (``app.users.work``), what was sent back to them first;
+    ``unstable``: only frames inside their run's unstable stretches (``app.process``)."""
     conditions: list[Any] = []
     first: tuple[Any, ...] = ()
     if work_for is not None:
         conditions.append(work_of(work_for))
         first = (work_order(),)
+    if unstable:
+        conditions.append(Frame.id.in_(sa.select(UnstableFrame.frame_id)))
     if review is not None:
         state = Label.review == review
         if review == ReviewState.approved:
@@ -255,6 +260,7 @@ def list_frames(
     assignee: int | Literal["none"] | None = None,
     review: ReviewState | None = None,
     work_for: int | None = None,
+    unstable: bool = False,
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
@@ -273,6 +279,7 @@ def list_frames(
         assignee=assignee,
         review=review,
         work_for=work_for,
+        unstable=unstable,
     )
     total = session.scalar(count) or 0
     if work_for is not None:

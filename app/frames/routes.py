@@ -226,6 +226,12 @@ def _assignee(value: str | None, user: User) -> int | Literal["none"] | None:
     return user.id if value == "me" else int(value)
 
 
+UNSTABLE_NOTE = (
+    "Only frames inside their run's unstable stretches (as its stored signature last found "
+    "them); with `order=uncertainty`: the review queue kept to them."
+)
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
@@ -261,6 +267,7 @@ def list_frames(
             "or is approved (labels saved with the stage off count as approved)."
         ),
     ] = None,
+    unstable: Annotated[bool, Query(description=UNSTABLE_NOTE)] = False,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -288,6 +295,7 @@ def list_frames(
         assignee=None if work else _assignee(assignee, user),
         review=review,
         work_for=user.id if work else None,
+        unstable=unstable,
     )
     reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(

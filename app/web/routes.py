@@ -61,6 +61,7 @@ HELP_TOPICS = {
     "models": "/help/guides/student",
     "metrics": "/help/guides/student#the-models-and-metrics-pages",
     "live": "/help/guides/live#the-live-view",
+    "process": "/help/guides/process",
     "users": "/help/guides/team#users",
     "account": "/help/operations/security",
     "tokens": "/help/operations/security",
@@ -182,6 +183,12 @@ def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
 def timeline(request: Request, sequence_id: IdPath, _user: LoggedIn) -> Response:
     """A weld run over time: its frames as a strip, the pool geometry curves, propagation."""
     return render(request, "timeline.html", page="frames", sequence_id=sequence_id)
+
+
+@router.get("/process")
+def process(request: Request, _user: LoggedIn) -> Response:
+    """The process map: runs against their process parameters, with the law through them."""
+    return render(request, "process.html", page="process")
 
 
 @router.get("/jobs")

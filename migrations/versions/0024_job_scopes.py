@@ -3,7 +3,7 @@ the claims of runs proposing a frame (``proposal_claims``), so overlapping runs 
 the files whose rows went (``doomed_files``), so the collector need not list the whole store.
 
 Revision ID: 0024
-Revises: 0022
+Revises: 0023
 Create Date: 2026-12-06 08:30:00.000000
 
 Jobs queued before keep their ``frame_ids`` parameter, which workers still read.
@@ -15,7 +15,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = '0024'
-down_revision = '0022'
+down_revision = '0023'
 branch_labels = None
 depends_on = None
 

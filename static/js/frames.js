@@ -64,6 +64,7 @@ function restoreFilters() {
     const field = filterForm.elements[name];
     if (params.has(name)) field.value = params.get(name);
   }
+  filterForm.elements.unstable.checked = params.get("unstable") === "true"; // a checkbox: no value to set
   if (!filterForm.elements.order.value) filterForm.elements.order.value = "uncertainty";
 }
 

@@ -43,7 +43,10 @@ function keypointTable(view) {
   return h("table", { class: "metrics", "data-testid": "live-keypoints" },
     h("thead", {}, h("tr", {}, h("th", {}, "keypoint"), h("th", {}, "x px"), h("th", {}, "y px"))),
     h("tbody", {}, rows),
-    h("tfoot", {}, h("tr", {}, h("th", {}, "ambiguity"), h("td", { class: "num", colspan: "2" }, decimal(last.ambiguity, 3)))));
+    h("tfoot", {}, h("tr", {}, h("th", {}, "ambiguity"), h("td", { class: "num", colspan: "2" }, decimal(last.ambiguity, 3))),
+      h("tr", {}, h("th", { title: "The width's rolling coefficient of variation over 0.5 s; unstable over 8 %" }, "width CV"),
+        h("td", { class: "num", colspan: "2", "data-testid": "live-stability" },
+          last.stability_cv === null || last.stability_cv === undefined ? "–" : `${decimal(100 * last.stability_cv, 1)} %${last.unstable ? " · unstable" : ""}`))));
 }
 
 const OUTPUT_NAMES = { zeromq: "ZeroMQ", opcua: "OPC UA", mqtt: "MQTT" };

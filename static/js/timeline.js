@@ -4,6 +4,7 @@
 import { api, ApiError, isReviewer, jobFromButton, SAM2_PROBLEM } from "./api.js";
 import { lineChart } from "./chart.js";
 import { count, decimal, mmPerPx } from "./format.js";
+import { renderStability } from "./stability.js";
 import { h, toast } from "./ui.js";
 
 const SEQUENCE_ID = Number(document.getElementById("timeline").dataset.sequenceId);
@@ -114,6 +115,7 @@ async function load() {
   renderHead();
   renderStrip();
   renderCharts();
+  await renderStability(SEQUENCE_ID, timeline, reviewUrl);
   document.body.dataset.ready = "1";
 }
 

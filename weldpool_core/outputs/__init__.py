@@ -45,6 +45,13 @@ CELL_FIELDS: tuple[CellField, ...] = (
     CellField("Area", "area", "{length}²", "Pool area."),
     CellField("Length", "length", "{length}", "Pool length along the travel direction."),
     CellField("Width", "width", "{length}", "Pool width across the travel direction."),
+    CellField(
+        "StabilityCV",
+        "stability_cv",
+        "",
+        "The width's rolling coefficient of variation over the last 0.5 s (NaN: under 3 frames).",
+    ),
+    CellField("Unstable", "unstable", "", "True while that variation is over 8 %."),
     CellField("CentroidX", "cx", "px", "Pool centroid, frame column."),
     CellField("CentroidY", "cy", "px", "Pool centroid, frame row."),
     CellField(
@@ -97,6 +104,8 @@ class CellRecord:
     area: float
     length: float
     width: float
+    stability_cv: float
+    unstable: bool
     cx: float
     cy: float
     keypoints: tuple[float, ...]
@@ -120,6 +129,8 @@ class CellRecord:
             area=_number(area),
             length=_number(length),
             width=_number(width),
+            stability_cv=_number(record.get("stability_cv")),
+            unstable=bool(record.get("unstable")),
             cx=_number(centroid[0]),
             cy=_number(centroid[1]),
             keypoints=tuple(flat),
@@ -145,6 +156,8 @@ class CellRecord:
             "area": clean(self.area),
             "length": clean(self.length),
             "width": clean(self.width),
+            "stability_cv": clean(self.stability_cv),
+            "unstable": self.unstable,
             "cx": clean(self.cx),
             "cy": clean(self.cy),
             "keypoints": pairs,

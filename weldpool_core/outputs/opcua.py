@@ -302,6 +302,7 @@ class OpcUaServer:
             "CaptureTime": (dt.datetime.now(dt.UTC), ua.VariantType.DateTime),
             "Keypoints": ([math.nan] * (2 * self.info.keypoints), ua.VariantType.Double),
             "Healthy": (False, ua.VariantType.Boolean),
+            "Unstable": (False, ua.VariantType.Boolean),
         }
         for spec in CELL_FIELDS:
             value, variant = initial.get(spec.name, (math.nan, ua.VariantType.Double))
@@ -366,6 +367,7 @@ class OpcUaServer:
             "CaptureTime": (stamp, ua.VariantType.DateTime),
             "Keypoints": (list(cell.keypoints), ua.VariantType.Double),
             "Healthy": (cell.healthy, ua.VariantType.Boolean),
+            "Unstable": (cell.unstable, ua.VariantType.Boolean),
         }
         good, none = ua.StatusCode(ua.StatusCodes.Good), ua.StatusCode(ua.StatusCodes.BadNoData)
         for spec in CELL_FIELDS:

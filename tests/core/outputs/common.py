@@ -23,6 +23,8 @@ def record(frame: int, width_px: float = 50.0, scaled: bool = False) -> dict[str
         "area_mm2": None if mm is None else (4000 + frame) * mm * mm,
         "length_mm": None if mm is None else (80.0 + frame) * mm,
         "width_mm": None if mm is None else width_px * mm,
+        "stability_cv": 0.05,
+        "unstable": False,
         "ambiguity": 0.05,
         "uncertainty": None,
         "dropped": 0,

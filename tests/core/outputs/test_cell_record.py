@@ -28,6 +28,9 @@ def test_keypoints_are_flat_with_nan_for_a_missing_one_and_pairs_in_the_message(
     message = cell.message()
     assert message["keypoints"] == [[12.0, 20.0], None]
     assert message["uncertainty"] is None and message["width"] == 50.0
+    assert (message["stability_cv"], message["unstable"]) == (0.05, False)
+    shaky = CellRecord.of(record(2) | {"stability_cv": 0.12, "unstable": True}, CellInfo("m", 2))
+    assert (shaky.message()["stability_cv"], shaky.unstable) == (0.12, True)
     assert set(message) == {spec.key for spec in CELL_FIELDS}
 
 

@@ -71,12 +71,15 @@ def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
                 "description": (await width.read_description()).Text,
                 "keypoints": await (await _node(client, "Keypoints")).read_value(),
                 "healthy": await (await _node(client, "Healthy")).read_value(),
+                "stability": await (await _node(client, "StabilityCV")).read_value(),
+                "unstable": await (await _node(client, "Unstable")).read_value(),
                 "status": await (await _node(client, "Status")).read_value(),
                 "model": await (await _node(client, "Model")).read_value(),
             }
 
     got = asyncio.run(read())
     assert got["width"] == pytest.approx(4.2)  # mm: the run has a scale
+    assert got["stability"] == pytest.approx(0.05) and got["unstable"] is False
     assert got["unit"] == (0x4D4D54, "mm")  # UNECE "MMT"
     assert got["area_unit"] == "mm²"
     assert "across the travel direction" in got["description"]

@@ -83,6 +83,31 @@ def test_a_live_source_drops_stale_frames_and_says_how_many(tmp_path: Path) -> N
         assert _index_of(after) == after.index  # the newest frame, not an old one
 
 
+def test_a_record_carries_the_widths_rolling_stability() -> None:
+    """The stream's stability figure is the signature's rolling CV of the width (frame
+    pixels): a pool that swings between 40 and 60 px wide is unstable, a steady one is not."""
+    from weldpool_core.signature import RollingStability
+
+    geometry = FrameGeometry.fit(64, 64, 64, "letterbox")
+    stability = RollingStability()
+    records = []
+    for index, half in enumerate([10, 10, 10, 10, 5, 15, 5, 15]):
+        mask = np.zeros((64, 64), np.float32)
+        mask[32 - half : 32 + half, 8:56] = 1.0  # 48 long, 2·half wide
+        frame = CapturedFrame(index, 0.0, 0.0, np.zeros((64, 64, 3), np.uint8), time_s=index / 10)
+        records.append(
+            analyse(frame, mask, mask, geometry, TINY_STUDENT, stability=stability).record
+        )
+    assert records[0]["stability_cv"] is None and records[0]["unstable"] is False
+    assert records[3]["stability_cv"] == pytest.approx(0.0, abs=1e-6)
+    widths = [r["width_px"] for r in records[2:]]  # the last 0.5 s at 10 fps: t ≥ 0.2
+    expected = float(np.std(widths, ddof=1) / np.mean(widths))
+    assert records[-1]["stability_cv"] == pytest.approx(expected, abs=1e-3)
+    assert records[-1]["unstable"] is True
+    plain = analyse(frame, mask, mask, geometry, TINY_STUDENT).record
+    assert (plain["stability_cv"], plain["unstable"]) == (None, False)
+
+
 def test_a_record_is_in_frame_pixels_and_millimetres() -> None:
     """Known outputs on a 64² letterboxed input of a 160×100 frame: the record's numbers are the
     frame's, so a lost offset, scale or swapped axis shows (keypoints from the heatmap's peaks

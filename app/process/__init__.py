@@ -1,0 +1,1 @@
+"""The process: a weld run's signature, and runs compared against their parameters (the map)."""
