@@ -25,7 +25,7 @@ export function render(parts) {
 // --- the editing state ----------------------------------------------------------------------
 
 /** The editing state on the canvas and in the side panel. */
-export function renderEdit() {
+function renderEdit() {
   if (S.overlay.mask !== S.edit.mask) S.overlay.paint(S.edit.mask);
   showOutline();
   exposeState();
@@ -45,7 +45,7 @@ export function renderEdit() {
   renderVerdictNote();
 }
 
-export function renderKeypointList() {
+function renderKeypointList() {
   const list = $("keypoint-list");
   const points = S.validation ? S.edit.manual : S.edit.keypoints;
   const numbers = numbersOf(points);
@@ -57,7 +57,7 @@ export function renderKeypointList() {
   if (S.stage.dimKeypoints) list.append(h("li", { class: "muted plain" }, "The mask changed: the keypoints are recomputed from it on save, unless you move one."));
 }
 
-export function renderManualCount() {
+function renderManualCount() {
   $("manual-count").textContent = `${S.edit.manual.length} of ${K} placed`;
   $("save-validation").disabled = S.edit.manual.length !== K || !manualDirty();
 }
@@ -68,7 +68,7 @@ export function renderManualCount() {
  * (Save), and a reviewer facing an awaiting label approves it, sends it back, or corrects it
  * and approves it in one step; on labels of his own he accepts, rejects or saves as before
  * (approved as he saves them). */
-export function renderVerdictNote() {
+function renderVerdictNote() {
   const note = $("verdict-note");
   const deciding = REVIEW_STAGE && isReviewer() && S.review?.state === "awaiting";
   const submitting = (REVIEW_STAGE || S.overlapMine) && !isReviewer();
@@ -101,7 +101,7 @@ export function renderVerdictNote() {
   }
 }
 
-export function renderReview() {
+function renderReview() {
   const box = $("review-stage");
   const review = S.review;
   box.hidden = !REVIEW_STAGE || !review;
@@ -122,7 +122,7 @@ export function renderReview() {
 // --- the frame -----------------------------------------------------------------------------
 
 /** Why a frame ranks high in the queue, in words (see weldpool_core.active). */
-export const REASONS = {
+const REASONS = {
   teacher_iou: "SAM2's own doubt about its mask",
   instability: "the mask changing when the prompts move slightly",
   disagreement: "the student disagreeing with the teacher",
@@ -130,7 +130,7 @@ export const REASONS = {
   propagation_doubt: "SAM2's doubt about the mask it carried here from a reviewed frame",
 };
 
-export function renderFrameInfo() {
+function renderFrameInfo() {
   $("frame-title").textContent = `Frame #${S.frame.id}`;
   const parts = [S.frame.original_name, `${S.frame.width}×${S.frame.height}`, `${S.frame.bit_depth}-bit`, `${S.frame.split} split`];
   if (S.frame.frame_index !== null) parts.push(`index ${S.frame.frame_index}`);
@@ -159,7 +159,7 @@ export function renderFrameInfo() {
 // --- proposals ------------------------------------------------------------------------------
 
 /** "teacher", the student version's name, or where a propagated mask came from. */
-export function sourceName(item) {
+function sourceName(item) {
   if (item.source === "teacher") return "teacher";
   if (item.source === "propagated") {
     const confidence = item.scores?.confidence;
@@ -169,7 +169,7 @@ export function sourceName(item) {
 }
 
 /** One button per proposal (newest first): the shown one pressed, the policy's pick marked. */
-export function renderProposals() {
+function renderProposals() {
   const list = $("proposal-sources");
   list.replaceChildren(...S.proposals.map((item) => {
     const iou = item.scores?.sam2_iou;
@@ -191,7 +191,7 @@ export function renderProposals() {
 
 // --- propagation through the weld run -------------------------------------------------------
 
-export function renderPropagate() {
+function renderPropagate() {
   const button = $("propagate");
   const reviewed = S.labelStatus === "accepted" || S.labelStatus === "corrected";
   button.disabled = !S.frame.sequence_id || !reviewed || Boolean(SAM2_PROBLEM) || !isReviewer();
