@@ -4,6 +4,7 @@ app's domains point one way (the manual's Development, "Layout and layering").""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 from tests.helpers import REPO
@@ -111,6 +112,48 @@ def test_the_cycle_finder_finds_a_loop() -> None:
     """The check above fails on a loop (a finder that finds nothing would pass anything)."""
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+JS_IMPORT = re.compile(
+    r"""^\s*(?:import|export)\b[^;]*?\bfrom\s*["'](\.\.?/[^"']+)["']|^\s*import\s*["'](\.\.?/[^"']+)["']""",
+    re.MULTILINE,
+)
+"""A static ``import … from "./x.js"`` (or ``"../x.js"``, ``export … from``, a bare ``import``)."""
+
+
+def js_import_graph(root: Path = REPO / "static" / "js") -> dict[str, set[str]]:
+    """Every browser module under ``static/js`` → the modules it imports statically, as paths
+    relative to ``root``."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted(root.rglob("*.js")):
+        found = set()
+        for match in JS_IMPORT.finditer(path.read_text(encoding="utf-8")):
+            target = (path.parent / (match.group(1) or match.group(2))).resolve()
+            found.add(target.relative_to(root.resolve()).as_posix())
+        graph[path.relative_to(root).as_posix()] = found
+    return {name: {t for t in targets if t in graph} for name, targets in graph.items()}
+
+
+def test_no_import_loop_between_browser_modules() -> None:
+    """A page's modules by concern subscribe to its state's changes; none imports back the
+    module that renders or starts the page."""
+    assert _cycles(js_import_graph()) == []
+
+
+def test_the_browser_import_graph_sees_a_planted_loop(tmp_path: Path) -> None:
+    """The JS graph finds imports across folders and lines, so the check above can fail."""
+    (tmp_path / "page").mkdir()
+    (tmp_path / "api.js").write_text('export const api = 1;\nimport "./page/view.js";\n')
+    (tmp_path / "page" / "view.js").write_text(
+        'import {\n  a,\n  b,\n} from "./panel.js";\nconst x = import("../lone.js");\n'
+    )
+    (tmp_path / "page" / "panel.js").write_text('export { c } from "../api.js";\n')
+    (tmp_path / "page" / "lone.js").write_text('import { api } from "../api.js";\n')
+    graph = js_import_graph(tmp_path)
+    assert graph["page/view.js"] == {"page/panel.js"}  # a dynamic import() is no static edge
+    assert _cycles(graph) == [["api.js", "page/panel.js", "page/view.js"]]
+    (tmp_path / "api.js").write_text("export const api = 1;\n")
+    assert _cycles(js_import_graph(tmp_path)) == []
 
 
 def test_domains_below_review_never_import_it() -> None:

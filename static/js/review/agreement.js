@@ -6,10 +6,10 @@ import { api, isReviewer } from "../api.js";
 import { count, iou, px } from "../format.js";
 import { formatDate, h, toast } from "../ui.js";
 import { refreshWork } from "../work.js";
-import { changed, commit } from "./history.js";
+import { commit } from "./history.js";
 import { Mask } from "./mask.js";
 import { $, FRAME_ID } from "./page.js";
-import { S } from "./state.js";
+import { S, changed } from "./state.js";
 
 /** Fetch the frame's labels by several annotators; the panel shows only where there are any. */
 export async function loadAgreement() {

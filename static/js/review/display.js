@@ -4,7 +4,6 @@
 import { toast } from "../ui.js";
 import { $, FRAME_ID } from "./page.js";
 import { S } from "./state.js";
-import { fillMask } from "./tools.js";
 
 // --- what the reviewer set up stays from frame to frame (this browser) -------------------------
 
@@ -59,5 +58,12 @@ export async function setHeatmapVisible(on) {
     image.src = `/api/v1/frames/${FRAME_ID}/proposal/heatmap.png?proposal_id=${S.proposal.id}`;
     try { await image.decode(); S.stage.heatmap = image; S.stage.canvas.dataset.heatmap = "loaded"; } catch { toast("The heatmap could not be loaded.", "error"); }
   }
+  S.stage.requestRender();
+}
+
+/** The mask is drawn as its outline only when asked, and always over the heatmap (readable). */
+export function fillMask() {
+  S.overlay.setFilled(!S.stage.display.outlineOnly && !S.stage.showHeatmap);
+  S.stage.canvas.dataset.maskFill = String(S.overlay.filled);
   S.stage.requestRender();
 }

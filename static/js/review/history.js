@@ -1,11 +1,8 @@
-// Undo and redo between immutable editing states, what is unsaved, and the refresh after any
-// change of the state.
+// Undo and redo between immutable editing states (each step says the state changed), what is
+// unsaved, and what the canvas shows as data attributes.
 
-import { numbersOf, renderKeypointList, renderManualCount } from "./keypoints.js";
-import { $, HISTORY_LIMIT } from "./page.js";
-import { renderVerdictNote } from "./review.js";
-import { S } from "./state.js";
-import { showOutline } from "./tools.js";
+import { HISTORY_LIMIT } from "./page.js";
+import { S, changed } from "./state.js";
 
 // --- state and history ----------------------------------------------------------------------
 
@@ -41,27 +38,6 @@ export function sameKeypoints(a, b) {
 /** Whether the shown label is the newest proposal, untouched (Accept then stores "accepted"). */
 export function isProposal() {
   return S.proposal !== null && S.edit.mask.equals(S.proposal.mask) && sameKeypoints(S.edit.keypoints, S.proposal.keypoints);
-}
-
-/** Refresh the canvas and the side panel after any change of `state`. */
-export function changed() {
-  if (S.overlay.mask !== S.edit.mask) S.overlay.paint(S.edit.mask);
-  showOutline();
-  exposeState();
-  S.stage.keypoints = S.validation ? S.edit.manual : S.edit.keypoints;
-  S.stage.keypointNumbers = numbersOf(S.stage.keypoints);
-  S.stage.keypointStyle = S.validation ? "manual" : "keypoint";
-  S.stage.dimKeypoints = !S.validation && S.edit.maskEdited && !S.edit.kpEdited;
-  if (S.stage.selected >= S.stage.keypoints.length) S.stage.selected = -1;
-  S.stage.points = S.edit.session?.points ?? [];
-  S.stage.box = S.edit.session?.box ?? null;
-  S.stage.requestRender();
-  $("undo").disabled = !S.past.length;
-  $("redo").disabled = !S.future.length;
-  $("dirty").hidden = !labelDirty() && !manualDirty();
-  renderKeypointList();
-  renderManualCount();
-  renderVerdictNote();
 }
 
 /** What the canvas shows, as data attributes: for people inspecting the page and for tests. */

@@ -1,13 +1,9 @@
-// Keypoints: the list, removing one, and the validation mode for keypoints placed by hand.
+// Keypoints: their numbers in the order rule, adding and removing one (the list is drawn by
+// panel.js, the validation mode is validation.js).
 
-import { ApiError, api } from "../api.js";
-import { formatDate, h, toast } from "../ui.js";
-import { setMaskVisible } from "./display.js";
-import { changed, commit, manualDirty } from "./history.js";
-import { $, FRAME_ID, K } from "./page.js";
-import { renderFrameInfo } from "./review.js";
-import { S } from "./state.js";
-import { enableTools, setTool } from "./tools.js";
+import { commit } from "./history.js";
+import { K } from "./page.js";
+import { S, changed } from "./state.js";
 
 // --- numbers: the keypoints' fixed order ----------------------------------------------------
 //
@@ -72,24 +68,7 @@ export function orderCentre(points) {
   return [S.frame.width / 2, S.frame.height / 2];
 }
 
-// --- side panel -----------------------------------------------------------------------------
-
-export function renderKeypointList() {
-  const list = $("keypoint-list");
-  const points = S.validation ? S.edit.manual : S.edit.keypoints;
-  const numbers = numbersOf(points);
-  list.replaceChildren(...points.map(([x, y], i) => h("li", { class: i === S.stage.selected ? "selected" : "", "data-number": String(numbers[i]) },
-    h("span", { class: "kp-number" }, `${numbers[i]}.`), " ",
-    h("span", {}, `${x.toFixed(1)}, ${y.toFixed(1)}`),
-    h("button", { type: "button", class: "quiet tiny-btn", title: "Remove this keypoint", onclick: () => deleteKeypoint(i) }, "×"))));
-  if (!points.length) list.append(h("li", { class: "muted plain" }, S.validation ? "none placed yet" : "none"));
-  if (S.stage.dimKeypoints) list.append(h("li", { class: "muted plain" }, "The mask changed: the keypoints are recomputed from it on save, unless you move one."));
-}
-
-export function renderManualCount() {
-  $("manual-count").textContent = `${S.edit.manual.length} of ${K} placed`;
-  $("save-validation").disabled = S.edit.manual.length !== K || !manualDirty();
-}
+// --- removing one ---------------------------------------------------------------------------
 
 export function deleteKeypoint(index) {
   if (S.validation) {
@@ -98,60 +77,5 @@ export function deleteKeypoint(index) {
     commit({ ...S.edit, keypoints: withoutPoint(S.edit.keypoints, index), kpEdited: true });
   }
   S.stage.selected = -1;
-  changed();
-}
-
-/** Save the keypoints placed by hand from the revision they were read at; when someone else
- *  saved theirs meanwhile (409), the user chooses: overwrite theirs, or load theirs. */
-export async function saveValidation() {
-  const put = (base) => api(`/frames/${FRAME_ID}/validation-keypoints`, { method: "PUT", json: { keypoints: S.edit.manual, base_revision: base } });
-  try {
-    let saved;
-    try {
-      saved = await put(S.manualRevision);
-    } catch (error) {
-      if (!(error instanceof ApiError && error.status === 409)) throw error;
-      const current = error.body?.revision ?? 0;
-      const who = error.body?.updated_by ?? "Someone else";
-      if (!confirm(`${who} saved this frame's validation keypoints while you placed yours.\n\nOK: overwrite theirs with yours. Cancel: load theirs.`)) {
-        const theirs = await api(`/frames/${FRAME_ID}/validation-keypoints`);
-        S.manualRevision = theirs.revision;
-        commit({ ...S.edit, manual: theirs.keypoints.map((p) => [...p]) });
-        S.manualClean = S.edit.manual;
-        $("validation-state").textContent = `${theirs.keypoints.length} keypoints placed by hand (${formatDate(theirs.updated_at)}), loaded.`;
-        changed();
-        return;
-      }
-      saved = await put(current);
-    }
-    S.manualRevision = saved.revision;
-    S.manualClean = S.edit.manual;
-    S.frame.split = "validation";
-    renderFrameInfo();
-    $("validation-state").textContent = `Saved ${saved.keypoints.length} keypoints by hand (${formatDate(saved.updated_at)}); this frame is in the validation split.`;
-    toast("Validation keypoints saved.", "ok");
-    changed();
-  } catch (error) {
-    toast(error.message, "error");
-  }
-}
-
-export function toggleValidation() {
-  S.validation = !S.validation;
-  document.body.classList.toggle("validating", S.validation);
-  $("validation-toggle").setAttribute("aria-pressed", String(S.validation));
-  $("validation-toggle").classList.toggle("active", S.validation);
-  $("validation-panel").hidden = !S.validation;
-  enableTools();
-  S.stage.selected = -1;
-  if (S.validation) {
-    S.toolBeforeValidation = S.tool;
-    S.maskBeforeValidation = $("show-mask").checked;
-    setMaskVisible(false);
-    setTool("keypoint");
-  } else {
-    setMaskVisible(S.maskBeforeValidation);
-    setTool(S.toolBeforeValidation);
-  }
   changed();
 }

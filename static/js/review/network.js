@@ -1,15 +1,14 @@
 // What the page sends and fetches: verdicts with revision checks and the conflict dialog,
 // the queue's next frame, proposals, the teacher, propagation, the label's history.
 
-import { ApiError, REVIEW_STAGE, api, isReviewer, jobFromButton, waitForJob } from "../api.js";
+import { ApiError, REVIEW_STAGE, api, jobFromButton, waitForJob } from "../api.js";
 import { badge, formatDate, h, toast } from "../ui.js";
 import { setHeatmapVisible } from "./display.js";
-import { changed, commit, isProposal, labelDirty, manualDirty } from "./history.js";
-import { toggleValidation } from "./keypoints.js";
+import { commit, isProposal, labelDirty, manualDirty } from "./history.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
-import { renderFrameInfo, renderPropagate, renderProposals, renderVerdictNote } from "./review.js";
-import { S } from "./state.js";
+import { S, changed } from "./state.js";
+import { toggleValidation } from "./validation.js";
 import { refreshWork } from "../work.js";
 import { saveOwn } from "./agreement.js";
 
@@ -69,32 +68,13 @@ export function reviewOf(label) {
   return label?.review ? { state: label.review, comment: label.review_comment, by: label.updated_by } : null;
 }
 
-export function renderReview() {
-  const box = $("review-stage");
-  const review = S.review;
-  box.hidden = !REVIEW_STAGE || !review;
-  if (box.hidden) return;
-  box.dataset.state = review.state;
-  const text = {
-    awaiting: "Awaiting a reviewer's approval: it trains once approved.",
-    approved: `Approved${review.by ? ` by ${review.by}` : ""}: the student learns from it.`,
-    returned: `Sent back${review.by ? ` by ${review.by}` : ""}: “${review.comment ?? ""}” — correct it and submit again.`,
-  }[review.state];
-  $("review-state").textContent = text;
-  $("review-actions").hidden = !isReviewer() || review.state === "approved";
-  $("send-back").hidden = review.state === "returned";
-  $("approve-corrected").hidden = review.state !== "awaiting";
-  renderVerdictNote();
-}
-
 async function decide(decision, comment) {
   try {
     const label = await api(`/frames/${FRAME_ID}/label/review`, { method: "POST", json: { decision, comment, base_revision: S.revision } });
     S.revision = label.revision;
     S.review = reviewOf(label);
     $("send-back-form").hidden = true;
-    renderReview();
-    renderFrameInfo();
+    changed("review", "frame");
     loadHistory();
     toast(decision === "approve" ? "Approved: it trains from now on." : "Sent back to its annotator.", "ok");
     refreshWork();
@@ -112,7 +92,6 @@ export function bindReview() {
     event.preventDefault();
     decide("return", event.target.elements.comment.value.trim());
   });
-  renderReview();
 }
 
 // --- verdicts -------------------------------------------------------------------------------
@@ -156,7 +135,6 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   S.revision = label.revision;
   S.labelStatus = label.status;
   S.review = reviewOf(label);
-  renderReview();
   S.loadedLabel = label.status === "rejected" ? null : { mask: S.edit.mask, revision: label.revision };
   S.frame.status = label.status;
   const rejected = label.status === "rejected"; // "no pool here": nothing stays drawn over it
@@ -164,9 +142,7 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   const mask = rejected ? new Mask(S.frame.width, S.frame.height) : S.edit.mask;
   S.edit = { ...S.edit, mask, keypoints, outline: rejected ? null : S.edit.outline, maskEdited: false, kpEdited: false, session: null };
   S.labelClean = S.edit;
-  changed();
-  renderFrameInfo();
-  renderPropagate();
+  changed("edit", "review", "frame", "propagate");
   loadHistory();
   const where = label.review === "awaiting" ? " — submitted for review" : label.review === "approved" && REVIEW_STAGE ? " — approved" : "";
   toast(`Saved as ${label.status} (revision ${label.revision})${where}.`, "ok");
@@ -287,8 +263,7 @@ export async function switchProposal(id) {
   const next = { ...S.edit, mask, keypoints: (body.keypoints ?? []).map((p) => [...p]), maskEdited: false, kpEdited: false, session: null };
   if (S.revision === 0 && !labelDirty()) { S.edit = next; S.labelClean = next; changed(); }
   else commit(next);
-  renderProposals();
-  renderFrameInfo();
+  changed("proposals", "frame");
   S.stage.requestRender();
 }
 
@@ -321,7 +296,7 @@ export async function propagateFromHere() {
   } catch (error) {
     toast(error.message, "error");
   } finally {
-    renderPropagate();
+    changed("propagate");
   }
 }
 

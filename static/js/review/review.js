@@ -2,131 +2,30 @@
 // endpoint, brush and eraser, keypoint editing, undo / redo, the verdict with revision checks,
 // the queue's next frame, and the validation mode for keypoints placed by hand.
 //
-// Modules by concern: state.js (the one state object), page.js (constants), history.js (undo,
-// redo, refresh), tools.js (editing tools and pointer gestures), keypoints.js (keypoints and
-// validation), network.js (verdicts, queue, proposals, teacher, propagation), display.js
-// (preferences and overlays); this module renders the side panel, binds the controls and
-// starts the page.
+// Modules by concern, from the bottom: state.js (the one state object and its change
+// notification), page.js (constants), history.js (undo, redo, what is unsaved), display.js
+// (preferences and overlays), keypoints.js (their numbers), tools.js (editing tools and pointer
+// gestures), validation.js (keypoints placed by hand), agreement.js and network.js (verdicts,
+// queue, proposals, teacher, propagation), panel.js (what the panel and canvas show); this
+// module subscribes the panel to the state's changes, binds the controls and starts the page.
 
-import { REVIEW_STAGE, ROLE, SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
-import { score } from "../format.js";
-import { badge, formatDate, h, reviewBadge, toast } from "../ui.js";
+import { SAM2_PROBLEM, TEACHER_PROBLEM, api, isReviewer } from "../api.js";
+import { formatDate, toast } from "../ui.js";
 import { loadAgreement } from "./agreement.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
-import { changed, commit, isProposal, labelDirty, manualDirty, redo, undo } from "./history.js";
-import { deleteKeypoint, saveValidation, toggleValidation } from "./keypoints.js";
+import { commit, labelDirty, manualDirty, redo, undo } from "./history.js";
+import { deleteKeypoint } from "./keypoints.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { bindReview, warmEmbedding, goNext, loadHistory, loadImage, optional, propagateFromHere, reviewOf, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
-import { $, CONTEXT, FRAME_ID } from "./page.js";
+import { $, FRAME_ID } from "./page.js";
+import { render, timelineNote } from "./panel.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
-import { S } from "./state.js";
+import { S, changed, subscribe } from "./state.js";
 import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setTool, toolUsable } from "./tools.js";
-
-/** One set of verdicts per role and state. With the review stage on an annotator submits
- * (Save), and a reviewer facing an awaiting label approves it, sends it back, or corrects it
- * and approves it in one step; on labels of his own he accepts, rejects or saves as before
- * (approved as he saves them). */
-export function renderVerdictNote() {
-  const note = $("verdict-note");
-  const deciding = REVIEW_STAGE && isReviewer() && S.review?.state === "awaiting";
-  const submitting = (REVIEW_STAGE || S.overlapMine) && !isReviewer();
-  for (const id of ["accept", "reject"]) {
-    $(id).hidden = deciding || submitting;
-    $(id).disabled = !isReviewer() || deciding;
-  }
-  $("save").hidden = deciding;
-  $("save").firstChild.textContent = S.overlapMine ? "Save my label " : submitting ? "Submit for review " : "Save as corrected ";
-  $("save").title = submitting ? "Submit for review (S): a reviewer approves it or sends it back" : "Save as corrected (S)";
-  $("approve-corrected").disabled = !labelDirty();
-  $("approve-corrected").title = labelDirty()
-    ? "Save the label as you corrected it, approved, in one step (S)"
-    : "Correct the mask or keypoints first; Approve keeps the annotator's label as it is";
-  if (S.overlapMine) {
-    note.textContent = "Your own label of a frame given to several annotators: a reviewer approves one of them or merges them.";
-  } else if (deciding) {
-    note.textContent = "Approve keeps the annotator's label; Send back returns it with what to change; or correct it here and “Correct and approve” saves yours, approved.";
-  } else if (submitting) {
-    note.textContent = S.review?.state === "returned"
-      ? "Change what the reviewer asked, then submit again."
-      : "A reviewer approves your label (it trains from then on) or sends it back with a comment.";
-  } else if (!isReviewer()) {
-    note.textContent = `As ${ROLE} you save corrections; a reviewer accepts or rejects.`;
-  } else {
-    const own = REVIEW_STAGE ? "Your own labels count as approved. " : "";
-    note.textContent = own + (!S.proposal || !S.edit ? "No proposal: Accept saves what you drew as corrected."
-      : !isProposal() ? "The label shown differs from the proposal: Accept saves it as corrected."
-        : "Accept keeps the proposal as it is.");
-  }
-}
-
-/** Why a frame ranks high in the queue, in words (see weldpool_core.active). */
-export const REASONS = {
-  teacher_iou: "SAM2's own doubt about its mask",
-  instability: "the mask changing when the prompts move slightly",
-  disagreement: "the student disagreeing with the teacher",
-  student_uncertainty: "the student's own doubt (unstable under small changes, or unlike what it learnt from)",
-  propagation_doubt: "SAM2's doubt about the mask it carried here from a reviewed frame",
-};
-
-export function renderFrameInfo() {
-  $("frame-title").textContent = `Frame #${S.frame.id}`;
-  const parts = [S.frame.original_name, `${S.frame.width}×${S.frame.height}`, `${S.frame.bit_depth}-bit`, `${S.frame.split} split`];
-  if (S.frame.frame_index !== null) parts.push(`index ${S.frame.frame_index}`);
-  if (S.frame.assignee) parts.push(`assigned to ${S.frame.assignee}`);
-  $("frame-meta").textContent = parts.filter(Boolean).join(" · ");
-  // With the review stage, the badge says where the label stands; its verdict follows.
-  const stage = REVIEW_STAGE && S.review;
-  const pieces = [stage ? reviewBadge(S.review.state) : badge(S.frame.status)];
-  if (S.revision) pieces.push(h("span", { class: "muted" }, stage ? ` ${S.frame.status} · revision ${S.revision}` : ` revision ${S.revision}`));
-  if (S.proposal) {
-    const iou = S.proposal.scores?.sam2_iou;
-    pieces.push(h("br"), h("span", { class: "muted", "data-testid": "proposal-source" }, `${sourceName(S.proposal)} proposal`, iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : ""));
-    if (S.proposal.scores?.low_confidence) pieces.push(h("br"), h("span", { class: "warning" }, "SAM2 lost confidence here: correct this frame and propagate again from it."));
-    if (S.frame.uncertainty !== null) {
-      // A component this page has no words for yet reads as words, never as a raw key.
-      const reason = REASONS[S.frame.uncertainty_reason] ?? S.frame.uncertainty_reason?.replaceAll("_", " ");
-      pieces.push(h("br"), h("span", { class: "uncertainty", "data-testid": "uncertainty-reason" },
-        `uncertainty ${score(S.frame.uncertainty)}`, reason ? ` — mostly ${reason}` : ""));
-    }
-    if (S.proposal.scores?.warning) pieces.push(h("br"), h("span", { class: "warning" }, S.proposal.scores.warning));
-  }
-  $("frame-state").replaceChildren(...pieces);
-  $("frame-state").dataset.status = S.frame.status;
-}
+import { saveValidation, toggleValidation } from "./validation.js";
 
 // --- proposals ------------------------------------------------------------------------------
-
-/** "teacher", the student version's name, or where a propagated mask came from. */
-export function sourceName(item) {
-  if (item.source === "teacher") return "teacher";
-  if (item.source === "propagated") {
-    const confidence = item.scores?.confidence;
-    return `propagated from #${item.scores?.from_frame_id}` + (confidence !== undefined ? ` (confidence ${score(Number(confidence))})` : "");
-  }
-  return `${item.source} ${item.model_id}`;
-}
-
-/** One button per proposal (newest first): the shown one pressed, the policy's pick marked. */
-export function renderProposals() {
-  const list = $("proposal-sources");
-  list.replaceChildren(...S.proposals.map((item) => {
-    const iou = item.scores?.sam2_iou;
-    const detail = iou !== undefined && iou !== null ? ` · SAM2 IoU ${score(Number(iou))}` : "";
-    return h("button", {
-      type: "button",
-      class: `source${S.proposal && item.id === S.proposal.id ? " shown" : ""}`,
-      "aria-pressed": String(Boolean(S.proposal && item.id === S.proposal.id)),
-      "data-testid": "proposal-option",
-      "data-proposal-id": String(item.id),
-      title: `${sourceName(item)}, ${formatDate(item.created_at)}`,
-      onclick: () => switchProposal(item.id),
-    }, sourceName(item), h("span", { class: "muted" }, detail), item.chosen ? h("span", { class: "chosen" }, " ★ chosen") : "");
-  }));
-  $("proposals-section").hidden = S.proposals.length === 0;
-  $("policy-reason").textContent = S.proposals.length > 1 ? S.policyReason : "";
-  $("rerun-teacher").hidden = S.proposals.length === 0;
-}
 
 export function cycleProposal() {
   if (S.proposals.length < 2) return;
@@ -245,24 +144,7 @@ export function bindControls() {
   }
 }
 
-// --- propagation through the weld run -------------------------------------------------------
-
-export function renderPropagate() {
-  const button = $("propagate");
-  const reviewed = S.labelStatus === "accepted" || S.labelStatus === "corrected";
-  button.disabled = !S.frame.sequence_id || !reviewed || Boolean(SAM2_PROBLEM) || !isReviewer();
-  button.title = SAM2_PROBLEM
-    || (!isReviewer() ? "A reviewer propagates: it writes proposals over the whole run."
-      : !S.frame.sequence_id ? "This frame belongs to no weld run."
-      : reviewed ? "SAM2's video model carries this frame's reviewed mask to the run's other frames"
-        : "Accept or correct this frame first: propagation starts from a reviewed mask.");
-}
-
-export function timelineNote() {
-  $("propagate-note").replaceChildren(...(S.frame.sequence_id
-    ? [h("a", { href: `/sequences/${S.frame.sequence_id}`, "data-testid": "timeline-link" }, "The run's timeline"), " — geometry and confidence per frame."]
-    : []));
-}
+// --- start ---------------------------------------------------------------------------------
 
 export async function start() {
   const imageUrl = `/api/v1/frames/${FRAME_ID}/image?variant=display`;
@@ -326,8 +208,7 @@ export async function start() {
   S.ruler.load();
   bindControls();
   bindReview();
-  renderProposals();
-  renderPropagate();
+  changed("review", "proposals", "propagate");
   timelineNote();
   bindDisplay();
   const saved = prefs();
@@ -335,8 +216,7 @@ export async function start() {
   enableTools();
   const start = Object.values(TOOL_KEYS).includes(saved.tool) ? saved.tool : "positive";
   setTool(toolUsable(start) ? start : "brush");
-  renderFrameInfo();
-  changed();
+  changed("frame", "edit");
   S.stage.render();
   S.stage.canvas.dataset.ready = "1";
   document.body.dataset.ready = "1";
@@ -347,4 +227,5 @@ export async function start() {
   if (!SAM2_PROBLEM) warmEmbedding();
 }
 
+subscribe(render);
 start();

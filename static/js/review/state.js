@@ -1,6 +1,9 @@
 // The review page's state: one object every module reads and writes (see review.js for
-// what each part holds). `edit` is the immutable editing state ({mask, keypoints, manual,
-// session, outline, maskEdited, kpEdited}); undo and redo move between them.
+// what each part holds), and the one notification of its changes. `edit` is the immutable
+// editing state ({mask, keypoints, manual, session, outline, maskEdited, kpEdited}); undo and
+// redo move between them. A module that changes the state calls `changed` with what it
+// changed; the page's entry subscribes the views (panel.js) once, so no module imports the
+// functions that draw.
 
 export const S = {
   frame: null,
@@ -32,3 +35,22 @@ export const S = {
   inflight: new Set(),
   pngCache: new WeakMap(),
 };
+
+// --- the one state-change notification ------------------------------------------------------
+
+/** What a change may touch: "edit" (the editing state: canvas, keypoint list, verdict), "frame"
+ *  (the frame, its status and revision), "proposals", "review" (the review stage), "propagate". */
+export const PARTS = new Set(["edit", "frame", "proposals", "review", "propagate"]);
+const views = [];
+
+/** Call `view(parts)` after every change of the state, with the set of parts changed. */
+export function subscribe(view) {
+  views.push(view);
+}
+
+/** Say that `parts` of the state changed (the editing state when none is named). */
+export function changed(...parts) {
+  const what = new Set(parts.length ? parts : ["edit"]);
+  for (const part of what) if (!PARTS.has(part)) throw new Error(`No part of the review state is called ${part}.`);
+  for (const view of views) view(what);
+}

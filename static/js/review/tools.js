@@ -5,11 +5,11 @@ import { ApiError, SAM2_PROBLEM, api } from "../api.js";
 import { score } from "../format.js";
 import { toast } from "../ui.js";
 import { remember } from "./display.js";
-import { changed, commit, exposeState, undo } from "./history.js";
+import { commit, exposeState, undo } from "./history.js";
 import { copyPoints, deleteKeypoint, orderCentre, withPoint } from "./keypoints.js";
 import { Mask } from "./mask.js";
 import { $, FRAME_ID, K, OUTLINE_TOLERANCE } from "./page.js";
-import { S } from "./state.js";
+import { S, changed } from "./state.js";
 
 // --- tools ----------------------------------------------------------------------------------
 
@@ -344,13 +344,4 @@ export function enableTools() {
     button.disabled = !toolUsable(button.dataset.tool);
     if (SAM2_PROBLEM && SAM2_TOOLS.has(button.dataset.tool)) button.title = SAM2_PROBLEM;
   }
-}
-
-// --- overlays -------------------------------------------------------------------------------
-
-/** The mask is drawn as its outline only when asked, and always over the heatmap (readable). */
-export function fillMask() {
-  S.overlay.setFilled(!S.stage.display.outlineOnly && !S.stage.showHeatmap);
-  S.stage.canvas.dataset.maskFill = String(S.overlay.filled);
-  S.stage.requestRender();
 }
