@@ -10,6 +10,8 @@ production. Steps, each timed, with a verdict:
    ``get_image_embeddings`` on the device, in its precision: same outputs, and both timed.
 2. teacher — ``Teacher.run`` on a 1280×800 frame (a real WAAM frame when ../shared is here),
    its embedding written to a disk cache.
+2b. teacher batch — ``Teacher.run_many`` on 8 frames (a GPU worker's teacher run): ms per frame
+   against one by one, and each mask as the frame alone gives it.
 3. click from disk — a new cache on the same folder (another process's view): the embedding
    comes from disk, in the model's precision, and a click decodes from it.
 3b. propagate — SAM2's video model (from the same checkpoint) through 6 frames from the cached
@@ -150,6 +152,20 @@ def main() -> int:
             ms, result = _median_ms(lambda: run.run(frame, None), args.runs, device)
             return f"{ms:.0f} ms/frame uncached, mask {int(result.mask.sum())} px"
 
+        def teacher_batch() -> str:
+            from weldpool_core.teacher.cache import EmbeddingCache
+            from weldpool_core.teacher.teacher import Teacher
+
+            run = Teacher(state["dino"], state["sam2"], "sam2", EmbeddingCache(None))
+            frames = [frame] * 8
+            run.run_many(frames)  # warm-up at this batch size
+            ms, results = _median_ms(lambda: run.run_many(frames), args.runs, device)
+            single, _ = _median_ms(lambda: run.run(frame, None), args.runs, device)
+            alone = run.run(frame, None).mask
+            if any((r.mask != alone).mean() > 1e-3 for r in results):
+                raise AssertionError("a batched frame's mask differs from the frame alone")
+            return f"{ms / 8:.0f} ms/frame in batches of 8 ({single / (ms / 8):.2f}× one by one)"
+
         def click_from_disk() -> str:
             from weldpool_core.teacher.cache import EmbeddingCache, cached_embedding
             from weldpool_core.teacher.sam2 import Prompts
@@ -238,6 +254,7 @@ def main() -> int:
         step("load", load)
         step("encoder", encoder)
         step("teacher", teacher)
+        step("teacher batch", teacher_batch)
         step("click from disk", click_from_disk)
         step("propagate", propagate)
         step("train", train)

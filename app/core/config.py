@@ -122,6 +122,13 @@ class Settings(BaseSettings):
         default=480, ge=64, description="DINO sees frames resized to this square (multiple of 8)."
     )
     device: str = Field(default="auto", description="cpu, cuda, cuda:N, mps or auto.")
+    teacher_batch: int = Field(
+        default=0,
+        ge=0,
+        le=64,
+        description="Frames a teacher run puts through DINO and SAM2's encoder at once: 0 "
+        "batches each chunk's frames on a GPU and works one frame at a time on the CPU.",
+    )
     review_stage: bool = Field(
         default=False,
         description="Labels annotators save await a reviewer's approval (or are sent back with "

@@ -163,3 +163,16 @@ def teacher(settings: Settings, prompts: PromptName = DEFAULT_PROMPTS) -> Teache
         TeacherConfig(prompts=prompts),
         settings.dino,
     )
+
+
+GPU_BATCH = 8
+"""Frames per batch of a teacher run on a GPU by default (a chunk holds fewer)."""
+
+
+def teacher_batch(settings: Settings, teacher: Teacher) -> int:
+    """How many frames a teacher run puts through DINO and SAM2's encoder at once: the
+    setting, else a chunk's frames on a GPU and one at a time elsewhere (on the CPU a batch
+    costs what its frames do one by one)."""
+    if settings.teacher_batch:
+        return settings.teacher_batch
+    return GPU_BATCH if teacher.sam2.device.type == "cuda" else 1

@@ -87,46 +87,105 @@ def _teacher_frames(ctx: JobContext) -> list[int]:
 def _teacher_chunk(
     ctx: JobContext, storage: Storage, teacher: Any, frame_ids: list[int], force: bool
 ) -> dict[str, Any]:
-    """The teacher on one chunk's frames: what it proposed, skipped, failed and found deleted."""
+    """The teacher on one chunk's frames: what it proposed, skipped, failed and found deleted.
+    Each frame it works is claimed first (two runs of this teacher propose it once); on a GPU
+    worker the claimed frames go through DINO and SAM2's encoder in one batch."""
     proposed, skipped, failed, deleted = 0, 0, [], []
+    claimed: list[int] = []
     for frame_id in frame_ids:
         with ctx.session_factory() as session:
-            frame = session.get(Frame, frame_id)
-            if frame is None:
+            if session.get(Frame, frame_id) is None:
                 deleted.append(frame_id)
             elif not force and has_proposal(session, frame_id, teacher.model_id):
                 skipped += 1
             elif not claim(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id):
                 skipped += 1  # another run of this teacher is proposing it now
             else:
-                try:  # a run that recorded it since this one looked is not done again
-                    outcome = (
-                        "seen"
-                        if not force and has_proposal(session, frame_id, teacher.model_id)
-                        else _propose(ctx, session, storage, teacher, frame)
-                    )
-                finally:
-                    release(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id)
-                if outcome == "seen":
-                    skipped += 1
-                elif outcome is None:
-                    proposed += 1
-                elif isinstance(outcome, FrameDeleted):
-                    deleted.append(frame_id)
+                claimed.append(frame_id)
+    try:
+        ahead = _batched(ctx, storage, teacher, claimed)
+        for frame_id in claimed:
+            with ctx.session_factory() as session:
+                frame = session.get(Frame, frame_id)
+                if frame is None:
+                    outcome: str | FrameDeleted | None = FrameDeleted(frame_id)
+                elif not force and has_proposal(session, frame_id, teacher.model_id):
+                    outcome = "seen"  # a run that recorded it since this one looked
                 else:
-                    failed.append({"frame_id": frame_id, "error": outcome})
-        ctx.check_cancelled()
+                    outcome = _propose(ctx, session, storage, teacher, frame, ahead.get(frame_id))
+            release(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id)
+            if outcome == "seen":
+                skipped += 1
+            elif outcome is None:
+                proposed += 1
+            elif isinstance(outcome, FrameDeleted):
+                deleted.append(frame_id)
+            else:
+                failed.append({"frame_id": frame_id, "error": outcome})
+            ctx.check_cancelled()
+    finally:
+        for frame_id in claimed:  # a stopped chunk leaves no claim behind
+            release(ctx.session_factory, frame_id, teacher.model_id, ctx.job_id)
     return {"proposed": proposed, "skipped": skipped, "failed": failed, "deleted": deleted}
 
 
+def _batched(
+    ctx: JobContext, storage: Storage, teacher: Any, frame_ids: list[int]
+) -> dict[int, Any]:
+    """The teacher's results for ``frame_ids`` from batches of ``runtime.teacher_batch``
+    frames (``Teacher.run_many``); empty on the CPU (one frame at a time is as fast there).
+    A frame that cannot be read, or a batch that fails, is left to ``_propose``, which works
+    it alone and says why it failed."""
+    size = runtime.teacher_batch(ctx.settings, teacher)
+    results: dict[int, Any] = {}
+    if size < 2 or len(frame_ids) < 2:
+        return results
+    for start in range(0, len(frame_ids), size):
+        readable: list[tuple[int, Any, str]] = []
+        with ctx.session_factory() as session:
+            for frame_id in frame_ids[start : start + size]:
+                frame = session.get(Frame, frame_id)
+                try:
+                    if frame is not None:
+                        readable.append((frame_id, frame_rgb(storage, frame), frame.sha256))
+                except Exception as exc:  # ``_propose`` reads it again and says why
+                    if store_outage(exc):
+                        raise
+        if len(readable) < 2:
+            continue
+        try:
+            batch = teacher.run_many(
+                [image for _, image, _ in readable],
+                [sha for _, _, sha in readable],
+                between=ctx.check_cancelled,
+            )
+        except (JobCancelled, JobInterrupted, JobLost):
+            raise
+        except Exception:
+            log.warning("teacher.batch_failed", frames=[i for i, _, _ in readable], exc_info=True)
+            continue
+        results.update(
+            {frame_id: result for (frame_id, _, _), result in zip(readable, batch, strict=True)}
+        )
+    return results
+
+
 def _propose(
-    ctx: JobContext, session: Any, storage: Storage, teacher: Any, frame: Frame
+    ctx: JobContext,
+    session: Any,
+    storage: Storage,
+    teacher: Any,
+    frame: Frame,
+    ahead: Any = None,
 ) -> str | FrameDeleted | None:
-    """The teacher on one frame, recorded: None when it was, the frame's failure in one
-    sentence (stored on the frame), or FrameDeleted when the frame went meanwhile."""
+    """The teacher on one frame (or its result ``ahead`` from a batch), recorded: None when it
+    was, the frame's failure in one sentence (stored on the frame), or FrameDeleted when the
+    frame went meanwhile."""
     frame_id = frame.id  # a rollback expires the object; a deleted row cannot be read again
     try:
-        result = teacher.run(frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled)
+        result = ahead or teacher.run(
+            frame_rgb(storage, frame), frame.sha256, between=ctx.check_cancelled
+        )
         ctx.check_cancelled()  # a lost or cancelled attempt records nothing more
         record_teacher_proposal(
             session,

@@ -114,25 +114,35 @@ class DinoAttention:
         )
         return ((tensor - self._mean) / self._std).to(self.dtype)
 
-    @torch.inference_mode()
     def __call__(self, image: NDArray[np.uint8]) -> AttentionMaps:
         """The attention maps of one RGB frame."""
-        pixels = self.preprocess(image)
+        return self.many([image])[0]
+
+    @torch.inference_mode()
+    def many(self, images: list[NDArray[np.uint8]]) -> list[AttentionMaps]:
+        """The attention maps of several RGB frames in one batch (a GPU worker's teacher run):
+        each frame is resized to the same input, so frames of any sizes batch together; the
+        same maps as one frame at a time, up to the batched kernels' rounding."""
+        pixels = torch.cat([self.preprocess(image) for image in images])
         hidden = self.model.embeddings(pixels, interpolate_pos_encoding=True)
         for layer in self.model.layers[:-1]:
             hidden = layer(hidden)
         probs, cls = self._last_block_cls(hidden)
         grid = self.input_size // self.patch
-        heads = probs[0, :, 1:].reshape(-1, grid, grid).float()
-        mean = heads.mean(0)
-        attended = mean > mean.mean()
-        return AttentionMaps(
-            heads=heads.cpu().numpy(),
-            mean=mean.cpu().numpy(),
-            attended=attended.cpu().numpy(),
-            cls=cls[0].float().cpu().numpy(),
-            image_size=(int(image.shape[0]), int(image.shape[1])),
-        )
+        maps = []
+        for index, image in enumerate(images):
+            heads = probs[index, :, 1:].reshape(-1, grid, grid).float()
+            mean = heads.mean(0)
+            maps.append(
+                AttentionMaps(
+                    heads=heads.cpu().numpy(),
+                    mean=mean.cpu().numpy(),
+                    attended=(mean > mean.mean()).cpu().numpy(),
+                    cls=cls[index].float().cpu().numpy(),
+                    image_size=(int(image.shape[0]), int(image.shape[1])),
+                )
+            )
+        return maps
 
     def _last_block_cls(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The last block for the CLS query alone: its attention over all tokens (per head)

@@ -189,6 +189,19 @@ class Sam2Predictor:
         s0, s1, top = (f.contiguous() for f in features)
         return ImageEmbedding((s0, s1, top), (int(image.shape[0]), int(image.shape[1])))
 
+    @torch.inference_mode()
+    def set_images(self, images: list[NDArray[np.uint8]]) -> list[ImageEmbedding]:
+        """The encoder on several frames in one batch (a GPU worker's teacher run): one
+        embedding per frame, as ``set_image`` gives it up to the batched kernels' rounding."""
+        features = self._encoder(torch.cat([self.preprocess(image) for image in images]))
+        return [
+            ImageEmbedding(
+                tuple(f[index : index + 1].contiguous() for f in features),  # type: ignore[arg-type]
+                (int(image.shape[0]), int(image.shape[1])),
+            )
+            for index, image in enumerate(images)
+        ]
+
     # --- prompts -------------------------------------------------------------------------------
 
     def _sparse(self, prompts: Prompts, image_size: tuple[int, int]) -> torch.Tensor | None:

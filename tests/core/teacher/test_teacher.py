@@ -233,3 +233,37 @@ def test_automatic_mode_clicks_a_grid_in_frame_pixels(models) -> None:
     np.testing.assert_allclose(grid, expected, rtol=1e-6)
     ious = np.concatenate([iou.numpy() for _, iou, _ in decoded])
     assert np.isclose(ious, best.score).any()  # the kept mask is one of the grid's candidates
+
+
+def test_a_batch_proposes_what_one_frame_at_a_time_does_and_fills_the_cache(
+    models, tmp_path: Path
+) -> None:
+    """``run_many`` (a GPU worker's chunk) batches DINO and SAM2's encoder: per frame the same
+    attention, mask, keypoints and scores as ``run``, frames of other sizes in one batch; it
+    encodes only what the cache lacks and leaves every embedding there."""
+    dino, sam2 = models
+    frames = [_rgb(synth_frame(seed=seed).image) for seed in (2, 3)]
+    frames.append(np.ascontiguousarray(frames[0][:, ::-1][:96, :128]))  # another size
+    shas = [f"{seed:064x}" for seed in range(len(frames))]
+    single = Teacher(dino, sam2, "tiny-sam2", EmbeddingCache(None))
+    one_by_one = [single.run(frame) for frame in frames]
+    cache = EmbeddingCache(tmp_path / "cache")
+    batched = Teacher(dino, sam2, "tiny-sam2", cache)
+    encoded = []
+    hook = sam2.model.vision_encoder.backbone.patch_embed.projection.register_forward_hook(
+        lambda _module, inputs, _output: encoded.append(inputs[0].shape[0])
+    )
+    try:
+        together = batched.run_many(frames, shas)
+        assert encoded == [3]  # one batch of three
+        again = batched.run_many(frames, shas)
+        assert encoded == [3]  # every embedding from the cache
+    finally:
+        hook.remove()
+    for alone, batch, repeat in zip(one_by_one, together, again, strict=True):
+        assert np.allclose(batch.attention.mean, alone.attention.mean, atol=1e-5)
+        assert np.allclose(batch.low_res_logits, alone.low_res_logits, atol=1e-3)
+        assert (batch.mask != alone.mask).mean() < 1e-3
+        assert batch.mask.shape == alone.mask.shape and np.array_equal(repeat.mask, batch.mask)
+        assert batch.score == pytest.approx(alone.score, abs=1e-4)
+        assert np.allclose(batch.keypoints, alone.keypoints, atol=1.0)
