@@ -30,7 +30,7 @@ from typing import Any
 from urllib.parse import unquote, urlparse
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs import CellInfo, CellRecord, Counters, OutputStatus, Reporter
+from weldpool_core.outputs.base import CellInfo, CellRecord, Counters, OutputStatus, Reporter
 
 KEEPALIVE_S = 10
 MAX_QUEUED = 64
@@ -285,3 +285,10 @@ def _without_password(url: str) -> str:
         return url
     netloc = parsed.netloc.replace(f":{parsed.password}@", ":***@", 1)
     return parsed._replace(netloc=netloc).geturl()
+
+
+def open_output(options: MqttOptions, info: CellInfo) -> MqttPublisher:
+    """The MQTT output of the registry (``weldpool_core.outputs.OUTPUTS``): a broker host that
+    does not resolve is refused at once, in one sentence."""
+    check_broker_host(options.url)
+    return MqttPublisher(options, info)

@@ -33,7 +33,7 @@ from typing import Any
 from urllib.parse import urlparse
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs import (
+from weldpool_core.outputs.base import (
     CELL_FIELDS,
     CellInfo,
     CellRecord,
@@ -491,3 +491,8 @@ def _start_error(exc: BaseException, url: str) -> BaseException:
             )
         return InvalidInputError(f"Cannot serve OPC UA on {url!r}: {exc.strerror or exc}.")
     return InvalidInputError(f"Cannot serve OPC UA on {url!r}: {exc}.")
+
+
+def open_output(options: OpcUaOptions, info: CellInfo) -> OpcUaServer:
+    """The OPC UA output of the registry (``weldpool_core.outputs.OUTPUTS``)."""
+    return OpcUaServer(options, info)

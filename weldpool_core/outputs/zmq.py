@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs import Counters, OutputStatus
+from weldpool_core.outputs.base import CellInfo, Counters, OutputStatus
 
 
 class Publisher:
@@ -78,3 +78,8 @@ class Publisher:
 
     def close(self) -> None:
         self._socket.close()
+
+
+def open_output(address: str, _info: CellInfo) -> Publisher:
+    """The ZeroMQ output of the registry (``weldpool_core.outputs.OUTPUTS``)."""
+    return Publisher(address)
