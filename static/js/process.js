@@ -102,8 +102,12 @@ function draw() {
     g.beginPath(); g.arc(x, y, 7, 0, 2 * Math.PI); g.fill();
     if (p.outlier) { g.strokeStyle = "#c2255c"; g.lineWidth = 3; g.beginPath(); g.arc(x, y, 12, 0, 2 * Math.PI); g.stroke(); }
     if (p.unstable_frames) { g.fillStyle = "#c2255c"; g.fillRect(x - 7, y + 10, 14, 3); }
-    g.fillStyle = "#343a40"; g.textAlign = "left"; g.font = "12px system-ui, sans-serif";
-    g.fillText(p.name.length > 28 ? `${p.name.slice(0, 27)}…` : p.name, x + 14, y - 8);
+    g.fillStyle = "#343a40"; g.font = "12px system-ui, sans-serif";
+    const label = p.name.length > 28 ? `${p.name.slice(0, 27)}…` : p.name;
+    // A label that would run past the plot's right edge is written to the point's left.
+    const leftward = x + 14 + g.measureText(label).width > width - pad.right;
+    g.textAlign = leftward ? "right" : "left";
+    g.fillText(label, leftward ? x - 14 : x + 14, y - 8);
     state.hits.push({ x, y, p });
   }
   if (state.color && colours.length) {
