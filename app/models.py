@@ -397,6 +397,10 @@ class Label(Base):
     # comment; who decided last (``updated_by`` of that revision) is in the history.
     review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
+    # The other configured classes' objects ([{"class", …}], ``app.labelconfig``) and the
+    # frame's tags and attributes ({"tags": […], "attributes": {…}}); NULL: the pool alone.
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
 
 
 class LabelRevision(Base):
@@ -420,6 +424,21 @@ class LabelRevision(Base):
     source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
     review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)  # as Label.objects
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.frame_tags
+    user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class LabelConfig(Base):
+    """One version of the instance's label configuration (``app.labelconfig``): rows are only
+    added; the highest ``version`` is in force. Two admins saving on one version: the second
+    insert meets the first's key (409)."""
+
+    __tablename__ = "label_configs"
+
+    version: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    config: Mapped[dict[str, Any]] = mapped_column(JSONType)
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 

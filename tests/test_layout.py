@@ -16,7 +16,7 @@ LAYERS = (
     ("imports",),
     ("review", "timeline", "insights", "web"),
     ("teacher", "training", "live"),
-    ("frames",),
+    ("frames", "labelconfig"),
     ("proposals",),
     (
         *("jobs", "users", "system", "housekeeping", "queue", "security", "deps", "storage"),
