@@ -424,10 +424,10 @@ class LabelRevision(Base):
     source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
     review: Mapped[ReviewState | None] = mapped_column(_enum(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
-    objects: Mapped[list[Any] | None] = mapped_column(JSONType)  # as Label.objects
-    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.frame_tags
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)  # as Label.objects
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.frame_tags
 
 
 class LabelConfig(Base):
@@ -622,10 +622,11 @@ def _ids_never_reused() -> None:
     """SQLite hands the highest id out again after that row is deleted unless a table says
     AUTOINCREMENT (PostgreSQL's sequences never do): every table with an integer id says it, so
     a page still open on a deleted frame, run or job can never reach another's (migration 0018
-    rebuilds the tables of an older database)."""
+    rebuilds the tables of an older database). A key the service picks itself
+    (``autoincrement=False``, as ``LabelConfig.version``) is never handed out: none."""
     for table in Base.metadata.tables.values():
         key = list(table.primary_key.columns)
-        if len(key) == 1 and isinstance(key[0].type, sa.Integer):
+        if len(key) == 1 and isinstance(key[0].type, sa.Integer) and key[0].autoincrement:
             table.dialect_kwargs["sqlite_autoincrement"] = True
 
 
