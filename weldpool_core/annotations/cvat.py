@@ -21,11 +21,12 @@ from typing import TYPE_CHECKING, Any
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as SafeET
 
-from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.categories import pool_names
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     CocoPolygons,
     ImportedLabel,
+    OtherShape,
     Parsed,
     PartialMask,
     Shape,
@@ -97,11 +98,12 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         beside=name,
         original_name=posixpath.basename(file_name),
     )
+    others: list[OtherShape] = []
     for element in image:
         if element.tag == "tag":
             continue
         if element.get("label") not in pool:
-            parsed.refuse(f"{item} <{element.tag}>", not_the_pool(element.get("label"), pool))
+            others.append(_other(element))
             continue
         try:
             if element.tag in ("points", "skeleton"):
@@ -115,7 +117,18 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         except DAMAGED:
             parsed.refuse(f"{item} <{element.tag}>", "Its attributes cannot be read as numbers.")
             return None
-    return label if label.shapes or label.keypoints or label.validation_keypoints else None
+    kept = label if label.shapes or label.keypoints or label.validation_keypoints else None
+    parsed.attach(kept, others)
+    return kept
+
+
+def _other(element: Any) -> OtherShape:
+    """A shape of another label (its area None where it has none: points, polylines)."""
+    name = element.get("label") or ""
+    try:
+        return OtherShape(name, _shape(element))
+    except (InvalidInputError, *DAMAGED):
+        return OtherShape(name)
 
 
 def _element_points(element: Any) -> list[tuple[float, float]]:
