@@ -72,8 +72,8 @@ def test_configured_classes_come_in_as_objects(client, make_user) -> None:
     assert client.put("/api/v1/label-config", json=CONFIG, headers=auth(admin)).status_code == 200
     lines = {
         "a": f"0 {SQUARE}\n1 {WIRE}\n1 0.6 0.1 0.9 0.1 0.9 0.3 0.6 0.3\n"
-        "3 0.1 0.7 0.2 0.7 0.2 0.9 0.1 0.9\n3 0.3 0.7 0.4 0.7 0.4 0.9 0.3 0.9\n2 0.5 0.5 0.6 0.5 0.6 0.6\n"
-        "4 0.5 0.5 0.6 0.5 0.6 0.6\n",
+        "3 0.1 0.7 0.2 0.7 0.2 0.9 0.1 0.9\n3 0.3 0.7 0.4 0.7 0.4 0.9 0.3 0.9\n"
+        "2 0.5 0.5 0.6 0.5 0.6 0.6\n4 0.5 0.5 0.6 0.5 0.6 0.6\n",
     }
     names = ["weld_pool", "filler", "tip", "spatter", "smoke"]
     data = _yolo(names, lines)
