@@ -17,6 +17,15 @@ KEYPOINT_ROLES = ("validation", "label")
 validation split and does not train), or the label's own keypoints (it trains on them)."""
 
 
+CLASS_OUTCOMES = {
+    "kept": "",
+    "unknown": "Skipped {} shape(s) of classes the label configuration does not have",
+    "no_area": "Skipped {} shape(s) of configured classes that have no area to keep",
+    "without_pool": "Skipped {} shape(s) of other classes on images without a pool",
+}
+"""What became of a file's regions of classes other than the pool, and how ``skipped`` says it."""
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     format: str
@@ -67,15 +76,6 @@ class ImportReport:
                 listed = ", ".join(f"{name} ×{n}" for name, n in counts.most_common())
                 total = sum(counts.values())
                 self.skipped.append(Refusal(source, f"{why.format(total)}: {listed}."))
-
-
-CLASS_OUTCOMES = {
-    "kept": "",
-    "unknown": "Skipped {} shape(s) of classes the label configuration does not have",
-    "no_area": "Skipped {} shape(s) of configured classes that have no area to keep",
-    "without_pool": "Skipped {} shape(s) of other classes on images without a pool",
-}
-"""What became of a file's regions of classes other than the pool, and how ``skipped`` says it."""
 
 
 def checked_class_map(text: str | None) -> dict[str, str]:

@@ -71,13 +71,19 @@ def save(session: Session, user: User, body: LabelConfigIn) -> Current:
     return current(session)
 
 
-def _stale(now: Current) -> ConflictError:
-    error = ConflictError(
-        f"The label configuration was changed by {now.user or 'someone else'} (now at version "
-        f"{now.version}); reload it and apply your change again."
-    )
-    error.extra = {"version": now.version}
-    return error
+class StaleConfig(ConflictError):
+    """A configuration saved from a version that is no longer the newest."""
+
+    def __init__(self, now: Current) -> None:
+        super().__init__(
+            f"The label configuration was changed by {now.user or 'someone else'} (now at "
+            f"version {now.version}); reload it and apply your change again."
+        )
+        self.extra = {"version": now.version}
+
+
+def _stale(now: Current) -> StaleConfig:
+    return StaleConfig(now)
 
 
 def _refuse_orphans(

@@ -56,6 +56,7 @@ from app.review.export_classes import (
     file_names,
     region_classes,
     written_classes,
+    yaml_name,
     yolo_lines,
 )
 from app.storage import EXPORTS_DIR, Storage
@@ -461,7 +462,7 @@ def _write_yolo(
     splits = "".join(
         f"{name}: images/{name}\n" for name in ("train", "val", "test") if name in used
     )
-    ids = "".join(f"  {i}: {json.dumps(n)}\n" for i, n in enumerate(["weld_pool", *classes]))
+    ids = "".join(f"  {i}: {yaml_name(n)}\n" for i, n in enumerate(["weld_pool", *classes]))
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n{ids}")
 
 

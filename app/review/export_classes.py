@@ -5,6 +5,7 @@ out (they stay on their labels); ``points`` classes are not written yet."""
 
 from __future__ import annotations
 
+import json
 import posixpath
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -72,6 +73,16 @@ def file_names(frames: list[Frame]) -> dict[int, str]:
 def exported_objects(label: Any, classes: list[str]) -> list[dict[str, Any]]:
     """The label's objects of ``classes`` that have a region, in the label's order."""
     return [o for o in label.objects or [] if o.get("class") in classes and o.get("rle")]
+
+
+def yaml_name(name: str) -> str:
+    """A class name as a YAML value: as it is when it is a plain word, else JSON-quoted (a
+    JSON string is a YAML string: a name like ``on`` or ``1`` stays a name)."""
+    plain = name.replace("_", "").isalnum() and name.isascii() and not name[0].isdigit()
+    return name if plain and name.lower() not in YAML_WORDS else json.dumps(name)
+
+
+YAML_WORDS = {"y", "n", "yes", "no", "on", "off", "true", "false", "null"}
 
 
 def yolo_lines(label: Any, classes: list[str], height: int, width: int) -> list[str]:

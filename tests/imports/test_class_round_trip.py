@@ -107,7 +107,7 @@ def test_a_round_trip_keeps_the_pool_and_the_objects(
     if fmt == "yolo":
         assert "images/train/run7 0001.png" in names and "labels/train/run7 0001.txt" in names
         data = zipfile.ZipFile(io.BytesIO(archive)).read("data.yaml").decode()
-        assert 'names:\n  0: "weld_pool"\n  1: "wire"\n  2: "spatter"\n' in data
+        assert "names:\n  0: weld_pool\n  1: wire\n  2: spatter\n" in data
     if fmt == "cvat":
         assert "images/run7 0001.png" in names  # the task's frames are matched by name
     _, token = token_for(session_factory, "bea", Role.admin)

@@ -269,3 +269,25 @@ def test_removing_a_class_labels_hold_is_a_conflict_unless_forced(
     assert forced.status_code == 200 and forced.json()["version"] == 3
     label = client.get(f"/api/v1/frames/{frame}/label", headers=auth(anna)).json()
     assert label["objects"] == [{"class": "wire tip", "points": {"tip": [1.0, 1.0]}}]  # kept
+
+
+def test_two_admins_saving_one_version_at_once_one_wins(
+    client: TestClient, people, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The second of two saves that both read version 0 meets the first's row (the version is
+    the key): a 409 naming version 1, and nothing of the second is kept."""
+    from app.labelconfig import service
+
+    assert _put(client, people["admin"], LAB, 0).status_code == 200
+    real, calls = service.current, []
+
+    def read_before_the_other_saved(session):  # type: ignore[no-untyped-def]
+        calls.append(1)
+        return service.Current(0, service.builtin()) if len(calls) == 1 else real(session)
+
+    monkeypatch.setattr(service, "current", read_before_the_other_saved)
+    late = _put(client, people["admin"], {"classes": [{"name": "bead", "kind": "mask"}]}, 0)
+    assert late.status_code == 409 and late.json()["version"] == 1, late.text
+    monkeypatch.undo()
+    now = client.get("/api/v1/label-config", headers=auth(people["anna"])).json()
+    assert now["version"] == 1 and "bead" not in [c["name"] for c in now["classes"]]
