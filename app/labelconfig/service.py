@@ -153,7 +153,8 @@ def checked_objects(
             kept["points"] = _points(item.get("points"), spec, height, width)
         else:
             kept |= _region(item, name, height, width)
-        values = _attributes({a["name"]: a for a in spec.get("attributes", [])}, item, name)
+        given = item.get("attributes", {})
+        values = _attributes({a["name"]: a for a in spec.get("attributes", [])}, given, name)
         if values:
             kept["attributes"] = values
         stored.append(kept)
@@ -167,8 +168,8 @@ def _unknown(name: str, classes: dict[str, Any]) -> str:
     return f"There is no class {name!r} in the label configuration (its other classes: {others})."
 
 
-def _attributes(specs: dict[str, Any], item: dict[str, Any], owner: str) -> dict[str, Any]:
-    given = item.get("attributes", {}) if "class" in item else item
+def _attributes(specs: dict[str, Any], given: Any, owner: str) -> dict[str, Any]:
+    """``given`` ({name: value}) checked against the attribute ``specs`` of ``owner``."""
     if not isinstance(given, dict):
         raise InvalidInputError(f"The attributes of {owner} are not an object of names.")
     values: dict[str, Any] = {}
@@ -188,13 +189,9 @@ def _attribute_value(spec: dict[str, Any], value: Any, owner: str) -> Any:
         return value
     if kind == "text" and isinstance(value, str) and len(value) <= 1000:
         return value
-    if kind == "number" and isinstance(value, int | float) and not isinstance(value, bool):
+    if kind == "number" and _finite(value):
         low, high = spec.get("min"), spec.get("max")
-        if (
-            math.isfinite(value)
-            and (low is None or value >= low)
-            and (high is None or value <= high)
-        ):
+        if (low is None or value >= low) and (high is None or value <= high):
             return value
     wanted = {
         "choice": f"one of {', '.join(map(repr, spec.get('options') or []))}",
@@ -205,6 +202,16 @@ def _attribute_value(spec: dict[str, Any], value: Any, owner: str) -> Any:
         + (f" to {spec['max']:g}" if spec.get("max") is not None else ""),
     }[kind]
     raise InvalidInputError(f"The attribute {name!r} of {owner} is {wanted}, not {value!r}.")
+
+
+def _finite(value: Any) -> bool:
+    """A JSON number that is a finite float (not a bool, not an integer too large for one)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
 
 
 def _points(given: Any, spec: dict[str, Any], height: int, width: int) -> dict[str, list[float]]:
@@ -218,11 +225,7 @@ def _points(given: Any, spec: dict[str, Any], height: int, width: int) -> dict[s
             raise InvalidInputError(
                 f"The class {name!r} has no point {key!r} (its points: {', '.join(allowed)})."
             )
-        if (
-            not isinstance(xy, list | tuple)
-            or len(xy) != 2
-            or not all(isinstance(v, int | float) and math.isfinite(v) for v in xy)
-        ):
+        if not isinstance(xy, list | tuple) or len(xy) != 2 or not all(map(_finite, xy)):
             raise InvalidInputError(f"The point {key!r} of {name!r} is not [x, y].")
         x, y = float(xy[0]), float(xy[1])
         if not (0 <= x <= width and 0 <= y <= height):
@@ -266,7 +269,7 @@ def _rle(rle: Any, height: int, width: int) -> NDArray[np.bool_]:
     if (
         not isinstance(rle, dict)
         or not isinstance(rle.get("counts"), str)
-        or list(rle.get("size") or []) != [height, width]
+        or rle.get("size") != [height, width]
     ):
         raise InvalidInputError(
             f"An rle is COCO's compressed {{'size': [{height}, {width}], 'counts': str}}."

@@ -216,6 +216,22 @@ def test_objects_tags_and_attributes_are_stored_with_the_label(client: TestClien
             [{"class": "spatter", "polygons": [[[1, 1], [3, 1], [3, 3]]], "attributes": {"x": 1}}],
             "no attribute 'x'",
         ),
+        ([{"class": "wire tip", "points": {"tip": [True, 3]}}], "is not [x, y]"),
+        ([{"class": "wire", "rle": {"size": 5, "counts": "x"}}], "compressed"),
+        (
+            [
+                {
+                    "class": "spatter",
+                    "polygons": [[[1, 1], [3, 1], [3, 3]]],
+                    "attributes": {"speed": 10**400},
+                }
+            ],
+            "from 0 to 10",
+        ),
+        (
+            [{"class": "spatter", "polygons": [[[1, 1], [3, 1], [3, 3]]], "attributes": "x"}],
+            "not an object",
+        ),
     ],
 )
 def test_objects_the_configuration_does_not_allow_are_refused(
