@@ -255,6 +255,8 @@ def get_label_history(
             source=r.source,
             review=r.review,
             review_comment=r.review_comment,
+            objects=r.objects or [],
+            tags=(r.frame_tags or {}).get("tags", []),
             user=name,
             created_at=r.created_at,
         )

@@ -217,6 +217,10 @@ class LabelRevisionOut(BaseModel):
     source: dict[str, Any] | None = None
     review: ReviewState | None = None
     review_comment: str | None = None
+    objects: list[dict[str, Any]] = Field(
+        default_factory=list, description="The other classes' objects at this revision."
+    )
+    tags: list[str] = Field(default_factory=list, description="The frame's tags then.")
     user: str | None
     created_at: dt.datetime
 

@@ -4,7 +4,9 @@ file is refused for a class it does not know."""
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -137,3 +139,57 @@ def test_each_format_keeps_the_pool_beside_an_unknown_class(client, make_user, f
     assert sum(result["classes"]["unknown"].values()) == (1 if fmt == "coco" else 2)
     label = _labels(client, token)["a.png"]
     assert label_mask(label)[12:28, 12:38].all() and not label_mask(label)[45:, 65:].any()
+
+
+def test_the_command_line_maps_classes(tmp_path) -> None:
+    """`weldpool import-labels --class-map`: the file's `filler` lines become `wire` objects of
+    an instance configured with a wire class."""
+    import sqlalchemy as sa
+    from sqlalchemy.orm import Session
+
+    from app.db import create_db_engine
+    from app.models import Label, LabelConfig
+    from app.schema import migrate
+    from tests.helpers import run_cli
+
+    folder, home = tmp_path / "yolo", tmp_path / "home"
+    with zipfile.ZipFile(
+        io.BytesIO(_yolo(["weld_pool", "filler"], {"a": f"0 {SQUARE}\n1 {WIRE}\n"}))
+    ) as z:
+        z.extractall(folder)
+    home.mkdir()
+    engine = create_db_engine(f"sqlite:///{home / 'weldpool.sqlite3'}")
+    migrate(engine)
+    with Session(engine) as session:
+        session.add(
+            LabelConfig(
+                version=1,
+                config={
+                    "classes": [{"name": "pool", "kind": "mask"}, {"name": "wire", "kind": "mask"}]
+                },
+            )
+        )
+        session.commit()
+    env = {"WELDPOOL_HOME": str(home)}
+    added = run_cli(
+        "user",
+        "add",
+        "admin",
+        "--role",
+        "admin",
+        "--password-stdin",
+        env=env,
+        stdin="correct horse\n",
+    )
+    assert added.returncode == 0, added.stderr
+    done = run_cli(
+        "import-labels", folder, "--format", "yolo", "--class-map", "filler=wire", env=env
+    )
+    assert done.returncode == 0, done.stderr
+    assert "1 labels and 0 keypoint sets imported" in done.stderr
+    wrong = run_cli("import-labels", folder, "--format", "yolo", "--class-map", "filler", env=env)
+    assert wrong.returncode != 0 and "is not file_name=our_name" in wrong.stderr
+    with Session(engine) as session:
+        objects = session.scalar(sa.select(Label.objects))
+    engine.dispose()
+    assert [o["class"] for o in objects] == ["wire"] and objects[0]["area"] == 30 * 20

@@ -181,6 +181,9 @@ def test_objects_tags_and_attributes_are_stored_with_the_label(client: TestClien
     cleared = corrected_label(_pool(), base_revision=2) | {"objects": []}
     after = client.put(f"/api/v1/frames/{frame}/label", json=cleared, headers=auth(anna)).json()
     assert after["objects"] == [] and after["tags"] == ["humping"]
+    history = client.get(f"/api/v1/frames/{frame}/label/history", headers=auth(anna)).json()
+    assert [len(r["objects"]) for r in history] == [3, 3, 0]  # each revision its own
+    assert history[0]["objects"] == label["objects"] and history[0]["tags"] == ["humping"]
 
 
 @pytest.mark.parametrize(
