@@ -116,6 +116,7 @@ def _sort_classes(
                 report.classes["no_area"][other.name] += 1
             else:
                 other.kind = spec["kind"]
+                other.attributes = labelconfig.valid_attributes(spec, other.attributes)
                 report.classes["kept"][other.name] += 1
 
 

@@ -168,6 +168,19 @@ def _unknown(name: str, classes: dict[str, Any]) -> str:
     return f"There is no class {name!r} in the label configuration (its other classes: {others})."
 
 
+def valid_attributes(spec: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """The attributes among ``given`` that class ``spec`` defines, with a value it allows
+    (an import keeps those and leaves the rest out)."""
+    specs = {a["name"]: a for a in spec.get("attributes", [])}
+    kept = {}
+    for key, value in given.items():
+        try:
+            kept |= _attributes(specs, {key: value}, spec["name"])
+        except InvalidInputError:
+            continue
+    return kept
+
+
 def _attributes(specs: dict[str, Any], given: Any, owner: str) -> dict[str, Any]:
     """``given`` ({name: value}) checked against the attribute ``specs`` of ``owner``."""
     if not isinstance(given, dict):

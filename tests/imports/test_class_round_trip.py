@@ -25,7 +25,11 @@ CONFIG = {
     "version": 0,
     "classes": [
         {"name": "wire", "kind": "mask", "color": "#00aaff"},
-        {"name": "spatter", "kind": "instances"},
+        {
+            "name": "spatter",
+            "kind": "instances",
+            "attributes": [{"name": "size", "type": "choice", "options": ["small", "large"]}],
+        },
     ],
 }
 
@@ -83,7 +87,8 @@ def _exported(tmp_path, fmt: str) -> tuple[bytes, dict[str, int]]:
         stored = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
         ids = {f["original_name"]: f["id"] for f in stored}
         objects = [{"class": "wire", "mask_png": mask_b64(WIRE)}] + [
-            {"class": "spatter", "mask_png": mask_b64(m)} for m in SPATTER
+            {"class": "spatter", "mask_png": mask_b64(m), "attributes": {"size": size}}
+            for m, size in zip(SPATTER, ["small", "large"], strict=True)
         ]
         body = corrected_label(POOL) | {"objects": objects}
         saved = client.put(f"/api/v1/frames/{ids[names[0]]}/label", json=body, headers=auth(token))
@@ -124,3 +129,5 @@ def test_a_round_trip_keeps_the_pool_and_the_objects(
     for got, sent in zip(kept, [WIRE, *SPATTER], strict=True):
         assert np.array_equal(got, sent), fmt  # boxes: exact in every format
     assert labels["run7 0002.png"]["objects"] == []
+    sizes = [o.get("attributes", {}).get("size") for o in first["objects"]]
+    assert sizes == ([None, "small", "large"] if fmt == "coco" else [None] * 3)  # COCO only

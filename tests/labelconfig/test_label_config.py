@@ -310,3 +310,12 @@ def test_two_admins_saving_one_version_at_once_one_wins(
     monkeypatch.undo()
     now = client.get("/api/v1/label-config", headers=auth(people["anna"])).json()
     assert now["version"] == 1 and "bead" not in [c["name"] for c in now["classes"]]
+
+
+def test_an_import_keeps_the_attributes_a_class_allows() -> None:
+    from app.labelconfig.service import valid_attributes
+
+    spatter = LAB["classes"][2]
+    given = {"size": "small", "hot": "yes", "speed": 20, "colour": "red"}
+    assert valid_attributes(spatter, given) == {"size": "small"}
+    assert valid_attributes(spatter, {"hot": True, "speed": 9.5}) == {"hot": True, "speed": 9.5}

@@ -162,8 +162,10 @@ def _read_document(
 
 def _other(name: str, annotation: dict[str, Any]) -> OtherShape:
     """A region of another category (its shape None where it is not one COCO can state)."""
+    attributes = annotation.get("attributes")
+    given = attributes if isinstance(attributes, dict) else {}
     try:
-        return OtherShape(name, _shape(annotation.get("segmentation")))
+        return OtherShape(name, _shape(annotation.get("segmentation")), attributes=given)
     except (InvalidInputError, *DAMAGED):
         return OtherShape(name)
 

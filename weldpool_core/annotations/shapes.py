@@ -293,6 +293,7 @@ class OtherShape:
     name: str
     shape: Shape | None = None
     kind: str | None = None  # "mask" or "instances", once the service knows the class
+    attributes: dict[str, Any] = field(default_factory=dict)  # as the file gives them
 
 
 def other_objects(
@@ -304,20 +305,20 @@ def other_objects(
     each region that does not fit the frame was left out (the pool's label stays)."""
     from weldpool_core.outline import coco_mask
 
-    regions: list[tuple[str, list[Shape]]] = []
+    regions: list[tuple[str, list[Shape], dict[str, Any]]] = []
     masks: dict[str, list[Shape]] = {}
     for other in others:
         if other.shape is None or other.kind not in ("mask", "instances"):
             continue
         if other.kind == "instances":
-            regions.append((other.name, [other.shape]))
+            regions.append((other.name, [other.shape], other.attributes))
         elif other.name in masks:
             masks[other.name].append(other.shape)
         else:
             masks[other.name] = [other.shape]
-            regions.append((other.name, masks[other.name]))
+            regions.append((other.name, masks[other.name], other.attributes))
     objects, problems = [], []
-    for name, shapes in regions:
+    for name, shapes, attributes in regions:
         try:
             union = np.zeros((height, width), bool)
             for shape in merged(shapes):
@@ -327,7 +328,8 @@ def other_objects(
             continue
         if union.any():
             coco = coco_mask(union)
-            objects.append({"class": name, "rle": coco.rle, "area": coco.area, "bbox": coco.bbox})
+            made = {"class": name, "rle": coco.rle, "area": coco.area, "bbox": coco.bbox}
+            objects.append(made | ({"attributes": attributes} if attributes else {}))
     return objects, problems
 
 
