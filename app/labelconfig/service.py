@@ -172,7 +172,7 @@ def valid_attributes(spec: dict[str, Any], given: dict[str, Any]) -> dict[str, A
     """The attributes among ``given`` that class ``spec`` defines, with a value it allows
     (an import keeps those and leaves the rest out)."""
     specs = {a["name"]: a for a in spec.get("attributes", [])}
-    kept = {}
+    kept: dict[str, Any] = {}
     for key, value in given.items():
         try:
             kept |= _attributes(specs, {key: value}, spec["name"])
