@@ -44,6 +44,7 @@ from app.imports.routes import router as imports_router
 from app.jobs.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.jobs.registry import load_job_handlers
 from app.jobs.routes import router as jobs_router
+from app.labelconfig.routes import router as label_config_router
 from app.live.routes import router as live_router
 from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
@@ -279,6 +280,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.include_router(teacher_router, prefix=api, dependencies=protected)
     app.include_router(review_router, prefix=api, dependencies=protected)
     app.include_router(agreement_router, prefix=api, dependencies=protected)
+    app.include_router(label_config_router, prefix=api, dependencies=protected)
     app.include_router(imports_router, prefix=api, dependencies=protected)
     app.include_router(training_router, prefix=api, dependencies=protected)
     app.include_router(metrics_router, prefix=api, dependencies=protected)

@@ -17,7 +17,7 @@ LAYERS = (
     ("imports",),
     ("review", "timeline", "metrics", "process", "web"),
     ("teacher", "training", "live"),
-    ("frames",),
+    ("frames", "labelconfig"),
     ("proposals",),
     ("jobs", "users", "system", "storage", "core"),
 )
@@ -215,7 +215,6 @@ def test_no_function_over_80_lines() -> None:
 LONG_MODULES = {
     "app/storage/s3.py": 741,
     "weldpool_core/student/train.py": 697,
-    "app/core/models.py": 629,
     "app/training/tasks.py": 622,
 }
 """Modules over ``MAX_MODULE_LINES`` and the lines each may have at most: they may only shrink

@@ -437,3 +437,41 @@ def test_ids_are_never_reused_after_0018_on_a_filled_database(database_url: str)
         assert connection.exec_driver_sql("SELECT count(*) FROM frames").scalar_one() == 3
     assert _index_definitions(engine) == indexes
     engine.dispose()
+
+
+def test_0025_leaves_every_label_the_pools_as_it_was(database_url: str) -> None:
+    """On a filled database, 0025 adds the label configuration and the objects and tags columns
+    in place: every label and revision holds what it held (the pool's), with no objects or
+    tags, and the instance has no configuration row (the pool alone); and back."""
+    from alembic import command
+
+    from app.core.db import alembic_config
+
+    engine = create_db_engine(database_url)
+    migrate(engine, "0024")
+    counts = _fill(engine)
+    held = "SELECT frame_id, revision, status, mask_path, proposal_id FROM {} ORDER BY frame_id"
+    with engine.connect() as connection:
+        before = {
+            t: connection.exec_driver_sql(held.format(t)).all()
+            for t in ("labels", "label_revisions")
+        }
+    command.upgrade(alembic_config(engine), "0025")
+    with engine.connect() as connection:
+        after = {t: connection.exec_driver_sql(held.format(t)).all() for t in before}
+        new = {
+            t: connection.exec_driver_sql(f"SELECT objects, frame_tags FROM {t}").all()
+            for t in before
+        }
+        configs = connection.exec_driver_sql("SELECT count(*) FROM label_configs").scalar_one()
+        total = {
+            t: connection.exec_driver_sql(f"SELECT count(*) FROM {t}").scalar_one() for t in counts
+        }
+    assert after == before and len(after["labels"]) == 3 and total == counts
+    assert all(row == (None, None) for rows in new.values() for row in rows)
+    assert configs == 0
+    command.downgrade(alembic_config(engine), "0024")
+    with engine.connect() as connection:
+        assert {t: connection.exec_driver_sql(held.format(t)).all() for t in before} == before
+        assert "label_configs" not in sa.inspect(connection).get_table_names()
+    engine.dispose()

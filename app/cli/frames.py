@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from app.cli.base import IMAGE_SUFFIXES, friendly_errors, load_settings, main, open_sessions
 from app.core.errors import WeldpoolError
+
+if TYPE_CHECKING:
+    from app.imports.schemas import ImportOptions
 
 IMPORT_BATCH = 64
 
@@ -212,6 +216,12 @@ def _import_frames(
     help="What the file's hand-placed pool keypoints become (validation: the frame does not "
     "train).",
 )
+@click.option(
+    "--class-map",
+    default=None,
+    help="The file's class names as ours, 'theirs=ours,…' (regions of classes the label "
+    "configuration has become objects; the others are counted).",
+)
 @click.option("--user", "username", default=None, help="Import as this user (default: an admin).")
 @friendly_errors
 def import_labels_cmd(
@@ -221,35 +231,39 @@ def import_labels_cmd(
     overwrite: bool,
     category: str | None,
     keypoint_role: str,
+    class_map: str | None,
     username: str | None,
 ) -> None:
     """Import labels made elsewhere: a folder, a zip, or an annotation file beside its images,
     here or in a bucket (s3://bucket/prefix)."""
-    from app.imports.schemas import checked_format
+    from app.imports.schemas import ImportOptions, checked_class_map, checked_format
 
     settings = load_settings()
     checked_format(fmt)
+    options = ImportOptions(
+        format=fmt,
+        overwrite=overwrite,
+        category=category,
+        max_pixels=settings.max_image_pixels,
+        keypoints=keypoint_role,
+        review_stage=settings.review_stage,
+        class_map=checked_class_map(class_map),
+    )
     prepare_fresh_home(settings)
     with _local((path,), settings) as (local,):
         if not Path(local).exists():
             raise WeldpoolError(f"{path} does not exist.")
-        _import_labels(
-            settings, local, fmt, sequence_name, overwrite, category, keypoint_role, username
-        )
+        _import_labels(settings, local, options, sequence_name, username)
 
 
 def _import_labels(
     settings: Any,
     path: str,
-    fmt: str,
+    options: ImportOptions,
     sequence_name: str | None,
-    overwrite: bool,
-    category: str | None,
-    keypoint_role: str,
     username: str | None,
 ) -> None:
     from app.frames import sequences
-    from app.imports.schemas import ImportOptions
     from app.imports.service import import_labels
     from app.storage import Storage
     from app.users.service import importing_user
@@ -260,15 +274,7 @@ def _import_labels(
         sequence = (
             sequences.sequence_by_name(session, sequence_name, user) if sequence_name else None
         )
-        options = ImportOptions(
-            format=fmt,
-            sequence_id=sequence.id if sequence else None,
-            overwrite=overwrite,
-            category=category,
-            max_pixels=settings.max_image_pixels,
-            keypoints=keypoint_role,
-            review_stage=settings.review_stage,
-        )
+        options = dataclasses.replace(options, sequence_id=sequence.id if sequence else None)
         source = open_source(path)
         try:
             with click.progressbar(length=100, label="labels", file=sys.stderr) as bar:

@@ -18,6 +18,8 @@ from app.core.job_tables import JobChunk as JobChunk
 from app.core.job_tables import JobScope as JobScope
 from app.core.job_tables import JobStatus as JobStatus
 from app.core.job_tables import Worker as Worker
+from app.core.process_tables import RunSignature as RunSignature  # a run's stored signature
+from app.core.process_tables import UnstableFrame as UnstableFrame
 
 if TYPE_CHECKING:
     import numpy as np
@@ -376,6 +378,10 @@ class Label(Base):
     # comment; who decided last (``updated_by`` of that revision) is in the history.
     review: Mapped[ReviewState | None] = mapped_column(enum_type(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
+    # The other configured classes' objects ([{"class", …}], ``app.labelconfig``) and the
+    # frame's tags and attributes ({"tags": […], "attributes": {…}}); NULL: the pool alone.
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
 
 
 class LabelRevision(Base):
@@ -399,6 +405,21 @@ class LabelRevision(Base):
     source: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.source
     review: Mapped[ReviewState | None] = mapped_column(enum_type(ReviewState, "review_state"))
     review_comment: Mapped[str | None] = mapped_column(sa.String(1000))
+    user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)  # as Label.objects
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)  # as Label.frame_tags
+
+
+class LabelConfig(Base):
+    """One version of the instance's label configuration (``app.labelconfig``): rows are only
+    added; the highest ``version`` is in force. Two admins saving on one version: the second
+    insert meets the first's key (409)."""
+
+    __tablename__ = "label_configs"
+
+    version: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    config: Mapped[dict[str, Any]] = mapped_column(JSONType)
     user_id: Mapped[int | None] = mapped_column(sa.ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
@@ -473,58 +494,6 @@ class DoomedFile(Base):
     since: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
-class RunSignature(Base):
-    """A weld run's signature (``weldpool_core.signature``), stored so the process map reads
-    rows instead of masks: the figures the map plots in columns (in ``unit``: mm with the run's
-    scale, else px), everything else (trends, stretches with their frames, the rolling CV) in
-    ``detail``. ``stale`` is set by ``_signatures_go_stale`` in the transaction that changes the
-    run's labels, proposals or frames; the next read computes it again."""
-
-    __tablename__ = "run_signatures"
-
-    id: Mapped[int] = mapped_column(primary_key=True)
-    sequence_id: Mapped[int] = mapped_column(
-        sa.ForeignKey("sequences.id", ondelete="CASCADE"), unique=True
-    )
-    stale: Mapped[bool] = mapped_column(default=False)
-    policy_source: Mapped[str] = mapped_column(sa.String(300))
-    """The proposal source the policy showed when it was computed (a new one: stale)."""
-    unit: Mapped[str] = mapped_column(sa.String(8))
-    frames: Mapped[int]
-    measured: Mapped[int]
-    width: Mapped[float | None] = mapped_column(sa.Float)
-    width_q1: Mapped[float | None] = mapped_column(sa.Float)
-    width_q3: Mapped[float | None] = mapped_column(sa.Float)
-    length: Mapped[float | None] = mapped_column(sa.Float)
-    length_q1: Mapped[float | None] = mapped_column(sa.Float)
-    length_q3: Mapped[float | None] = mapped_column(sa.Float)
-    area: Mapped[float | None] = mapped_column(sa.Float)
-    area_q1: Mapped[float | None] = mapped_column(sa.Float)
-    area_q3: Mapped[float | None] = mapped_column(sa.Float)
-    width_cv: Mapped[float | None] = mapped_column(sa.Float)
-    oscillation_hz: Mapped[float | None] = mapped_column(sa.Float)
-    oscillation_strength: Mapped[float | None] = mapped_column(sa.Float)
-    unstable_frames: Mapped[int] = mapped_column(default=0)
-    first_unstable_frame_id: Mapped[int | None]
-    detail: Mapped[dict[str, Any]] = mapped_column(JSONType, default=dict)
-    computed_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
-
-
-class UnstableFrame(Base):
-    """A frame inside one of its run's unstable stretches (the stored signature's): what the
-    frames list filters on and the review queue can favour."""
-
-    __tablename__ = "unstable_frames"
-
-    frame_id: Mapped[int] = mapped_column(
-        sa.ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True, autoincrement=False
-    )
-    sequence_id: Mapped[int] = mapped_column(
-        sa.ForeignKey("sequences.id", ondelete="CASCADE"), index=True
-    )
-    rolling_cv: Mapped[float | None] = mapped_column(sa.Float)
-
-
 STORED_PATH_COLUMNS = (
     Frame.path,
     Video.path,
@@ -542,10 +511,11 @@ def _ids_never_reused() -> None:
     """SQLite hands the highest id out again after that row is deleted unless a table says
     AUTOINCREMENT (PostgreSQL's sequences never do): every table with an integer id says it, so
     a page still open on a deleted frame, run or job can never reach another's (migration 0018
-    rebuilds the tables of an older database)."""
+    rebuilds the tables of an older database). A key the service picks itself
+    (``autoincrement=False``, as ``LabelConfig.version``) is never handed out: none."""
     for table in Base.metadata.tables.values():
         key = list(table.primary_key.columns)
-        if len(key) == 1 and isinstance(key[0].type, sa.Integer):
+        if len(key) == 1 and isinstance(key[0].type, sa.Integer) and key[0].autoincrement:
             table.dialect_kwargs["sqlite_autoincrement"] = True
 
 

@@ -14,7 +14,7 @@ from app.core.housekeeping import prune_shared
 from app.core.security import CurrentUser
 from app.frames.multipart import one_spooled_file, openapi_form, optional_int
 from app.frames.sequences import get_sequence
-from app.imports.schemas import KEYPOINT_ROLES
+from app.imports.schemas import KEYPOINT_ROLES, checked_class_map
 from app.imports.uploads import IMPORTS_DIR, keep_upload
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
@@ -44,6 +44,7 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
         "category": category,
         "sequence_id": optional_int(form, "sequence_id"),
         "keypoints": keypoints,
+        "class_map": checked_class_map(form.get("class_map")),
     }
 
 
@@ -58,6 +59,7 @@ def _checked(form: dict[str, str], name: str) -> dict[str, Any]:
             "sequence_id": {"type": "integer"},
             "overwrite": {"type": "boolean", "default": False},
             "category": {"type": "string"},
+            "class_map": {"type": "string", "description": "theirs=ours,… (class names)"},
             "keypoints": {
                 "type": "string",
                 "enum": ["validation", "label"],
@@ -77,9 +79,11 @@ async def import_labels(
     """Import labels made elsewhere: a zip (annotations with their images, or a mask folder),
     or one COCO, LabelMe or CVAT file whose images are already stored. Hand-placed pool
     keypoints become validation keypoints (`keypoints=validation`, the frame joins the
-    validation split) or the label's own (`keypoints=label`). A job reads it; its
-    result counts `frames`, `labels` and `keypoints` and lists every `skipped` and `refused`
-    item with its reason."""
+    validation split) or the label's own (`keypoints=label`). Regions of other classes become
+    objects of the label-configuration's classes (`class_map` renames the file's: `theirs=ours,…`);
+    the rest are counted, never refusing the file. A job reads it; its result counts `frames`,
+    `labels` and `keypoints`, lists every `skipped` and `refused` item with its reason, and
+    counts the other classes' regions by outcome (`classes`: kept, unknown, …)."""
     async with one_spooled_file(request, "zip or annotation file") as (fields, name, upload):
         params = _checked(fields, name)
         if params["sequence_id"] is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,6 +17,15 @@ KEYPOINT_ROLES = ("validation", "label")
 validation split and does not train), or the label's own keypoints (it trains on them)."""
 
 
+CLASS_OUTCOMES = {
+    "kept": "",
+    "unknown": "Skipped {} shape(s) of classes the label configuration does not have",
+    "no_area": "Skipped {} shape(s) of configured classes that have no area to keep",
+    "without_pool": "Skipped {} shape(s) of other classes on images without a pool",
+}
+"""What became of a file's regions of classes other than the pool, and how ``skipped`` says it."""
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     format: str
@@ -25,6 +35,7 @@ class ImportOptions:
     max_pixels: int = 25_000_000
     keypoints: str = "validation"  # KEYPOINT_ROLES
     review_stage: bool = False  # settings.review_stage: labels go through ``saved_review``
+    class_map: dict[str, str] = field(default_factory=dict)  # the file's class → ours
 
 
 @dataclass
@@ -37,6 +48,10 @@ class ImportReport:
     keypoints: int = 0
     skipped: list[Refusal] = field(default_factory=list)
     refused: list[Refusal] = field(default_factory=list)
+    classes: dict[str, Counter[str]] = field(
+        default_factory=lambda: {k: Counter() for k in CLASS_OUTCOMES}
+    )
+    """Regions of classes other than the pool, by outcome (``CLASS_OUTCOMES``) and class."""
 
     def as_result(self) -> dict[str, Any]:
         def listed(items: list[Refusal]) -> list[dict[str, str]]:
@@ -50,7 +65,34 @@ class ImportReport:
             "skipped_count": len(self.skipped),
             "refused": listed(self.refused),
             "refused_count": len(self.refused),
+            "classes": {k: dict(sorted(v.items())) for k, v in self.classes.items()},
         }
+
+    def skip_classes(self, source: str) -> None:
+        """One line in ``skipped`` for each outcome of other classes' regions not kept."""
+        for outcome, why in CLASS_OUTCOMES.items():
+            counts = self.classes[outcome]
+            if outcome != "kept" and counts:
+                listed = ", ".join(f"{name} ×{n}" for name, n in counts.most_common())
+                total = sum(counts.values())
+                self.skipped.append(Refusal(source, f"{why.format(total)}: {listed}."))
+
+
+def checked_class_map(text: str | None) -> dict[str, str]:
+    """``file=ours,other=ours`` (the CLI's and the form's mapping of class names) as a dict."""
+    mapping: dict[str, str] = {}
+    for pair in (text or "").split(","):
+        if not pair.strip():
+            continue
+        foreign, _, ours = pair.partition("=")
+        if not foreign.strip() or not ours.strip():
+            raise InvalidInputError(
+                f"The class mapping {pair.strip()!r} is not file_name=our_name."
+            )
+        mapping[foreign.strip()] = ours.strip()
+    if len(mapping) > 200:
+        raise InvalidInputError("A class mapping names at most 200 classes.")
+    return mapping
 
 
 def checked_format(name: str) -> str:

@@ -31,6 +31,8 @@ from app.imports.pool import BATCH, Check, Contents, computed
 from app.imports.runs import Runs
 from app.imports.schemas import ImportOptions, ImportReport, checked_format
 from app.jobs.registry import counted
+from app.labelconfig import service as labelconfig
+from app.labelconfig.schemas import POOL
 from app.proposals.files import lock_frames, masks_in_use
 from app.review.service import (
     check_keypoints,
@@ -76,6 +78,8 @@ def import_labels(
             raise
         parsed = Parsed([], [Refusal(source.name, exc.message)])  # nothing left to read
     report = ImportReport(refused=[*source.refused, *parsed.refused])
+    _sort_classes(parsed, labelconfig.current(session).classes(), options.class_map, report)
+    report.skip_classes(source.name)
     runs = Runs(session, source.name, options.sequence_id, user, report.refused)
     total = len(parsed.labels)
     processes = total >= PROCESS_MIN
@@ -94,6 +98,26 @@ def import_labels(
     if pending is not None:
         _finish(*pending, total, progress)
     return report
+
+
+def _sort_classes(
+    parsed: Parsed, classes: dict[str, dict], mapping: dict[str, str], report: ImportReport
+) -> None:
+    """Each region of another class (under its mapped name): kept as an object of a configured
+    mask or instances class, else counted by why it is not (``ImportReport.classes``)."""
+    report.classes["without_pool"].update(mapping.get(n, n) for n in parsed.without_pool.elements())
+    for label in parsed.labels:
+        for other in label.others:
+            other.name = mapping.get(other.name, other.name)
+            spec = classes.get(other.name) if other.name != POOL else None
+            if spec is None:
+                report.classes["unknown"][other.name] += 1
+            elif other.shape is None or spec["kind"] not in ("mask", "instances"):
+                report.classes["no_area"][other.name] += 1
+            else:
+                other.kind = spec["kind"]
+                other.attributes = labelconfig.valid_attributes(spec, other.attributes)
+                report.classes["kept"][other.name] += 1
 
 
 def still_active(session: Session, user: User) -> None:
@@ -486,10 +510,13 @@ class _Batch:
                 "updated_at": utcnow(),
                 "review": saved_review(self.user, self.options.review_stage),
                 "review_comment": None,
+                "objects": content.objects or None,
+                "frame_tags": None,
             }
             base = current.revision if current is not None else 0
             write_label(self.session, frame, current, base, values, flush=False)
             counts[0] += 1
+            self.report.skipped += [Refusal(item.item, why) for why in content.left_out]
         if manual is not None and (frame.id not in self.has_manual or self.options.overwrite):
             # Without overwrite, only where there were none when read (0): keypoints a reviewer
             # saved since make a conflict, and the batch is read again (``finish``).

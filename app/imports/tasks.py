@@ -30,6 +30,7 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
         keypoints=params.get("keypoints", "validation"),
         max_pixels=ctx.settings.max_image_pixels,
         review_stage=ctx.settings.review_stage,
+        class_map=params.get("class_map") or {},
     )
     try:
         path = storage.fetch(name)  # from the object store when the web process is elsewhere

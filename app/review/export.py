@@ -9,8 +9,11 @@ record carries its weld run's process parameters) with the images beside it. ``y
 Ultralytics YOLO segmentation layout — ``data.yaml``, ``images/<split>/`` and ``labels/<split>/``
 (``train``, ``val``, ``test``), one line ``0 x1 y1 x2 y2 …`` per region of the mask (polygons
 from ``weldpool_core.outline.region_outlines``, coordinates 0–1 of the frame). YOLO polygons
-cannot hold holes: a region's holes are left out there (COCO keeps them). Stems are the frame
-ids, zero-padded.
+cannot hold holes: a region's holes are left out there (COCO keeps them). ``masks`` and
+``coco`` name the images by frame id, zero-padded; ``yolo`` and ``cvat`` by their original file
+names, unique within the export (``export_classes.file_names``: CVAT matches a task's frames by
+name). COCO, YOLO and CVAT carry the label configuration's mask and instances classes beside the
+pool (``export_classes``).
 
 ``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
 no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
@@ -46,6 +49,16 @@ from app.core.models import Frame, Label, LabelStatus, Sequence, Split, Validati
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.proposals.files import load_mask
+from app.review.export_classes import (
+    Rows,
+    coco_objects,
+    cvat_objects,
+    file_names,
+    region_classes,
+    written_classes,
+    yaml_name,
+    yolo_lines,
+)
 from app.storage import EXPORTS_DIR, Storage
 from app.system.doctor import frame_file, frame_file_missing
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_box, rle_mask
@@ -155,16 +168,16 @@ def _rows(
 
 def export_rows(
     session: Session, sequence_id: int | None = None, split: Split | None = None
-) -> list[Any]:
-    """The rows of an export (frame, label, sequence, validation keypoints), loaded now so that
-    writing the zip needs no database session; 400 when there is no label to export, 404 for
-    no such run."""
+) -> Rows:
+    """The rows of an export (frame, label, sequence, validation keypoints) and the configured
+    classes it writes, loaded now so that writing the zip needs no database session; 400
+    when there is no label to export, 404 for no such run."""
     if sequence_id is not None:
         get_sequence(session, sequence_id)
     rows = _rows(session, sequence_id, split)
     if not rows:
         raise InvalidInputError("There are no accepted or corrected labels to export.")
-    return rows
+    return Rows(rows, region_classes(session))
 
 
 def build_export(
@@ -344,7 +357,8 @@ def _write_masks(
 def _write_coco(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
-    images, annotations = [], []
+    images, annotations, objects = [], [], []
+    classes = written_classes(rows)
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
     masks = _readable(storage, rows, skipped, lambda row: _stored_rle(storage, row[1]))
     for done, (frame, label, sequence, manual), image, encoded in masks:
@@ -390,7 +404,10 @@ def _write_coco(
         if manual is not None:
             annotation["validation_keypoints"] = manual.keypoints
         annotations.append(annotation)
+        objects += coco_objects(label, classes, frame.id)
         yield done
+    first = max((a["id"] for a in annotations), default=0) + 1  # after every pool's id
+    annotations += [o | {"id": first + i} for i, o in enumerate(objects)]
     coco = {
         "info": {"description": "weldpool reviewed labels", "version": "1.0"},
         "images": images,
@@ -402,7 +419,11 @@ def _write_coco(
                 "supercategory": "weld",
                 "keypoints": [f"keypoint_{i + 1}" for i in range(k)],
                 "skeleton": [],
-            }
+            },
+            *(
+                {"id": i + 2, "name": name, "supercategory": "weld"}
+                for i, name in enumerate(classes)
+            ),
         ],
     }
     archive.writestr("annotations.json", json.dumps(coco))
@@ -415,6 +436,8 @@ def _write_yolo(
     from the outlines stored with each label (traced from its mask for labels saved before)."""
     from weldpool_core.outline import normalised, region_outlines
 
+    classes, used = written_classes(rows), set()
+
     def label_file(row: Any) -> str:
         frame, label = row[0], row[1]
         outlines = label.mask_outlines
@@ -424,21 +447,23 @@ def _write_yolo(
             "0 " + " ".join(f"{v:.6f}" for v in normalised(points, frame.height, frame.width))
             for points in outlines
         ]
+        lines += yolo_lines(label, classes, frame.height, frame.width)
         return "\n".join(lines) + ("\n" if lines else "")
 
-    used = set()
+    names = file_names([row[0] for row in rows])
     for done, (frame, _, _, _), image, text in _readable(storage, rows, skipped, label_file):
         if image is not None:
             split = YOLO_SPLITS[frame.split.value]
             used.add(split)
-            stem = _stem(frame)
-            archive.write(image, f"images/{split}/{stem}{_extension(frame)}")
-            archive.writestr(f"labels/{split}/{stem}.txt", text)
+            name = names[frame.id]
+            archive.write(image, f"images/{split}/{name}")
+            archive.writestr(f"labels/{split}/{Path(name).stem}.txt", text)
         yield done
     splits = "".join(
         f"{name}: images/{name}\n" for name in ("train", "val", "test") if name in used
     )
-    archive.writestr("data.yaml", f"path: .\n{splits}names:\n  0: weld_pool\n")
+    ids = "".join(f"  {i}: {yaml_name(n)}\n" for i, n in enumerate(["weld_pool", *classes]))
+    archive.writestr("data.yaml", f"path: .\n{splits}names:\n{ids}")
 
 
 def _write_cvat(
@@ -449,13 +474,14 @@ def _write_cvat(
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
     elements: list[Any] = []
+    classes, names = written_classes(rows), file_names([row[0] for row in rows])
     masks = _readable(storage, rows, skipped, lambda row: _cvat_mask(storage, row[1]))
     for done, (frame, label, _, manual), path, mask in masks:
         if path is None:
             yield done
             continue
-        name = f"images/{_stem(frame)}{_extension(frame)}"
-        archive.write(path, name)
+        name = names[frame.id]  # as the task's own frames are named: CVAT matches by name
+        archive.write(path, f"images/{name}")
         image = CvatImage(
             id=len(elements),
             name=name,
@@ -464,10 +490,11 @@ def _write_cvat(
             mask=mask,
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
+            objects=cvat_objects(label, classes),
         )
         elements.append(cvat_image(image))
         yield done
-    archive.writestr("annotations.xml", cvat_document(elements, len(elements)))
+    archive.writestr("annotations.xml", cvat_document(elements, len(elements), classes))
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:

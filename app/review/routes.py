@@ -155,6 +155,9 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
         updated_at=label.updated_at,
         review=label.review,
         review_comment=label.review_comment,
+        objects=label.objects or [],
+        tags=(label.frame_tags or {}).get("tags", []),
+        attributes=(label.frame_tags or {}).get("attributes", {}),
     )
 
 
@@ -199,6 +202,7 @@ def put_label(
         keypoints=body.keypoints,
         proposal_id=body.proposal_id,
         review_stage=settings.review_stage,
+        others=service.OtherClasses(body.objects, body.tags, body.attributes),
     )
     maybe_retrain(session, queue, settings.retrain_every, user)
     return _label_out(storage, label, user)
@@ -251,6 +255,8 @@ def get_label_history(
             source=r.source,
             review=r.review,
             review_comment=r.review_comment,
+            objects=r.objects or [],
+            tags=(r.frame_tags or {}).get("tags", []),
             user=name,
             created_at=r.created_at,
         )

@@ -149,6 +149,20 @@ class LabelIn(InputModel):
         default=None,
         description="The proposal the label started from (default: the one the policy shows).",
     )
+    objects: list[dict[str, Any]] | None = Field(
+        default=None,
+        max_length=1000,
+        description="The other configured classes' objects (`/label-config`), each "
+        '`{"class", …}`: a mask or instances class\'s region as `rle`, `mask_png` or '
+        "`polygons`, a points class's `points` `{name: [x, y]}`, and `attributes`. "
+        "Omitted: the label's objects stay as they are; `[]` removes them.",
+    )
+    tags: list[str] | None = Field(
+        default=None, max_length=64, description="The frame's tags (omitted: as they are)."
+    )
+    attributes: dict[str, Any] | None = Field(
+        default=None, description="The frame's attributes (omitted: as they are)."
+    )
 
     @model_validator(mode="after")
     def _corrected_needs_a_change(self) -> LabelIn:
@@ -177,6 +191,12 @@ class LabelOut(BaseModel):
     review_comment: str | None = Field(
         default=None, description="Why a reviewer sent it back (or a note on approval)."
     )
+    objects: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description="The other classes' objects beside the pool's mask and keypoints.",
+    )
+    tags: list[str] = Field(default_factory=list, description="The frame's tags.")
+    attributes: dict[str, Any] = Field(default_factory=dict, description="The frame's attributes.")
 
 
 class ReviewIn(InputModel):
@@ -197,6 +217,10 @@ class LabelRevisionOut(BaseModel):
     source: dict[str, Any] | None = None
     review: ReviewState | None = None
     review_comment: str | None = None
+    objects: list[dict[str, Any]] = Field(
+        default_factory=list, description="The other classes' objects at this revision."
+    )
+    tags: list[str] = Field(default_factory=list, description="The frame's tags then.")
     user: str | None
     created_at: dt.datetime
 

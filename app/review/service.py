@@ -27,6 +27,7 @@ from app.core.models import (
     ValidationKeypoints,
 )
 from app.core.permissions import Action, may
+from app.labelconfig import service as labelconfig
 from app.proposals.files import (
     FrameDeleted,
     frame_exists,
@@ -267,6 +268,8 @@ def write_label(
             source=values.get("source"),
             review=values.get("review"),
             review_comment=values.get("review_comment"),
+            objects=values.get("objects"),
+            frame_tags=values.get("frame_tags"),
             user_id=values["updated_by_id"],
         )
     )
@@ -286,6 +289,7 @@ def save_label(
     keypoints: list[list[float]] | None,
     proposal_id: int | None = None,
     review_stage: bool = False,
+    others: OtherClasses | None = None,
 ) -> Label:
     """Accept, correct or reject a frame's proposal, guarded by the label's revision.
 
@@ -296,7 +300,8 @@ def save_label(
     raises ConflictError with the current revision. Every change is kept in the history.
     Keypoints of a corrected mask are recomputed by Algorithm 1 unless given. The label records
     the proposal it started from (``proposal_id``, default the one the policy shows) and whether
-    its mask differs from that proposal's.
+    its mask differs from that proposal's. ``others``: the other classes' objects and the
+    frame's tags and attributes (what is not given stays as the label holds it).
     """
     frame_id = frame.id
     lock_frame(session, frame_id)  # a deletion now waits for this save (PostgreSQL)
@@ -305,17 +310,22 @@ def save_label(
     mask, mask_path, keypoints = _label_content(frame, status, mask_png, keypoints, proposal)
     label = current_label(session, frame.id)
     check_base(session, frame.id, label, base_revision)  # refused before anything is written
+    extra = (others or OtherClasses()).columns(session, frame, label)
     fields, stored = mask_fields(storage, mask, mask_path, proposal)
-    values = fields | {
-        "status": status,
-        "keypoints": keypoints,
-        "proposal_id": proposal.id if proposal else None,
-        "source": None,  # drawn here, whatever an earlier revision was imported from
-        "updated_by_id": user.id,
-        "updated_at": utcnow(),
-        "review": saved_review(user, review_stage),
-        "review_comment": None,
-    }
+    values = (
+        fields
+        | extra
+        | {
+            "status": status,
+            "keypoints": keypoints,
+            "proposal_id": proposal.id if proposal else None,
+            "source": None,  # drawn here, whatever an earlier revision was imported from
+            "updated_by_id": user.id,
+            "updated_at": utcnow(),
+            "review": saved_review(user, review_stage),
+            "review_comment": None,
+        }
+    )
     try:
         label = write_label(session, frame, label, base_revision, values)
         session.commit()
@@ -333,6 +343,30 @@ def save_label(
     except sa.exc.InvalidRequestError:  # saved, then deleted with its frame at once
         raise FrameDeleted(frame_id) from None
     return label
+
+
+@dataclass(frozen=True)
+class OtherClasses:
+    """What a save says of the classes beside the pool (None: unchanged)."""
+
+    objects: list[dict[str, Any]] | None = None
+    tags: list[str] | None = None
+    attributes: dict[str, Any] | None = None
+
+    def columns(self, session: Session, frame: Frame, label: Label | None) -> dict[str, Any]:
+        """The label's ``objects`` and ``frame_tags``: the given ones checked against the
+        label configuration, the others as ``label`` holds them."""
+        objects = label.objects if label is not None else None
+        held = (label.frame_tags if label is not None else None) or {}
+        if self.objects is None and self.tags is None and self.attributes is None:
+            return {"objects": objects, "frame_tags": held or None}
+        config = labelconfig.current(session)
+        if self.objects is not None:
+            objects = labelconfig.checked_objects(config, self.objects, frame.height, frame.width)
+        tags = self.tags if self.tags is not None else held.get("tags", [])
+        attributes = self.attributes if self.attributes is not None else held.get("attributes", {})
+        frame_tags = labelconfig.checked_frame_fields(config, tags, attributes)
+        return {"objects": objects, "frame_tags": frame_tags}
 
 
 def saved_review(user: User, review_stage: bool) -> ReviewState | None:
@@ -385,6 +419,8 @@ def review_label(
         "updated_at": utcnow(),
         "review": wanted,
         "review_comment": text or None,
+        "objects": label.objects,
+        "frame_tags": label.frame_tags,
     }
     submitter = label.updated_by_id
     try:

@@ -63,6 +63,7 @@ HELP_TOPICS = {
     "live": "/help/guides/live#the-live-view",
     "process": "/help/guides/process",
     "users": "/help/guides/team#users",
+    "label-config": "/help/guides/label-config",
     "account": "/help/operations/security",
     "tokens": "/help/operations/security",
 }
@@ -209,6 +210,16 @@ def tokens(request: Request, _user: LoggedIn) -> Response:
 def account(request: Request, _user: LoggedIn) -> Response:
     """One's own account: change the password, one's API tokens."""
     return render(request, "account.html", page="account")
+
+
+@router.get("/label-config")
+def label_config(request: Request, user: LoggedIn) -> Response:
+    """The instance's classes, attributes and frame tags (admins)."""
+    if not may(user, Action.administer):
+        return render(
+            request, "forbidden.html", 403, page="label-config", what="configure the classes"
+        )
+    return render(request, "label_config.html", page="label-config")
 
 
 @router.get("/users")

@@ -87,7 +87,6 @@ def test_a_foreign_coco_file_imports_what_is_right_and_says_what_is_not(client, 
     assert reasons == {
         "annotations.json: annotation 3": "It names image 99, which the file does not list.",
         "annotations.json: f3.png": "The mask is 10×10; the frame is 96×64.",
-        "annotations.json: annotation 6": "The category 'spatter' is not the pool's ('melt pool').",
         "annotations.json: annotation 7": "The segmentation is neither RLE nor polygons (lists "
         "of 3 or more x, y pairs).",
         "../evil.png": "The path leaves the archive; it is not read.",
@@ -95,6 +94,7 @@ def test_a_foreign_coco_file_imports_what_is_right_and_says_what_is_not(client, 
         "annotations.json: f7.png": reasons.get("annotations.json: f7.png", "?"),
     }, reasons
     assert reasons["annotations.json: f7.png"].startswith("The image is refused: ")
+    assert result["classes"]["without_pool"] == {"spatter": 1}  # image 5 has no pool: counted
     assert result["labels"] == 2 and result["keypoints"] == 1
     labels = _by_name(client, token)
     assert (label_mask(labels["f1.png"]) == square.astype(bool)).all()  # crowd RLE, as it is
@@ -221,9 +221,9 @@ def test_cvat_and_yolo_refusals_are_one_sentence_each(client, make_user) -> None
     result = start_import(client, token, zipped(yolo), "yolo")["result"]
     assert _reasons(result) == {
         "labels/train/p.txt": "Line 1 is a box, not a polygon; export segments.",
-        "labels/train/q.txt": "Line 2: The category 'spatter' is not the pool's ('weld_pool').",
         "labels/train/r.txt": "It has no image of the same stem under images/.",
     }
+    assert result["classes"]["unknown"] == {"spatter": 1}  # q's pool is kept, its spatter counted
 
 
 def test_a_zip_bomb_entry_is_not_read(client, make_user) -> None:

@@ -15,6 +15,9 @@ from app.core.models import Frame, Label, LabelStatus, Role
 from app.demo import fill_demo
 from tests.helpers import auth, wait_for_job
 
+STEMS: dict[str, int] = {}
+"""The demo frames' own names (stems) → their ids: YOLO and CVAT exports keep the names."""
+
 
 def _lose_files(settings: Settings, session_factory) -> tuple[list[int], int, int, str, str]:
     """A demo; then one labelled frame's image and another's mask file are deleted. Returns
@@ -22,12 +25,13 @@ def _lose_files(settings: Settings, session_factory) -> tuple[list[int], int, in
     with session_factory() as session:
         fill_demo(session, settings, frames=6, seed=3, progress=lambda _t: None)
         rows = session.execute(
-            sa.select(Frame.id, Frame.path, Label.mask_path)
+            sa.select(Frame.id, Frame.path, Label.mask_path, Frame.original_name)
             .join(Label, Label.frame_id == Frame.id)
             .where(Label.status.in_([LabelStatus.accepted, LabelStatus.corrected]))
             .order_by(Frame.id)
         ).all()
-    (no_image, image, _), (no_mask, _, mask) = rows[0], rows[1]
+    (no_image, image, _, _), (no_mask, _, mask, _) = rows[0], rows[1]
+    STEMS.update({row.original_name.rsplit(".", 1)[0]: row.id for row in rows})
     assert len({row.mask_path for row in rows}) == len(rows)  # each mask is its frame's alone
     (settings.home / image).unlink()
     (settings.home / mask).unlink()
@@ -38,7 +42,8 @@ def _check(archive: zipfile.ZipFile, labelled: list[int], left_out: dict[int, st
     """A valid zip holding every labelled frame's image but those left out, which
     ``skipped.txt`` names with their lost file."""
     assert archive.testzip() is None
-    images = {int(n.rsplit("/", 1)[1].split(".")[0]) for n in archive.namelist() if "images/" in n}
+    stems = [n.rsplit("/", 1)[1].split(".")[0] for n in archive.namelist() if "images/" in n]
+    images = {int(stem) if stem.isdigit() else STEMS[stem] for stem in stems}  # id, or own name
     assert images == set(labelled) - set(left_out)
     lines = archive.read("skipped.txt").decode().splitlines()
     assert len(lines) == len(left_out)

@@ -30,9 +30,3 @@ def pool_names(names: Iterable[str], wanted: str | None = None) -> set[str]:
     if known:
         return known
     return distinct if len(distinct) == 1 else set()
-
-
-def not_the_pool(name: object, pool: set[str]) -> str:
-    """The refusal of a region whose category is not the pool's."""
-    wanted = ", ".join(sorted(repr(n) for n in pool)) or "none found; name it with category"
-    return f"The category {name!r} is not the pool's ({wanted})."

@@ -12,12 +12,13 @@ from __future__ import annotations
 import posixpath
 from typing import Any
 
-from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.categories import pool_names
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     CocoPolygons,
     CocoRle,
     ImportedLabel,
+    OtherShape,
     Parsed,
     Shape,
     check_vertices,
@@ -107,6 +108,7 @@ def _read_document(
     categories = _categories(document)
     pool = pool_names(categories.values(), category)
     labels: dict[Any, ImportedLabel] = {}
+    others: dict[Any, list[OtherShape]] = {}  # by image: regions of other categories
     refused: set[Any] = set()  # images whose label is refused whole (too many keypoints)
     for annotation in document["annotations"]:
         number = annotation.get("id", "?") if isinstance(annotation, dict) else "?"
@@ -124,7 +126,7 @@ def _read_document(
         category = annotation.get("category_id")
         category_name = categories.get(_key(category), category)
         if not isinstance(category_name, str) or category_name not in pool:
-            parsed.refuse(item, not_the_pool(category_name, pool))
+            others.setdefault(image["id"], []).append(_other(str(category_name), annotation))
             continue
         try:
             shape = _shape(annotation.get("segmentation"))
@@ -153,7 +155,19 @@ def _read_document(
                 parsed.refuse(label.item, exc.message)
                 refused.add(image["id"])
                 del labels[image["id"]]
+    for image_id, regions in others.items():
+        parsed.attach(labels.get(image_id), regions)
     parsed.labels.extend(labels.values())
+
+
+def _other(name: str, annotation: dict[str, Any]) -> OtherShape:
+    """A region of another category (its shape None where it is not one COCO can state)."""
+    attributes = annotation.get("attributes")
+    given = attributes if isinstance(attributes, dict) else {}
+    try:
+        return OtherShape(name, _shape(annotation.get("segmentation")), attributes=given)
+    except (InvalidInputError, *DAMAGED):
+        return OtherShape(name)
 
 
 def _label(image: dict[str, Any], name: str, own: bool) -> ImportedLabel:

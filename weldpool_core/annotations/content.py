@@ -12,7 +12,7 @@ import hashlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from weldpool_core.annotations.shapes import DAMAGED, ImportedLabel
+from weldpool_core.annotations.shapes import DAMAGED, ImportedLabel, other_objects
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import encode_mask_png
@@ -57,6 +57,8 @@ class LabelContent:
     columns: dict[str, Any] = field(default_factory=dict)
     keypoints: list[list[float]] | None = None
     manual: list[list[float]] | None = None
+    objects: list[dict[str, Any]] = field(default_factory=list)  # the other classes' (``kind``)
+    left_out: list[str] = field(default_factory=list)  # why some of their regions are not kept
     problem: str | None = None
 
 
@@ -75,6 +77,7 @@ def label_content(item: ImportedLabel, size: tuple[int, int], wants_label: bool)
         content.columns = mask_record(mask, rle=rle)
         content.mask_png = encode_mask_png(mask)
         content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
+        content.objects, content.left_out = other_objects(item.others, height, width)
     except InvalidInputError as exc:
         content.problem = exc.message
     except DAMAGED:

@@ -14,18 +14,19 @@ from __future__ import annotations
 
 import posixpath
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as SafeET
 
-from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.categories import pool_names
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     CocoPolygons,
     ImportedLabel,
+    OtherShape,
     Parsed,
     PartialMask,
     Shape,
@@ -97,11 +98,12 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         beside=name,
         original_name=posixpath.basename(file_name),
     )
+    others: list[OtherShape] = []
     for element in image:
         if element.tag == "tag":
             continue
         if element.get("label") not in pool:
-            parsed.refuse(f"{item} <{element.tag}>", not_the_pool(element.get("label"), pool))
+            others.append(_other(element))
             continue
         try:
             if element.tag in ("points", "skeleton"):
@@ -115,7 +117,18 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         except DAMAGED:
             parsed.refuse(f"{item} <{element.tag}>", "Its attributes cannot be read as numbers.")
             return None
-    return label if label.shapes or label.keypoints or label.validation_keypoints else None
+    kept = label if label.shapes or label.keypoints or label.validation_keypoints else None
+    parsed.attach(kept, others)
+    return kept
+
+
+def _other(element: Any) -> OtherShape:
+    """A shape of another label (its area None where it has none: points, polylines)."""
+    name = element.get("label") or ""
+    try:
+        return OtherShape(name, _shape(element))
+    except (InvalidInputError, *DAMAGED):
+        return OtherShape(name)
 
 
 def _element_points(element: Any) -> list[tuple[float, float]]:
@@ -223,6 +236,23 @@ class CvatImage:
     mask: CvatMask | None
     keypoints: list[list[float]] | None
     validation_keypoints: list[list[float]] | None
+    objects: list[tuple[str, CvatMask]] = field(default_factory=list)  # other labels' masks
+
+
+def _mask_element(parent: Any, label: str, mask: CvatMask) -> None:
+    ET.SubElement(
+        parent,
+        "mask",
+        label=label,
+        source="manual",
+        occluded="0",
+        rle=mask.rle,
+        left=str(mask.left),
+        top=str(mask.top),
+        width=str(mask.width),
+        height=str(mask.height),
+        z_order="0",
+    )
 
 
 def _points_element(parent: Any, points: list[list[float]], kind: str) -> None:
@@ -242,20 +272,10 @@ def cvat_image(image: CvatImage) -> ET.Element:
     element = ET.Element(
         "image", id=str(image.id), name=image.name, width=str(image.width), height=str(image.height)
     )
-    if (mask := image.mask) is not None:
-        ET.SubElement(
-            element,
-            "mask",
-            label=POOL_LABEL,
-            source="manual",
-            occluded="0",
-            rle=mask.rle,
-            left=str(mask.left),
-            top=str(mask.top),
-            width=str(mask.width),
-            height=str(mask.height),
-            z_order="0",
-        )
+    if image.mask is not None:
+        _mask_element(element, POOL_LABEL, image.mask)
+    for label, mask in image.objects:
+        _mask_element(element, label, mask)
     if image.keypoints:
         _points_element(element, image.keypoints, "label")
     if image.validation_keypoints:
@@ -263,8 +283,9 @@ def cvat_image(image: CvatImage) -> ET.Element:
     return element
 
 
-def cvat_document(images: Iterable[ET.Element], count: int) -> bytes:
-    """The whole ``annotations.xml`` around already written ``<image>`` elements."""
+def cvat_document(images: Iterable[ET.Element], count: int, classes: Sequence[str] = ()) -> bytes:
+    """The whole ``annotations.xml`` around already written ``<image>`` elements; the pool's
+    label first, then ``classes`` (the other labels the images' masks name)."""
     root = ET.Element("annotations")
     ET.SubElement(root, "version").text = "1.1"
     task = ET.SubElement(ET.SubElement(root, "meta"), "task")
@@ -280,6 +301,13 @@ def cvat_document(images: Iterable[ET.Element], count: int) -> bytes:
     ET.SubElement(attribute, "input_type").text = "select"
     ET.SubElement(attribute, "default_value").text = "validation"
     ET.SubElement(attribute, "values").text = "label\nvalidation"
+    labels = task.find("labels")
+    assert labels is not None  # made above
+    for name in classes:
+        other = ET.SubElement(labels, "label")
+        ET.SubElement(other, "name").text = name
+        ET.SubElement(other, "type").text = "mask"
+        ET.SubElement(other, "attributes")
     root.extend(images)
     document: bytes = ET.tostring(root, encoding="utf-8", xml_declaration=True)
     return document

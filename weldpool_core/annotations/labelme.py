@@ -10,10 +10,11 @@ import math
 import posixpath
 from typing import TYPE_CHECKING, Any
 
-from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.categories import pool_names
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     ImportedLabel,
+    OtherShape,
     Parsed,
     PartialMask,
     Polygons,
@@ -86,13 +87,14 @@ def _label(
         original_name=posixpath.basename(image.replace("\\", "/")),
     )
     points: list[list[float]] = []
+    others: list[OtherShape] = []
     for index, shape in enumerate(document["shapes"]):
         item = f"{name}: shape {index + 1}"
         if not isinstance(shape, dict):
             parsed.refuse(item, "A shape must be a JSON object.")
             return None
         if not isinstance(shape.get("label"), str) or shape.get("label") not in pool:
-            parsed.refuse(item, not_the_pool(shape.get("label"), pool))
+            others.append(_other(shape))
             continue
         try:
             kind = shape.get("shape_type") or "polygon"
@@ -105,7 +107,19 @@ def _label(
             parsed.refuse(item, exc.message)
             return None
     label.validation_keypoints = points or None
-    return label if label.shapes or points else None
+    kept = label if label.shapes or points else None
+    parsed.attach(kept, others)
+    return kept
+
+
+def _other(shape: dict[str, Any]) -> OtherShape:
+    """A shape of another label (its area None where it has none: points, lines)."""
+    name = str(shape.get("label"))
+    try:
+        xy = _xy(shape.get("points"))
+        return OtherShape(name, _shape(shape.get("shape_type") or "polygon", xy, shape.get("mask")))
+    except (InvalidInputError, *DAMAGED):
+        return OtherShape(name)
 
 
 def _xy(points: Any) -> list[tuple[float, float]]:

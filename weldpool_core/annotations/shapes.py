@@ -15,6 +15,7 @@ from __future__ import annotations
 import base64
 import binascii
 import dataclasses
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -284,8 +285,58 @@ def to_cvat_rle(pixels: NDArray[np.bool_]) -> list[int]:
 
 
 @dataclass
+class OtherShape:
+    """A region of a class other than the pool, under the name the file gives its class
+    (``shape`` None: the file's region could not be read as an area). The service keeps it as
+    an object where its label configuration has the class (``kind`` set), else counts it."""
+
+    name: str
+    shape: Shape | None = None
+    kind: str | None = None  # "mask" or "instances", once the service knows the class
+    attributes: dict[str, Any] = field(default_factory=dict)  # as the file gives them
+
+
+def other_objects(
+    others: list[OtherShape], height: int, width: int
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """The stored objects (``{"class", "rle", "area", "bbox"}``) of a label's other regions
+    whose ``kind`` is set, on a ``height``×``width`` frame: each ``instances`` region one
+    object, all regions of a ``mask`` class one (their union); empty ones left out. And why
+    each region that does not fit the frame was left out (the pool's label stays)."""
+    from weldpool_core.outline import coco_mask
+
+    regions: list[tuple[str, list[Shape], dict[str, Any]]] = []
+    masks: dict[str, list[Shape]] = {}
+    for other in others:
+        if other.shape is None or other.kind not in ("mask", "instances"):
+            continue
+        if other.kind == "instances":
+            regions.append((other.name, [other.shape], other.attributes))
+        elif other.name in masks:
+            masks[other.name].append(other.shape)
+        else:
+            masks[other.name] = [other.shape]
+            regions.append((other.name, masks[other.name], other.attributes))
+    objects, problems = [], []
+    for name, shapes, attributes in regions:
+        try:
+            union = np.zeros((height, width), bool)
+            for shape in merged(shapes):
+                union |= shape.mask(height, width)
+        except InvalidInputError as exc:
+            problems.append(f"A {name!r} region is left out: {exc.message}")
+            continue
+        if union.any():
+            coco = coco_mask(union)
+            made = {"class": name, "rle": coco.rle, "area": coco.area, "bbox": coco.bbox}
+            objects.append(made | ({"attributes": attributes} if attributes else {}))
+    return objects, problems
+
+
+@dataclass
 class ImportedLabel:
-    """One image's pool label as an annotation file states it."""
+    """One image's pool label as an annotation file states it, with the file's regions of
+    other classes on the same image (``others``)."""
 
     item: str  # how a refusal names it: "<annotation file>: <image name>"
     image: str  # the image's name as the annotation gives it
@@ -299,6 +350,7 @@ class ImportedLabel:
     process: dict[str, Any] | None = None
     original_name: str | None = None
     beside: str = ""  # the annotation file, to find images relative to it
+    others: list[OtherShape] = field(default_factory=list)
 
     def mask(self, height: int, width: int) -> NDArray[np.bool_] | None:
         """The pool mask on a ``height``×``width`` frame (None when the label has only
@@ -406,10 +458,19 @@ def text_or_none(value: Any) -> str | None:
 
 @dataclass
 class Parsed:
-    """What a reader found: the labels, and what it refused before any frame was looked at."""
+    """What a reader found: the labels, what it refused before any frame was looked at, and
+    the regions of other classes on images without a pool (counted by class: not imported)."""
 
     labels: list[ImportedLabel] = field(default_factory=list)
     refused: list[Refusal] = field(default_factory=list)
+    without_pool: Counter[str] = field(default_factory=Counter)
 
     def refuse(self, item: str, reason: str) -> None:
         self.refused.append(Refusal(item, reason))
+
+    def attach(self, label: ImportedLabel | None, others: list[OtherShape]) -> None:
+        """Give an image's other regions to its pool label, or count them without one."""
+        if label is not None:
+            label.others.extend(others)
+        else:
+            self.without_pool.update(o.name for o in others)

@@ -9,11 +9,12 @@ import posixpath
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from weldpool_core.annotations.categories import not_the_pool, pool_names
+from weldpool_core.annotations.categories import pool_names
 from weldpool_core.annotations.shapes import (
     DAMAGED,
     EDGE_TOLERANCE,
     ImportedLabel,
+    OtherShape,
     Parsed,
     Polygons,
     check_vertices,
@@ -114,9 +115,10 @@ def read_yolo(source: Source, category: str | None = None) -> Parsed:
         if image is None:
             parsed.refuse(path, "It has no image of the same stem under images/.")
             continue
+        others: list[OtherShape] = []
         try:
             text = source.read(path).decode("utf-8")
-            polygons = _lines(text, pool_ids, names, pool)
+            polygons = _lines(text, pool_ids, names, others)
         except (UnicodeDecodeError, InvalidInputError, *DAMAGED) as exc:
             reason = (
                 exc.message if isinstance(exc, InvalidInputError) else "It is not text of numbers."
@@ -124,22 +126,25 @@ def read_yolo(source: Source, category: str | None = None) -> Parsed:
             parsed.refuse(path, reason)
             continue
         if not polygons:
+            parsed.attach(None, others)
             continue  # no pool on this frame: nothing to label
-        parsed.labels.append(
-            ImportedLabel(
-                item=path,
-                image=posixpath.basename(image),
-                shapes=[NormalisedPolygons(polygons)],
-                beside=image,
-                original_name=posixpath.basename(image),
-            )
+        label = ImportedLabel(
+            item=path,
+            image=posixpath.basename(image),
+            shapes=[NormalisedPolygons(polygons)],
+            beside=image,
+            original_name=posixpath.basename(image),
         )
+        parsed.attach(label, others)
+        parsed.labels.append(label)
     return parsed
 
 
 def _lines(
-    text: str, pool_ids: set[int], names: dict[int, str], pool: set[str]
+    text: str, pool_ids: set[int], names: dict[int, str], others: list[OtherShape]
 ) -> list[NDArray[np.float64]]:
+    """The pool's polygons of a label file; its other classes' lines go to ``others`` (a line
+    of another class that is not a polygon is counted, not refused: it is not the pool's)."""
     polygons = []
     for number, line in enumerate(text.splitlines(), 1):
         fields = line.split()
@@ -152,11 +157,13 @@ def _lines(
             raise InvalidInputError(f"Line {number} is not numbers.") from None
         if not values[0].is_integer():
             raise InvalidInputError(f"Line {number}'s class {fields[0]} is not an integer.")
-        if int(values[0]) not in pool_ids:
-            raise InvalidInputError(
-                f"Line {number}: " + not_the_pool(names.get(int(values[0]), fields[0]), pool)
-            )
         coordinates = values[1:]
+        if int(values[0]) not in pool_ids:
+            polygon = len(coordinates) >= 6 and len(coordinates) % 2 == 0
+            xy = [np.asarray(coordinates, np.float64).reshape(-1, 2)] if polygon else None
+            name = names.get(int(values[0]), fields[0])
+            others.append(OtherShape(name, NormalisedPolygons(xy) if xy else None))
+            continue
         if len(coordinates) == 4:
             raise InvalidInputError(f"Line {number} is a box, not a polygon; export segments.")
         if len(coordinates) < 6 or len(coordinates) % 2:
