@@ -29,10 +29,10 @@ from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, U
 from app.core.permissions import Action, may
 from app.proposals.files import load_mask, store_mask
 from app.proposals.policy import stored_iou
-from app.review.service import check_keypoints, current_label, save_label
+from app.review.service import check_keypoints, current_label, frame_mask, save_label
 from app.storage import Storage
 from weldpool_core.heatmap import mask_keypoints
-from weldpool_core.io import decode_mask_png, encode_mask_png
+from weldpool_core.io import encode_mask_png
 
 if TYPE_CHECKING:
     import numpy as np
@@ -97,12 +97,7 @@ def save_own(
 ) -> OverlapLabel:
     """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's)."""
     row = own_row(session, frame.id, user)
-    mask = decode_mask_png(mask_png)
-    if mask.shape != (frame.height, frame.width):
-        raise InvalidInputError(
-            f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
-            f"{frame.width}×{frame.height}."
-        )
+    mask = frame_mask(frame, mask_png)
     if not mask.any():
         raise InvalidInputError("The mask is empty: draw the pool before saving.")
     row.keypoints = check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)

@@ -153,6 +153,18 @@ def current_label(session: Session, frame_id: int) -> Label | None:
     return session.scalar(sa.select(Label).where(Label.frame_id == frame_id))
 
 
+def frame_mask(frame: Frame, mask_png: bytes) -> NDArray[np.bool_]:
+    """A mask a person sent for ``frame``, decoded, or one sentence when its size is not the
+    frame's: the one rule for labels and annotators' own labels."""
+    mask = decode_mask_png(mask_png)
+    if mask.shape != (frame.height, frame.width):
+        raise InvalidInputError(
+            f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
+            f"{frame.width}×{frame.height}."
+        )
+    return mask
+
+
 def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[float]]:
     """Keypoints as [[x, y], …] inside the frame, or a clear error."""
     for point in keypoints:
@@ -186,12 +198,7 @@ def _label_content(
     if status == LabelStatus.rejected:
         return None, None, None
     if mask_png is not None:
-        mask = decode_mask_png(mask_png)
-        if mask.shape != (frame.height, frame.width):
-            raise InvalidInputError(
-                f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
-                f"{frame.width}×{frame.height}."
-            )
+        mask = frame_mask(frame, mask_png)
         if not mask.any():
             raise InvalidInputError(
                 "The mask is empty (pool pixels are 255, or 1 in a mask of 0 and 1; values "

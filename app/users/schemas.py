@@ -19,21 +19,6 @@ class CsrfOut(BaseModel):
     username: str = Field(description="Whose session it is (a page checks it is still its own).")
 
 
-class MeOut(BaseModel):
-    """The caller, with what their role allows (``app.core.permissions``): the pages read
-    ``may`` rather than ranking roles themselves."""
-
-    model_config = ConfigDict(from_attributes=True)
-
-    id: int
-    username: str
-    role: Role
-    is_active: bool
-    created_at: dt.datetime
-    last_login_at: dt.datetime | None = None
-    may: list[str] = Field(description="The actions the caller's role allows.")
-
-
 class UserOut(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
@@ -111,3 +96,10 @@ class WorkOut(BaseModel):
     awaiting_review: int = Field(
         description="Labels awaiting a reviewer's approval (reviewers; 0 for annotators)."
     )
+
+
+class MeOut(UserOut):
+    """The caller, with what their role allows (``app.core.permissions``): the pages read
+    ``may`` rather than ranking roles themselves."""
+
+    may: list[str] = Field(description="The actions the caller's role allows.")
