@@ -78,8 +78,9 @@ def _sniff_text(data: bytes) -> str | None:
     return None
 
 
-def _probe(data: bytes, max_pixels: int) -> str:
-    """The format of ``data`` (PNG, JPEG, TIFF, BMP) from its header; refuses the rest."""
+def _probe(data: bytes, max_pixels: int) -> tuple[str, int, int]:
+    """The format of ``data`` (PNG, JPEG, TIFF, BMP) and its width and height, from its header
+    (nothing decoded); refuses the rest."""
     if not data:
         raise InvalidInputError("The file is empty.")
     text = _sniff_text(data)
@@ -103,7 +104,7 @@ def _probe(data: bytes, max_pixels: int) -> str:
             f"The image has {width}×{height} pixels, more than the limit of {max_pixels:,} "
             "(WELDPOOL_MAX_IMAGE_PIXELS)."
         )
-    return fmt
+    return fmt, width, height
 
 
 def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> DecodedImage:
@@ -115,7 +116,7 @@ def read_image(source: bytes | str | Path, *, max_pixels: int = DEFAULT_MAX_PIXE
     truncated, corrupt, oversized or unsupported files.
     """
     data = source if isinstance(source, bytes) else Path(source).read_bytes()
-    fmt = _probe(data, max_pixels)
+    fmt, _, _ = _probe(data, max_pixels)
     if fmt == "PNG":  # as strict as check_image: every chunk's CRC, a plain PNG's stream
         png = plain_png(data)
         if png is not None:
@@ -252,11 +253,25 @@ def encode_mask_png(mask: ImageArray) -> bytes:
     )
 
 
-def decode_mask_png(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> NDArray[np.bool_]:
+def decode_mask_png(
+    data: bytes,
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    shape: tuple[int, int] | None = None,
+) -> NDArray[np.bool_]:
     """A boolean mask from a PNG: 0/255 (or 0/1) single channel; colour masks use channel max.
 
-    Values ≥ 128 are foreground, or > 0 when the image holds only 0 and 1.
+    Values ≥ 128 are foreground, or > 0 when the image holds only 0 and 1. ``shape``: the
+    (height, width) the mask must have (a frame's), checked on the header before anything is
+    decoded, so a mask sent for a frame never costs more than the frame's pixels.
     """
+    if shape is not None:
+        _, width, height = _probe(data, max_pixels)
+        if (height, width) != tuple(shape):
+            raise InvalidInputError(
+                f"The mask is {width}×{height}; the frame is {shape[1]}×{shape[0]}."
+            )
+        max_pixels = height * width
     image = read_image(data, max_pixels=max_pixels)
     if image.info.format != "PNG":
         raise InvalidInputError(f"A mask must be a PNG file, not {image.info.format}.")

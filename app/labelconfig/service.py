@@ -261,7 +261,7 @@ def _region(item: dict[str, Any], name: str, height: int, width: int) -> dict[st
     if given[0] == "rle":
         mask = _rle(item["rle"], height, width)
     elif given[0] == "mask_png":
-        mask = decode_mask_png(_base64(item["mask_png"]))
+        mask = decode_mask_png(_base64(item["mask_png"]), shape=(height, width))
     else:
         polygons = _polygons(item["polygons"], name, height, width)
         mask = _filled(polygons, height, width)

@@ -155,14 +155,9 @@ def current_label(session: Session, frame_id: int) -> Label | None:
 
 def frame_mask(frame: Frame, mask_png: bytes) -> NDArray[np.bool_]:
     """A mask a person sent for ``frame``, decoded, or one sentence when its size is not the
-    frame's: the one rule for labels and annotators' own labels."""
-    mask = decode_mask_png(mask_png)
-    if mask.shape != (frame.height, frame.width):
-        raise InvalidInputError(
-            f"The mask is {mask.shape[1]}×{mask.shape[0]}; the frame is "
-            f"{frame.width}×{frame.height}."
-        )
-    return mask
+    frame's (read from its header, before any pixel is decoded): the one rule for labels and
+    annotators' own labels."""
+    return decode_mask_png(mask_png, shape=(frame.height, frame.width))
 
 
 def check_keypoints(frame: Frame, keypoints: list[list[float]]) -> list[list[float]]:

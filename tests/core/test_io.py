@@ -154,3 +154,24 @@ def test_a_mask_png_reads_the_same_in_every_reader(shape: tuple[int, int]) -> No
     assert np.array_equal(read_image(data).pixels, expected)
     with pytest.raises(InvalidInputError, match="no pixels"):
         encode_mask_png(np.zeros((0, 4), bool))
+
+
+def test_a_mask_for_a_frame_is_refused_on_its_header_before_any_pixel_is_decoded(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A mask sent for a frame of a given size costs no more than that frame: one of another
+    size (a 40,000² PNG of zeros is a few hundred bytes) is refused from its header."""
+    import weldpool_core.io as io_module
+    from weldpool_core.io import decode_mask_png, encode_mask_png
+
+    mask = np.zeros((6, 8), bool)
+    mask[2:4, 3:6] = True
+    data = encode_mask_png(mask)
+    assert np.array_equal(decode_mask_png(data, shape=(6, 8)), mask)
+
+    def no_decoding(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("the mask was decoded")
+
+    monkeypatch.setattr(io_module, "read_image", no_decoding)
+    with pytest.raises(InvalidInputError, match=r"^The mask is 8×6; the frame is 8×7\.$"):
+        decode_mask_png(data, shape=(7, 8))
