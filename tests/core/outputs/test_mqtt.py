@@ -34,10 +34,23 @@ class Listener:
             self.messages.append((m.topic, json.loads(m.payload))) if m.payload else None
         )
         self.client.on_subscribe = lambda *_args: self.ready.set()
-        self.client.on_connect = lambda c, *_args: c.subscribe(f"{topic}/#", qos=1)
+        self.connected: list[str] = []
+        self.client.on_connect = self._subscribe
         self.client.connect(host, port)
         self.client.loop_start()
-        assert self.ready.wait(10)
+        # A loaded machine has seen a SUBACK never come: ask once more before failing, and say
+        # what the broker answered when it still does not.
+        for _ in range(3):
+            if self.ready.wait(5):
+                return
+            self.client.subscribe(f"{topic}/#", qos=1)
+        raise AssertionError(f"no SUBACK for {topic}/# from {host}:{port}: {self.connected}")
+
+    def _subscribe(
+        self, client: mqtt.Client, _data: Any, _flags: Any, reason: Any, *_: Any
+    ) -> None:
+        self.connected.append(str(reason))
+        client.subscribe(f"{self.topic}/#", qos=1)
 
     def frames(self, topic: str) -> list[dict[str, Any]]:
         return [payload for name, payload in self.messages if name == topic]
