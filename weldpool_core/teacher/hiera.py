@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -50,12 +51,12 @@ with oneDNN held to instructions without bf16). Elsewhere (a GPU, until ``bench/
 encoder step measures it there) transformers' own forward runs."""
 
 
-def image_encoder(model: Any, device: torch.device) -> Any:
+def image_encoder(model: Any, device: torch.device) -> Callable[[torch.Tensor], list[torch.Tensor]]:
     """What encodes pixels into the three feature maps on ``device``: ``ImageEncoder`` where an
     interleaved bench measured it faster, transformers' ``get_image_embeddings`` elsewhere."""
     if device.type in MEASURED_FASTER:
         return ImageEncoder(model)
-    return model.get_image_embeddings
+    return cast(Callable[[torch.Tensor], list[torch.Tensor]], model.get_image_embeddings)
 
 
 class ImageEncoder:
