@@ -96,7 +96,7 @@ function showFrame(entry, view) {
   if (!ACTIVE.has(view.state) && entry.image.hasAttribute("src")) {
     entry.image.removeAttribute("src"); // the stream has ended: no broken image left behind
   }
-  entry.image.hidden = !ACTIVE.has(view.state);
+  entry.image.hidden = shown !== null; // no frame yet, or none any more: the placeholder says why
   entry.placeholder.hidden = shown === null;
   if (shown) {
     entry.placeholder.dataset.state = view.state;
