@@ -82,7 +82,7 @@ export function framePlaceholder(view) {
     return {
       title: exporting ? "Preparing the student (exporting it to ONNX)…" : preparing ? "Preparing the student…" : "Starting…",
       detail: preparing
-        ? `The first start of a version exports it for ONNX Runtime once (${seconds} s so far; up to a minute on a CPU): ${view.message}.`
+        ? `The first start of a version exports it for ONNX Runtime once: ${seconds} s so far, up to a minute on a CPU.`
         : `${view.message ? `${view.message[0].toUpperCase()}${view.message.slice(1)}` : "Waiting for the first frame"} (${seconds} s so far).`,
       busy: true,
     };
