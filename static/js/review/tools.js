@@ -31,7 +31,8 @@ export function setTool(name) {
     button.setAttribute("aria-pressed", String(button.dataset.tool === name));
   }
   S.stage.canvas.dataset.tool = name;
-  $("outline-tolerance-group").hidden = name !== "polygon";
+  $("outline-tolerance-group").hidden = name !== "polygon"; // in the brush size's place
+  $("brush-size").closest("label").hidden = name === "polygon";
   if (name !== "brush" && name !== "eraser") S.stage.cursor = null;
   S.stage.selectedVertex = null;
   showOutline();
