@@ -65,8 +65,8 @@ function outputsLine(view) {
 }
 
 const ENDED = {
-  stopped: "This view is stopped: it no longer runs. Start it again above.",
-  ended: "The source ended: the view no longer runs. Start it again above.",
+  stopped: "This view is stopped: it no longer runs.",
+  ended: "The source ended: the view no longer runs.",
   failed: "This view failed and no longer runs",
 };
 
@@ -87,7 +87,8 @@ export function framePlaceholder(view) {
       busy: true,
     };
   }
-  const detail = view.state === "failed" ? `${ENDED.failed}: ${view.message}` : ENDED[view.state] ?? `The view is ${view.state}.`;
+  const again = isReviewer() ? " Start it again above." : "";
+  const detail = view.state === "failed" ? `${ENDED.failed}: ${view.message}` : `${ENDED[view.state] ?? `The view is ${view.state}.`}${again}`;
   return { title: view.state === "failed" ? "Failed" : view.state === "ended" ? "Ended" : "Stopped", detail, busy: false };
 }
 
