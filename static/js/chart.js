@@ -30,6 +30,16 @@ export function spanAtLeast(low, high, span) {
   return [middle - span / 2, middle + span / 2];
 }
 
+/** The least y span of a pool quantity's chart (timeline, live view): by unit, and a tenth of
+ * its mean; a steady pool reads as a flat line, not as its noise (0.0005 mm) zoomed to fill the
+ * chart. */
+const LEAST_SPAN = { mm: 0.5, "mm²": 1, px: 5, "px²": 100 };
+export function leastSpan(values, unit) {
+  const finite = values.filter(Number.isFinite);
+  const mean = finite.length ? finite.reduce((a, b) => a + b, 0) / finite.length : 0;
+  return Math.max(LEAST_SPAN[unit] ?? 0, 0.1 * Math.abs(mean));
+}
+
 /** A tick's label, with as many decimals as the step between ticks needs: ticks 0.0005 apart
  *  never read "0.981, 0.981, 0.981". */
 export function format(value, step = 0) {

@@ -2,7 +2,7 @@
 // its mask outline and keypoints (MJPEG), the pool's geometry as it scrolls, fps and latency.
 
 import { api, isReviewer } from "./api.js";
-import { lineChart } from "./chart.js";
+import { leastSpan, lineChart } from "./chart.js";
 import { count, decimal, gateLine } from "./format.js";
 import { badge, h, toast } from "./ui.js";
 
@@ -27,7 +27,8 @@ function geometryCharts(view) {
   const mm = view.mm_per_px !== null;
   const series = (key, colour) => [{ name: key, colour, points: rows.map((r) => [r.frame, r[key] ?? NaN]) }];
   const chart = (title, key, unit, colour) => h("figure", { class: "chart-box" },
-    lineChart({ title, unit, xLabel: "frame", width: 360, height: 150, series: series(key, colour) }));
+    lineChart({ title, unit, xLabel: "frame", width: 360, height: 150, series: series(key, colour),
+      minSpan: leastSpan(rows.map((r) => r[key] ?? NaN), unit) }));
   return mm
     ? [chart("Pool area", "area_mm2", "mm²", "#1c7ed6"), chart("Length", "length_mm", "mm", "#2f9e44"), chart("Width", "width_mm", "mm", "#e8590c")]
     : [chart("Pool area", "area_px", "px²", "#1c7ed6"), chart("Length", "length_px", "px", "#2f9e44"), chart("Width", "width_px", "px", "#e8590c")];

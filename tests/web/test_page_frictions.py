@@ -285,5 +285,10 @@ def test_live_view_placeholders_and_its_outputs_final_state(
     )
     output = stopped.locator("[data-testid=live-output-mqtt]").inner_text()
     assert " · disconnected · " in output and "reconnecting" not in output
+    # Its curves, as the timeline's: a steady pool's width over a tenth of its mean at least.
+    low, high = map(
+        float, stopped.locator("svg[aria-label=Width]").get_attribute("data-y-domain").split()
+    )
+    assert high - low >= 5
     shoot(page, "live-stopped")
     clear_retained(host, port, f"{topic}/status")
