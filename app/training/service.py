@@ -318,6 +318,44 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
     return sorted(row.id for row in ranked[:count])
 
 
+@dataclass(frozen=True)
+class TrainingPlan:
+    """What a training job started now would learn from and be measured on."""
+
+    labels: int
+    validation_frames: int
+    held_out: int
+    needed: int
+    warning: str | None
+
+
+def training_plan(session: Session) -> TrainingPlan:
+    """The labels a training would take, the frames its version would be measured on (the
+    validation split's, else labels held out by ``held_out_ids``), and a warning when there
+    are too few for the promotion gate to measure it: it could then only be promoted by force."""
+    train = training_frame_ids(session)
+    validation = len(validation_frame_ids(session))
+    held_out = 0 if validation else len(held_out_ids(session, train))
+    needed = 1 if validation else MIN_TO_HOLD_OUT
+    warning = None
+    if not train:
+        warning = (
+            "There are no accepted or corrected labels outside the validation split to train on."
+        )
+    elif not validation and not held_out:
+        warning = (
+            f"Only {_labels(len(train))} to train on and no frame in the validation split: the "
+            f"promotion gate measures a version on labels held out from its training, which "
+            f"takes at least {MIN_TO_HOLD_OUT} labels (or one validation frame), so this version "
+            "could not be measured and could only be promoted by force; label more frames first."
+        )
+    return TrainingPlan(len(train) - held_out, validation, held_out, needed, warning)
+
+
+def _labels(count: int) -> str:
+    return f"{count} label" + "s" * (count != 1)
+
+
 def model_folder(storage: Storage, model: ModelVersion) -> Path:
     """A version's folder of weights, complete on this machine (fetched from the object store
     when it has not seen it), or a 409 when the instance has none."""
