@@ -28,10 +28,11 @@ from app.core.errors import InvalidInputError, NotFoundError, PermissionDeniedEr
 from app.core.housekeeping import doom
 from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, User
 from app.core.permissions import Action, may
-from app.proposals.files import load_mask, store_mask
+from app.proposals.files import store_mask
 from app.proposals.policy import stored_iou
 from app.review.service import check_keypoints, current_label, frame_mask, save_label
 from app.storage import Storage
+from app.storage.pixels import load_mask
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import encode_mask_png
 

@@ -48,7 +48,6 @@ from app.core.errors import InvalidInputError, MissingFile
 from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
-from app.proposals.files import load_mask
 from app.review.export_classes import (
     Rows,
     coco_objects,
@@ -60,6 +59,7 @@ from app.review.export_classes import (
     yolo_lines,
 )
 from app.storage import EXPORTS_DIR, Storage
+from app.storage.pixels import load_mask
 from app.system.doctor import frame_file, frame_file_missing
 from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
 

@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 
 from app.core.db import updated_one, utcnow
 from app.core.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
+from app.core.frame_rows import frame_exists
 from app.core.models import (
     Frame,
     Job,
@@ -28,8 +29,8 @@ from app.core.models import (
 )
 from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
 from app.jobs.service import create_job
-from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
+from app.storage.pixels import frame_rgb, load_mask
 from app.system.doctor import frame_file_missing
 
 if TYPE_CHECKING:
@@ -99,6 +100,18 @@ def promote(session: Session, model: ModelVersion) -> ModelVersion:
 def next_name(session: Session) -> str:
     count = session.scalar(sa.select(sa.func.count()).select_from(ModelVersion)) or 0
     return f"student-v{count + 1}"
+
+
+def free_name(session: Session, models_dir: Path) -> str:
+    """The next ``student-vN`` whose folder is free (a crash may leave one behind)."""
+    name = next_name(session)
+    number = int(name.removeprefix("student-v"))
+    while (models_dir / name).exists() or session.scalar(
+        sa.select(ModelVersion.id).where(ModelVersion.name == name)
+    ):
+        number += 1
+        name = f"student-v{number}"
+    return name
 
 
 def training_frame_ids(session: Session) -> list[int]:
