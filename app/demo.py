@@ -24,8 +24,8 @@ from app.jobs.service import create_job
 from app.review.service import save_label, save_validation_keypoints
 from app.storage import Storage
 from app.users.service import create_user
+from weldpool_core.cell.plant import PlantCamera, PlantParams
 from weldpool_core.io import encode_mask_png
-from weldpool_core.plant import PlantCamera, PlantParams
 from weldpool_core.synth import synth_sequence
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS
 from weldpool_core.teacher.weights import weights_status
@@ -85,7 +85,7 @@ def fill_process_runs(
     session: Session, settings: Settings, *, frames: int, progress: Callable[[str], None]
 ) -> str:
     """Weld runs at different heat inputs for the process map, each labelled from the plant's
-    pool (``weldpool_core.plant``: width from Rosenthal's √(heat input), with its lag), one of
+    pool (``weldpool_core.cell.plant``: width from Rosenthal's √(heat input), with its lag), one of
     them oscillating; returns a one-sentence summary."""
     user = _demo_user(session)
     storage = Storage.of(settings)

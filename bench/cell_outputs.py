@@ -37,10 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from stream import random_student, videos
 
 from tests.mqtt import free_port, start_broker
-from weldpool_core.outputs import CellInfo, OutputsConfig, open_outputs
-from weldpool_core.outputs.mqtt import MqttOptions
-from weldpool_core.outputs.opcua import OpcUaOptions
-from weldpool_core.stream import FrameSource, StreamStudent, run_stream
+from weldpool_core.cell.outputs import CellInfo, OutputsConfig, open_outputs
+from weldpool_core.cell.outputs.mqtt import MqttOptions
+from weldpool_core.cell.outputs.opcua import OpcUaOptions
+from weldpool_core.cell.stream import FrameSource, StreamStudent, run_stream
 from weldpool_core.student.checkpoint import (
     EXPORT_FILE,
     read_json,

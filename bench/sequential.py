@@ -34,10 +34,10 @@ import cv2
 import numpy as np
 from results import recorded
 
+from weldpool_core.cell.smoothing import KeypointSmoother, SmoothingParams, jitter
+from weldpool_core.cell.stream import StreamStudent
 from weldpool_core.heatmap import HeatmapParams, heatmap_from_mask
 from weldpool_core.metrics import proposal_quality
-from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter
-from weldpool_core.stream import StreamStudent
 from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.data import TrainingFrame
 from weldpool_core.student.evaluate import labelled_frames

@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 from results import recorded
 
-from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
-from weldpool_core.stream import FrameSource, StreamStudent, run_stream, summary
+from weldpool_core.cell.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
+from weldpool_core.cell.stream import FrameSource, StreamStudent, run_stream, summary
 from weldpool_core.student.checkpoint import INT8_ONNX_FILE, ONNX_FILE, save_config, save_weights
 from weldpool_core.student.export import export_student
 from weldpool_core.student.model import STUDENT_SIZES, build_student

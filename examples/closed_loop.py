@@ -1,15 +1,15 @@
 """A closed loop on the stream's output: a PI controller holds a simulated weld pool's width
 while a heat-input step hits it, reading the student's measurement over MQTT.
 
-Run (a broker first; ``weldpool_core/plant.py`` documents the plant and the controller):
+Run (a broker first; ``weldpool_core/cell/plant.py`` documents the plant and the controller):
 
     mosquitto -p 1883 &
     .venv/bin/python examples/closed_loop.py --plot docs/images/closed-loop.png
 
 Each step of the process (``--fps`` 20 a second): the plant (``WeldPoolPlant``) advances with the
 arc power and the commanded travel speed; the camera (``PlantCamera``) renders the pool as a
-synthetic frame; the stream's student (``weldpool_core.stream``, ONNX Runtime) measures it and the
-MQTT output publishes the record; the controller, a separate MQTT client as a PLC would be,
+synthetic frame; the stream's student (``weldpool_core.cell.stream``, ONNX Runtime) measures it
+and the MQTT output publishes the record; the controller, a separate MQTT client as a PLC would be,
 receives it and computes the speed (``PIController``), which the robot (this loop; a PLC writes
 it to the robot controller) applies to the next step. The loop runs in lock-step, one process
 step per answered frame, so the plot is the same however fast the machine is; the latencies
@@ -37,10 +37,10 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from weldpool_core.outputs import CellInfo, OutputsConfig, open_outputs
-from weldpool_core.outputs.mqtt import MqttOptions, parse_mqtt_url
-from weldpool_core.plant import PIController, PlantCamera, PlantParams, WeldPoolPlant
-from weldpool_core.stream import CapturedFrame, StreamStudent, run_stream
+from weldpool_core.cell.outputs import CellInfo, OutputsConfig, open_outputs
+from weldpool_core.cell.outputs.mqtt import MqttOptions, parse_mqtt_url
+from weldpool_core.cell.plant import PIController, PlantCamera, PlantParams, WeldPoolPlant
+from weldpool_core.cell.stream import CapturedFrame, StreamStudent, run_stream
 
 SETTLE_S = 4.0
 """The goal is judged from this long after the disturbance."""

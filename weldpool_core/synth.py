@@ -293,7 +293,7 @@ def steady_pool_frame(
 ) -> SynthFrame:
     """A frame of a steady weld pool whose size a process sets: the pool of run ``seed`` with its
     shape held at t = 0 and its length and width multiplied by ``scale`` (about its centre); the
-    lighting, ripples and sensor noise still change with ``time_s``. ``weldpool_core.plant``
+    lighting, ripples and sensor noise still change with ``time_s``. ``weldpool_core.cell.plant``
     renders its width with it, so a change in the frames is the process's, not the generator's.
     """
     if not 0.2 <= scale <= 1.6:

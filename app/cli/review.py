@@ -87,7 +87,8 @@ def demo_cmd(frames: int, seed: int, process_frames: int) -> None:
     weights are present, a teacher job is queued for the unlabelled frames.
 
     Before it, six runs at heat inputs from 360 to 1110 J/mm are filled from the simulated
-    plant (weldpool_core.plant), one of them oscillating at 3 Hz, for the process map (/process).
+    plant (weldpool_core.cell.plant), one of them oscillating at 3 Hz, for the process map
+    (/process).
     """
     from app.cli.service import login_hint, prepare_instance
     from app.demo import fill_demo, fill_process_runs

@@ -199,7 +199,7 @@ def stream_cmd(
     before it); a file is read frame by frame unless --realtime. A summary (fps, p50 / p99
     latency) goes to stderr at the end; Ctrl-C stops cleanly.
     """
-    from weldpool_core.stream import StreamOptions, open_stream
+    from weldpool_core.cell.stream import StreamOptions, open_stream
 
     model_dir, usable = _checked_model_dir(model, record_path, samples, backend, sequential)
     config, info = _cell_outputs(publish, cell, model_dir, usable, mm_per_px)
@@ -251,7 +251,7 @@ def opcua_certificate_cmd(folder: Path, host: str | None, days: int) -> None:
     sign-encrypt` in FOLDER (clients, e.g. the PLC, must be told to trust the certificate)."""
     import socket
 
-    from weldpool_core.outputs.opcua import make_certificate
+    from weldpool_core.cell.outputs.opcua import make_certificate
 
     certificate, key = make_certificate(folder, host or socket.gethostname(), days)
     click.echo(f"--opcua-cert {certificate} --opcua-key {key}")
@@ -282,7 +282,7 @@ def _cell_outputs(
     publish: str | None, cell: dict[str, Any], model_dir: Path, usable: bool, mm_per_px: Any
 ) -> tuple[Any, Any]:
     """The outputs the options ask for (ZeroMQ, OPC UA, MQTT), and what they know of the run."""
-    from weldpool_core.outputs import CellInfo, OutputsConfig
+    from weldpool_core.cell.outputs import CellInfo, OutputsConfig
     from weldpool_core.student.checkpoint import read_student_config
 
     config = OutputsConfig(
@@ -326,7 +326,7 @@ def _opcua_options(
         if certificate or key or trust or security != "none":
             fail("--opcua-security, --opcua-cert, --opcua-key and --opcua-trust need --opcua URL.")
         return None
-    from weldpool_core.outputs.opcua import OpcUaOptions
+    from weldpool_core.cell.outputs.opcua import OpcUaOptions
 
     return OpcUaOptions(url, security, certificate, key, trust)
 
@@ -347,7 +347,7 @@ def _mqtt_options(
         return None
     import os
 
-    from weldpool_core.outputs.mqtt import MqttOptions
+    from weldpool_core.cell.outputs.mqtt import MqttOptions
 
     return MqttOptions(
         url,
@@ -364,7 +364,7 @@ def _mqtt_options(
 
 def _smoothing(smooth: str, min_cutoff: float | None, beta: float | None) -> Any:
     """The One-Euro filter's settings (None: raw keypoints)."""
-    from weldpool_core.smoothing import SmoothingParams
+    from weldpool_core.cell.smoothing import SmoothingParams
 
     if smooth != "one-euro":
         return None
@@ -385,7 +385,7 @@ class _Outputs:
         self.frames = self.dropped = 0
 
     def open(self, config: Any, info: Any, wait_s: float, record_path: Path | None) -> None:
-        from weldpool_core.outputs import open_outputs
+        from weldpool_core.cell.outputs import open_outputs
 
         if record_path is not None:
             try:
@@ -423,7 +423,7 @@ class _Outputs:
     def summary(self, seconds: float) -> dict[str, Any]:
         from dataclasses import asdict
 
-        from weldpool_core.stream import summary
+        from weldpool_core.cell.stream import summary
 
         report = summary(self.latencies, self.frames, self.dropped, seconds)
         if self.sinks is not None:

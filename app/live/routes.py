@@ -16,7 +16,7 @@ from app.core.security import CurrentUser, ReviewerUser
 from app.live.schemas import LiveIn, LiveOut, LiveOutputOut, LiveRecords
 from app.live.service import ACTIVE, LiveView, LiveViews, check_outputs
 from app.training.service import get_model, model_folder, promoted_model
-from weldpool_core.outputs import OutputsConfig
+from weldpool_core.cell.outputs import OutputsConfig
 
 router = APIRouter(prefix="/live", tags=["live"])
 BOUNDARY = "weldpool-frame"
@@ -111,8 +111,8 @@ def start_live(
 def _outputs_config(body: LiveIn, settings: Settings) -> OutputsConfig:
     """The outputs the form asked for, within what the admin allows (``check_outputs``; no
     security on OPC UA: the CLI has the options)."""
-    from weldpool_core.outputs.mqtt import MqttOptions
-    from weldpool_core.outputs.opcua import OpcUaOptions
+    from weldpool_core.cell.outputs.mqtt import MqttOptions
+    from weldpool_core.cell.outputs.opcua import OpcUaOptions
 
     zeromq, opcua, mqtt = (
         (value or "").strip() or None for value in (body.zeromq, body.opcua, body.mqtt)

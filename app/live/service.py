@@ -1,6 +1,6 @@
 """Live views: the promoted (or a chosen) student on a camera, URL or video, inside the web process.
 
-An engineer at the cell starts one from the models page; it runs ``weldpool_core.stream`` on a
+An engineer at the cell starts one from the models page; it runs ``weldpool_core.cell.stream`` on a
 thread of this process (the ML stack is imported then, not before) and keeps what the page needs:
 the newest frame with the mask outline and keypoints drawn (JPEG, at most ``OVERLAY_FPS`` a second,
 so drawing never slows the student), the last ``KEEP_RECORDS`` records for the scrolling curves,
@@ -78,7 +78,7 @@ class LiveView:
     jpeg: bytes | None = None
     jpeg_number: int = 0
     outputs: Any = None
-    """The view's ``weldpool_core.outputs.Outputs`` (ZeroMQ, OPC UA, MQTT), or None."""
+    """The view's ``weldpool_core.cell.outputs.Outputs`` (ZeroMQ, OPC UA, MQTT), or None."""
     stop_event: threading.Event = field(default_factory=threading.Event)
     changed: threading.Condition = field(default_factory=threading.Condition)
     thread: threading.Thread | None = None
@@ -118,7 +118,7 @@ class LiveViews:
     def start(self, view_args: dict[str, Any], outputs: Any = None) -> LiveView:
         """Start a view; 409 when ``MAX_RUNNING`` already run. ``outputs`` (an
         ``OutputsConfig``) are opened now, so a port in use is a 400 before anything runs."""
-        from weldpool_core.stream import parse_source
+        from weldpool_core.cell.stream import parse_source
 
         parse_source(view_args["source"])  # a missing file is a 400 now, not a failed view
         with self._lock:
@@ -191,8 +191,8 @@ def check_outputs(zeromq: str | None, opcua: str | None, mqtt: str | None, setti
     host, or give ZeroMQ a path (``ipc://`` replaces the file there)."""
     from urllib.parse import urlparse
 
-    from weldpool_core.outputs.mqtt import parse_mqtt_url
-    from weldpool_core.outputs.opcua import parse_opcua_url
+    from weldpool_core.cell.outputs.mqtt import parse_mqtt_url
+    from weldpool_core.cell.outputs.opcua import parse_opcua_url
 
     binds = _listed(settings.live_bind_hosts)
     allowed = ", ".join(sorted(binds)) or "none"
@@ -235,7 +235,7 @@ def _open_outputs(view_args: dict[str, Any], config: Any) -> Any:
     """The view's outputs, opened (None when it has none)."""
     if config is None or not config.any():
         return None
-    from weldpool_core.outputs import CellInfo, open_outputs
+    from weldpool_core.cell.outputs import CellInfo, open_outputs
     from weldpool_core.student.checkpoint import read_student_config
 
     gate = view_args.get("gate") or {}
@@ -262,8 +262,8 @@ def _set_message(view: LiveView, message: str) -> None:
 def _run(view: LiveView) -> None:
     """The view's thread: open, stream, keep the newest overlay and records."""
     try:
-        from weldpool_core.smoothing import SmoothingParams
-        from weldpool_core.stream import StreamOptions, open_stream
+        from weldpool_core.cell.smoothing import SmoothingParams
+        from weldpool_core.cell.stream import StreamOptions, open_stream
 
         options = StreamOptions(
             sequential=view.sequential,

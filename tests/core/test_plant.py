@@ -7,9 +7,9 @@ import math
 
 import pytest
 
+from weldpool_core.cell.plant import PIController, PlantCamera, PlantParams, WeldPoolPlant
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_geometry
-from weldpool_core.plant import PIController, PlantCamera, PlantParams, WeldPoolPlant
 
 
 def test_the_steady_width_grows_with_the_root_of_heat_input_per_length() -> None:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from weldpool_core.plant import PlantParams
+from weldpool_core.cell.plant import PlantParams
 from weldpool_core.process_map import derived_parameters, power_fit, residual_pct
 from weldpool_core.signature import (
     RollingStability,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from weldpool_core.cell.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.smoothing import KeypointSmoother, SmoothingParams, jitter, lag_frames
 
 FPS = 15.0
 

@@ -17,7 +17,7 @@ from app.core.models import ModelVersion, Role
 from app.live.service import MAX_RUNNING, overlay_jpeg
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
 from tests.helpers import auth, run_cli, wait_for, write_video
-from weldpool_core.stream import CapturedFrame, StreamResult
+from weldpool_core.cell.stream import CapturedFrame, StreamResult
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ensure_onnx
 from weldpool_core.student.train import train_student

@@ -7,7 +7,7 @@ from typing import Any
 
 
 def record(frame: int, width_px: float = 50.0, scaled: bool = False) -> dict[str, Any]:
-    """A stream record (``weldpool_core.stream.record_fields``) whose values follow ``frame``."""
+    """A stream record (``weldpool_core.cell.stream.record_fields``) following ``frame``."""
     mm = 0.1 if scaled else None
     return {
         "frame": frame,

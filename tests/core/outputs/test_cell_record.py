@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from tests.core.outputs.common import record
-from weldpool_core.outputs import CELL_FIELDS, CellInfo, CellRecord
+from weldpool_core.cell.outputs import CELL_FIELDS, CellInfo, CellRecord
 
 
 def test_a_scaled_run_gives_millimetres_and_an_unscaled_one_pixels() -> None:

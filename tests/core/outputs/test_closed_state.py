@@ -4,9 +4,9 @@
 from __future__ import annotations
 
 from tests.mqtt import clear_retained, free_port, unique_topic
-from weldpool_core.outputs import CellInfo
-from weldpool_core.outputs.mqtt import MqttOptions, MqttPublisher
-from weldpool_core.outputs.zmq import Publisher
+from weldpool_core.cell.outputs import CellInfo
+from weldpool_core.cell.outputs.mqtt import MqttOptions, MqttPublisher
+from weldpool_core.cell.outputs.zmq import Publisher
 
 
 def test_a_closed_mqtt_output_reads_disconnected(mqtt_broker: tuple[str, int]) -> None:

@@ -16,9 +16,9 @@ import pytest
 
 from tests.core.outputs.common import record
 from tests.mqtt import start_broker, unique_topic
+from weldpool_core.cell.outputs import CellInfo, OutputsConfig, open_outputs
+from weldpool_core.cell.outputs.mqtt import MqttOptions, MqttPublisher, parse_mqtt_url
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs import CellInfo, OutputsConfig, open_outputs
-from weldpool_core.outputs.mqtt import MqttOptions, MqttPublisher, parse_mqtt_url
 
 
 class Listener:

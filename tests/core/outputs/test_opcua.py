@@ -20,15 +20,15 @@ from asyncua import Client, ua
 from tests.core.outputs.common import record
 from tests.helpers import run_cli
 from tests.mqtt import free_port
-from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs import CellInfo, Outputs, Reporter
-from weldpool_core.outputs.opcua import (
+from weldpool_core.cell.outputs import CellInfo, Outputs, Reporter
+from weldpool_core.cell.outputs.opcua import (
     CERTIFICATE_FILE,
     KEY_FILE,
     NAMESPACE,
     OpcUaOptions,
     OpcUaServer,
 )
+from weldpool_core.errors import InvalidInputError
 
 
 @pytest.fixture

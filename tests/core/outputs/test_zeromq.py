@@ -8,7 +8,7 @@ import zmq
 
 from tests.core.outputs.common import record
 from tests.mqtt import free_port
-from weldpool_core.outputs.zmq import Publisher
+from weldpool_core.cell.outputs.zmq import Publisher
 
 
 def test_subscribers_are_counted_as_they_come_and_go() -> None:

@@ -13,9 +13,9 @@ import pytest
 
 from tests.core.student.common import TINY_FRAME, TINY_STUDENT, synthetic_frames, tiny_config
 from tests.helpers import run_cli, write_video
+from weldpool_core.cell.stream import FrameSource, StreamStudent, run_stream
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import heatmap_from_mask
-from weldpool_core.stream import FrameSource, StreamStudent, run_stream
 from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import export_student

@@ -26,10 +26,8 @@ import zmq
 from tests.core.student.common import TINY_STUDENT
 from tests.helpers import REPO, run_cli, write_video
 from tests.mqtt import clear_retained, unique_topic
-from weldpool_core.errors import InvalidInputError
-from weldpool_core.heatmap import keypoints_from_mask
-from weldpool_core.smoothing import KeypointSmoother
-from weldpool_core.stream import (
+from weldpool_core.cell.smoothing import KeypointSmoother
+from weldpool_core.cell.stream import (
     CapturedFrame,
     FrameSource,
     StreamStudent,
@@ -38,6 +36,8 @@ from weldpool_core.stream import (
     record_fields,
     run_stream,
 )
+from weldpool_core.errors import InvalidInputError
+from weldpool_core.heatmap import keypoints_from_mask
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import export_student
 from weldpool_core.student.train import TrainResult

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from weldpool_core.cell.stream import StreamStudent
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.stream import StreamStudent
 from weldpool_core.student import checkpoint
 from weldpool_core.student.sequential import (
     load_sequential,

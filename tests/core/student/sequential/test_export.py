@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from tests.helpers import write_video
+from weldpool_core.cell.stream import FrameSource, StreamStudent
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.stream import FrameSource, StreamStudent
 from weldpool_core.student import checkpoint
 from weldpool_core.student.sequential import (
     LabelledClip,

@@ -8,7 +8,7 @@ import threading
 import time
 from typing import Any
 
-from weldpool_core.outputs.base import CellInfo, Output, OutputStatus, Reporter, log
+from weldpool_core.cell.outputs.base import CellInfo, Output, OutputStatus, Reporter, log
 
 
 class Outputs:

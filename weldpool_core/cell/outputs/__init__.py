@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from weldpool_core.outputs.base import (
+from weldpool_core.cell.outputs.base import (
     CELL_FIELDS,
     KEEP_LATENCIES,
     STALE_MS,
@@ -29,7 +29,7 @@ from weldpool_core.outputs.base import (
     OutputStatus,
     Reporter,
 )
-from weldpool_core.outputs.fanout import Outputs
+from weldpool_core.cell.outputs.fanout import Outputs
 
 __all__ = [
     "CELL_FIELDS",
@@ -66,9 +66,9 @@ class OutputsConfig:
 
 
 OUTPUTS: dict[str, tuple[str, str]] = {
-    "zeromq": ("weldpool_core.outputs.zmq", "open_output"),
-    "opcua": ("weldpool_core.outputs.opcua", "open_output"),
-    "mqtt": ("weldpool_core.outputs.mqtt", "open_output"),
+    "zeromq": ("weldpool_core.cell.outputs.zmq", "open_output"),
+    "opcua": ("weldpool_core.cell.outputs.opcua", "open_output"),
+    "mqtt": ("weldpool_core.cell.outputs.mqtt", "open_output"),
 }
 """Each output: its ``OutputsConfig`` field, and the module and function that open it from its
 options and the run's ``CellInfo`` (a module is imported only when its output is asked for)."""

@@ -12,8 +12,8 @@ import json
 import time
 from typing import Any
 
+from weldpool_core.cell.outputs.base import CellInfo, Counters, OutputStatus
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs.base import CellInfo, Counters, OutputStatus
 
 
 class Publisher:
@@ -88,5 +88,5 @@ class Publisher:
 
 
 def open_output(address: str, _info: CellInfo) -> Publisher:
-    """The ZeroMQ output of the registry (``weldpool_core.outputs.OUTPUTS``)."""
+    """The ZeroMQ output of the registry (``weldpool_core.cell.outputs.OUTPUTS``)."""
     return Publisher(address)

@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
 
+from weldpool_core.cell.outputs.base import CellInfo, CellRecord, Counters, OutputStatus, Reporter
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs.base import CellInfo, CellRecord, Counters, OutputStatus, Reporter
 
 KEEPALIVE_S = 10
 MAX_QUEUED = 64
@@ -290,7 +290,7 @@ def _without_password(url: str) -> str:
 
 
 def open_output(options: MqttOptions, info: CellInfo) -> MqttPublisher:
-    """The MQTT output of the registry (``weldpool_core.outputs.OUTPUTS``): a broker host that
+    """The MQTT output of the registry (``weldpool_core.cell.outputs.OUTPUTS``): a broker host that
     does not resolve is refused at once, in one sentence."""
     check_broker_host(options.url)
     return MqttPublisher(options, info)

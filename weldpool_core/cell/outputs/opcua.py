@@ -32,8 +32,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from weldpool_core.errors import InvalidInputError
-from weldpool_core.outputs.base import (
+from weldpool_core.cell.outputs.base import (
     CELL_FIELDS,
     CellInfo,
     CellRecord,
@@ -41,6 +40,7 @@ from weldpool_core.outputs.base import (
     OutputStatus,
     Reporter,
 )
+from weldpool_core.errors import InvalidInputError
 
 NAMESPACE = "urn:weldpool:stream"
 OBJECT = "WeldPool"
@@ -494,5 +494,5 @@ def _start_error(exc: BaseException, url: str) -> BaseException:
 
 
 def open_output(options: OpcUaOptions, info: CellInfo) -> OpcUaServer:
-    """The OPC UA output of the registry (``weldpool_core.outputs.OUTPUTS``)."""
+    """The OPC UA output of the registry (``weldpool_core.cell.outputs.OUTPUTS``)."""
     return OpcUaServer(options, info)

@@ -25,8 +25,8 @@ probability in doubt, Σ 2·min(p, 1 − p), relative to the pool's area (0 for 
 where the student hesitates about the boundary; ``predict.mask_ambiguity``, the rule the
 uncertainty's ambiguity part uses on the latent draws' mean).
 
-The records go to a controller through ``weldpool_core.outputs``: ZeroMQ (``Publisher``), OPC UA
-and MQTT.
+The records go to a controller through ``weldpool_core.cell.outputs``: ZeroMQ (``Publisher``),
+OPC UA and MQTT.
 """
 
 from __future__ import annotations
@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from weldpool_core.cell.smoothing import KeypointSmoother, SmoothingParams
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
 from weldpool_core.signature import RollingStability
-from weldpool_core.smoothing import KeypointSmoother, SmoothingParams
 from weldpool_core.student.checkpoint import ONNX_FILE, read_student_config
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ensure_onnx
