@@ -14,19 +14,28 @@ from tests.helpers import auth, corrected_label
 from tests.proposals.common import box, propose, upload
 
 
+def _teacher_and_student(
+    client: TestClient, token: str, settings, session_factory, seed: int, count: int
+) -> list[int]:
+    """``count`` frames, each with a teacher proposal (IoU 0.6 against ``box(20, 60)``) and a
+    proposal of student-v1 (IoU 38/42 against it)."""
+    storage = Storage(settings.home)
+    ids = upload(client, token, seed, count)
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
+        session.commit()
+    for frame_id in ids:
+        propose(session_factory, storage, frame_id, "teacher", "t", box(30, 70))
+        propose(session_factory, storage, frame_id, "student", "student-v1", box(22, 62))
+    return ids
+
+
 def test_the_policy_shows_a_student_only_when_it_agrees_better_on_enough_frames(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
     _, token = make_user("policy", Role.reviewer)
-    storage = Storage(settings.home)
-    ids = upload(client, token, 400, 5)
-    with session_factory() as session:
-        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
-        session.commit()
+    ids = _teacher_and_student(client, token, settings, session_factory, 400, 5)
     truth = box(20, 60)
-    for frame_id in ids:
-        propose(session_factory, storage, frame_id, "teacher", "t", box(30, 70))  # IoU 0.6
-        propose(session_factory, storage, frame_id, "student", "student-v1", box(22, 62))
 
     def shown(frame_id: int) -> str:
         body = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
@@ -195,14 +204,7 @@ def test_the_policy_is_stored_when_a_change_commits_and_read_as_a_row(
     from app.proposals import policy
 
     _, token = make_user("stored", Role.reviewer)
-    storage = Storage(settings.home)
-    ids = upload(client, token, 500, 4)
-    with session_factory() as session:
-        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
-        session.commit()
-    for frame_id in ids:
-        propose(session_factory, storage, frame_id, "teacher", "t", box(30, 70))
-        propose(session_factory, storage, frame_id, "student", "student-v1", box(22, 62))
+    ids = _teacher_and_student(client, token, settings, session_factory, 500, 4)
 
     def row() -> tuple[bool, str]:
         with session_factory() as session:
