@@ -175,8 +175,11 @@ def _foreground(mask: NDArray[Any]) -> NDArray[np.bool_]:
     raise InvalidInputError(f"A mask must hold booleans or numbers, not {array.dtype}.")
 
 
-def _smoothed(foreground: NDArray[np.bool_], blur_size: int) -> _Smoothed:
-    """S = box blur of the mask, computed on its bounding box padded with zeros."""
+def _smoothed(
+    foreground: NDArray[np.bool_], blur_size: int, origin: tuple[int, int] = (0, 0)
+) -> _Smoothed:
+    """S = box blur of the mask, computed on its bounding box padded with zeros; ``origin``:
+    where the mask lies in its frame (the part of a frame around its pool: the same S)."""
     x, y, w, h = cv2.boundingRect(foreground.view(np.uint8))
     if w == 0 or h == 0:
         raise InvalidInputError("The mask is empty: it has no foreground pixel to outline.")
@@ -194,7 +197,7 @@ def _smoothed(foreground: NDArray[np.bool_], blur_size: int) -> _Smoothed:
         value=0,
     )
     values = np.asarray(cv2.blur(padded.astype(np.float32), (blur_size, blur_size)), np.float32)
-    return _Smoothed(values, (x0, y0))
+    return _Smoothed(values, (x0 + origin[0], y0 + origin[1]))
 
 
 def _outer_contour(smoothed: NDArray[np.float32], min_area: int) -> NDArray[np.int32]:
@@ -439,9 +442,9 @@ class _Placed:
     contour: NDArray[np.float64]
 
 
-def _placed(mask: NDArray[Any], params: HeatmapParams) -> _Placed:
+def _placed(mask: NDArray[Any], params: HeatmapParams, origin: tuple[int, int] = (0, 0)) -> _Placed:
     foreground = _foreground(mask)
-    smoothed = _smoothed(foreground, params.blur_size)
+    smoothed = _smoothed(foreground, params.blur_size, origin)
     local = _outer_contour(smoothed.values, params.min_area)
     turns = _turns(smoothed.values, local, _step(len(local), params))
     centre = _centroid(local)
@@ -462,11 +465,13 @@ def _placed(mask: NDArray[Any], params: HeatmapParams) -> _Placed:
 
 
 def keypoints_from_mask(
-    mask: NDArray[Any], params: HeatmapParams | None = None
+    mask: NDArray[Any], params: HeatmapParams | None = None, origin: tuple[int, int] = (0, 0)
 ) -> NDArray[np.float64]:
     """Algorithm 1's k×2 keypoints of a mask, without rendering the heatmap (a sixth of
-    ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores."""
-    return _placed(mask, params or HeatmapParams()).points
+    ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores. ``origin``
+    ``(left, top)``: where ``mask`` lies when it is only the part of a frame around its pool
+    (the keypoints are the whole frame's, in its pixels)."""
+    return _placed(mask, params or HeatmapParams(), origin).points
 
 
 def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:
@@ -489,10 +494,11 @@ def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -
     )
 
 
-def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
-    """Algorithm 1's keypoints of a label's mask (one drawn or imported), as [[x, y], …]."""
+def mask_keypoints(mask: NDArray[np.bool_], origin: tuple[int, int] = (0, 0)) -> list[list[float]]:
+    """Algorithm 1's keypoints of a label's mask (one drawn or imported; the part at ``origin``
+    of its frame, as ``keypoints_from_mask``), as [[x, y], …]."""
     try:
-        points = keypoints_from_mask(mask)
+        points = keypoints_from_mask(mask, origin=origin)
     except InvalidInputError as exc:
         raise InvalidInputError(
             f"Keypoints cannot be computed for this mask: {exc.message}"
