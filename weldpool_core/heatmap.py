@@ -294,12 +294,9 @@ def _signed_arc(arcs: NDArray[Any], origin: float, perimeter: float) -> NDArray[
     return offset
 
 
-def _anchor_arc(
-    angles: NDArray[Any], direction: float, arcs: NDArray[Any], perimeter: float
-) -> float:
-    """Arc position of the contour point seen from the centroid in ``direction`` (radians in the
-    order rule's frame); equally near points average (on the circle of arc positions)."""
-    off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+def _anchor_arc(off: NDArray[Any], arcs: NDArray[Any], perimeter: float) -> float:
+    """Arc position of the contour point seen from the centroid in a direction, each point
+    being ``off`` it (radians); equally near points average (on the circle of arc positions)."""
     tied = np.flatnonzero(off <= off.min() + _TIE)
     return _circular_mean(arcs[tied], perimeter)
 
@@ -319,7 +316,8 @@ def _separate(positions: list[float], perimeter: float, separation: float) -> li
         moved = False
         for j in range(count):
             nxt = (j + 1) % count
-            gap = float(_signed_arc(np.array([out[nxt]]), out[j], perimeter)[0])
+            # ``_signed_arc`` of one position, in Python's floats (the same operations)
+            gap = (out[nxt] - out[j] + perimeter / 2) % perimeter - perimeter / 2
             # groups go round the contour in one direction; the gap is the signed step to the next
             step = abs(gap)
             if step < separation - 1e-9:
@@ -337,8 +335,10 @@ def _select_keypoints(
     turns: NDArray[Any],
     centre: tuple[float, float],
     params: HeatmapParams,
+    with_spread: bool = True,
 ) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]], list[KeypointRule]]:
-    """Steps 4–5: k groups of high-curvature points anchored around the pool (module doc)."""
+    """Steps 4–5: k groups of high-curvature points anchored around the pool (module doc);
+    ``with_spread`` False: no covariances (zeros), the keypoints alone, as a label stores them."""
     arcs, perimeter = _arc_positions(contour)
     angles = angles_around(contour, centre, params.order_start_deg)
     width = 2 * math.pi / params.k
@@ -349,8 +349,8 @@ def _select_keypoints(
     weights: list[float] = []
     for j in range(params.k):
         direction = (j + 0.5) * width
-        anchor = _anchor_arc(angles, direction, arcs, perimeter)
         off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+        anchor = _anchor_arc(off, arcs, perimeter)
         share = excess * np.clip(1.0 - off / width, 0.0, None)
         pull = float((share * _signed_arc(arcs, anchor, perimeter)).sum())
         positions.append((anchor + pull / (float(share.sum()) + prior)) % perimeter)
@@ -364,7 +364,9 @@ def _select_keypoints(
         keypoint = _point_at_arc(position, contour, arcs, perimeter)
         near = excess * (np.abs(_signed_arc(arcs, position, perimeter)) <= reach)
         curved = weight >= prior and float(near.sum()) > _TIE
-        if curved:
+        if not with_spread:
+            covariance = np.zeros((2, 2))
+        elif curved:
             centred = points - keypoint
             spread = (near[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(0)
             covariance = spread / float(near.sum()) + params.covariance_floor * np.eye(2)
@@ -442,13 +444,18 @@ class _Placed:
     contour: NDArray[np.float64]
 
 
-def _placed(mask: NDArray[Any], params: HeatmapParams, origin: tuple[int, int] = (0, 0)) -> _Placed:
+def _placed(
+    mask: NDArray[Any],
+    params: HeatmapParams,
+    origin: tuple[int, int] = (0, 0),
+    with_spread: bool = True,
+) -> _Placed:
     foreground = _foreground(mask)
     smoothed = _smoothed(foreground, params.blur_size, origin)
     local = _outer_contour(smoothed.values, params.min_area)
     turns = _turns(smoothed.values, local, _step(len(local), params))
     centre = _centroid(local)
-    keypoints, covariances, rules = _select_keypoints(local, turns, centre, params)
+    keypoints, covariances, rules = _select_keypoints(local, turns, centre, params, with_spread)
     origin = np.array(smoothed.origin, np.float64)
     points = np.array(keypoints) + origin
     order = order_by_angle(
@@ -471,7 +478,7 @@ def keypoints_from_mask(
     ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores. ``origin``
     ``(left, top)``: where ``mask`` lies when it is only the part of a frame around its pool
     (the keypoints are the whole frame's, in its pixels)."""
-    return _placed(mask, params or HeatmapParams(), origin).points
+    return _placed(mask, params or HeatmapParams(), origin, with_spread=False).points
 
 
 def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:
