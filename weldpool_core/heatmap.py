@@ -456,10 +456,10 @@ def _placed(
     turns = _turns(smoothed.values, local, _step(len(local), params))
     centre = _centroid(local)
     keypoints, covariances, rules = _select_keypoints(local, turns, centre, params, with_spread)
-    origin = np.array(smoothed.origin, np.float64)
-    points = np.array(keypoints) + origin
+    offset = np.array(smoothed.origin, np.float64)
+    points = np.array(keypoints) + offset
     order = order_by_angle(
-        points, (centre[0] + origin[0], centre[1] + origin[1]), params.order_start_deg
+        points, (centre[0] + offset[0], centre[1] + offset[1]), params.order_start_deg
     )
     return _Placed(
         foreground=foreground,
@@ -467,7 +467,7 @@ def _placed(
         points=points[order],
         spread=np.array(covariances)[order],
         rules=tuple(rules[i] for i in order),
-        contour=local.astype(np.float64) + origin,
+        contour=local.astype(np.float64) + offset,
     )
 
 

@@ -457,14 +457,12 @@ def mask_record(
 ) -> dict[str, Any]:
     """What a label stores of its mask besides the file: COCO RLE, area and box (from ``rle``
     when the caller has the mask's compressed RLE already), and its region outlines."""
-    boxed = mask if isinstance(mask, BoxedMask) else None
+    pixels, origin = (mask.pixels, mask.origin) if isinstance(mask, BoxedMask) else (mask, (0, 0))
     if rle is not None:
         coco = coco_rle(rle)
     else:
-        coco = coco_mask(boxed.frame_mask() if boxed is not None else mask)
-    outlines = (
-        region_outlines(boxed.pixels, boxed.origin) if boxed is not None else region_outlines(mask)
-    )
+        coco = coco_mask(mask.frame_mask() if isinstance(mask, BoxedMask) else mask)
+    outlines = region_outlines(pixels, origin)
     return {
         "mask_rle": coco.rle,
         "mask_area": coco.area,

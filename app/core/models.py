@@ -546,7 +546,7 @@ def _has_signatures(session: Any) -> bool:
 
 def _history(row: Any, name: str) -> Any:
     """An attribute's pending changes, unloaded ones not loaded (``inspect().attrs`` builds all)."""
-    return sa.orm.attributes.get_history(row, name, sa.orm.attributes.PASSIVE_NO_INITIALIZE)
+    return sa.orm.attributes.get_history(row, name, sa.orm.base.PASSIVE_NO_INITIALIZE)
 
 
 def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
