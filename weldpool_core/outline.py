@@ -102,19 +102,51 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
     return rows
 
 
+def rle_counts(counts: str | bytes) -> NDArray[np.int64]:
+    """The run lengths of COCO's compressed RLE string (background first, then pool, …), as
+    pycocotools' ``rleFrString`` reads it, in numpy: 5-bit groups, least significant first,
+    ``0x20`` for more to come and ``0x10`` for a negative last group; from the fourth run on,
+    each is stored as the difference to the run two before it.
+
+    Raises:
+        ValueError: a character outside the code, a number cut off or too long, a negative run.
+    """
+    raw = counts.encode("ascii") if isinstance(counts, str) else bytes(counts)
+    code = np.frombuffer(raw, np.uint8).astype(np.int64) - 48
+    if code.size == 0:
+        return np.zeros(0, np.int64)
+    if int(code.min()) < 0 or int(code.max()) > 63:
+        raise ValueError("a character outside the RLE code")
+    ends = np.flatnonzero((code & 0x20) == 0)  # the last character of each number
+    if ends.size == 0 or ends[-1] != code.size - 1:
+        raise ValueError("the counts end inside a number")
+    starts = np.concatenate(([0], ends[:-1] + 1))
+    place = np.arange(code.size) - np.repeat(starts, ends - starts + 1)
+    if int(place.max()) > 7:
+        raise ValueError("a run longer than an image can be")
+    values = np.add.reduceat((code & 0x1F) << (5 * place), starts)
+    negative = (code[ends] & 0x10) != 0
+    values[negative] -= np.left_shift(1, 5 * (place[ends][negative] + 1))
+    values[3::2] = np.cumsum(values[1::2])[1:]
+    values[4::2] = np.cumsum(values[2::2])[1:]
+    if values.size and int(values.min()) < 0:
+        raise ValueError("a negative run")
+    return values
+
+
 def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
     """The pixels of a compressed RLE's mask inside ``box`` ``[x, y, width, height]`` (as
-    ``CocoMask.bbox`` holds it), row-major: only the box is put in row order, not the frame."""
-    from pycocotools import mask as coco
-
-    x, y, width, height = (int(v) for v in box)
-    counts = rle["counts"]
-    encoded = {
-        "size": list(rle["size"]),
-        "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
-    }
-    columns = coco.decode(encoded)  # H×W, column-major: its .T is a row-major W×H
-    pixels: NDArray[np.bool_] = cv2.transpose(columns.T[x : x + width, y : y + height]).view(bool)
+    ``CocoMask.bbox`` holds it), row-major: only the box's columns are laid out from the runs
+    (never the whole frame) and only the box is put in row order."""
+    height = int(rle["size"][0])
+    x, y, width, box_height = (int(v) for v in box)
+    runs = rle_counts(rle["counts"])
+    ends = np.cumsum(runs)
+    first, last = x * height, (x + width) * height
+    inside = np.clip(ends, first, last) - np.clip(ends - runs, first, last)
+    values = np.arange(runs.size, dtype=np.uint8) & 1  # runs alternate, 0s first
+    columns = np.repeat(values, inside).reshape(width, height)[:, y : y + box_height]
+    pixels: NDArray[np.bool_] = cv2.transpose(np.ascontiguousarray(columns)).view(bool)
     return pixels
 
 
@@ -151,37 +183,6 @@ class BoxedMask:
         return full
 
 
-def rle_runs(counts: str | bytes) -> NDArray[np.int64]:
-    """The run lengths of a compressed RLE's ``counts`` (background first, then pool, …),
-    decoded as pycocotools does (5 bits a character below a continuation bit, the last one's
-    sign bit; from the fourth run on, each is the difference to the run two before), in numpy.
-
-    Raises:
-        ValueError: a character outside the code, a number cut off or too long, a negative run.
-    """
-    raw = counts.encode("ascii") if isinstance(counts, str) else bytes(counts)
-    code = np.frombuffer(raw, np.uint8).astype(np.int64) - 48
-    if code.size == 0:
-        return np.zeros(0, np.int64)
-    if int(code.min()) < 0 or int(code.max()) > 63:
-        raise ValueError("a character outside the RLE code")
-    ends = np.flatnonzero((code & 0x20) == 0)  # the last character of each number
-    if ends.size == 0 or ends[-1] != code.size - 1:
-        raise ValueError("the counts end inside a number")
-    starts = np.concatenate(([0], ends[:-1] + 1))
-    place = np.arange(code.size) - np.repeat(starts, ends - starts + 1)
-    if int(place.max()) > 7:
-        raise ValueError("a run longer than an image can be")
-    values = np.add.reduceat((code & 0x1F) << (5 * place), starts)
-    negative = (code[ends] & 0x10) != 0
-    values[negative] -= np.left_shift(1, 5 * (place[ends][negative] + 1))
-    values[3::2] = np.cumsum(values[1::2])[1:]
-    values[4::2] = np.cumsum(values[2::2])[1:]
-    if values.size and int(values.min()) < 0:
-        raise ValueError("a negative run")
-    return values
-
-
 def rle_boxed(rle: dict[str, Any]) -> BoxedMask:
     """The mask of a compressed RLE ``{"size": [h, w], "counts": str}`` as a ``BoxedMask``: only
     its box is filled, run by run, and put in row order (a pool's ~1,000 runs, not the frame's
@@ -191,7 +192,7 @@ def rle_boxed(rle: dict[str, Any]) -> BoxedMask:
         ValueError: the counts are not an RLE of ``size`` (the runs do not cover it exactly).
     """
     height, width = (int(v) for v in rle["size"])
-    runs = rle_runs(rle["counts"])
+    runs = rle_counts(rle["counts"])
     ends = np.cumsum(runs)
     covered = int(ends[-1]) if ends.size else 0
     if covered != height * width:

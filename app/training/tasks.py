@@ -14,14 +14,15 @@ import structlog
 
 from app.core.db import utcnow
 from app.core.errors import MissingFile
+from app.core.frame_rows import FrameDeleted, frame_exists
 from app.core.models import Frame, Job, ModelVersion
 from app.frames.listing import scope_frames
 from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, counted, job_handler
-from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.queue import latest_teacher_proposal
 from app.proposals.record import STUDENT, record_proposal
 from app.storage import Storage, best_effort
+from app.storage.pixels import frame_rgb, load_mask
 from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
@@ -120,7 +121,7 @@ def _record_version(
                 "Every labelled frame it trained on was deleted during training; no version "
                 "was recorded."
             )
-        name = _free_name(session, models_dir)
+        name = service.free_name(session, models_dir)
         final = models_dir / name
         work.rename(final)
         try:
@@ -422,18 +423,6 @@ def _pseudo_labels(ctx: JobContext, session: Any, storage: Storage, labels: int)
         )
         frames.append((frame.id, weighted))
     return frames
-
-
-def _free_name(session: Any, models_dir: Any) -> str:
-    """The next ``student-vN`` whose folder is free (a crash may leave one behind)."""
-    name = service.next_name(session)
-    number = int(name.removeprefix("student-v"))
-    while (models_dir / name).exists() or session.scalar(
-        sa.select(ModelVersion.id).where(ModelVersion.name == name)
-    ):
-        number += 1
-        name = f"student-v{number}"
-    return name
 
 
 def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:

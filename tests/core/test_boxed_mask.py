@@ -21,8 +21,8 @@ from weldpool_core.outline import (
     mask_record,
     region_outlines,
     rle_boxed,
+    rle_counts,
     rle_mask,
-    rle_runs,
 )
 
 
@@ -55,7 +55,7 @@ def _pycocotools_runs(mask: np.ndarray) -> list[int]:
 def test_the_runs_and_the_box_of_an_rle_are_its_mask(index: int) -> None:
     mask = _masks()[index]
     rle = coco_mask(mask).rle
-    assert rle_runs(rle["counts"]).tolist() == _pycocotools_runs(mask)
+    assert rle_counts(rle["counts"]).tolist() == _pycocotools_runs(mask)
     boxed = rle_boxed(rle)
     assert np.array_equal(boxed.frame_mask(), rle_mask(rle))
     x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
@@ -122,5 +122,5 @@ def test_the_counts_decode_as_pycocotools_reads_them() -> None:
     mask[300, 10] = True
     rle = coco_mask(mask).rle
     encoded = {"size": rle["size"], "counts": rle["counts"].encode("ascii")}
-    assert int(rle_runs(rle["counts"]).sum()) == 600 * 700
+    assert int(rle_counts(rle["counts"]).sum()) == 600 * 700
     assert np.array_equal(rle_boxed(rle).frame_mask(), coco.decode(encoded).astype(bool))
