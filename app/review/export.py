@@ -194,8 +194,7 @@ def build_export(
     ``progress(fraction, message)`` is called after every frame; raise from it to stop.
     Frames whose files the store lost are left out, listed in ``skipped`` and the zip."""
     rows = export_rows(session, sequence_id, split)
-    (storage.home / "tmp").mkdir(parents=True, exist_ok=True)
-    descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.home / "tmp")
+    descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.scratch())
     os.close(descriptor)
     target = Path(name)
     report = progress or (lambda fraction, message: None)

@@ -166,7 +166,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     from weldpool_core.student.train import train_student
 
     storage = Storage.of(ctx.settings)
-    models_dir = ctx.settings.home / "models"
+    models_dir = storage.local("models")
     models_dir.mkdir(parents=True, exist_ok=True)
     work = models_dir / f".work-job{ctx.job_id}"
     train_ids, validation_ids, held_out = _training_split(ctx, models_dir)
@@ -216,8 +216,8 @@ def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
         session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
         session.commit()
     shutil.rmtree(folder, ignore_errors=True)
-    relative = folder.relative_to(ctx.settings.home).as_posix()
-    best_effort("unpublish", partial(Storage.of(ctx.settings).unpublish, relative))
+    storage = Storage.of(ctx.settings)
+    best_effort("unpublish", partial(storage.unpublish, storage.relative(folder)))
 
 
 @job_handler(service.SEQUENTIAL_KIND)
@@ -305,7 +305,7 @@ def _cell_names() -> tuple[str, ...]:
 
 def _stored(storage: Storage, folder: Path) -> str:
     """A version folder's path as the store names it."""
-    return folder.relative_to(storage.home).as_posix()
+    return storage.relative(folder)
 
 
 def _files(root: Path, names: tuple[str, ...]) -> dict[str, bytes]:
@@ -432,7 +432,7 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
-        folder = ctx.settings.home / (version.checkpoint_path or f"models/{version.name}")
+        folder = storage.local(version.checkpoint_path or f"models/{version.name}")
         incumbent = service.promoted_model(session)
         try:
             verdict = gate.measure(session, storage, version, incumbent, ctx.settings.device)
