@@ -175,8 +175,11 @@ def _foreground(mask: NDArray[Any]) -> NDArray[np.bool_]:
     raise InvalidInputError(f"A mask must hold booleans or numbers, not {array.dtype}.")
 
 
-def _smoothed(foreground: NDArray[np.bool_], blur_size: int) -> _Smoothed:
-    """S = box blur of the mask, computed on its bounding box padded with zeros."""
+def _smoothed(
+    foreground: NDArray[np.bool_], blur_size: int, origin: tuple[int, int] = (0, 0)
+) -> _Smoothed:
+    """S = box blur of the mask, computed on its bounding box padded with zeros; ``origin``:
+    where the mask lies in its frame (the part of a frame around its pool: the same S)."""
     x, y, w, h = cv2.boundingRect(foreground.view(np.uint8))
     if w == 0 or h == 0:
         raise InvalidInputError("The mask is empty: it has no foreground pixel to outline.")
@@ -194,7 +197,7 @@ def _smoothed(foreground: NDArray[np.bool_], blur_size: int) -> _Smoothed:
         value=0,
     )
     values = np.asarray(cv2.blur(padded.astype(np.float32), (blur_size, blur_size)), np.float32)
-    return _Smoothed(values, (x0, y0))
+    return _Smoothed(values, (x0 + origin[0], y0 + origin[1]))
 
 
 def _outer_contour(smoothed: NDArray[np.float32], min_area: int) -> NDArray[np.int32]:
@@ -291,12 +294,9 @@ def _signed_arc(arcs: NDArray[Any], origin: float, perimeter: float) -> NDArray[
     return offset
 
 
-def _anchor_arc(
-    angles: NDArray[Any], direction: float, arcs: NDArray[Any], perimeter: float
-) -> float:
-    """Arc position of the contour point seen from the centroid in ``direction`` (radians in the
-    order rule's frame); equally near points average (on the circle of arc positions)."""
-    off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+def _anchor_arc(off: NDArray[Any], arcs: NDArray[Any], perimeter: float) -> float:
+    """Arc position of the contour point seen from the centroid in a direction, each point
+    being ``off`` it (radians); equally near points average (on the circle of arc positions)."""
     tied = np.flatnonzero(off <= off.min() + _TIE)
     return _circular_mean(arcs[tied], perimeter)
 
@@ -316,7 +316,8 @@ def _separate(positions: list[float], perimeter: float, separation: float) -> li
         moved = False
         for j in range(count):
             nxt = (j + 1) % count
-            gap = float(_signed_arc(np.array([out[nxt]]), out[j], perimeter)[0])
+            # ``_signed_arc`` of one position, in Python's floats (the same operations)
+            gap = (out[nxt] - out[j] + perimeter / 2) % perimeter - perimeter / 2
             # groups go round the contour in one direction; the gap is the signed step to the next
             step = abs(gap)
             if step < separation - 1e-9:
@@ -334,8 +335,10 @@ def _select_keypoints(
     turns: NDArray[Any],
     centre: tuple[float, float],
     params: HeatmapParams,
+    with_spread: bool = True,
 ) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]], list[KeypointRule]]:
-    """Steps 4–5: k groups of high-curvature points anchored around the pool (module doc)."""
+    """Steps 4–5: k groups of high-curvature points anchored around the pool (module doc);
+    ``with_spread`` False: no covariances (zeros), the keypoints alone, as a label stores them."""
     arcs, perimeter = _arc_positions(contour)
     angles = angles_around(contour, centre, params.order_start_deg)
     width = 2 * math.pi / params.k
@@ -346,8 +349,8 @@ def _select_keypoints(
     weights: list[float] = []
     for j in range(params.k):
         direction = (j + 0.5) * width
-        anchor = _anchor_arc(angles, direction, arcs, perimeter)
         off = np.abs(np.mod(angles - direction + math.pi, 2 * math.pi) - math.pi)
+        anchor = _anchor_arc(off, arcs, perimeter)
         share = excess * np.clip(1.0 - off / width, 0.0, None)
         pull = float((share * _signed_arc(arcs, anchor, perimeter)).sum())
         positions.append((anchor + pull / (float(share.sum()) + prior)) % perimeter)
@@ -361,7 +364,9 @@ def _select_keypoints(
         keypoint = _point_at_arc(position, contour, arcs, perimeter)
         near = excess * (np.abs(_signed_arc(arcs, position, perimeter)) <= reach)
         curved = weight >= prior and float(near.sum()) > _TIE
-        if curved:
+        if not with_spread:
+            covariance = np.zeros((2, 2))
+        elif curved:
             centred = points - keypoint
             spread = (near[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(0)
             covariance = spread / float(near.sum()) + params.covariance_floor * np.eye(2)
@@ -439,17 +444,22 @@ class _Placed:
     contour: NDArray[np.float64]
 
 
-def _placed(mask: NDArray[Any], params: HeatmapParams) -> _Placed:
+def _placed(
+    mask: NDArray[Any],
+    params: HeatmapParams,
+    origin: tuple[int, int] = (0, 0),
+    with_spread: bool = True,
+) -> _Placed:
     foreground = _foreground(mask)
-    smoothed = _smoothed(foreground, params.blur_size)
+    smoothed = _smoothed(foreground, params.blur_size, origin)
     local = _outer_contour(smoothed.values, params.min_area)
     turns = _turns(smoothed.values, local, _step(len(local), params))
     centre = _centroid(local)
-    keypoints, covariances, rules = _select_keypoints(local, turns, centre, params)
-    origin = np.array(smoothed.origin, np.float64)
-    points = np.array(keypoints) + origin
+    keypoints, covariances, rules = _select_keypoints(local, turns, centre, params, with_spread)
+    offset = np.array(smoothed.origin, np.float64)
+    points = np.array(keypoints) + offset
     order = order_by_angle(
-        points, (centre[0] + origin[0], centre[1] + origin[1]), params.order_start_deg
+        points, (centre[0] + offset[0], centre[1] + offset[1]), params.order_start_deg
     )
     return _Placed(
         foreground=foreground,
@@ -457,16 +467,18 @@ def _placed(mask: NDArray[Any], params: HeatmapParams) -> _Placed:
         points=points[order],
         spread=np.array(covariances)[order],
         rules=tuple(rules[i] for i in order),
-        contour=local.astype(np.float64) + origin,
+        contour=local.astype(np.float64) + offset,
     )
 
 
 def keypoints_from_mask(
-    mask: NDArray[Any], params: HeatmapParams | None = None
+    mask: NDArray[Any], params: HeatmapParams | None = None, origin: tuple[int, int] = (0, 0)
 ) -> NDArray[np.float64]:
     """Algorithm 1's k×2 keypoints of a mask, without rendering the heatmap (a sixth of
-    ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores."""
-    return _placed(mask, params or HeatmapParams()).points
+    ``heatmap_from_mask``'s time on a 1280×800 frame): what a label stores. ``origin``
+    ``(left, top)``: where ``mask`` lies when it is only the part of a frame around its pool
+    (the keypoints are the whole frame's, in its pixels)."""
+    return _placed(mask, params or HeatmapParams(), origin, with_spread=False).points
 
 
 def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -> HeatmapResult:
@@ -489,10 +501,11 @@ def heatmap_from_mask(mask: NDArray[Any], params: HeatmapParams | None = None) -
     )
 
 
-def mask_keypoints(mask: NDArray[np.bool_]) -> list[list[float]]:
-    """Algorithm 1's keypoints of a label's mask (one drawn or imported), as [[x, y], …]."""
+def mask_keypoints(mask: NDArray[np.bool_], origin: tuple[int, int] = (0, 0)) -> list[list[float]]:
+    """Algorithm 1's keypoints of a label's mask (one drawn or imported; the part at ``origin``
+    of its frame, as ``keypoints_from_mask``), as [[x, y], …]."""
     try:
-        points = keypoints_from_mask(mask)
+        points = keypoints_from_mask(mask, origin=origin)
     except InvalidInputError as exc:
         raise InvalidInputError(
             f"Keypoints cannot be computed for this mask: {exc.message}"

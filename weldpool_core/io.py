@@ -239,8 +239,14 @@ def _png_chunk(kind: bytes, body: bytes) -> bytes:
     return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
 
-def encode_mask_png(mask: ImageArray) -> bytes:
+def encode_mask_png(
+    mask: ImageArray, frame: tuple[int, int] | None = None, origin: tuple[int, int] = (0, 0)
+) -> bytes:
     """A mask as a single-channel 8-bit PNG with values 0 and 255.
+
+    ``frame``: the (height, width) of the frame of which ``mask`` holds only the part at
+    ``origin`` ``(left, top)`` (a label's bounding box; the rest is background): the same file as
+    the whole frame's mask, without making one. None: ``mask`` is the whole frame.
 
     The file is framed here (header, one image stream, end) because its cost is the deflate:
     ISA-L's (``isal``) compresses a 1280×800 mask's rows 17× faster than the zlib OpenCV
@@ -250,12 +256,20 @@ def encode_mask_png(mask: ImageArray) -> bytes:
     the ingest's own verifier)."""
     if mask.ndim != 2:
         raise InvalidInputError(f"A mask must be a 2-D array, not of shape {mask.shape}.")
-    height, width = mask.shape
-    if height == 0 or width == 0:
+    height, width = frame if frame is not None else mask.shape
+    left, top = origin
+    part_height, part_width = mask.shape
+    if height <= 0 or width <= 0:
         raise InvalidInputError("The mask cannot be encoded as PNG: it has no pixels.")
+    if left < 0 or top < 0 or left + part_width > width or top + part_height > height:
+        raise InvalidInputError(
+            f"The {part_width}×{part_height} mask at ({left}, {top}) does not fit the "
+            f"{width}×{height} frame."
+        )
     binary = mask if mask.dtype == np.bool_ else mask > 0
     rows = np.zeros((height, width + 1), np.uint8)  # each row: filter type 0, then its pixels
-    np.multiply(binary.view(np.uint8), np.uint8(255), out=rows[:, 1:])
+    part = rows[top : top + part_height, 1 + left : 1 + left + part_width]
+    np.multiply(binary.view(np.uint8), np.uint8(255), out=part)
     header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)  # 8-bit gray, plain
     stream = isal_zlib.compress(rows, MASK_PNG_LEVEL)
     return b"".join(

@@ -103,21 +103,35 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
 
 
 def rle_counts(counts: str | bytes) -> NDArray[np.int64]:
-    """The run lengths of COCO's compressed RLE string (pycocotools' ``rleFrString``, in
-    numpy): 5-bit groups, least significant first, ``0x20`` for more to come and ``0x10`` for a
-    negative last group; from the fourth run on, each is stored as the difference to the run
-    two before it."""
-    text = counts.encode("ascii") if isinstance(counts, str) else counts
-    raw = np.frombuffer(text, np.uint8).astype(np.int64) - 48
-    ends = np.flatnonzero((raw & 0x20) == 0)  # each run's last character
+    """The run lengths of COCO's compressed RLE string (background first, then pool, …), as
+    pycocotools' ``rleFrString`` reads it, in numpy: 5-bit groups, least significant first,
+    ``0x20`` for more to come and ``0x10`` for a negative last group; from the fourth run on,
+    each is stored as the difference to the run two before it.
+
+    Raises:
+        ValueError: a character outside the code, a number cut off or too long, a negative run.
+    """
+    raw = counts.encode("ascii") if isinstance(counts, str) else bytes(counts)
+    code = np.frombuffer(raw, np.uint8).astype(np.int64) - 48
+    if code.size == 0:
+        return np.zeros(0, np.int64)
+    if int(code.min()) < 0 or int(code.max()) > 63:
+        raise ValueError("a character outside the RLE code")
+    ends = np.flatnonzero((code & 0x20) == 0)  # the last character of each number
+    if ends.size == 0 or ends[-1] != code.size - 1:
+        raise ValueError("the counts end inside a number")
     starts = np.concatenate(([0], ends[:-1] + 1))
-    shift = 5 * (np.arange(raw.size) - np.repeat(starts, ends - starts + 1))
-    runs: NDArray[np.int64] = np.add.reduceat((raw & 0x1F) << shift, starts) if raw.size else raw
-    negative = (raw[ends] & 0x10) != 0
-    runs[negative] -= np.int64(1) << (shift[ends][negative] + 5)
-    runs[3::2] = np.cumsum(runs[1::2])[1:]
-    runs[4::2] = np.cumsum(runs[2::2])[1:]
-    return runs
+    place = np.arange(code.size) - np.repeat(starts, ends - starts + 1)
+    if int(place.max()) > 7:
+        raise ValueError("a run longer than an image can be")
+    values = np.add.reduceat((code & 0x1F) << (5 * place), starts)
+    negative = (code[ends] & 0x10) != 0
+    values[negative] -= np.left_shift(1, 5 * (place[ends][negative] + 1))
+    values[3::2] = np.cumsum(values[1::2])[1:]
+    values[4::2] = np.cumsum(values[2::2])[1:]
+    if values.size and int(values.min()) < 0:
+        raise ValueError("a negative run")
+    return values
 
 
 def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
@@ -134,6 +148,72 @@ def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
     columns = np.repeat(values, inside).reshape(width, height)[:, y : y + box_height]
     pixels: NDArray[np.bool_] = cv2.transpose(np.ascontiguousarray(columns)).view(bool)
     return pixels
+
+
+MAX_BOX_RUNS = 1 << 14
+"""Runs of pool above which ``rle_boxed`` has pycocotools decode the whole frame (a loop in C)
+instead of filling the box run by run from Python (a pool has about one per column)."""
+
+
+@dataclass(frozen=True)
+class BoxedMask:
+    """A frame's mask held as the pixels of its regions' bounding box: ``pixels`` at ``origin``
+    ``(left, top)`` of a frame of ``size`` ``(height, width)``, background elsewhere. What a
+    label's work (outline, Algorithm 1, the mask PNG) needs, without a frame-sized array."""
+
+    pixels: NDArray[np.bool_]
+    origin: tuple[int, int]
+    size: tuple[int, int]
+
+    @classmethod
+    def of(cls, mask: NDArray[np.bool_]) -> BoxedMask:
+        x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+        height, width = mask.shape
+        return cls(mask[y : y + h, x : x + w], (x, y), (height, width))
+
+    @property
+    def empty(self) -> bool:
+        return not self.pixels.any()
+
+    def frame_mask(self) -> NDArray[np.bool_]:
+        """The whole frame's mask."""
+        full = np.zeros(self.size, bool)
+        (left, top), (height, width) = self.origin, self.pixels.shape
+        full[top : top + height, left : left + width] = self.pixels
+        return full
+
+
+def rle_boxed(rle: dict[str, Any]) -> BoxedMask:
+    """The mask of a compressed RLE ``{"size": [h, w], "counts": str}`` as a ``BoxedMask``: only
+    its box is filled, run by run, and put in row order (a pool's ~1,000 runs, not the frame's
+    million pixels that ``rle_mask`` decodes and transposes).
+
+    Raises:
+        ValueError: the counts are not an RLE of ``size`` (the runs do not cover it exactly).
+    """
+    height, width = (int(v) for v in rle["size"])
+    runs = rle_counts(rle["counts"])
+    ends = np.cumsum(runs)
+    covered = int(ends[-1]) if ends.size else 0
+    if covered != height * width:
+        raise ValueError(f"the runs cover {covered} pixels, not {height}×{width}")
+    starts, stops = ends[0::2][: runs.size // 2], ends[1::2]
+    kept = stops > starts
+    starts, stops = starts[kept], stops[kept]
+    if starts.size == 0:
+        return BoxedMask(np.zeros((0, 0), bool), (0, 0), (height, width))
+    if starts.size > MAX_BOX_RUNS:
+        return BoxedMask.of(rle_mask(rle))
+    x0, x1 = int(starts[0]) // height, (int(stops[-1]) - 1) // height + 1
+    crossing = bool(((stops - 1) // height > starts // height).any())  # a run over a column's end
+    y0 = 0 if crossing else int((starts % height).min())
+    y1 = height if crossing else int(((stops - 1) % height).max()) + 1
+    columns = np.zeros((x1 - x0) * height, np.uint8)  # column-major, as the runs go
+    offset = x0 * height
+    for start, stop in zip((starts - offset).tolist(), (stops - offset).tolist(), strict=True):
+        columns[start:stop] = 1
+    rows: NDArray[np.bool_] = cv2.transpose(columns.reshape(x1 - x0, height)[:, y0:y1]).view(bool)
+    return BoxedMask(rows, (x0, y0), (height, width))
 
 
 def coco_rle(rle: dict[str, Any]) -> CocoMask:
@@ -155,7 +235,10 @@ def _coco_encoded(fortran: NDArray[Any]) -> CocoMask:
 
 
 def mask_polygons(
-    mask: NDArray[np.bool_], tolerance: float = 1.0, min_area: float = 0.0
+    mask: NDArray[np.bool_],
+    tolerance: float = 1.0,
+    min_area: float = 0.0,
+    origin: tuple[int, int] = (0, 0),
 ) -> list[Polygon]:
     """The outline of ``mask``: outer boundaries first, each followed by its holes.
 
@@ -165,9 +248,13 @@ def mask_polygons(
         min_area: outer boundaries enclosing less than this many pixels² are dropped, with
             their holes (specks); holes smaller than it are dropped too. Regions whose boundary
             has fewer than 3 vertices (a lone pixel, a line one pixel wide) are always dropped.
+        origin: ``(left, top)`` of ``mask`` in its frame when it is only the part around the
+            regions (the rest background): the same polygons as the whole frame's, in its pixels.
     """
     binary = np.ascontiguousarray(mask, dtype=np.uint8)
-    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    contours, hierarchy = cv2.findContours(
+        binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE, offset=origin
+    )
     if hierarchy is None:
         return []
     links = hierarchy[0]  # next, previous, first child, parent
@@ -196,13 +283,16 @@ their outlines when saved (``Label.mask_outlines``): changing either constant le
 ones as they were (null the column to have the export trace them again)."""
 
 
-def region_outlines(mask: NDArray[np.bool_]) -> list[list[list[float]]]:
+def region_outlines(
+    mask: NDArray[np.bool_], origin: tuple[int, int] = (0, 0)
+) -> list[list[list[float]]]:
     """Each region's outer boundary ``[[x, y], …]`` (frame pixels), simplified by
     ``OUTLINE_TOLERANCE`` and without specks: what a format without masks or holes (Ultralytics
-    YOLO segmentation) gets of a mask, and what a label stores when it is saved."""
+    YOLO segmentation) gets of a mask, and what a label stores when it is saved. ``origin``: as
+    ``mask_polygons``'."""
     return [
         [[x, y] for x, y in polygon.points]
-        for polygon in mask_polygons(mask, OUTLINE_TOLERANCE, OUTLINE_MIN_AREA)
+        for polygon in mask_polygons(mask, OUTLINE_TOLERANCE, OUTLINE_MIN_AREA, origin)
         if not polygon.hole
     ]
 
@@ -363,13 +453,20 @@ def normalised(
     return [round(float(v), 6) for v in np.clip(xy, 0.0, 1.0).reshape(-1)]
 
 
-def mask_record(mask: NDArray[np.bool_], rle: dict[str, Any] | None = None) -> dict[str, Any]:
+def mask_record(
+    mask: NDArray[np.bool_] | BoxedMask, rle: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """What a label stores of its mask besides the file: COCO RLE, area and box (from ``rle``
     when the caller has the mask's compressed RLE already), and its region outlines."""
-    coco = coco_rle(rle) if rle is not None else coco_mask(mask)
+    pixels, origin = (mask.pixels, mask.origin) if isinstance(mask, BoxedMask) else (mask, (0, 0))
+    if rle is not None:
+        coco = coco_rle(rle)
+    else:
+        coco = coco_mask(mask.frame_mask() if isinstance(mask, BoxedMask) else mask)
+    outlines = region_outlines(pixels, origin)
     return {
         "mask_rle": coco.rle,
         "mask_area": coco.area,
         "mask_bbox": coco.bbox,
-        "mask_outlines": region_outlines(mask),
+        "mask_outlines": outlines,
     }

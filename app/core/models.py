@@ -530,6 +530,11 @@ def get_frame(session: Session, frame_id: int) -> Frame:
     return frame
 
 
+def _history(row: Any, name: str) -> Any:
+    """An attribute's pending changes, unloaded ones not loaded (``inspect().attrs`` builds all)."""
+    return sa.orm.attributes.get_history(row, name, sa.orm.base.PASSIVE_NO_INITIALIZE)
+
+
 def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
     """The runs and the frames whose pending changes move a signature: labels, their revisions
     and proposals added, changed or deleted; frames added, deleted, moved or re-timed; a run's
@@ -539,19 +544,15 @@ def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
     for row in (*session.new, *session.dirty, *session.deleted):
         if isinstance(row, (Label, LabelRevision, Proposal)) and row.frame_id is not None:
             frames.add(row.frame_id)
-        elif isinstance(row, Sequence):
-            if sa.inspect(row).attrs.mm_per_px.history.has_changes():
-                runs.add(row.id)
+        elif isinstance(row, Sequence) and _history(row, "mm_per_px").has_changes():
+            runs.add(row.id)
         elif isinstance(row, Frame):
-            state = sa.inspect(row)
-            moved = any(
-                state.attrs[name].history.has_changes()
-                for name in ("sequence_id", "frame_index", "timestamp_s")
-            )
+            names = ("sequence_id", "frame_index", "timestamp_s")
+            moved = any(_history(row, name).has_changes() for name in names)
             if row in session.new or row in session.deleted or moved:
                 runs.update(
                     run
-                    for run in (row.sequence_id, *state.attrs.sequence_id.history.deleted)
+                    for run in (row.sequence_id, *_history(row, "sequence_id").deleted)
                     if run is not None
                 )
     return runs, frames

@@ -135,6 +135,18 @@ def _names(label: ImportedLabel) -> set[str]:
     return {name for name in (label.original_name, posixpath.basename(label.image)) if name}
 
 
+def _digests(images: list[bytes | InvalidInputError | None]) -> list[str]:
+    """Each image's sha256 ("" where the import has none): hashlib lets go of the GIL, so the
+    ingest threads hash a batch at once (labels of stored frames start no task)."""
+    found = iter(
+        INGEST_POOL.map(
+            lambda data: hashlib.sha256(data).hexdigest(),
+            [d for d in images if isinstance(d, bytes)],
+        )
+    )
+    return [next(found) if isinstance(d, bytes) else "" for d in images]
+
+
 def _finish(batch: _Batch, done: int, total: int, progress: Progress | None) -> None:
     batch.finish()
     if progress is not None:
@@ -192,11 +204,7 @@ class _Batch:
                     label.keypoints, label.validation_keypoints = label.validation_keypoints, None
         labels = [loaded for label in labels if (loaded := self._loaded(label)) is not None]
         images = [self._image(label) for label in labels]
-        digests = list(  # hashlib lets go of the GIL: the pool hashes a batch at once
-            INGEST_POOL.map(
-                lambda d: hashlib.sha256(d).hexdigest() if isinstance(d, bytes) else "", images
-            )
-        )
+        digests = _digests(images)
         stored = self._stored_with(digests, runs.fixed)
         named = self._stored_by_name(
             [label for label, data in zip(labels, images, strict=True) if data is None],

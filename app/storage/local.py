@@ -33,7 +33,7 @@ from collections.abc import Callable, Collection, Iterable, Sequence
 from concurrent.futures import Executor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO
+from typing import TYPE_CHECKING, BinaryIO, TypeVar
 
 from app.core.errors import MissingFile
 
@@ -56,6 +56,7 @@ PART_LIFETIME_S = 86_400.0
 """A request's staged temporary (``tmp/*.part``) is swept only after a day: a slow upload of
 many files may hold its first ones long before it commits."""
 _ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
+_T = TypeVar("_T")
 
 
 def best_effort(what: str, action: Callable[[], object]) -> None:
@@ -322,7 +323,10 @@ class Storage:
                 stored = self._install(item.temporary, item.relative)
                 results.append(stored)
                 installed.append(stored)
-            list(executor.map(_fsync, touched) if executor else map(_fsync, touched))
+            if executor is None:
+                list(map(_fsync, touched))
+            else:  # a few tasks, not one per directory (a future costs more than its fsync)
+                list(executor.map(_fsync_all, _parts(list(touched), DISK_TASKS)))
         except BaseException:
             self.discard(installed)
             self.unstage(staged)
@@ -336,7 +340,8 @@ class Storage:
         executor: Executor | None = None,
     ) -> list[StagedFile]:
         """``stage`` for many ``(data, sha256, extension)``, in ``executor``'s threads when
-        given; if any fails, the others' temporaries are removed and its error raised."""
+        given (``DISK_TASKS`` parts); if any fails, the others' temporaries are removed and its
+        error raised."""
         if executor is None:
             staged: list[StagedFile] = []
             try:
@@ -346,13 +351,15 @@ class Storage:
                 self.unstage(staged)
                 raise
             return staged
-        futures = [executor.submit(self.stage, *item, area) for item in items]
+        futures = [
+            executor.submit(self.stage_many, part, area) for part in _parts(items, DISK_TASKS)
+        ]
         wait(futures)
         errors = [e for f in futures if (e := f.exception()) is not None]
         if errors:
-            self.unstage(f.result() for f in futures if f.exception() is None)
+            self.unstage(s for f in futures if f.exception() is None for s in f.result())
             raise errors[0]
-        return [f.result() for f in futures]
+        return [staged for f in futures for staged in f.result()]
 
     def write(self, relative: str, data: bytes) -> Path:
         """Write (or replace) the file at ``relative`` atomically; returns its path."""
@@ -485,6 +492,22 @@ def _put_back(aside: Path, final: Path) -> None:
     except FileNotFoundError:
         return
     aside.unlink(missing_ok=True)
+
+
+DISK_TASKS = 8
+"""Tasks a batch of writes and flushes is split into (``stage_many``, ``install_many``): as
+many as the disk threads, each flushing its files one after another."""
+
+
+def _parts(items: Sequence[_T], count: int) -> list[Sequence[_T]]:
+    """``items`` in at most ``count`` consecutive parts of nearly equal length."""
+    size = -(-len(items) // count) if items else 1
+    return [items[at : at + size] for at in range(0, len(items), size)]
+
+
+def _fsync_all(paths: Iterable[Path]) -> None:
+    for path in paths:
+        _fsync(path)
 
 
 def _fsync(path: Path) -> None:

@@ -70,12 +70,12 @@ def label_content(item: ImportedLabel, size: tuple[int, int], wants_label: bool)
         item.checked_points(height, width)
         if not wants_label:
             return content
-        mask, rle = item.rasterised(height, width)
-        if mask is None:
+        boxed, rle = item.rasterised(height, width)
+        if boxed is None:
             return content
-        content.keypoints = item.keypoints or mask_keypoints(mask)
-        content.columns = mask_record(mask, rle=rle)
-        content.mask_png = encode_mask_png(mask)
+        content.keypoints = item.keypoints or mask_keypoints(boxed.pixels, boxed.origin)
+        content.columns = mask_record(boxed, rle=rle)
+        content.mask_png = encode_mask_png(boxed.pixels, boxed.size, boxed.origin)
         content.sha256 = hashlib.sha256(content.mask_png).hexdigest()
         content.objects, content.left_out = other_objects(item.others, height, width)
     except InvalidInputError as exc:

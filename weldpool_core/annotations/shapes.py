@@ -22,7 +22,15 @@ from typing import TYPE_CHECKING, Any, Protocol
 from weldpool_core.annotations.source import Refusal, Source
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import decode_mask_png
-from weldpool_core.outline import MAX_POLYGONS, MAX_VERTICES, Polygon, fill_polygons, rle_mask
+from weldpool_core.outline import (
+    MAX_POLYGONS,
+    MAX_VERTICES,
+    BoxedMask,
+    Polygon,
+    fill_polygons,
+    rle_boxed,
+    rle_mask,
+)
 
 if TYPE_CHECKING:
     import numpy as np
@@ -415,24 +423,24 @@ class ImportedLabel:
             if points:
                 _check_inside(np.asarray(points, np.float64).reshape(-1, 2), height, width, "key")
 
-    def rasterised(
-        self, height: int, width: int
-    ) -> tuple[NDArray[np.bool_] | None, dict[str, Any] | None]:
-        """``mask``, and its compressed RLE when the label is one COCO shape (RLE already:
-        stored as it is instead of encoded again)."""
+    def rasterised(self, height: int, width: int) -> tuple[BoxedMask | None, dict[str, Any] | None]:
+        """The mask (by its box: ``BoxedMask``), and its compressed RLE when the label is one
+        COCO shape (RLE already: stored as it is instead of encoded again, and only its box
+        decoded)."""
         shapes = merged(self.shapes)
         shape = shapes[0] if len(shapes) == 1 else None
         if not isinstance(shape, CocoRle | CocoPolygons):
-            return self.mask(height, width), None
+            mask = self.mask(height, width)
+            return (BoxedMask.of(mask) if mask is not None else None), None
         self._check_size(height, width)
         rle = shape.rle(height, width)
         try:
-            mask = rle_mask(rle)
+            boxed = rle_boxed(rle)
         except (ValueError, TypeError) as exc:
             raise InvalidInputError(f"The RLE mask cannot be decoded ({exc}).") from None
-        if not mask.any():
+        if boxed.empty:
             raise InvalidInputError("The mask is empty.")
-        return mask, rle
+        return boxed, rle
 
 
 def merged(shapes: list[Shape]) -> list[Shape]:
