@@ -50,6 +50,7 @@ from app.live.service import LiveViews
 from app.manual.routes import router as manual_router
 from app.metrics.routes import router as metrics_router
 from app.process.routes import router as process_router
+from app.proposals import policy
 from app.proposals.routes import router as proposals_router
 from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
@@ -232,6 +233,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     load_job_handlers()
     engine = create_db_engine(settings.resolved_database_url)
     session_factory = create_session_factory(engine)
+    policy.watch(session_factory, Storage.of(settings))
     queue = JobQueue(settings, session_factory)
 
     @asynccontextmanager

@@ -82,7 +82,8 @@ def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
             png = encode_png(mask)
             coco = coco_mask(mask > 0)  # what saving a label stores with it
             outlines = region_outlines(mask > 0)
-            stored = storage.put(png, f"{index:064x}", ".png", area="labels")
+            # where the service keeps label masks (app.proposals.files): a store's shared area
+            stored = storage.put(png, f"{index:064x}", ".png", area="artefacts")
             frame = Frame(
                 sequence_id=run.id,
                 sha256=f"{index:064x}",
@@ -154,7 +155,7 @@ def export_times(
             firsts, totals, size, leftovers = [], [], 0, 0
             for _ in range(runs):
                 if cold:
-                    for area in ("frames", "labels"):
+                    for area in ("frames", "artefacts"):
                         shutil.rmtree(settings.home / area, ignore_errors=True)
                 start = time.perf_counter()
                 first = None

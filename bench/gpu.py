@@ -6,8 +6,9 @@ product's one loader, so device, precision and the weights' identity are chosen 
 production. Steps, each timed, with a verdict:
 
 1. load  — both models through ``weldpool_core.teacher.loader`` (bf16 on CUDA).
-1b. encoder — ``hiera.ImageEncoder`` (what ``set_image`` runs) against transformers'
-   ``get_image_embeddings`` on the device, in its precision: same outputs, and both timed.
+1b. encoder — ``hiera.ImageEncoder`` against transformers' ``get_image_embeddings`` on the
+   device, in its precision: same outputs, both timed, and which one ``set_image`` runs there
+   (``hiera.MEASURED_FASTER``: add the device type where ours is measured faster).
 2. teacher — ``Teacher.run`` on a 1280×800 frame (a real WAAM frame when ../shared is here),
    its embedding written to a disk cache.
 2b. teacher batch — ``Teacher.run_many`` on 8 frames (a GPU worker's teacher run): ms per frame
@@ -129,10 +130,13 @@ def main() -> int:
             return f"SAM2 {got[0]}, identity {state['sam2'].cache_identity[-40:]}"
 
         def encoder() -> str:
+            from weldpool_core.teacher.hiera import MEASURED_FASTER, ImageEncoder
+
             predictor = state["sam2"]
             pixels = predictor.preprocess(frame)
+            mine = ImageEncoder(predictor.model)  # ours, whichever the predictor picked here
             with torch.inference_mode():
-                ours_ms, ours = _median_ms(lambda: predictor._encoder(pixels), args.runs, device)
+                ours_ms, ours = _median_ms(lambda: mine(pixels), args.runs, device)
                 theirs_ms, theirs = _median_ms(
                     lambda: predictor.model.get_image_embeddings(pixels), args.runs, device
                 )
@@ -141,7 +145,12 @@ def main() -> int:
                 error = float((mine.float() - reference.float()).abs().max())
                 if error > 0.02 * scale:
                     raise AssertionError(f"encoder differs by {error:.3g} (scale {scale:.3g})")
-            return f"ours {ours_ms:.1f} ms, transformers {theirs_ms:.1f} ms, outputs equal"
+            runs = "ours" if device.type in MEASURED_FASTER else "transformers'"
+            faster = "ours" if ours_ms < theirs_ms else "transformers'"
+            return (
+                f"ours {ours_ms:.1f} ms, transformers {theirs_ms:.1f} ms, outputs equal; "
+                f"{faster} faster here, {runs} runs here (hiera.MEASURED_FASTER)"
+            )
 
         def teacher() -> str:
             from weldpool_core.teacher.cache import EmbeddingCache

@@ -215,7 +215,7 @@ def test_no_function_over_80_lines() -> None:
 LONG_MODULES = {
     "app/storage/s3.py": 741,
     "weldpool_core/student/train.py": 697,
-    "app/training/tasks.py": 622,
+    "app/training/tasks.py": 611,
 }
 """Modules over ``MAX_MODULE_LINES`` and the lines each may have at most: they may only shrink
 (split one by job and lower or drop its entry here)."""

@@ -69,6 +69,21 @@ class DecodedImage:
     info: ImageInfo
 
 
+_SIGNATURES = {
+    PNG_SIGNATURE: ".png",
+    b"\xff\xd8\xff": ".jpg",
+    b"II*\x00": ".tif",
+    b"MM\x00*": ".tif",
+    b"BM": ".bmp",
+}
+
+
+def header_extension(data: bytes) -> str | None:
+    """The extension a file's first bytes announce (PNG, JPEG, TIFF, BMP), or None; nothing is
+    checked: ``check_image`` says whether it is one (and names the same extension)."""
+    return next((e for head, e in _SIGNATURES.items() if data.startswith(head)), None)
+
+
 def _sniff_text(data: bytes) -> str | None:
     head = data[:512].lstrip().lower()
     if head.startswith(b"<?xml") or b"<svg" in head:

@@ -102,19 +102,37 @@ def rle_mask(rle: dict[str, Any]) -> NDArray[np.bool_]:
     return rows
 
 
+def rle_counts(counts: str | bytes) -> NDArray[np.int64]:
+    """The run lengths of COCO's compressed RLE string (pycocotools' ``rleFrString``, in
+    numpy): 5-bit groups, least significant first, ``0x20`` for more to come and ``0x10`` for a
+    negative last group; from the fourth run on, each is stored as the difference to the run
+    two before it."""
+    text = counts.encode("ascii") if isinstance(counts, str) else counts
+    raw = np.frombuffer(text, np.uint8).astype(np.int64) - 48
+    ends = np.flatnonzero((raw & 0x20) == 0)  # each run's last character
+    starts = np.concatenate(([0], ends[:-1] + 1))
+    shift = 5 * (np.arange(raw.size) - np.repeat(starts, ends - starts + 1))
+    runs: NDArray[np.int64] = np.add.reduceat((raw & 0x1F) << shift, starts) if raw.size else raw
+    negative = (raw[ends] & 0x10) != 0
+    runs[negative] -= np.int64(1) << (shift[ends][negative] + 5)
+    runs[3::2] = np.cumsum(runs[1::2])[1:]
+    runs[4::2] = np.cumsum(runs[2::2])[1:]
+    return runs
+
+
 def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
     """The pixels of a compressed RLE's mask inside ``box`` ``[x, y, width, height]`` (as
-    ``CocoMask.bbox`` holds it), row-major: only the box is put in row order, not the frame."""
-    from pycocotools import mask as coco
-
-    x, y, width, height = (int(v) for v in box)
-    counts = rle["counts"]
-    encoded = {
-        "size": list(rle["size"]),
-        "counts": counts.encode("ascii") if isinstance(counts, str) else counts,
-    }
-    columns = coco.decode(encoded)  # H×W, column-major: its .T is a row-major W×H
-    pixels: NDArray[np.bool_] = cv2.transpose(columns.T[x : x + width, y : y + height]).view(bool)
+    ``CocoMask.bbox`` holds it), row-major: only the box's columns are laid out from the runs
+    (never the whole frame) and only the box is put in row order."""
+    height = int(rle["size"][0])
+    x, y, width, box_height = (int(v) for v in box)
+    runs = rle_counts(rle["counts"])
+    ends = np.cumsum(runs)
+    first, last = x * height, (x + width) * height
+    inside = np.clip(ends, first, last) - np.clip(ends - runs, first, last)
+    values = np.arange(runs.size, dtype=np.uint8) & 1  # runs alternate, 0s first
+    columns = np.repeat(values, inside).reshape(width, height)[:, y : y + box_height]
+    pixels: NDArray[np.bool_] = cv2.transpose(np.ascontiguousarray(columns)).view(bool)
     return pixels
 
 

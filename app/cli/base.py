@@ -64,10 +64,15 @@ def load_settings() -> Settings:
 
 
 def open_sessions(settings: Settings, *, migrated: bool = True) -> Any:
+    from app.proposals import policy
+    from app.storage import Storage
+
     engine = create_db_engine(settings.resolved_database_url)
     if migrated:
         require_current_schema(engine)
-    return create_session_factory(engine)
+    factory = create_session_factory(engine)
+    policy.watch(factory, Storage.of(settings))
+    return factory
 
 
 COMMANDS = {

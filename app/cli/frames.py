@@ -49,9 +49,11 @@ def _local(paths: tuple[str, ...], settings: Any) -> Iterator[tuple[str, ...]]:
     if not any(p.startswith("s3://") for p in paths):
         yield paths
         return
+    from app.storage import Storage
     from app.storage.s3 import download_prefix, parse_url
 
-    with tempfile.TemporaryDirectory(prefix="weldpool-bucket-", dir=settings.home / "tmp") as tmp:
+    scratch = Storage(settings.home).scratch()  # this machine's
+    with tempfile.TemporaryDirectory(prefix="weldpool-bucket-", dir=scratch) as tmp:
         local = []
         for index, path in enumerate(paths):
             if path.startswith("s3://"):

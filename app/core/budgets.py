@@ -112,17 +112,17 @@ def _within(path: Path, seconds: float) -> bool:
 def mark_reviewer_active(settings: Settings) -> None:
     """A reviewer just asked for interactive work (recorded only where jobs look at it)."""
     if settings.reviewer_active_s > 0:
-        _touch(settings.home / ACTIVE_FILE)
+        _touch(settings.marker(ACTIVE_FILE))
 
 
 def reviewer_active(settings: Settings) -> bool:
     """Whether a reviewer on this machine made an interactive request recently."""
-    return _within(settings.home / ACTIVE_FILE, settings.reviewer_active_s)
+    return _within(settings.marker(ACTIVE_FILE), settings.reviewer_active_s)
 
 
 def job_running(settings: Settings) -> bool:
     """Whether a job on this machine (sharing the home folder) reported progress just now."""
-    return _within(settings.home / BATCH_FILE, BATCH_FRESH_S)
+    return _within(settings.marker(BATCH_FILE), BATCH_FRESH_S)
 
 
 @contextmanager
@@ -166,7 +166,7 @@ def start_batch(settings: Settings) -> None:
 def batch_checkpoint(settings: Settings, *, force: bool = False) -> None:
     """Between two chunks of a job: fewer threads while a reviewer is active, all again after."""
     try:
-        _touch(settings.home / BATCH_FILE)
+        _touch(settings.marker(BATCH_FILE))
         now = time.monotonic()
         if not force and now - getattr(_local, "looked", 0.0) < LOOK_EVERY_S:
             return

@@ -331,6 +331,11 @@ class Settings(BaseSettings):
         """The embedded queue's SQLite file (used when ``queue_url`` is not set)."""
         return self.home / "queue.sqlite3"
 
+    def marker(self, name: str) -> Path:
+        """A marker file this machine's processes share through the home (when a reviewer was
+        last active, when a batch last ran): the service's own, never stored content."""
+        return self.home / name
+
     def ensure_home(self) -> None:
         """Create the home directory and its standard subfolders."""
         for sub in ("", "frames", "artefacts", "models", "cache", "tmp"):

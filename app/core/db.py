@@ -6,6 +6,7 @@ import datetime as dt
 import enum
 import functools
 import re
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -209,6 +210,22 @@ def updated_one(session: Session, statement: sa.Executable) -> bool:
 
 JSONType = sa.JSON()
 """The JSON column type of every table."""
+
+
+_tables_seen: dict[str, weakref.WeakSet[Any]] = {}
+"""Per table, the engines known to hold it (an older schema, mid-migration, has fewer)."""
+
+
+def has_table(session: Session, name: str) -> bool:
+    """Whether the session's database has table ``name`` (asked once per engine while it has)."""
+    bind = session.get_bind()
+    engine = getattr(bind, "engine", bind)
+    seen = _tables_seen.setdefault(name, weakref.WeakSet())
+    if engine not in seen:
+        if not sa.inspect(session.connection()).has_table(name):
+            return False
+        seen.add(engine)
+    return True
 
 
 def enum_type(cls: type[enum.StrEnum], name: str) -> sa.Enum:

@@ -110,7 +110,7 @@ class FileCollector(Periodic):
         with self.session_factory() as session:
             if self._first:
                 self._first = False
-                freed = prune_training_state(session, self.storage.home)
+                freed = prune_training_state(session, self.storage)
                 if freed:
                     log.info("files.training_state_pruned", mb=round(freed / 2**20))
             removed = len(collect_doomed(session, self.storage))
@@ -122,7 +122,7 @@ class FileCollector(Periodic):
         return removed
 
 
-def prune_training_state(session: Session, home: Path) -> int:
+def prune_training_state(session: Session, storage: Storage) -> int:
     """Remove the resumable training state of every recorded student version (versions made
     before the training job pruned it itself); returns the bytes freed."""
     from weldpool_core.student.checkpoint import prune_state
@@ -131,8 +131,11 @@ def prune_training_state(session: Session, home: Path) -> int:
     for relative in session.scalars(sa.select(ModelVersion.checkpoint_path)):
         if not relative:
             continue
-        folder = (home / relative).resolve()
-        if folder.is_relative_to(home.resolve()) and folder.is_dir():
+        try:
+            folder = storage.local(relative)
+        except ValueError:  # a path outside home is never touched
+            continue
+        if folder.is_dir():
             freed += prune_state(folder)
     return freed
 
@@ -155,7 +158,7 @@ def prune_shared(
 ) -> int:
     """Remove the files of a shared area (export zips, uploaded imports) older than a day,
     here and in the object store."""
-    removed = prune_old_files(storage.home / area, older_than_s, pattern)
+    removed = prune_old_files(storage.local(area), older_than_s, pattern)
     return removed + storage.prune_published(area, older_than_s)
 
 

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import datetime as dt
 import enum
-import weakref
 from typing import TYPE_CHECKING, Any
 
 import sqlalchemy as sa
 from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
-from app.core.db import Base, JSONType, UTCDateTime, enum_type, utcnow
+from app.core.db import Base, JSONType, UTCDateTime, enum_type, has_table, utcnow
 from app.core.errors import NotFoundError
 from app.core.job_tables import ONE_AT_A_TIME as ONE_AT_A_TIME  # the jobs' tables, re-exported:
 from app.core.job_tables import Job as Job  # every table is imported from here
@@ -18,6 +17,7 @@ from app.core.job_tables import JobChunk as JobChunk
 from app.core.job_tables import JobScope as JobScope
 from app.core.job_tables import JobStatus as JobStatus
 from app.core.job_tables import Worker as Worker
+from app.core.policy_table import DisplayPolicy as DisplayPolicy  # the stored display policy
 from app.core.process_tables import RunSignature as RunSignature  # a run's stored signature
 from app.core.process_tables import UnstableFrame as UnstableFrame
 
@@ -530,20 +530,6 @@ def get_frame(session: Session, frame_id: int) -> Frame:
     return frame
 
 
-_signature_table: weakref.WeakSet[Any] = weakref.WeakSet()
-"""Engines known to hold ``run_signatures`` (an older schema, mid-migration, has none)."""
-
-
-def _has_signatures(session: Any) -> bool:
-    bind = session.get_bind()
-    engine = getattr(bind, "engine", bind)
-    if engine not in _signature_table:
-        if not sa.inspect(session.connection()).has_table(RunSignature.__tablename__):
-            return False
-        _signature_table.add(engine)
-    return True
-
-
 def _changed_runs(session: Any) -> tuple[set[int], set[int]]:
     """The runs and the frames whose pending changes move a signature: labels, their revisions
     and proposals added, changed or deleted; frames added, deleted, moved or re-timed; a run's
@@ -577,7 +563,7 @@ def _signatures_go_stale(session: Any, _context: Any, _instances: Any) -> None:
     label updates and proposal deletions always come with a new revision or proposal row,
     which this sees; a bulk frame deletion is ``_frames_deleted``'s)."""
     runs, frames = _changed_runs(session)
-    if not (runs or frames) or not _has_signatures(session):
+    if not (runs or frames) or not has_table(session, RunSignature.__tablename__):
         return
     where: sa.ColumnElement[bool] = RunSignature.sequence_id.in_(runs)
     if frames:
@@ -595,5 +581,5 @@ def _frames_deleted(state: Any) -> None:
     stale (deletions are rare; each run is computed again once, when read)."""
     if not state.is_delete or state.bind_mapper is None or state.bind_mapper.class_ is not Frame:
         return
-    if _has_signatures(state.session):
+    if has_table(state.session, RunSignature.__tablename__):
         state.session.execute(sa.update(RunSignature).where(~RunSignature.stale).values(stale=True))

@@ -16,6 +16,7 @@ from app.core.models import (
     FrameStatus,
     Label,
     LabelRevision,
+    OverlapLabel,
     Proposal,
     Sequence,
     ValidationKeypoints,
@@ -52,6 +53,7 @@ def _files_of(session: Session, frame_ids: list[int], video_ids: list[int]) -> s
             (Proposal.heatmap_path, Proposal.frame_id),
             (Label.mask_path, Label.frame_id),
             (LabelRevision.mask_path, LabelRevision.frame_id),
+            (OverlapLabel.mask_path, OverlapLabel.frame_id),
         ):
             paths.update(p for p in session.scalars(sa.select(column).where(owner.in_(chunk))) if p)
     if video_ids:
@@ -86,7 +88,8 @@ def delete_frames(
 ) -> Deletion:
     """Delete frames (or a whole sequence with its frames and videos) in one transaction.
 
-    Proposals, labels with their history and validation keypoints go with their frame. Frames
+    Proposals, labels with their history, annotators' own labels (agreement) and validation
+    keypoints go with their frame. Frames
     a person reviewed (accepted, corrected, rejected, or with validation keypoints) are only
     deleted with ``force``; otherwise ConflictError says how many would be lost. After the
     commit the collector removes each file no remaining row names (content is shared by hash)

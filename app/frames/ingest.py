@@ -21,7 +21,7 @@ from app.core.errors import InvalidInputError
 from app.core.models import Frame, FrameStatus, Split, User
 from app.frames.sequences import get_sequence
 from app.storage import StagedFile, Storage, StoredFile, best_effort
-from weldpool_core.io import ImageInfo, check_image
+from weldpool_core.io import ImageInfo, check_image, header_extension
 
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
 INGEST_POOL = shared_pool(max(2, os.cpu_count() or 2), "ingest")  # uploads', imports', videos'
@@ -110,10 +110,12 @@ another file of the request is checked for; the staging of a good one."""
 class FrameChecks:
     """The checks of one request's files, each started in the pool the moment it arrives.
 
-    A file is hashed; the first of each content is checked (``check_frame_file``) and, when
-    good, staged on disk at once (``Storage.stage``, in the disk threads) while later files
-    are still arriving or being checked; its copies share its verdict, each still with its own
-    name checked. ``results`` waits for all of them; ``discard`` undoes the staging.
+    A file is hashed; the first of each content is checked (``check_frame_file``) and staged
+    (``Storage.stage``, in the disk threads) while later files are still arriving or being
+    checked — from the moment it is hashed when its header names an image format, so an object
+    store's upload overlaps the check (withdrawn if the check refuses the file). Its copies
+    share its verdict, each still with its own name checked. ``results`` waits for all of
+    them; ``discard`` undoes the staging.
     """
 
     def __init__(self, storage: Storage, max_pixels: int) -> None:
@@ -138,15 +140,22 @@ class FrameChecks:
             if digest in self._started:
                 return digest, None, None
             self._started.add(digest)
+        guess = header_extension(incoming.data)
+        early = self._stage(incoming.data, digest, guess) if guess else None
         verdict = check_frame_file(incoming, self._max_pixels, digest)
-        if isinstance(verdict, Rejection):
+        wanted = verdict.info.extension if isinstance(verdict, CheckedFrame) else None
+        if early is not None and guess != wanted:  # refused, or not what its header said
+            wait([early])
+            if early.exception() is None:
+                self._storage.unstage([early.result()])
+            early = None
+        if wanted is None:
             return digest, verdict, None
-        extension = verdict.info.extension
-        return (
-            digest,
-            verdict,
-            DISK_POOL.submit(self._storage.stage, incoming.data, digest, extension),
-        )
+        return digest, verdict, early or self._stage(incoming.data, digest, wanted)
+
+    def _stage(self, data: bytes, digest: str, extension: str) -> Future[StagedFile]:
+        """Stage a content in the disk threads."""
+        return DISK_POOL.submit(self._storage.stage, data, digest, extension)
 
     def _settle(self) -> tuple[list[_Check], list[BaseException]]:
         """Wait for every check and staging; what they gave, and what they raised."""

@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session
 
 from app.core.db import utcnow
 from app.core.errors import ConflictError, InvalidInputError, PermissionDeniedError
+from app.core.frame_rows import lock_frames
 from app.core.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
@@ -33,7 +34,7 @@ from app.imports.schemas import ImportOptions, ImportReport, checked_format
 from app.jobs.registry import counted
 from app.labelconfig import service as labelconfig
 from app.labelconfig.schemas import POOL
-from app.proposals.files import lock_frames, masks_in_use
+from app.proposals.files import masks_in_use
 from app.review.service import (
     check_keypoints,
     saved_review,

@@ -46,7 +46,7 @@ def import_labels_job(ctx: JobContext) -> dict[str, Any]:
             finally:
                 source.close()
     finally:
-        storage.home.joinpath(name).unlink(missing_ok=True)
+        storage.local(name).unlink(missing_ok=True)
         best_effort("unpublish", partial(storage.unpublish, name))
     ctx.summary = (
         f"{counted(report.labels, 'label')} and {counted(report.keypoints, 'keypoint set')} "

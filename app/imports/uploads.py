@@ -24,7 +24,7 @@ def upload_name(name: str) -> str:
 def keep_upload(storage: Storage, source: BinaryIO, suffix: str) -> str:
     """Copy an uploaded file (a spooled part) under ``imports/``, flushed and published to
     every machine (a worker elsewhere reads it); its name."""
-    folder = storage.home / IMPORTS_DIR
+    folder = storage.local(IMPORTS_DIR)
     folder.mkdir(parents=True, exist_ok=True)
     name = f"{uuid.uuid4().hex}{suffix}"
     target = folder / name

@@ -55,7 +55,10 @@ class LiveIn(BaseModel):
 class LiveOutputOut(BaseModel):
     kind: str = Field(description="zeromq, opcua or mqtt.")
     address: str
-    state: str = Field(description="bound, serving, connecting, connected, reconnecting, stopped.")
+    state: str = Field(
+        description="bound, serving, connecting, connected, reconnecting; once the view ended: "
+        "closed (ZeroMQ), stopped (OPC UA), disconnected (MQTT)."
+    )
     subscribers: int | None = Field(
         description="ZeroMQ subscribers, OPC UA subscriptions; null for MQTT (the broker knows)."
     )

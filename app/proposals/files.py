@@ -18,11 +18,10 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
-from app.core.errors import NotFoundError
-from app.core.models import Frame, LabelRevision, OverlapLabel, Proposal
+from app.core.frame_rows import FrameDeleted, frame_exists, lock_frame
+from app.core.models import LabelRevision, OverlapLabel, Proposal
 from app.storage import Storage, StoredFile
-from app.system.doctor import frame_file
-from weldpool_core.io import decode_mask_png, encode_mask_png, read_image, to_rgb8
+from weldpool_core.io import encode_mask_png
 
 if TYPE_CHECKING:
     import numpy as np
@@ -64,21 +63,6 @@ def store_heatmap_file(storage: Storage, heatmap: NDArray[np.float32]) -> Stored
     return storage.put(data, hashlib.sha256(data).hexdigest(), ".npz", area="artefacts")
 
 
-class FrameDeleted(NotFoundError):
-    """A job's frame was deleted while the job worked on it; nothing was recorded for it."""
-
-    def __init__(self, frame_id: int) -> None:
-        super().__init__(f"Frame {frame_id} was deleted meanwhile; nothing was recorded for it.")
-        self.frame_id = frame_id
-
-
-def frame_exists(session: Session, frame_id: int) -> bool:
-    """Whether the frame is there now (asked on a connection of its own, so a long read
-    transaction's snapshot cannot hide a deletion)."""
-    with Session(session.get_bind()) as fresh:
-        return fresh.scalar(sa.select(Frame.id).where(Frame.id == frame_id)) is not None
-
-
 @dataclass
 class FrameWrite:
     """The files one guarded write for a frame stores (``writing_for_frame``)."""
@@ -93,21 +77,6 @@ class FrameWrite:
     def heatmap(self, heatmap: NDArray[np.float32]) -> str:
         self.files.append(store_heatmap_file(self.storage, heatmap))
         return self.files[-1].path
-
-
-def lock_frame(session: Session, frame_id: int) -> None:
-    """Lock the frame's row until the commit (PostgreSQL; a deletion then waits for it), or
-    raise FrameDeleted when it is gone."""
-    locked = sa.select(Frame.id).where(Frame.id == frame_id).with_for_update()
-    if session.execute(locked).first() is None:
-        raise FrameDeleted(frame_id)
-
-
-def lock_frames(session: Session, frame_ids: list[int]) -> set[int]:
-    """``lock_frame`` for many frames in one query (ids in order, so that two writers lock
-    alike); the ids of those still there."""
-    locked = sa.select(Frame.id).where(Frame.id.in_(sorted(frame_ids))).order_by(Frame.id)
-    return set(session.scalars(locked.with_for_update()))
 
 
 @contextmanager
@@ -129,28 +98,3 @@ def writing_for_frame(session: Session, storage: Storage, frame_id: int) -> Iter
         if lost and not frame_exists(session, frame_id):
             raise FrameDeleted(frame_id) from None
         raise
-
-
-def load_mask(storage: Storage, path: str) -> NDArray[np.bool_]:
-    return decode_mask_png(storage.existing(path).read_bytes())
-
-
-def load_heatmap(storage: Storage, proposal: Proposal) -> NDArray[np.float32]:
-    """The H×W×2 array (heatmap, mask) of a proposal, as Algorithm 1 returned it."""
-    mask = load_mask(storage, proposal.mask_path).astype(np.float32)
-    if proposal.heatmap_path is None:
-        return np.stack([np.zeros_like(mask), mask], axis=2)
-    with np.load(storage.existing(proposal.heatmap_path)) as data:
-        heat = data["heatmap"].astype(np.float32)
-    return np.stack([heat, mask], axis=2)
-
-
-def frame_rgb(storage: Storage, frame: Frame) -> NDArray[np.uint8]:
-    """The frame as the models see it (RGB uint8, 16-bit stretched); a lost file is the
-    frame's MissingFile (which frame, what restores it)."""
-    return to_rgb8(read_image(frame_file(storage, frame.path, frame.id)))
-
-
-def stored_rgb(storage: Storage, path: str) -> NDArray[np.uint8]:
-    """``frame_rgb`` of the frame file at ``path`` (for a thread that holds no row)."""
-    return to_rgb8(read_image(storage.existing(path)))

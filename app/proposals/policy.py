@@ -26,13 +26,26 @@ from pathlib import Path
 from typing import Any
 
 import sqlalchemy as sa
-from sqlalchemy.orm import Session
+import structlog
+from sqlalchemy.orm import Session, sessionmaker
 
+from app.core.db import has_table, utcnow
 from app.core.errors import InvalidInputError, MissingFile, NotFoundError
-from app.core.models import Label, LabelRevision, LabelStatus, ModelVersion, Proposal
+from app.core.models import (
+    DisplayPolicy,
+    Frame,
+    Label,
+    LabelRevision,
+    LabelStatus,
+    ModelVersion,
+    Proposal,
+)
+from app.core.policy_table import ROW
 from app.storage import Storage
 from weldpool_core.io import read_mask
 from weldpool_core.metrics import iou
+
+log = structlog.get_logger(__name__)
 
 TEACHER = "teacher"
 MIN_FRAMES = 3
@@ -195,13 +208,110 @@ def _teacher_reason(sources: list[SourceScore]) -> str:
     )
 
 
+STORE = "display_policy_store"
+"""``Session.info`` key: the ``Storage`` a session's commit measures a stale policy with."""
+
+
+def watch(factory: sessionmaker[Session], storage: Storage) -> None:
+    """Sessions from ``factory`` measure the policy before committing a change to what it is
+    measured from (``app.core.policy_table``) and store it, so reads find it as a row."""
+    factory.configure(info={STORE: storage})
+
+
+CHANGED = "display_policy_changed"
+"""``Session.info`` key: this transaction changed what the policy is measured from."""
+MEASURED_FROM = (Label, LabelRevision, Proposal, ModelVersion)
+
+
+@sa.event.listens_for(Session, "before_flush")
+def _note_change(session: Session, _context: Any, _instances: Any) -> None:
+    """A flush that adds, changes or deletes what the policy is measured from."""
+    if not session.info.get(CHANGED) and any(
+        isinstance(instance, MEASURED_FROM)
+        for instance in (*session.new, *session.dirty, *session.deleted)
+    ):
+        session.info[CHANGED] = True
+
+
+@sa.event.listens_for(Session, "do_orm_execute")
+def _note_bulk_change(state: Any) -> None:
+    """A bulk update or deletion of what it is measured from, or a bulk frame deletion (which
+    takes labels and proposals with it)."""
+    mapper = state.bind_mapper
+    if mapper is None or not (state.is_delete or state.is_update):
+        return
+    if issubclass(mapper.class_, MEASURED_FROM) or (state.is_delete and mapper.class_ is Frame):
+        state.session.info[CHANGED] = True
+
+
+@sa.event.listens_for(Session, "before_commit")
+def _measure_before_commit(session: Session) -> None:
+    """Measure and store the policy in the transaction that changed it, or mark it stale where
+    the session does not know the store (``watch``) or the store cannot be read."""
+    session.flush()  # the changes still pending count too
+    if not session.info.pop(CHANGED, False) or not has_table(session, DisplayPolicy.__tablename__):
+        return
+    # The row's lock is this transaction's last: two such commits measure one after the other
+    # (PostgreSQL), the second seeing the first's change, and no lock is awaited while held.
+    session.execute(
+        sa.select(DisplayPolicy.id).where(DisplayPolicy.id == ROW).with_for_update()
+    ).all()
+    storage = session.info.get(STORE)
+    if storage is not None:
+        try:
+            store(session, measure(session, storage))
+            return
+        except sa.exc.SQLAlchemyError:
+            raise
+        except Exception:  # an unreadable file must not fail the commit: stale, measured on read
+            log.warning("policy.measure_failed", exc_info=True)
+    session.execute(sa.update(DisplayPolicy).where(DisplayPolicy.id == ROW).values(stale=True))
+
+
+@sa.event.listens_for(Session, "after_rollback")
+def _forget_change(session: Session) -> None:
+    session.info.pop(CHANGED, None)
+
+
+def store(session: Session, policy: Policy) -> None:
+    """Write ``policy`` as the stored row, fresh."""
+    session.execute(
+        sa.update(DisplayPolicy)
+        .where(DisplayPolicy.id == ROW)
+        .values(
+            stale=False,
+            chosen=policy.chosen,
+            reason=policy.reason,
+            sources=[score.as_dict() for score in policy.sources],
+            measured_at=utcnow(),
+        )
+    )
+
+
+def stored(session: Session) -> Policy | None:
+    """The stored policy, or None while it is stale (or on a home that has none yet)."""
+    row = session.execute(
+        sa.select(DisplayPolicy)
+        .where(DisplayPolicy.id == ROW)
+        .execution_options(populate_existing=True)
+    ).scalar_one_or_none()
+    if row is None or row.stale:
+        return None
+    return Policy(row.chosen, row.reason, [SourceScore(**score) for score in row.sources])
+
+
 _cache_lock = threading.Lock()
 _cache: dict[tuple[Any, ...], Policy] = {}
 
 
 def current(session: Session, storage: Storage) -> Policy:
-    """``measure``, computed again only when labels, proposals or model versions changed
-    (added ones move the newest id, deleted frames take rows away: both are in the stamp)."""
+    """The stored policy; while it is stale (a change committed by a session that did not know
+    the store, or a failed measure), ``measure``, kept per process until labels, proposals or
+    model versions change (added ones move the newest id, deleted frames take rows away: both
+    are in the stamp)."""
+    found = stored(session)
+    if found is not None:
+        return found
     stamp = (
         str(storage.home),
         *session.execute(

@@ -14,8 +14,8 @@ from app.core.errors import NotFoundError
 from app.core.models import Proposal, get_frame
 from app.core.security import CurrentUser
 from app.proposals import policy
-from app.proposals.files import load_heatmap
 from app.proposals.schemas import ProposalList, ProposalOut, ProposalSummary
+from app.storage.pixels import load_heatmap
 from app.system.doctor import frame_file
 from weldpool_core.heatmap import heatmap_rgba
 from weldpool_core.io import encode_png

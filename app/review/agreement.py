@@ -25,12 +25,14 @@ from sqlalchemy.orm import Session
 
 from app.core.db import utcnow
 from app.core.errors import InvalidInputError, NotFoundError, PermissionDeniedError
+from app.core.housekeeping import doom
 from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, User
 from app.core.permissions import Action, may
-from app.proposals.files import load_mask, store_mask
+from app.proposals.files import store_mask
 from app.proposals.policy import stored_iou
 from app.review.service import check_keypoints, current_label, frame_mask, save_label
 from app.storage import Storage
+from app.storage.pixels import load_mask
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import encode_mask_png
 
@@ -95,13 +97,16 @@ def save_own(
     mask_png: bytes,
     keypoints: list[list[float]] | None,
 ) -> OverlapLabel:
-    """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's)."""
+    """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's);
+    the mask it replaces is left to the collector (no revision keeps it)."""
     row = own_row(session, frame.id, user)
     mask = frame_mask(frame, mask_png)
     if not mask.any():
         raise InvalidInputError("The mask is empty: draw the pool before saving.")
     row.keypoints = check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)
-    row.mask_path = store_mask(storage, mask)
+    replaced, row.mask_path = row.mask_path, store_mask(storage, mask)
+    if replaced and replaced != row.mask_path:
+        doom(session, {replaced})
     row.updated_at = utcnow()
     session.commit()
     return row

@@ -48,7 +48,6 @@ from app.core.errors import InvalidInputError, MissingFile
 from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
-from app.proposals.files import load_mask
 from app.review.export_classes import (
     Rows,
     coco_objects,
@@ -60,8 +59,9 @@ from app.review.export_classes import (
     yolo_lines,
 )
 from app.storage import EXPORTS_DIR, Storage
+from app.storage.pixels import load_mask
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_box, rle_mask
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
 
 if TYPE_CHECKING:
     import numpy as np
@@ -194,8 +194,7 @@ def build_export(
     ``progress(fraction, message)`` is called after every frame; raise from it to stop.
     Frames whose files the store lost are left out, listed in ``skipped`` and the zip."""
     rows = export_rows(session, sequence_id, split)
-    (storage.home / "tmp").mkdir(parents=True, exist_ok=True)
-    descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.home / "tmp")
+    descriptor, name = tempfile.mkstemp(suffix=".zip", dir=storage.scratch())
     os.close(descriptor)
     target = Path(name)
     report = progress or (lambda fraction, message: None)
@@ -475,8 +474,11 @@ def _write_cvat(
 
     elements: list[Any] = []
     classes, names = written_classes(rows), file_names([row[0] for row in rows])
-    masks = _readable(storage, rows, skipped, lambda row: _cvat_mask(storage, row[1]))
-    for done, (frame, label, _, manual), path, mask in masks:
+
+    def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
+        return _cvat_mask(storage, row[1]), cvat_objects(row[1], classes)
+
+    for done, (frame, label, _, manual), path, made in _readable(storage, rows, skipped, shapes):
         if path is None:
             yield done
             continue
@@ -487,10 +489,10 @@ def _write_cvat(
             name=name,
             width=frame.width,
             height=frame.height,
-            mask=mask,
+            mask=made[0],
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
-            objects=cvat_objects(label, classes),
+            objects=made[1],
         )
         elements.append(cvat_image(image))
         yield done
@@ -498,13 +500,12 @@ def _write_cvat(
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:
-    """A label's ``CvatMask``, in the encoder pool: from the RLE and box stored with it (only
-    the box's pixels put in row order), else from its mask."""
-    from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
+    """A label's ``CvatMask``, in the readers' pool: from the RLE and box stored with it (only
+    the box's columns laid out from the runs), else from its mask PNG."""
+    from weldpool_core.annotations.cvat import cvat_mask, cvat_rle_mask
 
-    box = label.mask_bbox
-    if label.mask_rle is not None and box and box[2] > 0 and box[3] > 0:
-        return cvat_box_mask(rle_box(label.mask_rle, box), int(box[0]), int(box[1]))
+    if label.mask_rle is not None:
+        return cvat_rle_mask(label.mask_rle, label.mask_bbox)
     return cvat_mask(_stored_mask(storage, label))
 
 

@@ -116,12 +116,13 @@ def coco_objects(label: Any, classes: list[str], image_id: int) -> list[dict[str
 
 
 def cvat_objects(label: Any, classes: list[str]) -> list[tuple[str, CvatMask]]:
-    """The label's objects as CVAT masks (box pixels only), with their class names."""
-    from weldpool_core.annotations.cvat import cvat_mask
+    """The label's objects as CVAT masks (box pixels only, laid out from each one's stored RLE
+    over its box), with their class names; in the export's pool, beside the pool's mask."""
+    from weldpool_core.annotations.cvat import cvat_rle_mask
 
     made = []
     for obj in exported_objects(label, classes):
-        mask = cvat_mask(rle_mask(obj["rle"]))
+        mask = cvat_rle_mask(obj["rle"], obj.get("bbox"))
         if mask is not None:
             made.append((obj["class"], mask))
     return made

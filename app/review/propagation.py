@@ -23,12 +23,13 @@ from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import ObjectDeletedError
 
 from app.core.errors import InvalidInputError
+from app.core.frame_rows import FrameDeleted, frame_exists
 from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.listing import run_frames
 from app.jobs.registry import counted
-from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.record import PROPAGATED, record_proposal
 from app.storage import Storage
+from app.storage.pixels import frame_rgb, load_mask
 from weldpool_core.errors import InvalidInputError as CoreInvalidInput
 from weldpool_core.heatmap import heatmap_from_mask
 from weldpool_core.teacher.passes import Direction, passes

@@ -14,6 +14,7 @@ from sqlalchemy.orm.exc import StaleDataError
 from app.core.config import Settings
 from app.core.db import updated_one, utcnow
 from app.core.errors import ConflictError, InvalidInputError, NotFoundError, PermissionDeniedError
+from app.core.frame_rows import FrameDeleted, frame_exists, lock_frame
 from app.core.models import (
     Frame,
     FrameStatus,
@@ -28,17 +29,10 @@ from app.core.models import (
 )
 from app.core.permissions import Action, may
 from app.labelconfig import service as labelconfig
-from app.proposals.files import (
-    FrameDeleted,
-    frame_exists,
-    frame_rgb,
-    load_mask,
-    lock_frame,
-    masks_in_use,
-    store_mask_file,
-)
+from app.proposals.files import masks_in_use, store_mask_file
 from app.proposals.policy import pick
 from app.storage import Storage, StoredFile
+from app.storage.pixels import frame_rgb, load_mask
 from app.teacher import runtime
 from weldpool_core.heatmap import mask_keypoints
 from weldpool_core.io import decode_mask_png

@@ -35,7 +35,7 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
             progress=ctx.progress,
             skipped=skipped,
         )
-    target = storage.home / export_name(ctx.job_id)
+    target = storage.local(export_name(ctx.job_id))
     target.parent.mkdir(parents=True, exist_ok=True)
     os.replace(written, target)
     storage.publish(export_name(ctx.job_id))  # streamed to the object store, if there is one

@@ -208,18 +208,31 @@ class Storage:
 
     def absolute(self, relative: str) -> Path:
         """The file behind a stored relative path (never outside home)."""
+        return self.local(relative)
+
+    def local(self, relative: str) -> Path:
+        """This machine's path for ``relative`` under home (never outside it), fetching nothing:
+        the folders, caches and scratch files that are each machine's own."""
         path = (self.home / relative).resolve()
         if not path.is_relative_to(self.home):
             raise ValueError(f"{relative!r} is outside the store")
         return path
+
+    def relative(self, path: Path) -> str:
+        """A path under home as the store names it (``models/student-v3``)."""
+        return path.resolve().relative_to(self.home).as_posix()
+
+    def scratch(self) -> Path:
+        """This machine's folder for temporary files (``tmp/`` under home), made if missing."""
+        self.tmp.mkdir(parents=True, exist_ok=True)
+        return self.tmp
 
     @staticmethod
     def relative_path(area: str, sha256: str, extension: str) -> str:
         return f"{area}/{sha256[:2]}/{sha256[2:4]}/{sha256}{extension}"
 
     def _temporary(self) -> Path:
-        self.tmp.mkdir(parents=True, exist_ok=True)
-        return self.tmp / f"{uuid.uuid4().hex}.part"
+        return self.scratch() / f"{uuid.uuid4().hex}.part"
 
     @staticmethod
     def _claim(final: Path) -> bool:

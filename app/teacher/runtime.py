@@ -103,7 +103,9 @@ def embedding_cache_limit(settings: Settings) -> int:
 
 
 def _embedding_dir(settings: Settings) -> Path:
-    return (settings.home / "cache" / "embeddings").resolve()
+    from app.storage import Storage
+
+    return Storage(settings.home).local("cache/embeddings")  # each machine's own
 
 
 def embedding_cache_usage(settings: Settings) -> tuple[int, int]:

@@ -10,6 +10,7 @@ import sqlalchemy as sa
 import structlog
 
 from app.core.errors import failure_sentence, store_outage, without_server_paths
+from app.core.frame_rows import FrameDeleted, frame_exists
 from app.core.models import Frame
 from app.frames.listing import run_frames, scope_frames
 from app.jobs.fanout import Fanout
@@ -21,9 +22,9 @@ from app.jobs.registry import (
     counted,
     job_handler,
 )
-from app.proposals.files import FrameDeleted, frame_exists, frame_rgb
 from app.proposals.record import claim, has_proposal, record_teacher_proposal, release
 from app.storage import Storage
+from app.storage.pixels import frame_rgb
 from app.teacher import runtime
 from weldpool_core.errors import WeldpoolError
 from weldpool_core.teacher.prompt_names import DEFAULT_PROMPTS

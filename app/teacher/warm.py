@@ -22,8 +22,8 @@ from typing import Literal
 from app.core import budgets
 from app.core.config import Settings
 from app.core.models import Frame
-from app.proposals.files import stored_rgb
 from app.storage import Storage
+from app.storage.pixels import stored_rgb
 from app.teacher import runtime
 
 MAX_PENDING = 3

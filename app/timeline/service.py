@@ -25,8 +25,8 @@ from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.proposals import policy
-from app.proposals.files import load_mask
 from app.storage import Storage
+from app.storage.pixels import load_mask
 from app.system.doctor import frame_file_missing
 from weldpool_core.geometry import PoolShape, pool_shape
 

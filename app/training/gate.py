@@ -38,8 +38,8 @@ from sqlalchemy.orm.exc import ObjectDeletedError
 from app.core.db import utcnow
 from app.core.errors import ConflictError, InvalidInputError
 from app.core.models import Frame, Label, ModelVersion, Proposal
-from app.proposals.files import frame_rgb, load_mask
 from app.storage import Storage
+from app.storage.pixels import frame_rgb, load_mask
 from app.training import service
 from weldpool_core.metrics import proposal_quality
 

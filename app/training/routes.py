@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 from fastapi import APIRouter, status
 
 from app.core.bounds import IdPath
@@ -12,21 +14,43 @@ from app.frames.listing import run_scope
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
 from app.training import gate, service
-from app.training.schemas import ModelVersionOut, SequentialIn, StudentRunIn, TrainIn
+from app.training.schemas import (
+    ModelVersionOut,
+    SequentialIn,
+    StudentRunIn,
+    TrainCreated,
+    TrainIn,
+    TrainingPlanOut,
+)
 from weldpool_core.student.quantize import MIN_FRAMES
 
 router = APIRouter(tags=["training"])
 
 
-@router.post("/student/train", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)
-def train(body: TrainIn, session: SessionDep, queue: QueueDep, user: ReviewerUser) -> JobCreated:
-    """Train a new student version on the accepted and corrected labels, in a worker job."""
-    if not service.training_frame_ids(session):
-        raise InvalidInputError(
-            "There are no accepted or corrected labels outside the validation split to train on."
-        )
+@router.get("/student/training-plan", response_model=TrainingPlanOut)
+def training_plan(session: SessionDep, _user: CurrentUser) -> TrainingPlanOut:
+    """What a training started now would learn from and be measured on, with a warning when
+    the promotion gate could not measure the version (too few labels)."""
+    return TrainingPlanOut(**asdict(service.training_plan(session)))
+
+
+@router.post(
+    "/student/train",
+    response_model=TrainCreated,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={
+        400: {"description": "No reviewed label to train on."},
+        409: {"description": "A training job is already queued or running."},
+    },
+)
+def train(body: TrainIn, session: SessionDep, queue: QueueDep, user: ReviewerUser) -> TrainCreated:
+    """Train a new student version on the accepted and corrected labels, in a worker job; the
+    answer carries the training plan (`warning` when the version could not be measured)."""
+    plan = service.training_plan(session)
+    if not plan.labels + plan.held_out:
+        raise InvalidInputError(plan.warning or "There is nothing to train on.")
     job = create_job(session, queue, service.TRAIN_KIND, body.model_dump(), user)
-    return JobCreated(job_id=job.id)
+    return TrainCreated(job_id=job.id, **asdict(plan))
 
 
 @router.post("/student/runs", response_model=JobCreated, status_code=status.HTTP_202_ACCEPTED)

@@ -36,6 +36,29 @@ class TrainIn(InputModel):
     pseudo_weight: float = Field(default=0.5, gt=0.0, le=1.0)
 
 
+class TrainingPlanOut(BaseModel):
+    """What a training started now would learn from and be measured on."""
+
+    labels: int = Field(description="Reviewed labels it would train on.")
+    validation_frames: int = Field(description="Frames of the validation split it is measured on.")
+    held_out: int = Field(
+        description="Labels held out from training to measure it on (without a validation split)."
+    )
+    needed: int = Field(
+        description="The fewest reviewed labels (outside the validation split) with which the "
+        "promotion gate can measure the version: 1 with a validation split, 3 without."
+    )
+    warning: str | None = Field(
+        description="Why the version could not be measured (too few labels), or null."
+    )
+
+
+class TrainCreated(TrainingPlanOut):
+    """A training job, queued, with the plan it was started on."""
+
+    job_id: int
+
+
 class SequentialIn(InputModel):
     """Options of a sequential-cell training job."""
 

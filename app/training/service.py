@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 
 from app.core.db import updated_one, utcnow
 from app.core.errors import ConflictError, InvalidInputError, MissingFile, NotFoundError
+from app.core.frame_rows import frame_exists
 from app.core.models import (
     Frame,
     Job,
@@ -28,8 +29,8 @@ from app.core.models import (
 )
 from app.frames.listing import UNREVIEWED, unreviewed_frame_ids
 from app.jobs.service import create_job
-from app.proposals.files import frame_exists, frame_rgb, load_mask
 from app.storage import Storage
+from app.storage.pixels import frame_rgb, load_mask
 from app.system.doctor import frame_file_missing
 
 if TYPE_CHECKING:
@@ -99,6 +100,18 @@ def promote(session: Session, model: ModelVersion) -> ModelVersion:
 def next_name(session: Session) -> str:
     count = session.scalar(sa.select(sa.func.count()).select_from(ModelVersion)) or 0
     return f"student-v{count + 1}"
+
+
+def free_name(session: Session, models_dir: Path) -> str:
+    """The next ``student-vN`` whose folder is free (a crash may leave one behind)."""
+    name = next_name(session)
+    number = int(name.removeprefix("student-v"))
+    while (models_dir / name).exists() or session.scalar(
+        sa.select(ModelVersion.id).where(ModelVersion.name == name)
+    ):
+        number += 1
+        name = f"student-v{number}"
+    return name
 
 
 def training_frame_ids(session: Session) -> list[int]:
@@ -316,6 +329,44 @@ def held_out_ids(session: Session, frame_ids: list[int]) -> list[int]:
     rows = session.execute(sa.select(Frame.id, Frame.sha256).where(Frame.id.in_(frame_ids)))
     ranked = sorted(rows, key=lambda row: row.sha256)
     return sorted(row.id for row in ranked[:count])
+
+
+@dataclass(frozen=True)
+class TrainingPlan:
+    """What a training job started now would learn from and be measured on."""
+
+    labels: int
+    validation_frames: int
+    held_out: int
+    needed: int
+    warning: str | None
+
+
+def training_plan(session: Session) -> TrainingPlan:
+    """The labels a training would take, the frames its version would be measured on (the
+    validation split's, else labels held out by ``held_out_ids``), and a warning when there
+    are too few for the promotion gate to measure it: it could then only be promoted by force."""
+    train = training_frame_ids(session)
+    validation = len(validation_frame_ids(session))
+    held_out = 0 if validation else len(held_out_ids(session, train))
+    needed = 1 if validation else MIN_TO_HOLD_OUT
+    warning = None
+    if not train:
+        warning = (
+            "There are no accepted or corrected labels outside the validation split to train on."
+        )
+    elif not validation and not held_out:
+        warning = (
+            f"Only {_labels(len(train))} to train on and no frame in the validation split: the "
+            f"promotion gate measures a version on labels held out from its training, which "
+            f"takes at least {MIN_TO_HOLD_OUT} labels (or one validation frame), so this version "
+            "could not be measured and could only be promoted by force; label more frames first."
+        )
+    return TrainingPlan(len(train) - held_out, validation, held_out, needed, warning)
+
+
+def _labels(count: int) -> str:
+    return f"{count} label" + "s" * (count != 1)
 
 
 def model_folder(storage: Storage, model: ModelVersion) -> Path:

@@ -14,14 +14,15 @@ import structlog
 
 from app.core.db import utcnow
 from app.core.errors import MissingFile
+from app.core.frame_rows import FrameDeleted, frame_exists
 from app.core.models import Frame, Job, ModelVersion
 from app.frames.listing import scope_frames
 from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, counted, job_handler
-from app.proposals.files import FrameDeleted, frame_exists, frame_rgb, load_mask
 from app.proposals.queue import latest_teacher_proposal
 from app.proposals.record import STUDENT, record_proposal
 from app.storage import Storage, best_effort
+from app.storage.pixels import frame_rgb, load_mask
 from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
@@ -120,7 +121,7 @@ def _record_version(
                 "Every labelled frame it trained on was deleted during training; no version "
                 "was recorded."
             )
-        name = _free_name(session, models_dir)
+        name = service.free_name(session, models_dir)
         final = models_dir / name
         work.rename(final)
         try:
@@ -165,7 +166,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     from weldpool_core.student.train import train_student
 
     storage = Storage.of(ctx.settings)
-    models_dir = ctx.settings.home / "models"
+    models_dir = storage.local("models")
     models_dir.mkdir(parents=True, exist_ok=True)
     work = models_dir / f".work-job{ctx.job_id}"
     train_ids, validation_ids, held_out = _training_split(ctx, models_dir)
@@ -215,8 +216,8 @@ def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
         session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
         session.commit()
     shutil.rmtree(folder, ignore_errors=True)
-    relative = folder.relative_to(ctx.settings.home).as_posix()
-    best_effort("unpublish", partial(Storage.of(ctx.settings).unpublish, relative))
+    storage = Storage.of(ctx.settings)
+    best_effort("unpublish", partial(storage.unpublish, storage.relative(folder)))
 
 
 @job_handler(service.SEQUENTIAL_KIND)
@@ -304,7 +305,7 @@ def _cell_names() -> tuple[str, ...]:
 
 def _stored(storage: Storage, folder: Path) -> str:
     """A version folder's path as the store names it."""
-    return folder.relative_to(storage.home).as_posix()
+    return storage.relative(folder)
 
 
 def _files(root: Path, names: tuple[str, ...]) -> dict[str, bytes]:
@@ -424,18 +425,6 @@ def _pseudo_labels(ctx: JobContext, session: Any, storage: Storage, labels: int)
     return frames
 
 
-def _free_name(session: Any, models_dir: Any) -> str:
-    """The next ``student-vN`` whose folder is free (a crash may leave one behind)."""
-    name = service.next_name(session)
-    number = int(name.removeprefix("student-v"))
-    while (models_dir / name).exists() or session.scalar(
-        sa.select(ModelVersion.id).where(ModelVersion.name == name)
-    ):
-        number += 1
-        name = f"student-v{number}"
-    return name
-
-
 def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     """Measure the new version (``app.training.gate``), store the verdict, and promote it when
     the gate says so and WELDPOOL_AUTO_PROMOTE is on; then re-score the review queue."""
@@ -443,7 +432,7 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     storage = Storage.of(ctx.settings)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
-        folder = ctx.settings.home / (version.checkpoint_path or f"models/{version.name}")
+        folder = storage.local(version.checkpoint_path or f"models/{version.name}")
         incumbent = service.promoted_model(session)
         try:
             verdict = gate.measure(session, storage, version, incumbent, ctx.settings.device)

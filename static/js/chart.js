@@ -19,6 +19,27 @@ export function ticks(low, high, count = 4) {
   return out;
 }
 
+const CHAR_PX = 6.2; // the width of a tick label's character (10 px system-ui), at most
+
+/** [low, high] widened about its middle to at least ``span`` (never below 0 for values that
+ * are not). */
+export function spanAtLeast(low, high, span) {
+  if (!(span > high - low)) return [low, high];
+  const middle = (low + high) / 2;
+  if (low >= 0 && middle < span / 2) return [0, span];
+  return [middle - span / 2, middle + span / 2];
+}
+
+/** The least y span of a pool quantity's chart (timeline, live view): by unit, and a tenth of
+ * its mean; a steady pool reads as a flat line, not as its noise (0.0005 mm) zoomed to fill the
+ * chart. */
+const LEAST_SPAN = { mm: 0.5, "mm²": 1, px: 5, "px²": 100 };
+export function leastSpan(values, unit) {
+  const finite = values.filter(Number.isFinite);
+  const mean = finite.length ? finite.reduce((a, b) => a + b, 0) / finite.length : 0;
+  return Math.max(LEAST_SPAN[unit] ?? 0, 0.1 * Math.abs(mean));
+}
+
 /** A tick's label, with as many decimals as the step between ticks needs: ticks 0.0005 apart
  *  never read "0.981, 0.981, 0.981". */
 export function format(value, step = 0) {
@@ -39,10 +60,12 @@ export function format(value, step = 0) {
 /**
  * A line chart of `series` ([{name, colour, points: [[x, y], …], dots?}]) as an <svg> element;
  * a series with `dots` is drawn as markers only.
- * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data; `xDomain` fixes
- * the x range (charts of one run side by side).
+ * `domain` fixes the y range (e.g. [0, 1] for mIoU); otherwise it fits the data, over at least
+ * `minSpan` (a physical quantity: a steady pool's width must look steady, not its noise zoomed
+ * to fill the chart); `xDomain` fixes the x range (charts of one run side by side). The margins
+ * fit the tick labels, so none is cut off.
  */
-export function lineChart({ title, series, width = 300, height = 160, domain = null, xDomain = null, unit = "", xLabel = "epoch", onPick = null }) {
+export function lineChart({ title, series, width = 300, height = 160, domain = null, xDomain = null, minSpan = 0, unit = "", xLabel = "epoch", onPick = null }) {
   const pad = { left: 44, right: 12, top: 22, bottom: 26 };
   const all = series.flatMap((s) => s.points).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y));
   const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, width, height, class: "chart", role: "img", "aria-label": title });
@@ -55,19 +78,24 @@ export function lineChart({ title, series, width = 300, height = 160, domain = n
   const ys = all.map(([, y]) => y);
   const [xLow, xHigh] = xDomain ?? [Math.min(...xs), Math.max(...xs)]; // xDomain: shared with other charts
   const [x0, x1] = [xLow, xHigh === xLow ? xLow + 1 : xHigh];
-  let [y0, y1] = domain ?? [Math.min(...ys), Math.max(...ys)];
+  let [y0, y1] = domain ?? spanAtLeast(Math.min(...ys), Math.max(...ys), minSpan);
   if (y1 - y0 < 1e-12) { y0 -= 0.5 * (Math.abs(y0) || 1); y1 += 0.5 * (Math.abs(y1) || 1); }
+  const yTicks = ticks(y0, y1);
+  const yStep = yTicks.length > 1 ? yTicks[1] - yTicks[0] : 0;
+  const xTicks = ticks(x0, x1, Math.min(5, Math.max(1, x1 - x0))).filter(Number.isInteger);
+  // room for the longest y label left of the axis, and half the last x label right of it
+  pad.left = Math.max(pad.left, 10 + CHAR_PX * Math.max(...yTicks.map((t) => format(t, yStep).length)));
+  pad.right = Math.max(pad.right, 4 + (CHAR_PX * format(xTicks.at(-1) ?? 0).length) / 2);
+  root.dataset.yDomain = `${y0} ${y1}`;
   const sx = (x) => pad.left + ((x - x0) / (x1 - x0)) * (width - pad.left - pad.right);
   const sy = (y) => height - pad.bottom - ((y - y0) / (y1 - y0)) * (height - pad.top - pad.bottom);
   const grid = svg("g", { class: "grid" });
-  const yTicks = ticks(y0, y1);
-  const yStep = yTicks.length > 1 ? yTicks[1] - yTicks[0] : 0;
   for (const t of yTicks) {
     grid.append(svg("line", { x1: pad.left, x2: width - pad.right, y1: sy(t), y2: sy(t) }));
     grid.append(svg("text", { x: pad.left - 6, y: sy(t) + 4, "text-anchor": "end", class: "y-tick" }, format(t, yStep)));
   }
   // x counts epochs or labels: whole numbers only, never "1.2 epochs".
-  for (const t of ticks(x0, x1, Math.min(5, Math.max(1, x1 - x0))).filter(Number.isInteger)) {
+  for (const t of xTicks) {
     grid.append(svg("text", { x: sx(t), y: height - pad.bottom + 16, "text-anchor": "middle" }, format(t)));
   }
   grid.append(svg("text", { x: 4, y: height - pad.bottom + 16, class: "axis-label" }, xLabel));

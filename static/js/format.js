@@ -75,14 +75,23 @@ export function metric(name, value) {
 export const decimal = (v, digits = 1) => (typeof v === "number" && Number.isFinite(v) ? v.toFixed(digits) : "–");
 
 /** The promotion gate's verdict on a student version (models page, live view): usable or not,
- * why, and on how many held-out frames it was measured against the teacher. */
-export function gateLine(gate) {
+ * why, and on how many held-out frames it was measured against the teacher. A version
+ * ``promoted`` although the gate found it not usable says so once: promoted by force, and why
+ * the gate would not have. */
+export function gateLine(gate, promoted = false) {
   if (!gate) return h("p", { class: "muted small-text", "data-testid": "gate" }, "not measured by the promotion gate");
-  const frames = gate.frames?.length ?? 0;
+  const frames = h("span", { class: "muted" }, ` (${count(gate.frames?.length ?? 0, "held-out frame")})`);
+  if (promoted && !gate.usable) {
+    const why = (gate.reason ?? "").replace(/^Not promoted: /, "").replace(/\.$/, "");
+    return h("p", { class: "gate warning", "data-testid": "gate" },
+      badge("promoted by force", "forced"), ` although the promotion gate found it not usable${why ? `: ${why}` : ""}.`, frames);
+  }
   return h("p", { class: `gate ${gate.usable ? "ok" : "warning"}`, "data-testid": "gate" },
-    badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "",
-    h("span", { class: "muted" }, ` (${count(frames, "held-out frame")})`));
+    badge(gate.usable ? "usable" : "not usable"), " ", gate.reason ?? "", frames);
 }
+
+/** Whether a version is promoted although the gate found it not usable (``gateLine`` says so). */
+export const forced = (model) => Boolean(model.is_promoted && model.gate && !model.gate.usable);
 
 /** A student version's sequential cell and how it measured against the per-frame student (models
  * page): mask IoU on validation frames of videos, and how much of the mask changes from one frame

@@ -2,7 +2,7 @@
 // its mask outline and keypoints (MJPEG), the pool's geometry as it scrolls, fps and latency.
 
 import { api, isReviewer } from "./api.js";
-import { lineChart } from "./chart.js";
+import { leastSpan, lineChart } from "./chart.js";
 import { count, decimal, gateLine } from "./format.js";
 import { badge, h, toast } from "./ui.js";
 
@@ -27,7 +27,8 @@ function geometryCharts(view) {
   const mm = view.mm_per_px !== null;
   const series = (key, colour) => [{ name: key, colour, points: rows.map((r) => [r.frame, r[key] ?? NaN]) }];
   const chart = (title, key, unit, colour) => h("figure", { class: "chart-box" },
-    lineChart({ title, unit, xLabel: "frame", width: 360, height: 150, series: series(key, colour) }));
+    lineChart({ title, unit, xLabel: "frame", width: 360, height: 150, series: series(key, colour),
+      minSpan: leastSpan(rows.map((r) => r[key] ?? NaN), unit) }));
   return mm
     ? [chart("Pool area", "area_mm2", "mm²", "#1c7ed6"), chart("Length", "length_mm", "mm", "#2f9e44"), chart("Width", "width_mm", "mm", "#e8590c")]
     : [chart("Pool area", "area_px", "px²", "#1c7ed6"), chart("Length", "length_px", "px", "#2f9e44"), chart("Width", "width_px", "px", "#e8590c")];
@@ -64,6 +65,48 @@ function outputsLine(view) {
   return h("ul", { class: "live-output-list small-text", "data-testid": "live-outputs" }, view.outputs.map(item));
 }
 
+const ENDED = {
+  stopped: "This view is stopped: it no longer runs.",
+  ended: "The source ended: the view no longer runs.",
+  failed: "This view failed and no longer runs",
+};
+
+/** What the frame's place says while no frame is shown: the student being prepared (a version's
+ * first start exports it to ONNX, which takes a while), the source opening, or the view no
+ * longer running (never a broken image). Null while frames come. */
+export function framePlaceholder(view) {
+  if (ACTIVE.has(view.state)) {
+    if (view.frames > 0) return null;
+    const seconds = Math.max(0, Math.round((Date.now() - Date.parse(view.started_at)) / 1000));
+    const preparing = /onnx|export|preparing/i.test(view.message ?? "");
+    const exporting = /export/i.test(view.message ?? "");
+    return {
+      title: exporting ? "Preparing the student (exporting it to ONNX)…" : preparing ? "Preparing the student…" : "Starting…",
+      detail: preparing
+        ? `The first start of a version exports it for ONNX Runtime once: ${seconds} s so far, up to a minute on a CPU.`
+        : `${view.message ? `${view.message[0].toUpperCase()}${view.message.slice(1)}` : "Waiting for the first frame"} (${seconds} s so far).`,
+      busy: true,
+    };
+  }
+  const again = isReviewer() ? " Start it again above." : "";
+  const detail = view.state === "failed" ? `${ENDED.failed}: ${view.message}` : `${ENDED[view.state] ?? `The view is ${view.state}.`}${again}`;
+  return { title: view.state === "failed" ? "Failed" : view.state === "ended" ? "Ended" : "Stopped", detail, busy: false };
+}
+
+function showFrame(entry, view) {
+  const shown = framePlaceholder(view);
+  if (!ACTIVE.has(view.state) && entry.image.hasAttribute("src")) {
+    entry.image.removeAttribute("src"); // the stream has ended: no broken image left behind
+  }
+  entry.image.hidden = shown !== null; // no frame yet, or none any more: the placeholder says why
+  entry.placeholder.hidden = shown === null;
+  if (shown) {
+    entry.placeholder.dataset.state = view.state;
+    entry.placeholder.replaceChildren(h("strong", {}, shown.title), h("span", {}, shown.detail),
+      shown.busy ? h("div", { class: "progress indeterminate", role: "progressbar", "aria-label": shown.title }, h("div", { class: "fill" })) : "");
+  }
+}
+
 async function stop(view, button) {
   button.disabled = true;
   try {
@@ -82,6 +125,7 @@ function card(view) {
     if (ACTIVE.has(view.state)) image.src = `/api/v1/live/${view.id}/mjpeg`;
     entry = {
       image,
+      placeholder: h("div", { class: "live-placeholder", "data-testid": "live-placeholder", hidden: "" }),
       state: h("span", {}),
       stats: h("p", { class: "muted", "data-testid": "live-stats" }),
       outputs: h("div", {}),
@@ -100,7 +144,7 @@ function card(view) {
       entry.stats,
       entry.outputs,
       h("div", { class: "live-body" },
-        h("div", { class: "live-frame-box" }, image),
+        h("div", { class: "live-frame-box" }, image, entry.placeholder),
         h("div", { class: "live-side" }, entry.keypoints)),
       entry.charts);
     cards.set(view.id, entry);
@@ -110,6 +154,7 @@ function card(view) {
   entry.stats.textContent = statsLine(view);
   entry.outputs.replaceChildren(outputsLine(view));
   entry.stop.hidden = !ACTIVE.has(view.state);
+  showFrame(entry, view);
   entry.keypoints.replaceChildren(keypointTable(view));
   entry.charts.replaceChildren(...geometryCharts(view));
   return entry.card;

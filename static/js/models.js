@@ -2,9 +2,9 @@
 // button, and (for reviewers) starting a training job.
 
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
-import { count, gateLine, int8Line, metric, metricName, sequentialLine } from "./format.js";
+import { count, forced, gateLine, int8Line, metric, metricName, sequentialLine } from "./format.js";
 import { lineChart } from "./chart.js";
-import { badge, formatDate, h, toast } from "./ui.js";
+import { badge, formatDate, h, progressBar, toast } from "./ui.js";
 
 const list = document.getElementById("models");
 const PALETTE = ["#d9480f", "#1971c2", "#2f9e44", "#9c36b5", "#e8590c"];
@@ -102,7 +102,7 @@ export function modelCard(model) {
   return h("article", { class: `model-card${model.is_promoted ? " promoted" : ""}`, "data-testid": "model-card", "data-model-id": String(model.id) },
     h("header", {},
       h("h2", {}, model.name ?? `version ${model.id}`),
-      model.is_promoted ? badge("promoted") : "",
+      model.is_promoted && !forced(model) ? badge("promoted") : "", // forced: the gate line says it
       h("span", { class: "spacer" }),
       isReviewer()
         ? h("button", { type: "button", class: "secondary", "data-testid": "train-sequential", title: "Train a recurrent cell on this version's latent from the reviewed frames of imported videos: steadier mask and keypoints in live views", onclick: (event) => trainSequential(model, event.currentTarget) }, model.sequential ? "Retrain sequential cell" : "Train sequential cell")
@@ -116,7 +116,7 @@ export function modelCard(model) {
       isReviewer() && !model.is_promoted
         ? h("button", { type: "button", class: "secondary", "data-testid": "promote", onclick: () => promote(model) }, "Promote")
         : ""),
-    gateLine(model.gate),
+    gateLine(model.gate, model.is_promoted),
     sequentialLine(model.sequential),
     int8Line(model.int8),
     h("p", { class: "muted" },
@@ -155,22 +155,79 @@ async function load() {
 }
 
 const trainForm = document.getElementById("train-form");
+const trainButton = trainForm?.querySelector("button[type=submit]");
+const TRAIN_TITLE = trainButton?.title ?? "";
+let followed = null; // the training job this page follows, wherever it was started
+
+/** Who started a training job, in words. */
+const starter = (job) => (job.params?.automatic ? "the automatic retrain" : job.created_by ?? "the system");
+
+/** The running training in the state line, and the train button disabled while it runs (one
+ * training at a time): started here, in another tab, by another person or by the retrain. */
+function showTraining(job) {
+  const stateLine = document.getElementById("train-state");
+  const link = h("a", { href: `/jobs?job=${job.id}` }, `#${job.id}`);
+  const percent = Math.round((job.progress ?? 0) * 100);
+  stateLine.replaceChildren(`Training job `, link, ` (started by ${starter(job)}): ${job.status}, ${percent} %${job.message ? ` · ${job.message}` : ""}`,
+    job.status === "running" || job.status === "queued" ? progressBar(job.progress ?? 0, `${percent} %`) : "");
+  if (!trainButton) return;
+  const busy = job.status === "running" || job.status === "queued";
+  trainButton.disabled = busy;
+  trainButton.title = busy ? `Training job #${job.id} is ${job.status}; one training runs at a time: wait for it to finish.` : TRAIN_TITLE;
+}
+
+/** Follow a training job to its end, then say how it ended and show the new version. */
+async function followTraining(jobId) {
+  if (followed === jobId) return;
+  followed = jobId;
+  try {
+    const job = await waitForJob(jobId, showTraining, 1500);
+    toast(`Training job #${jobId} ${job.status}${job.error ? `: ${job.error}` : ""}.`, job.status === "succeeded" ? "ok" : "error");
+  } catch (error) {
+    toast(error.message, "error");
+  } finally {
+    followed = null;
+    if (trainButton) { trainButton.disabled = false; trainButton.title = TRAIN_TITLE; }
+  }
+  load();
+}
+
+/** A training queued or running now (at most one is), wherever it was started: followed here. */
+async function findTraining() {
+  if (followed !== null || document.hidden) return;
+  try {
+    const page = await api(`/jobs?kind=train_student&limit=1`);
+    const job = page.items?.[0];
+    if (job && (job.status === "queued" || job.status === "running")) followTraining(job.id);
+  } catch { /* the next look tries again */ }
+}
+
+/** Ask before a training the promotion gate could not measure (too few labels). */
+async function planAllows() {
+  const plan = await api("/student/training-plan");
+  if (!plan.warning || plan.labels + plan.held_out === 0) return true;
+  return confirm(`${plan.warning}\n\nTrain on ${count(plan.labels, "label")} anyway?`);
+}
+
 trainForm?.addEventListener("submit", async (event) => {
   event.preventDefault();
   const epochs = Number(trainForm.elements.epochs.value);
-  const button = trainForm.querySelector("button");
-  button.disabled = true;
+  trainButton.disabled = true;
+  let jobId = null;
   try {
+    if (!(await planAllows())) return;
     const body = epochs > 0 ? { epochs } : {};
     if (trainForm.elements.pseudo_labels?.checked) body.pseudo_labels = true;
-    await followJob("Training", () => api("/student/train", { method: "POST", json: body }));
-    load();
+    ({ job_id: jobId } = await api("/student/train", { method: "POST", json: body }));
   } catch (error) {
     const missing = error instanceof ApiError && error.status === 404;
     toast(missing ? "This server cannot train students yet (no /api/v1/student/train)." : error.message, "error");
   } finally {
-    button.disabled = false;
+    if (jobId === null) trainButton.disabled = false;
   }
+  if (jobId !== null) followTraining(jobId);
 });
 
 load();
+findTraining();
+setInterval(findTraining, 4000);

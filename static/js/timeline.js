@@ -2,7 +2,7 @@
 // pool's area, length and width over the run (a click opens that frame), and propagation.
 
 import { api, ApiError, isReviewer, jobFromButton, SAM2_PROBLEM } from "./api.js";
-import { lineChart } from "./chart.js";
+import { leastSpan, lineChart } from "./chart.js";
 import { count, decimal, mmPerPx } from "./format.js";
 import { renderStability } from "./stability.js";
 import { h, toast } from "./ui.js";
@@ -58,7 +58,7 @@ function renderCharts() {
   const xs = rows.map((r, i) => x(r, i)).filter(Number.isFinite);
   const xDomain = xs.length ? [Math.min(...xs), Math.max(...xs)] : null; // every chart: one x range
   const quantity = (title, key, unit) => lineChart({
-    title, unit, xLabel, xDomain, width: 420, height: 180, onPick,
+    title, unit, xLabel, xDomain, width: 420, height: 180, onPick, minSpan: leastSpan(rows.map((r) => r[key]), unit),
     series: [
       { name: "every frame", colour: "#1c7ed6", points: rows.map((r, i) => [x(r, i), r[key] ?? NaN]) },
       { name: "reviewed", colour: "#2f9e44", dots: true, points: rows.map((r, i) => [x(r, i), r.source === "label" ? r[key] ?? NaN : NaN]) },

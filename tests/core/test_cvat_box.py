@@ -7,7 +7,7 @@ import numpy as np
 
 from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
 from weldpool_core.annotations.shapes import cvat_rle
-from weldpool_core.outline import coco_mask, rle_box, rle_mask
+from weldpool_core.outline import coco_mask, rle_box, rle_counts, rle_mask
 
 
 def _masks() -> list[np.ndarray]:
@@ -47,3 +47,22 @@ def test_the_cvat_mask_from_the_stored_box_is_the_one_from_the_whole_frame() -> 
         )
         assert np.array_equal(back, mask)
     assert cvat_mask(np.zeros((4, 4), bool)) is None
+
+
+def test_the_runs_read_from_the_compressed_string_are_pycocotools_own() -> None:
+    """``rle_counts`` reads COCO's string as pycocotools writes it: counts of several 5-bit
+    groups, differences to the run two before (negative ones too), on a frame of 12 million
+    pixels; the box laid out from them is the decoded frame's."""
+    mask = np.zeros((3000, 4000), bool)
+    mask[5:2990, 7:3990] = True
+    mask[100:200, 100:3000] = False  # long runs, then short ones: differences of both signs
+    mask[2500:2502, 3000:3002] = False
+    rng = np.random.default_rng(8)
+    mask[1000:1100, 1000:1100] = rng.random((100, 100)) > 0.5
+    coco = coco_mask(mask)
+    runs = rle_counts(coco.rle["counts"])
+    assert int(runs.sum()) == mask.size and (runs[1:] > 0).all()
+    flat = np.repeat(np.arange(runs.size) % 2 == 1, runs)
+    assert np.array_equal(flat.reshape(4000, 3000).T, mask)  # column-major, 0s first
+    x, y, w, h = coco.bbox
+    assert np.array_equal(rle_box(coco.rle, coco.bbox), mask[y : y + h, x : x + w])

@@ -603,8 +603,8 @@ def test_start_up_prunes_training_state_of_recorded_versions(
         session.add(ModelVersion(name="student-v1", checkpoint_path="models/student-v1"))
         session.add(ModelVersion(name="student-v0", checkpoint_path=None))
         session.commit()
-        assert prune_training_state(session, settings.home) == 1000
-        assert prune_training_state(session, settings.home) == 0
+        assert prune_training_state(session, Storage(settings.home)) == 1000
+        assert prune_training_state(session, Storage(settings.home)) == 0
     assert (recorded / "model.safetensors").exists()
     assert not (recorded / "training_state.pt").exists()
     assert (unrecorded / "training_state.pt").exists()

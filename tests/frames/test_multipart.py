@@ -14,7 +14,7 @@ from app.core.errors import InvalidInputError
 from app.frames import ingest
 from app.frames.multipart import StreamedForm
 from app.storage import Storage
-from tests.helpers import image_bytes
+from tests.helpers import image_bytes, wait_for
 
 
 def _part(name: str, data: bytes, file_name: str | None = None) -> bytes:
@@ -137,6 +137,35 @@ def test_a_file_is_checked_and_staged_while_the_caller_goes_on(
     assert isinstance(copy, ingest.CheckedFrame) and copy.staged is None  # one file a content
     checks.discard()
     assert not first.staged.temporary.exists()
+
+
+def test_a_file_is_staged_while_it_is_checked_and_withdrawn_when_refused(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file whose header names an image format is staged (an object store's upload) while
+    its check runs, not after it; one the check refuses leaves nothing staged."""
+    release = threading.Event()
+    real = ingest.check_frame_file
+    storage = Storage(tmp_path)
+
+    def held(*args, **kwargs):  # type: ignore[no-untyped-def]
+        assert release.wait(timeout=10)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ingest, "check_frame_file", held)
+    checks = ingest.FrameChecks(storage, max_pixels=10**6)
+    good, cut = image_bytes(seed=6), image_bytes(seed=7)[:200]  # both begin as PNGs
+    checks.add(ingest.IncomingFile("a.png", good))
+    checks.add(ingest.IncomingFile("cut.png", cut))
+    wait_for(lambda: len(list(storage.tmp.glob("*.part"))) == 2, timeout=10)
+    release.set()  # both were on disk while their checks were held
+    first, refused = checks.results()
+    assert isinstance(first, ingest.CheckedFrame) and first.staged is not None
+    assert first.staged.temporary is not None and first.staged.temporary.read_bytes() == good
+    assert isinstance(refused, ingest.Rejection) and "truncated" in refused.reason
+    assert list(storage.tmp.glob("*.part")) == [first.staged.temporary]  # the cut one went
+    checks.discard()
+    assert not list(storage.tmp.glob("*.part"))
 
 
 def test_a_spooled_file_arrives_whole_as_a_file_on_disk_and_closes_with_the_form() -> None:

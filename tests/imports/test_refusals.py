@@ -405,4 +405,5 @@ def test_a_batch_finds_its_frames_by_name_in_one_query(client, make_user) -> Non
         s for s in statements if s.startswith("SELECT frames.id \nFROM frames \nWHERE frames.id = ")
     ]
     assert not one_each, one_each  # no lock (or look-up) per frame
-    assert len([s for s in statements if "FOR UPDATE" in s]) <= 1  # PostgreSQL: the batch's
+    frame_locks = [s for s in statements if "FOR UPDATE" in s and "FROM frames" in s]
+    assert len(frame_locks) <= 1  # PostgreSQL: the batch's

@@ -184,3 +184,58 @@ def test_a_replaced_proposals_files_are_doomed_for_the_collector(
         age_stored_files(settings.home, storage.grace_s + 1)
         assert collect_doomed(session, storage) == [old]
     assert not storage.absolute(old).exists() and storage.absolute(new).exists()
+
+
+def test_the_policy_is_stored_when_a_change_commits_and_read_as_a_row(
+    client: TestClient, settings, session_factory, make_user, monkeypatch
+) -> None:
+    """A label saved through the service measures the policy before its commit and stores it
+    (``display_policies``); reads take the row and measure nothing. A change committed where
+    the store is unknown leaves the row stale, and the next read measures."""
+    from app.core.models import DisplayPolicy
+    from app.proposals import policy
+
+    _, token = make_user("stored", Role.reviewer)
+    storage = Storage(settings.home)
+    ids = upload(client, token, 500, 4)
+    with session_factory() as session:
+        session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
+        session.commit()
+    for frame_id in ids:
+        propose(session_factory, storage, frame_id, "teacher", "t", box(30, 70))
+        propose(session_factory, storage, frame_id, "student", "student-v1", box(22, 62))
+
+    def row() -> tuple[bool, str]:
+        with session_factory() as session:
+            stored = session.get(DisplayPolicy, 1)
+            assert stored is not None
+            return stored.stale, stored.chosen
+
+    assert row()[0] is True  # written where the store is unknown: stale until measured
+    for count, frame_id in enumerate(ids[:3], start=1):
+        saved = client.put(
+            f"/api/v1/frames/{frame_id}/label",
+            json=corrected_label(box(20, 60)),
+            headers=auth(token),
+        )
+        assert saved.status_code == 200, saved.text
+        assert row() == (False, "student:student-v1" if count == 3 else "teacher"), count
+
+    def refuse(*_args: object) -> None:
+        raise AssertionError("a read measured the policy")
+
+    monkeypatch.setattr(policy, "measure", refuse)
+    shown = client.get(f"/api/v1/frames/{ids[3]}/proposal", headers=auth(token)).json()
+    assert shown["source_key"] == "student:student-v1"
+    listing = client.get(f"/api/v1/frames/{ids[3]}/proposals", headers=auth(token)).json()
+    common = {s["key"]: s["common_frames"] for s in listing["policy"]["sources"]}
+    assert common == {"teacher": 0, "student:student-v1": 3}
+
+    # A gate verdict written in bulk where the store is unknown: stale; the next read measures.
+    with session_factory() as session:
+        session.execute(sa.update(ModelVersion).values(gate={"usable": False}))
+        session.commit()
+    assert row()[0] is True
+    monkeypatch.undo()
+    shown = client.get(f"/api/v1/frames/{ids[3]}/proposal", headers=auth(token)).json()
+    assert shown["source_key"] == "teacher"

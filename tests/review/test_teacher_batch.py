@@ -9,8 +9,8 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Frame, Proposal, Role
 from app.main import create_app
-from app.proposals.files import load_mask
 from app.storage import Storage
+from app.storage.pixels import load_mask
 from tests.helpers import auth, image_bytes, wait_for_job
 from weldpool_core.teacher.teacher import Teacher
 

@@ -390,3 +390,25 @@ def test_files_fetched_ahead_are_read_from_the_cache(
     assert worker.reads == 5  # each fetched once, ahead
     assert not worker.absolute("frames/00/00/none.png").exists()
     Storage(tmp_path / "home").fetch_ahead(paths)  # home's files: nothing to do
+
+
+def test_a_frame_is_uploaded_while_it_is_checked_and_a_refused_one_withdrawn(
+    tmp_path: Path, s3_url: str, s3_endpoint: str
+) -> None:
+    """Ingest uploads a file whose header names an image while its check runs; the upload of
+    one the check refuses (a cut PNG) is withdrawn: the bucket's frames are the good ones."""
+    from app.frames import ingest
+    from tests.helpers import image_bytes
+
+    web = store(tmp_path, "web", s3_url, s3_endpoint)
+    checks = ingest.FrameChecks(web, max_pixels=10**6)
+    good, cut = image_bytes(seed=21), image_bytes(seed=22)[:300]
+    checks.add(ingest.IncomingFile("a.png", good))
+    checks.add(ingest.IncomingFile("cut.png", cut))
+    first, refused = checks.results()
+    assert isinstance(first, ingest.CheckedFrame) and isinstance(refused, ingest.Rejection)
+    assert first.staged is not None
+    assert set(bucket_keys(s3_endpoint, s3_url, "frames/")) == {first.staged.relative}
+    installed = web.install_many([first.staged])
+    assert (web.home / installed[0].path).read_bytes() == good
+    assert not list(web.tmp.glob("*.part"))

@@ -277,8 +277,8 @@ def cvat_rle(counts: list[int], width: int, height: int) -> NDArray[np.bool_]:
 
 def to_cvat_rle(pixels: NDArray[np.bool_]) -> list[int]:
     """The inverse of ``cvat_rle`` (the box's pixels, row-major, runs starting with 0s)."""
-    flat = np.ascontiguousarray(pixels, dtype=np.uint8).reshape(-1)
-    changes = np.flatnonzero(np.diff(flat)) + 1
+    flat = np.ascontiguousarray(pixels, dtype=bool).reshape(-1)
+    changes = np.flatnonzero(flat[1:] != flat[:-1]) + 1
     edges = np.concatenate([[0], changes, [flat.size]])
     runs = np.diff(edges).tolist()
     return [0, *runs] if flat.size and flat[0] else runs

@@ -246,7 +246,9 @@ class MqttPublisher:
 
     def status(self) -> OutputStatus:
         p50, p99 = self.counters.percentiles()
-        if self._connected.is_set():
+        if self._closing:  # closed here (the view or stream stopped): not the broker's doing
+            state = "disconnected"
+        elif self._connected.is_set():
             state = "connected"
         else:
             state = "reconnecting" if self._ever_connected else "connecting"

@@ -73,7 +73,14 @@ class Publisher:
         # The count as of the last frame sent: a ZeroMQ socket belongs to the thread that sends.
         p50, p99 = self.counters.percentiles()
         return OutputStatus(
-            self.kind, self.address, "bound", self.subscribers, self.counters.sent, 0, p50, p99
+            self.kind,
+            self.address,
+            "closed" if self._socket.closed else "bound",
+            self.subscribers,
+            self.counters.sent,
+            0,
+            p50,
+            p99,
         )
 
     def close(self) -> None:

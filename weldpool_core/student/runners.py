@@ -99,8 +99,10 @@ class Int8Runner(OnnxRunner):
         path = options.model_dir / self.file
         if not path.is_file():
             raise InvalidInputError(
-                f"{options.model_dir} has no {path.name}; make the int8 student first "
-                "(it is calibrated on frames of the camera)."
+                f"{options.model_dir} has no {path.name}; make the int8 student first, "
+                "calibrated on frames of the camera: “Make int8” on the models page of the "
+                f"server, or weldpool export-student {options.model_dir} --format onnx-int8 "
+                "--calibrate FRAMES."
             )
         if current_record(options.model_dir) is None:
             raise InvalidInputError(

@@ -5,9 +5,10 @@
 prompt coordinates are scaled by 1024 / width and 1024 / height; the 256×256 mask logits are
 resized bilinearly to the frame and thresholded at 0.
 
-``Sam2Predictor.set_image`` runs the image encoder once (``hiera.ImageEncoder``: transformers'
-encoder re-stated without its unused work, same numbers); ``predict`` then runs only the prompt
-encoder and the mask decoder. The decoder pass is our own re-statement of transformers'
+``Sam2Predictor.set_image`` runs the image encoder once (``hiera.image_encoder``: on the CPU
+``hiera.ImageEncoder``, transformers' encoder re-stated without its unused work, same numbers;
+transformers' own where no interleaved bench measured ours faster); ``predict`` then runs only
+the prompt encoder and the mask decoder. The decoder pass is our own re-statement of transformers'
 ``Sam2MaskDecoder`` (same weights, same numbers; a test checks it against ``Sam2Model``) that
 computes what does not depend on the prompt once per image: the image tokens in token-major
 layout, their sum with the positional encoding, and the first block's image-side projections.
@@ -27,7 +28,7 @@ from transformers import Sam2Config, Sam2Model
 
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.teacher.dino import IMAGENET_MEAN, IMAGENET_STD
-from weldpool_core.teacher.hiera import ImageEncoder
+from weldpool_core.teacher.hiera import image_encoder
 
 SAM2_INPUT_SIZE = 1024
 PREPROCESSING_VERSION = 1
@@ -154,7 +155,7 @@ class Sam2Predictor:
         with torch.inference_mode():
             pe = self.model.get_image_wide_positional_embeddings()  # 1 × C × 64 × 64
         self._image_pe = pe.flatten(2).transpose(1, 2).contiguous().to(self.dtype)  # 1×4096×C
-        self._encoder = ImageEncoder(self.model)
+        self._encoder = image_encoder(self.model, self.device)
 
     @classmethod
     def from_config(cls, config: Sam2Config, device: torch.device | None = None) -> Sam2Predictor:

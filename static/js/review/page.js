@@ -4,7 +4,7 @@ export const FRAME_ID = Number(document.getElementById("review").dataset.frameId
 /** Algorithm 1's k, as the server says: the keypoints a validation set places. */
 export const K = Number(document.getElementById("review").dataset.keypoints);
 export const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
-export const OUTLINE_TOLERANCE = 1; // pixels: a vertex where the boundary turns, not on every pixel
+export const OUTLINE_TOLERANCE = 1; // pixels: a vertex where the boundary turns, not on every pixel (the page's Tolerance)
 export const $ = (id) => document.getElementById(id);
 
 /** The list's filters this frame was opened from: the queue that "next" walks. */

@@ -22,7 +22,7 @@ import { render, timelineNote } from "./panel.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
 import { S, changed, subscribe } from "./state.js";
-import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setTool, toolUsable } from "./tools.js";
+import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setOutlineTolerance, setTool, toolUsable } from "./tools.js";
 import { saveValidation, toggleValidation } from "./validation.js";
 
 // --- proposals ------------------------------------------------------------------------------
@@ -109,6 +109,7 @@ export function bindControls() {
     button.addEventListener("click", () => { setTool(button.dataset.tool); S.stage.canvas.focus(); });
   }
   $("brush-size").addEventListener("input", (event) => setBrushSize(Number(event.target.value)));
+  $("outline-tolerance").addEventListener("change", setOutlineTolerance);
   $("undo").addEventListener("click", undo);
   $("redo").addEventListener("click", redo);
   $("fit").addEventListener("click", () => S.stage.fit());

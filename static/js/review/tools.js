@@ -31,8 +31,23 @@ export function setTool(name) {
     button.setAttribute("aria-pressed", String(button.dataset.tool === name));
   }
   S.stage.canvas.dataset.tool = name;
+  $("outline-tolerance-group").hidden = name !== "polygon"; // in the brush size's place
+  $("brush-size").closest("label").hidden = name === "polygon";
   if (name !== "brush" && name !== "eraser") S.stage.cursor = null;
   S.stage.selectedVertex = null;
+  showOutline();
+  S.stage.requestRender();
+}
+
+/** The polygon tool's tolerance (px): how far its outline may cut the mask's corners. */
+export function outlineTolerance() {
+  const value = Number($("outline-tolerance").value);
+  return Number.isFinite(value) ? Math.min(20, Math.max(0, value)) : OUTLINE_TOLERANCE;
+}
+
+/** A new tolerance: the current mask's outline traced again with it. */
+export function setOutlineTolerance() {
+  if (S.edit && S.edit.outline?.mask === S.edit.mask) S.edit.outline = null; // a settled trace: again
   showOutline();
   S.stage.requestRender();
 }
@@ -141,7 +156,7 @@ export function traceOutline(target) {
   target.outline = { mask: null, base: mask, polygons: [] }; // pending: traced once
   const run = (async () => {
     const answer = mask.any()
-      ? await api(`/frames/${FRAME_ID}/outline`, { method: "POST", json: { mask_png: await pngOf(mask), tolerance: OUTLINE_TOLERANCE } })
+      ? await api(`/frames/${FRAME_ID}/outline`, { method: "POST", json: { mask_png: await pngOf(mask), tolerance: outlineTolerance() } })
       : { polygons: [] };
     target.outline = { mask, polygons: answer.polygons };
     if (target === S.edit) { showOutline(); exposeState(); S.stage.requestRender(); }

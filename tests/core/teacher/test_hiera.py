@@ -155,3 +155,23 @@ def test_bf16_attention_takes_the_fused_kernel_where_the_cpu_has_amx(monkeypatch
             assert torch.equal(ours, expected), dtype
             if dtype == torch.bfloat16:
                 assert not torch.equal(ours, other)  # the two differ: the test can tell them apart
+
+
+def test_transformers_forward_serves_where_ours_was_not_measured_faster(model, monkeypatch):
+    """The predictor encodes with ``ImageEncoder`` only on device types an interleaved bench
+    measured it faster on; elsewhere with transformers' own forward, the same numbers."""
+    from weldpool_core.teacher.sam2 import Sam2Predictor
+
+    assert isinstance(hiera.image_encoder(model, torch.device("cpu")), ImageEncoder)
+    reference = hiera.image_encoder(model, torch.device("cuda"))
+    assert reference == model.get_image_embeddings
+    image = (torch.rand(96, 128, 3, generator=torch.Generator().manual_seed(2)) * 255).byte()
+    ours = Sam2Predictor(model).set_image(image.numpy())
+    calls: list[int] = []
+    forward = model.get_image_embeddings
+    monkeypatch.setattr(model, "get_image_embeddings", lambda p: calls.append(1) or forward(p))
+    monkeypatch.setattr(hiera, "MEASURED_FASTER", frozenset())
+    theirs = Sam2Predictor(model).set_image(image.numpy())
+    assert calls == [1]
+    for mine, reference in zip(ours.features, theirs.features, strict=True):
+        torch.testing.assert_close(mine, reference, rtol=1e-5, atol=1e-5 * float(mine.abs().max()))
