@@ -197,7 +197,7 @@ def test_the_policy_is_stored_when_a_change_commits_and_read_as_a_row(
 
     _, token = make_user("stored", Role.reviewer)
     storage = Storage(settings.home)
-    ids = upload(client, token, 500, 4)
+    ids = frame_ids(client, token, random_images(numbered(4, first_seed=500), width=W, height=H))
     with session_factory() as session:
         session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
         session.commit()
