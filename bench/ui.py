@@ -24,7 +24,8 @@ from results import recorded
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.web.server import LiveServer, launch_chromium, login, missing_browser
+from tests.pages import login
+from tests.web.server import LiveServer, launch_chromium, missing_browser
 from weldpool_core.synth import SynthParams, synth_frame
 
 TIMINGS_JS = """() => {

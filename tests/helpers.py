@@ -105,6 +105,15 @@ def mask_b64(mask: Any) -> str:
     return base64.b64encode(encode_mask_png(mask)).decode()
 
 
+def mask_from_b64(text: str) -> Any:
+    """A mask the API carried (``mask_png``: a 0/255 PNG, base64) as a boolean array."""
+    import base64
+
+    from weldpool_core.io import decode_mask_png
+
+    return decode_mask_png(base64.b64decode(text))
+
+
 def corrected_label(mask: Any, base_revision: int = 0) -> dict[str, Any]:
     """The body of ``PUT /frames/{id}/label`` that saves ``mask`` as a correction."""
     return {"status": "corrected", "base_revision": base_revision, "mask_png": mask_b64(mask)}

@@ -7,16 +7,20 @@ stop (a broker that goes away)."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
 import subprocess
+import threading
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlparse
 
+import paho.mqtt.client as mqtt
 import pytest
 
 URL_VARIABLE = "WELDPOOL_TEST_MQTT_URL"
@@ -103,3 +107,52 @@ def mqtt_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str,
     yield "127.0.0.1", port
     process.terminate()
     process.wait(timeout=10)
+
+
+class Listener:
+    """A subscriber on ``topic/#`` that keeps what it receives."""
+
+    def __init__(self, host: str, port: int, topic: str) -> None:
+        self.topic = topic
+        self.url = f"mqtt://{host}:{port}/{topic}"
+        self.messages: list[tuple[str, Any]] = []
+        self.ready = threading.Event()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        self.client.on_message = lambda _c, _u, m: (
+            self.messages.append((m.topic, json.loads(m.payload))) if m.payload else None
+        )
+        self.client.on_subscribe = lambda *_args: self.ready.set()
+        self.connected: list[str] = []
+        self.client.on_connect = self._subscribe
+        self.client.connect(host, port)
+        self.client.loop_start()
+        # A loaded machine has seen a SUBACK never come: ask once more before failing, and say
+        # what the broker answered when it still does not.
+        for _ in range(3):
+            if self.ready.wait(5):
+                return
+            self.client.subscribe(f"{topic}/#", qos=1)
+        raise AssertionError(f"no SUBACK for {topic}/# from {host}:{port}: {self.connected}")
+
+    def _subscribe(
+        self, client: mqtt.Client, _data: Any, _flags: Any, reason: Any, *_: Any
+    ) -> None:
+        self.connected.append(str(reason))
+        client.subscribe(f"{self.topic}/#", qos=1)
+
+    def frames(self, topic: str) -> list[dict[str, Any]]:
+        return [payload for name, payload in self.messages if name == topic]
+
+    def wait_for(self, predicate: Any, seconds: float = 10) -> None:
+        deadline = time.monotonic() + seconds
+        while not predicate() and time.monotonic() < deadline:
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        try:  # a shared broker keeps retained messages: clear this run's status (empty payload)
+            self.client.publish(f"{self.topic}/status", b"", qos=1, retain=True).wait_for_publish(5)
+        except (RuntimeError, ValueError):  # no longer connected: nothing to clear then
+            pass
+        finally:
+            self.client.loop_stop()
+            self.client.disconnect()

@@ -232,3 +232,55 @@ def test_modules_over_600_lines_may_only_shrink() -> None:
             if lines > LONG_MODULES.get(name, MAX_MODULE_LINES):
                 grown.append(f"{name} ({lines} lines)")
     assert grown == []
+
+
+def cross_test_imports(root: Path = REPO / "tests") -> list[str]:
+    """``file → name`` for every import, inside functions too, of a ``test_*`` module (or of a
+    name in one) by any module under ``root``: shared builders live in ``tests/factories.py``,
+    browser helpers in ``tests/pages.py``, fixtures in a ``conftest.py``."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                module = node.module or ""
+                names = [module, *(f"{module}.{alias.name}" for alias in node.names)]
+                ours = node.level > 0 or module.split(".")[0] == root.name
+            elif isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+                ours = True
+            else:
+                continue
+            for name in names:
+                parts = name.split(".")
+                if (
+                    ours
+                    and parts[0] in (root.name, "")
+                    and any(p.startswith("test_") for p in parts)
+                ):
+                    found.append(f"{path.relative_to(root.parent).as_posix()} → {name}")
+                    break
+    return found
+
+
+def test_no_test_module_imports_another() -> None:
+    """A test module imports helpers from the shared modules, never from another test module
+    (whose tests would then run twice, and whose private helpers become everyone's)."""
+    assert cross_test_imports() == []
+
+
+def test_the_cross_test_finder_sees_a_planted_import(tmp_path: Path) -> None:
+    """The check above can fail: an import of a test module, even inside a function or
+    relative, is found; one of a shared module is not."""
+    tests = tmp_path / "tests"
+    (tests / "a").mkdir(parents=True)
+    (tests / "factories.py").write_text("def upload() -> None: ...\n")
+    (tests / "a" / "test_one.py").write_text("from tests.factories import upload\n")
+    (tests / "a" / "test_two.py").write_text(
+        "def test_x() -> None:\n    from tests.a.test_one import upload\n"
+    )
+    (tests / "a" / "test_three.py").write_text("from . import test_one\nimport tests.a.test_two\n")
+    assert cross_test_imports(tests) == [
+        "tests/a/test_three.py → .test_one",
+        "tests/a/test_three.py → tests.a.test_two",
+        "tests/a/test_two.py → tests.a.test_one",
+    ]

@@ -7,7 +7,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import Frame, Role
-from tests.frames.test_delete import _upload
+from tests.factories import random_images, upload_frames
 from tests.helpers import auth, image_bytes
 
 
@@ -24,7 +24,12 @@ def test_assigning_a_selection_and_the_next_of_the_queue(
     ann, annotator = make_user("ann")
     bob, bob_token = make_user("bob")
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(reviewer)).json()
-    frames = _upload(client, reviewer, [(f"f{i}.png", i + 1) for i in range(6)], run["id"])
+    frames = upload_frames(
+        client,
+        reviewer,
+        random_images([(f"f{i}.png", i + 1) for i in range(6)]),
+        sequence_id=run["id"],
+    )
     ids = [f["id"] for f in frames]
     scores = {ids[0]: 0.1, ids[1]: 0.9, ids[2]: 0.5, ids[3]: 0.7, ids[4]: 0.3, ids[5]: 0.8}
     with session_factory() as session:
@@ -84,7 +89,7 @@ def test_only_reviewers_hand_out_and_refusals_change_nothing(
     _, admin = make_user("boss", Role.admin)
     client.patch(f"/api/v1/users/{gone.id}", json={"is_active": False}, headers=auth(admin))
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(reviewer)).json()
-    (frame,) = _upload(client, reviewer, [("a.png", 1)], run["id"])
+    (frame,) = upload_frames(client, reviewer, random_images([("a.png", 1)]), sequence_id=run["id"])
     body = {"frame_ids": [frame["id"]], "assignee_id": ann.id}
 
     assert (
@@ -117,7 +122,7 @@ def test_an_upload_names_the_other_runs_that_hold_its_content(
     _, token = make_user("rev", Role.reviewer)
     one = client.post("/api/v1/sequences", json={"name": "one"}, headers=auth(token)).json()
     two = client.post("/api/v1/sequences", json={"name": "two"}, headers=auth(token)).json()
-    (first,) = _upload(client, token, [("a.png", 1)], one["id"])
+    (first,) = upload_frames(client, token, random_images([("a.png", 1)]), sequence_id=one["id"])
     fresh = client.post(
         "/api/v1/frames",
         files=[

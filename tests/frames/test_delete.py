@@ -7,16 +7,8 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
+from tests.factories import random_images, upload_frames
 from tests.helpers import age_stored_files, auth, corrected_label, image_bytes
-
-
-def _upload(client: TestClient, token: str, names: list[tuple[str, int]], sequence: int) -> list:
-    files = [("files", (n, image_bytes(seed=s), "image/png")) for n, s in names]
-    response = client.post(
-        "/api/v1/frames", files=files, data={"sequence_id": str(sequence)}, headers=auth(token)
-    )
-    assert response.status_code == 201, response.text
-    return response.json()["stored"]
 
 
 def _files(settings) -> set[str]:  # type: ignore[no-untyped-def]
@@ -34,8 +26,12 @@ def test_deleting_frames_and_a_sequence(client: TestClient, make_user, settings)
     run = client.post("/api/v1/sequences", json={"name": "wrong upload"}, headers=auth(token))
     other = client.post("/api/v1/sequences", json={"name": "keeper"}, headers=auth(token))
     run_id, other_id = run.json()["id"], other.json()["id"]
-    a, b, c = _upload(client, token, [("a.png", 1), ("b.png", 2), ("c.png", 3)], run_id)
-    shared = _upload(client, token, [("a-again.png", 1)], other_id)[0]  # a's content, shared
+    a, b, c = upload_frames(
+        client, token, random_images([("a.png", 1), ("b.png", 2), ("c.png", 3)]), sequence_id=run_id
+    )
+    shared = upload_frames(
+        client, token, random_images([("a-again.png", 1)]), sequence_id=other_id
+    )[0]  # a's content, shared
     mask = np.zeros((48, 64), bool)
     mask[10:30, 10:40] = True
     labelled = client.put(
@@ -87,9 +83,9 @@ def test_a_deleted_newest_frame_or_run_gives_its_id_to_nobody(
     from that page is the frame's 404 and an upload naming that run is the run's 404."""
     _, token = make_user("rev", Role.reviewer)
     run_id = client.post("/api/v1/sequences", json={"name": "r"}, headers=auth(token)).json()["id"]
-    (first,) = _upload(client, token, [("a.png", 1)], run_id)
+    (first,) = upload_frames(client, token, random_images([("a.png", 1)]), sequence_id=run_id)
     assert client.delete(f"/api/v1/frames/{first['id']}", headers=auth(token)).status_code == 200
-    (second,) = _upload(client, token, [("b.png", 2)], run_id)
+    (second,) = upload_frames(client, token, random_images([("b.png", 2)]), sequence_id=run_id)
     assert second["id"] > first["id"]
     mask = np.zeros((48, 64), bool)
     mask[10:30, 10:40] = True

@@ -11,6 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
+from tests.factories import frame_ids
 from tests.helpers import auth, corrected_label, mask_b64
 from weldpool_core.outline import rle_mask
 
@@ -54,10 +55,7 @@ def _put(client: TestClient, token: str, body: dict, version: int, **extra) -> o
 
 def _frame(client: TestClient, token: str) -> int:
     _, data = cv2.imencode(".png", np.full((H, W, 3), 90, np.uint8))
-    files = [("files", ("f.png", data.tobytes(), "image/png"))]
-    response = client.post("/api/v1/frames", files=files, headers=auth(token))
-    assert response.status_code == 201, response.text
-    return response.json()["stored"][0]["id"]
+    return frame_ids(client, token, [("f.png", data.tobytes())])[0]
 
 
 def _pool() -> np.ndarray:

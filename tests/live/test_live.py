@@ -455,8 +455,7 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
 
     from asyncua import Client
 
-    from tests.core.outputs.test_mqtt import Listener
-    from tests.mqtt import free_port, unique_topic
+    from tests.mqtt import Listener, free_port, unique_topic
 
     _, token = make_user("cell", Role.reviewer)
     _promote(session_factory, student_dir, settings.home)

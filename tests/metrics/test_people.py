@@ -14,7 +14,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import LabelRevision, Role
-from tests.frames.test_delete import _upload
+from tests.factories import frame_ids, random_images
 from tests.helpers import auth, mask_b64
 
 T0 = dt.datetime(2026, 1, 5, 9, 0, tzinfo=dt.UTC)
@@ -62,7 +62,9 @@ def history(client: TestClient, make_user, session_factory) -> dict[str, str]:
     _, anna = make_user("anna")
     make_user("otto")  # no work at all: a row of zeros and blanks
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(rita)).json()
-    f1, f2, f3 = (f["id"] for f in _upload(client, rita, [("1", 1), ("2", 2), ("3", 3)], run["id"]))
+    f1, f2, f3 = frame_ids(
+        client, rita, random_images([("1", 1), ("2", 2), ("3", 3)]), sequence_id=run["id"]
+    )
     _save(client, anna, f1, 0, wide=False)
     _save(client, anna, f2, 0, wide=True)
     _save(client, anna, f3, 0, wide=True)

@@ -1,25 +1,15 @@
-"""Frames and proposals the policy and gate tests set up by hand, at one small size."""
+"""Proposals the policy and gate tests set up by hand, at one small size (their frames:
+``tests.factories.random_images`` at ``W``×``H``)."""
 
 from __future__ import annotations
 
 import numpy as np
-from fastapi.testclient import TestClient
 
 from app.core.models import Proposal
 from app.proposals.files import store_mask
 from app.storage import Storage
-from tests.helpers import auth, image_bytes
 
 W, H = 96, 64
-
-
-def upload(client: TestClient, token: str, first_seed: int, count: int) -> list[int]:
-    files = [
-        ("files", (f"{i}.png", image_bytes(W, H, seed=first_seed + i), "image/png"))
-        for i in range(count)
-    ]
-    stored = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    return [f["id"] for f in stored]
 
 
 def propose(

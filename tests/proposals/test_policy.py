@@ -10,8 +10,9 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Frame, ModelVersion, Proposal, Role
 from app.storage import Storage
+from tests.factories import frame_ids, numbered, random_images, run_teacher, upload_synthetic
 from tests.helpers import auth, corrected_label
-from tests.proposals.common import box, propose, upload
+from tests.proposals.common import H, W, box, propose
 
 
 def _teacher_and_student(
@@ -20,7 +21,9 @@ def _teacher_and_student(
     """``count`` frames, each with a teacher proposal (IoU 0.6 against ``box(20, 60)``) and a
     proposal of student-v1 (IoU 38/42 against it)."""
     storage = Storage(settings.home)
-    ids = upload(client, token, seed, count)
+    ids = frame_ids(
+        client, token, random_images(numbered(count, first_seed=seed), width=W, height=H)
+    )
     with session_factory() as session:
         session.add(ModelVersion(name="student-v1", checkpoint_path=None, train_frame_ids=[]))
         session.commit()
@@ -107,7 +110,7 @@ def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
 ) -> None:
     _, token = make_user("provenance", Role.reviewer)
     storage = Storage(settings.home)
-    ids = upload(client, token, 500, 2)
+    ids = frame_ids(client, token, random_images(numbered(2, first_seed=500), width=W, height=H))
     teacher = propose(session_factory, storage, ids[0], "teacher", "t", box(30, 70))
     student = propose(session_factory, storage, ids[0], "student", "student-v9", box(22, 62))
     second = propose(session_factory, storage, ids[1], "teacher", "t", box(30, 70))
@@ -141,15 +144,13 @@ def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
 def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
-    from tests.review.test_review import _teacher, _upload_synthetic
-
     _, token = make_user("skipper", Role.reviewer)
     storage = Storage(settings.home)
-    first, second = _upload_synthetic(client, token, 2)
+    first, second = upload_synthetic(client, token, 2)
     propose(session_factory, storage, first, "student", "student-v3", box(20, 60))
-    result = _teacher(client, token, [first, second])["result"]
+    result = run_teacher(client, token, [first, second])["result"]
     assert result["proposed"] == 2 and result["skipped"] == 0  # a student's proposal is no reason
-    again = _teacher(client, token, [first, second])["result"]
+    again = run_teacher(client, token, [first, second])["result"]
     assert again["proposed"] == 0 and again["skipped"] == 2
     listing = client.get(f"/api/v1/frames/{first}/proposals", headers=auth(token)).json()
     assert [p["source"] for p in listing["items"]] == ["teacher", "student"]
@@ -169,7 +170,9 @@ def test_a_replaced_proposals_files_are_doomed_for_the_collector(
 
     _, token = make_user("doomed", Role.reviewer)
     storage = Storage(settings.home)
-    (frame_id,) = upload(client, token, 300, 1)
+    (frame_id,) = frame_ids(
+        client, token, random_images(numbered(1, first_seed=300), width=W, height=H)
+    )
     first = propose(session_factory, storage, frame_id, PROPAGATED, "sam2-video:x", box(10, 40))
     with session_factory() as session:
         old = session.get_one(Proposal, first).mask_path

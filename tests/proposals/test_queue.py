@@ -12,18 +12,8 @@ from app.core.models import Frame, Proposal, Role
 from app.proposals.queue import rescore_frame
 from app.review import propagation
 from app.storage import Storage
-from tests.helpers import auth, image_bytes
-
-
-def _frames(client: TestClient, token: str, count: int) -> list[int]:
-    files = [
-        ("files", (f"{i}.png", image_bytes(32, 24, seed=200 + i), "image/png"))
-        for i in range(count)
-    ]
-    return [
-        f["id"]
-        for f in client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ]
+from tests.factories import frame_ids, numbered, random_images
+from tests.helpers import auth
 
 
 def _propose(
@@ -50,7 +40,9 @@ def test_unstable_proposal_ranks_above_stable_and_reason_is_shown(
     client: TestClient, session_factory, make_user
 ) -> None:
     _, token = make_user("queue", Role.reviewer)
-    stable, unstable, unscored = _frames(client, token, 3)
+    stable, unstable, unscored = frame_ids(
+        client, token, random_images(numbered(3, first_seed=200), width=32, height=24)
+    )
     _propose(session_factory, stable, sam2_iou=0.9, stability=0.97, descriptor=[1.0, 0.0])
     _propose(session_factory, unstable, sam2_iou=0.9, stability=0.35, descriptor=[0.0, 1.0])
     queue = client.get(
@@ -66,7 +58,7 @@ def test_diversity_breaks_runs_of_near_identical_frames(
     client: TestClient, session_factory, make_user
 ) -> None:
     _, token = make_user("diverse", Role.reviewer)
-    ids = _frames(client, token, 6)
+    ids = frame_ids(client, token, random_images(numbered(6, first_seed=200), width=32, height=24))
     for index, frame_id in enumerate(ids[:5]):  # five look-alikes; the last is the most unsure
         _propose(session_factory, frame_id, 0.5, 0.5 - 0.01 * index, [1.0, 0.01 * index])
     _propose(session_factory, ids[5], 0.6, 0.5, [0.0, 1.0])  # different, a bit less uncertain
@@ -85,7 +77,7 @@ def test_lists_never_read_descriptors_but_the_diversity_pick_does(
     """A descriptor is 384 floats of JSON per frame: list pages leave it in the database; only
     the queue's diversity pick (which needs it) reads it, in the same query as its frames."""
     _, token = make_user("lists", Role.reviewer)
-    ids = _frames(client, token, 3)
+    ids = frame_ids(client, token, random_images(numbered(3, first_seed=200), width=32, height=24))
     for index, frame_id in enumerate(ids):
         _propose(session_factory, frame_id, 0.5, 0.5, [1.0, 0.1 * index])
     statements: list[str] = []
@@ -115,7 +107,9 @@ def test_a_propagated_mask_sam2_doubts_ranks_above_a_confident_one(
     propagated masks came with confidence 0.2 and 0.9, recorded through propagation's own
     write; the doubted one comes first, for that reason, and the weight turns it off."""
     _, token = make_user("carrier", Role.reviewer)
-    confident, doubted = _frames(client, token, 2)
+    confident, doubted = frame_ids(
+        client, token, random_images(numbered(2, first_seed=200), width=32, height=24)
+    )
     storage = Storage.of(settings)
     mask = np.zeros((24, 32), bool)
     mask[8:16, 10:22] = True

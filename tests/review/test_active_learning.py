@@ -9,9 +9,8 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Job, JobStatus, Role
 from app.main import create_app
+from tests.factories import frame_ids, numbered, random_images, run_teacher, upload_synthetic
 from tests.helpers import auth, corrected_label
-from tests.proposals.test_queue import _frames
-from tests.review.test_review import _teacher, _upload_synthetic
 
 
 def test_retraining_starts_once_per_threshold_and_never_twice(
@@ -20,7 +19,9 @@ def test_retraining_starts_once_per_threshold_and_never_twice(
     _, token = make_user("trainer", Role.reviewer)
     every_two = settings.model_copy(update={"retrain_every": 2})
     with TestClient(create_app(every_two)) as client:  # no worker: jobs stay queued
-        ids = _frames(client, token, 5)
+        ids = frame_ids(
+            client, token, random_images(numbered(5, first_seed=200), width=32, height=24)
+        )
         mask = np.zeros((24, 32), bool)
         mask[4:20, 6:26] = True
         body = corrected_label(mask)
@@ -51,8 +52,8 @@ def test_retraining_starts_once_per_threshold_and_never_twice(
 
 def test_metrics_figures(client: TestClient, make_user) -> None:
     _, token = make_user("metrics", Role.reviewer)
-    ids = _upload_synthetic(client, token, 2)
-    assert _teacher(client, token, ids)["status"] == "succeeded"
+    ids = upload_synthetic(client, token, 2)
+    assert run_teacher(client, token, ids)["status"] == "succeeded"
     client.put(
         f"/api/v1/frames/{ids[0]}/label",
         json={"status": "accepted", "base_revision": 0},
@@ -95,7 +96,7 @@ def test_an_untrained_new_model_is_not_promoted(
             ModelVersion(name="student-v0", metrics={"mED": 0.01, "mIoU": 0.999}, is_promoted=True)
         )
         session.commit()
-    ids = _frames(client, token, 3)
+    ids = frame_ids(client, token, random_images(numbered(3, first_seed=200), width=32, height=24))
     mask = np.zeros((24, 32), bool)
     mask[4:20, 6:26] = True
     for frame_id in ids:

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Role
 from app.training.service import training_frame_ids
-from tests.frames.test_delete import _upload
+from tests.factories import frame_ids, random_images
 from tests.helpers import auth, mask_b64
 
 
@@ -37,7 +37,7 @@ def test_labels_kept_apart_measured_and_merged(
     _, rita = make_user("rita", Role.reviewer)
     people = {name: make_user(name) for name in ("anna", "otto", "tina")}
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(rita)).json()
-    f1, f2 = (f["id"] for f in _upload(client, rita, [("1", 1), ("2", 2)], run["id"]))
+    f1, f2 = frame_ids(client, rita, random_images([("1", 1), ("2", 2)]), sequence_id=run["id"])
     ids = [user.id for user, _ in people.values()]
     one = client.post(
         "/api/v1/frames/overlap", json={"frame_ids": [f1], "user_ids": ids[:1]}, headers=auth(rita)

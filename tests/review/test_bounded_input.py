@@ -10,21 +10,13 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
+from tests.factories import frame_ids, synthetic_images
 from tests.helpers import auth
 from weldpool_core.io import decode_mask_png
-from weldpool_core.synth import SynthParams, synth_frame
 
 WIDTH, HEIGHT = 160, 100
+FRAME = synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)  # one synthetic frame
 MAX_VERTICES = 10_000  # weldpool_core.outline.MAX_VERTICES, the documented cap
-
-
-def _frame(client: TestClient, token: str) -> int:
-    image = synth_frame(seed=0, params=SynthParams(width=WIDTH, height=HEIGHT)).image
-    _, data = cv2.imencode(".png", image)
-    files = [("files", ("f.png", data.tobytes(), "image/png"))]
-    response = client.post("/api/v1/frames", files=files, headers=auth(token))
-    assert response.status_code == 201, response.text
-    return int(response.json()["stored"][0]["id"])
 
 
 def _fill(client: TestClient, token: str, frame_id: int, polygons: list[dict]):  # type: ignore[no-untyped-def]
@@ -39,7 +31,9 @@ def test_an_outline_far_outside_the_frame_is_refused_in_one_sentence(
     """The attack that took 82 s of CPU (the fill walked every row from y = −3e9) and gave area
     0: eight triangles at ±3e9 are refused, naming the vertex and the frame."""
     token = make_user("anna", Role.annotator)[1]
-    frame_id = _frame(client, token)
+    (frame_id,) = frame_ids(
+        client, token, synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)
+    )
     attack = [{"points": [[0, -3e9], [WIDTH, 3e9], [WIDTH / 2, HEIGHT / 2]]} for _ in range(8)]
     refused = _fill(client, token, frame_id, attack)
     assert refused.status_code == 400
@@ -57,7 +51,9 @@ def test_an_outline_within_one_frame_size_is_clipped_to_the_frame(
     """Vertices up to one frame width or height outside are kept and clipped by the fill: two
     triangles between the far corners of that margin cover the whole frame."""
     token = make_user("anna", Role.annotator)[1]
-    frame_id = _frame(client, token)
+    (frame_id,) = frame_ids(
+        client, token, synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)
+    )
     corners = [
         [-WIDTH, -HEIGHT],
         [2 * WIDTH, -HEIGHT],
@@ -78,7 +74,9 @@ def test_an_outline_within_one_frame_size_is_clipped_to_the_frame(
 
 def test_an_outline_has_at_most_10_000_vertices_in_all(client: TestClient, make_user) -> None:
     token = make_user("anna", Role.annotator)[1]
-    frame_id = _frame(client, token)
+    (frame_id,) = frame_ids(
+        client, token, synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)
+    )
 
     def squares(count: int) -> list[dict]:
         """``count`` vertices as 1-px squares along the frame's rows (4 each, the rest in a
@@ -108,7 +106,9 @@ def test_a_mask_that_traces_beyond_an_outline_s_cap_is_a_400_naming_the_toleranc
     edited outline may, so the trace is refused (it was a 500), not sent only to be refused on
     the way back; a pool's outline is traced as before."""
     token = make_user("anna", Role.annotator)[1]
-    frame_id = _frame(client, token)
+    (frame_id,) = frame_ids(
+        client, token, synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)
+    )
 
     def trace(mask: np.ndarray) -> object:
         png = base64.b64encode(cv2.imencode(".png", mask.astype(np.uint8) * 255)[1]).decode()
@@ -135,7 +135,9 @@ def test_a_mask_that_traces_beyond_an_outline_s_cap_is_a_400_naming_the_toleranc
 def test_a_segment_box_outside_the_frame_is_refused(client: TestClient, make_user) -> None:
     """A box is checked against the frame like a click, before SAM2 sees it."""
     token = make_user("rita", Role.reviewer)[1]
-    frame_id = _frame(client, token)
+    (frame_id,) = frame_ids(
+        client, token, synthetic_images([("f.png", 0)], width=WIDTH, height=HEIGHT)
+    )
     for box, corner in (
         ([0, 0, 3e9, 3e9], "(3e+09, 3e+09)"),
         ([-3e9, 10, 50, 60], "(-3e+09, 10)"),

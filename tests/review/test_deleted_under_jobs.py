@@ -11,6 +11,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import STORED_PATH_COLUMNS, ModelVersion, Proposal, Role
+from tests.factories import frame_ids
 from tests.helpers import age_stored_files, auth, corrected_label, wait_for_job
 from weldpool_core.synth import SynthParams, synth_frame
 
@@ -21,13 +22,10 @@ def _run(client: TestClient, token: str, count: int) -> tuple[int, list[int], li
     sequence = client.post("/api/v1/sequences", json={"name": "Run"}, headers=auth(token)).json()
     frames = [synth_frame(seed=700 + i, params=SIZE) for i in range(count)]
     files = [
-        ("files", (f"f{i:03d}.png", cv2.imencode(".png", f.image)[1].tobytes(), "image/png"))
-        for i, f in enumerate(frames)
+        (f"f{i:03d}.png", cv2.imencode(".png", f.image)[1].tobytes()) for i, f in enumerate(frames)
     ]
-    stored = client.post(
-        "/api/v1/frames", files=files, data={"sequence_id": sequence["id"]}, headers=auth(token)
-    ).json()["stored"]
-    return sequence["id"], [f["id"] for f in stored], frames
+    ids = frame_ids(client, token, files, sequence_id=sequence["id"])
+    return sequence["id"], ids, frames
 
 
 def _delete(client: TestClient, token: str, frame_ids: list[int]) -> None:

@@ -8,16 +8,16 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.teacher import warm
-from tests.helpers import auth, corrected_label, wait_for
-from tests.review.test_review import _mask, _teacher, _upload_synthetic, people  # noqa: F401
+from tests.factories import form_login, run_teacher, upload_synthetic
+from tests.helpers import auth, corrected_label, mask_from_b64, wait_for
 
 
 def test_an_embedding_asked_for_first_is_in_memory_for_the_first_click(
     client: TestClient,
-    people,  # noqa: F811
+    people,
 ) -> None:
     token = people["annotator"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     before = client.get(f"/api/v1/frames/{frame_id}/embedding", headers=auth(token)).json()
     assert before["state"] == "cold"  # a look starts nothing
     asked = client.post(f"/api/v1/frames/{frame_id}/embedding", headers=auth(token))
@@ -38,9 +38,9 @@ def test_an_embedding_asked_for_first_is_in_memory_for_the_first_click(
     )  # not "computed": the first click waits for nothing
 
 
-def test_the_warming_budget_is_bounded(client: TestClient, people, monkeypatch) -> None:  # noqa: F811
+def test_the_warming_budget_is_bounded(client: TestClient, people, monkeypatch) -> None:
     token = people["annotator"]
-    frame_ids = _upload_synthetic(client, token, 3)
+    frame_ids = upload_synthetic(client, token, 3)
     monkeypatch.setattr(warm, "MAX_PENDING", 1)
     gate = __import__("threading").Event()
     real = warm._compute
@@ -57,11 +57,11 @@ def test_the_warming_budget_is_bounded(client: TestClient, people, monkeypatch) 
 
 def test_a_click_names_the_mask_the_server_has_instead_of_sending_it(
     client: TestClient,
-    people,  # noqa: F811
+    people,
 ) -> None:
     token = people["reviewer"]
-    frame_ids = _upload_synthetic(client, token, 2)
-    _teacher(client, token, frame_ids)
+    frame_ids = upload_synthetic(client, token, 2)
+    run_teacher(client, token, frame_ids)
     frame_id = frame_ids[0]
     proposal = client.get(f"/api/v1/frames/{frame_id}/proposal", headers=auth(token)).json()
     mask = np.zeros((100, 160), bool)
@@ -83,10 +83,11 @@ def test_a_click_names_the_mask_the_server_has_instead_of_sending_it(
 
     sent = click(mask_png=saved.json()["mask_png"])
     named = click(mask_from={"label_revision": 1})
-    assert np.array_equal(_mask(named["mask_png"]), _mask(sent["mask_png"]))
+    assert np.array_equal(mask_from_b64(named["mask_png"]), mask_from_b64(sent["mask_png"]))
     by_proposal = click(mask_from={"proposal_id": proposal["id"]})
     assert np.array_equal(
-        _mask(by_proposal["mask_png"]), _mask(click(mask_png=proposal["mask_png"])["mask_png"])
+        mask_from_b64(by_proposal["mask_png"]),
+        mask_from_b64(click(mask_png=proposal["mask_png"])["mask_png"]),
     )
 
     stale = client.post(
@@ -126,14 +127,14 @@ def _no_leftover_warming() -> None:
 
 def test_the_embedding_cache_is_sized_listed_and_cleared_by_admins(
     client: TestClient,
-    people,  # noqa: F811
+    people,
     make_user,
 ) -> None:
     from app.core.models import Role
 
     _, admin = make_user("ada", Role.admin)
     token = people["annotator"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     click = {"points": [{"x": 80, "y": 50, "positive": True}]}
     segment = f"/api/v1/frames/{frame_id}/segment"
     assert client.post(segment, json=click, headers=auth(token)).json()["embedding"] == "computed"
@@ -150,10 +151,9 @@ def test_the_embedding_cache_is_sized_listed_and_cleared_by_admins(
 
 def test_the_jobs_page_filters_by_every_job_kind(client: TestClient, make_user) -> None:
     from app.jobs.registry import job_kinds
-    from tests.users.test_auth import _login
 
     make_user("kai", password="kai-password")
-    assert _login(client, "kai", "kai-password").status_code == 303
+    assert form_login(client, "kai", "kai-password").status_code == 303
     page = client.get("/jobs").text
     kinds = job_kinds()
     assert {"teacher", "train_student", "import_labels", "export", "propagate", "embed"} <= set(

@@ -10,6 +10,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import Job, Proposal, Role
+from tests.factories import frame_ids
 from tests.helpers import auth, corrected_label, wait_for_job
 from weldpool_core.synth import SynthParams, synth_frame
 
@@ -21,14 +22,11 @@ def _run(
 ) -> tuple[int, list[int], list]:
     sequence = client.post("/api/v1/sequences", json={"name": name}, headers=auth(token)).json()
     frames = [synth_frame(seed=300 + i, params=SIZE) for i in range(count)]
-    files = []
-    for i, frame in enumerate(frames):
-        _, data = cv2.imencode(".png", frame.image)
-        files.append(("files", (f"f{i:03d}.png", data.tobytes(), "image/png")))
-    stored = client.post(
-        "/api/v1/frames", files=files, data={"sequence_id": sequence["id"]}, headers=auth(token)
-    ).json()["stored"]
-    return sequence["id"], [f["id"] for f in stored], frames
+    files = [
+        (f"f{i:03d}.png", cv2.imencode(".png", f.image)[1].tobytes()) for i, f in enumerate(frames)
+    ]
+    ids = frame_ids(client, token, files, sequence_id=sequence["id"])
+    return sequence["id"], ids, frames
 
 
 def _propagated(session_factory) -> dict[int, list[Proposal]]:

@@ -14,53 +14,22 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
-from tests.helpers import auth, corrected_label, mask_b64, wait_for_job
-from weldpool_core.io import decode_mask_png
-from weldpool_core.synth import SynthParams, synth_frame
+from tests.factories import run_teacher, upload_synthetic
+from tests.helpers import auth, corrected_label, mask_b64, mask_from_b64
+from weldpool_core.synth import SynthParams
 
 SIZE = SynthParams(width=160, height=100)
 
 
-def _upload_synthetic(client: TestClient, token: str, count: int = 2) -> list[int]:
-    files = []
-    for seed in range(count):
-        _, data = cv2.imencode(".png", synth_frame(seed=seed, params=SIZE).image)
-        files.append(("files", (f"s{seed}.png", data.tobytes(), "image/png")))
-    response = client.post("/api/v1/frames", files=files, headers=auth(token))
-    assert response.status_code == 201, response.text
-    return [f["id"] for f in response.json()["stored"]]
-
-
-def _teacher(client: TestClient, token: str, frame_ids: list[int]) -> dict:
-    response = client.post(
-        "/api/v1/teacher/runs", json={"frame_ids": frame_ids}, headers=auth(token)
-    )
-    assert response.status_code == 202, response.text
-    return wait_for_job(client, response.json()["job_id"], token, timeout=120)
-
-
-def _mask(text: str) -> np.ndarray:
-    return decode_mask_png(base64.b64decode(text))
-
-
-@pytest.fixture
-def people(make_user) -> dict[str, str]:
-    return {
-        "reviewer": make_user("rita", Role.reviewer)[1],
-        "other": make_user("otto", Role.reviewer)[1],
-        "annotator": make_user("anna", Role.annotator)[1],
-    }
-
-
 def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) -> None:
     token = people["reviewer"]
-    frame_ids = _upload_synthetic(client, token)
-    job = _teacher(client, token, frame_ids)
+    frame_ids = upload_synthetic(client, token)
+    job = run_teacher(client, token, frame_ids)
     assert job["status"] == "succeeded", job
     assert job["result"]["proposed"] == 2 and job["result"]["failed"] == []
     assert job["message"] == "2 frames proposed"  # the jobs page's words, not a progress line
     proposal = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal", headers=auth(token)).json()
-    assert _mask(proposal["mask_png"]).shape == (100, 160)
+    assert mask_from_b64(proposal["mask_png"]).shape == (100, 160)
     assert proposal["source"] == "teacher" and proposal["model_id"] == job["result"]["model_id"]
     # local weights are named by their content, never by this machine's paths or folders
     assert re.fullmatch(
@@ -77,9 +46,9 @@ def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) 
     raw = client.get(f"/api/v1/frames/{frame_ids[0]}/proposal/heatmap.npy", headers=auth(token))
     heatmap = np.load(io.BytesIO(raw.content))
     assert heatmap.shape == (100, 160, 2)
-    assert np.array_equal(heatmap[:, :, 1] > 0.5, _mask(proposal["mask_png"]))
+    assert np.array_equal(heatmap[:, :, 1] > 0.5, mask_from_b64(proposal["mask_png"]))
 
-    again = _teacher(client, token, frame_ids)
+    again = run_teacher(client, token, frame_ids)
     assert (again["result"]["proposed"], again["result"]["skipped"]) == (0, 2)
     assert again["message"] == (
         "0 frames proposed; 2 skipped (this teacher proposed them before; run with force to redo)"
@@ -88,7 +57,7 @@ def test_teacher_job_proposes_and_skips_what_it_saw(client: TestClient, people) 
 
 def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
     token = people["reviewer"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     first = client.post(
         f"/api/v1/frames/{frame_id}/segment",
         json={"points": [{"x": 80, "y": 50, "positive": True}]},
@@ -106,7 +75,7 @@ def test_click_uses_the_cached_embedding(client: TestClient, people) -> None:
         headers=auth(token),
     ).json()
     assert second["embedding"] == "memory" and second["elapsed_ms"] > 0
-    assert _mask(second["mask_png"]).shape == (100, 160)
+    assert mask_from_b64(second["mask_png"]).shape == (100, 160)
     outside = client.post(
         f"/api/v1/frames/{frame_id}/segment",
         json={"points": [{"x": 500, "y": 50}]},
@@ -125,7 +94,7 @@ def test_one_failing_frame_does_not_end_the_teacher_run(
     from weldpool_core.teacher.teacher import Teacher
 
     token = people["reviewer"]
-    frame_ids = _upload_synthetic(client, token, 3)
+    frame_ids = upload_synthetic(client, token, 3)
     bad = client.get(f"/api/v1/frames/{frame_ids[1]}", headers=auth(token)).json()["sha256"]
     real_run = Teacher.run
 
@@ -135,7 +104,7 @@ def test_one_failing_frame_does_not_end_the_teacher_run(
         return real_run(self, image, key, *args, **kwargs)
 
     monkeypatch.setattr(Teacher, "run", run)
-    job = _teacher(client, token, frame_ids)
+    job = run_teacher(client, token, frame_ids)
     assert job["status"] == "succeeded"
     assert job["result"]["proposed"] == 2
     assert job["result"]["failed"] == [
@@ -150,10 +119,10 @@ def test_one_failing_frame_does_not_end_the_teacher_run(
     assert frames[frame_ids[0]]["teacher_error"] is None
     assert [frames[i]["status"] for i in frame_ids] == ["proposed", "new", "proposed"]
 
-    only_bad = _teacher(client, token, [frame_ids[1]])
+    only_bad = run_teacher(client, token, [frame_ids[1]])
     assert only_bad["status"] == "failed" and "failed on every frame" in only_bad["error"]
     monkeypatch.undo()
-    again = _teacher(client, token, [frame_ids[1]])
+    again = run_teacher(client, token, [frame_ids[1]])
     assert again["status"] == "succeeded" and again["result"]["proposed"] == 1
     frame = client.get(f"/api/v1/frames/{frame_ids[1]}", headers=auth(token)).json()
     assert frame["teacher_error"] is None
@@ -170,7 +139,7 @@ def test_cancel_stops_the_teacher_inside_a_frame(
     from weldpool_core.teacher.teacher import Teacher
 
     token = people["reviewer"]
-    frame_ids = _upload_synthetic(client, token, 2)
+    frame_ids = upload_synthetic(client, token, 2)
     real_run = Teacher.run
     seen = []
 
@@ -182,7 +151,7 @@ def test_cancel_stops_the_teacher_inside_a_frame(
         return real_run(self, image, key, between=between)
 
     monkeypatch.setattr(Teacher, "run", run)
-    job = _teacher(client, token, frame_ids)
+    job = run_teacher(client, token, frame_ids)
     assert job["status"] == "cancelled"
     assert len(seen) == 1  # the second frame never started
     frames = client.get("/api/v1/frames", headers=auth(token)).json()["items"]
@@ -201,7 +170,7 @@ def test_a_refused_label_save_writes_no_mask_file(client: TestClient, people, mo
     import app.review.service as review_service
 
     rita = people["reviewer"]
-    frame_id = _upload_synthetic(client, rita, 1)[0]
+    frame_id = upload_synthetic(client, rita, 1)[0]
     url = f"/api/v1/frames/{frame_id}/label"
     first_mask = np.zeros((100, 160), bool)
     first_mask[20:80, 30:130] = True
@@ -227,11 +196,11 @@ def test_a_refused_label_save_writes_no_mask_file(client: TestClient, people, mo
 
 def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> None:
     rita, otto, anna = people["reviewer"], people["other"], people["annotator"]
-    frame_id = _upload_synthetic(client, rita, 1)[0]
+    frame_id = upload_synthetic(client, rita, 1)[0]
     url = f"/api/v1/frames/{frame_id}/label"
     nothing = client.put(url, json={"status": "accepted", "base_revision": 0}, headers=auth(rita))
     assert nothing.status_code == 400 and "no proposal" in nothing.json()["detail"]
-    _teacher(client, rita, [frame_id])
+    run_teacher(client, rita, [frame_id])
 
     forbidden = client.put(url, json={"status": "accepted", "base_revision": 0}, headers=auth(anna))
     assert forbidden.status_code == 403
@@ -276,7 +245,7 @@ def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> N
         (4, "corrected", "anna"),
     ]
     current = client.get(url, headers=auth(rita)).json()
-    assert current["revision"] == 4 and np.array_equal(_mask(current["mask_png"]), mask)
+    assert current["revision"] == 4 and np.array_equal(mask_from_b64(current["mask_png"]), mask)
     assert (
         client.get(f"/api/v1/frames/{frame_id}", headers=auth(rita)).json()["status"] == "corrected"
     )
@@ -284,7 +253,7 @@ def test_labels_revisions_conflicts_and_history(client: TestClient, people) -> N
 
 def test_bad_label_input(client: TestClient, people) -> None:
     token = people["reviewer"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     url = f"/api/v1/frames/{frame_id}/label"
     small = mask_b64(np.ones((10, 10), bool))
     wrong_size = client.put(
@@ -308,7 +277,7 @@ def test_bad_label_input(client: TestClient, people) -> None:
 
 def test_validation_keypoints_move_the_frame(client: TestClient, people) -> None:
     token = people["annotator"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     url = f"/api/v1/frames/{frame_id}/validation-keypoints"
     points = [[30.5, 40.0], [100.0, 20.0], [140.0, 60.0], [60.0, 90.0]]
     saved = client.put(url, json={"keypoints": points}, headers=auth(token))
@@ -327,7 +296,7 @@ def test_validation_keypoints_saved_from_a_stale_revision_are_a_409_naming_who(
     revision and its author, and nothing is written; from the current one, or with no base
     (the API's older callers), it replaces them."""
     annotator, reviewer = people["annotator"], people["reviewer"]
-    frame_id = _upload_synthetic(client, annotator, 1)[0]
+    frame_id = upload_synthetic(client, annotator, 1)[0]
     url = f"/api/v1/frames/{frame_id}/validation-keypoints"
 
     def put(token: str, x: float, base: int | None) -> Any:
@@ -364,8 +333,8 @@ def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_us
     broken = settings.model_copy(update={"dino": str(tmp_path / "no-dino")})
     _, token = make_user("weightless", Role.reviewer)
     with TestClient(create_app(broken, embedded_worker=True)) as client:
-        frame_ids = _upload_synthetic(client, token, 1)
-        job = _teacher(client, token, frame_ids)
+        frame_ids = upload_synthetic(client, token, 1)
+        job = run_teacher(client, token, frame_ids)
         assert job["status"] == "failed"
         assert "WELDPOOL_DINO" in job["error"] and job["error"].endswith(".")
         health = client.get("/api/v1/health").json()  # usable, and it says what is missing
@@ -386,7 +355,7 @@ def test_missing_weights_fail_the_job_at_once(settings, session_factory, make_us
 def test_outline_round_trip_through_the_api(client: TestClient, people) -> None:
     """The polygon tool's two calls: trace a mask of the frame, fill an edited outline back."""
     token = people["annotator"]
-    (frame_id,) = _upload_synthetic(client, token, 1)
+    (frame_id,) = upload_synthetic(client, token, 1)
     mask = np.zeros((100, 160), np.uint8)
     mask[20:61, 30:91] = 1
     mask[35:45, 50:70] = 0  # a hole
@@ -403,7 +372,7 @@ def test_outline_round_trip_through_the_api(client: TestClient, people) -> None:
         f"/api/v1/frames/{frame_id}/outline/mask", json={"polygons": exact}, headers=auth(token)
     )
     assert filled.status_code == 200, filled.text
-    assert np.array_equal(_mask(filled.json()["mask_png"]), mask.astype(bool))
+    assert np.array_equal(mask_from_b64(filled.json()["mask_png"]), mask.astype(bool))
     assert filled.json()["area"] == int(mask.sum())
     polygons = trace(1.0)  # the tool's default: a rectangle is its four corners
     assert sorted(map(tuple, polygons[0]["points"])) == [(30, 20), (30, 60), (90, 20), (90, 60)]
@@ -438,7 +407,7 @@ def test_a_mask_of_faint_values_is_refused_naming_the_levels(client: TestClient,
     """A mask whose pool is drawn at 77 has no pixel at or above 128: the refusal says which
     values are pool (it only said the mask was empty), and nothing is stored."""
     token = people["annotator"]
-    frame_id = _upload_synthetic(client, token, 1)[0]
+    frame_id = upload_synthetic(client, token, 1)[0]
     frame = client.get(f"/api/v1/frames/{frame_id}", headers=auth(token)).json()
     faint = np.zeros((frame["height"], frame["width"]), np.uint8)
     faint[10:40, 20:60] = 77

@@ -9,7 +9,7 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Role
 from app.training.service import training_frame_ids
-from tests.frames.test_delete import _upload
+from tests.factories import random_images, upload_frames
 from tests.helpers import auth, corrected_label
 
 
@@ -23,7 +23,9 @@ def _setup(client: TestClient, make_user):  # type: ignore[no-untyped-def]
     _, reviewer = make_user("rita", Role.reviewer)
     _, annotator = make_user("anna")
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(reviewer)).json()
-    frames = _upload(client, reviewer, [("a.png", 1), ("b.png", 2)], run["id"])
+    frames = upload_frames(
+        client, reviewer, random_images([("a.png", 1), ("b.png", 2)]), sequence_id=run["id"]
+    )
     return reviewer, annotator, [f["id"] for f in frames]
 
 

@@ -23,8 +23,9 @@ from app.proposals.files import store_mask
 from app.storage import Storage
 from app.training import gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
+from tests.factories import frame_ids, numbered, random_images
 from tests.helpers import auth, corrected_label, wait_for_job
-from tests.proposals.common import H, W, box, propose, upload
+from tests.proposals.common import H, W, box, propose
 from weldpool_core.student.train import train_student
 
 KEYPOINTS = [[20.0, 20.0], [76.0, 20.0], [76.0, 44.0], [20.0, 44.0]]
@@ -82,7 +83,7 @@ def _shrunk() -> np.ndarray:
 
 
 def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
-    ids = upload(client, token, 300, 3)
+    ids = frame_ids(client, token, random_images(numbered(3, first_seed=300), width=W, height=H))
     storage = Storage(settings.home)
     with session_factory() as session:
         for frame_id in ids:
@@ -182,7 +183,7 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
 
     _, token = make_user("distiller", Role.reviewer)
     storage = Storage(settings.home)
-    ids = upload(client, token, 600, 5)
+    ids = frame_ids(client, token, random_images(numbered(5, first_seed=600), width=W, height=H))
     sure, unsure, student_only, labelled, validation = ids
     with session_factory() as session:
         for frame_id, iou, stability in [
@@ -272,7 +273,7 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
     student does, and on the accepted ones it is near enough (0.80 ≥ MIN_MIOU): promoted."""
     _, token = make_user("fair", Role.reviewer)
     storage = Storage(settings.home)
-    ids = upload(client, token, 500, 6)
+    ids = frame_ids(client, token, random_images(numbered(6, first_seed=500), width=W, height=H))
     accepted = ids[:4]
     for frame_id in ids:
         mask = _big() if frame_id in accepted else _shrunk()
@@ -310,7 +311,7 @@ def test_an_incumbent_is_not_judged_on_labels_taken_from_its_own_proposals(
     would score 1.000 there, so the gate refuses to compare on them and says what to do."""
     _, token = make_user("fair2", Role.reviewer)
     storage = Storage(settings.home)
-    ids = upload(client, token, 600, 3)
+    ids = frame_ids(client, token, random_images(numbered(3, first_seed=600), width=W, height=H))
     incumbent = _version(settings, session_factory, base_model, "inc", 30.0, -30.0, ids, True)
     for frame_id in ids:
         with session_factory() as session:

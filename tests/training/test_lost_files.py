@@ -8,16 +8,13 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import Frame, Label, ModelVersion, Role
-from tests.helpers import auth, corrected_label, image_bytes, wait_for_job
+from tests.factories import frame_ids, numbered, random_images
+from tests.helpers import auth, corrected_label, wait_for_job
 
 
 def _labelled(client: TestClient, token: str, count: int) -> list[int]:
-    files = [
-        ("files", (f"l{i}.png", image_bytes(160, 100, seed=50 + i), "image/png"))
-        for i in range(count)
-    ]
-    stored = client.post("/api/v1/frames", files=files, headers=auth(token)).json()["stored"]
-    ids = [f["id"] for f in stored]
+    images = random_images(numbered(count, first_seed=50, name="l{i}.png"), width=160, height=100)
+    ids = frame_ids(client, token, images)
     for i, frame_id in enumerate(ids):
         mask = np.zeros((100, 160), bool)
         mask[30:70, 20 + 5 * i : 120] = True

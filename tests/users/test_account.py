@@ -8,8 +8,8 @@ import re
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
+from tests.factories import form_login
 from tests.helpers import auth
-from tests.users.test_auth import _login
 
 
 def _csrf(client: TestClient) -> str:
@@ -23,8 +23,8 @@ def test_changing_ones_password_checks_the_current_one_and_ends_other_sessions(
 ) -> None:
     ines, token = make_user("ines", password="old-password")
     other = TestClient(client.app)
-    assert _login(other, "ines", "old-password").status_code == 303  # another browser
-    assert _login(client, "ines", "old-password").status_code == 303
+    assert form_login(other, "ines", "old-password").status_code == 303  # another browser
+    assert form_login(client, "ines", "old-password").status_code == 303
     csrf = {"X-CSRF-Token": _csrf(client)}
 
     wrong = client.post(
@@ -58,8 +58,8 @@ def test_changing_ones_password_checks_the_current_one_and_ends_other_sessions(
     assert client.get("/api/v1/users/me").json()["username"] == "ines"  # this one stays
     assert client.get("/api/v1/users/me", headers=auth(token)).status_code == 200  # tokens stay
     fresh = TestClient(client.app)
-    assert _login(fresh, "ines", "old-password").status_code == 401
-    assert _login(fresh, "ines", "new-password").status_code == 303
+    assert form_login(fresh, "ines", "old-password").status_code == 401
+    assert form_login(fresh, "ines", "new-password").status_code == 303
     assert ines.id
 
 
@@ -85,9 +85,9 @@ def test_last_login_is_recorded_by_the_form_and_by_a_password_token(
     make_user("max", password="max-password")
     listed = {u["username"]: u for u in client.get("/api/v1/users", headers=auth(admin)).json()}
     assert listed["lea"]["last_login_at"] is None and listed["max"]["last_login_at"] is None
-    assert _login(client, "lea", "lea-password").status_code == 303
+    assert form_login(client, "lea", "lea-password").status_code == 303
     assert (
-        _login(TestClient(client.app), "max", "wrong-password").status_code == 401
+        form_login(TestClient(client.app), "max", "wrong-password").status_code == 401
     )  # a failure is no login
     after = {u["username"]: u for u in client.get("/api/v1/users", headers=auth(admin)).json()}
     assert after["lea"]["last_login_at"] is not None and after["max"]["last_login_at"] is None
@@ -104,14 +104,14 @@ def test_the_users_page_is_for_admins_and_the_account_page_for_everyone(
 ) -> None:
     make_user("nia", Role.admin, password="nia-password")
     make_user("ola", Role.reviewer, password="ola-password")
-    assert _login(client, "ola", "ola-password").status_code == 303
+    assert form_login(client, "ola", "ola-password").status_code == 303
     refused = client.get("/users")
     assert refused.status_code == 403 and "Only admins manage users" in refused.text
     assert 'data-testid="nav-users"' not in client.get("/").text
     account = client.get("/account")
     assert account.status_code == 200 and 'data-testid="password-form"' in account.text
     admin = TestClient(client.app)
-    assert _login(admin, "nia", "nia-password").status_code == 303
+    assert form_login(admin, "nia", "nia-password").status_code == 303
     page = admin.get("/users")
     assert page.status_code == 200 and 'data-testid="user-table"' in page.text
     assert 'data-testid="nav-users"' in admin.get("/").text
@@ -139,11 +139,11 @@ def test_a_page_from_an_earlier_login_learns_the_sessions_csrf_token(
     changes are refused with ``reason: csrf``, and ``GET /users/me/csrf`` gives the session's
     token, with which they pass (an API token has none; no session: 401)."""
     _, token = make_user("ines", password="old-password")
-    assert _login(client, "ines", "old-password").status_code == 303
+    assert form_login(client, "ines", "old-password").status_code == 303
     stale = _csrf(client)
     client.post("/logout", data={"csrf_token": stale})
     assert client.get("/api/v1/users/me/csrf").status_code == 401
-    assert _login(client, "ines", "old-password").status_code == 303
+    assert form_login(client, "ines", "old-password").status_code == 303
     body = {"name": "a run"}
     refused = client.post("/api/v1/sequences", json=body, headers={"X-CSRF-Token": stale})
     assert refused.status_code == 403 and refused.json()["reason"] == "csrf"

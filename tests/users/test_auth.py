@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from app.core import security
 from app.core.models import Role, User
 from app.users.service import ensure_initial_admin
+from tests.factories import form_login
 from tests.helpers import auth
 
 PUBLIC_PATHS = {"/api/v1/health", "/login"}
@@ -155,25 +156,9 @@ def test_bad_input_gets_a_sentence_not_a_500(client: TestClient, make_user) -> N
 # --- browser login -----------------------------------------------------------------------------
 
 
-def _login(client: TestClient, username: str, password: str, next_url: str = "/"):
-    page = client.get("/login", params={"next": next_url})
-    csrf = re.search(r'name="csrf_token" value="([^"]+)"', page.text)
-    assert csrf, page.text
-    return client.post(
-        "/login",
-        data={
-            "username": username,
-            "password": password,
-            "csrf_token": csrf.group(1),
-            "next": next_url,
-        },
-        follow_redirects=False,
-    )
-
-
 def test_login_session_cookie_and_csrf(client: TestClient, make_user) -> None:
     make_user("carla", Role.reviewer, password="s3cret-pass")
-    response = _login(client, "carla", "s3cret-pass", "/")
+    response = form_login(client, "carla", "s3cret-pass", "/")
     assert response.status_code == 303 and response.headers["location"] == "/"
     cookie = response.cookies.get("weldpool_session")
     assert cookie
@@ -202,7 +187,7 @@ def test_login_session_cookie_and_csrf(client: TestClient, make_user) -> None:
 
 def test_wrong_password_and_forged_login_form(client: TestClient, make_user) -> None:
     make_user("dora", password="right-password")
-    response = _login(client, "dora", "wrong-password")
+    response = form_login(client, "dora", "wrong-password")
     assert response.status_code == 401
     assert "Wrong user name or password." in response.text
     assert "weldpool_session" not in response.cookies
@@ -210,9 +195,9 @@ def test_wrong_password_and_forged_login_form(client: TestClient, make_user) -> 
     assert 'name="username" autocomplete="username" required maxlength="64" value="dora"' in (
         response.text
     )
-    odd = _login(client, '"><b>x', "whatever1")
+    odd = form_login(client, '"><b>x', "whatever1")
     assert 'value="&#34;&gt;&lt;b&gt;x"' in odd.text and "<b>x" not in odd.text
-    response = _login(client, "nobody", "whatever1")
+    response = form_login(client, "nobody", "whatever1")
     assert response.status_code == 401
 
     forged = client.post(
@@ -229,26 +214,28 @@ def test_wrong_passwords_lock_the_name_out_for_a_while(client: TestClient, make_
     make_user("gina", password="right-password")
     limit = client.app.state.settings.login_max_failures  # type: ignore[attr-defined]
     for _ in range(limit):
-        assert _login(client, "fred", "wrong-password").status_code == 401
-    locked = _login(client, "fred", "right-password")  # even the right one, until the window ends
+        assert form_login(client, "fred", "wrong-password").status_code == 401
+    locked = form_login(
+        client, "fred", "right-password"
+    )  # even the right one, until the window ends
     assert locked.status_code == 429
     assert "Too many wrong passwords" in locked.text
     assert 0 < int(locked.headers["retry-after"]) <= 15 * 60
     assert "weldpool_session" not in locked.cookies
     # Another name from the same client still logs in, and a success clears its own count.
-    assert _login(client, "gina", "wrong-password").status_code == 401
-    assert _login(client, "gina", "right-password").status_code == 303
+    assert form_login(client, "gina", "wrong-password").status_code == 401
+    assert form_login(client, "gina", "right-password").status_code == 303
     throttle = client.app.state.login_throttle  # type: ignore[attr-defined]
     assert throttle.retry_after("gina", "testclient") == 0
     throttle.window_s = 0.0  # the window has passed
     client.cookies.clear()
-    assert _login(client, "fred", "right-password").status_code == 303
+    assert form_login(client, "fred", "right-password").status_code == 303
 
 
 def test_a_password_reset_ends_sessions_and_revokes_tokens(client: TestClient, make_user) -> None:
     _, admin = make_user("root", Role.admin)
     hana, hana_token = make_user("hana", password="old-password")
-    assert _login(client, "hana", "old-password").status_code == 303
+    assert form_login(client, "hana", "old-password").status_code == 303
     assert client.get("/api/v1/users/me").json()["username"] == "hana"
     assert client.get("/api/v1/users/me", headers=auth(hana_token)).status_code == 200
     reset = client.patch(
@@ -258,13 +245,13 @@ def test_a_password_reset_ends_sessions_and_revokes_tokens(client: TestClient, m
     assert client.get("/api/v1/users/me").status_code == 401  # the browser session ended
     assert client.get("/api/v1/users/me", headers=auth(hana_token)).status_code == 401
     assert client.get("/api/v1/users/me", headers=auth(admin)).status_code == 200
-    assert _login(client, "hana", "new-password").status_code == 303
+    assert form_login(client, "hana", "new-password").status_code == 303
 
 
 @pytest.mark.parametrize("target", ["https://evil.example/", "//evil.example/", "/\\evil"])
 def test_login_never_redirects_off_site(client: TestClient, make_user, target: str) -> None:
     make_user("erin", password="right-password")
-    response = _login(client, "erin", "right-password", target)
+    response = form_login(client, "erin", "right-password", target)
     assert response.status_code == 303
     assert response.headers["location"] == "/"
 

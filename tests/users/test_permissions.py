@@ -9,6 +9,7 @@ from fastapi.testclient import TestClient
 from app.core import permissions
 from app.core.models import Role
 from app.core.permissions import Action
+from tests.factories import form_login
 from tests.helpers import auth
 
 
@@ -45,11 +46,10 @@ def test_pages_carry_what_the_server_decides(client: TestClient, make_user) -> N
     pages' JavaScript."""
     import re
 
-    from tests.users.test_auth import _login
     from weldpool_core.heatmap import HeatmapParams
 
     make_user("rev", Role.reviewer, password="correct horse")
-    assert _login(client, "rev", "correct horse").status_code == 303
+    assert form_login(client, "rev", "correct horse").status_code == 303
     page = client.get("/frames/1").text
     assert re.search(r'<meta name="user-may" content="label,review,cancel_any_job">', page)
     assert f'data-keypoints="{HeatmapParams().k}"' in page

@@ -8,7 +8,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.core.models import Role
-from tests.frames.test_delete import _upload
+from tests.factories import frame_ids, random_images
 from tests.helpers import auth, corrected_label
 
 
@@ -36,7 +36,7 @@ def test_the_work_of_an_annotator_and_a_reviewer(client: TestClient, make_user) 
     anna_user, anna = make_user("anna")
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(rita)).json()
     names = [(f"{i}.png", i + 1) for i in range(4)]
-    a, b, c, d = (f["id"] for f in _upload(client, rita, names, run["id"]))
+    a, b, c, d = frame_ids(client, rita, random_images(names), sequence_id=run["id"])
     assert _work(client, anna) == {"sent_back": 0, "assigned": 0, "awaiting_review": 0}
 
     handed = {"frame_ids": [b, c, d], "assignee_id": anna_user.id}
@@ -92,7 +92,7 @@ def test_the_work_of_an_annotator_and_a_reviewer(client: TestClient, make_user) 
 def test_with_the_stage_off_nothing_awaits_or_is_sent_back(client: TestClient, make_user) -> None:
     _, rita = make_user("rita", Role.reviewer)
     run = client.post("/api/v1/sequences", json={"name": "run"}, headers=auth(rita)).json()
-    (frame,) = (f["id"] for f in _upload(client, rita, [("a.png", 1)], run["id"]))
+    (frame,) = frame_ids(client, rita, random_images([("a.png", 1)]), sequence_id=run["id"])
     _, anna = make_user("anna")
     client.put(f"/api/v1/frames/{frame}/label", json=corrected_label(_mask()), headers=auth(anna))
     assert _work(client, rita) == {"sent_back": 0, "assigned": 0, "awaiting_review": 0}

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from tests.web.conftest import shoot
-from tests.web.server import LiveServer, login
+from tests.pages import login, shoot
+from tests.web.server import LiveServer
 
 pytestmark = [pytest.mark.browser]
 

@@ -10,9 +10,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.factories import synthetic_png
 from tests.imports.common import zipped
-from tests.web.conftest import shoot, synthetic_png
-from tests.web.server import LiveServer, login
+from tests.pages import login, shoot
+from tests.web.server import LiveServer
 from weldpool_core.outline import coco_mask
 from weldpool_core.synth import SynthParams, synth_frame
 

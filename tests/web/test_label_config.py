@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from tests.web.conftest import shoot
-from tests.web.server import LiveServer, accept_dialogs, login
+from tests.pages import accept_dialogs, login, shoot
+from tests.web.server import LiveServer
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

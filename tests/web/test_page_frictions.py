@@ -15,10 +15,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.factories import synthetic_png
 from tests.helpers import corrected_label, image_bytes, write_video
 from tests.mqtt import clear_retained, unique_topic
-from tests.web.conftest import shoot, synthetic_png
-from tests.web.server import LiveServer, login, wait_for_js, wait_until
+from tests.pages import login, shoot, wait_for_js, wait_until
+from tests.web.server import LiveServer
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

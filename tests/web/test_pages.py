@@ -13,32 +13,26 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.factories import add_frame, synthetic_png
 from tests.helpers import corrected_label, image_bytes, write_video
 from tests.mqtt import free_port
-from tests.web.conftest import fixed, shoot, synthetic_png
-from tests.web.server import LiveServer, accept_dialogs, login, wait_for_js, wait_until
-from tests.web.test_review_flow import (
+from tests.pages import (
     CANVAS,
+    accept_dialogs,
     canvas_data,
+    fixed,
+    login,
     open_review,
+    shoot,
     to_page,
+    wait_for_js,
     wait_for_mask_change,
+    wait_until,
 )
+from tests.web.server import LiveServer
 from weldpool_core.synth import SynthParams, synth_frame
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-
-def add_frame(server: LiveServer, seed: int, *, teacher: bool = True) -> int:
-    """Upload a synthetic 1280×800 frame through the API, optionally with its proposal."""
-    files = [("files", (f"seed-{seed}.png", synthetic_png(seed), "image/png"))]
-    response = server.api("POST", "/frames", files=files)
-    assert response.status_code == 201, response.text
-    frame_id: int = response.json()["stored"][0]["id"]
-    if teacher:
-        job = server.api("POST", "/teacher/runs", json={"frame_ids": [frame_id]}).json()
-        assert server.wait_for_job(job["job_id"])["status"] == "succeeded"
-    return frame_id
 
 
 def save_true_label(

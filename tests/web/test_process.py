@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from tests.helpers import corrected_label, image_bytes
-from tests.web.conftest import shoot
-from tests.web.server import LiveServer, login
+from tests.pages import login, shoot
+from tests.web.server import LiveServer
 
 
 def _run(server: LiveServer, name: str, amps: float, widths: list[int]) -> int:

@@ -5,48 +5,24 @@ queue advances, validation keypoints are saved, the jobs and models pages render
 from __future__ import annotations
 
 import base64
-import json
 import re
 from typing import Any
 
 import pytest
 
-from tests.web.conftest import synthetic_png
-from tests.web.server import LiveServer, login, wait_for_js
+from tests.factories import synthetic_png
+from tests.pages import (
+    canvas_data,
+    login,
+    open_review,
+    to_page,
+    wait_for_js,
+    wait_for_mask_change,
+)
+from tests.web.server import LiveServer
 from weldpool_core.io import decode_mask_png
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-CANVAS = "[data-testid=frame-canvas]"
-
-
-def canvas_data(page: Any, name: str) -> Any:
-    """A data attribute of the review canvas (mask area, keypoints, view), parsed as JSON."""
-    return json.loads(page.locator(CANVAS).get_attribute(f"data-{name}"))
-
-
-def to_page(page: Any, x: float, y: float) -> tuple[float, float]:
-    """Frame pixels to page coordinates, through the canvas's zoom and pan."""
-    box = page.locator(CANVAS).bounding_box()
-    view = canvas_data(page, "view")
-    return box["x"] + view["tx"] + x * view["scale"], box["y"] + view["ty"] + y * view["scale"]
-
-
-def wait_for_mask_change(page: Any, before: int) -> int:
-    wait_for_js(
-        page,
-        "([sel, before]) => { const c = document.querySelector(sel);"
-        " return c.dataset.pending === '0' && Number(c.dataset.maskArea) !== before; }",
-        arg=[CANVAS, before],
-        timeout=60_000,
-    )
-    area: int = canvas_data(page, "mask-area")
-    return area
-
-
-def open_review(page: Any) -> None:
-    page.wait_for_selector("body[data-ready]")
-    page.wait_for_selector(f"{CANVAS}[data-ready]")
 
 
 def test_review_scenario(page: Any, server: LiveServer) -> None:

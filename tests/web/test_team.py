@@ -8,8 +8,9 @@ from typing import Any
 
 import pytest
 
-from tests.web.conftest import shoot, synthetic_png
-from tests.web.server import PASSWORD, LiveServer, accept_dialogs, login, wait_for_js
+from tests.factories import synthetic_png
+from tests.pages import accept_dialogs, login, shoot, wait_for_js
+from tests.web.server import PASSWORD, LiveServer
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -321,8 +322,8 @@ def test_the_first_click_after_the_page_prepared_it_reads_the_embedding_from_mem
     """The review page asks for its frame's embedding as it opens and shows it being made;
     once "clicks ready", the first click is answered from memory and names the proposal's
     mask instead of sending a PNG of it."""
-    from tests.web.test_pages import add_frame
-    from tests.web.test_review_flow import CANVAS, to_page
+    from tests.factories import add_frame
+    from tests.pages import CANVAS, to_page
 
     frame_id = add_frame(server, 901)
     login(page, server)
@@ -350,7 +351,7 @@ def test_the_jobs_page_shows_the_embedding_cache_and_an_admin_clears_it(
     page: Any, server: LiveServer
 ) -> None:
     """The cache line names its size and limit; Clear (admins only) empties it after asking."""
-    from tests.web.test_pages import add_frame
+    from tests.factories import add_frame
 
     frame_id = add_frame(server, 902, teacher=False)
     click = {"points": [{"x": 640, "y": 400, "positive": True}]}
@@ -397,8 +398,8 @@ def test_a_charts_score_axis_labels_its_ticks_distinctly(
 def test_a_rejected_frame_shows_no_proposal(page: Any, server: LiveServer) -> None:
     """A frame rejected as "no pool" opens empty: the teacher's mask and keypoints it rejected
     are not drawn over it again."""
-    from tests.web.test_pages import add_frame
-    from tests.web.test_review_flow import CANVAS, canvas_data
+    from tests.factories import add_frame
+    from tests.pages import CANVAS, canvas_data
 
     frame_id = add_frame(server, 903)
     rejected = server.api(
@@ -447,8 +448,8 @@ def test_a_keypoint_added_takes_its_place_in_the_order_and_a_deletion_renumbers_
 ) -> None:
     """Delete keypoint 2 of the teacher's four: the others stay 1, 3, 4; a click where it was
     adds number 2 back (its place in the order rule), second in the list the label saves."""
-    from tests.web.test_pages import add_frame
-    from tests.web.test_review_flow import CANVAS, canvas_data, to_page
+    from tests.factories import add_frame
+    from tests.pages import CANVAS, canvas_data, to_page
 
     frame_id = add_frame(server, 905)
     login(page, server)

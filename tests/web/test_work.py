@@ -9,9 +9,10 @@ from typing import Any
 
 import pytest
 
+from tests.factories import synthetic_png
 from tests.helpers import corrected_label
-from tests.web.conftest import shoot, synthetic_png
-from tests.web.server import LiveServer, login, wait_for_js
+from tests.pages import login, shoot, wait_for_js
+from tests.web.server import LiveServer
 from weldpool_core.synth import SynthParams, synth_frame
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

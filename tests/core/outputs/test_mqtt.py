@@ -15,59 +15,10 @@ import paho.mqtt.client as mqtt
 import pytest
 
 from tests.core.outputs.common import record
-from tests.mqtt import start_broker, unique_topic
+from tests.mqtt import Listener, start_broker, unique_topic
 from weldpool_core.cell.outputs import CellInfo, OutputsConfig, open_outputs
 from weldpool_core.cell.outputs.mqtt import MqttOptions, MqttPublisher, parse_mqtt_url
 from weldpool_core.errors import InvalidInputError
-
-
-class Listener:
-    """A subscriber on ``topic/#`` that keeps what it receives."""
-
-    def __init__(self, host: str, port: int, topic: str) -> None:
-        self.topic = topic
-        self.url = f"mqtt://{host}:{port}/{topic}"
-        self.messages: list[tuple[str, Any]] = []
-        self.ready = threading.Event()
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
-        self.client.on_message = lambda _c, _u, m: (
-            self.messages.append((m.topic, json.loads(m.payload))) if m.payload else None
-        )
-        self.client.on_subscribe = lambda *_args: self.ready.set()
-        self.connected: list[str] = []
-        self.client.on_connect = self._subscribe
-        self.client.connect(host, port)
-        self.client.loop_start()
-        # A loaded machine has seen a SUBACK never come: ask once more before failing, and say
-        # what the broker answered when it still does not.
-        for _ in range(3):
-            if self.ready.wait(5):
-                return
-            self.client.subscribe(f"{topic}/#", qos=1)
-        raise AssertionError(f"no SUBACK for {topic}/# from {host}:{port}: {self.connected}")
-
-    def _subscribe(
-        self, client: mqtt.Client, _data: Any, _flags: Any, reason: Any, *_: Any
-    ) -> None:
-        self.connected.append(str(reason))
-        client.subscribe(f"{self.topic}/#", qos=1)
-
-    def frames(self, topic: str) -> list[dict[str, Any]]:
-        return [payload for name, payload in self.messages if name == topic]
-
-    def wait_for(self, predicate: Any, seconds: float = 10) -> None:
-        deadline = time.monotonic() + seconds
-        while not predicate() and time.monotonic() < deadline:
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        try:  # a shared broker keeps retained messages: clear this run's status (empty payload)
-            self.client.publish(f"{self.topic}/status", b"", qos=1, retain=True).wait_for_publish(5)
-        except (RuntimeError, ValueError):  # no longer connected: nothing to clear then
-            pass
-        finally:
-            self.client.loop_stop()
-            self.client.disconnect()
 
 
 @pytest.fixture

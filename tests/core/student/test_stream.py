@@ -314,8 +314,7 @@ def test_the_cli_serves_opcua_and_publishes_mqtt_to_real_clients(
 
     from asyncua import Client, ua
 
-    from tests.core.outputs.test_mqtt import Listener
-    from tests.mqtt import free_port
+    from tests.mqtt import Listener, free_port
 
     host, port = mqtt_broker
     opc_port = free_port()
