@@ -14,7 +14,8 @@ sum, the patch embedding writes its map channels-last (not a permuted view strid
 the 1×1 convolutions and poolings run on the ``(B, H, W, C)`` maps as they are, and on the CPU
 each linear layer is one oneDNN call with its bias, GELU or residual sum fused in (the kernels
 PyTorch's own compiler emits for these layers; they round as the separate ops do in fp32), and
-the window-local first blocks (with the two finest FPN levels) run a band of rows at a time;
+the window-local first blocks (with the two finest FPN levels) can run a band of rows at a time
+(``BAND_TOKENS``: by measurement, one band, the whole map);
 in bf16 on a CPU without AMX, where PyTorch's fused attention kernel runs at fp32's speed,
 attention is two bf16 matmuls and a softmax a band of query rows at a time.
 The weights are read as they are at each call; only the positional embedding, a function of the
@@ -133,9 +134,11 @@ class ImageEncoder:
         return stages
 
 
-BAND_TOKENS = 8192
-"""About how many tokens of the first map one band of the window-local blocks holds (measured:
-4,096 and 16,384 were slower on 2 cores)."""
+BAND_TOKENS = 1 << 16
+"""At most how many tokens of the first map one band of the window-local blocks holds: SAM2's
+whole 256² map, one band. ``bench/sam2_encoder.py``, interleaved on a loaded 2-core machine,
+measured bands of 8,192 tokens at 0.69× transformers' time in bf16 against 0.32× whole, and 0.76×
+against 0.73× in fp32 (on a quiet machine, earlier, 8,192 had beaten 4,096 and 16,384)."""
 
 
 def _local_blocks(blocks: list[Any], height: int, width: int) -> tuple[int, int]:

@@ -50,7 +50,10 @@ def _compare(model, pixels, rtol: float, atol: float) -> None:
         torch.testing.assert_close(mine.float(), reference.float(), rtol=rtol, atol=atol * scale)
 
 
-def test_the_encoder_equals_transformers_forward_in_fp32(model) -> None:
+@pytest.mark.parametrize("band_tokens", [hiera.BAND_TOKENS, 8192])
+def test_the_encoder_equals_transformers_forward_in_fp32(model, monkeypatch, band_tokens) -> None:
+    """The first blocks whole (the default) and a band of rows at a time."""
+    monkeypatch.setattr(hiera, "BAND_TOKENS", band_tokens)
     _compare(model, PIXELS, rtol=1e-5, atol=1e-5)
 
 
