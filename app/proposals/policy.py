@@ -306,10 +306,11 @@ _cache: dict[tuple[Any, ...], Policy] = {}
 
 def current(session: Session, storage: Storage) -> Policy:
     """The stored policy; while it is stale (a change committed by a session that did not know
-    the store, or a failed measure), ``measure``, kept per process until labels, proposals or
+    the store, or a failed measure) or this transaction changed what it is measured from,
+    ``measure``, kept per process until labels, proposals or
     model versions change (added ones move the newest id, deleted frames take rows away: both
     are in the stamp)."""
-    found = stored(session)
+    found = None if session.info.get(CHANGED) else stored(session)  # own changes: measure
     if found is not None:
         return found
     stamp = (

@@ -447,7 +447,7 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
     settings: Settings,
     student_dir: Path,
     tmp_path: Path,
-    mqtt_broker: tuple[str, int],
+    request: pytest.FixtureRequest,
 ) -> None:
     """The view's outputs from the form: an OPC UA client's subscription and the frames sent
     show on the view; a port in use is a 400 and takes no slot."""
@@ -455,12 +455,13 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
 
     from asyncua import Client
 
-    from tests.mqtt import Listener, free_port, unique_topic
+    from tests.mqtt import Listener, free_port, start_broker, unique_topic
 
     _, token = make_user("cell", Role.reviewer)
     _promote(session_factory, student_dir, settings.home)
-    host, port = mqtt_broker
-    listener = Listener(host, port, unique_topic("live"))
+    broker, port = start_broker(tmp_path)  # its own: the shared one has dropped a CONNECT here
+    request.addfinalizer(broker.terminate)
+    listener = Listener("127.0.0.1", port, unique_topic("live"))
     opc_port = free_port()
     video = str(write_video(tmp_path / "long.avi", 200, fps=20.0))
     body = {
