@@ -118,8 +118,8 @@ class Listener:
         self.messages: list[tuple[str, Any]] = []
         self.ready = threading.Event()
         self.connected: list[str] = []
-        # A long suite has seen a connection get no CONNACK from the shared broker: a fresh
-        # client (and socket) tries again, and the failure says what the broker answered.
+        # A connection that gets no CONNACK is tried again with a fresh client (and socket);
+        # the failure says what the broker answered.
         for _ in range(3):
             self.client = self._connect(host, port)
             if self.ready.wait(8):
@@ -129,6 +129,9 @@ class Listener:
         raise AssertionError(f"no SUBACK for {topic}/# from {host}:{port}: {self.connected}")
 
     def _connect(self, host: str, port: int) -> mqtt.Client:
+        from weldpool_core.cell.outputs.mqtt import poll_paho
+
+        poll_paho()  # a long suite holds over 1,023 files: select() would refuse the socket
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
         client.on_message = lambda _c, _u, m: (
             self.messages.append((m.topic, json.loads(m.payload))) if m.payload else None

@@ -459,7 +459,7 @@ def test_a_live_view_serves_opcua_and_publishes_mqtt_and_shows_their_counts(
 
     _, token = make_user("cell", Role.reviewer)
     _promote(session_factory, student_dir, settings.home)
-    broker, port = start_broker(tmp_path)  # its own: the shared one has dropped a CONNECT here
+    broker, port = start_broker(tmp_path)  # its own, so no other test's messages are seen
     request.addfinalizer(broker.terminate)
     listener = Listener("127.0.0.1", port, unique_topic("live"))
     opc_port = free_port()

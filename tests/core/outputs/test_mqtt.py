@@ -244,3 +244,25 @@ def test_the_status_says_stale_in_a_pause_and_online_when_frames_come_again(
         outputs.close()
     states = [m["state"] for m in listener.frames(f"{topic}/status")]
     assert states[:3] == ["online", "stale", "online"]
+
+
+def test_frames_reach_the_broker_from_a_process_holding_over_1023_files(
+    mqtt_broker: tuple[str, int],
+) -> None:
+    """paho's loop waits with ``select``, which refuses a descriptor of 1024 or more: in a
+    server holding that many files every connection was lost at once, silently. With
+    ``poll_paho`` the publisher (and the listener) connect and every frame arrives."""
+    held = [open("/dev/null") for _ in range(1100)]  # noqa: SIM115 (held open on purpose)
+    try:
+        listener = Listener(*mqtt_broker, unique_topic("many-files"))
+        publisher = MqttPublisher(MqttOptions(listener.url, qos=1), CellInfo("tiny", 2, 0.1))
+        assert publisher.wait_for_subscriber(10)
+        for frame in range(5):
+            publisher.send(record(frame))
+        listener.wait_for(lambda: len(listener.frames(listener.topic)) == 5)
+        assert [f["frame"] for f in listener.frames(listener.topic)] == list(range(5))
+        publisher.close()
+        listener.close()
+    finally:
+        for handle in held:
+            handle.close()

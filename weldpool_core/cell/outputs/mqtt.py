@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import select
 import socket
 import ssl
 import threading
@@ -101,6 +102,44 @@ def check_broker_host(url: str) -> None:
         ) from None
 
 
+class _Poll:
+    """``select.select`` for paho's network loop, answered by ``poll``. ``select`` refuses a
+    descriptor of 1024 or more, so in a process holding that many files (a server with many
+    connections, a long test run) paho's loop lost every connection it made, silently."""
+
+    @staticmethod
+    def select(
+        rlist: list[Any], wlist: list[Any], _x: list[Any], timeout: float | None = None
+    ) -> tuple[list[Any], list[Any], list[Any]]:
+        objects: dict[int, Any] = {}
+        masks: dict[int, int] = {}
+        for mask, group in ((select.POLLIN, rlist), (select.POLLOUT, wlist)):
+            for item in group:
+                fd = item if isinstance(item, int) else item.fileno()
+                if fd < 0:  # a closed socket: as select says it
+                    raise ValueError("file descriptor cannot be a negative integer")
+                objects[fd], masks[fd] = item, masks.get(fd, 0) | mask
+        poller = select.poll()
+        for fd, mask in masks.items():
+            poller.register(fd, mask)
+        ready = poller.poll(None if timeout is None else max(0.0, timeout) * 1000)
+        broken = select.POLLERR | select.POLLHUP | select.POLLNVAL
+        readable = [objects[fd] for fd, ev in ready if ev & (select.POLLIN | broken)]
+        writable = [objects[fd] for fd, ev in ready if ev & select.POLLOUT]
+        return (
+            [item for item in readable if item in rlist],
+            [item for item in writable if item in wlist],
+            [],
+        )
+
+
+def poll_paho() -> None:
+    """Make paho's network loop wait with ``poll`` instead of ``select`` (``_Poll``)."""
+    import paho.mqtt.client as mqtt
+
+    mqtt.select = _Poll  # type: ignore[attr-defined,assignment]
+
+
 class MqttPublisher:
     """The stream's records on an MQTT topic (see the module doc)."""
 
@@ -110,6 +149,7 @@ class MqttPublisher:
         import paho.mqtt.client as mqtt
         from paho.mqtt.enums import CallbackAPIVersion
 
+        poll_paho()
         target = parse_mqtt_url(options.url)
         if options.qos not in (0, 1):
             raise InvalidInputError(f"--mqtt-qos must be 0 or 1, not {options.qos}.")
