@@ -38,6 +38,7 @@ from app.frames.ingest import IncomingFile, ingest_frames
 from app.frames.sequences import create_sequence
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
+from app.proposals import policy
 from app.storage import Storage
 from weldpool_core.annotations import open_source
 from weldpool_core.outline import coco_mask, region_outlines
@@ -106,6 +107,7 @@ def _fresh(root: Path) -> tuple[Settings, object, User]:
     engine = create_db_engine(settings.resolved_database_url)
     migrate(engine)
     factory = create_session_factory(engine)
+    policy.watch(factory, Storage.of(settings))  # as the service's: a commit measures the policy
     with factory() as session:
         user = User(username="bench", password_hash=hash_password("bench-bench"), role=Role.admin)
         session.add(user)
