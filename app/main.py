@@ -252,6 +252,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
             background.stop()
             app.state.live_views.stop_all()
             stop_label_processes()
+            queue.close()
             engine.dispose()
 
     app = FastAPI(

@@ -166,7 +166,8 @@ def main() -> None:
     # floor: each exported shape must come back at least once.
     rows = [f"| images matched to the task's frames by name | {len(names)} | {matched} |"]
     rows += [f"| {key} | {sent[key]} | {got[key]} |" for key in sorted(sent)]
-    print("\n".join(["| CVAT acceptance | sent | read back by Datumaro |", "|---|---:|---:|", *rows]))
+    header = ["| CVAT acceptance | sent | read back by Datumaro |", "|---|---:|---:|"]
+    print("\n".join([*header, *rows]))
     if matched != len(names) or any(got[key] < sent[key] for key in sent):
         sys.exit("CVAT would not take every frame's annotations (see the table).")
 

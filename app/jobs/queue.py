@@ -116,6 +116,17 @@ class JobQueue:
         """The job ids the lane's queue holds now."""
         return {int(task.args[0]) for task in self.huey(lane).pending() if task.args}
 
+    def close(self) -> None:
+        """Release the lanes' connections: Huey holds a SQLite file (and its journal) or a
+        Redis pool open per lane for the life of the instance. The next use opens them again."""
+        with self._lock:
+            for huey in self._hueys.values():
+                pool = getattr(huey.storage, "pool", None)  # Redis: its connection pool
+                if pool is not None:
+                    pool.disconnect()
+                else:
+                    huey.storage.close()
+
     def consumer(self, lane: str, threads: int, embedded: bool = False) -> Consumer:
         """A Huey consumer for one lane; an embedded one installs no signal handlers."""
         from huey.consumer import Consumer
