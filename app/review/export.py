@@ -50,13 +50,19 @@ from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
     Rows,
+    coco_categories,
     coco_objects,
+    configured_rows,
+    cvat_labels,
     cvat_objects,
+    cvat_text,
     file_names,
-    region_classes,
+    frame_fields,
     written_classes,
+    written_config,
     yaml_name,
     yolo_lines,
+    yolo_notes,
 )
 from app.storage import EXPORTS_DIR, Storage
 from app.storage.pixels import load_mask
@@ -177,7 +183,7 @@ def export_rows(
     rows = _rows(session, sequence_id, split)
     if not rows:
         raise InvalidInputError("There are no accepted or corrected labels to export.")
-    return Rows(rows, region_classes(session))
+    return configured_rows(session, rows)
 
 
 def build_export(
@@ -357,7 +363,7 @@ def _write_coco(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     images, annotations, objects = [], [], []
-    classes = written_classes(rows)
+    config = written_config(rows)
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
     masks = _readable(storage, rows, skipped, lambda row: _stored_rle(storage, row[1]))
     for done, (frame, label, sequence, manual), image, encoded in masks:
@@ -381,6 +387,7 @@ def _write_coco(
                 "split": frame.split.value,
                 "bit_depth": frame.bit_depth,
             }
+            | frame_fields(label)
         )
         segmentation, area, box = encoded
         keypoints = label.keypoints or []
@@ -403,7 +410,7 @@ def _write_coco(
         if manual is not None:
             annotation["validation_keypoints"] = manual.keypoints
         annotations.append(annotation)
-        objects += coco_objects(label, classes, frame.id)
+        objects += coco_objects(label, config, frame.id)
         yield done
     first = max((a["id"] for a in annotations), default=0) + 1  # after every pool's id
     annotations += [o | {"id": first + i} for i, o in enumerate(objects)]
@@ -419,10 +426,7 @@ def _write_coco(
                 "keypoints": [f"keypoint_{i + 1}" for i in range(k)],
                 "skeleton": [],
             },
-            *(
-                {"id": i + 2, "name": name, "supercategory": "weld"}
-                for i, name in enumerate(classes)
-            ),
+            *coco_categories(config),
         ],
     }
     archive.writestr("annotations.json", json.dumps(coco))
@@ -463,6 +467,8 @@ def _write_yolo(
     )
     ids = "".join(f"  {i}: {yaml_name(n)}\n" for i, n in enumerate(["weld_pool", *classes]))
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n{ids}")
+    if notes := yolo_notes(written_config(rows)):
+        archive.writestr("notes.txt", notes)
 
 
 def _write_cvat(
@@ -473,10 +479,10 @@ def _write_cvat(
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
     elements: list[Any] = []
-    classes, names = written_classes(rows), file_names([row[0] for row in rows])
+    config, names = written_config(rows), file_names([row[0] for row in rows])
 
     def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
-        return _cvat_mask(storage, row[1]), cvat_objects(row[1], classes)
+        return _cvat_mask(storage, row[1]), cvat_objects(row[1], config)
 
     for done, (frame, label, _, manual), path, made in _readable(storage, rows, skipped, shapes):
         if path is None:
@@ -493,10 +499,14 @@ def _write_cvat(
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
             objects=made[1],
+            tags=frame_fields(label)["tags"],
+            frame_attributes={
+                k: cvat_text(v) for k, v in frame_fields(label)["attributes"].items()
+            },
         )
         elements.append(cvat_image(image))
         yield done
-    archive.writestr("annotations.xml", cvat_document(elements, len(elements), classes))
+    archive.writestr("annotations.xml", cvat_document(elements, len(elements), cvat_labels(config)))
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:

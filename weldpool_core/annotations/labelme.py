@@ -1,6 +1,12 @@
 """LabelMe JSON, one file per image: ``shapes`` of type ``polygon``, ``rectangle``, ``circle``,
 ``mask`` (a PNG of the box between its two points) and ``point`` (a keypoint placed by hand:
-validation keypoints); the image beside the file (``imagePath``) or inside it (``imageData``)."""
+validation keypoints); the image beside the file (``imagePath``) or inside it (``imageData``).
+
+Other labels: a region shape is an object, with its ``flags`` and ``attributes`` (an extra key,
+which LabelMe keeps) as attributes; the ``point`` shapes of a label with one ``group_id`` (or
+none) are one points object, each point named by its ``description`` (else 1, 2, … in order).
+The file's ``flags`` that are true are the frame's tags, its ``attributes`` (an extra key) the
+frame's attributes."""
 
 from __future__ import annotations
 
@@ -88,13 +94,17 @@ def _label(
     )
     points: list[list[float]] = []
     others: list[OtherShape] = []
+    grouped: dict[tuple[str, Any], OtherShape] = {}  # points objects by label and group
     for index, shape in enumerate(document["shapes"]):
         item = f"{name}: shape {index + 1}"
         if not isinstance(shape, dict):
             parsed.refuse(item, "A shape must be a JSON object.")
             return None
         if not isinstance(shape.get("label"), str) or shape.get("label") not in pool:
-            others.append(_other(shape))
+            if shape.get("shape_type") == "point":
+                _add_point(shape, grouped, others)
+            else:
+                others.append(_other(shape))
             continue
         try:
             kind = shape.get("shape_type") or "polygon"
@@ -107,19 +117,59 @@ def _label(
             parsed.refuse(item, exc.message)
             return None
     label.validation_keypoints = points or None
+    flags, attributes = document.get("flags"), document.get("attributes")
+    if isinstance(flags, dict):
+        label.tags = [str(tag) for tag, on in flags.items() if on is True]
+    if isinstance(attributes, dict):
+        label.frame_attributes = attributes
     kept = label if label.shapes or points else None
     parsed.attach(kept, others)
     return kept
 
 
 def _other(shape: dict[str, Any]) -> OtherShape:
-    """A shape of another label (its area None where it has none: points, lines)."""
-    name = str(shape.get("label"))
+    """A shape of another label with its attributes (its area None where it has none:
+    lines)."""
+    other = OtherShape(str(shape.get("label")), attributes=shape_attributes(shape))
     try:
         xy = _xy(shape.get("points"))
-        return OtherShape(name, _shape(shape.get("shape_type") or "polygon", xy, shape.get("mask")))
+        other.shape = _shape(shape.get("shape_type") or "polygon", xy, shape.get("mask"))
     except (InvalidInputError, *DAMAGED):
-        return OtherShape(name)
+        pass
+    return other
+
+
+def shape_attributes(shape: dict[str, Any]) -> dict[str, Any]:
+    """A shape's attributes: its ``flags`` (flag attributes), then its ``attributes`` object
+    (every other kind: LabelMe keeps a shape's keys it does not know)."""
+    flags, attributes = shape.get("flags"), shape.get("attributes")
+    given = {str(k): v for k, v in flags.items()} if isinstance(flags, dict) else {}
+    return given | (
+        {str(k): v for k, v in attributes.items()} if isinstance(attributes, dict) else {}
+    )
+
+
+def _add_point(
+    shape: dict[str, Any], grouped: dict[tuple[str, Any], OtherShape], others: list[OtherShape]
+) -> None:
+    """A ``point`` shape of another label into its points object: the label's points with one
+    ``group_id`` (or with none) are one object; a point is named by its ``description``, else
+    numbered in order (1, 2, …)."""
+    name, group = str(shape.get("label")), shape.get("group_id")
+    key = (name, group if isinstance(group, int | str) else None)
+    other = grouped.get(key)
+    if other is None:
+        other = grouped[key] = OtherShape(name, points={})
+        others.append(other)
+    other.attributes |= shape_attributes(shape)
+    try:
+        (x, y), *_ = _xy(shape.get("points"))
+    except (InvalidInputError, ValueError):
+        return
+    assert other.points is not None  # made above
+    description = shape.get("description")
+    point = description.strip() if isinstance(description, str) else ""
+    other.points[point or str(len(other.points) + 1)] = [x, y]
 
 
 def _xy(points: Any) -> list[tuple[float, float]]:
