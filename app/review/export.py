@@ -75,7 +75,7 @@ if TYPE_CHECKING:
 else:
     from weldpool_core.lazy import np
 
-ExportFormat = Literal["coco", "masks", "yolo", "cvat"]
+ExportFormat = Literal["coco", "masks", "yolo", "cvat", "labelme"]
 YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}
 Progress = Callable[[float, str], None]
 PROCESS_FIELDS = (
@@ -519,9 +519,22 @@ def _cvat_mask(storage: Storage, label: Label) -> Any:
     return cvat_mask(_stored_mask(storage, label))
 
 
+def _write_labelme(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
+    """LabelMe: a JSON file beside each image (``export_labelme``)."""
+    from app.review.export_labelme import write_labelme
+
+    def readable(read: Callable[[Any], Any]) -> Iterator[tuple[int, Any, Path | None, Any]]:
+        return _readable(storage, rows, skipped, read)
+
+    yield from write_labelme(archive, rows, readable, lambda label: _stored_mask(storage, label))
+
+
 WRITERS: dict[str, Writer] = {
     "masks": _write_masks,
     "coco": _write_coco,
     "yolo": _write_yolo,
     "cvat": _write_cvat,
+    "labelme": _write_labelme,
 }

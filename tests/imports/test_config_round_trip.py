@@ -156,7 +156,7 @@ def _same(got: list[dict], sent: list[dict]) -> None:
                 assert mine[key] == value, (mine["class"], key)
 
 
-@pytest.mark.parametrize("fmt", ["coco", "cvat"])
+@pytest.mark.parametrize("fmt", ["coco", "cvat", "labelme"])
 def test_a_round_trip_keeps_points_attributes_and_tags(
     client, session_factory, tmp_path, fmt
 ) -> None:
