@@ -49,7 +49,9 @@ from app.core.models import Frame, Label, LabelStatus, Sequence, Split, Validati
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
+    ClassFiles,
     Rows,
+    class_files,
     coco_categories,
     coco_objects,
     configured_rows,
@@ -325,14 +327,22 @@ def _write_masks(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     manifest = []
-    masks = _readable(storage, rows, skipped, lambda row: storage.existing(row[1].mask_path))
-    for done, (frame, label, sequence, manual), image, mask in masks:
+    config = written_config(rows)
+
+    def read(row: Any) -> tuple[Path, ClassFiles]:  # in the readers' pool
+        return storage.existing(row[1].mask_path), class_files(row[1], config, _stem(row[0]))
+
+    for done, (frame, label, sequence, manual), image, files in _readable(
+        storage, rows, skipped, read
+    ):
         if image is None:
             yield done
             continue
-        stem = _stem(frame)
+        stem, (mask, classes) = _stem(frame), files
         archive.write(image, f"images/{stem}{_extension(frame)}")
         archive.write(mask, f"masks/{stem}.png")
+        for path, png in classes.files:
+            archive.writestr(path, png)
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
         if manual is not None:
             archive.writestr(
@@ -350,7 +360,9 @@ def _write_masks(
                 "frame_index": frame.frame_index,
                 "timestamp_s": frame.timestamp_s,
                 "process": process_parameters(sequence) if sequence else None,
+                "objects": classes.objects,
             }
+            | frame_fields(label)
         )
         yield done
     left_out = [{"frame_id": frame_id, "reason": reason} for frame_id, reason in skipped]

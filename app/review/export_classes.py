@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 import posixpath
+from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -255,3 +257,33 @@ def yolo_notes(rows: Rows) -> str:
         if count
     ]
     return "".join(lines)
+
+
+@dataclass
+class ClassFiles:
+    """What the masks export writes of a label's objects: a PNG (0/255) per region object,
+    ``classes/<class>/<stem>.png`` for a mask class's and ``classes/<class>/<stem>_<n>.png``
+    for an instances class's n-th; and the manifest's ``objects`` (each with its ``mask`` file
+    or its ``points``, and its ``attributes``), in the label's order."""
+
+    files: list[tuple[str, bytes]] = field(default_factory=list)
+    objects: list[dict[str, Any]] = field(default_factory=list)
+
+
+def class_files(label: Any, rows: Rows, stem: str) -> ClassFiles:
+    from weldpool_core.io import encode_mask_png
+
+    made, counts = ClassFiles(), Counter[str]()
+    for obj in _written(label, rows):
+        name = obj["class"]
+        entry: dict[str, Any] = {"class": name, "attributes": obj.get("attributes", {})}
+        if obj.get("points"):
+            made.objects.append(entry | {"points": obj["points"]})
+            continue
+        counts[name] += 1
+        folder = name.replace("/", "_").replace("\\", "_")
+        number = f"_{counts[name]}" if rows.specs[name]["kind"] == "instances" else ""
+        path = f"classes/{folder}/{stem}{number}.png"
+        made.files.append((path, encode_mask_png(rle_mask(obj["rle"]))))
+        made.objects.append(entry | {"mask": path})
+    return made

@@ -21,6 +21,7 @@ from app.core.schema import migrate
 from app.main import create_app
 from tests.helpers import auth, corrected_label, image_bytes, make_settings, mask_b64
 from tests.imports.common import H, W, label_mask, start_import, stored_labels, token_for, zipped
+from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import rle_mask
 
 CONFIG = {
@@ -156,7 +157,7 @@ def _same(got: list[dict], sent: list[dict]) -> None:
                 assert mine[key] == value, (mine["class"], key)
 
 
-@pytest.mark.parametrize("fmt", ["coco", "cvat", "labelme"])
+@pytest.mark.parametrize("fmt", ["coco", "cvat", "labelme", "masks"])
 def test_a_round_trip_keeps_points_attributes_and_tags(
     client, session_factory, tmp_path, fmt
 ) -> None:
@@ -293,3 +294,28 @@ def test_labelme_points_flags_and_attributes_come_in(client, make_user) -> None:
         {"class": "wire tip", "points": {"tip": [70.0, 20.0]}},
         {"class": "arc", "points": {"left": [12.0, 30.0]}},
     ]
+
+
+def test_the_masks_layout_writes_a_folder_per_class(tmp_path) -> None:
+    archive = zipfile.ZipFile(io.BytesIO(_exported(tmp_path, "masks")))
+    names = set(archive.namelist())
+    manifest = json.loads(archive.read("manifest.json"))["frames"]
+    first = next(f for f in manifest if f["original_name"] == "run 0001.png")
+    stem = first["stem"]
+    masks = {
+        f"classes/wire/{stem}.png": WIRE,  # a mask class: one per frame
+        f"classes/spatter/{stem}_1.png": SPATTER[0],  # an instances class: one per object
+        f"classes/spatter/{stem}_2.png": SPATTER[1],
+    }
+    assert {n for n in names if n.startswith("classes/")} == set(masks)
+    for name, mask in masks.items():
+        assert np.array_equal(decode_mask_png(archive.read(name)), mask), name
+    assert [o.get("mask") or o["class"] for o in first["objects"]] == [
+        f"classes/wire/{stem}.png",
+        f"classes/spatter/{stem}_1.png",
+        "wire tip",
+        f"classes/spatter/{stem}_2.png",
+        "wire tip",
+        "arc",
+    ]
+    assert first["tags"] == ["night"] and first["attributes"] == FRAME_ATTRIBUTES

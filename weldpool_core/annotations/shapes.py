@@ -419,14 +419,21 @@ class ImportedLabel:
             self.validation_keypoints = kept
 
     def loaded(self, source: Source) -> ImportedLabel:
-        """The label with the files it names read from ``source``: its mask files, and its
-        image embedded in the annotation file (LabelMe's base64 ``imageData``).
+        """The label with the files it names read from ``source``: its mask files (its other
+        classes' too), and its image embedded in the annotation file (LabelMe's base64
+        ``imageData``).
 
         Raises:
             InvalidInputError: a file cannot be read, or the embedded image is not base64.
         """
         shapes = [
             MaskImage(source.read(s.path)) if isinstance(s, MaskFile) else s for s in self.shapes
+        ]
+        others = [
+            dataclasses.replace(o, shape=MaskImage(source.read(o.shape.path)))
+            if isinstance(o.shape, MaskFile)
+            else o
+            for o in self.others
         ]
         image = self.image_data
         if self.embedded is not None:
@@ -436,7 +443,9 @@ class ImportedLabel:
                 image = base64.b64decode(data if isinstance(data, str) else "", validate=True)
             except (binascii.Error, ValueError):
                 raise InvalidInputError("Its imageData is not base64.") from None
-        return dataclasses.replace(self, shapes=shapes, image_data=image, embedded=None)
+        return dataclasses.replace(
+            self, shapes=shapes, others=others, image_data=image, embedded=None
+        )
 
     def checked_points(self, height: int, width: int) -> None:
         for points in (self.keypoints, self.validation_keypoints):
