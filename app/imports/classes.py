@@ -9,7 +9,7 @@ from typing import Any
 
 from app.imports.schemas import ImportReport
 from app.labelconfig import service as labelconfig
-from app.labelconfig.schemas import POOL
+from app.labelconfig.schemas import MAX_OPTIONS, POOL
 from weldpool_core.annotations import Parsed
 from weldpool_core.annotations.shapes import ImportedLabel, OtherShape
 
@@ -52,10 +52,14 @@ def named_points(
     points: dict[str, list[float]] | None, spec: dict[str, Any]
 ) -> dict[str, list[float]] | None:
     """A points object's points, those a file numbers in order (1, 2, …: CVAT without names,
-    LabelMe) named by the class's own point names; those the class does not name left out."""
+    LabelMe) named by the class's own point names; those the class does not name left out (a
+    class that does not fix its names: the first 64 with a name of 1–64 characters)."""
     names = spec.get("point_names")
-    if points is None or names is None:
-        return points
+    if points is None:
+        return None
+    if names is None:  # the file names them: names as a configuration's, as many as it may have
+        named = {n.strip(): xy for n, xy in points.items() if 0 < len(n.strip()) <= 64}
+        return dict(list(named.items())[:MAX_OPTIONS]) or None
     numbered = list(points) == [str(i) for i in range(1, len(points) + 1)]
     if numbered and len(points) <= len(names):
         return {names[i]: xy for i, xy in enumerate(points.values())}
