@@ -319,3 +319,49 @@ def test_the_masks_layout_writes_a_folder_per_class(tmp_path) -> None:
         "arc",
     ]
     assert first["tags"] == ["night"] and first["attributes"] == FRAME_ATTRIBUTES
+
+
+def test_foreign_points_are_named_by_order_or_counted(client, make_user) -> None:
+    """CVAT points without names take the class's point names in order; COCO keypoints that do
+    not match their category's names, and a region of a points class, are counted, never
+    refused."""
+    _, admin = make_user("ada", Role.admin)
+    assert client.put("/api/v1/label-config", json=CONFIG, headers=auth(admin)).is_success
+    xml = (
+        f'<annotations><image id="0" name="a.png" width="{W}" height="{H}">'
+        '<box label="weld_pool" xtl="10" ytl="10" xbr="40" ybr="30"/>'
+        '<points label="wire tip" points="5,6;7,8"><attribute name="visible">true</attribute>'
+        "</points>"
+        '<polygon label="wire tip" points="1,1;9,1;9,9"/>'
+        '<tag label="porosity"/><tag label="rain"/>'
+        "</image></annotations>"
+    )
+    files = {"annotations.xml": xml.encode(), "a.png": image_bytes(W, H, seed=3)}
+    result = start_import(client, admin, zipped(files), "cvat")["result"]
+    assert result["refused"] == [] and result["labels"] == 1
+    assert result["classes"]["no_points"] == {"wire tip": 1}
+    assert result["classes"]["unknown_tags"] == {"rain": 1}
+    label = next(label for _, label in stored_labels(client, admin))
+    assert label["objects"] == [
+        {
+            "class": "wire tip",
+            "points": {"tip": [5.0, 6.0], "root": [7.0, 8.0]},
+            "attributes": {"visible": True},
+        }
+    ]
+    assert label["tags"] == ["porosity"]
+
+    document = {
+        "images": [{"id": 1, "file_name": "b.png", "width": W, "height": H}],
+        "annotations": [
+            {"id": 1, "image_id": 1, "category_id": 1, "segmentation": [[10, 10, 40, 10, 40, 30]]},
+            {"id": 2, "image_id": 1, "category_id": 2, "keypoints": [5, 6, 2]},  # 1 of 2 names
+        ],
+        "categories": [
+            {"id": 1, "name": "weld_pool"},
+            {"id": 2, "name": "wire tip", "keypoints": ["tip", "root"]},
+        ],
+    }
+    files = {"annotations.json": json.dumps(document).encode(), "b.png": image_bytes(W, H, seed=4)}
+    result = start_import(client, admin, zipped(files), "coco")["result"]
+    assert result["labels"] == 1 and result["classes"]["no_points"] == {"wire tip": 1}
