@@ -1003,7 +1003,7 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
     archive = zipfile.ZipFile(io.BytesIO(Path(download.value.path()).read_bytes()))
     labelme = json.loads(archive.read("images/e.json"))
     assert labelme["imagePath"] == "e.png" and "images/e.png" in archive.namelist()
-    assert [s["shape_type"] for s in labelme["shapes"]][0] == "mask"
+    assert labelme["shapes"][0]["shape_type"] == "mask"
 
     page.goto(f"{server.url}/?sequence_id={empty['id']}&status=all")
     page.wait_for_selector("body[data-ready]")
