@@ -19,7 +19,7 @@ from app.core.errors import WeldpoolError
     type=click.Choice(["coco", "masks", "yolo", "cvat", "labelme"]),
     default="masks",
     show_default=True,
-    help="COCO, or the DATASET layout `weldpool train` reads.",
+    help="COCO, the DATASET layout `weldpool train` reads (masks), YOLO, CVAT or LabelMe.",
 )
 @click.option(
     "--out",

@@ -12,8 +12,10 @@ from ``weldpool_core.outline.region_outlines``, coordinates 0–1 of the frame).
 cannot hold holes: a region's holes are left out there (COCO keeps them). ``masks`` and
 ``coco`` name the images by frame id, zero-padded; ``yolo`` and ``cvat`` by their original file
 names, unique within the export (``export_classes.file_names``: CVAT matches a task's frames by
-name). COCO, YOLO and CVAT carry the label configuration's mask and instances classes beside the
-pool (``export_classes``).
+name); ``labelme`` too, a JSON beside each image (``export_labelme``). Every format carries the
+label configuration's mask and instances classes beside the pool; all but YOLO their points
+classes, attributes and the frames' tags (``export_classes``; YOLO counts them in
+``notes.txt``).
 
 ``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
 no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
