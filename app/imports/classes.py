@@ -78,11 +78,11 @@ def _frame_fields(label: ImportedLabel, config: dict[str, Any], report: ImportRe
     attributes the configuration defines with a value it allows (others counted)."""
     known = {t.casefold(): t for t in config.get("frame_tags", [])}
     tags = []
-    for tag in label.tags:
+    for tag in label.tags[:MAX_OPTIONS]:  # no more than a configuration may list
         if tag.casefold() in known:
             tags.append(known[tag.casefold()])
         else:
-            report.classes["unknown_tags"][tag] += 1
+            report.classes["unknown_tags"][tag[:64]] += 1
     label.tags = sorted(set(tags))
     specs = config.get("frame_attributes", [])
     given = coerced(specs, label.frame_attributes)
