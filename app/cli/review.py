@@ -16,10 +16,10 @@ from app.core.errors import WeldpoolError
 @click.option(
     "--format",
     "fmt",
-    type=click.Choice(["coco", "masks", "yolo", "cvat"]),
+    type=click.Choice(["coco", "masks", "yolo", "cvat", "labelme"]),
     default="masks",
     show_default=True,
-    help="COCO, or the DATASET layout `weldpool train` reads.",
+    help="COCO, the DATASET layout `weldpool train` reads (masks), YOLO, CVAT or LabelMe.",
 )
 @click.option(
     "--out",

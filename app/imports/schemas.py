@@ -21,7 +21,16 @@ CLASS_OUTCOMES = {
     "kept": "",
     "unknown": "Skipped {} shape(s) of classes the label configuration does not have",
     "no_area": "Skipped {} shape(s) of configured classes that have no area to keep",
-    "without_pool": "Skipped {} shape(s) of other classes on images without a pool",
+    "no_points": "Skipped {} shape(s) of configured points classes that are not points",
+    "without_pool": (
+        "Skipped {} shape(s) of other classes on images without a pool (a reviewed label is "
+        "the pool's mask first: the teacher, student and gate learn from it, and an empty "
+        "one would count as a reviewed pool)"
+    ),
+    "unknown_tags": "Skipped {} frame tag(s) the label configuration does not have",
+    "attributes_left_out": (
+        "Left out {} attribute value(s) the label configuration does not define or allow"
+    ),
 }
 """What became of a file's regions of classes other than the pool, and how ``skipped`` says it."""
 

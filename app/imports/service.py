@@ -28,12 +28,12 @@ from app.core.frame_rows import lock_frames
 from app.core.models import Frame, Label, LabelStatus, User, ValidationKeypoints
 from app.frames import ingest, sequences
 from app.frames.ingest import DISK_POOL, INGEST_POOL
+from app.imports.classes import frame_tags, sort_classes
 from app.imports.pool import BATCH, Check, Contents, computed
 from app.imports.runs import Runs
 from app.imports.schemas import ImportOptions, ImportReport, checked_format
 from app.jobs.registry import counted
 from app.labelconfig import service as labelconfig
-from app.labelconfig.schemas import POOL
 from app.proposals.files import masks_in_use
 from app.review.service import (
     check_keypoints,
@@ -79,7 +79,7 @@ def import_labels(
             raise
         parsed = Parsed([], [Refusal(source.name, exc.message)])  # nothing left to read
     report = ImportReport(refused=[*source.refused, *parsed.refused])
-    _sort_classes(parsed, labelconfig.current(session).classes(), options.class_map, report)
+    sort_classes(parsed, labelconfig.current(session), options.class_map, report)
     report.skip_classes(source.name)
     runs = Runs(session, source.name, options.sequence_id, user, report.refused)
     total = len(parsed.labels)
@@ -99,26 +99,6 @@ def import_labels(
     if pending is not None:
         _finish(*pending, total, progress)
     return report
-
-
-def _sort_classes(
-    parsed: Parsed, classes: dict[str, dict], mapping: dict[str, str], report: ImportReport
-) -> None:
-    """Each region of another class (under its mapped name): kept as an object of a configured
-    mask or instances class, else counted by why it is not (``ImportReport.classes``)."""
-    report.classes["without_pool"].update(mapping.get(n, n) for n in parsed.without_pool.elements())
-    for label in parsed.labels:
-        for other in label.others:
-            other.name = mapping.get(other.name, other.name)
-            spec = classes.get(other.name) if other.name != POOL else None
-            if spec is None:
-                report.classes["unknown"][other.name] += 1
-            elif other.shape is None or spec["kind"] not in ("mask", "instances"):
-                report.classes["no_area"][other.name] += 1
-            else:
-                other.kind = spec["kind"]
-                other.attributes = labelconfig.valid_attributes(spec, other.attributes)
-                report.classes["kept"][other.name] += 1
 
 
 def still_active(session: Session, user: User) -> None:
@@ -520,7 +500,7 @@ class _Batch:
                 "review": saved_review(self.user, self.options.review_stage),
                 "review_comment": None,
                 "objects": content.objects or None,
-                "frame_tags": None,
+                "frame_tags": frame_tags(item),
             }
             base = current.revision if current is not None else 0
             write_label(self.session, frame, current, base, values, flush=False)

@@ -12,8 +12,10 @@ from ``weldpool_core.outline.region_outlines``, coordinates 0–1 of the frame).
 cannot hold holes: a region's holes are left out there (COCO keeps them). ``masks`` and
 ``coco`` name the images by frame id, zero-padded; ``yolo`` and ``cvat`` by their original file
 names, unique within the export (``export_classes.file_names``: CVAT matches a task's frames by
-name). COCO, YOLO and CVAT carry the label configuration's mask and instances classes beside the
-pool (``export_classes``).
+name); ``labelme`` too, a JSON beside each image (``export_labelme``). Every format carries the
+label configuration's mask and instances classes beside the pool; all but YOLO their points
+classes, attributes and the frames' tags (``export_classes``; YOLO counts them in
+``notes.txt``).
 
 ``GET /export`` streams the zip as it is written (the first bytes leave after the first frame;
 no temporary file, memory bounded by one entry); large sets can also run as an ``export`` job
@@ -49,14 +51,22 @@ from app.core.models import Frame, Label, LabelStatus, Sequence, Split, Validati
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
+    ClassFiles,
     Rows,
+    class_files,
+    coco_categories,
     coco_objects,
+    configured_rows,
+    cvat_labels,
     cvat_objects,
+    cvat_text,
     file_names,
-    region_classes,
+    frame_fields,
     written_classes,
+    written_config,
     yaml_name,
     yolo_lines,
+    yolo_notes,
 )
 from app.storage import EXPORTS_DIR, Storage
 from app.storage.pixels import load_mask
@@ -69,7 +79,7 @@ if TYPE_CHECKING:
 else:
     from weldpool_core.lazy import np
 
-ExportFormat = Literal["coco", "masks", "yolo", "cvat"]
+ExportFormat = Literal["coco", "masks", "yolo", "cvat", "labelme"]
 YOLO_SPLITS = {"train": "train", "validation": "val", "test": "test"}
 Progress = Callable[[float, str], None]
 PROCESS_FIELDS = (
@@ -177,7 +187,7 @@ def export_rows(
     rows = _rows(session, sequence_id, split)
     if not rows:
         raise InvalidInputError("There are no accepted or corrected labels to export.")
-    return Rows(rows, region_classes(session))
+    return configured_rows(session, rows)
 
 
 def build_export(
@@ -319,14 +329,22 @@ def _write_masks(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     manifest = []
-    masks = _readable(storage, rows, skipped, lambda row: storage.existing(row[1].mask_path))
-    for done, (frame, label, sequence, manual), image, mask in masks:
+    config = written_config(rows)
+
+    def read(row: Any) -> tuple[Path, ClassFiles]:  # in the readers' pool
+        return storage.existing(row[1].mask_path), class_files(row[1], config, _stem(row[0]))
+
+    for done, (frame, label, sequence, manual), image, files in _readable(
+        storage, rows, skipped, read
+    ):
         if image is None:
             yield done
             continue
-        stem = _stem(frame)
+        stem, (mask, classes) = _stem(frame), files
         archive.write(image, f"images/{stem}{_extension(frame)}")
         archive.write(mask, f"masks/{stem}.png")
+        for path, png in classes.files:
+            archive.writestr(path, png)
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
         if manual is not None:
             archive.writestr(
@@ -344,7 +362,9 @@ def _write_masks(
                 "frame_index": frame.frame_index,
                 "timestamp_s": frame.timestamp_s,
                 "process": process_parameters(sequence) if sequence else None,
+                "objects": classes.objects,
             }
+            | frame_fields(label)
         )
         yield done
     left_out = [{"frame_id": frame_id, "reason": reason} for frame_id, reason in skipped]
@@ -357,7 +377,7 @@ def _write_coco(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     images, annotations, objects = [], [], []
-    classes = written_classes(rows)
+    config = written_config(rows)
     k = max((len(label.keypoints or []) for _, label, _, _ in rows), default=0)
     masks = _readable(storage, rows, skipped, lambda row: _stored_rle(storage, row[1]))
     for done, (frame, label, sequence, manual), image, encoded in masks:
@@ -381,6 +401,7 @@ def _write_coco(
                 "split": frame.split.value,
                 "bit_depth": frame.bit_depth,
             }
+            | frame_fields(label)
         )
         segmentation, area, box = encoded
         keypoints = label.keypoints or []
@@ -403,7 +424,7 @@ def _write_coco(
         if manual is not None:
             annotation["validation_keypoints"] = manual.keypoints
         annotations.append(annotation)
-        objects += coco_objects(label, classes, frame.id)
+        objects += coco_objects(label, config, frame.id)
         yield done
     first = max((a["id"] for a in annotations), default=0) + 1  # after every pool's id
     annotations += [o | {"id": first + i} for i, o in enumerate(objects)]
@@ -419,10 +440,7 @@ def _write_coco(
                 "keypoints": [f"keypoint_{i + 1}" for i in range(k)],
                 "skeleton": [],
             },
-            *(
-                {"id": i + 2, "name": name, "supercategory": "weld"}
-                for i, name in enumerate(classes)
-            ),
+            *coco_categories(config),
         ],
     }
     archive.writestr("annotations.json", json.dumps(coco))
@@ -463,6 +481,8 @@ def _write_yolo(
     )
     ids = "".join(f"  {i}: {yaml_name(n)}\n" for i, n in enumerate(["weld_pool", *classes]))
     archive.writestr("data.yaml", f"path: .\n{splits}names:\n{ids}")
+    if notes := yolo_notes(written_config(rows)):
+        archive.writestr("notes.txt", notes)
 
 
 def _write_cvat(
@@ -473,10 +493,10 @@ def _write_cvat(
     from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
 
     elements: list[Any] = []
-    classes, names = written_classes(rows), file_names([row[0] for row in rows])
+    config, names = written_config(rows), file_names([row[0] for row in rows])
 
     def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
-        return _cvat_mask(storage, row[1]), cvat_objects(row[1], classes)
+        return _cvat_mask(storage, row[1]), cvat_objects(row[1], config)
 
     for done, (frame, label, _, manual), path, made in _readable(storage, rows, skipped, shapes):
         if path is None:
@@ -493,10 +513,14 @@ def _write_cvat(
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
             objects=made[1],
+            tags=frame_fields(label)["tags"],
+            frame_attributes={
+                k: cvat_text(v) for k, v in frame_fields(label)["attributes"].items()
+            },
         )
         elements.append(cvat_image(image))
         yield done
-    archive.writestr("annotations.xml", cvat_document(elements, len(elements), classes))
+    archive.writestr("annotations.xml", cvat_document(elements, len(elements), cvat_labels(config)))
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:
@@ -509,9 +533,22 @@ def _cvat_mask(storage: Storage, label: Label) -> Any:
     return cvat_mask(_stored_mask(storage, label))
 
 
+def _write_labelme(
+    archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
+) -> Iterator[int]:
+    """LabelMe: a JSON file beside each image (``export_labelme``)."""
+    from app.review.export_labelme import write_labelme
+
+    def readable(read: Callable[[Any], Any]) -> Iterator[tuple[int, Any, Path | None, Any]]:
+        return _readable(storage, rows, skipped, read)
+
+    yield from write_labelme(archive, rows, readable, lambda label: _stored_mask(storage, label))
+
+
 WRITERS: dict[str, Writer] = {
     "masks": _write_masks,
     "coco": _write_coco,
     "yolo": _write_yolo,
     "cvat": _write_cvat,
+    "labelme": _write_labelme,
 }

@@ -306,13 +306,14 @@ def export(
     session: SessionDep,
     storage: StorageDep,
     _user: CurrentUser,
-    format: Literal["coco", "masks", "yolo", "cvat"] = "masks",
+    format: Literal["coco", "masks", "yolo", "cvat", "labelme"] = "masks",
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     split: Split | None = None,
 ) -> StreamingResponse:
     """A zip of the accepted and corrected labels: COCO, the DATASET layout of
-    `weldpool train` (images/, masks/, keypoints/, manifest.json), or Ultralytics YOLO
-    segmentation; streamed as it is written (`POST /exports` runs it as a job instead)."""
+    `weldpool train` (images/, masks/, keypoints/, manifest.json), Ultralytics YOLO
+    segmentation, CVAT for images 1.1 or LabelMe; streamed as it is written (`POST /exports`
+    runs it as a job instead)."""
     rows = export_rows(session, sequence_id, split)
     return StreamingResponse(
         stream_export(storage, format, rows),

@@ -86,7 +86,7 @@ class PropagateIn(InputModel):
 class ExportIn(InputModel):
     """Which labels to export and how; run as a job for big sets."""
 
-    format: Literal["coco", "masks", "yolo", "cvat"] = "coco"
+    format: Literal["coco", "masks", "yolo", "cvat", "labelme"] = "coco"
     sequence_id: Id | None = None
     split: Split | None = None
 

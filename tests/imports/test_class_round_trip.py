@@ -130,4 +130,4 @@ def test_a_round_trip_keeps_the_pool_and_the_objects(
         assert np.array_equal(got, sent), fmt  # boxes: exact in every format
     assert labels["run7 0002.png"]["objects"] == []
     sizes = [o.get("attributes", {}).get("size") for o in first["objects"]]
-    assert sizes == ([None, "small", "large"] if fmt == "coco" else [None] * 3)  # COCO only
+    assert sizes == ([None] * 3 if fmt == "yolo" else [None, "small", "large"])  # not YOLO

@@ -85,8 +85,11 @@ def test_configured_classes_come_in_as_objects(client, make_user) -> None:
     assert result["classes"] == {
         "kept": {"spatter": 2, "wire": 2},
         "unknown": {"smoke": 1},
-        "no_area": {"wire tip": 1},  # a points class: a region is not its points
+        "no_area": {},
+        "no_points": {"wire tip": 1},  # a points class: a region is not its points
         "without_pool": {},
+        "unknown_tags": {},
+        "attributes_left_out": {},
     }
     label = _labels(client, admin)["a.png"]
     assert [o["class"] for o in label["objects"]] == ["wire", "spatter", "spatter"]

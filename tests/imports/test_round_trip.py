@@ -23,7 +23,7 @@ from tests.imports.common import (
     stored_labels,
 )
 
-FORMATS = ["coco", "masks", "cvat", "yolo"]
+FORMATS = ["coco", "masks", "cvat", "yolo", "labelme"]
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def test_an_export_imported_into_a_fresh_instance_gives_back_its_labels(
     result = job["result"]
     assert result["refused"] == [] and result["skipped"] == []
     assert result["frames"] == 3 and result["labels"] == 3
-    with_keypoints = fmt in ("coco", "masks", "cvat")
+    with_keypoints = fmt in ("coco", "masks", "cvat", "labelme")
     assert result["keypoints"] == (1 if with_keypoints else 0)
 
     found = {

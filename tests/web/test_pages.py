@@ -995,6 +995,15 @@ def test_export_menu_downloads_the_sequence_labels(page: Any, server: LiveServer
     # Named after the uploaded file (e.png), so a re-import finds the frame by its name.
     (line,) = archive.read("labels/train/e.txt").decode().splitlines()
     assert line.startswith("0 ") and len(line.split()) > 7
+    # LabelMe: the JSON beside the image, the pool a mask shape.
+    page.select_option("[data-testid=export-format]", "labelme")
+    shoot(page, "export-menu-labelme")
+    with page.expect_download() as download:
+        page.click("[data-testid=export]")
+    archive = zipfile.ZipFile(io.BytesIO(Path(download.value.path()).read_bytes()))
+    labelme = json.loads(archive.read("images/e.json"))
+    assert labelme["imagePath"] == "e.png" and "images/e.png" in archive.namelist()
+    assert labelme["shapes"][0]["shape_type"] == "mask"
 
     page.goto(f"{server.url}/?sequence_id={empty['id']}&status=all")
     page.wait_for_selector("body[data-ready]")

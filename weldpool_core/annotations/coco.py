@@ -1,5 +1,10 @@
 """COCO instance (and keypoint) files: polygons, compressed and uncompressed RLE, ``iscrowd``.
 
+Frames: an image's ``tags`` (a list of names) and ``attributes`` (an object) are its frame tags
+and attributes. Other categories: an annotation's ``attributes`` (an object, as CVAT's COCO
+export writes them) are its object's; a category with ``keypoints`` names is a points class,
+each of its annotations one object whose points are the named keypoints with v > 0.
+
 Every pool annotation of an image joins its mask (a crowd region too: for a pool, ``iscrowd``
 only says the region is given as RLE). Keypoints: in a weldpool export (``info.description``)
 ``keypoints`` are the label's own and ``validation_keypoints`` the hand-placed ones; in any
@@ -99,6 +104,18 @@ def _categories(document: dict[str, Any]) -> dict[Any, str]:
     }
 
 
+def _point_names(document: dict[str, Any]) -> dict[Any, list[str]]:
+    """The ``keypoints`` names of each category that has them (a points class's)."""
+    categories = document.get("categories")
+    return {
+        c["id"]: [str(n) for n in c["keypoints"]]
+        for c in (categories if isinstance(categories, list) else [])
+        if isinstance(c, dict)
+        and _key(c.get("id")) is not None
+        and isinstance(c.get("keypoints"), list)
+    }
+
+
 def _read_document(
     document: dict[str, Any], name: str, category: str | None, parsed: Parsed
 ) -> None:
@@ -106,6 +123,7 @@ def _read_document(
     own = isinstance(info, dict) and info.get("description") == WELDPOOL_EXPORT
     images = _images(document, name, parsed)
     categories = _categories(document)
+    point_names = _point_names(document)
     pool = pool_names(categories.values(), category)
     labels: dict[Any, ImportedLabel] = {}
     others: dict[Any, list[OtherShape]] = {}  # by image: regions of other categories
@@ -126,7 +144,8 @@ def _read_document(
         category = annotation.get("category_id")
         category_name = categories.get(_key(category), category)
         if not isinstance(category_name, str) or category_name not in pool:
-            others.setdefault(image["id"], []).append(_other(str(category_name), annotation))
+            names = point_names.get(_key(category), [])
+            others.setdefault(image["id"], []).append(_other(str(category_name), annotation, names))
             continue
         try:
             shape = _shape(annotation.get("segmentation"))
@@ -160,14 +179,30 @@ def _read_document(
     parsed.labels.extend(labels.values())
 
 
-def _other(name: str, annotation: dict[str, Any]) -> OtherShape:
-    """A region of another category (its shape None where it is not one COCO can state)."""
+def _other(name: str, annotation: dict[str, Any], point_names: list[str]) -> OtherShape:
+    """A region of another category (its shape None where it is not one COCO can state), or
+    the named points of a category with ``keypoints`` names (those with v > 0)."""
     attributes = annotation.get("attributes")
     given = attributes if isinstance(attributes, dict) else {}
+    other = OtherShape(name, attributes=given)
     try:
-        return OtherShape(name, _shape(annotation.get("segmentation")), attributes=given)
+        flat = annotation.get("keypoints")
+        if point_names and flat:
+            if len(flat) != 3 * len(point_names):
+                return other
+            other.points = {
+                point_names[i // 3]: [float(flat[i]), float(flat[i + 1])]
+                for i in range(0, len(flat), 3)
+                if _number(flat[i + 2])
+                and flat[i + 2] > 0
+                and _number(flat[i])
+                and _number(flat[i + 1])
+            } or None
+        else:
+            other.shape = _shape(annotation.get("segmentation"))
     except (InvalidInputError, *DAMAGED):
-        return OtherShape(name)
+        pass
+    return other
 
 
 def _label(image: dict[str, Any], name: str, own: bool) -> ImportedLabel:
@@ -176,6 +211,11 @@ def _label(image: dict[str, Any], name: str, own: bool) -> ImportedLabel:
     label = ImportedLabel(
         item=f"{name}: {image['file_name']}", image=image["file_name"], size=size, beside=name
     )
+    tags, attributes = image.get("tags"), image.get("attributes")
+    if isinstance(tags, list):
+        label.tags = [t for t in tags if isinstance(t, str)]
+    if isinstance(attributes, dict):
+        label.frame_attributes = attributes
     if own:
         label.sequence = text_or_none(image.get("sequence"))
         label.process = image.get("process") if isinstance(image.get("process"), dict) else None

@@ -6,8 +6,16 @@ the label's own when their ``kind`` attribute says ``label``, as our export writ
 placed by hand: validation keypoints). The XML is parsed by defusedxml (no entity expansion,
 no external entities).
 
+Other labels: a region of another label is an object (``OtherShape``); a ``<points>`` of
+another label is a points object, its points named by its ``point_names`` attribute (else 1,
+2, … in order); every shape's ``<attribute>``s are its object's attributes, as text. An
+image's ``<tag>``s are its frame tags, and the ``<tag label="frame_attributes">``'s attributes
+its frame attributes.
+
 Write (``cvat_document``): one ``<mask>`` per label (so its holes survive), its keypoints and
-its validation keypoints as ``<points>``.
+its validation keypoints as ``<points>``; other labels' objects as ``<mask>`` or ``<points>``
+with their ``<attribute>``s, the frame's tags as ``<tag>``s, every label and attribute declared
+in the meta.
 """
 
 from __future__ import annotations
@@ -45,6 +53,11 @@ else:
 
 POOL_LABEL = "weld_pool"
 KIND = "kind"  # the attribute telling a label's keypoints from validation keypoints
+POINT_NAMES = "point_names"
+"""The text attribute of a points object's ``<points>`` that names its points, in order
+(``tip;root``)."""
+FRAME_ATTRIBUTES = "frame_attributes"
+"""The tag label whose ``<tag>`` carries a frame's attributes (CVAT has none of its own)."""
 
 
 def cvat_files(source: Source) -> list[str]:
@@ -99,8 +112,13 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
         original_name=posixpath.basename(file_name),
     )
     others: list[OtherShape] = []
+    tags, frame_attributes = [], {}
     for element in image:
         if element.tag == "tag":
+            if element.get("label") == FRAME_ATTRIBUTES:
+                frame_attributes = _attributes(element)
+            elif element.get("label"):
+                tags.append(element.get("label"))
             continue
         if element.get("label") not in pool:
             others.append(_other(element))
@@ -118,17 +136,38 @@ def _image(name: str, image: Any, pool: set[str], parsed: Parsed) -> ImportedLab
             parsed.refuse(f"{item} <{element.tag}>", "Its attributes cannot be read as numbers.")
             return None
     kept = label if label.shapes or label.keypoints or label.validation_keypoints else None
+    label.tags, label.frame_attributes = tags, frame_attributes
     parsed.attach(kept, others)
     return kept
 
 
 def _other(element: Any) -> OtherShape:
-    """A shape of another label (its area None where it has none: points, polylines)."""
-    name = element.get("label") or ""
+    """A shape of another label with its attributes (as text): a region, or a ``<points>``'
+    named points (named by its ``point_names`` attribute, else 1, 2, … in order); neither
+    where it is another shape (polylines)."""
+    attributes = _attributes(element)
+    names = attributes.pop(POINT_NAMES, "").split(";")
+    other = OtherShape(element.get("label") or "", attributes=attributes)
     try:
-        return OtherShape(name, _shape(element))
+        if element.tag == "points":
+            points = _points(element.get("points"))
+            if len(names) != len(points) or len(set(names)) != len(names) or "" in names:
+                names = [str(i) for i in range(1, len(points) + 1)]
+            other.points = {n: [x, y] for n, (x, y) in zip(names, points, strict=True)}
+        else:
+            other.shape = _shape(element)
     except (InvalidInputError, *DAMAGED):
-        return OtherShape(name)
+        pass
+    return other
+
+
+def _attributes(element: Any) -> dict[str, str]:
+    """An element's ``<attribute name=…>`` children, as text."""
+    return {
+        a.get("name"): (a.text or "").strip()
+        for a in element.iterfind("attribute")
+        if a.get("name")
+    }
 
 
 def _element_points(element: Any) -> list[tuple[float, float]]:
@@ -237,8 +276,41 @@ def cvat_rle_mask(rle: dict[str, Any], box: Sequence[float] | None) -> CvatMask 
 
 
 @dataclass(frozen=True)
+class CvatObject:
+    """An object of another label: its mask, or its named points (in order), and its
+    attributes as text."""
+
+    label: str
+    mask: CvatMask | None = None
+    points: dict[str, list[float]] | None = None
+    attributes: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CvatAttribute:
+    """An attribute a label declares in the meta: CVAT's ``input_type`` (select, checkbox,
+    number, text) and ``values`` (a select's options; a number's min, max and step)."""
+
+    name: str
+    input_type: str
+    values: Sequence[str] = ()
+    default: str = ""
+
+
+@dataclass(frozen=True)
+class CvatLabel:
+    """A label the meta declares besides the pool: its ``type`` (mask, points or tag) and
+    attributes."""
+
+    name: str
+    type: str = "mask"
+    attributes: Sequence[CvatAttribute] = ()
+
+
+@dataclass(frozen=True)
 class CvatImage:
-    """One frame of a CVAT export: its file in the zip, size, mask and keypoints."""
+    """One frame of a CVAT export: its file in the zip, size, mask and keypoints, the other
+    labels' objects, the frame's tags and attributes (as text)."""
 
     id: int
     name: str
@@ -247,11 +319,37 @@ class CvatImage:
     mask: CvatMask | None
     keypoints: list[list[float]] | None
     validation_keypoints: list[list[float]] | None
-    objects: list[tuple[str, CvatMask]] = field(default_factory=list)  # other labels' masks
+    objects: list[CvatObject] = field(default_factory=list)
+    tags: list[str] = field(default_factory=list)
+    frame_attributes: dict[str, str] = field(default_factory=dict)
 
 
-def _mask_element(parent: Any, label: str, mask: CvatMask) -> None:
-    ET.SubElement(
+def _attribute_elements(parent: Any, attributes: dict[str, str]) -> None:
+    for name, value in attributes.items():
+        ET.SubElement(parent, "attribute", name=name).text = value
+
+
+def _object_element(parent: Any, obj: CvatObject) -> None:
+    if obj.mask is not None:
+        element = _mask_element(parent, obj.label, obj.mask)
+    elif obj.points:
+        element = ET.SubElement(
+            parent,
+            "points",
+            label=obj.label,
+            source="manual",
+            occluded="0",
+            points=";".join(f"{x:.2f},{y:.2f}" for x, y in obj.points.values()),
+            z_order="0",
+        )
+        ET.SubElement(element, "attribute", name=POINT_NAMES).text = ";".join(obj.points)
+    else:
+        return
+    _attribute_elements(element, obj.attributes)
+
+
+def _mask_element(parent: Any, label: str, mask: CvatMask) -> Any:
+    return ET.SubElement(
         parent,
         "mask",
         label=label,
@@ -285,18 +383,26 @@ def cvat_image(image: CvatImage) -> ET.Element:
     )
     if image.mask is not None:
         _mask_element(element, POOL_LABEL, image.mask)
-    for label, mask in image.objects:
-        _mask_element(element, label, mask)
+    for obj in image.objects:
+        _object_element(element, obj)
     if image.keypoints:
         _points_element(element, image.keypoints, "label")
     if image.validation_keypoints:
         _points_element(element, image.validation_keypoints, "validation")
+    for tag in image.tags:
+        ET.SubElement(element, "tag", label=tag, source="manual")
+    if image.frame_attributes:
+        frame = ET.SubElement(element, "tag", label=FRAME_ATTRIBUTES, source="manual")
+        _attribute_elements(frame, image.frame_attributes)
     return element
 
 
-def cvat_document(images: Iterable[ET.Element], count: int, classes: Sequence[str] = ()) -> bytes:
+def cvat_document(
+    images: Iterable[ET.Element], count: int, classes: Sequence[str | CvatLabel] = ()
+) -> bytes:
     """The whole ``annotations.xml`` around already written ``<image>`` elements; the pool's
-    label first, then ``classes`` (the other labels the images' masks name)."""
+    label first, then ``classes`` (the other labels the images name: a bare name is a mask
+    label without attributes)."""
     root = ET.Element("annotations")
     ET.SubElement(root, "version").text = "1.1"
     task = ET.SubElement(ET.SubElement(root, "meta"), "task")
@@ -314,11 +420,26 @@ def cvat_document(images: Iterable[ET.Element], count: int, classes: Sequence[st
     ET.SubElement(attribute, "values").text = "label\nvalidation"
     labels = task.find("labels")
     assert labels is not None  # made above
-    for name in classes:
-        other = ET.SubElement(labels, "label")
-        ET.SubElement(other, "name").text = name
-        ET.SubElement(other, "type").text = "mask"
-        ET.SubElement(other, "attributes")
+    for declared in classes:
+        _label_element(labels, declared if isinstance(declared, CvatLabel) else CvatLabel(declared))
     root.extend(images)
     document: bytes = ET.tostring(root, encoding="utf-8", xml_declaration=True)
     return document
+
+
+def _label_element(labels: Any, declared: CvatLabel) -> None:
+    """A label of the meta with its attributes (a points label also its ``point_names``)."""
+    other = ET.SubElement(labels, "label")
+    ET.SubElement(other, "name").text = declared.name
+    ET.SubElement(other, "type").text = declared.type
+    attributes = ET.SubElement(other, "attributes")
+    every = list(declared.attributes)
+    if declared.type == "points":
+        every.append(CvatAttribute(POINT_NAMES, "text"))
+    for spec in every:
+        attribute = ET.SubElement(attributes, "attribute")
+        ET.SubElement(attribute, "name").text = spec.name
+        ET.SubElement(attribute, "mutable").text = "False"
+        ET.SubElement(attribute, "input_type").text = spec.input_type
+        ET.SubElement(attribute, "default_value").text = spec.default
+        ET.SubElement(attribute, "values").text = "\n".join(spec.values)

@@ -1,8 +1,9 @@
 """Mask folders: ``masks/<stem>.png`` (0/255 or 0/1) beside ``images/<stem>.<ext>``, the layout
 ``weldpool train`` reads and the ``masks`` export writes; ``keypoints/<stem>.json`` and
 ``validation_keypoints/<stem>.json`` (``{"keypoints": [[x, y], …]}``) and ``manifest.json``
-(each frame's original name, run and process parameters) are read when present. A mask whose
-image is not in the source is matched to a stored frame by its stem."""
+(each frame's original name, run and process parameters; the other classes' objects, whose
+masks are ``classes/<class>/<stem>[_<n>].png``; the frame's tags and attributes) are read when
+present. A mask whose image is not in the source is matched to a stored frame by its stem."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from weldpool_core.annotations.shapes import (
     DAMAGED,
     ImportedLabel,
     MaskFile,
+    OtherShape,
     Parsed,
     text_or_none,
 )
@@ -82,17 +84,41 @@ def read_masks(source: Source, category: str | None = None) -> Parsed:
         image = images.get(stem)
         original = text_or_none(entry.get("original_name"))
         process = entry.get("process")
-        parsed.labels.append(
-            ImportedLabel(
-                item=path,
-                image=posixpath.basename(image) if image else original or stem,
-                shapes=[MaskFile(path)],
-                keypoints=keypoints,
-                validation_keypoints=manual,
-                sequence=text_or_none(entry.get("sequence")),
-                process=process if isinstance(process, dict) else None,
-                original_name=original or (posixpath.basename(image) if image else None),
-                beside=image or "",
-            )
+        label = ImportedLabel(
+            item=path,
+            image=posixpath.basename(image) if image else original or stem,
+            shapes=[MaskFile(path)],
+            keypoints=keypoints,
+            validation_keypoints=manual,
+            sequence=text_or_none(entry.get("sequence")),
+            process=process if isinstance(process, dict) else None,
+            original_name=original or (posixpath.basename(image) if image else None),
+            beside=image or "",
         )
+        try:
+            _classes(source, entry, label)
+        except DAMAGED:
+            parsed.refuse(path, "Its manifest entry's objects, tags or attributes are damaged.")
+            continue
+        parsed.labels.append(label)
     return parsed
+
+
+def _classes(source: Source, entry: dict[str, Any], label: ImportedLabel) -> None:
+    """The label's other classes and frame fields as the manifest lists them: each object's
+    class, ``mask`` (a PNG of the import) or ``points``, and ``attributes``; ``tags`` and
+    ``attributes`` of the frame."""
+    for item in entry.get("objects") or []:
+        attributes = item.get("attributes")
+        other = OtherShape(
+            str(item["class"]), attributes=attributes if isinstance(attributes, dict) else {}
+        )
+        mask, points = item.get("mask"), item.get("points")
+        if isinstance(mask, str) and mask in source:
+            other.shape = MaskFile(mask)
+        elif isinstance(points, dict):
+            other.points = {str(n): [float(x), float(y)] for n, (x, y) in points.items()}
+        label.others.append(other)
+    tags, attributes = entry.get("tags"), entry.get("attributes")
+    label.tags = [t for t in tags if isinstance(t, str)] if isinstance(tags, list) else []
+    label.frame_attributes = attributes if isinstance(attributes, dict) else {}

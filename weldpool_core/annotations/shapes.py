@@ -294,51 +294,71 @@ def to_cvat_rle(pixels: NDArray[np.bool_]) -> list[int]:
 
 @dataclass
 class OtherShape:
-    """A region of a class other than the pool, under the name the file gives its class
-    (``shape`` None: the file's region could not be read as an area). The service keeps it as
-    an object where its label configuration has the class (``kind`` set), else counts it."""
+    """A region of a class other than the pool, or a points class's named points, under the
+    name the file gives its class (``shape`` and ``points`` None: the file's element could not
+    be read as either). The service keeps it as an object where its label configuration has
+    the class (``kind`` set), else counts it."""
 
     name: str
     shape: Shape | None = None
-    kind: str | None = None  # "mask" or "instances", once the service knows the class
+    kind: str | None = None  # "mask", "instances" or "points", once the service knows the class
     attributes: dict[str, Any] = field(default_factory=dict)  # as the file gives them
+    points: dict[str, list[float]] | None = None  # a points object's {name: [x, y]}
 
 
 def other_objects(
     others: list[OtherShape], height: int, width: int
 ) -> tuple[list[dict[str, Any]], list[str]]:
-    """The stored objects (``{"class", "rle", "area", "bbox"}``) of a label's other regions
-    whose ``kind`` is set, on a ``height``×``width`` frame: each ``instances`` region one
-    object, all regions of a ``mask`` class one (their union); empty ones left out. And why
-    each region that does not fit the frame was left out (the pool's label stays)."""
+    """The stored objects of a label's other classes whose ``kind`` is set, on a
+    ``height``×``width`` frame, in the file's order: each ``instances`` region one object
+    (``{"class", "rle", "area", "bbox"}``), all regions of a ``mask`` class one (their union),
+    each points object its named points; empty regions left out. And why each one that does
+    not fit the frame was left out (the pool's label stays)."""
     from weldpool_core.outline import coco_mask
 
-    regions: list[tuple[str, list[Shape], dict[str, Any]]] = []
+    entries: list[OtherShape | tuple[str, list[Shape], dict[str, Any]]] = []
     masks: dict[str, list[Shape]] = {}
     for other in others:
-        if other.shape is None or other.kind not in ("mask", "instances"):
+        if other.kind == "points" and other.points:
+            entries.append(other)
+        elif other.shape is None or other.kind not in ("mask", "instances"):
             continue
-        if other.kind == "instances":
-            regions.append((other.name, [other.shape], other.attributes))
+        elif other.kind == "instances":
+            entries.append((other.name, [other.shape], other.attributes))
         elif other.name in masks:
             masks[other.name].append(other.shape)
         else:
             masks[other.name] = [other.shape]
-            regions.append((other.name, masks[other.name], other.attributes))
+            entries.append((other.name, masks[other.name], other.attributes))
     objects, problems = [], []
-    for name, shapes, attributes in regions:
+    for entry in entries:
+        name = entry.name if isinstance(entry, OtherShape) else entry[0]
         try:
+            if isinstance(entry, OtherShape):
+                objects.append(_points_object(entry, height, width))
+                continue
             union = np.zeros((height, width), bool)
-            for shape in merged(shapes):
+            for shape in merged(entry[1]):
                 union |= shape.mask(height, width)
         except InvalidInputError as exc:
-            problems.append(f"A {name!r} region is left out: {exc.message}")
+            problems.append(f"A {name!r} object is left out: {exc.message}")
             continue
         if union.any():
             coco = coco_mask(union)
             made = {"class": name, "rle": coco.rle, "area": coco.area, "bbox": coco.bbox}
-            objects.append(made | ({"attributes": attributes} if attributes else {}))
+            objects.append(made | ({"attributes": entry[2]} if entry[2] else {}))
     return objects, problems
+
+
+def _points_object(other: OtherShape, height: int, width: int) -> dict[str, Any]:
+    """A points object as stored: its named points (within ``EDGE_TOLERANCE`` of the frame,
+    moved onto it) and attributes."""
+    names = list(other.points or {})
+    xy = np.asarray([other.points[n] for n in names] if other.points else [], np.float64)
+    _check_inside(xy.reshape(-1, 2), height, width, f"{other.name!r}")
+    placed = inside_frame(xy.reshape(-1, 2).tolist(), height, width)
+    made: dict[str, Any] = {"class": other.name, "points": dict(zip(names, placed, strict=True))}
+    return made | ({"attributes": other.attributes} if other.attributes else {})
 
 
 @dataclass
@@ -359,6 +379,8 @@ class ImportedLabel:
     original_name: str | None = None
     beside: str = ""  # the annotation file, to find images relative to it
     others: list[OtherShape] = field(default_factory=list)
+    tags: list[str] = field(default_factory=list)  # the frame's tags, as the file names them
+    frame_attributes: dict[str, Any] = field(default_factory=dict)  # as the file gives them
 
     def mask(self, height: int, width: int) -> NDArray[np.bool_] | None:
         """The pool mask on a ``height``×``width`` frame (None when the label has only
@@ -397,14 +419,21 @@ class ImportedLabel:
             self.validation_keypoints = kept
 
     def loaded(self, source: Source) -> ImportedLabel:
-        """The label with the files it names read from ``source``: its mask files, and its
-        image embedded in the annotation file (LabelMe's base64 ``imageData``).
+        """The label with the files it names read from ``source``: its mask files (its other
+        classes' too), and its image embedded in the annotation file (LabelMe's base64
+        ``imageData``).
 
         Raises:
             InvalidInputError: a file cannot be read, or the embedded image is not base64.
         """
         shapes = [
             MaskImage(source.read(s.path)) if isinstance(s, MaskFile) else s for s in self.shapes
+        ]
+        others = [
+            dataclasses.replace(o, shape=MaskImage(source.read(o.shape.path)))
+            if isinstance(o.shape, MaskFile)
+            else o
+            for o in self.others
         ]
         image = self.image_data
         if self.embedded is not None:
@@ -414,7 +443,9 @@ class ImportedLabel:
                 image = base64.b64decode(data if isinstance(data, str) else "", validate=True)
             except (binascii.Error, ValueError):
                 raise InvalidInputError("Its imageData is not base64.") from None
-        return dataclasses.replace(self, shapes=shapes, image_data=image, embedded=None)
+        return dataclasses.replace(
+            self, shapes=shapes, others=others, image_data=image, embedded=None
+        )
 
     def checked_points(self, height: int, width: int) -> None:
         for points in (self.keypoints, self.validation_keypoints):
