@@ -100,7 +100,7 @@ def _objects(pool: np.ndarray, seed: int) -> tuple[list[dict], dict]:
     return objects, {"tip": tip}
 
 
-def _label_and_export(url: str, token: str) -> tuple[bytes, list[str], Counter]:
+def _label_and_export(url: str, token: str) -> tuple[bytes, list[str], Counter, dict]:
     headers = {"Authorization": f"Bearer {token}"}
     client = httpx.Client(base_url=f"{url}/api/v1", headers=headers, timeout=120)
     client.put("/label-config", json=CONFIG).raise_for_status()
@@ -110,9 +110,11 @@ def _label_and_export(url: str, token: str) -> tuple[bytes, list[str], Counter]:
     stored = client.post("/frames", files=files).json()["stored"]
     ids = {f["original_name"]: f["id"] for f in stored}
     sent: Counter = Counter()
+    tips: dict[str, tuple[float, ...]] = {}
     for number, path in enumerate(labelled):
         pool = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
-        objects, _ = _objects(pool, number)
+        objects, placed = _objects(pool, number)
+        tips[path.stem] = tuple(float(v) for v in placed["tip"])
         body = {
             "status": "corrected",
             "base_revision": 0,
@@ -125,7 +127,7 @@ def _label_and_export(url: str, token: str) -> tuple[bytes, list[str], Counter]:
         sent.update(["tag arc unstable"] * (number % 3 == 0))
         sent.update(["attribute size"] * 2)
     archive = client.get("/export", params={"format": "cvat"}).content
-    return archive, [p.name for p in labelled], sent
+    return archive, [p.name for p in labelled], sent, tips
 
 
 def _read_with_datumaro(python: str, archive: bytes) -> list[dict]:
@@ -157,18 +159,26 @@ def main() -> None:
     parser.add_argument("--datumaro-python", required=True)
     args = parser.parse_args()
     with local_server() as (url, token):
-        archive, names, sent = _label_and_export(url, token)
+        archive, names, sent, tips = _label_and_export(url, token)
     items = _read_with_datumaro(args.datumaro_python, archive)
     frames = {Path(name).stem for name in names}  # CVAT's frame mapping: names without extension
     matched = sum(Path(item["id"]).name in frames for item in items)
     got = _read_back(items)
     # Datumaro reads one mask per connected run of CVAT's RLE, so a class's shape count is a
     # floor: each exported shape must come back at least once.
+    read_tips = {
+        Path(item["id"]).name: tuple(shape["points"])
+        for item in items
+        for shape in item["shapes"]
+        if shape["label"] == "wire tip"
+    }
+    same = sum(read_tips.get(stem) == tip for stem, tip in tips.items())
     rows = [f"| images matched to the task's frames by name | {len(names)} | {matched} |"]
+    rows.append(f"| wire tips at the place sent, (x, y) | {len(tips)} | {same} |")
     rows += [f"| {key} | {sent[key]} | {got[key]} |" for key in sorted(sent)]
     header = ["| CVAT acceptance | sent | read back by Datumaro |", "|---|---:|---:|"]
     print("\n".join([*header, *rows]))
-    if matched != len(names) or any(got[key] < sent[key] for key in sent):
+    if matched != len(names) or same != len(tips) or any(got[key] < sent[key] for key in sent):
         sys.exit("CVAT would not take every frame's annotations (see the table).")
 
 
