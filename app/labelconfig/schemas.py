@@ -20,6 +20,9 @@ Name = Field(min_length=1, max_length=64, pattern=r"^[^\s].*[^\s]$|^[^\s]$")
 """A class, attribute, option, point or tag name: 1–64 characters, no space at either end."""
 
 
+EXPORT_NAMES = {"weld_pool": "the pool", "frame_attributes": "the frame's attributes"}
+
+
 def _unique(names: list[str], what: str) -> None:
     seen: set[str] = set()
     for name in names:
@@ -101,6 +104,14 @@ class LabelConfigBody(InputModel):
     @model_validator(mode="after")
     def _classes(self) -> LabelConfigBody:
         _unique([c.name for c in self.classes], "classes")
+        # CVAT's meta and YOLO's names are one list of labels: a tag and a class never share a
+        # name, and the names the exports give the pool and the frame's attributes are taken.
+        _unique([c.name for c in self.classes] + self.frame_tags, "classes or frame tags")
+        for name in [c.name for c in self.classes] + self.frame_tags:
+            if name.casefold() in EXPORT_NAMES:
+                raise ValueError(
+                    f"{name!r} is the name exports give {EXPORT_NAMES[name.casefold()]}"
+                )
         _unique([a.name for a in self.frame_attributes], "frame attributes")
         _unique([c.hotkey for c in self.classes if c.hotkey], "hotkeys (one per class)")
         pool = next((c for c in self.classes if c.name.casefold() == POOL), None)

@@ -126,6 +126,9 @@ def test_the_pool_alone_until_an_admin_saves_a_version(client: TestClient, peopl
         ),
         ({"classes": [{"name": " a", "kind": "mask"}]}, "name"),
         ({"frame_tags": ["x", "X"]}, "frame tags"),
+        ({"classes": [{"name": "humping", "kind": "mask"}], "frame_tags": ["Humping"]}, "or frame"),
+        ({"classes": [{"name": "Weld_Pool", "kind": "mask"}]}, "exports give the pool"),
+        ({"frame_tags": ["frame_attributes"]}, "the frame's attributes"),
         ({"classes": [{"name": "a", "kind": "mask", "point_names": ["p"]}]}, "points class"),
     ],
 )
