@@ -17,6 +17,7 @@ from app.core.job_tables import JobChunk as JobChunk
 from app.core.job_tables import JobScope as JobScope
 from app.core.job_tables import JobStatus as JobStatus
 from app.core.job_tables import Worker as Worker
+from app.core.facet_table import LabelFacet as LabelFacet  # what a label holds, to filter on
 from app.core.policy_table import DisplayPolicy as DisplayPolicy  # the stored display policy
 from app.core.process_tables import RunSignature as RunSignature  # a run's stored signature
 from app.core.process_tables import UnstableFrame as UnstableFrame

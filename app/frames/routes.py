@@ -36,6 +36,8 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
+from app.labelconfig import facets
+from app.labelconfig import service as labelconfig
 from app.system.doctor import frame_file
 
 router = APIRouter(tags=["frames"])
@@ -232,6 +234,17 @@ UNSTABLE_NOTE = (
 )
 
 
+CLASS_NOTE = (
+    "Only frames whose label holds an object of this class (`pool`: a pool mask); repeated: "
+    "every class given. An unknown class is a 400 naming the configured ones."
+)
+TAG_NOTE = "Only frames whose label has this frame tag; repeated: every tag given."
+ATTR_NOTE = (
+    "`name:value`: only frames whose label gives that frame attribute that value (a flag: "
+    "`true`/`false`; a number: as written, `3` matches 3.0); repeated: every one given."
+)
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
@@ -268,6 +281,11 @@ def list_frames(
         ),
     ] = None,
     unstable: Annotated[bool, Query(description=UNSTABLE_NOTE)] = False,
+    class_: Annotated[
+        list[str] | None, Query(alias="class", max_length=8, description=CLASS_NOTE)
+    ] = None,
+    tag: Annotated[list[str] | None, Query(max_length=8, description=TAG_NOTE)] = None,
+    attr: Annotated[list[str] | None, Query(max_length=8, description=ATTR_NOTE)] = None,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -281,6 +299,11 @@ def list_frames(
 ) -> FramePage:
     """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
     work = assignee == "me" and status is None and review is None
+    held = (
+        facets.filter_conditions(labelconfig.current(session), class_ or (), tag or (), attr or ())
+        if class_ or tag or attr
+        else ()
+    )
     page = listing.list_frames(
         session,
         sequence_id=sequence_id,
@@ -296,6 +319,7 @@ def list_frames(
         review=review,
         work_for=user.id if work else None,
         unstable=unstable,
+        facets=held,
     )
     reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(
