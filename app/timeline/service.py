@@ -24,10 +24,12 @@ from app.core.errors import MissingFile
 from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
+from app.labelconfig import service as labelconfig
 from app.proposals import policy
 from app.storage import Storage
 from app.storage.pixels import load_mask
 from app.system.doctor import frame_file_missing
+from app.timeline.classes import configured, frame_classes
 from weldpool_core.geometry import PoolShape, pool_shape
 
 if TYPE_CHECKING:
@@ -119,11 +121,12 @@ def _row(source: Source, label: Label | None, geometry: Any, scale: float | None
         "missing_file": lost,
     }
     none = {"area_mm2": None, "length_mm": None, "width_mm": None}
-    return row | (geometry.in_mm(scale) if geometry else none)
+    return row | (geometry.in_mm(scale) if geometry else none) | frame_classes(label, scale)
 
 
 def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> dict[str, Any]:
-    """Every frame of the run in frame order, with its geometry, source and confidence."""
+    """Every frame of the run in frame order, with its geometry, source and confidence, and
+    its label's other classes and tags (``app.timeline.classes``)."""
     sequence = get_sequence(session, sequence_id)
     frames = list(
         session.scalars(
@@ -160,7 +163,7 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
             "joint_type": sequence.joint_type,
         },
         "frames": rows,
-    }
+    } | configured(labelconfig.current(session))
 
 
 def _measured(shapes: dict[str, Any], path: str | None, travel: float | None) -> Any:
