@@ -10,6 +10,7 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session, aliased
 
 from app.core.errors import MissingFile
+from app.metrics.classes import class_figures
 from app.core.models import (
     Frame,
     Label,
@@ -164,5 +165,6 @@ def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
         "teacher": teacher_quality(session, storage),
         "review": review_figures(session),
         "agreement": run_agreement(session, storage),
+        "classes": class_figures(session),
         "queue": {"scored_frames": int(scored or 0)},
     }
