@@ -36,7 +36,7 @@ function classesSection(figures) {
       "Per class, the frames whose label holds it (the pool: a pool mask), its objects, and the frames among them whose label is approved (with the review stage off, every saved label). ",
       h("a", { href: "/api/v1/metrics/classes?format=csv", download: "", "data-testid": "classes-csv" }, "CSV")),
     table(["class", "kind", "frames labelled", "objects", "reviewed"],
-      figures.classes.map((c) => [h("a", { href: `/?class=${encodeURIComponent(c.name)}&status=all&order=id` }, c.name), kind(c), String(c.frames), String(c.objects), String(c.reviewed)]),
+      figures.classes.map((c) => [c.configured ? h("a", { href: `/?class=${encodeURIComponent(c.name)}&status=all&order=id` }, c.name) : c.name, kind(c), String(c.frames), String(c.objects), String(c.reviewed)]),
       "class-table"),
     figures.tags.length
       ? table(["frame tag", "frames tagged"],
