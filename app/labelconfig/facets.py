@@ -63,9 +63,7 @@ def label_facets(values: Mapping[str, Any]) -> list[Facet]:
     return facets
 
 
-def index_label(
-    session: Session, frame_id: int, values: Mapping[str, Any], *, new: bool
-) -> None:
+def index_label(session: Session, frame_id: int, values: Mapping[str, Any], *, new: bool) -> None:
     """Write the facets of the label ``values`` describe (the label writer's one call, in its
     transaction): a new label's rows are added to the session (flushed with the label, a
     batch's all at once), an updated one's replace the rows it had."""

@@ -10,7 +10,6 @@ import sqlalchemy as sa
 from sqlalchemy.orm import Session, aliased
 
 from app.core.errors import MissingFile
-from app.metrics.classes import class_figures
 from app.core.models import (
     Frame,
     Label,
@@ -20,6 +19,7 @@ from app.core.models import (
     Proposal,
     Sequence,
 )
+from app.metrics.classes import class_figures
 from app.proposals.policy import current, source_key, stored_iou
 from app.review.agreement import run_agreement
 from app.storage import Storage

@@ -38,6 +38,7 @@ function classesSection(figures) {
     table(["class", "kind", "frames labelled", "objects", "reviewed"],
       figures.classes.map((c) => [c.configured ? h("a", { href: `/?class=${encodeURIComponent(c.name)}&status=all&order=id` }, c.name) : c.name, kind(c), String(c.frames), String(c.objects), String(c.reviewed)]),
       "class-table"),
+    h("h3", {}, "Frame tags"),
     figures.tags.length
       ? table(["frame tag", "frames tagged"],
         figures.tags.map((t) => [h("a", { href: `/?tag=${encodeURIComponent(t.name)}&status=all&order=id` }, t.name), String(t.frames)]),

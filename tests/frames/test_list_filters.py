@@ -83,7 +83,9 @@ def lab(client: TestClient, make_user) -> dict:
         body = corrected_label(_pool()) | extra
         if extra.get("status") == "rejected":
             body.pop("mask_png")
-        saved = client.put(f"/api/v1/frames/{ids[number - 1]}/label", json=body, headers=auth(admin))
+        saved = client.put(
+            f"/api/v1/frames/{ids[number - 1]}/label", json=body, headers=auth(admin)
+        )
         assert saved.status_code == 200, saved.text
     return {"token": admin, "ids": ids, "run": run}
 
@@ -146,10 +148,16 @@ def test_a_filtered_list_pages_by_cursor(client: TestClient, lab: dict) -> None:
 @pytest.mark.parametrize(
     ("params", "words"),
     [
-        ({"class": "rope"}, "There is no class 'rope' in the label configuration (its classes: "
-         "'pool', 'wire', 'spatter', 'wire tip')."),
-        ({"tag": "porosity"}, "There is no frame tag 'porosity' in the label configuration (its "
-         "tags: 'humping', 'arc unstable')."),
+        (
+            {"class": "rope"},
+            "There is no class 'rope' in the label configuration (its classes: "
+            "'pool', 'wire', 'spatter', 'wire tip').",
+        ),
+        (
+            {"tag": "porosity"},
+            "There is no frame tag 'porosity' in the label configuration (its "
+            "tags: 'humping', 'arc unstable').",
+        ),
         ({"attr": "joint"}, "name:value"),
         ({"attr": "weather:rain"}, "its frame attributes: 'joint', 'hot', 'current', 'note'"),
         ({"attr": "joint:lap"}, "its options: 'butt', 'fillet'"),
@@ -202,7 +210,9 @@ def test_the_facets_follow_each_save_and_go_with_the_frame(
     assert ("class", "spatter", "", 2) in _facets(session_factory, second)
     # rejected: no pool any more
     rejected = {"status": "rejected", "base_revision": 2}
-    assert client.put(f"/api/v1/frames/{second}/label", json=rejected, headers=auth(token)).is_success
+    assert client.put(
+        f"/api/v1/frames/{second}/label", json=rejected, headers=auth(token)
+    ).is_success
     assert _listed(client, lab, **{"class": "pool"}) == [1, 4, 6, 7]
     deleted = client.request(
         "DELETE", f"/api/v1/frames/{second}", params={"force": "true"}, headers=auth(token)

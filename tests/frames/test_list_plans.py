@@ -170,7 +170,9 @@ def test_a_class_filter_reads_the_facets_index(sqlite_sessions: Any) -> None:
                 for plan in (_plan(connection, ordered.limit(50)), _plan(connection, count)):
                     assert "INDEX ix_label_facets_lookup" in plan, (given, order, plan)
                     assert "SCAN label_facets" not in plan, plan
-        ordered, count = list_query(order="id", facets=filter_conditions(Current(1, config), ["wire"]))
+        ordered, count = list_query(
+            order="id", facets=filter_conditions(Current(1, config), ["wire"])
+        )
         assert "TEMP B-TREE" not in _plan(connection, ordered.limit(50))
         assert [f.id for f in session.scalars(ordered.limit(50))] == list(ids[::7])
         assert session.scalar(count) == len(ids[::7])

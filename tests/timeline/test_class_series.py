@@ -40,7 +40,9 @@ def run(client: TestClient, make_user) -> dict:
     token = make_user("ada", Role.admin)[1]
     assert client.put("/api/v1/label-config", json=LAB, headers=auth(token)).is_success
     sequence = client.post("/api/v1/sequences", json={"name": "Run"}, headers=auth(token)).json()
-    client.patch(f"/api/v1/sequences/{sequence['id']}", json={"mm_per_px": 0.1}, headers=auth(token))
+    client.patch(
+        f"/api/v1/sequences/{sequence['id']}", json={"mm_per_px": 0.1}, headers=auth(token)
+    )
     files = [("files", (f"t{i}.png", image_bytes(W, H, seed=i), "image/png")) for i in range(3)]
     stored = client.post(
         "/api/v1/frames", files=files, data={"sequence_id": sequence["id"]}, headers=auth(token)
@@ -73,7 +75,10 @@ def test_each_frame_has_its_classes_figures_and_tags(client: TestClient, run: di
     assert timeline["frame_tags"] == ["humping", "arc unstable"]
     first, second, third = timeline["frames"]
     assert first["classes"]["wire"] == {
-        "count": 1, "area_px": 200, "area_mm2": pytest.approx(2.0), "points": {}
+        "count": 1,
+        "area_px": 200,
+        "area_mm2": pytest.approx(2.0),
+        "points": {},
     }
     spatter = first["classes"]["spatter"]
     assert spatter["count"] == 2 and spatter["area_px"] == 12 + 25

@@ -39,7 +39,9 @@ def _objects(i: int) -> list[dict[str, Any]]:
         for k in range(i % 4)
     ]
     if i % 2 == 0:
-        objects.append({"class": "wire", "polygons": [[[600, 0], [680, 0], [660, 300], [620, 300]]]})
+        objects.append(
+            {"class": "wire", "polygons": [[[600, 0], [680, 0], [660, 300], [620, 300]]]}
+        )
     objects.append({"class": "wire tip", "points": {"tip": [640, 300 + 5 * i]}})
     return objects
 
@@ -53,7 +55,9 @@ def run(server: LiveServer) -> Any:
     """A run of 12 frames, 10 labelled with wires, spatters, tips, tags and joints, under its
     own label configuration (the previous one is put back after)."""
     before = server.api("GET", "/label-config", user="ada").json()
-    saved = server.api("PUT", "/label-config", user="ada", json=LAB | {"version": before["version"]})
+    saved = server.api(
+        "PUT", "/label-config", user="ada", json=LAB | {"version": before["version"]}
+    )
     assert saved.status_code == 200, saved.text
     run_id = server.api("POST", "/sequences", json={"name": "classes run"}).json()["id"]
     files = [
@@ -68,9 +72,10 @@ def run(server: LiveServer) -> Any:
         label = server.api("PUT", f"/frames/{frame_id}/label", json=body)
         assert label.status_code == 200, label.text
     yield run_id, ids
-    back = {
-        k: before[k] for k in ("classes", "frame_tags", "frame_attributes") if k in before
-    } | {"version": saved.json()["version"], "force": True}
+    back = {k: before[k] for k in ("classes", "frame_tags", "frame_attributes") if k in before} | {
+        "version": saved.json()["version"],
+        "force": True,
+    }
     assert server.api("PUT", "/label-config", user="ada", json=back).status_code == 200
 
 
@@ -121,7 +126,7 @@ def test_the_frames_list_filters_by_class_tag_and_attribute(
 def test_the_timeline_plots_a_class_and_marks_tagged_frames(
     page: Any, server: LiveServer, run: Any
 ) -> None:
-    run_id, ids = run
+    run_id, _ = run
     login(page, server)
     page.goto(f"{server.url}/sequences/{run_id}")
     page.wait_for_selector("body[data-ready]")
