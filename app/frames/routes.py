@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 import anyio
-from fastapi import APIRouter, Query, Request, status
+from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
 
@@ -245,11 +245,28 @@ ATTR_NOTE = (
 )
 
 
+def label_filters(
+    session: SessionDep,
+    class_: Annotated[
+        list[str] | None, Query(alias="class", max_length=8, description=CLASS_NOTE)
+    ] = None,
+    tag: Annotated[list[str] | None, Query(max_length=8, description=TAG_NOTE)] = None,
+    attr: Annotated[list[str] | None, Query(max_length=8, description=ATTR_NOTE)] = None,
+) -> list[Any]:
+    """The list's conditions on what labels hold (``app.labelconfig.facets``), checked
+    against the label configuration in force (read only when one is given)."""
+    if not (class_ or tag or attr):
+        return []
+    config = labelconfig.current(session)
+    return facets.filter_conditions(config, class_ or (), tag or (), attr or ())
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
     settings: SettingsDep,
     user: CurrentUser,
+    held: Annotated[list[Any], Depends(label_filters)],
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: Annotated[
         FrameStatus | Literal["unreviewed", "all"] | None,
@@ -281,11 +298,6 @@ def list_frames(
         ),
     ] = None,
     unstable: Annotated[bool, Query(description=UNSTABLE_NOTE)] = False,
-    class_: Annotated[
-        list[str] | None, Query(alias="class", max_length=8, description=CLASS_NOTE)
-    ] = None,
-    tag: Annotated[list[str] | None, Query(max_length=8, description=TAG_NOTE)] = None,
-    attr: Annotated[list[str] | None, Query(max_length=8, description=ATTR_NOTE)] = None,
     limit: int = Query(50, ge=1, le=500),
     offset: OffsetQuery = 0,
     after: Annotated[
@@ -299,11 +311,6 @@ def list_frames(
 ) -> FramePage:
     """Frames, filtered and paginated (by `offset`, or by the cursor `after`)."""
     work = assignee == "me" and status is None and review is None
-    held = (
-        facets.filter_conditions(labelconfig.current(session), class_ or (), tag or (), attr or ())
-        if class_ or tag or attr
-        else ()
-    )
     page = listing.list_frames(
         session,
         sequence_id=sequence_id,
