@@ -203,17 +203,41 @@ CSV_COLUMNS = (
 
 
 def geometry_csv(timeline: dict[str, Any]) -> str:
-    """The timeline as CSV: one row per frame, keypoints as k1_x, k1_y, … at the end."""
+    """The timeline as CSV: one row per frame; its tags (``;`` between them) and each other
+    class's objects and summed area (``<class> objects``, ``<class> area_px``; empty without a
+    label); keypoints as k1_x, k1_y, … at the end."""
     k = max((len(row["keypoints"]) for row in timeline["frames"]), default=0)
+    names = [c["name"] for c in timeline.get("classes", [])]
     out = io.StringIO()
     writer = csv.writer(out)
-    writer.writerow([*CSV_COLUMNS, *(f"k{i + 1}_{axis}" for i in range(k) for axis in "xy")])
+    writer.writerow(
+        [
+            *CSV_COLUMNS,
+            "tags",
+            *(f"{name} {what}" for name in names for what in ("objects", "area_px")),
+            *(f"k{i + 1}_{axis}" for i in range(k) for axis in "xy"),
+        ]
+    )
     for row in timeline["frames"]:
         centroid = row["centroid"] or [None, None]
         flat = {**row, "centroid_x": centroid[0], "centroid_y": centroid[1]}
         points = [v for point in row["keypoints"] for v in point]
         points += [None] * (2 * k - len(points))
-        writer.writerow([_cell(flat[c]) for c in CSV_COLUMNS] + [_cell(v) for v in points])
+        labelled = row["source"] == "label"
+        held = [
+            _cell(v)
+            for name in names
+            for v in (
+                (row["classes"].get(name) or {}).get("count", 0) if labelled else None,
+                (row["classes"].get(name) or {}).get("area_px"),
+            )
+        ]
+        writer.writerow(
+            [_cell(flat[c]) for c in CSV_COLUMNS]
+            + [";".join(row.get("tags", []))]
+            + held
+            + [_cell(v) for v in points]
+        )
     return out.getvalue()
 
 

@@ -3,6 +3,9 @@ and mean point positions from its label, and the frame's tags; on SQLite and Pos
 
 from __future__ import annotations
 
+import csv
+import io
+
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -92,3 +95,30 @@ def test_each_frame_has_its_classes_figures_and_tags(client: TestClient, run: di
     }
     assert second["tags"] == ["arc unstable", "humping"]  # as the label stores them
     assert third["classes"] == {} and third["tags"] == []
+
+
+def test_the_csv_has_the_tags_and_each_classs_objects_and_area(
+    client: TestClient, run: dict
+) -> None:
+    text = client.get(
+        f"/api/v1/sequences/{run['sequence_id']}/geometry",
+        params={"format": "csv"},
+        headers=auth(run["token"]),
+    ).text
+    rows = list(csv.DictReader(io.StringIO(text)))
+    picked = [
+        (
+            r["tags"],
+            r["wire objects"],
+            r["wire area_px"],
+            r["spatter objects"],
+            r["spatter area_px"],
+        )
+        for r in rows
+    ]
+    assert picked == [
+        ("humping", "1", "200", "2", "37"),
+        ("arc unstable;humping", "1", "20", "0", ""),
+        ("", "", "", "", ""),  # no label: nothing known
+    ]
+    assert rows[0]["wire tip objects"] == "2" and rows[0]["wire tip area_px"] == ""
