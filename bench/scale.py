@@ -6,7 +6,8 @@ local default, in a schema of its own that is dropped afterwards).
 
 It fills one weld run with N scored frames as ingest and the teacher leave them (status, split,
 uncertainty with its components, a 384-float DINO descriptor; no image files: lists never read
-them), then times ``GET /api/v1/frames`` in process (the app's whole request path, authentication
+them; a label's facets on the accepted frames: the pool on each, a wire on one in ten), then
+times ``GET /api/v1/frames`` in process (the app's whole request path, authentication
 included) for the first page and the last page of each order, and the bare SQL of the same page
 (the ids only, the floor), and the server's part without HTTP (the list and its JSON). Median
 of several runs, milliseconds, and the process's RSS.
@@ -31,22 +32,40 @@ from results import recorded
 
 from app.core.config import Settings
 from app.core.db import create_db_engine, create_session_factory
-from app.core.models import UNREVIEWED_SQL, Frame, FrameStatus, Role, Sequence, Split, User
+from app.core.models import (
+    UNREVIEWED_SQL,
+    Frame,
+    FrameStatus,
+    LabelConfig,
+    LabelFacet,
+    Role,
+    Sequence,
+    Split,
+    User,
+)
 from app.core.schema import migrate
 from app.core.security import hash_password, issue_token
 from app.frames import listing
 from app.frames.schemas import FrameOut, FramePage
+from app.labelconfig import service as labelconfig
+from app.labelconfig.facets import filter_conditions
+from app.labelconfig.service import Current
 from app.main import create_app
 
 PAGE = 50
-# (order, status): the plain list by id, by frame index, the queue (frames still to review) and
-# the uncertainty order of every frame (the home page's default list)
-LISTS = (
-    ("id", "all"),
-    ("frame_index", "all"),
-    ("uncertainty", "unreviewed"),
-    ("uncertainty", "all"),
+# (order, status, class): the plain list by id, by frame index, the queue (frames still to
+# review), the uncertainty order of every frame (the home page's default list), and the frames
+# whose label holds a class (a wire: 2 % of the run; the pool: 20 %)
+LISTS: tuple[tuple[str, str, str | None], ...] = (
+    ("id", "all", None),
+    ("frame_index", "all", None),
+    ("uncertainty", "unreviewed", None),
+    ("uncertainty", "all", None),
+    ("id", "all", "wire"),
+    ("id", "all", "pool"),
+    ("uncertainty", "all", "wire"),
 )
+CONFIG = {"classes": [{"name": "pool", "kind": "mask"}, {"name": "wire", "kind": "mask"}]}
 POSTGRES = os.environ.get(
     "WELDPOOL_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 )
@@ -90,16 +109,40 @@ def fill(session_factory: Any, count: int) -> tuple[int, str]:
             )
         for start in range(0, len(rows), 1000):
             session.execute(sa.insert(Frame), rows[start : start + 1000])
+        session.add(LabelConfig(version=1, config=CONFIG, user_id=user.id))
+        accepted = session.scalars(
+            sa.select(Frame.id).where(Frame.status == FrameStatus.accepted).order_by(Frame.id)
+        ).all()
+        facets = [{"frame_id": i, "kind": "class", "key": "pool", "value": ""} for i in accepted]
+        facets += [
+            {"frame_id": i, "kind": "class", "key": "wire", "value": ""} for i in accepted[::10]
+        ]
+        for start in range(0, len(facets), 1000):
+            session.execute(sa.insert(LabelFacet), facets[start : start + 1000])
         session.commit()
         return run.id, token
 
 
+def held(name: str | None) -> list[Any]:
+    """The list's conditions on a class its labels hold."""
+    return filter_conditions(Current(1, CONFIG), [name]) if name else []
+
+
 def page_json(
-    app: Any, run_id: int, order: str, status: str, offset: int, after: str | None = None
+    app: Any,
+    run_id: int,
+    order: str,
+    status: str,
+    offset: int,
+    after: str | None = None,
+    name: str | None = None,
 ) -> str:
-    """What the route does for a page, without HTTP: the list, its rows as JSON."""
+    """What the route does for a page, without HTTP: the list, its rows as JSON (with a class
+    filter, the configuration read as the route reads it)."""
     settings = app.state.settings
     with app.state.session_factory() as session:
+        if name:
+            labelconfig.current(session)
         page = listing.list_frames(
             session,
             sequence_id=run_id,
@@ -110,6 +153,7 @@ def page_json(
             after=after,
             diversity=settings.queue_diversity,
             diversity_pool=settings.queue_diversity_pool,
+            facets=held(name),
         )
         return FramePage(
             items=[FrameOut.model_validate(r) for r in page.rows],
@@ -120,11 +164,16 @@ def page_json(
         ).model_dump_json()
 
 
-def cursor_before(app: Any, run_id: int, order: str, status: str, offset: int) -> str:
+def cursor_before(
+    app: Any, run_id: int, order: str, status: str, offset: int, name: str | None
+) -> str:
     """The cursor whose next page starts at ``offset`` (the previous row's sort key)."""
     with app.state.session_factory() as session:
         ordered, _ = listing.list_query(
-            sequence_id=run_id, status=None if status == "all" else "unreviewed", order=order
+            sequence_id=run_id,
+            status=None if status == "all" else "unreviewed",
+            order=order,
+            facets=held(name),
         )
         row = session.scalars(ordered.offset(offset - 1).limit(1)).one()
         return listing.cursor_after(row, order)
@@ -204,6 +253,7 @@ def main() -> None:
             if args.database == "postgresql":  # the statistics autovacuum would have gathered
                 with engine.begin() as connection:
                     connection.execute(sa.text("ANALYZE frames"))
+                    connection.execute(sa.text("ANALYZE label_facets"))
             headers = {"Authorization": f"Bearer {token}"}
             app = create_app(settings)
             made = "indexes made in reverse order" if args.reverse_indexes else "indexes by name"
@@ -213,38 +263,45 @@ def main() -> None:
             firsts: dict[str, float] = {}
             plain_pages: dict[str, Any] = {}
             with TestClient(app) as client, engine.connect() as connection:
-                for order, status in LISTS:
-                    where = [Frame.sequence_id == run_id]
+                for order, status, name in LISTS:
+                    where = [Frame.sequence_id == run_id, *held(name)]
                     if status == "unreviewed":
                         where.append(sa.text(f"frames.{UNREVIEWED_SQL}"))
                     total = connection.scalar(
                         sa.select(sa.func.count()).select_from(Frame).where(*where)
                     )
                     last = max(0, total - PAGE)
-                    for name, offset, by_cursor in (
+                    for which, offset, by_cursor in (
                         ("first", 0, False),
                         ("last", last, False),
                         ("last", last, True),
                     ):
+                        if by_cursor and offset == 0:  # one page: no cursor to follow
+                            continue
                         after = (
-                            cursor_before(app, run_id, order, status, offset) if by_cursor else None
+                            cursor_before(app, run_id, order, status, offset, name)
+                            if by_cursor
+                            else None
                         )
                         path = (
                             f"/api/v1/frames?sequence_id={run_id}&order={order}&status={status}"
-                            f"&limit={PAGE}&" + (f"after={after}" if after else f"offset={offset}")
+                            + (f"&class={name}" if name else "")
+                            + f"&limit={PAGE}&"
+                            + (f"after={after}" if after else f"offset={offset}")
                         )
                         api = median_ms(lambda p=path: client.get(p, headers=headers), args.runs)
                         page = functools.partial(
-                            page_json, app, run_id, order, status, offset, after
+                            page_json, app, run_id, order, status, offset, after, name
                         )
                         server = median_ms(page, args.runs)
-                        kind = "cursor" if after else name
+                        kind = "cursor" if after else which
                         plain_pages.setdefault(kind, page)  # the plain list's (by id) first
                         ratio = paired_ratio(page, plain_pages[kind], args.runs)
                         ordered, _ = listing.list_query(
                             sequence_id=run_id,
                             status=None if status == "all" else "unreviewed",
                             order=order,
+                            facets=held(name),
                         )  # the page's query (with the index it names), reading the ids alone
                         floor_query = ordered.with_only_columns(Frame.id)
                         if after:
@@ -260,10 +317,11 @@ def main() -> None:
                             lambda q=floor_query: connection.execute(q).all(), args.runs
                         )
                         how = "cursor" if after else f"offset {offset}"
-                        if name == "first":
-                            firsts[f"{order} ({status})"] = server
+                        label = f"{order} ({status})" + (f" class={name}" if name else "")
+                        if which == "first":
+                            firsts[label] = server
                         print(
-                            f"| {order} ({status}) | {name} ({how}) | {api:.1f} | "
+                            f"| {label} | {which} ({how}) | {api:.1f} | "
                             f"{server:.1f} | {floor:.2f} | {ratio:.2f}× |",
                             flush=True,
                         )
@@ -271,6 +329,11 @@ def main() -> None:
             print(
                 f"\nthe queue's first page (its diversity pick included) ÷ the other lists' first "
                 f"pages, server time: {firsts['uncertainty (unreviewed)'] / others:.2f}×"
+            )
+            print(
+                "a class filter's first page ÷ the plain list's (by id), server time: "
+                f"wire {firsts['id (all) class=wire'] / firsts['id (all)']:.2f}×, "
+                f"pool {firsts['id (all) class=pool'] / firsts['id (all)']:.2f}×"
             )
             print(f"RSS of this process: {rss_mb():.0f} MB")
             engine.dispose()

@@ -11,6 +11,7 @@ from sqlalchemy.orm import Mapped, Session, mapped_column, relationship
 
 from app.core.db import Base, JSONType, UTCDateTime, enum_type, has_table, utcnow
 from app.core.errors import NotFoundError
+from app.core.facet_table import LabelFacet as LabelFacet  # what a label holds, to filter on
 from app.core.job_tables import ONE_AT_A_TIME as ONE_AT_A_TIME  # the jobs' tables, re-exported:
 from app.core.job_tables import Job as Job  # every table is imported from here
 from app.core.job_tables import JobChunk as JobChunk

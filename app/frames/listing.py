@@ -61,13 +61,15 @@ def list_query(
     review: ReviewState | None = None,
     work_for: int | None = None,
     unstable: bool = False,
+    facets: Seq[Any] = (),
 ) -> tuple[sa.Select[Any], sa.Select[Any]]:
     """The ordered query of a frame list and the query of its count (which reads no row);
     ``assignee``: the frames handed to that user, or (``none``) to nobody; ``review``: the
     frames whose label is in that state of the review stage (approved: NULL too);
     ``work_for``: that user's work (``app.users.work``), what was sent back to them first;
-    ``unstable``: only frames inside their run's unstable stretches (``app.process``)."""
-    conditions: list[Any] = []
+    ``unstable``: only frames inside their run's unstable stretches (``app.process``);
+    ``facets``: conditions on what the label holds (``app.labelconfig.facets``)."""
+    conditions: list[Any] = [*facets]
     first: tuple[Any, ...] = ()
     if work_for is not None:
         conditions.append(work_of(work_for))
@@ -93,7 +95,7 @@ def list_query(
         conditions.append(Frame.split == split)
     count = sa.select(sa.func.count()).select_from(Frame).where(*conditions)
     ordered = sa.select(Frame).where(*conditions).order_by(*first, *ORDERINGS[order])
-    plain = review is None and assignee is None and split is None
+    plain = review is None and assignee is None and split is None and not facets
     page_index, count_index = _sqlite_indexes(order, status, sequence_id is not None, plain)
     if page_index:
         ordered = ordered.with_hint(Frame, f"INDEXED BY {page_index}", "sqlite")
@@ -261,6 +263,7 @@ def list_frames(
     review: ReviewState | None = None,
     work_for: int | None = None,
     unstable: bool = False,
+    facets: Seq[Any] = (),
 ) -> FramePageResult:
     """Frames filtered and paginated by ``offset`` or by the cursor ``after`` (keyset: no row
     before the page is read); ``order=uncertainty`` is the review queue (most unsure first,
@@ -280,6 +283,7 @@ def list_frames(
         review=review,
         work_for=work_for,
         unstable=unstable,
+        facets=facets,
     )
     total = session.scalar(count) or 0
     if work_for is not None:

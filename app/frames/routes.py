@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 import anyio
-from fastapi import APIRouter, Query, Request, status
+from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse, Response
 
@@ -36,6 +36,8 @@ from app.frames.schemas import (
     VideoOut,
 )
 from app.jobs.service import create_job
+from app.labelconfig import facets
+from app.labelconfig import service as labelconfig
 from app.system.doctor import frame_file
 
 router = APIRouter(tags=["frames"])
@@ -232,11 +234,39 @@ UNSTABLE_NOTE = (
 )
 
 
+CLASS_NOTE = (
+    "Only frames whose label holds an object of this class (`pool`: a pool mask); repeated: "
+    "every class given. An unknown class is a 400 naming the configured ones."
+)
+TAG_NOTE = "Only frames whose label has this frame tag; repeated: every tag given."
+ATTR_NOTE = (
+    "`name:value`: only frames whose label gives that frame attribute that value (a flag: "
+    "`true`/`false`; a number: as written, `3` matches 3.0); repeated: every one given."
+)
+
+
+def label_filters(
+    session: SessionDep,
+    class_: Annotated[
+        list[str] | None, Query(alias="class", max_length=8, description=CLASS_NOTE)
+    ] = None,
+    tag: Annotated[list[str] | None, Query(max_length=8, description=TAG_NOTE)] = None,
+    attr: Annotated[list[str] | None, Query(max_length=8, description=ATTR_NOTE)] = None,
+) -> list[Any]:
+    """The list's conditions on what labels hold (``app.labelconfig.facets``), checked
+    against the label configuration in force (read only when one is given)."""
+    if not (class_ or tag or attr):
+        return []
+    config = labelconfig.current(session)
+    return facets.filter_conditions(config, class_ or (), tag or (), attr or ())
+
+
 @router.get("/frames", response_model=FramePage)
 def list_frames(
     session: SessionDep,
     settings: SettingsDep,
     user: CurrentUser,
+    held: Annotated[list[Any], Depends(label_filters)],
     sequence_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: Annotated[
         FrameStatus | Literal["unreviewed", "all"] | None,
@@ -296,6 +326,7 @@ def list_frames(
         review=review,
         work_for=user.id if work else None,
         unstable=unstable,
+        facets=held,
     )
     reviews = listing.review_states(session, [r.id for r in page.rows])
     return FramePage(

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Query, Response
 from app.core.deps import SessionDep, StorageDep
 from app.core.errors import InvalidInputError
 from app.core.security import CurrentUser
+from app.metrics.classes import class_figures, classes_csv
 from app.metrics.people import IDLE_GAP_S, people_csv, people_figures
 from app.metrics.service import all_metrics
 
@@ -21,8 +22,30 @@ def metrics(session: SessionDep, storage: StorageDep, _user: CurrentUser) -> dic
     """Student mIoU / mED per version against its training labels (the learning curve), the
     teacher's mIoU against reviewed masks per sequence (leaving out the labels that kept the
     teacher's mask unchanged; `including_unchanged` has them), the reviewers' acceptance rate
-    of teacher proposals, and reviews per day."""
+    of teacher proposals, reviews per day, and per class and frame tag the frames labelled
+    with it (`classes`, as `/metrics/classes` gives them)."""
     return all_metrics(session, storage)
+
+
+@router.get(
+    "/metrics/classes",
+    responses={200: {"content": {"text/csv": {"schema": {"type": "string"}}}}},
+)
+def classes(
+    session: SessionDep, _user: CurrentUser, format: Literal["json", "csv"] = "json"
+) -> Any:
+    """Per class: the frames whose label holds it (`pool`: a pool mask), its objects, and the
+    frames among them whose label is approved (the review stage off: every saved label); per
+    frame tag: the frames tagged. Classes and tags the configuration no longer has but labels
+    still hold come last, `configured` false."""
+    figures = class_figures(session)
+    if format == "csv":
+        return Response(
+            classes_csv(figures),
+            media_type="text/csv",
+            headers={"Content-Disposition": 'attachment; filename="weldpool-classes.csv"'},
+        )
+    return figures
 
 
 PeriodQuery = Annotated[

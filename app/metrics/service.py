@@ -19,6 +19,7 @@ from app.core.models import (
     Proposal,
     Sequence,
 )
+from app.metrics.classes import class_figures
 from app.proposals.policy import current, source_key, stored_iou
 from app.review.agreement import run_agreement
 from app.storage import Storage
@@ -164,5 +165,6 @@ def all_metrics(session: Session, storage: Storage) -> dict[str, Any]:
         "teacher": teacher_quality(session, storage),
         "review": review_figures(session),
         "agreement": run_agreement(session, storage),
+        "classes": class_figures(session),
         "queue": {"scored_frames": int(scored or 0)},
     }

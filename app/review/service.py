@@ -28,6 +28,7 @@ from app.core.models import (
     ValidationKeypoints,
 )
 from app.core.permissions import Action, may
+from app.labelconfig import facets as labelfacets
 from app.labelconfig import service as labelconfig
 from app.proposals.files import masks_in_use, store_mask_file
 from app.proposals.policy import pick
@@ -237,7 +238,9 @@ def write_label(
 ) -> Label:
     """The label row (new, or updated only at ``base_revision``) and its history row. A new
     row is flushed at once (a concurrent first label fails here) unless ``flush`` is False (a
-    batch flushes all of its rows at its commit)."""
+    batch flushes all of its rows at its commit). The label's facets (what the frames list
+    filters on) are written with it."""
+    new = label is None
     if label is None:
         label = Label(frame_id=frame.id, revision=1, **values)
         session.add(label)
@@ -269,6 +272,7 @@ def write_label(
             user_id=values["updated_by_id"],
         )
     )
+    labelfacets.index_label(session, frame.id, values, new=new)
     frame.status = FrameStatus(values["status"].value)
     return label
 

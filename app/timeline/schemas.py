@@ -25,6 +25,25 @@ class FrameGeometry(BaseModel):
     missing_file: str | None = Field(
         None, description="Why the frame has no geometry when its mask file is lost."
     )
+    classes: dict[str, ClassFigures] = Field(
+        default_factory=dict, description="The label's other classes, by name (none: absent)."
+    )
+    tags: list[str] = Field(default_factory=list, description="The label's frame tags.")
+
+
+class ClassFigures(BaseModel):
+    count: int = Field(description="The class's objects on the frame's label.")
+    area_px: int | None = Field(description="Their areas summed (mask and instances classes).")
+    area_mm2: float | None
+    points: dict[str, list[float]] = Field(
+        description="A points class: each named point, the mean over its objects (px)."
+    )
+
+
+class ConfiguredClass(BaseModel):
+    name: str
+    kind: str
+    point_names: list[str] | None
 
 
 class Timeline(BaseModel):
@@ -37,3 +56,7 @@ class Timeline(BaseModel):
     travel_source: str | None
     process: dict[str, float | str | None]
     frames: list[FrameGeometry]
+    classes: list[ConfiguredClass] = Field(
+        default_factory=list, description="The configured classes beside the pool."
+    )
+    frame_tags: list[str] = Field(default_factory=list, description="The configured tags.")

@@ -24,10 +24,12 @@ from app.core.errors import MissingFile
 from app.core.models import Frame, Label, LabelStatus, Proposal
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
+from app.labelconfig import service as labelconfig
 from app.proposals import policy
 from app.storage import Storage
 from app.storage.pixels import load_mask
 from app.system.doctor import frame_file_missing
+from app.timeline.classes import configured, frame_classes
 from weldpool_core.geometry import PoolShape, pool_shape
 
 if TYPE_CHECKING:
@@ -119,11 +121,12 @@ def _row(source: Source, label: Label | None, geometry: Any, scale: float | None
         "missing_file": lost,
     }
     none = {"area_mm2": None, "length_mm": None, "width_mm": None}
-    return row | (geometry.in_mm(scale) if geometry else none)
+    return row | (geometry.in_mm(scale) if geometry else none) | frame_classes(label, scale)
 
 
 def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> dict[str, Any]:
-    """Every frame of the run in frame order, with its geometry, source and confidence."""
+    """Every frame of the run in frame order, with its geometry, source and confidence, and
+    its label's other classes and tags (``app.timeline.classes``)."""
     sequence = get_sequence(session, sequence_id)
     frames = list(
         session.scalars(
@@ -160,7 +163,7 @@ def sequence_geometry(session: Session, storage: Storage, sequence_id: int) -> d
             "joint_type": sequence.joint_type,
         },
         "frames": rows,
-    }
+    } | configured(labelconfig.current(session))
 
 
 def _measured(shapes: dict[str, Any], path: str | None, travel: float | None) -> Any:
@@ -200,17 +203,41 @@ CSV_COLUMNS = (
 
 
 def geometry_csv(timeline: dict[str, Any]) -> str:
-    """The timeline as CSV: one row per frame, keypoints as k1_x, k1_y, … at the end."""
+    """The timeline as CSV: one row per frame; its tags (``;`` between them) and each other
+    class's objects and summed area (``<class> objects``, ``<class> area_px``; empty without a
+    label); keypoints as k1_x, k1_y, … at the end."""
     k = max((len(row["keypoints"]) for row in timeline["frames"]), default=0)
+    names = [c["name"] for c in timeline.get("classes", [])]
     out = io.StringIO()
     writer = csv.writer(out)
-    writer.writerow([*CSV_COLUMNS, *(f"k{i + 1}_{axis}" for i in range(k) for axis in "xy")])
+    writer.writerow(
+        [
+            *CSV_COLUMNS,
+            "tags",
+            *(f"{name} {what}" for name in names for what in ("objects", "area_px")),
+            *(f"k{i + 1}_{axis}" for i in range(k) for axis in "xy"),
+        ]
+    )
     for row in timeline["frames"]:
         centroid = row["centroid"] or [None, None]
         flat = {**row, "centroid_x": centroid[0], "centroid_y": centroid[1]}
         points = [v for point in row["keypoints"] for v in point]
         points += [None] * (2 * k - len(points))
-        writer.writerow([_cell(flat[c]) for c in CSV_COLUMNS] + [_cell(v) for v in points])
+        labelled = row["source"] == "label"
+        held = [
+            _cell(v)
+            for name in names
+            for v in (
+                (row["classes"].get(name) or {}).get("count", 0) if labelled else None,
+                (row["classes"].get(name) or {}).get("area_px"),
+            )
+        ]
+        writer.writerow(
+            [_cell(flat[c]) for c in CSV_COLUMNS]
+            + [";".join(row.get("tags", []))]
+            + held
+            + [_cell(v) for v in points]
+        )
     return out.getvalue()
 
 

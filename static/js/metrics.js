@@ -26,6 +26,26 @@ function table(headers, rows, testid) {
     h("tbody", {}, ...rows.map((cells) => h("tr", {}, ...cells.map((c) => h("td", {}, c))))));
 }
 
+/** Per class and frame tag: the frames labelled with it, its objects, the frames approved. */
+function classesSection(figures) {
+  if (!figures) return "";
+  const kind = (c) => (c.configured ? c.kind : "no longer configured");
+  return h("section", { "data-testid": "class-figures" },
+    h("h2", {}, "Classes and tags"),
+    h("p", { class: "muted small-text" },
+      "Per class, the frames whose label holds it (the pool: a pool mask), its objects, and the frames among them whose label is approved (with the review stage off, every saved label). ",
+      h("a", { href: "/api/v1/metrics/classes?format=csv", download: "", "data-testid": "classes-csv" }, "CSV")),
+    table(["class", "kind", "frames labelled", "objects", "reviewed"],
+      figures.classes.map((c) => [c.configured ? h("a", { href: `/?class=${encodeURIComponent(c.name)}&status=all&order=id` }, c.name) : c.name, kind(c), String(c.frames), String(c.objects), String(c.reviewed)]),
+      "class-table"),
+    h("h3", {}, "Frame tags"),
+    figures.tags.length
+      ? table(["frame tag", "frames tagged"],
+        figures.tags.map((t) => [h("a", { href: `/?tag=${encodeURIComponent(t.name)}&status=all&order=id` }, t.name), String(t.frames)]),
+        "tag-table")
+      : h("p", { class: "muted" }, "No frame tags are configured (Label configuration page)."));
+}
+
 function render(data) {
   const teacher = data.teacher;
   const review = data.review;
@@ -54,6 +74,7 @@ function render(data) {
         data.agreement.map((r) => [r.sequence ?? "(no sequence)", String(r.frames), iou(r.mask_iou), px(r.keypoint_px)]),
         "agreement-table")
       : h("p", { class: "muted" }, "No frame has been labelled by two annotators yet (Frames page: select frames, “Give to several…”)."),
+    classesSection(data.classes),
     h("h2", {}, "Review"),
     h("p", { "data-testid": "acceptance" },
       `Current labels: ${labels.accepted} accepted, ${labels.corrected} corrected, ${labels.rejected} rejected. `,

@@ -5,6 +5,7 @@ import { api, ApiError, isReviewer, jobFromButton, SAM2_PROBLEM } from "./api.js
 import { leastSpan, lineChart } from "./chart.js";
 import { count, decimal, mmPerPx } from "./format.js";
 import { renderStability } from "./stability.js";
+import { markTags, renderClassSeries } from "./timeline_classes.js";
 import { h, toast } from "./ui.js";
 
 const SEQUENCE_ID = Number(document.getElementById("timeline").dataset.sequenceId);
@@ -42,6 +43,7 @@ function renderStrip() {
     if (!reviewed && row.confidence !== null) cell.style.background = confidenceColour(row.confidence);
     return cell;
   }));
+  markTags(timeline);
 }
 
 function renderCharts() {
@@ -72,6 +74,7 @@ function renderCharts() {
     series: [{ name: "confidence", colour: "#e8590c", points: rows.map((r, i) => [x(r, i), r.confidence ?? NaN]) }],
   });
   $("charts").replaceChildren(...[...charts, confidence].map((chart) => h("figure", { class: "chart-box" }, chart)));
+  renderClassSeries(timeline, { x, xLabel, xDomain, onPick });
   const withPool = rows.filter((r) => r.area_px !== null).length;
   $("geometry-note").textContent = `${count(withPool, "frame")} of ${rows.length} with a pool (reviewed label, else the proposal shown). `
     + (timeline.travel_deg !== null ? `Length is measured along ${decimal(timeline.travel_deg, 1)}° (${timeline.travel_source}), width across it. ` : "")

@@ -130,3 +130,49 @@ def test_a_new_home_makes_each_tables_indexes_in_order_of_name(sqlite_sessions: 
             )
         ).all()
     assert names == sorted(names) and "ix_frames_queue_sequence" in names
+
+
+def test_a_class_filter_reads_the_facets_index(sqlite_sessions: Any) -> None:
+    """A list filtered by a class or tag looks its frames up in ``ix_label_facets_lookup``
+    (never a scan of the facets), and its page still reads the frames in order (no sort)."""
+    from app.core.models import LabelFacet
+    from app.labelconfig.facets import filter_conditions
+    from app.labelconfig.schemas import LabelConfigBody
+    from app.labelconfig.service import Current
+
+    config = LabelConfigBody.model_validate(
+        {"classes": [{"name": "wire", "kind": "mask"}], "frame_tags": ["humping"]}
+    ).model_dump(exclude_none=True)
+    with sqlite_sessions() as session:
+        rows = [
+            {
+                "sha256": f"{i:064x}",
+                "path": f"f/{i}.png",
+                "media_type": "image/png",
+                "size_bytes": 1,
+                "width": 8,
+                "height": 8,
+                "status": FrameStatus.corrected,
+            }
+            for i in range(200)
+        ]
+        session.execute(sa.insert(Frame), rows)
+        ids = session.scalars(sa.select(Frame.id).order_by(Frame.id)).all()
+        facets = [{"frame_id": i, "kind": "class", "key": "pool", "value": ""} for i in ids]
+        facets += [{"frame_id": i, "kind": "class", "key": "wire", "value": ""} for i in ids[::7]]
+        session.execute(sa.insert(LabelFacet), facets)
+        session.commit()
+        connection = session.connection()
+        for given in ({"classes": ["wire"]}, {"tags": ["humping"]}):
+            conditions = filter_conditions(Current(1, config), **given)  # type: ignore[arg-type]
+            for order in ("id", "uncertainty"):
+                ordered, count = list_query(order=order, facets=conditions)
+                for plan in (_plan(connection, ordered.limit(50)), _plan(connection, count)):
+                    assert "INDEX ix_label_facets_lookup" in plan, (given, order, plan)
+                    assert "SCAN label_facets" not in plan, plan
+        ordered, count = list_query(
+            order="id", facets=filter_conditions(Current(1, config), ["wire"])
+        )
+        assert "TEMP B-TREE" not in _plan(connection, ordered.limit(50))
+        assert [f.id for f in session.scalars(ordered.limit(50))] == list(ids[::7])
+        assert session.scalar(count) == len(ids[::7])

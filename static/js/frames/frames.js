@@ -5,6 +5,7 @@
 
 import { toast } from "../ui.js";
 import { loadAssignees } from "./actions.js";
+import { loadClassFilters } from "./classes.js";
 import "./export.js";
 import { landing, restoreFilters, syncUrl, syncWorkFilter } from "./filters.js";
 import { loadFrames } from "./list.js";
@@ -29,6 +30,7 @@ subscribe(async (parts) => {
 document.addEventListener("labels-imported", () => changed("sequences", "filters")); // imports.js: new labels and runs
 
 await loadAssignees().catch((error) => toast(error.message, "error"));
+await loadClassFilters().catch((error) => toast(error.message, "error"));
 restoreFilters();
 await landing();
 await loadSequences().catch((error) => toast(error.message, "error"));

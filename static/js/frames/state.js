@@ -4,7 +4,7 @@
 // module imports the functions that load or draw another part of the page.
 
 export const PAGE_SIZE = 50;
-export const FILTERS = ["sequence_id", "status", "split", "review", "assignee", "order"];
+export const FILTERS = ["sequence_id", "status", "split", "review", "assignee", "order", "class", "tag", "attr"];
 /** The assignee filter's value for "my work". */
 export const WORK = "work";
 
