@@ -23,7 +23,11 @@ for labels saved before their RLE, area and box were stored with them at save ti
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
 
-A frame whose image or mask file the store lost is left out of the zip, never the whole export:
+The masks layout's mask PNGs are made from the RLE stored with each label (the same pixels as
+the label's mask file, without reading it: from an object store, no GET a mask); a label saved
+before its RLE was stored has its file copied.
+
+A frame whose image, or a mask file the export must read, the store lost is left out of the zip:
 ``skipped.txt`` lists each such frame with what restores its file (the masks layout's
 ``manifest.json`` under ``skipped`` too), and an export job's result counts them.
 """
@@ -61,7 +65,8 @@ from app.review.export_classes import (
 from app.storage import EXPORTS_DIR, Storage
 from app.storage.pixels import load_mask
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
+from weldpool_core.io import encode_mask_png
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_boxed, rle_mask
 
 if TYPE_CHECKING:
     import numpy as np
@@ -129,6 +134,21 @@ def _stored_mask(storage: Storage, label: Label) -> NDArray[np.bool_]:
         return rle_mask(label.mask_rle)
     assert label.mask_path is not None  # accepted and corrected labels have a mask
     return load_mask(storage, label.mask_path)
+
+
+def _mask_png(storage: Storage, label: Label) -> bytes | Path:
+    """A label's mask PNG for the masks layout: made from the RLE stored with it when it was
+    saved (the pixels of its stored file, which was encoded from the same mask, and no read of
+    the store: an object store's export makes no GET for masks), else its stored file."""
+    if label.mask_rle is not None:
+        try:
+            boxed = rle_boxed(label.mask_rle)
+        except (ValueError, KeyError, TypeError):  # a damaged RLE: the file says what it is
+            pass
+        else:
+            return encode_mask_png(boxed.pixels, boxed.size, boxed.origin)
+    assert label.mask_path is not None  # accepted and corrected labels have a mask
+    return storage.existing(label.mask_path)
 
 
 def _query(
@@ -319,14 +339,17 @@ def _write_masks(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     manifest = []
-    masks = _readable(storage, rows, skipped, lambda row: storage.existing(row[1].mask_path))
+    masks = _readable(storage, rows, skipped, lambda row: _mask_png(storage, row[1]))
     for done, (frame, label, sequence, manual), image, mask in masks:
         if image is None:
             yield done
             continue
         stem = _stem(frame)
         archive.write(image, f"images/{stem}{_extension(frame)}")
-        archive.write(mask, f"masks/{stem}.png")
+        if isinstance(mask, bytes):
+            archive.writestr(f"masks/{stem}.png", mask)
+        else:
+            archive.write(mask, f"masks/{stem}.png")
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
         if manual is not None:
             archive.writestr(
