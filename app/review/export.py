@@ -23,9 +23,10 @@ for labels saved before their RLE, area and box were stored with them at save ti
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
 
-The masks layout's mask PNGs are made from the RLE stored with each label (the same pixels as
-the label's mask file, without reading it: from an object store, no GET a mask); a label saved
-before its RLE was stored has its file copied.
+The masks layout copies each label's mask file where this machine holds it, and makes the PNG
+from the RLE stored with the label where it does not (the same pixels, without reading the
+store: a cold export from an object store makes no GET for masks); a label saved before its RLE
+was stored has its file read.
 
 A frame whose image, or a mask file the export must read, the store lost is left out of the zip:
 ``skipped.txt`` lists each such frame with what restores its file (the masks layout's
@@ -137,17 +138,18 @@ def _stored_mask(storage: Storage, label: Label) -> NDArray[np.bool_]:
 
 
 def _mask_png(storage: Storage, label: Label) -> bytes | Path:
-    """A label's mask PNG for the masks layout: made from the RLE stored with it when it was
-    saved (the pixels of its stored file, which was encoded from the same mask, and no read of
-    the store: an object store's export makes no GET for masks), else its stored file."""
-    if label.mask_rle is not None:
+    """A label's mask PNG for the masks layout: its file where this machine holds it (home, or
+    an object store's warm cache), else made from the RLE stored with the label: the same
+    pixels (both were made from one mask), and no read of the store (a cold export from an
+    object store GETs no mask). A label saved before its RLE was stored has its file read."""
+    assert label.mask_path is not None  # accepted and corrected labels have a mask
+    if label.mask_rle is not None and not storage.local(label.mask_path).is_file():
         try:
             boxed = rle_boxed(label.mask_rle)
         except (ValueError, KeyError, TypeError):  # a damaged RLE: the file says what it is
             pass
         else:
             return encode_mask_png(boxed.pixels, boxed.size, boxed.origin)
-    assert label.mask_path is not None  # accepted and corrected labels have a mask
     return storage.existing(label.mask_path)
 
 

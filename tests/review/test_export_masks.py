@@ -1,5 +1,6 @@
-"""The masks layout's mask PNGs are made from the RLE stored with each label: the same pixels as
-the label's stored mask file (its bytes too, where the service encoded it), without reading it."""
+"""The masks layout's mask PNGs, where this machine lacks a label's file, are made from the RLE
+stored with the label: the same pixels as the stored file (its bytes too, where the service
+encoded it), without reading the store."""
 
 from __future__ import annotations
 
@@ -67,7 +68,8 @@ def test_masks_are_made_from_the_stored_rle_pixel_for_pixel_without_reading_the_
             for r in session.execute(sa.select(Label.frame_id, Label.mask_path))
         }
     stored = {f: (settings.home / paths[f]).read_bytes() for f in masks}
-    for path in paths.values():  # the files are not read: gone, the export is the same
+    copied = _exported(client, token)  # the files are here: copied
+    for path in paths.values():  # not on this machine (a cold cache): made from the RLE
         (settings.home / path).unlink()
     archive = _exported(client, token)
     assert "skipped.txt" not in archive.namelist()
@@ -79,6 +81,7 @@ def test_masks_are_made_from_the_stored_rle_pixel_for_pixel_without_reading_the_
         assert np.array_equal(pixels, original)  # pixel for pixel, holes and all
         assert np.array_equal(pixels == 255, mask) and set(np.unique(pixels)) <= {0, 255}
         assert exported == stored[frame_id]  # the service encoded both: the same bytes
+        assert copied.read(f"masks/{frame_id:07d}.png") == stored[frame_id]
 
 
 def test_a_label_saved_before_its_rle_has_its_file_copied_or_is_left_out_when_lost(
