@@ -22,7 +22,7 @@ from app.frames.sequences import create_sequence, unique_sequence_name
 from app.jobs.queue import JobQueue
 from app.jobs.service import create_job
 from app.review.service import save_label, save_validation_keypoints
-from app.storage import Storage
+from app.storage import Storage, open_storage
 from app.users.service import create_user
 from weldpool_core.cell.plant import PlantCamera, PlantParams
 from weldpool_core.io import encode_mask_png
@@ -88,7 +88,7 @@ def fill_process_runs(
     pool (``weldpool_core.cell.plant``: width from Rosenthal's √(heat input), with its lag), one of
     them oscillating; returns a one-sentence summary."""
     user = _demo_user(session)
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     nominal = PROCESS_RUNS[2]
     plant = PlantParams(power_w=nominal[0] * nominal[1], speed_mm_s=nominal[2] / 6.0)
     camera = PlantCamera(plant, seed=5)
@@ -205,7 +205,7 @@ def fill_demo(
         IncomingFile(f"demo_{i:04d}.png", cv2.imencode(".png", f.image)[1].tobytes())
         for i, f in enumerate(drawn)
     ]
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     stored = ingest_frames(
         session,
         storage,

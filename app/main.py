@@ -54,7 +54,7 @@ from app.proposals import policy
 from app.proposals.routes import router as proposals_router
 from app.review.agreement_routes import router as agreement_router
 from app.review.routes import router as review_router
-from app.storage import Storage
+from app.storage import open_storage
 from app.system.routes import router as system_router
 from app.system.status import StoreCheck
 from app.teacher.routes import router as teacher_router
@@ -218,7 +218,7 @@ def _install_state(
     app.state.engine = engine
     app.state.session_factory = queue.session_factory
     app.state.queue = queue
-    app.state.storage = Storage.of(settings, for_requests=True)
+    app.state.storage = open_storage(settings, for_requests=True)
     app.state.store_check = StoreCheck(app.state.storage)
     app.state.live_views = LiveViews()
     app.state.login_throttle = LoginThrottle(
@@ -233,7 +233,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     load_job_handlers()
     engine = create_db_engine(settings.resolved_database_url)
     session_factory = create_session_factory(engine)
-    policy.watch(session_factory, Storage.of(settings))
+    policy.watch(session_factory, open_storage(settings))
     queue = JobQueue(settings, session_factory)
 
     @asynccontextmanager

@@ -43,7 +43,7 @@ from app.core.models import Frame, Label, LabelStatus, Role, Sequence, Split, Us
 from app.core.schema import migrate
 from app.core.security import hash_password, issue_token
 from app.main import create_app
-from app.storage import Storage
+from app.storage import LocalStorage, Storage, open_storage
 from weldpool_core.io import encode_png
 from weldpool_core.outline import coco_mask, region_outlines
 
@@ -53,7 +53,7 @@ FRAMES = SHARED_DATA / "waam" / "frames"
 
 def fill(settings: Settings, count: int) -> tuple[str, list[str]]:
     """``count`` labelled frames; returns an admin token and the stored files (the floor's)."""
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     sources = sorted(FRAMES.glob("*.png"))
     if not sources:
         sys.exit(f"no frames in {FRAMES}")
@@ -191,7 +191,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as home:
         settings = Settings(_env_file=None, home=Path(home))  # type: ignore[call-arg]
         token, files = fill(settings, args.labels)
-        storage = Storage(settings.home)
+        storage = LocalStorage(settings.home)
         floor = statistics.median(floor_s(storage, files) for _ in range(args.runs))
         local = export_times(settings, token, FORMATS, args.runs)
     print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")

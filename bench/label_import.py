@@ -39,7 +39,7 @@ from app.frames.sequences import create_sequence
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
 from app.proposals import policy
-from app.storage import Storage
+from app.storage import LocalStorage, open_storage
 from weldpool_core.annotations import open_source
 from weldpool_core.outline import coco_mask, region_outlines
 
@@ -107,7 +107,7 @@ def _fresh(root: Path) -> tuple[Settings, object, User]:
     engine = create_db_engine(settings.resolved_database_url)
     migrate(engine)
     factory = create_session_factory(engine)
-    policy.watch(factory, Storage.of(settings))  # as the service's: a commit measures the policy
+    policy.watch(factory, open_storage(settings))  # as the service's: a commit measures the policy
     with factory() as session:
         user = User(username="bench", password_hash=hash_password("bench-bench"), role=Role.admin)
         session.add(user)
@@ -123,7 +123,9 @@ def time_import(root: Path, archive: Path) -> tuple[float, int]:
     source = open_source(archive)
     with factory() as session:  # type: ignore[operator]
         user = session.merge(user)
-        report = import_labels(session, Storage(settings.home), source, ImportOptions("coco"), user)
+        report = import_labels(
+            session, LocalStorage(settings.home), source, ImportOptions("coco"), user
+        )
     source.close()
     elapsed = time.perf_counter() - start
     assert not report.refused, report.refused[:3]
@@ -143,7 +145,7 @@ def time_labels_only(root: Path, archive: Path, images: list[bytes]) -> float:
     with factory() as session:  # type: ignore[operator]
         user = session.merge(user)
         options = ImportOptions("coco", sequence_id=run_id)
-        report = import_labels(session, Storage(settings.home), source, options, user)
+        report = import_labels(session, LocalStorage(settings.home), source, options, user)
     source.close()
     elapsed = time.perf_counter() - start
     assert not report.refused and report.labels == len(images), report.refused[:3]
@@ -170,7 +172,7 @@ def _ingested(settings: Settings, factory: object, user: User, images: list[byte
             ]
             ingest_frames(
                 session,
-                Storage(settings.home),
+                LocalStorage(settings.home),
                 files,
                 sequence_id=run.id,
                 user=user,

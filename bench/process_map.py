@@ -30,7 +30,7 @@ from app.core.schema import migrate
 from app.core.security import hash_password, issue_token
 from app.main import create_app
 from app.process.service import process_map
-from app.storage import Storage
+from app.storage import open_storage
 
 
 def _fill(factory: Any, runs: int) -> str:
@@ -79,7 +79,7 @@ def main() -> None:
         migrate(engine)
         factory = create_session_factory(engine)
         token = _fill(factory, args.runs)
-        storage = Storage.of(settings)
+        storage = open_storage(settings)
         params = {"x": "heat_input_j_mm", "y": "width_mm", "color": "width_cv"}
         with TestClient(create_app(settings)) as client:
             headers = {"Authorization": f"Bearer {token}"}

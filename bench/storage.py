@@ -166,7 +166,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
 
     from app.core.config import Settings
     from app.main import create_app
-    from app.storage import Storage
+    from app.storage import open_storage
 
     url = f"s3://{bucket(endpoint)}/lab"
     rows = []
@@ -190,7 +190,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
             frame_id = http.post("/api/v1/frames", files=upload, headers=headers).json()["stored"][
                 0
             ]["id"]
-        store = Storage.of(reader)
+        store = open_storage(reader)
         with TestClient(create_app(reader)) as http:
             for label in ("first click, cold cache", "second click"):
                 before = store.reads  # type: ignore[attr-defined]

@@ -65,13 +65,13 @@ def load_settings() -> Settings:
 
 def open_sessions(settings: Settings, *, migrated: bool = True) -> Any:
     from app.proposals import policy
-    from app.storage import Storage
+    from app.storage import open_storage
 
     engine = create_db_engine(settings.resolved_database_url)
     if migrated:
         require_current_schema(engine)
     factory = create_session_factory(engine)
-    policy.watch(factory, Storage.of(settings))
+    policy.watch(factory, open_storage(settings))
     return factory
 
 

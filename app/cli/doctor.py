@@ -14,11 +14,11 @@ from app.cli.base import friendly_errors, load_settings, main, open_sessions
 def doctor_cmd() -> None:
     """List the rows whose files the store lost (frames' images, label and proposal masks,
     model versions) and what restores each; exit status 1 when any is lost."""
-    from app.storage import Storage
+    from app.storage import open_storage
     from app.system.doctor import lost_files
 
     settings = load_settings()
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     with open_sessions(settings)() as session:
         lost = lost_files(session, storage)
     where = storage.remote or str(settings.home)

@@ -49,10 +49,10 @@ def _local(paths: tuple[str, ...], settings: Any) -> Iterator[tuple[str, ...]]:
     if not any(p.startswith("s3://") for p in paths):
         yield paths
         return
-    from app.storage import Storage
+    from app.storage import LocalStorage
     from app.storage.s3 import download_prefix, parse_url
 
-    scratch = Storage(settings.home).scratch()  # this machine's
+    scratch = LocalStorage(settings.home).scratch()  # this machine's
     with tempfile.TemporaryDirectory(prefix="weldpool-bucket-", dir=scratch) as tmp:
         local = []
         for index, path in enumerate(paths):
@@ -134,13 +134,13 @@ def _import_frames(
     settings: Any, paths: tuple[str, ...], sequence_name: str, every_nth: int, username: str | None
 ) -> None:
     from app.frames import ingest, sequences, videos
-    from app.storage import Storage
+    from app.storage import open_storage
     from app.users.service import user_by_name
 
     images, video_paths = _import_sources(paths)
     if not images and not video_paths:
         raise WeldpoolError("No frames or videos found in the given paths.")
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     stored = duplicates = 0
     rejected: list[str] = []
     with open_sessions(settings)() as session:
@@ -267,7 +267,7 @@ def _import_labels(
 ) -> None:
     from app.frames import sequences
     from app.imports.service import import_labels
-    from app.storage import Storage
+    from app.storage import open_storage
     from app.users.service import importing_user
     from weldpool_core.annotations import open_source
 
@@ -281,7 +281,7 @@ def _import_labels(
         try:
             with click.progressbar(length=100, label="labels", file=sys.stderr) as bar:
                 report = import_labels(
-                    session, Storage.of(settings), source, options, user, _bar_progress(bar, 100)
+                    session, open_storage(settings), source, options, user, _bar_progress(bar, 100)
                 )
         finally:
             source.close()

@@ -27,12 +27,12 @@ def process_map_cmd(x: str, y: str, color: str | None, as_csv: bool) -> None:
     it flagged: what GET /api/v1/process-map answers. Signatures of runs whose labels or
     proposals changed are measured again first."""
     from app.process.service import XName, YName, map_csv, process_map
-    from app.storage import Storage
+    from app.storage import open_storage
 
     if color is not None and color not in (*get_args(XName), *get_args(YName)):
         raise click.BadParameter(f"{color!r} is neither an x nor a y name.", param_hint="--color")
     settings = load_settings()
     with open_sessions(settings)() as session:
-        result = process_map(session, Storage.of(settings), x, y, color)
+        result = process_map(session, open_storage(settings), x, y, color)
     click.echo(map_csv(result) if as_csv else json.dumps(result, indent=2), nl=not as_csv)
     sys.exit(0)

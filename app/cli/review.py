@@ -37,7 +37,7 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
 
     from app.core.models import Sequence, Split
     from app.review.export import build_export
-    from app.storage import Storage
+    from app.storage import open_storage
 
     settings = load_settings()
     skipped: list[tuple[int, str]] = []
@@ -51,7 +51,7 @@ def export_cmd(fmt: str, out_path: Path, sequence_name: str | None, split: str |
                 raise WeldpoolError(f"There is no sequence named {sequence_name!r}.")
         temporary = build_export(
             session,
-            Storage.of(settings),
+            open_storage(settings),
             fmt,  # type: ignore[arg-type]
             sequence_id=sequence_id,
             split=Split(split) if split else None,

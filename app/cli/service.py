@@ -33,11 +33,11 @@ def prepare_instance(settings: Settings) -> Path | None:
     Returns the file holding the new admin's password, or None when users already existed.
     """
     from app.core.schema import migrate
-    from app.storage import Storage
+    from app.storage import open_storage
     from app.users.service import ensure_initial_admin
 
     settings.ensure_home()
-    Storage.of(settings, for_requests=True).check()  # waits a request's bound, not a job's
+    open_storage(settings, for_requests=True).check()  # waits a request's bound, not a job's
     engine = create_db_engine(settings.resolved_database_url)
     try:
         migrate(engine)
@@ -123,14 +123,14 @@ def worker(threads: int | None, lanes: str) -> None:
     and refuses to start when it could run nothing at all."""
     from app.jobs.queue import JobQueue, find_unable, run_standalone_worker
     from app.jobs.registry import LANES, kinds_in
-    from app.storage import Storage
+    from app.storage import open_storage
 
     served = tuple(lane for lane in LANES if lane in {p.strip() for p in lanes.split(",")})
     if not served or len(served) != len({p.strip() for p in lanes.split(",") if p.strip()}):
         raise ConfigurationError(f"--lanes takes quick, model or both, not {lanes!r}.")
     settings = load_settings()
     settings.ensure_home()
-    Storage.of(settings, for_requests=True).check()  # waits a request's bound, not a job's
+    open_storage(settings, for_requests=True).check()  # waits a request's bound, not a job's
     queue = JobQueue(settings, open_sessions(settings))
     unable = find_unable(queue, served, standalone=True)
     if len(unable) == len(kinds_in(served)):
@@ -152,10 +152,10 @@ def storage_group() -> None:
 def storage_push() -> None:
     """Upload what WELDPOOL_HOME holds (frames, videos, masks, models, exports) to the object
     store, so an instance that kept its files in home can move to it."""
-    from app.storage import ObjectStorage, Storage
+    from app.storage import ObjectStorage, open_storage
 
     settings = load_settings()
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     if not isinstance(storage, ObjectStorage):
         raise WeldpoolError("WELDPOOL_STORAGE_URL is not set: there is no store to push to.")
     click.echo(f"uploading {settings.home}'s files to {storage.remote}", err=True)
@@ -174,13 +174,13 @@ def storage_create_bucket() -> None:
     step; a bucket that exists is left as it is)."""
     from botocore.exceptions import ClientError
 
-    from app.storage import ObjectStorage, Storage
+    from app.storage import ObjectStorage, open_storage
 
     settings = load_settings()
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     if not isinstance(storage, ObjectStorage):
         raise WeldpoolError("WELDPOOL_STORAGE_URL is not set: there is no bucket to create.")
-    client, bucket = storage.client, storage.bucket
+    client, bucket = storage.objects.client, storage.objects.name
     try:
         client.head_bucket(Bucket=bucket)
         click.echo(f"the bucket {bucket} exists already", err=True)

@@ -19,7 +19,7 @@ from app.core.errors import WeldpoolError
 def promoted_model_dir() -> tuple[Path, bool]:
     """The promoted student's folder in this home's database, and whether the promotion gate
     found it usable (False: promoted by force; the outputs then say the stream is not healthy)."""
-    from app.storage import Storage
+    from app.storage import open_storage
     from app.training.service import model_folder, promoted_model
 
     settings = load_settings()
@@ -42,7 +42,7 @@ def promoted_model_dir() -> tuple[Path, bool]:
                 f"weldpool: warning: {model.name} was not measured by the promotion gate.",
                 err=True,
             )
-        return model_folder(Storage.of(settings), model), gate.get("usable") is not False
+        return model_folder(open_storage(settings), model), gate.get("usable") is not False
 
 
 @main.command("stream")

@@ -10,7 +10,7 @@ from app.core.models import User, Video
 from app.frames.videos import extract_video_frames
 from app.jobs.registry import JobContext, counted, job_handler
 from app.jobs.service import create_job
-from app.storage import Storage
+from app.storage import open_storage
 from app.system.status import sam2_problem
 from weldpool_core.errors import InvalidInputError
 
@@ -26,7 +26,7 @@ def extract_video(ctx: JobContext) -> dict[str, Any]:
         user = session.get(User, video.uploaded_by_id) if video.uploaded_by_id else None
         video_sequence = video.sequence_id
         result = extract_video_frames(
-            session, Storage.of(ctx.settings), video, user=user, progress=ctx.progress
+            session, open_storage(ctx.settings), video, user=user, progress=ctx.progress
         )
     ctx.summary = f"{counted(result['frames'], 'frame')} stored in sequence #{video_sequence}" + (
         f" ({result['duplicates']} were already there)" if result["duplicates"] else ""

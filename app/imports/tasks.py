@@ -11,7 +11,7 @@ from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
 from app.imports.uploads import upload_name
 from app.jobs.registry import JobContext, counted, job_handler
-from app.storage import Storage, best_effort
+from app.storage import best_effort, open_storage
 from weldpool_core.annotations import open_upload
 from weldpool_core.errors import InvalidInputError
 
@@ -20,7 +20,7 @@ from weldpool_core.errors import InvalidInputError
 def import_labels_job(ctx: JobContext) -> dict[str, Any]:
     """Import the uploaded file's labels; the upload is removed when the job ends, whatever
     its outcome (a job that is not retried has no further use for it)."""
-    params, storage = ctx.params, Storage.of(ctx.settings)
+    params, storage = ctx.params, open_storage(ctx.settings)
     name = upload_name(params["upload"])
     options = ImportOptions(
         format=params["format"],

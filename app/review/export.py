@@ -25,7 +25,12 @@ for labels saved before their RLE, area and box were stored with them at save ti
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
 
-A frame whose image or mask file the store lost is left out of the zip, never the whole export:
+The masks layout copies each label's mask file where this machine holds it, and makes the PNG
+from the RLE stored with the label where it does not (the same pixels, without reading the
+store: a cold export from an object store makes no GET for masks); a label saved before its RLE
+was stored has its file read.
+
+A frame whose image, or a mask file the export must read, the store lost is left out of the zip:
 ``skipped.txt`` lists each such frame with what restores its file (the masks layout's
 ``manifest.json`` under ``skipped`` too), and an export job's result counts them.
 """
@@ -71,7 +76,8 @@ from app.review.export_classes import (
 from app.storage import EXPORTS_DIR, Storage
 from app.storage.pixels import load_mask
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask
+from weldpool_core.io import encode_mask_png
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_boxed, rle_mask
 
 if TYPE_CHECKING:
     import numpy as np
@@ -139,6 +145,22 @@ def _stored_mask(storage: Storage, label: Label) -> NDArray[np.bool_]:
         return rle_mask(label.mask_rle)
     assert label.mask_path is not None  # accepted and corrected labels have a mask
     return load_mask(storage, label.mask_path)
+
+
+def _mask_png(storage: Storage, label: Label) -> bytes | Path:
+    """A label's mask PNG for the masks layout: its file where this machine holds it (home, or
+    an object store's warm cache), else made from the RLE stored with the label: the same
+    pixels (both were made from one mask), and no read of the store (a cold export from an
+    object store GETs no mask). A label saved before its RLE was stored has its file read."""
+    assert label.mask_path is not None  # accepted and corrected labels have a mask
+    if label.mask_rle is not None and not storage.local(label.mask_path).is_file():
+        try:
+            boxed = rle_boxed(label.mask_rle)
+        except (ValueError, KeyError, TypeError):  # a damaged RLE: the file says what it is
+            pass
+        else:
+            return encode_mask_png(boxed.pixels, boxed.size, boxed.origin)
+    return storage.existing(label.mask_path)
 
 
 def _query(
@@ -331,8 +353,8 @@ def _write_masks(
     manifest = []
     config = written_config(rows)
 
-    def read(row: Any) -> tuple[Path, ClassFiles]:  # in the readers' pool
-        return storage.existing(row[1].mask_path), class_files(row[1], config, _stem(row[0]))
+    def read(row: Any) -> tuple[Path | bytes, ClassFiles]:  # in the readers' pool
+        return _mask_png(storage, row[1]), class_files(row[1], config, _stem(row[0]))
 
     for done, (frame, label, sequence, manual), image, files in _readable(
         storage, rows, skipped, read
@@ -342,7 +364,10 @@ def _write_masks(
             continue
         stem, (mask, classes) = _stem(frame), files
         archive.write(image, f"images/{stem}{_extension(frame)}")
-        archive.write(mask, f"masks/{stem}.png")
+        if isinstance(mask, bytes):
+            archive.writestr(f"masks/{stem}.png", mask)
+        else:
+            archive.write(mask, f"masks/{stem}.png")
         for path, png in classes.files:
             archive.writestr(path, png)
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))

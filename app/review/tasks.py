@@ -14,7 +14,7 @@ from app.jobs.registry import (
 )
 from app.review import propagation
 from app.review.export import SKIPPED_LIST, Skipped, build_export, export_name
-from app.storage import Storage
+from app.storage import open_storage
 from app.teacher import runtime
 
 log = structlog.get_logger(__name__)
@@ -23,7 +23,7 @@ log = structlog.get_logger(__name__)
 @job_handler("export", max_attempts=1, lane="quick")
 def export_run(ctx: JobContext) -> dict[str, Any]:
     """Write an export zip with progress per label; ``GET /exports/{job id}`` downloads it."""
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     skipped: Skipped = []
     with ctx.session_factory() as session:
         written = build_export(
@@ -59,7 +59,7 @@ def export_run(ctx: JobContext) -> dict[str, Any]:
 @job_handler("propagate", max_attempts=1)
 def propagate_run(ctx: JobContext) -> dict[str, Any]:
     """SAM2's video model carries reviewed masks through a weld run (``app.review.propagation``)."""
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     ctx.progress(0.0, "loading SAM2's video model")
     propagator = runtime.propagator(ctx.settings)  # missing weights: the job fails here
     predictor = runtime.sam2_predictor(ctx.settings)

@@ -1,122 +1,73 @@
-"""Files under WELDPOOL_HOME: content-addressed, written atomically, removed by one collector.
+"""The home folder backend of ``Storage``: content-addressed files under WELDPOOL_HOME, written
+atomically, removed by one collector.
 
-The database holds metadata and relative paths; the files live here. A file is written to a
-temporary name, flushed to disk, then renamed into place, and only then is its row committed.
-For a whole request this is two steps: ``stage`` writes and flushes each new file (in the
-ingest's disk threads, as soon as it is checked), ``install_many`` renames them all into place and
-flushes the directories that received them, so the rows committed next never name a file the
-disk could lose.
+A file is written to a temporary name, flushed to disk, then renamed into place, and only then is
+its row committed. For a whole request this is two steps: ``stage`` writes and flushes each new
+file (in the ingest's disk threads, as soon as it is checked), ``install_many`` renames them all
+into place and flushes the directories that received them, so the rows committed next never name
+a file the disk could lose.
 
-Content is shared by hash, so a file may be about to be named by a row that is not committed
-yet: an upload of the same content to another run, a label or a proposal with the same mask.
-Every writer therefore **claims** the file it will name (it writes it, or refreshes the file's
-modification time when the content is already there), and files are removed only by
-``collect``: a file no committed row names is removed when nobody claimed it within the grace
-period (``WELDPOOL_FILE_GRACE_S``). A writer commits within seconds of its claim, far inside the
-grace, so its file is never taken from under it. ``collect`` moves a file aside before it looks
-at the claim, so a claim made while it looks is seen (the claimer finds the name gone and writes
-the file again). A write that fails before its commit removes only the files it created that
-nobody claimed since (``discard``, by the exact claim time it wrote). Deletions collect the
-files their rows named at once; the collector thread (``FileCollector``) and ``serve``'s start-up
-sweep the rest: files whose claim was too fresh, and files a crash left between rename and
-commit.
+A claim refreshes the file's modification time (or is the write itself), and ``collect`` moves a
+file aside before it looks at the claim, so a claim made while it looks is seen (the claimer
+finds the name gone and writes the file again). ``discard`` removes an aborted write's files by
+the exact claim time it wrote. Deletions collect the files their rows named at once; the
+collector thread (``FileCollector``) and ``serve``'s start-up sweep the rest: files whose claim
+was too fresh, and files a crash left between rename and commit.
+
+An object store composes over one of these as its cache (``durable=False``: home's files are then
+copies, not flushed).
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 import tempfile
 import time
 import uuid
-from collections.abc import Callable, Collection, Iterable, Sequence
-from concurrent.futures import Executor, wait
-from dataclasses import dataclass
+from collections.abc import Collection, Iterable, Sequence
+from concurrent.futures import Executor
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO, TypeVar
+from typing import BinaryIO
 
 from app.core.errors import MissingFile
+from app.storage.protocol import (
+    DEFAULT_GRACE_S,
+    PART_LIFETIME_S,
+    StagedFile,
+    StoredFile,
+    Unclaimed,
+)
+from app.storage.writes import (
+    DISK_TASKS,
+    collect_unclaimed,
+    content_path,
+    copy_hashed,
+    discard_created,
+    parts,
+    stage_all,
+)
 
-if TYPE_CHECKING:
-    from app.core.config import Settings, StoreWaits
-
-CHUNK = 1024 * 1024
-SHARED_AREAS = ("frames", "videos", "artefacts", "models", "exports", "imports")
-"""What every process of an instance must see alike: content-addressed files (frames, videos,
-masks and heatmaps), model folders, export zips and uploaded imports. The rest of home
-(``cache/``, ``tmp/``, the embedded database and queue) belongs to one machine."""
-EXPORTS_DIR = "exports"
-"""Where export jobs leave their zip (``<home>/exports/<job id>.zip``), kept a day."""
-DEFAULT_GRACE_S = 900.0
-"""How long a claimed file is safe from the collector (``WELDPOOL_FILE_GRACE_S``): far longer than
-any writer takes from its claim to its commit."""
 CLAIM_SLACK_NS = 2_000_000_000
 """How fresh a claim must read back (2 s; the grace period is at least a minute)."""
-PART_LIFETIME_S = 86_400.0
-"""A request's staged temporary (``tmp/*.part``) is swept only after a day: a slow upload of
-many files may hold its first ones long before it commits."""
 _ASIDE = ".collect"  # a file the collector moved aside while it looks at its claim
-_T = TypeVar("_T")
 
 
-def best_effort(what: str, action: Callable[[], object]) -> None:
-    """Tidying after the outcome is settled (a commit made, or an error being raised): a
-    failure is logged, never raised, so it neither fails what succeeded nor hides the first
-    error; the collector or the day's pruning finishes it."""
-    try:
-        action()
-    except Exception as exc:
-        import structlog
+class LocalStorage:
+    """``Storage`` in one home directory: content-addressed files, claimed by their
+    modification time, flushed before their rows commit (``durable``)."""
 
-        structlog.get_logger(__name__).warning("storage.tidy_failed", what=what, error=str(exc))
+    remote: str | None = None
+    """Home alone: no store besides it."""
 
-
-REMOTE_BACKENDS: dict[str, Callable[[Settings, StoreWaits], Storage]] = {}
-"""URL scheme → the store of an instance whose WELDPOOL_STORAGE_URL has it (``app.storage.s3``
-registers ``s3``; the package imports it, so it is there whenever this module is)."""
-
-
-@dataclass(frozen=True)
-class StagedFile:
-    """Content written and flushed under a temporary name, not yet in the store."""
-
-    relative: str
-    temporary: Path | None  # None: the store holds this content already (and it is claimed)
-    uploaded_ns: int = 0  # an object store's: uploaded already, with this claim time
-
-
-@dataclass(frozen=True)
-class StoredFile:
-    """A file in the store: its path relative to home, and whether this call created it (then
-    ``claimed_ns`` is the exact claim time it wrote, which ``discard`` looks for)."""
-
-    path: str
-    created: bool
-    claimed_ns: int = 0
-
-
-class Storage:
-    """Content-addressed files under one home directory."""
-
-    def __init__(self, home: Path, grace_s: float = DEFAULT_GRACE_S) -> None:
+    def __init__(
+        self, home: Path, grace_s: float = DEFAULT_GRACE_S, *, durable: bool = True
+    ) -> None:
         self.home = home.resolve()
         self.tmp = self.home / "tmp"
         self.grace_s = grace_s
-
-    _flush_local = True
-    """Whether home's files are the durable copy (flushed before their rows commit)."""
-    remote: str | None = None
-    """Where shared files live besides home (``s3://bucket/prefix``); None: home alone."""
-
-    @classmethod
-    def of(cls, settings: Settings, *, for_requests: bool = False) -> Storage:
-        """The store of an instance (WELDPOOL_STORAGE_URL), with its grace period; a remote
-        store's calls wait as a job's may (WELDPOOL_STORAGE_JOB_*), or ``for_requests`` the
-        short bounds a person waits on (WELDPOOL_STORAGE_REQUEST_*, also the checks')."""
-        if settings.storage_url:  # s3://… (the settings allow no other scheme)
-            waits = settings.storage_waits(jobs=not for_requests)
-            return REMOTE_BACKENDS[settings.storage_url.split("://", 1)[0]](settings, waits)
-        return cls(settings.home, settings.file_grace_s)
+        self.durable = durable
+        """Whether home's files are the durable copy (flushed before their rows commit); an
+        object store's cache is not (the bucket's copy is)."""
 
     def check(self) -> None:
         """Raise ConfigurationError when the store cannot be used (home alone: always can)."""
@@ -136,7 +87,7 @@ class Storage:
         return None
 
     # --- shared files that are not content-addressed: model folders, exports, imports ------
-    # In home alone these are plain files; ``ObjectStorage`` keeps them in the bucket too.
+    # In home alone these are plain files that every process reads already.
 
     def fetch(self, relative: str) -> Path:
         """The local path of a stored file, read from the shared store first when this
@@ -228,11 +179,8 @@ class Storage:
         self.tmp.mkdir(parents=True, exist_ok=True)
         return self.tmp
 
-    @staticmethod
-    def relative_path(area: str, sha256: str, extension: str) -> str:
-        return f"{area}/{sha256[:2]}/{sha256[2:4]}/{sha256}{extension}"
-
-    def _temporary(self) -> Path:
+    def temporary(self) -> Path:
+        """A fresh name for a temporary file in ``scratch()`` (``*.part``, swept after a day)."""
         return self.scratch() / f"{uuid.uuid4().hex}.part"
 
     @staticmethod
@@ -273,23 +221,23 @@ class Storage:
 
     def put(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StoredFile:
         """Store ``data`` (whose hash the caller computed) unless the same content is there."""
-        relative = self.relative_path(area, sha256, extension)
+        relative = content_path(area, sha256, extension)
         if self._claimed(relative):
             return StoredFile(relative, created=False)
-        return self._install(self._write_temporary(data), relative)
+        return self._install(self.write_temporary(data), relative)
 
     def stage(self, data: bytes, sha256: str, extension: str, area: str = "frames") -> StagedFile:
         """Write new content to a temporary name and flush it to disk; nothing is in the store
         until ``install_many``. Content already stored is claimed instead. Any thread may stage
         (fsync releases the GIL), so a request's files reach the disk while the rest of it is
         still being checked."""
-        relative = self.relative_path(area, sha256, extension)
+        relative = content_path(area, sha256, extension)
         if self._claimed(relative):
             return StagedFile(relative, None)
-        temporary = self._temporary()
+        temporary = self.temporary()
         try:
             temporary.write_bytes(data)
-            if self._flush_local:
+            if self.durable:
                 _fsync(temporary)
         except BaseException:
             temporary.unlink(missing_ok=True)
@@ -297,7 +245,8 @@ class Storage:
         return StagedFile(relative, temporary)
 
     def unstage(self, staged: Iterable[StagedFile]) -> None:
-        """Remove staged temporaries that will not be installed."""
+        """Remove staged temporaries that will not be installed (content already stored was
+        only claimed: the collector sees to it)."""
         for item in staged:
             if item.temporary is not None:
                 item.temporary.unlink(missing_ok=True)
@@ -326,7 +275,7 @@ class Storage:
             if executor is None:
                 list(map(_fsync, touched))
             else:  # a few tasks, not one per directory (a future costs more than its fsync)
-                list(executor.map(_fsync_all, _parts(list(touched), DISK_TASKS)))
+                list(executor.map(_fsync_all, parts(list(touched), DISK_TASKS)))
         except BaseException:
             self.discard(installed)
             self.unstage(staged)
@@ -342,37 +291,21 @@ class Storage:
         """``stage`` for many ``(data, sha256, extension)``, in ``executor``'s threads when
         given (``DISK_TASKS`` parts); if any fails, the others' temporaries are removed and its
         error raised."""
-        if executor is None:
-            staged: list[StagedFile] = []
-            try:
-                for item in items:
-                    staged.append(self.stage(*item, area))
-            except BaseException:
-                self.unstage(staged)
-                raise
-            return staged
-        futures = [
-            executor.submit(self.stage_many, part, area) for part in _parts(items, DISK_TASKS)
-        ]
-        wait(futures)
-        errors = [e for f in futures if (e := f.exception()) is not None]
-        if errors:
-            self.unstage(s for f in futures if f.exception() is None for s in f.result())
-            raise errors[0]
-        return [staged for f in futures for staged in f.result()]
+        return stage_all(self, items, area, executor)
 
     def write(self, relative: str, data: bytes) -> Path:
         """Write (or replace) the file at ``relative`` atomically; returns its path."""
         target = self.absolute(relative)
         target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(self._write_temporary(data), target)
+        os.replace(self.write_temporary(data), target)
         return target
 
-    def _write_temporary(self, data: bytes) -> Path:  # one file, flushed on its own
-        temporary = self._temporary()
+    def write_temporary(self, data: bytes) -> Path:
+        """``data`` in a fresh temporary (flushed on its own when ``durable``)."""
+        temporary = self.temporary()
         with open(temporary, "wb") as handle:
             handle.write(data)
-            if self._flush_local:
+            if self.durable:
                 handle.flush()
                 os.fsync(handle.fileno())
         return temporary
@@ -381,22 +314,9 @@ class Storage:
         self, source: BinaryIO, extension: str, area: str
     ) -> tuple[StoredFile, str, int]:
         """Copy a stream into the store, hashing it on the way; returns (file, sha256, size)."""
-        temporary = self._temporary()
-        digest, size = hashlib.sha256(), 0
-        try:
-            with open(temporary, "wb") as handle:
-                while chunk := source.read(CHUNK):
-                    digest.update(chunk)
-                    size += len(chunk)
-                    handle.write(chunk)
-                if self._flush_local:
-                    handle.flush()
-                    os.fsync(handle.fileno())
-        except BaseException:
-            temporary.unlink(missing_ok=True)
-            raise
-        sha256 = digest.hexdigest()
-        return self._install(temporary, self.relative_path(area, sha256, extension)), sha256, size
+        temporary = self.temporary()
+        sha256, size = copy_hashed(source, temporary, flush=self.durable)
+        return self._install(temporary, content_path(area, sha256, extension)), sha256, size
 
     # --- removal: the one collector ----------------------------------------------------------
 
@@ -404,24 +324,15 @@ class Storage:
         """Remove the files an aborted write created, except those a committed row names or
         another writer claimed since (their claim time is no longer the one this write put);
         returns how many went."""
-        return sum(
-            self._remove_if(stored.path, stored.claimed_ns.__eq__)
-            for stored in files
-            if stored.created and stored.path not in in_use
-        )
+        return discard_created(files, in_use, self._remove_if)
 
     def collect(self, paths: Iterable[str], in_use: Collection[str]) -> list[str]:
         """Remove the files of ``paths`` that no committed row names (``in_use``, read after
         the rows that named them were deleted) and nobody claimed within the grace period;
         returns those removed. The others stay for the next sweep."""
-        cutoff = time.time_ns() - int(self.grace_s * 1e9)
-        return [
-            path
-            for path in paths
-            if path not in in_use and self._remove_if(path, lambda ns: ns < cutoff)
-        ]
+        return collect_unclaimed(paths, in_use, self.grace_s, self._remove_if)
 
-    def _remove_if(self, relative: str, unclaimed: Callable[[int], bool]) -> bool:
+    def _remove_if(self, relative: str, unclaimed: Unclaimed) -> bool:
         """Move the file aside, then remove it if its claim time says nobody claimed it; else
         put it back. A claim made while it is aside finds no file and writes it again."""
         try:
@@ -468,11 +379,16 @@ class Storage:
                     continue
                 if self._remove_if(relative, lambda ns: ns < cutoff):
                     removed.append(relative)
+        self.sweep_temporaries()
+        return removed
+
+    def sweep_temporaries(self) -> None:
+        """Remove temporaries (``tmp/*.part``) left a day ago or longer (and at least a grace
+        period): a request's staged files that never got installed."""
         parts_cutoff_s = time.time() - max(PART_LIFETIME_S, self.grace_s)
         for stale in self.tmp.glob("*.part") if self.tmp.is_dir() else ():
             if _changed_s(stale, "st_mtime") < parts_cutoff_s:
                 stale.unlink(missing_ok=True)
-        return removed
 
 
 def _changed_s(path: Path, field: str) -> float:
@@ -492,17 +408,6 @@ def _put_back(aside: Path, final: Path) -> None:
     except FileNotFoundError:
         return
     aside.unlink(missing_ok=True)
-
-
-DISK_TASKS = 8
-"""Tasks a batch of writes and flushes is split into (``stage_many``, ``install_many``): as
-many as the disk threads, each flushing its files one after another."""
-
-
-def _parts(items: Sequence[_T], count: int) -> list[Sequence[_T]]:
-    """``items`` in at most ``count`` consecutive parts of nearly equal length."""
-    size = -(-len(items) // count) if items else 1
-    return [items[at : at + size] for at in range(0, len(items), size)]
 
 
 def _fsync_all(paths: Iterable[Path]) -> None:

@@ -7,7 +7,7 @@ import time
 from typing import Any
 
 from app.core.config import Settings
-from app.storage import Storage
+from app.storage import Storage, open_storage
 from weldpool_core.teacher.weights import weights_status
 
 
@@ -71,7 +71,7 @@ def foreign_store(settings: Settings, session_factory: Any) -> str | None:
         )
     if not paths:
         return None
-    storage = Storage.of(settings, for_requests=True)
+    storage = open_storage(settings, for_requests=True)
     try:
         if any(storage.holds(path) for path in paths):
             return None

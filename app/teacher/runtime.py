@@ -89,10 +89,10 @@ def shared_embeddings(settings: Settings) -> SharedEmbeddings | None:
         return None
     with _lock:
         if settings.storage_url not in _shared_tiers:
-            from app.storage import Storage
+            from app.storage import open_storage
 
             # A person's short bounds: a click never waits on a store that hangs (a miss).
-            store = Storage.of(settings, for_requests=True)
+            store = open_storage(settings, for_requests=True)
             _shared_tiers[settings.storage_url] = SharedEmbeddings(store)
         return _shared_tiers[settings.storage_url]
 
@@ -103,9 +103,9 @@ def embedding_cache_limit(settings: Settings) -> int:
 
 
 def _embedding_dir(settings: Settings) -> Path:
-    from app.storage import Storage
+    from app.storage import LocalStorage
 
-    return Storage(settings.home).local("cache/embeddings")  # each machine's own
+    return LocalStorage(settings.home).local("cache/embeddings")  # each machine's own
 
 
 def embedding_cache_usage(settings: Settings) -> tuple[int, int]:

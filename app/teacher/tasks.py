@@ -23,7 +23,7 @@ from app.jobs.registry import (
     job_handler,
 )
 from app.proposals.record import claim, has_proposal, record_teacher_proposal, release
-from app.storage import Storage
+from app.storage import Storage, open_storage
 from app.storage.pixels import frame_rgb
 from app.teacher import runtime
 from weldpool_core.errors import WeldpoolError
@@ -46,7 +46,7 @@ def teacher_run(ctx: JobContext) -> dict[str, Any]:
     ctx.progress(0.0, "loading the teacher")
     teacher = runtime.teacher(ctx.settings, prompts)  # missing weights: the job fails here
     ctx.check_cancelled()
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     fan = Fanout(ctx, TEACHER_CHUNK)
     if not ctx.helper:
         fan.plan(functools.partial(_teacher_frames, ctx))
@@ -251,7 +251,7 @@ def embed_run(ctx: JobContext) -> dict[str, Any]:
     the teacher reuse them."""
     from weldpool_core.teacher.cache import cached_embedding
 
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     ctx.progress(0.0, "loading SAM2")
     predictor = runtime.sam2_predictor(ctx.settings)
     cache = runtime.embedding_cache(ctx.settings)

@@ -21,7 +21,7 @@ from app.jobs.fanout import Fanout
 from app.jobs.registry import JobContext, counted, job_handler
 from app.proposals.queue import latest_teacher_proposal
 from app.proposals.record import STUDENT, record_proposal
-from app.storage import Storage, best_effort
+from app.storage import Storage, best_effort, open_storage
 from app.storage.pixels import frame_rgb, load_mask
 from app.training import gate, service
 from weldpool_core.active import disagreement as teacher_disagreement
@@ -113,7 +113,7 @@ def _record_version(
     from weldpool_core.student import checkpoint
 
     config, student = configs
-    models_dir, storage = work.parent, Storage.of(ctx.settings)
+    models_dir, storage = work.parent, open_storage(ctx.settings)
     with ctx.session_factory() as session:
         if not service.existing_frame_ids(session, [frame_id for frame_id, _ in training]):
             shutil.rmtree(work, ignore_errors=True)
@@ -165,7 +165,7 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     """
     from weldpool_core.student.train import train_student
 
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     models_dir = storage.local("models")
     models_dir.mkdir(parents=True, exist_ok=True)
     work = models_dir / f".work-job{ctx.job_id}"
@@ -216,7 +216,7 @@ def _forget_version(ctx: JobContext, version_id: int, folder: Path) -> None:
         session.execute(sa.delete(ModelVersion).where(ModelVersion.id == version_id))
         session.commit()
     shutil.rmtree(folder, ignore_errors=True)
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     best_effort("unpublish", partial(storage.unpublish, storage.relative(folder)))
 
 
@@ -237,7 +237,7 @@ def train_sequential_cell(ctx: JobContext) -> dict[str, Any]:
         train_sequential,
     )
 
-    settings, storage = ctx.settings, Storage.of(ctx.settings)
+    settings, storage = ctx.settings, open_storage(ctx.settings)
     config = SequentialConfig(seed=int(ctx.params.get("seed") or 0), device=settings.device)
     if ctx.params.get("steps"):
         config = replace(config, steps=int(ctx.params["steps"]))
@@ -429,7 +429,7 @@ def _gate_and_promote(ctx: JobContext, version_id: int) -> dict[str, Any]:
     """Measure the new version (``app.training.gate``), store the verdict, and promote it when
     the gate says so and WELDPOOL_AUTO_PROMOTE is on; then re-score the review queue."""
 
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     with ctx.session_factory() as session:
         version = session.get_one(ModelVersion, version_id)
         folder = storage.local(version.checkpoint_path or f"models/{version.name}")
@@ -462,7 +462,7 @@ def student_proposals(ctx: JobContext) -> dict[str, Any]:
     every worker the run reaches shares (``app.jobs.fanout``)."""
     from weldpool_core.student.predict import StudentPredictor
 
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     with ctx.session_factory() as session:
         version = service.get_model(session, int(ctx.params["model_version_id"]))
         name, path = version.name, service.model_folder(storage, version)
@@ -573,7 +573,7 @@ def quantize_version(ctx: JobContext) -> dict[str, Any]:
     from weldpool_core.student.checkpoint import EXPORT_FILE, INT8_ONNX_FILE
     from weldpool_core.student.quantize import quantize_student, remove_leftovers
 
-    storage = Storage.of(ctx.settings)
+    storage = open_storage(ctx.settings)
     model_id = int(ctx.params["model_version_id"])
     with ctx.session_factory() as session:
         version = service.get_model(session, model_id)

@@ -18,7 +18,7 @@ from app.core.housekeeping import FileCollector, sweep_orphan_files
 from app.core.models import DoomedFile, Frame, Role
 from app.frames import deletion, ingest, listing, sequences
 from app.main import create_app
-from app.storage import Storage
+from app.storage import LocalStorage
 from app.storage import local as storage_module
 from tests.helpers import age_stored_files, auth, image_bytes, wait_for
 
@@ -301,7 +301,7 @@ def test_bad_requests(client: TestClient, token: str) -> None:
 def test_failed_commit_leaves_no_file_and_no_row(
     settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     files = [ingest.IncomingFile(f"{i}.png", image_bytes(seed=40 + i)) for i in range(3)]
     with session_factory() as session:
         monkeypatch.setattr(
@@ -325,7 +325,7 @@ def test_a_stored_file_deleted_while_a_request_arrives_is_written_again(
 ) -> None:
     """A file already in the store is not staged when its copy arrives; if the last frame using
     it is deleted before the request is recorded, the upload writes it again."""
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     content = image_bytes(seed=95)
     with session_factory() as session:
         first = ingest.ingest_frames(
@@ -355,7 +355,7 @@ def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
 ) -> None:
     """Every file is fsynced before any is renamed into place, then each directory that gained
     a name, then the rows are committed: nothing committed can name a file the disk lost."""
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     events: list[str] = []
     real_fsync, real_link = storage_module._fsync, storage_module.os.link
     monkeypatch.setattr(
@@ -388,7 +388,7 @@ def test_one_request_is_flushed_to_disk_in_one_batch_before_its_commit(
 def test_a_failed_flush_leaves_no_file(
     settings: Settings, session_factory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
 
     def broken(path: Path) -> None:
         raise OSError(5, "Input/output error")
@@ -403,7 +403,7 @@ def test_a_failed_flush_leaves_no_file(
 
 
 def test_files_left_by_a_crash_are_swept(settings: Settings, session_factory) -> None:
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     with session_factory() as session:
         kept = ingest.ingest_frames(
             session,
@@ -603,8 +603,8 @@ def test_start_up_prunes_training_state_of_recorded_versions(
         session.add(ModelVersion(name="student-v1", checkpoint_path="models/student-v1"))
         session.add(ModelVersion(name="student-v0", checkpoint_path=None))
         session.commit()
-        assert prune_training_state(session, Storage(settings.home)) == 1000
-        assert prune_training_state(session, Storage(settings.home)) == 0
+        assert prune_training_state(session, LocalStorage(settings.home)) == 1000
+        assert prune_training_state(session, LocalStorage(settings.home)) == 0
     assert (recorded / "model.safetensors").exists()
     assert not (recorded / "training_state.pt").exists()
     assert (unrecorded / "training_state.pt").exists()
@@ -674,7 +674,7 @@ def test_the_first_sweep_runs_after_start_not_before_serve_answers(
     looks at the files whose rows went, never listing the whole store (that is daily)."""
     import app.core.housekeeping as housekeeping
 
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     orphan = storage.put(image_bytes(seed=53), "d" * 64, ".png")
     with session_factory() as session:  # a transaction deleted the row naming it
         housekeeping.doom(session, {orphan.path})
@@ -706,7 +706,7 @@ def test_a_deleted_frames_file_claimed_meanwhile_stays_doomed_until_its_grace_en
     from app.core.housekeeping import collect_doomed
     from app.frames.deletion import delete_frames
 
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     with session_factory() as session:
         stored = ingest.ingest_frames(
             session,

@@ -13,7 +13,7 @@ import pytest
 from app.core.errors import InvalidInputError
 from app.frames import ingest
 from app.frames.multipart import StreamedForm
-from app.storage import Storage
+from app.storage import LocalStorage
 from tests.helpers import image_bytes, wait_for
 
 
@@ -124,7 +124,7 @@ def test_a_file_is_checked_and_staged_while_the_caller_goes_on(
         return real(*args, **kwargs)
 
     monkeypatch.setattr(ingest, "check_frame_file", held)
-    storage = Storage(tmp_path)
+    storage = LocalStorage(tmp_path)
     checks = ingest.FrameChecks(storage, max_pixels=10**6)
     checks.add(ingest.IncomingFile("a.png", image_bytes(seed=5)))
     checks.add(ingest.IncomingFile("copy.png", image_bytes(seed=5)))
@@ -146,7 +146,7 @@ def test_a_file_is_staged_while_it_is_checked_and_withdrawn_when_refused(
     its check runs, not after it; one the check refuses leaves nothing staged."""
     release = threading.Event()
     real = ingest.check_frame_file
-    storage = Storage(tmp_path)
+    storage = LocalStorage(tmp_path)
 
     def held(*args, **kwargs):  # type: ignore[no-untyped-def]
         assert release.wait(timeout=10)

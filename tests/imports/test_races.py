@@ -12,7 +12,7 @@ from app.core.models import Frame, Label, LabelRevision, Role, Sequence, User
 from app.frames.sequences import create_sequence
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
-from app.storage import Storage
+from app.storage import open_storage
 from tests.imports.common import masks_archive
 from weldpool_core.annotations import open_source
 
@@ -41,7 +41,7 @@ def test_two_imports_of_the_same_labels_at_once_write_each_frame_once(
                 reports.append(
                     import_labels(
                         session,
-                        Storage.of(settings),
+                        open_storage(settings),
                         source,
                         ImportOptions("masks", sequence_id=run_id),
                         session.get_one(User, user.id),
@@ -81,7 +81,7 @@ def test_two_imports_without_a_run_each_make_their_own(
                 barrier.wait()
                 import_labels(
                     session,
-                    Storage.of(settings),
+                    open_storage(settings),
                     source,
                     ImportOptions("masks"),
                     session.get_one(User, user.id),
@@ -132,7 +132,7 @@ def test_an_import_others_keep_racing_stops_saying_what_it_wrote(
         try:
             import_labels(
                 session,
-                Storage.of(settings),
+                open_storage(settings),
                 source,
                 ImportOptions("masks"),
                 session.get_one(User, user.id),

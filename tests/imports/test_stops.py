@@ -16,7 +16,7 @@ from app.core.errors import PermissionDeniedError
 from app.core.models import Label, Role, User
 from app.imports.schemas import ImportOptions
 from app.imports.service import import_labels
-from app.storage import Storage
+from app.storage import open_storage
 from tests.helpers import auth, image_bytes, wait_for, wait_for_job
 from tests.imports.common import H, W, masks_archive, stored_labels, zipped
 from weldpool_core.annotations import open_source
@@ -72,7 +72,7 @@ def test_an_import_stops_when_its_user_is_deactivated(
     with session_factory() as session, pytest.raises(PermissionDeniedError) as stopped:
         import_labels(
             session,
-            Storage.of(settings),
+            open_storage(settings),
             source,
             ImportOptions("masks"),
             session.get_one(User, user.id),

@@ -356,9 +356,9 @@ def test_a_job_error_names_no_server_path(session_factory, settings: Settings) -
 
 @job_handler("test-store-gone")
 def _store_gone(ctx: JobContext) -> dict:
-    from app.storage import Storage
+    from app.storage import open_storage
 
-    Storage.of(ctx.settings).put(b"content", "ab" * 32, ".png")
+    open_storage(ctx.settings).put(b"content", "ab" * 32, ".png")
     return {}
 
 

@@ -9,7 +9,7 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.core.models import Frame, ModelVersion, Proposal, Role
-from app.storage import Storage
+from app.storage import LocalStorage
 from tests.factories import frame_ids, numbered, random_images, run_teacher, upload_synthetic
 from tests.helpers import auth, corrected_label
 from tests.proposals.common import H, W, box, propose
@@ -20,7 +20,7 @@ def _teacher_and_student(
 ) -> list[int]:
     """``count`` frames, each with a teacher proposal (IoU 0.6 against ``box(20, 60)``) and a
     proposal of student-v1 (IoU 38/42 against it)."""
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     ids = frame_ids(
         client, token, random_images(numbered(count, first_seed=seed), width=W, height=H)
     )
@@ -109,7 +109,7 @@ def test_a_label_records_its_proposal_and_acceptance_is_counted_per_source(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
     _, token = make_user("provenance", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     ids = frame_ids(client, token, random_images(numbered(2, first_seed=500), width=W, height=H))
     teacher = propose(session_factory, storage, ids[0], "teacher", "t", box(30, 70))
     student = propose(session_factory, storage, ids[0], "student", "student-v9", box(22, 62))
@@ -145,7 +145,7 @@ def test_the_teacher_skips_only_frames_its_own_model_proposed_for(
     client: TestClient, settings, session_factory, make_user
 ) -> None:
     _, token = make_user("skipper", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     first, second = upload_synthetic(client, token, 2)
     propose(session_factory, storage, first, "student", "student-v3", box(20, 60))
     result = run_teacher(client, token, [first, second])["result"]
@@ -169,7 +169,7 @@ def test_a_replaced_proposals_files_are_doomed_for_the_collector(
     from tests.helpers import age_stored_files
 
     _, token = make_user("doomed", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     (frame_id,) = frame_ids(
         client, token, random_images(numbered(1, first_seed=300), width=W, height=H)
     )

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from app.core.models import Frame, Proposal, Role
 from app.proposals.queue import rescore_frame
 from app.review import propagation
-from app.storage import Storage
+from app.storage import open_storage
 from tests.factories import frame_ids, numbered, random_images
 from tests.helpers import auth
 
@@ -110,7 +110,7 @@ def test_a_propagated_mask_sam2_doubts_ranks_above_a_confident_one(
     confident, doubted = frame_ids(
         client, token, random_images(numbered(2, first_seed=200), width=32, height=24)
     )
-    storage = Storage.of(settings)
+    storage = open_storage(settings)
     mask = np.zeros((24, 32), bool)
     mask[8:16, 10:22] = True
     weights = settings.uncertainty_weights

@@ -280,7 +280,7 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
 
     from app.core.models import Label, Proposal
     from app.proposals.files import store_mask
-    from app.storage import Storage
+    from app.storage import LocalStorage
     from tests.helpers import corrected_label, image_bytes
 
     _, token = make_user("rle-reviewer", Role.reviewer)
@@ -298,7 +298,7 @@ def test_a_label_stores_its_coco_mask_when_saved_and_the_export_reads_it(
     proposed = np.zeros((100, 160), bool)
     proposed[10:30, 5:25] = True
     with session_factory() as session:
-        path = store_mask(Storage(settings.home), proposed)
+        path = store_mask(LocalStorage(settings.home), proposed)
         session.add(Proposal(frame_id=ids[1], source="teacher", model_id="t", mask_path=path))
         session.commit()
     saved = client.put(

@@ -16,7 +16,7 @@ import pytest
 from app.core.models import Frame, Label, LabelStatus, Split
 from app.review import export
 from app.review.export_classes import Rows
-from app.storage import Storage
+from app.storage import LocalStorage, Storage
 from tests.helpers import image_bytes
 from weldpool_core.annotations import cvat
 from weldpool_core.annotations.shapes import cvat_rle
@@ -70,7 +70,7 @@ def _mask(element: ET.Element) -> np.ndarray:
 def test_the_cvat_masks_are_built_in_the_pool_and_are_the_whole_frames(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage(tmp_path)
+    storage = LocalStorage(tmp_path)
     rows, masks = _rows(storage, 24)
     built_in: set[int] = set()
     real = cvat.cvat_rle_mask

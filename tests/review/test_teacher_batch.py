@@ -9,14 +9,14 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Frame, Proposal, Role
 from app.main import create_app
-from app.storage import Storage
+from app.storage import LocalStorage
 from app.storage.pixels import load_mask
 from tests.helpers import auth, image_bytes, wait_for_job
 from weldpool_core.teacher.teacher import Teacher
 
 
 def _masks(settings, session_factory) -> dict[str, np.ndarray]:
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     with session_factory() as session:
         return {
             session.get_one(Frame, p.frame_id).sha256: load_mask(storage, p.mask_path)

@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 from app.core.config import Settings
 from app.core.errors import ConfigurationError
 from app.core.models import Role
-from app.storage import Storage
+from app.storage import open_storage
 from tests.helpers import auth, hanging_server, image_bytes, make_settings, within
 
 
@@ -93,14 +93,14 @@ def test_starting_against_a_store_that_never_answers_stops_within_the_bound(
 
 
 def test_requests_and_jobs_wait_on_the_store_as_configured(settings: Settings) -> None:
-    """Requests wait the short bounds; workers' jobs (Storage.of) the longer ones."""
-    request_store = Storage.of(settings, for_requests=True)
-    job_store = Storage.of(settings)
+    """Requests wait the short bounds; workers' jobs (open_storage) the longer ones."""
+    request_store = open_storage(settings, for_requests=True)
+    job_store = open_storage(settings)
     for store, waits in (
         (request_store, settings.storage_waits(jobs=False)),
         (job_store, settings.storage_waits(jobs=True)),
     ):
-        config = store.client.meta.config  # type: ignore[attr-defined]
+        config = store.objects.client.meta.config  # type: ignore[attr-defined]
         assert (config.connect_timeout, config.read_timeout) == (waits.connect_s, waits.read_s)
         assert config.retries["total_max_attempts"] == waits.attempts
     assert settings.storage_waits(jobs=True).read_s == 60.0

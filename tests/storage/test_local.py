@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from app.storage import Storage
+from app.storage import LocalStorage, Storage
 from app.storage import local as storage_module
 
 
@@ -24,7 +24,7 @@ def _age(storage: Storage, relative: str, seconds: float) -> None:
 
 
 def test_collect_removes_only_unnamed_files_whose_claim_lapsed(tmp_path: Path) -> None:
-    storage = Storage(tmp_path, grace_s=100)
+    storage = LocalStorage(tmp_path, grace_s=100)
     old, fresh, named = (_stored(storage, bytes([i]) * 10) for i in range(3))
     _age(storage, old, 101)
     _age(storage, named, 101)
@@ -37,7 +37,7 @@ def test_collect_removes_only_unnamed_files_whose_claim_lapsed(tmp_path: Path) -
 def test_reusing_stored_content_claims_it(tmp_path: Path) -> None:
     """put and stage of content already there refresh its claim, so a deletion that commits
     before the reusing row leaves the file."""
-    storage = Storage(tmp_path, grace_s=100)
+    storage = LocalStorage(tmp_path, grace_s=100)
     data = b"shared content"
     relative = _stored(storage, data)
     _age(storage, relative, 1000)
@@ -56,7 +56,7 @@ def test_a_claim_made_while_the_collector_looks_keeps_the_file(
     """The collector moves a file aside, then reads its claim: an upload that claimed it just
     before is seen (the file goes back); one that claims it while it is aside finds no file
     and writes it again."""
-    storage = Storage(tmp_path, grace_s=100)
+    storage = LocalStorage(tmp_path, grace_s=100)
     data = b"raced content"
     digest = hashlib.sha256(data).hexdigest()
     relative = _stored(storage, data)
@@ -86,7 +86,7 @@ def test_a_claim_made_while_the_collector_looks_keeps_the_file(
 def test_discard_keeps_a_file_another_writer_claimed_since(tmp_path: Path) -> None:
     """An aborted write removes the files it created, unless another writer claimed them
     after it (that writer's row may be about to commit)."""
-    storage = Storage(tmp_path, grace_s=100)
+    storage = LocalStorage(tmp_path, grace_s=100)
     mine = storage.put(b"only mine", hashlib.sha256(b"only mine").hexdigest(), ".png")
     theirs = storage.put(b"also theirs", hashlib.sha256(b"also theirs").hexdigest(), ".png")
     assert mine.created and theirs.created
@@ -99,7 +99,7 @@ def test_discard_keeps_a_file_another_writer_claimed_since(tmp_path: Path) -> No
 def test_sweep_puts_back_a_file_a_dead_collector_left_aside(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage(tmp_path, grace_s=100)
+    storage = LocalStorage(tmp_path, grace_s=100)
     relative = _stored(storage, b"named by a row")
     storage.tmp.mkdir(exist_ok=True)
     aside = storage.tmp / f"{relative.replace('/', '~')}~deadbeef.collect"
@@ -116,7 +116,7 @@ def test_sweep_puts_back_a_file_a_dead_collector_left_aside(
 def test_a_lost_file_is_one_missing_file_error_and_lost_names_it(tmp_path: Path) -> None:
     from app.core.errors import MissingFile, http_status_of
 
-    storage = Storage(tmp_path / "home")
+    storage = LocalStorage(tmp_path / "home")
     kept, gone = _stored(storage, b"kept"), _stored(storage, b"gone")
     assert storage.existing(kept).read_bytes() == b"kept"
     (storage.home / gone).unlink()

@@ -113,7 +113,7 @@ def test_a_trashed_object_is_not_lost_and_a_missing_key_is(
     storage = ObjectStorage(tmp_path / "home", s3_url, 60.0, s3_endpoint, waits=waits)
     kept = storage.put(b"kept", "a" * 64, ".png").path
     trashed = storage.put(b"trashed", "b" * 64, ".png").path
-    assert storage._remove_if(trashed, lambda _ns: True)  # the collector trashed it
+    assert storage.trash.remove_if(trashed, lambda _ns: True)  # the collector trashed it
     assert storage.lost([kept, trashed, "frames/cc/cc/none.png"]) == {"frames/cc/cc/none.png"}
     assert storage.holds(kept) and not storage.holds("frames/cc/cc/none.png")  # one HEAD each
     with pytest.raises(MissingFile):

@@ -14,7 +14,7 @@ import boto3
 import pytest
 
 from app.core.config import StoreWaits
-from app.storage import Storage
+from app.storage import LocalStorage, open_storage
 from app.storage.s3 import TRASH, ObjectStorage
 from tests.s3 import bucket_keys
 
@@ -77,7 +77,7 @@ def test_staged_files_are_in_the_bucket_before_install_and_withdrawn_by_unstage(
     assert installed[0].created and (web.home / installed[0].path).read_bytes() == a
     web.unstage(staged[1:])  # a duplicate, not installed: its upload goes (to the trash)
     assert set(bucket_keys(s3_endpoint, s3_url, "frames/")) == {installed[0].path}
-    assert not list(web.tmp.glob("*.part"))
+    assert not list(web.scratch().glob("*.part"))
 
 
 def test_discard_spares_content_another_writer_claimed_since(
@@ -139,16 +139,16 @@ def test_a_claim_that_lands_while_the_collector_removes_is_not_lost(
     data, sha = content(30)
     stored = web.put(data, sha, ".png")
     age(s3_endpoint, s3_url, stored.path, 120)
-    looked = web._claim_ns(stored.path)  # the collector looks: unclaimed for two minutes
+    looked = web.objects.claim_ns(stored.path)  # the collector looks: unclaimed for two minutes
     assert not worker.put(data, sha, ".png").created  # a writer claims it, then commits
-    assert web._remove_if(stored.path, lambda ns: looked is not None)  # the collector deletes
+    assert web.trash.remove_if(stored.path, lambda ns: looked is not None)  # the collector deletes
     assert stored.path not in bucket_keys(s3_endpoint, s3_url)
 
     reader = store(tmp_path, "reader", s3_url, s3_endpoint)
     assert reader.absolute(stored.path).read_bytes() == data  # fetched: put back from the trash
     assert stored.path in bucket_keys(s3_endpoint, s3_url)
 
-    web._remove_if(stored.path, lambda ns: True)  # the same race again, and no reader comes
+    web.trash.remove_if(stored.path, lambda ns: True)  # the same race again, and no reader comes
     web.grace_s = 0.0
     time.sleep(1.1)
     web.sweep_orphans(["frames"], known={stored.path})  # the row names it: restored, not purged
@@ -189,7 +189,7 @@ def test_the_cache_never_evicts_a_file_just_handed_out(
 def test_videos_stream_in_parts_and_folders_are_published_whole(
     tmp_path: Path, s3_url: str, s3_endpoint: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import app.storage.s3 as s3
+    import app.storage.s3.bucket as s3
 
     monkeypatch.setattr(s3, "MULTIPART_BYTES", 5 * 1024 * 1024)  # S3's smallest part
     web, worker = (
@@ -199,7 +199,7 @@ def test_videos_stream_in_parts_and_folders_are_published_whole(
     video = os.urandom(12 * 1024 * 1024)
     stored, sha, size = web.put_stream(io.BytesIO(video), ".mp4", "videos")
     assert size == len(video) and sha == hashlib.sha256(video).hexdigest()
-    head = web.client.head_object(Bucket=web.bucket, Key=web.key(stored.path))
+    head = web.objects.client.head_object(Bucket=web.objects.name, Key=web.objects.key(stored.path))
     assert "-" in head["ETag"]  # a multipart upload: sent in parts, never one body in memory
     assert hashlib.sha256(worker.absolute(stored.path).read_bytes()).hexdigest() == sha
 
@@ -238,15 +238,15 @@ def test_settings_choose_the_backend_and_a_bad_store_is_one_sentence(
     from app.core.errors import ConfigurationError
     from tests.helpers import make_settings
 
-    assert type(Storage.of(make_settings(tmp_path / "a"))) is Storage
-    remote = Storage.of(
+    assert type(open_storage(make_settings(tmp_path / "a"))) is LocalStorage
+    remote = open_storage(
         make_settings(tmp_path / "b", storage_url=s3_url, s3_endpoint_url=s3_endpoint)
     )
     assert isinstance(remote, ObjectStorage) and remote.remote == s3_url
     remote.check()
     with pytest.raises(ValidationError, match="s3://bucket/prefix"):
         make_settings(tmp_path / "c", storage_url="gs://bucket")
-    absent = Storage.of(
+    absent = open_storage(
         make_settings(
             tmp_path / "d", storage_url="s3://no-such-bucket-wp", s3_endpoint_url=s3_endpoint
         )
@@ -348,12 +348,12 @@ def test_a_home_with_files_of_its_own_is_pushed_before_it_becomes_a_cache(
     from tests.helpers import make_settings, run_cli
 
     home = tmp_path / "home"
-    local = Storage(home)  # an instance that kept its files in home
+    local = LocalStorage(home)  # an instance that kept its files in home
     data, sha = content(60)
     kept = local.put(data, sha, ".png")
     (home / "models" / "v1").mkdir(parents=True)
     (home / "models" / "v1" / "model.safetensors").write_bytes(b"w")
-    remote = Storage.of(make_settings(home, storage_url=s3_url, s3_endpoint_url=s3_endpoint))
+    remote = open_storage(make_settings(home, storage_url=s3_url, s3_endpoint_url=s3_endpoint))
     with pytest.raises(ConfigurationError, match="weldpool storage push"):
         remote.check()  # its cache would evict files no other machine has seen
     env = {"WELDPOOL_HOME": str(home), "WELDPOOL_STORAGE_URL": s3_url}
@@ -389,7 +389,7 @@ def test_files_fetched_ahead_are_read_from_the_cache(
     ]
     assert worker.reads == 5  # each fetched once, ahead
     assert not worker.absolute("frames/00/00/none.png").exists()
-    Storage(tmp_path / "home").fetch_ahead(paths)  # home's files: nothing to do
+    LocalStorage(tmp_path / "home").fetch_ahead(paths)  # home's files: nothing to do
 
 
 def test_a_frame_is_uploaded_while_it_is_checked_and_a_refused_one_withdrawn(
@@ -411,4 +411,4 @@ def test_a_frame_is_uploaded_while_it_is_checked_and_a_refused_one_withdrawn(
     assert set(bucket_keys(s3_endpoint, s3_url, "frames/")) == {first.staged.relative}
     installed = web.install_many([first.staged])
     assert (web.home / installed[0].path).read_bytes() == good
-    assert not list(web.tmp.glob("*.part"))
+    assert not list(web.scratch().glob("*.part"))

@@ -158,9 +158,9 @@ def test_web_and_worker_with_no_shared_disk(
 
                 wait_for(lambda: student_proposals() >= 3, timeout=180, interval=0.5)
                 version = session.scalars(sa.select(ModelVersion)).one()
-                from app.storage import Storage
+                from app.storage import open_storage
 
-                folder = Storage.of(settings).folder(version.checkpoint_path)
+                folder = open_storage(settings).folder(version.checkpoint_path)
                 assert folder is not None and (folder / "model.safetensors").is_file()  # … fetched
             engine.dispose()
 

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 
 from app.core.models import Proposal, Role
 from app.proposals.files import store_mask
-from app.storage import Storage
+from app.storage import LocalStorage
 from tests.helpers import auth, corrected_label, image_bytes
 
 
@@ -50,7 +50,7 @@ def test_a_runs_geometry_comes_from_labels_else_the_proposal_shown(
                 frame_id=proposed,
                 source="teacher",
                 model_id="t",
-                mask_path=store_mask(Storage(settings.home), _rect(50, 90, 30, 50)),
+                mask_path=store_mask(LocalStorage(settings.home), _rect(50, 90, 30, 50)),
                 keypoints=[[50, 40]],
                 scores={"sam2_iou": 0.8},
             )

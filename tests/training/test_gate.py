@@ -20,7 +20,7 @@ from safetensors.torch import load_file, save_file
 
 from app.core.models import Frame, ModelVersion, Proposal, Role
 from app.proposals.files import store_mask
-from app.storage import Storage
+from app.storage import LocalStorage
 from app.training import gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
 from tests.factories import frame_ids, numbered, random_images
@@ -84,7 +84,7 @@ def _shrunk() -> np.ndarray:
 
 def _frames_with_labels(client, token, settings, session_factory, teacher_keypoints) -> list[int]:
     ids = frame_ids(client, token, random_images(numbered(3, first_seed=300), width=W, height=H))
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     with session_factory() as session:
         for frame_id in ids:
             session.add(
@@ -108,7 +108,7 @@ def _measure(settings, session_factory, candidate: int, incumbent: int | None = 
     with session_factory() as session:
         return gate.measure(
             session,
-            Storage(settings.home),
+            LocalStorage(settings.home),
             session.get_one(ModelVersion, candidate),
             session.get(ModelVersion, incumbent) if incumbent else None,
             "cpu",
@@ -182,7 +182,7 @@ def test_pseudo_labels_are_confident_teacher_proposals_on_unlabelled_frames_only
     from app.training.service import pseudo_label_proposals, teacher_confidence
 
     _, token = make_user("distiller", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     ids = frame_ids(client, token, random_images(numbered(5, first_seed=600), width=W, height=H))
     sure, unsure, student_only, labelled, validation = ids
     with session_factory() as session:
@@ -272,7 +272,7 @@ def test_labels_accepted_from_the_teacher_do_not_decide_against_a_better_student
     Over all six the teacher wins (0.89 vs 0.83); on the drawn labels, the fair yardstick, the
     student does, and on the accepted ones it is near enough (0.80 ≥ MIN_MIOU): promoted."""
     _, token = make_user("fair", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     ids = frame_ids(client, token, random_images(numbered(6, first_seed=500), width=W, height=H))
     accepted = ids[:4]
     for frame_id in ids:
@@ -310,7 +310,7 @@ def test_an_incumbent_is_not_judged_on_labels_taken_from_its_own_proposals(
     """Every held-out label was accepted unchanged from the promoted version's proposals: it
     would score 1.000 there, so the gate refuses to compare on them and says what to do."""
     _, token = make_user("fair2", Role.reviewer)
-    storage = Storage(settings.home)
+    storage = LocalStorage(settings.home)
     ids = frame_ids(client, token, random_images(numbered(3, first_seed=600), width=W, height=H))
     incumbent = _version(settings, session_factory, base_model, "inc", 30.0, -30.0, ids, True)
     for frame_id in ids:
