@@ -205,11 +205,13 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
     if not image.exists() or not mask.exists():
         pytest.skip(f"The real frames are not here ({WAAM}).")
     files = [("files", (image.name, image.read_bytes(), "image/png"))]
-    frame = server.api("POST", "/frames", files=files).json()["stored"][0]["id"]
+    answer = server.api("POST", "/frames", files=files).json()
+    frame = (answer["stored"] or answer["duplicates"])[0]["frame_id" if not answer["stored"] else "id"]
+    base = server.api("GET", f"/frames/{frame}").json()
     wire = [[1280, 300], [900, 395], [905, 420], [1280, 345]]
     body = {
         "status": "corrected",
-        "base_revision": 0,
+        "base_revision": (base.get("label") or {}).get("revision", 0),
         "mask_png": base64.b64encode(mask.read_bytes()).decode(),
         "objects": [
             {"class": "wire", "polygons": [wire]},
@@ -224,7 +226,14 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{frame}")
     open_review(page)
-    assert [o["name"] for o in canvas_data(page, "objects")] == ["wire", "wire tip", "spatter 1", "spatter 2"]
+    shown = canvas_data(page, "objects")
+    assert [o["name"] for o in shown] == ["wire", "wire tip", "spatter 1", "spatter 2"]
+    # The stored regions (COCO RLE, down the columns) decode where the server has them.
+    stored = server.api("GET", f"/frames/{frame}/label").json()["objects"]
+    for here, there in zip(shown, stored, strict=True):
+        if "rle" in there:
+            assert (here["area"], here["bbox"]) == (there["area"], there["bbox"])
+    assert shown[1]["points"] == {"tip": [902, 408]}
     page.click("[data-testid=layer-row][data-class=spatter] >> nth=1")
     assert _layer(page) == "spatter 2"
     assert page.input_value("[data-testid=object-attribute][data-name=size]") == "small"

@@ -143,7 +143,7 @@ export function drawLayers() {
   })));
   stage.canvas.dataset.layer = S.layer === POOL ? POOL : objectName(activeObject());
   stage.canvas.dataset.objects = JSON.stringify(S.edit.objects.map((o) => ({
-    name: objectName(o), class: o.cls, ...(o.points ? { points: o.points } : { area: o.mask.area() }),
+    name: objectName(o), class: o.cls, ...(o.points ? { points: o.points } : { area: o.mask.area(), bbox: o.mask.bbox() }),
   })));
   stage.requestRender();
 }

@@ -22,6 +22,20 @@ export class Mask {
     return n ? [sx / n, sy / n] : null;
   }
 
+  /** The box around the mask's pixels as COCO writes it, [x, y, width, height], or null. */
+  bbox() {
+    let x0 = Infinity, y0 = Infinity, x1 = -1, y1 = -1;
+    for (let i = 0; i < this.data.length; i++) {
+      if (!this.data[i]) continue;
+      const x = i % this.width, y = (i - x) / this.width;
+      if (x < x0) x0 = x;
+      if (x > x1) x1 = x;
+      if (y < y0) y0 = y;
+      y1 = y;
+    }
+    return x1 < 0 ? null : [x0, y0, x1 - x0 + 1, y1 - y0 + 1];
+  }
+
   any() {
     return this.data.some((v) => v !== 0);
   }
