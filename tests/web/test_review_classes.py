@@ -99,6 +99,8 @@ def test_every_class_is_edited_and_saved_in_one_put(
     _stroke(page, (300, 200), (420, 200))
     wait_for_js(page, "() => JSON.parse(document.querySelector('[data-testid=frame-canvas]').dataset.objects)[0].area > 0")
     assert canvas_data(page, "mask-area") == pool_before  # the pool is not what the brush edits
+    x, y, w, h = _objects(page)["wire"]["bbox"]  # the drag's frame pixels, through zoom and pan
+    assert abs(x - 290) <= 2 and abs(y - 190) <= 2 and abs(w - 141) <= 3 and abs(h - 21) <= 3
 
     # The wire tip: one named point, placed by a click, then dragged a little.
     page.keyboard.press("t")
