@@ -24,7 +24,13 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 CONFIG = {
     "classes": [
         {"name": "wire", "kind": "mask", "color": "#40c057", "hotkey": "w"},
-        {"name": "wire tip", "kind": "points", "color": "#fab005", "hotkey": "t", "point_names": ["tip"]},
+        {
+            "name": "wire tip",
+            "kind": "points",
+            "color": "#fab005",
+            "hotkey": "t",
+            "point_names": ["tip"],
+        },
         {
             "name": "spatter",
             "kind": "instances",
@@ -52,6 +58,18 @@ def classes(server: LiveServer) -> Iterator[None]:
 
 def _objects(page: Any) -> dict[str, Any]:
     return {o["name"]: o for o in canvas_data(page, "objects")}
+
+
+def _wait_for_area(page: Any, name: str) -> None:
+    """Until the object `name` has pixels and nothing is pending (a SAM2 answer, a trace)."""
+    wait_for_js(
+        page,
+        "(name) => { const c = document.querySelector('[data-testid=frame-canvas]');"
+        " const o = JSON.parse(c.dataset.objects).find((o) => o.name === name);"
+        " return c.dataset.pending === '0' && o && o.area > 0; }",
+        arg=name,
+        timeout=60_000,
+    )
 
 
 def _stroke(page: Any, start: tuple[float, float], end: tuple[float, float]) -> None:
@@ -88,7 +106,10 @@ def test_every_class_is_edited_and_saved_in_one_put(
     pool_before = canvas_data(page, "mask-area")
     picker = page.locator("[data-testid=class-option]")
     assert picker.evaluate_all("nodes => nodes.map(n => n.dataset.class)") == [
-        "pool", "wire", "wire tip", "spatter",
+        "pool",
+        "wire",
+        "wire tip",
+        "spatter",
     ]
     assert page.locator("[data-testid=class-option][data-class=wire] kbd").inner_text() == "w"
 
@@ -97,7 +118,7 @@ def test_every_class_is_edited_and_saved_in_one_put(
     assert _layer(page) == "wire"
     _brush(page, 20)
     _stroke(page, (300, 200), (420, 200))
-    wait_for_js(page, "() => JSON.parse(document.querySelector('[data-testid=frame-canvas]').dataset.objects)[0].area > 0")
+    _wait_for_area(page, "wire")
     assert canvas_data(page, "mask-area") == pool_before  # the pool is not what the brush edits
     x, y, w, h = _objects(page)["wire"]["bbox"]  # the drag's frame pixels, through zoom and pan
     assert abs(x - 290) <= 2 and abs(y - 190) <= 2 and abs(w - 141) <= 3 and abs(h - 21) <= 3
@@ -120,9 +141,7 @@ def test_every_class_is_edited_and_saved_in_one_put(
     assert _layer(page) == "spatter 1"
     page.keyboard.press("1")
     page.mouse.click(*to_page(page, 640, 400))
-    wait_for_js(page, "() => { const c = document.querySelector('[data-testid=frame-canvas]');"
-                " return c.dataset.pending === '0' && JSON.parse(c.dataset.objects).find(o => o.name === 'spatter 1').area > 0; }",
-                timeout=60_000)
+    _wait_for_area(page, "spatter 1")
     page.select_option("[data-testid=object-attribute][data-name=size]", "large")
     page.click("[data-testid=add-instance][data-class=spatter]")
     assert _layer(page) == "spatter 2"
@@ -208,7 +227,9 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
         pytest.skip(f"The real frames are not here ({WAAM}).")
     files = [("files", (image.name, image.read_bytes(), "image/png"))]
     answer = server.api("POST", "/frames", files=files).json()
-    frame = (answer["stored"] or answer["duplicates"])[0]["frame_id" if not answer["stored"] else "id"]
+    frame = (answer["stored"] or answer["duplicates"])[0][
+        "frame_id" if not answer["stored"] else "id"
+    ]
     base = server.api("GET", f"/frames/{frame}").json()
     wire = [[1280, 300], [900, 395], [905, 420], [1280, 345]]
     body = {
@@ -219,7 +240,11 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
             {"class": "wire", "polygons": [wire]},
             {"class": "wire tip", "points": {"tip": [902, 408]}},
             {"class": "spatter", "polygons": [[[700, 250], [730, 250], [730, 275], [700, 275]]]},
-            {"class": "spatter", "polygons": [[[420, 600], [445, 600], [445, 630]]], "attributes": {"size": "small"}},
+            {
+                "class": "spatter",
+                "polygons": [[[420, 600], [445, 600], [445, 630]]],
+                "attributes": {"size": "small"},
+            },
         ],
         "tags": ["arc unstable"],
     }
