@@ -38,7 +38,7 @@ export function cycleProposal() {
 }
 
 export function deleteSelected() {
-  if (kindOf() === "points") { if (S.selectedPoint) removePoint(S.selectedPoint); return; }
+  if (kindOf() === "points" && !S.validation) { if (S.selectedPoint) removePoint(S.selectedPoint); return; }
   if (S.tool === "polygon" && S.stage.selectedVertex && S.edit.outline?.mask) removeVertex(S.stage.selectedVertex);
   else if (S.stage.selected >= 0) deleteKeypoint(S.stage.selected);
 }

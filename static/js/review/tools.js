@@ -237,7 +237,7 @@ export function onPointerDown(event) {
     if (event.button === 0) S.gesture = S.ruler.pointerDown(sx, sy, x, y, inside) ?? S.gesture;
     return;
   }
-  if (kindOf() === "points") {
+  if (kindOf() === "points" && !S.validation) {
     if (!S.ruler.active) S.gesture = pointsDown(event, sx, sy, x, y, inside) ?? S.gesture;
     return;
   }
