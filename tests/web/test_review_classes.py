@@ -151,6 +151,7 @@ def test_every_class_is_edited_and_saved_in_one_put(
 
     # A frame tag, then one save for everything.
     page.click("[data-testid=frame-tag][data-tag=humping]")
+    page.select_option("[data-testid=frame-attribute][data-name=visibility]", "poor")
     page.uncheck("#advance")
     page.click("[data-testid=save]")
     page.locator("[data-testid=toast-ok]", has_text="Saved as corrected").wait_for()
@@ -158,6 +159,7 @@ def test_every_class_is_edited_and_saved_in_one_put(
 
     label = server.api("GET", f"/frames/{frame}/label").json()
     assert label["revision"] == 1 and label["tags"] == ["humping"]
+    assert label["attributes"] == {"visibility": "poor"}
     by_class: dict[str, list[Any]] = {}
     for obj in label["objects"]:
         by_class.setdefault(obj["class"], []).append(obj)
