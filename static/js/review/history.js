@@ -18,17 +18,33 @@ export function undo() {
   if (!S.past.length) return;
   S.future.push(S.edit);
   S.edit = S.past.pop();
-  changed();
+  followLayer(S.future.at(-1), S.edit);
+  changed("edit", "layers");
 }
 
 export function redo() {
   if (!S.future.length) return;
   S.past.push(S.edit);
   S.edit = S.future.pop();
-  changed();
+  followLayer(S.past.at(-1), S.edit);
+  changed("edit", "layers");
 }
 
-export const labelDirty = () => S.edit && (S.edit.mask !== S.labelClean.mask || S.edit.keypoints !== S.labelClean.keypoints);
+/** After undo or redo from `before` to `after`: the layer that step changed is the one edited
+ *  (the pool's mask or keypoints, else the object replaced); a layer gone leaves the pool. */
+function followLayer(before, after) {
+  if (before.mask !== after.mask || before.keypoints !== after.keypoints) S.layer = "pool";
+  else {
+    const stepped = after.objects.find((o) => !before.objects.includes(o));
+    if (stepped) S.layer = stepped.uid;
+  }
+  if (S.layer !== "pool" && !after.objects.some((o) => o.uid === S.layer)) S.layer = "pool";
+}
+
+/** Whether the other classes' objects or the frame's tags and attributes changed. */
+export const othersDirty = () => S.edit && (S.edit.objects !== S.labelClean.objects
+  || S.edit.tags !== S.labelClean.tags || S.edit.attributes !== S.labelClean.attributes);
+export const labelDirty = () => S.edit && (S.edit.mask !== S.labelClean.mask || S.edit.keypoints !== S.labelClean.keypoints || othersDirty());
 export const manualDirty = () => S.edit && S.edit.manual !== S.manualClean;
 
 export function sameKeypoints(a, b) {

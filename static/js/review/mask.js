@@ -22,6 +22,20 @@ export class Mask {
     return n ? [sx / n, sy / n] : null;
   }
 
+  /** The box around the mask's pixels as COCO writes it, [x, y, width, height], or null. */
+  bbox() {
+    let x0 = Infinity, y0 = Infinity, x1 = -1, y1 = -1;
+    for (let i = 0; i < this.data.length; i++) {
+      if (!this.data[i]) continue;
+      const x = i % this.width, y = (i - x) / this.width;
+      if (x < x0) x0 = x;
+      if (x > x1) x1 = x;
+      if (y < y0) y0 = y;
+      y1 = y;
+    }
+    return x1 < 0 ? null : [x0, y0, x1 - x0 + 1, y1 - y0 + 1];
+  }
+
   any() {
     return this.data.some((v) => v !== 0);
   }
@@ -55,6 +69,31 @@ export class Mask {
     const rgba = ctx.getImageData(0, 0, width, height).data;
     const data = new Uint8Array(width * height);
     for (let i = 0, j = 0; i < data.length; i++, j += 4) data[i] = rgba[j] >= 128 ? 1 : 0;
+    return new Mask(width, height, data);
+  }
+
+  /** A mask from COCO's compressed RLE (`counts` a string, runs down the columns, 0s first):
+   *  how the server stores the other classes' regions. */
+  static fromRle(counts, width, height) {
+    const data = new Uint8Array(width * height);
+    let at = 0;
+    let previous = [0, 0];
+    let value = 0;
+    for (let p = 0, m = 0; p < counts.length; m++) {
+      let x = 0, k = 0, more = true, c = 0;
+      while (more) {
+        c = counts.charCodeAt(p++) - 48;
+        x += (c & 0x1f) * 2 ** (5 * k);
+        more = (c & 0x20) !== 0;
+        k++;
+      }
+      if (c & 0x10) x -= 2 ** (5 * k); // the last group's sign bit
+      if (m > 2) x += previous[0]; // runs after the third are stored as the change from two back
+      previous = [previous[1], x];
+      if (value) for (let i = at; i < at + x; i++) data[(i % height) * width + Math.floor(i / height)] = 1;
+      at += x;
+      value = 1 - value;
+    }
     return new Mask(width, height, data);
   }
 
@@ -115,10 +154,16 @@ export function union(a, b) {
 const FILL = [0, 184, 255, 96];
 const EDGE = [0, 230, 255, 255];
 
+/** "#rrggbb" as [r, g, b]. */
+export const rgb = (hex) => [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
+
 /** The mask drawn as a translucent fill (or none: outline only) with an opaque outline, on a
  * canvas of the frame's size. */
 export class MaskOverlay {
-  constructor(width, height) {
+  /** `colour` ("#rrggbb"): another class's overlay; none: the pool's. */
+  constructor(width, height, colour = null) {
+    this.fill = colour ? [...rgb(colour), 110] : FILL;
+    this.edge = colour ? [...rgb(colour), 255] : EDGE;
     this.canvas = new OffscreenCanvas(width, height);
     this.ctx = this.canvas.getContext("2d");
     this.image = this.ctx.createImageData(width, height);
@@ -152,7 +197,7 @@ export class MaskOverlay {
         const edge = x === 0 || y === 0 || x === width - 1 || y === height - 1
           || !m[i - 1] || !m[i + 1] || !m[i - width] || !m[i + width];
         if (!edge && !this.filled) { out[j + 3] = 0; continue; }
-        const c = edge ? EDGE : FILL;
+        const c = edge ? this.edge : this.fill;
         out[j] = c[0]; out[j + 1] = c[1]; out[j + 2] = c[2]; out[j + 3] = c[3];
       }
     }

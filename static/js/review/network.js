@@ -5,6 +5,7 @@ import { ApiError, REVIEW_STAGE, api, jobFromButton, waitForJob } from "../api.j
 import { badge, formatDate, h, toast } from "../ui.js";
 import { setHeatmapVisible } from "./display.js";
 import { commit, isProposal, labelDirty, manualDirty } from "./history.js";
+import { othersBody } from "./layers.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { S, changed } from "./state.js";
@@ -96,8 +97,10 @@ export function bindReview() {
 
 // --- verdicts -------------------------------------------------------------------------------
 
+/** One PUT's body: the verdict on the pool, with the other classes' objects and the frame's
+ *  tags and attributes where they changed (one revision for all of them). */
 export async function verdictBody(kind, baseRevision) {
-  const from = S.proposal ? { proposal_id: S.proposal.id } : {};
+  const from = { ...(S.proposal ? { proposal_id: S.proposal.id } : {}), ...(await othersBody()) };
   if (kind === "reject") return { status: "rejected", base_revision: baseRevision, ...from };
   if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision, ...from };
   const body = { status: "corrected", base_revision: baseRevision, mask_png: await S.edit.mask.toPng(), ...from };

@@ -15,6 +15,10 @@ import { loadAgreement } from "./agreement.js";
 import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display.js";
 import { commit, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint } from "./keypoints.js";
+import { renderClasses } from "./classes.js";
+import { kindOf, objectsFromLabel, setConfig } from "./layers.js";
+import { classForKey, pickClass } from "./picker.js";
+import { removePoint } from "./points.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { bindReview, warmEmbedding, goNext, loadHistory, loadImage, optional, propagateFromHere, reviewOf, runTeacher, saveLabel, showQueuePosition, switchProposal } from "./network.js";
 import { $, FRAME_ID } from "./page.js";
@@ -34,6 +38,7 @@ export function cycleProposal() {
 }
 
 export function deleteSelected() {
+  if (kindOf() === "points" && !S.validation) { if (S.selectedPoint) removePoint(S.selectedPoint); return; }
   if (S.tool === "polygon" && S.stage.selectedVertex && S.edit.outline?.mask) removeVertex(S.stage.selectedVertex);
   else if (S.stage.selected >= 0) deleteKeypoint(S.stage.selected);
 }
@@ -77,7 +82,9 @@ export function onKey(event) {
     delete: () => deleteSelected(),
     backspace: () => deleteSelected(),
   };
-  if (actions[key]) { event.preventDefault(); actions[key](); }
+  if (actions[key]) { event.preventDefault(); actions[key](); return; }
+  const picked = classForKey(key); // a class's hotkey: the page's own keys come first
+  if (picked) { event.preventDefault(); pickClass(picked.name); }
 }
 
 export function fail(message) {
@@ -151,21 +158,23 @@ export async function start() {
   const imageUrl = `/api/v1/frames/${FRAME_ID}/image?variant=display`;
   const image = loadImage(imageUrl);
   image.catch(() => {});
-  let detail, proposalBody, label, manual, listing;
+  let detail, proposalBody, label, manual, listing, config;
   try {
     // The frame says what it has, so nothing absent is asked for (no 404s in the log).
     detail = await api(`/frames/${FRAME_ID}`);
-    [proposalBody, label, manual, listing] = await Promise.all([
+    [proposalBody, label, manual, listing, config] = await Promise.all([
       detail.proposal ? optional(`/frames/${FRAME_ID}/proposal`) : null,
       detail.label ? optional(`/frames/${FRAME_ID}/label`) : null,
       detail.has_validation_keypoints ? optional(`/frames/${FRAME_ID}/validation-keypoints`) : null,
       detail.proposal ? optional(`/frames/${FRAME_ID}/proposals`) : null,
+      api("/label-config").catch(() => null), // without it: the pool alone
     ]);
   } catch (error) {
     fail(error.message);
     return;
   }
   S.frame = detail;
+  setConfig(config);
   const { width, height } = S.frame;
   const [picture, proposalMask, labelMask] = await Promise.all([
     image.catch(() => null),
@@ -195,6 +204,9 @@ export async function start() {
     outline: null,
     maskEdited: false,
     kpEdited: false,
+    objects: objectsFromLabel(label, width, height), // the other classes' (layers.js)
+    tags: label?.tags ?? [],
+    attributes: label?.attributes ?? {},
   };
   S.labelClean = S.edit;
   S.manualClean = S.edit.manual;
@@ -229,4 +241,5 @@ export async function start() {
 }
 
 subscribe(render);
+subscribe(renderClasses);
 start();

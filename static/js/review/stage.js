@@ -1,5 +1,5 @@
-// The review canvas: the frame under a zoom / pan transform, the mask and heatmap overlays,
-// click prompts, the box being drawn, numbered keypoints, the scale ruler and the brush cursor.
+// The review canvas: the frame under a zoom / pan transform, the other classes' layers, the
+// mask and heatmap overlays, click prompts, the box being drawn, numbered keypoints, the scale ruler and the brush cursor.
 
 const KEYPOINT_RADIUS = 9;
 const COLOURS = {
@@ -31,6 +31,10 @@ export class Stage {
     this.showMask = true;
     this.showHeatmap = false;
     this.keypoints = [];
+    /** The other classes' masks under the pool's: [{canvas, alpha}]; their named points:
+     *  [{x, y, name, colour, selected}]. */
+    this.layers = [];
+    this.namedPoints = [];
     this.keypointStyle = "keypoint";
     this.dimKeypoints = false;
     /** How the frame is shown (never what is saved): brightness, contrast, gamma, overlays. */
@@ -184,6 +188,11 @@ export class Stage {
       ctx.drawImage(this.heatmap, 0, 0, this.width, this.height);
       ctx.globalAlpha = 1;
     }
+    for (const layer of this.layers) {
+      ctx.globalAlpha = layer.alpha;
+      ctx.drawImage(layer.canvas, 0, 0);
+    }
+    ctx.globalAlpha = 1;
     if (this.showMask && this.overlay && this.display.maskOpacity > 0) {
       ctx.globalAlpha = this.display.maskOpacity;
       ctx.drawImage(this.overlay.canvas, 0, 0);
@@ -195,6 +204,7 @@ export class Stage {
     this.points.forEach((p) => this.drawPrompt(p));
     this.drawPolygons();
     if (this.display.keypoints) this.drawKeypoints();
+    this.drawNamedPoints();
     this.drawRuler();
     this.drawCursor();
   }
@@ -287,6 +297,29 @@ export class Stage {
       ctx.fillStyle = "#1d232b";
       ctx.fillText(String(this.keypointNumbers?.[i] ?? i + 1), x, y + 0.5);
     });
+    ctx.restore();
+  }
+
+  /** The points classes' named points: a square in the class's colour with its name. */
+  drawNamedPoints() {
+    const { ctx } = this;
+    ctx.save();
+    ctx.font = "bold 11px system-ui, sans-serif";
+    ctx.textBaseline = "middle";
+    for (const point of this.namedPoints) {
+      const [x, y] = this.toScreen(point.x, point.y);
+      const r = point.selected ? 7 : 5.5;
+      ctx.globalAlpha = point.alpha ?? 1;
+      ctx.fillStyle = point.colour;
+      ctx.fillRect(x - r, y - r, 2 * r, 2 * r);
+      ctx.lineWidth = point.selected ? 2.5 : 1.5;
+      ctx.strokeStyle = point.selected ? "#fff" : "#1d232b";
+      ctx.strokeRect(x - r, y - r, 2 * r, 2 * r);
+      ctx.lineWidth = 3;
+      ctx.strokeStyle = "#1d232b";
+      ctx.strokeText(point.name, x + r + 4, y);
+      ctx.fillText(point.name, x + r + 4, y);
+    }
     ctx.restore();
   }
 

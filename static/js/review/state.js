@@ -25,6 +25,8 @@ export const S = {
   manualRevision: 0, // the revision of the keypoints placed by hand as loaded or saved (0: none)
   past: [],
   future: [],
+  layer: "pool", // the edited layer: "pool" or an object's uid (layers.js)
+  selectedPoint: null, // the named point selected on a points layer
   tool: "positive",
   toolBeforeValidation: "positive",
   maskBeforeValidation: true,
@@ -39,8 +41,8 @@ export const S = {
 // --- the one state-change notification ------------------------------------------------------
 
 /** What a change may touch: "edit" (the editing state: canvas, keypoint list, verdict), "frame"
- *  (the frame, its status and revision), "proposals", "review" (the review stage), "propagate". */
-export const PARTS = new Set(["edit", "frame", "proposals", "review", "propagate"]);
+ *  (the frame, its status and revision), "proposals", "review" (the review stage), "propagate", "layers" (which layer is edited, how each is shown). */
+export const PARTS = new Set(["edit", "frame", "proposals", "review", "propagate", "layers"]);
 const views = [];
 
 /** Call `view(parts)` after every change of the state, with the set of parts changed. */

@@ -1,5 +1,7 @@
 // The editing tools: SAM2 clicks and boxes through the segment endpoint, brush and eraser,
-// the outline as polygons, and the pointer gestures on the canvas.
+// the outline as polygons, and the pointer gestures on the canvas. Each works on the edited
+// layer's mask (layers.js): the pool's or another class's object; a points class's layer takes
+// its clicks as named points (points.js).
 
 import { ApiError, SAM2_PROBLEM, api } from "../api.js";
 import { score } from "../format.js";
@@ -7,8 +9,10 @@ import { toast } from "../ui.js";
 import { remember } from "./display.js";
 import { commit, exposeState, undo } from "./history.js";
 import { copyPoints, deleteKeypoint, orderCentre, withPoint } from "./keypoints.js";
+import { POOL, kindOf, maskOf, overlayOf, activeObject, setMaskIn, withMask } from "./layers.js";
 import { Mask } from "./mask.js";
 import { $, FRAME_ID, K, OUTLINE_TOLERANCE } from "./page.js";
+import { pointsDown, pointsMove } from "./points.js";
 import { S, changed } from "./state.js";
 
 // --- tools ----------------------------------------------------------------------------------
@@ -16,8 +20,11 @@ import { S, changed } from "./state.js";
 /** The tools that ask SAM2 for a mask: without its weights they are disabled and say why. */
 export const SAM2_TOOLS = new Set(["positive", "negative", "box"]);
 
-/** Whether a tool can be used now: keypoints only while validating, SAM2's only with SAM2. */
+/** Whether a tool can be used now: keypoints only while validating, SAM2's only with SAM2;
+ *  a points class's layer takes clicks as its points, whatever the tool. */
 export const toolUsable = (name) => (S.validation ? name === "keypoint" : !(SAM2_PROBLEM && SAM2_TOOLS.has(name)));
+/** The overlay the edited layer's mask is painted on. */
+const activeOverlay = () => (S.layer === POOL ? S.overlay : overlayOf(activeObject()));
 
 export function setTool(name) {
   if (!toolUsable(name)) {
@@ -47,7 +54,7 @@ export function outlineTolerance() {
 
 /** A new tolerance: the current mask's outline traced again with it. */
 export function setOutlineTolerance() {
-  if (S.edit && S.edit.outline?.mask === S.edit.mask) S.edit.outline = null; // a settled trace: again
+  if (S.edit && S.edit.outline?.mask === maskOf(S.edit)) S.edit.outline = null; // a settled trace: again
   showOutline();
   S.stage.requestRender();
 }
@@ -67,15 +74,22 @@ export function endSession() {
   if (S.edit.session) commit({ ...S.edit, session: null });
 }
 
+/** The click session on the edited layer (a session on another layer ends with this one). */
+function sessionHere() {
+  if (S.edit.session?.layer === S.layer) return S.edit.session;
+  const mask = maskOf(S.edit);
+  return { points: [], box: null, base: mask.any() ? mask : null, layer: S.layer };
+}
+
 export function addClick(x, y, positive) {
-  const session = S.edit.session ?? { points: [], box: null, base: S.edit.mask.any() ? S.edit.mask : null };
+  const session = sessionHere();
   if (session.points.length >= 64) { toast("At most 64 clicks; press Esc to start a new click session.", "error"); return; }
   commit({ ...S.edit, session: { ...session, points: [...session.points, { x, y, positive }] } });
   segment(S.edit);
 }
 
 export function setBox(box) {
-  const session = S.edit.session ?? { points: [], box: null, base: S.edit.mask.any() ? S.edit.mask : null };
+  const session = sessionHere();
   commit({ ...S.edit, session: { ...session, box } });
   segment(S.edit);
 }
@@ -113,8 +127,7 @@ export function segment(target) {
       answer = await api(`/frames/${FRAME_ID}/segment`, { method: "POST", json: body });
     }
     const mask = await Mask.fromPng(answer.mask_png, S.frame.width, S.frame.height);
-    target.mask = mask;
-    target.maskEdited = true;
+    setMaskIn(target, mask, target.session.layer);
     $("last-click").textContent = `mask in ${Math.round(answer.elapsed_ms)} ms · SAM2 IoU ${score(answer.score)}`;
     if (target === S.edit) changed();
   })();
@@ -142,23 +155,26 @@ export function track(run, onError = () => {}) {
 /** Show the outline of the current mask while the polygon tool is on (tracing it if needed). */
 export function showOutline() {
   const outline = S.edit?.outline;
+  const mask = S.edit ? maskOf(S.edit) : null;
+  const editing = S.tool === "polygon" && !S.validation && kindOf() !== "points";
   // Current: traced from this mask, or being traced or filled from it (pending).
-  const current = outline && (outline.mask === S.edit.mask || (outline.mask === null && outline.base === S.edit.mask));
-  S.stage.polygons = S.tool === "polygon" && !S.validation && current ? outline.polygons : null;
-  if (S.tool === "polygon" && !S.validation && !current && S.edit) traceOutline(S.edit);
+  const current = outline && outline.layer === S.layer && (outline.mask === mask || (outline.mask === null && outline.base === mask));
+  S.stage.polygons = editing && current ? outline.polygons : null;
+  if (editing && !current && S.edit) traceOutline(S.edit);
   if (S.stage.selectedVertex && !S.stage.polygons?.[S.stage.selectedVertex.polygon]?.points[S.stage.selectedVertex.index]) {
     S.stage.selectedVertex = null;
   }
 }
 
 export function traceOutline(target) {
-  const mask = target.mask;
-  target.outline = { mask: null, base: mask, polygons: [] }; // pending: traced once
+  const layer = S.layer;
+  const mask = maskOf(target, layer);
+  target.outline = { mask: null, base: mask, polygons: [], layer }; // pending: traced once
   const run = (async () => {
     const answer = mask.any()
       ? await api(`/frames/${FRAME_ID}/outline`, { method: "POST", json: { mask_png: await pngOf(mask), tolerance: outlineTolerance() } })
       : { polygons: [] };
-    target.outline = { mask, polygons: answer.polygons };
+    target.outline = { mask, polygons: answer.polygons, layer };
     if (target === S.edit) { showOutline(); exposeState(); S.stage.requestRender(); }
   })();
   track(run, () => { target.outline = null; });
@@ -168,7 +184,8 @@ export function traceOutline(target) {
 export function editOutline(change) {
   const polygons = S.edit.outline.polygons.map((p) => ({ hole: p.hole, points: p.points.map((q) => [...q]) }));
   change(polygons);
-  commit({ ...S.edit, outline: { mask: null, base: S.edit.mask, polygons }, maskEdited: true, session: null });
+  const edited = withMask(S.edit, maskOf(S.edit)); // the pool's: its keypoints follow the mask
+  commit({ ...edited, outline: { mask: null, base: maskOf(S.edit), polygons, layer: S.layer }, session: null });
   return S.edit;
 }
 
@@ -176,8 +193,9 @@ export function fillOutline(target) {
   const run = (async () => {
     const answer = await api(`/frames/${FRAME_ID}/outline/mask`, { method: "POST", json: { polygons: target.outline.polygons } });
     const mask = await Mask.fromPng(answer.mask_png, S.frame.width, S.frame.height);
-    target.mask = mask;
-    target.outline = { mask, polygons: target.outline.polygons };
+    const { layer, polygons } = target.outline;
+    setMaskIn(target, mask, layer);
+    target.outline = { mask, polygons, layer };
     if (target === S.edit) changed();
   })();
   track(run, () => { if (target === S.edit) undo(); });
@@ -217,6 +235,10 @@ export function onPointerDown(event) {
   if (event.button === 1 || S.spaceHeld) return;
   if (S.ruler.active) { // the ruler takes the clicks while it is out; elsewhere a drag pans
     if (event.button === 0) S.gesture = S.ruler.pointerDown(sx, sy, x, y, inside) ?? S.gesture;
+    return;
+  }
+  if (kindOf() === "points" && !S.validation) {
+    if (!S.ruler.active) S.gesture = pointsDown(event, sx, sy, x, y, inside) ?? S.gesture;
     return;
   }
   if (S.tool === "keypoint") {
@@ -268,9 +290,9 @@ export function onPointerDown(event) {
   if (!inside && S.tool !== "box") return;
   if (S.tool === "brush" || S.tool === "eraser") {
     if (event.button !== 0) return;
-    commit({ ...S.edit, mask: S.edit.mask.clone(), maskEdited: true, session: null });
-    const rect = S.edit.mask.stamp(x, y, brushRadius(), S.tool === "brush" ? 1 : 0);
-    S.overlay.paint(S.edit.mask, rect);
+    commit({ ...withMask(S.edit, maskOf(S.edit).clone()), session: null });
+    const rect = maskOf(S.edit).stamp(x, y, brushRadius(), S.tool === "brush" ? 1 : 0);
+    activeOverlay().paint(maskOf(S.edit), rect);
     S.gesture = { kind: "brush", x, y, value: S.tool === "brush" ? 1 : 0 };
     S.stage.requestRender();
   } else if (S.tool === "box") {
@@ -306,8 +328,8 @@ export function onPointerMove(event) {
     S.gesture.lastX = sx;
     S.gesture.lastY = sy;
   } else if (S.gesture.kind === "brush") {
-    const rect = S.edit.mask.line(S.gesture.x, S.gesture.y, x, y, brushRadius(), S.gesture.value);
-    S.overlay.paint(S.edit.mask, rect);
+    const rect = maskOf(S.edit).line(S.gesture.x, S.gesture.y, x, y, brushRadius(), S.gesture.value);
+    activeOverlay().paint(maskOf(S.edit), rect);
     S.gesture.x = x;
     S.gesture.y = y;
     S.stage.requestRender();
@@ -325,6 +347,8 @@ export function onPointerMove(event) {
     S.stage.requestRender();
   } else if (S.gesture.kind === "ruler") {
     S.ruler.move(S.gesture.index, x, y);
+  } else if (S.gesture.kind === "named") {
+    pointsMove(S.gesture, clampToFrame([x, y]));
   } else if (S.gesture.kind === "keypoint") {
     if (!S.gesture.committed) {
       S.gesture.committed = true;
@@ -348,7 +372,7 @@ export function onPointerUp() {
     else S.stage.requestRender();
   } else if (done.kind === "vertex") {
     if (done.committed) fillOutline(S.edit);
-  } else if (done.kind === "brush" || done.kind === "keypoint") {
+  } else if (done.kind === "brush" || done.kind === "keypoint" || done.kind === "named") {
     changed();
   }
 }

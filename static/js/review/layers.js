@@ -1,0 +1,149 @@
+// The label's layers: the pool (the label's own mask and keypoints) and the objects of the
+// other configured classes (`/label-config`), which of them is edited, how each is shown, and
+// how they travel to and from the server. An object lives in the editing state (`S.edit.objects`:
+// {uid, cls, mask | points, attributes}) and is replaced, never changed, by an edit, so one
+// history undoes any layer.
+
+import { commit } from "./history.js";
+import { Mask, MaskOverlay } from "./mask.js";
+import { S, changed } from "./state.js";
+
+export const POOL = "pool";
+/** Colours for classes the configuration gives none (the pool keeps its own). */
+const PALETTE = ["#e64980", "#40c057", "#fab005", "#7950f2", "#15aabf", "#fd7e14", "#82c91e", "#be4bdb"];
+
+/** The configuration in force: {classes: [{name, kind, color, hotkey, attributes, point_names}],
+ *  frame_tags, frame_attributes}; the pool alone until it is loaded. */
+export const CONFIG = { classes: [{ name: POOL, kind: "mask", attributes: [] }], frame_tags: [], frame_attributes: [] };
+
+export function setConfig(config) {
+  const classes = (config?.classes ?? []).map((spec, i) => ({ attributes: [], ...spec, color: spec.color ?? PALETTE[i % PALETTE.length] }));
+  if (!classes.some((spec) => spec.name === POOL)) classes.unshift({ name: POOL, kind: "mask", attributes: [] });
+  Object.assign(CONFIG, { classes, frame_tags: config?.frame_tags ?? [], frame_attributes: config?.frame_attributes ?? [] });
+}
+
+/** The colour a class is drawn in: its own, the pool's as the page always drew it. */
+export const colourOf = (spec) => (spec?.name === POOL ? "#00c8ff" : spec?.color ?? PALETTE[0]);
+export const classOf = (name) => CONFIG.classes.find((spec) => spec.name === name) ?? null;
+export const kindOf = (layer = S.layer) => (layer === POOL ? "mask" : classOf(objectOf(S.edit, layer)?.cls)?.kind ?? "mask");
+export const objectOf = (edit, uid = S.layer) => (uid === POOL ? null : edit.objects.find((o) => o.uid === uid) ?? null);
+export const activeObject = () => objectOf(S.edit);
+
+let counter = 0;
+export const newUid = () => `o${++counter}`;
+
+// --- the active layer's mask --------------------------------------------------------------------
+
+/** The mask of `layer` in the editing state `edit` (the pool's, or an object's). */
+export function maskOf(edit, layer = S.layer) {
+  return layer === POOL ? edit.mask : objectOf(edit, layer)?.mask ?? null;
+}
+
+/** A new editing state whose `layer` has `mask` (the pool's counts as an edit of its mask). */
+export function withMask(edit, mask, layer = S.layer) {
+  if (layer === POOL) return { ...edit, mask, maskEdited: true };
+  return { ...edit, objects: edit.objects.map((o) => (o.uid === layer ? { ...o, mask } : o)) };
+}
+
+/** Put `mask` into `layer` of the pending state `target` (an answer that arrives later). */
+export function setMaskIn(target, mask, layer) {
+  Object.assign(target, withMask(target, mask, layer));
+}
+
+/** A new editing state with `object` in place of the one with its uid. */
+export const withObject = (edit, object) => ({ ...edit, objects: edit.objects.map((o) => (o.uid === object.uid ? object : o)) });
+
+// --- objects: added, removed, picked ------------------------------------------------------------
+
+/** Make `uid` the edited layer (the pool, or an object on the frame). */
+export function selectLayer(uid) {
+  S.layer = uid === POOL || objectOf(S.edit, uid) ? uid : POOL;
+  S.selectedPoint = null;
+  changed("edit", "layers");
+}
+
+/** A new, empty object of class `name`, edited from now on (one undo step). */
+export function addObject(name) {
+  const spec = classOf(name);
+  const object = { uid: newUid(), cls: name, attributes: {} };
+  if (spec.kind === "points") object.points = {};
+  else object.mask = new Mask(S.frame.width, S.frame.height);
+  commit({ ...S.edit, objects: [...S.edit.objects, object] });
+  selectLayer(object.uid);
+  return object;
+}
+
+export function removeObject(uid) {
+  commit({ ...S.edit, objects: S.edit.objects.filter((o) => o.uid !== uid) });
+  if (S.layer === uid) selectLayer(POOL);
+  LOOK.delete(uid);
+}
+
+/** The objects of class `name`, in order (an instance's number is its place here). */
+export const objectsOf = (name) => S.edit.objects.filter((o) => o.cls === name);
+
+export function objectName(object) {
+  const spec = classOf(object.cls);
+  if (spec?.kind !== "instances") return object.cls;
+  return `${object.cls} ${objectsOf(object.cls).indexOf(object) + 1}`;
+}
+
+// --- how each layer is shown (this page only, not history) --------------------------------------
+
+/** uid → {visible, opacity}; the pool's are the page's Mask checkbox and mask opacity. */
+export const LOOK = new Map();
+export const lookOf = (uid) => LOOK.get(uid) ?? { visible: true, opacity: 1 };
+export function setLook(uid, change) {
+  LOOK.set(uid, { ...lookOf(uid), ...change });
+}
+
+const OVERLAYS = new Map(); // uid → MaskOverlay in its class's colour
+
+/** The overlay of an object's mask, painted from it when the mask is new. */
+export function overlayOf(object) {
+  let overlay = OVERLAYS.get(object.uid);
+  if (!overlay) {
+    overlay = new MaskOverlay(S.frame.width, S.frame.height, colourOf(classOf(object.cls)));
+    OVERLAYS.set(object.uid, overlay);
+  }
+  if (overlay.mask !== object.mask) overlay.paint(object.mask);
+  return overlay;
+}
+
+// --- to and from the server ---------------------------------------------------------------------
+
+/** The label's objects as the editing state holds them (classes no longer configured are left
+ *  out: the server keeps them while `objects` is not sent). */
+export function objectsFromLabel(label, width, height) {
+  const objects = [];
+  for (const item of label?.objects ?? []) {
+    const spec = classOf(item.class);
+    if (!spec || spec.name === POOL) continue;
+    const object = { uid: newUid(), cls: item.class, attributes: { ...(item.attributes ?? {}) } };
+    if (spec.kind === "points") object.points = Object.fromEntries(Object.entries(item.points ?? {}).map(([k, p]) => [k, [...p]]));
+    else if (item.rle) object.mask = Mask.fromRle(item.rle.counts, width, height);
+    else continue;
+    objects.push(object);
+  }
+  return objects;
+}
+
+const isEmpty = (object) => (object.points ? !Object.keys(object.points).length : !object.mask.any());
+
+/** What a save sends beside the pool: `objects`, `tags`, `attributes`, each only when changed
+ *  here (left out, the label keeps what it holds). Empty objects are not sent. */
+export async function othersBody() {
+  const body = {};
+  if (S.edit.objects !== S.labelClean.objects) {
+    body.objects = await Promise.all(S.edit.objects.filter((o) => !isEmpty(o)).map(async (o) => {
+      const item = { class: o.cls };
+      if (o.points) item.points = o.points;
+      else item.mask_png = await o.mask.toPng();
+      if (Object.keys(o.attributes).length) item.attributes = o.attributes;
+      return item;
+    }));
+  }
+  if (S.edit.tags !== S.labelClean.tags) body.tags = S.edit.tags;
+  if (S.edit.attributes !== S.labelClean.attributes) body.attributes = S.edit.attributes;
+  return body;
+}

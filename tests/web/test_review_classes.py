@@ -1,0 +1,269 @@
+"""The review page edits every configured class: picked by hotkey, painted with the pool's
+brush, points placed by name, instances added (one by a SAM2 click), the frame tagged; one
+save carries them all, and the label read back holds each object where it was drawn. Undo
+walks back across layers."""
+
+from __future__ import annotations
+
+import base64
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.factories import add_frame
+from tests.helpers import SHARED_DATA
+from tests.pages import canvas_data, login, open_review, shoot, to_page, wait_for_js
+from tests.web.server import LiveServer
+from weldpool_core.outline import rle_mask
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+CONFIG = {
+    "classes": [
+        {"name": "wire", "kind": "mask", "color": "#40c057", "hotkey": "w"},
+        {
+            "name": "wire tip",
+            "kind": "points",
+            "color": "#fab005",
+            "hotkey": "t",
+            "point_names": ["tip"],
+        },
+        {
+            "name": "spatter",
+            "kind": "instances",
+            "color": "#e64980",
+            "hotkey": "x",
+            "attributes": [{"name": "size", "type": "choice", "options": ["small", "large"]}],
+        },
+    ],
+    "frame_tags": ["arc unstable", "humping"],
+    "frame_attributes": [{"name": "visibility", "type": "choice", "options": ["good", "poor"]}],
+}
+WAAM = Path(os.environ.get("WELDPOOL_SHARED_DATA") or SHARED_DATA) / "waam"
+
+
+@pytest.fixture
+def classes(server: LiveServer) -> Iterator[None]:
+    """The test's classes configured, and the pool alone again afterwards."""
+    version = server.api("GET", "/label-config", user="ada").json()["version"]
+    saved = server.api("PUT", "/label-config", user="ada", json={**CONFIG, "version": version})
+    assert saved.status_code == 200, saved.text
+    yield
+    back = {"version": saved.json()["version"], "classes": [], "force": True}
+    assert server.api("PUT", "/label-config", user="ada", json=back).status_code == 200
+
+
+def _objects(page: Any) -> dict[str, Any]:
+    return {o["name"]: o for o in canvas_data(page, "objects")}
+
+
+def _wait_for_area(page: Any, name: str) -> None:
+    """Until the object `name` has pixels and nothing is pending (a SAM2 answer, a trace)."""
+    wait_for_js(
+        page,
+        "(name) => { const c = document.querySelector('[data-testid=frame-canvas]');"
+        " const o = JSON.parse(c.dataset.objects).find((o) => o.name === name);"
+        " return c.dataset.pending === '0' && o && o.area > 0; }",
+        arg=name,
+        timeout=60_000,
+    )
+
+
+def _stroke(page: Any, start: tuple[float, float], end: tuple[float, float]) -> None:
+    """A brush drag from `start` to `end`, in frame pixels."""
+    page.mouse.move(*to_page(page, *start))
+    page.mouse.down()
+    for t in (0.25, 0.5, 0.75, 1.0):
+        x, y = start[0] + (end[0] - start[0]) * t, start[1] + (end[1] - start[1]) * t
+        page.mouse.move(*to_page(page, x, y))
+    page.mouse.up()
+
+
+def _layer(page: Any) -> str:
+    value: str = page.locator("[data-testid=frame-canvas]").get_attribute("data-layer")
+    return value
+
+
+def _region(obj: dict[str, Any]) -> Any:
+    return rle_mask(obj["rle"])
+
+
+def _brush(page: Any, size: int) -> None:
+    page.keyboard.press("4")
+    page.locator("[data-testid=brush-size]").fill(str(size))
+
+
+def test_every_class_is_edited_and_saved_in_one_put(
+    page: Any, server: LiveServer, classes: None
+) -> None:
+    frame = add_frame(server, 311)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    pool_before = canvas_data(page, "mask-area")
+    picker = page.locator("[data-testid=class-option]")
+    assert picker.evaluate_all("nodes => nodes.map(n => n.dataset.class)") == [
+        "pool",
+        "wire",
+        "wire tip",
+        "spatter",
+    ]
+    assert page.locator("[data-testid=class-option][data-class=wire] kbd").inner_text() == "w"
+
+    # The wire, picked by its hotkey, painted with the pool's brush: a horizontal stroke.
+    page.keyboard.press("w")
+    assert _layer(page) == "wire"
+    _brush(page, 20)
+    _stroke(page, (300, 200), (420, 200))
+    _wait_for_area(page, "wire")
+    assert canvas_data(page, "mask-area") == pool_before  # the pool is not what the brush edits
+    x, y, w, h = _objects(page)["wire"]["bbox"]  # the drag's frame pixels, through zoom and pan
+    assert abs(x - 290) <= 2 and abs(y - 190) <= 2 and abs(w - 141) <= 3 and abs(h - 21) <= 3
+
+    # The wire tip: one named point, placed by a click, then dragged a little.
+    page.keyboard.press("t")
+    assert _layer(page) == "wire tip"
+    page.mouse.click(*to_page(page, 880, 480))
+    page.mouse.move(*to_page(page, 880, 480))
+    page.mouse.down()
+    page.mouse.move(*to_page(page, 895, 490))
+    page.mouse.move(*to_page(page, 900, 500))
+    page.mouse.up()
+    tip = _objects(page)["wire tip"]["points"]["tip"]
+    assert abs(tip[0] - 900) < 1.5 and abs(tip[1] - 500) < 1.5
+
+    # Two spatter instances: the first from a SAM2 click (any class uses the cached embedding),
+    # the second painted; the first gets an attribute.
+    page.keyboard.press("x")
+    assert _layer(page) == "spatter 1"
+    page.keyboard.press("1")
+    page.mouse.click(*to_page(page, 640, 400))
+    _wait_for_area(page, "spatter 1")
+    page.select_option("[data-testid=object-attribute][data-name=size]", "large")
+    page.click("[data-testid=add-instance][data-class=spatter]")
+    assert _layer(page) == "spatter 2"
+    _brush(page, 12)
+    _stroke(page, (1000, 650), (1000, 700))
+    assert page.locator("[data-testid=layer-row]").count() == 5  # pool, wire, tip, 2 spatter
+
+    # A frame tag, then one save for everything.
+    page.click("[data-testid=frame-tag][data-tag=humping]")
+    page.select_option("[data-testid=frame-attribute][data-name=visibility]", "poor")
+    page.uncheck("#advance")
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=toast-ok]", has_text="Saved as corrected").wait_for()
+    shoot(page, "review-classes")
+
+    label = server.api("GET", f"/frames/{frame}/label").json()
+    assert label["revision"] == 1 and label["tags"] == ["humping"]
+    assert label["attributes"] == {"visibility": "poor"}
+    by_class: dict[str, list[Any]] = {}
+    for obj in label["objects"]:
+        by_class.setdefault(obj["class"], []).append(obj)
+    assert sorted(by_class) == ["spatter", "wire", "wire tip"]
+    wire = _region(by_class["wire"][0])
+    assert wire.shape == (800, 1280)
+    # The stroke ran along y = 200 from x = 300 to 420, 20 px wide: swapped axes or a dropped
+    # view scale put the pixels elsewhere.
+    ys, xs = wire.nonzero()
+    assert 288 <= xs.min() <= 292 and 428 <= xs.max() <= 432
+    assert 188 <= ys.min() <= 192 and 208 <= ys.max() <= 212
+    assert wire[200, 360] and not wire[360, 200]
+    assert by_class["wire tip"][0]["points"]["tip"] == pytest.approx([900, 500], abs=1.5)
+    first, second = by_class["spatter"]
+    assert first["attributes"] == {"size": "large"} and first["area"] > 0
+    painted = _region(second)
+    assert painted[675, 1000] and not painted[675, 1030]
+    assert 643 <= painted.nonzero()[0].min() <= 645  # 650 less the brush's radius, 6
+    pool = base64.b64decode(label["mask_png"])
+    assert pool  # the pool travels in the same PUT
+
+
+def test_undo_walks_back_across_layers(page: Any, server: LiveServer, classes: None) -> None:
+    frame = add_frame(server, 312)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    pool = canvas_data(page, "mask-area")
+    page.keyboard.press("w")
+    _brush(page, 16)
+    _stroke(page, (200, 600), (300, 600))
+    page.keyboard.press("x")
+    _stroke(page, (900, 150), (950, 150))
+    wire, spatter = (_objects(page)[n]["area"] for n in ("wire", "spatter 1"))
+    assert wire > 0 and spatter > 0
+    page.click("[data-testid=class-option][data-class=pool]")
+    page.keyboard.press("5")  # the eraser, on the pool
+    _stroke(page, (0, 0), (1280, 800))
+    assert canvas_data(page, "mask-area") <= pool
+
+    page.keyboard.press("Control+z")  # the pool's erasure goes; the others stay
+    assert canvas_data(page, "mask-area") == pool and _layer(page) == "pool"
+    assert (_objects(page)["wire"]["area"], _objects(page)["spatter 1"]["area"]) == (wire, spatter)
+    page.keyboard.press("Control+z")  # the spatter stroke goes, the wire's stays
+    assert _layer(page) == "spatter 1"
+    assert (_objects(page)["wire"]["area"], _objects(page)["spatter 1"]["area"]) == (wire, 0)
+    page.keyboard.press("Control+z")  # the spatter object itself: the pool is edited again
+    assert "spatter 1" not in _objects(page) and _layer(page) == "pool"
+    page.keyboard.press("Control+z")  # the wire stroke
+    assert _objects(page)["wire"]["area"] == 0 and _layer(page) == "wire"
+    page.keyboard.press("Control+Shift+z")
+    page.keyboard.press("Control+Shift+z")
+    assert _objects(page)["spatter 1"]["area"] == 0 and _objects(page)["wire"]["area"] == wire
+    assert _layer(page) == "spatter 1"
+    # Redone, the spatter's stroke lands on the spatter again, not on the wire being edited.
+    page.keyboard.press("w")
+    page.keyboard.press("Control+Shift+z")
+    assert (_objects(page)["wire"]["area"], _objects(page)["spatter 1"]["area"]) == (wire, spatter)
+    assert _layer(page) == "spatter 1"
+
+
+def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classes: None) -> None:
+    """Screenshots of the review page on a real WAAM frame with every kind of layer."""
+    stem = "compressed_0mm_f0250"
+    image, mask = WAAM / "frames" / f"{stem}.png", WAAM / "labels" / f"{stem}.png"
+    if not image.exists() or not mask.exists():
+        pytest.skip(f"The real frames are not here ({WAAM}).")
+    files = [("files", (image.name, image.read_bytes(), "image/png"))]
+    answer = server.api("POST", "/frames", files=files).json()
+    frame = (answer["stored"] or answer["duplicates"])[0][
+        "frame_id" if not answer["stored"] else "id"
+    ]
+    base = server.api("GET", f"/frames/{frame}").json()
+    wire = [[1280, 300], [900, 395], [905, 420], [1280, 345]]
+    body = {
+        "status": "corrected",
+        "base_revision": (base.get("label") or {}).get("revision", 0),
+        "mask_png": base64.b64encode(mask.read_bytes()).decode(),
+        "objects": [
+            {"class": "wire", "polygons": [wire]},
+            {"class": "wire tip", "points": {"tip": [902, 408]}},
+            {"class": "spatter", "polygons": [[[700, 250], [730, 250], [730, 275], [700, 275]]]},
+            {
+                "class": "spatter",
+                "polygons": [[[420, 600], [445, 600], [445, 630]]],
+                "attributes": {"size": "small"},
+            },
+        ],
+        "tags": ["arc unstable"],
+    }
+    saved = server.api("PUT", f"/frames/{frame}/label", json=body)
+    assert saved.status_code == 200, saved.text
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    shown = canvas_data(page, "objects")
+    assert [o["name"] for o in shown] == ["wire", "wire tip", "spatter 1", "spatter 2"]
+    # The stored regions (COCO RLE, down the columns) decode where the server has them.
+    stored = server.api("GET", f"/frames/{frame}/label").json()["objects"]
+    for here, there in zip(shown, stored, strict=True):
+        if "rle" in there:
+            assert (here["area"], here["bbox"]) == (there["area"], there["bbox"])
+    assert shown[1]["points"] == {"tip": [902, 408]}
+    page.click("[data-testid=layer-row][data-class=spatter] >> nth=1")
+    assert _layer(page) == "spatter 2"
+    assert page.input_value("[data-testid=object-attribute][data-name=size]") == "small"
+    shoot(page, "review-classes-real")
