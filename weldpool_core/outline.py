@@ -194,9 +194,7 @@ def rle_boxed(rle: dict[str, Any], box: Sequence[float] | None = None) -> BoxedM
     return BoxedMask(rows, (x0, y0), (height, width))
 
 
-def _runs_box(
-    ends: NDArray[np.int64], count: int, height: int
-) -> tuple[int, int, int, int] | None:
+def _runs_box(ends: NDArray[np.int64], count: int, height: int) -> tuple[int, int, int, int] | None:
     """The box ``(x0, y0, x1, y1)`` (ends exclusive) of the pool runs ending at ``ends``
     (column-major), or None when there is no pool."""
     starts, stops = ends[0::2][: count // 2], ends[1::2]

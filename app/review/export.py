@@ -36,7 +36,10 @@ import math
 import os
 import tempfile
 import zipfile
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -46,6 +49,7 @@ from sqlalchemy.orm import Session
 from app.core.budgets import shared_pool
 from app.core.errors import InvalidInputError, MissingFile
 from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
+from app.core.processes import forget_broken, process_pool
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
@@ -469,16 +473,23 @@ def _write_cvat(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     """CVAT for images 1.1: ``annotations.xml`` (each label one RLE ``<mask>``, holes kept;
-    its keypoints and validation keypoints as ``<points>``) with the images beside it."""
-    from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
+    its keypoints and validation keypoints as ``<points>``) with the images beside it. The
+    pools' masks are made from their stored RLE in the service's processes (``_in_processes``),
+    those of labels saved before it was stored from their PNG in the readers' pool."""
+    from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image, cvat_rle_masks
 
     elements: list[Any] = []
     classes, names = written_classes(rows), file_names([row[0] for row in rows])
+    stored = [(row[1].mask_rle, row[1].mask_bbox) for row in rows if row[1].mask_rle is not None]
+    pools = _in_processes(cvat_rle_masks, stored, CVAT_CHUNK)
 
     def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
-        return _cvat_mask(storage, row[1]), cvat_objects(row[1], classes)
+        label = row[1]
+        unstored = _cvat_mask(storage, label) if label.mask_rle is None else None
+        return unstored, cvat_objects(label, classes)
 
     for done, (frame, label, _, manual), path, made in _readable(storage, rows, skipped, shapes):
+        pool = next(pools) if label.mask_rle is not None else None
         if path is None:
             yield done
             continue
@@ -489,7 +500,7 @@ def _write_cvat(
             name=name,
             width=frame.width,
             height=frame.height,
-            mask=made[0],
+            mask=pool if label.mask_rle is not None else made[0],
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
             objects=made[1],
@@ -500,13 +511,49 @@ def _write_cvat(
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:
-    """A label's ``CvatMask``, in the readers' pool: from the RLE and box stored with it (only
-    the box's columns laid out from the runs), else from its mask PNG."""
-    from weldpool_core.annotations.cvat import cvat_mask, cvat_rle_mask
+    """The ``CvatMask`` of a label saved before its RLE was stored, from its mask PNG."""
+    from weldpool_core.annotations.cvat import cvat_mask
 
-    if label.mask_rle is not None:
-        return cvat_rle_mask(label.mask_rle, label.mask_bbox)
     return cvat_mask(_stored_mask(storage, label))
+
+
+CVAT_CHUNK = 16
+"""Labels per task a CVAT export sends to the service's processes (fewer round trips)."""
+_TASKS_AHEAD = 4
+"""Tasks in the processes ahead of the writer (a big export holds a few tasks' masks)."""
+
+
+def _in_processes(
+    function: Callable[[list[Any]], list[Any]], items: list[Any], chunk: int
+) -> Iterator[Any]:
+    """``function`` over ``items``, ``chunk`` items a task, in the service's processes
+    (``app.core.processes``) a few tasks ahead of the consumer; yields its results one by
+    one, in order. Their numpy work never holds this process's GIL against the writer. A task
+    the processes cannot take (not startable, one died) is computed here."""
+    tasks = [items[at : at + chunk] for at in range(0, len(items), chunk)]
+    pending: deque[Future[list[Any]] | None] = deque()
+    try:
+        for index, task in enumerate(tasks):
+            for ahead in tasks[index + len(pending) : index + _TASKS_AHEAD]:
+                pending.append(_submitted(function, ahead))
+            future = pending.popleft()
+            try:
+                results = future.result() if future is not None else function(task)
+            except BrokenProcessPool:
+                forget_broken()  # the next export starts them afresh
+                results = function(task)
+            yield from results
+    finally:
+        for future in pending:
+            if future is not None:
+                future.cancel()
+
+
+def _submitted(function: Callable[[list[Any]], list[Any]], task: list[Any]) -> Future[Any] | None:
+    try:
+        return process_pool().submit(function, task)
+    except (BrokenProcessPool, OSError, RuntimeError):  # cannot start, or shutting down
+        return None
 
 
 WRITERS: dict[str, Writer] = {

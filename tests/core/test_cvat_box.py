@@ -42,9 +42,7 @@ def test_the_cvat_mask_from_the_stored_box_is_the_one_from_the_whole_frame() -> 
     for mask in _masks():
         coco = coco_mask(mask)
         whole = cvat_mask(mask)
-        from_box = cvat_box_mask(
-            rle_boxed(coco.rle, coco.bbox).pixels, coco.bbox[0], coco.bbox[1]
-        )
+        from_box = cvat_box_mask(rle_boxed(coco.rle, coco.bbox).pixels, coco.bbox[0], coco.bbox[1])
         assert whole == from_box
         assert whole is not None
         # and CVAT's reader gives the mask back, holes kept

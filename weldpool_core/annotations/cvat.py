@@ -236,6 +236,14 @@ def cvat_rle_mask(rle: dict[str, Any], box: Sequence[float] | None) -> CvatMask 
     return cvat_mask(rle_mask(rle))
 
 
+def cvat_rle_masks(
+    stored: Sequence[tuple[dict[str, Any], Sequence[float] | None]],
+) -> list[CvatMask | None]:
+    """``cvat_rle_mask`` of several (RLE, box) pairs: one task of a process pool (an export's
+    masks, a few per round trip)."""
+    return [cvat_rle_mask(rle, box) for rle, box in stored]
+
+
 @dataclass(frozen=True)
 class CvatImage:
     """One frame of a CVAT export: its file in the zip, size, mask and keypoints."""
