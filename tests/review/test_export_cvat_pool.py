@@ -17,8 +17,7 @@ import pytest
 from app.core import processes
 from app.core.models import Frame, Label, LabelStatus, Split
 from app.review import export
-from app.review.export_classes import cvat_objects
-from app.review.export_classes import Rows
+from app.review.export_classes import Rows, cvat_objects
 from app.storage import Storage
 from tests.helpers import image_bytes
 from weldpool_core.annotations import cvat
