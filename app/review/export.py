@@ -21,7 +21,9 @@ no temporary file, memory bounded by one entry); large sets can also run as an `
 thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL) — only
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
-are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
+are traced in the same pool, on masks decoded from the stored RLE (else the PNG). CVAT's
+pool masks are laid out from the stored RLE in the service's processes (``_in_processes``):
+in threads, their numpy work held the GIL against the writer.
 
 A frame whose image or mask file the store lost is left out of the zip, never the whole export:
 ``skipped.txt`` lists each such frame with what restores its file (the masks layout's
