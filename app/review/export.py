@@ -52,6 +52,7 @@ from app.core.budgets import shared_pool
 from app.core.errors import InvalidInputError, MissingFile
 from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
 from app.core.processes import forget_broken, process_pool
+from app.core.processes import started as processes_started
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
@@ -521,6 +522,9 @@ def _cvat_mask(storage: Storage, label: Label) -> Any:
 
 CVAT_CHUNK = 16
 """Labels per task a CVAT export sends to the service's processes (fewer round trips)."""
+CVAT_PROCESS_MIN = 128
+"""Stored masks from which a CVAT export starts the processes (their start takes seconds and
+~150 MB each); fewer are made in the writer's thread (under 0.5 ms each) unless they run."""
 _TASKS_AHEAD = 4
 """Tasks in the processes ahead of the writer (a big export holds a few tasks' masks)."""
 
@@ -531,8 +535,13 @@ def _in_processes(
     """``function`` over ``items``, ``chunk`` items a task, in the service's processes
     (``app.core.processes``) a few tasks ahead of the consumer; yields its results one by
     one, in order. Their numpy work never holds this process's GIL against the writer. A task
-    the processes cannot take (not startable, one died) is computed here."""
+    the processes cannot take (not startable, one died) is computed here, and so are all of a
+    few items while the processes are not running (``CVAT_PROCESS_MIN``)."""
     tasks = [items[at : at + chunk] for at in range(0, len(items), chunk)]
+    if len(items) < CVAT_PROCESS_MIN and not processes_started():
+        for task in tasks:
+            yield from function(task)
+        return
     pending: deque[Future[list[Any]] | None] = deque()
     try:
         for index, task in enumerate(tasks):

@@ -88,6 +88,7 @@ def test_the_cvat_masks_are_built_in_the_pool_and_are_the_whole_frames(
 
     monkeypatch.setattr(cvat, "cvat_rle_mask", recorded)  # this process's: the objects'
     monkeypatch.setattr(export, "CVAT_CHUNK", 5)  # the pools: 16 stored, four tasks
+    monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 16)
     data = b"".join(export.stream_export(storage, "cvat", rows))  # written in this thread
     assert built_in and threading.get_ident() not in built_in
     assert processes.started()
@@ -136,11 +137,15 @@ class _Broken:
         return future
 
 
+def _never() -> None:
+    pytest.fail("the processes were started for a few masks")
+
+
 def _refused() -> None:
     raise OSError("cannot start a process")
 
 
-@pytest.mark.parametrize("processes", ["running", "broken", "not startable"])
+@pytest.mark.parametrize("processes", ["running", "broken", "not startable", "few"])
 def test_the_cvat_xml_is_the_one_made_label_by_label(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, processes: str
 ) -> None:
@@ -149,6 +154,10 @@ def test_the_cvat_xml_is_the_one_made_label_by_label(
     storage = Storage(tmp_path)
     rows, _ = _rows(storage, 23)
     monkeypatch.setattr(export, "CVAT_CHUNK", 3)  # more tasks than are sent ahead
+    monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 100 if processes == "few" else 1)
+    if processes == "few":  # fewer than start the processes: made here, none started
+        monkeypatch.setattr(export, "processes_started", lambda: False)
+        monkeypatch.setattr(export, "process_pool", _never)
     if processes == "broken":
         monkeypatch.setattr(export, "process_pool", _Broken)
     if processes == "not startable":
