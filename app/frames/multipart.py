@@ -6,9 +6,9 @@ is still arriving, so receiving and checking overlap. A video upload asks for it
 (``spool``): held in memory up to that size, then written to a temporary file off the event
 loop, and handed on as a file object; or (``spool_dir``) written straight to a named file in
 that folder, for a caller that moves it into its final place on the same filesystem (a label
-import's zip: written once, never copied). Both uploads read their forms here; the parsing itself is
-python-multipart's (Starlette's parser too); this module keeps Starlette's limits and adds the
-file names exactly as the client sent them.
+import's zip: written once, never copied). Both uploads read their forms here; the parsing
+itself is python-multipart's (Starlette's parser too); this module keeps Starlette's limits
+and adds the file names exactly as the client sent them.
 """
 
 from __future__ import annotations
