@@ -6,8 +6,8 @@ Run: ``PYTHONPATH=. .venv/bin/python bench/import_upload.py [--mb 256] [--runs 5
 
 The zip is stored (not compressed) random bytes in one member: what the route does with it
 does not depend on its content. The service runs in process (``TestClient``, SQLite, no
-worker); the body is sent in 1 MiB chunks (fewer rounds through the test client). Median of ``--runs``,
-with the process's CPU time beside the wall time.
+worker); the body is sent in 1 MiB chunks (fewer rounds through the test client). Median of
+``--runs``, with the process's CPU time beside the wall time.
 """
 
 from __future__ import annotations
