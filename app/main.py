@@ -32,6 +32,7 @@ from app.core.headers import SecurityHeaders
 from app.core.housekeeping import FileCollector
 from app.core.limits import BodySizeLimit
 from app.core.openapi import openapi_schema
+from app.core.processes import stop_processes
 from app.core.security import (
     SESSION_COOKIE,
     LoginThrottle,
@@ -39,7 +40,6 @@ from app.core.security import (
     web_session_for_cookie,
 )
 from app.frames.routes import router as frames_router
-from app.imports.pool import stop_label_processes
 from app.imports.routes import router as imports_router
 from app.jobs.queue import EmbeddedWorker, JobQueue, JobReaper
 from app.jobs.registry import load_job_handlers
@@ -251,7 +251,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
             collector.stop()
             background.stop()
             app.state.live_views.stop_all()
-            stop_label_processes()
+            stop_processes()
             queue.close()
             engine.dispose()
 

@@ -1,6 +1,7 @@
 """Benchmark the streamed export of reviewed labels against the zip-copy floor.
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/export.py [--labels 400] [--runs 3] [--s3 URL]``
+Run: ``PYTHONPATH=. .venv/bin/python bench/export.py [--labels 400] [--runs 3] [--formats coco,cvat]
+[--s3 URL]``
 
 It stores N labelled frames as review leaves them (the real WAAM frames, cycled, as the images;
 a different hand-drawn-like pool mask per label, as a 0/255 PNG), then times ``GET
@@ -141,10 +142,11 @@ FORMATS = ("coco", "masks", "yolo", "cvat", "yolo unstored", "coco unstored")
 
 def export_times(
     settings: Settings, token: str, formats: tuple[str, ...], runs: int, cold: bool = False
-) -> dict[str, tuple[float, float, int, int]]:
-    """(first byte s, total s, bytes, most temporary files) of each format's export, median of
-    ``runs``; ``cold``: the home's cached copies of the store's files removed before each run
-    (a process that has not read them yet)."""
+) -> dict[str, tuple[float, float, int, int, float]]:
+    """(first byte s, total s, bytes, most temporary files, this process's CPU s) of each
+    format's export, median of ``runs``; ``cold``: the home's cached copies of the store's
+    files removed before each run (a process that has not read them yet). The CPU is the
+    work competing with the writer for this process's GIL (not the service's processes')."""
     found = {}
     with TestClient(create_app(settings, embedded_worker=False)) as client:
         for fmt in formats:
@@ -152,12 +154,12 @@ def export_times(
                 forget(settings, mask_outlines=None)
             if fmt == "coco unstored":  # … and before their RLE was stored (0008)
                 forget(settings, mask_rle=None, mask_area=None, mask_bbox=None)
-            firsts, totals, size, leftovers = [], [], 0, 0
+            firsts, totals, cpus, size, leftovers = [], [], [], 0, 0
             for _ in range(runs):
                 if cold:
                     for area in ("frames", "artefacts"):
                         shutil.rmtree(settings.home / area, ignore_errors=True)
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), time.process_time()
                 first = None
                 size = 0
                 with client.stream(
@@ -172,8 +174,10 @@ def export_times(
                         size += len(chunk)
                         leftovers = max(leftovers, len(list((settings.home / "tmp").glob("*"))))
                 totals.append(time.perf_counter() - start)
+                cpus.append(time.process_time() - cpu)
                 firsts.append((first or time.perf_counter()) - start)
-            found[fmt] = statistics.median(firsts), statistics.median(totals), size, leftovers
+            median = statistics.median
+            found[fmt] = median(firsts), median(totals), size, leftovers, median(cpus)
     return found
 
 
@@ -181,6 +185,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--labels", type=int, default=400)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument(
+        "--formats",
+        default=",".join(FORMATS),
+        help=f"comma-separated, of {', '.join(FORMATS)} (default: all)",
+    )
     parser.add_argument(
         "--s3",
         metavar="ENDPOINT",
@@ -193,14 +202,17 @@ def main() -> None:
         token, files = fill(settings, args.labels)
         storage = LocalStorage(settings.home)
         floor = statistics.median(floor_s(storage, files) for _ in range(args.runs))
-        local = export_times(settings, token, FORMATS, args.runs)
+        formats = tuple(f.strip() for f in args.formats.split(","))
+        if unknown := sorted(set(formats) - set(FORMATS)):
+            sys.exit(f"unknown formats: {', '.join(unknown)}")
+        local = export_times(settings, token, formats, args.runs)
     print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")
-    print("| format | first byte ms | total ms | × floor | MB | temporary files |")
-    print("|---|---:|---:|---:|---:|---:|")
-    for fmt, (first, total, size, leftovers) in local.items():
+    print("| format | first byte ms | total ms | × floor | MB | temporary files | CPU ms |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for fmt, (first, total, size, leftovers, cpu) in local.items():
         print(
-            f"| {fmt} | {first * 1000:.0f} | {total * 1000:.0f} | "
-            f"{total / floor:.1f}× | {size / 1e6:.0f} | {leftovers} |",
+            f"| {fmt} | {first * 1000:.0f} | {total * 1000:.0f} | {total / floor:.2f}× | "
+            f"{size / 1e6:.0f} | {leftovers} | {cpu * 1000:.0f} |",
             flush=True,
         )
     if args.s3:
@@ -209,11 +221,13 @@ def main() -> None:
     print(f"\npeak RSS of this process: {peak:.0f} MB")
 
 
-def cold_exports(args: argparse.Namespace, local: dict[str, tuple[float, float, int, int]]) -> None:
+def cold_exports(
+    args: argparse.Namespace, local: dict[str, tuple[float, float, int, int, float]]
+) -> None:
     """The same exports from an object store, each from a cold cache, beside the local ones."""
     from storage import bucket  # bench/storage.py: a fresh bucket on the endpoint
 
-    formats = ("coco", "masks", "cvat")
+    formats = tuple(f for f in ("coco", "masks", "cvat") if f in local)
     with tempfile.TemporaryDirectory() as home:
         settings = Settings(  # type: ignore[call-arg]
             _env_file=None,
@@ -227,7 +241,7 @@ def cold_exports(args: argparse.Namespace, local: dict[str, tuple[float, float, 
     print("| format | first byte ms | total ms | × local |")
     print("|---|---:|---:|---:|")
     for fmt in formats:
-        first, total, _, _ = remote[fmt]
+        first, total, *_ = remote[fmt]
         print(
             f"| {fmt} (cold) | {first * 1000:.0f} | {total * 1000:.0f} | "
             f"{total / local[fmt][1]:.2f}× |",

@@ -15,10 +15,10 @@ def test_a_graceful_stop_ends_the_label_import_processes(
 ) -> None:
     """A large label import starts a process pool (3 processes, ~195 MiB, on a 3-core
     machine); `serve` stopped gracefully left it running."""
-    from app.imports.pool import _process_pool
+    from app.core.processes import process_pool
 
     with TestClient(create_app(settings)):
-        assert _process_pool().submit(int, "7").result(timeout=120) == 7  # as an import does
+        assert process_pool().submit(int, "7").result(timeout=120) == 7  # as an import does
         started = multiprocessing.active_children()
         assert started
     assert [p.pid for p in started if p.is_alive()] == []

@@ -134,27 +134,6 @@ def rle_counts(counts: str | bytes) -> NDArray[np.int64]:
     return values
 
 
-def rle_box(rle: dict[str, Any], box: Sequence[int]) -> NDArray[np.bool_]:
-    """The pixels of a compressed RLE's mask inside ``box`` ``[x, y, width, height]`` (as
-    ``CocoMask.bbox`` holds it), row-major: only the box's columns are laid out from the runs
-    (never the whole frame) and only the box is put in row order."""
-    height = int(rle["size"][0])
-    x, y, width, box_height = (int(v) for v in box)
-    runs = rle_counts(rle["counts"])
-    ends = np.cumsum(runs)
-    first, last = x * height, (x + width) * height
-    inside = np.clip(ends, first, last) - np.clip(ends - runs, first, last)
-    values = np.arange(runs.size, dtype=np.uint8) & 1  # runs alternate, 0s first
-    columns = np.repeat(values, inside).reshape(width, height)[:, y : y + box_height]
-    pixels: NDArray[np.bool_] = cv2.transpose(np.ascontiguousarray(columns)).view(bool)
-    return pixels
-
-
-MAX_BOX_RUNS = 1 << 14
-"""Runs of pool above which ``rle_boxed`` has pycocotools decode the whole frame (a loop in C)
-instead of filling the box run by run from Python (a pool has about one per column)."""
-
-
 @dataclass(frozen=True)
 class BoxedMask:
     """A frame's mask held as the pixels of its regions' bounding box: ``pixels`` at ``origin``
@@ -183,10 +162,12 @@ class BoxedMask:
         return full
 
 
-def rle_boxed(rle: dict[str, Any]) -> BoxedMask:
-    """The mask of a compressed RLE ``{"size": [h, w], "counts": str}`` as a ``BoxedMask``: only
-    its box is filled, run by run, and put in row order (a pool's ~1,000 runs, not the frame's
-    million pixels that ``rle_mask`` decodes and transposes).
+def rle_boxed(rle: dict[str, Any], box: Sequence[float] | None = None) -> BoxedMask:
+    """The mask of a compressed RLE ``{"size": [h, w], "counts": str}`` as a ``BoxedMask`` over
+    ``box`` ``[x, y, width, height]`` (as ``CocoMask.bbox`` holds it; pixels outside it are
+    left out), or the runs' own box: only the box's columns are laid out from the runs and
+    only the box is put in row order (never the frame's million pixels that ``rle_mask``
+    decodes and transposes).
 
     Raises:
         ValueError: the counts are not an RLE of ``size`` (the runs do not cover it exactly).
@@ -197,23 +178,35 @@ def rle_boxed(rle: dict[str, Any]) -> BoxedMask:
     covered = int(ends[-1]) if ends.size else 0
     if covered != height * width:
         raise ValueError(f"the runs cover {covered} pixels, not {height}×{width}")
-    starts, stops = ends[0::2][: runs.size // 2], ends[1::2]
+    if box is None:
+        found = _runs_box(ends, runs.size, height)
+        if found is None:
+            return BoxedMask(np.zeros((0, 0), bool), (0, 0), (height, width))
+        x0, y0, x1, y1 = found
+    else:
+        x0, y0 = int(box[0]), int(box[1])
+        x1, y1 = x0 + int(box[2]), y0 + int(box[3])
+    first, last = x0 * height, x1 * height
+    inside = np.clip(ends, first, last) - np.clip(ends - runs, first, last)
+    values = np.arange(runs.size, dtype=np.uint8) & 1  # runs alternate, 0s first
+    columns = np.repeat(values, inside).reshape(x1 - x0, height)[:, y0:y1]
+    rows: NDArray[np.bool_] = cv2.transpose(np.ascontiguousarray(columns)).view(bool)
+    return BoxedMask(rows, (x0, y0), (height, width))
+
+
+def _runs_box(ends: NDArray[np.int64], count: int, height: int) -> tuple[int, int, int, int] | None:
+    """The box ``(x0, y0, x1, y1)`` (ends exclusive) of the pool runs ending at ``ends``
+    (column-major), or None when there is no pool."""
+    starts, stops = ends[0::2][: count // 2], ends[1::2]
     kept = stops > starts
     starts, stops = starts[kept], stops[kept]
     if starts.size == 0:
-        return BoxedMask(np.zeros((0, 0), bool), (0, 0), (height, width))
-    if starts.size > MAX_BOX_RUNS:
-        return BoxedMask.of(rle_mask(rle))
+        return None
     x0, x1 = int(starts[0]) // height, (int(stops[-1]) - 1) // height + 1
     crossing = bool(((stops - 1) // height > starts // height).any())  # a run over a column's end
     y0 = 0 if crossing else int((starts % height).min())
     y1 = height if crossing else int(((stops - 1) % height).max()) + 1
-    columns = np.zeros((x1 - x0) * height, np.uint8)  # column-major, as the runs go
-    offset = x0 * height
-    for start, stop in zip((starts - offset).tolist(), (stops - offset).tolist(), strict=True):
-        columns[start:stop] = 1
-    rows: NDArray[np.bool_] = cv2.transpose(columns.reshape(x1 - x0, height)[:, y0:y1]).view(bool)
-    return BoxedMask(rows, (x0, y0), (height, width))
+    return x0, y0, x1, y1
 
 
 def coco_rle(rle: dict[str, Any]) -> CocoMask:

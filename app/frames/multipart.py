@@ -4,9 +4,11 @@ Starlette's ``request.form()`` returns only once the whole body is in, each file
 temporary file; frame upload instead hands every file to its checks while the rest of the body
 is still arriving, so receiving and checking overlap. A video upload asks for its file spooled
 (``spool``): held in memory up to that size, then written to a temporary file off the event
-loop, and handed on as a file object. Both uploads read their forms here; the parsing itself is
-python-multipart's (Starlette's parser too); this module keeps Starlette's limits and adds the
-file names exactly as the client sent them.
+loop, and handed on as a file object; or (``spool_dir``) written straight to a named file in
+that folder, for a caller that moves it into its final place on the same filesystem (a label
+import's zip: written once, never copied). Both uploads read their forms here; the parsing
+itself is python-multipart's (Starlette's parser too); this module keeps Starlette's limits
+and adds the file names exactly as the client sent them.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import tempfile
 from collections.abc import AsyncIterable, AsyncIterator, Callable, Mapping
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO, Any
 
 import anyio
@@ -61,7 +64,8 @@ class _Part:
 
 class StreamedForm:
     """Plain fields of a multipart body; its files go to ``on_file(field, name, data)``: the
-    bytes, or with ``spool`` a file object (rewound; ``close`` closes them all).
+    bytes, or with ``spool`` a file object (rewound; ``close`` closes them all), with
+    ``spool_dir`` a named file there from the first byte (``close`` removes those not moved).
 
     ``limit_hint`` ends the too-many-files sentence (the setting that sets ``max_files``)."""
 
@@ -74,6 +78,7 @@ class StreamedForm:
         charset: str = "utf-8",
         spool: int | None = None,
         limit_hint: str = " (WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests",
+        spool_dir: Path | None = None,
     ) -> None:
         self.fields: dict[str, str] = {}
         self._on_file = on_file
@@ -82,6 +87,9 @@ class StreamedForm:
         self._charset = charset
         self._part = _Part()
         self._spool_size, self._limit_hint = spool, limit_hint
+        self._spool_dir = spool_dir
+        if spool_dir is not None:
+            self._spool_size = 0  # on disk from the first byte
         self._spools: list[IO[bytes]] = []
         self._pending: list[tuple[_Part, bytes]] = []  # spooled data not yet written
         self._finished: list[_Part] = []  # spooled parts whole, to hand on once written
@@ -138,9 +146,12 @@ class StreamedForm:
             self._on_file(part.field_name, part.file_name or "", part.spool)
 
     def close(self) -> None:
-        """Close every spooled file this form made."""
+        """Close every spooled file this form made; remove those in ``spool_dir`` that were
+        not moved away."""
         for spool in self._spools:
             spool.close()
+            if self._spool_dir is not None:
+                Path(spool.name).unlink(missing_ok=True)
 
     def _decode(self, value: bytes) -> str:
         try:
@@ -176,7 +187,12 @@ class StreamedForm:
                     f"Too many files in one request: at most {self._max_files}{self._limit_hint}."
                 )
             part.file_name = raw_name if raw_name is not None else ""
-            if self._spool_size is not None:
+            if self._spool_dir is not None:
+                part.spool = tempfile.NamedTemporaryFile(  # noqa: SIM115 (closed by close())
+                    dir=self._spool_dir, prefix="upload-", suffix=".part", delete=False
+                )
+                self._spools.append(part.spool)
+            elif self._spool_size is not None:
                 part.spool = tempfile.SpooledTemporaryFile(max_size=self._spool_size)  # noqa: SIM115 (closed by close())
                 self._spools.append(part.spool)
         else:
@@ -238,11 +254,13 @@ SPOOL_BYTES = 1024 * 1024
 
 @asynccontextmanager
 async def one_spooled_file(
-    request: Request, what: str, max_fields: int = 16
+    request: Request, what: str, max_fields: int = 16, spool_dir: Path | None = None
 ) -> AsyncIterator[tuple[dict[str, str], str, Any]]:
     """A form of one file part (``file``, spooled) and some fields, read from ``request``:
     yields the fields, the file's client name and the file; the spool is removed on the way
-    out, also when the request is cancelled. ``what`` names the file in the errors."""
+    out (unless the caller moved it), also when the request is cancelled. ``what`` names the
+    file in the errors; ``spool_dir``: the file is written to a named file there (``.name``),
+    never held in memory, for the caller to move into place (``StreamedForm``)."""
     uploads: list[tuple[str, Any]] = []
     form = StreamedForm(
         lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
@@ -250,6 +268,7 @@ async def one_spooled_file(
         max_fields=max_fields,
         spool=SPOOL_BYTES,
         limit_hint=f"; send one {what} per request",
+        spool_dir=spool_dir,
     )
     try:
         await form.read(request.headers.get("content-type", ""), request.stream())

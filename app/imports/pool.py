@@ -5,14 +5,12 @@ not only between batches."""
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures import Future, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
+from app.core.processes import forget_broken, process_pool
 from app.frames.ingest import INGEST_POOL
 from weldpool_core.annotations import ImportedLabel
 from weldpool_core.annotations.content import (
@@ -20,45 +18,15 @@ from weldpool_core.annotations.content import (
     label_content,
     many_contents,
     shipped,
-    start_process,
 )
 
-BATCH = 64
+BATCH = 64  # a batch has 8 tasks: as many as the service's processes at most
 PROCESS_CHUNK = 8
 """Labels per task sent to a process (fewer round trips)."""
 CHECK_S = 0.5
 """How often an import asks whether to go on while its labels are computed."""
 Check = Callable[[], None]
 Job = tuple[ImportedLabel, tuple[int, int], bool]
-
-_pool_lock = threading.Lock()
-_processes: ProcessPoolExecutor | None = None
-
-
-def _process_pool() -> ProcessPoolExecutor:
-    """The processes label work runs in, started on the first large import (``spawn``: the
-    worker has threads, so never ``fork``) and kept until the service stops
-    (``stop_label_processes``)."""
-    global _processes
-    with _pool_lock:
-        if _processes is None:
-            _processes = ProcessPoolExecutor(
-                # one per core, no more than a batch has tasks (not 64 × ~150 MB on a big worker)
-                max_workers=min(max(2, os.cpu_count() or 2), -(-BATCH // PROCESS_CHUNK)),
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=start_process,
-            )
-        return _processes
-
-
-def stop_label_processes() -> None:
-    """End the label processes, if started (the service stops: a graceful stop of ``serve``
-    leaves none behind); a later large import starts them again."""
-    global _processes
-    with _pool_lock:
-        pool, _processes = _processes, None
-    if pool is not None:
-        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def waited(futures: list[Future[Any]], check: Check | None) -> None:
@@ -86,7 +54,7 @@ class Contents:
         self.threads: list[Future[LabelContent]] = []
         if processes and jobs:
             try:
-                pool = _process_pool()
+                pool = process_pool()  # the service's (app.core.processes)
                 self.futures = [
                     pool.submit(
                         many_contents,
@@ -105,9 +73,7 @@ class Contents:
                 waited(self.futures, check)
                 return [c for f in self.futures for c in f.result()]
         except BrokenProcessPool:  # a process was killed: start afresh next time
-            global _processes
-            with _pool_lock:
-                _processes = None
+            forget_broken()
             self.threads = [INGEST_POOL.submit(label_content, *job) for job in self.jobs]
         waited(self.threads, check)
         return [f.result() for f in self.threads]

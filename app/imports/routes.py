@@ -84,7 +84,9 @@ async def import_labels(
     the rest are counted, never refusing the file. A job reads it; its result counts `frames`,
     `labels` and `keypoints`, lists every `skipped` and `refused` item with its reason, and
     counts the other classes' regions by outcome (`classes`: kept, unknown, …)."""
-    async with one_spooled_file(request, "zip or annotation file") as (fields, name, upload):
+    # spooled beside the store's folders, so that keep_upload moves it there: written once
+    form = one_spooled_file(request, "zip or annotation file", spool_dir=storage.scratch())
+    async with form as (fields, name, upload):
         params = _checked(fields, name)
         if params["sequence_id"] is not None:
             get_sequence(session, params["sequence_id"])

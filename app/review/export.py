@@ -23,7 +23,9 @@ no temporary file, memory bounded by one entry); large sets can also run as an `
 thread pool a few frames ahead of the writer (OpenCV and pycocotools release the GIL) — only
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
-are traced in the same pool, on masks decoded from the stored RLE (else the PNG).
+are traced in the same pool, on masks decoded from the stored RLE (else the PNG). CVAT's
+pool masks are laid out from the stored RLE in the service's processes (``mapped_ahead``):
+in threads, their numpy work held the GIL against the writer.
 
 The masks layout copies each label's mask file where this machine holds it, and makes the PNG
 from the RLE stored with the label where it does not (the same pixels, without reading the
@@ -53,6 +55,7 @@ from sqlalchemy.orm import Session
 from app.core.budgets import shared_pool
 from app.core.errors import InvalidInputError, MissingFile
 from app.core.models import Frame, Label, LabelStatus, Sequence, Split, ValidationKeypoints
+from app.core.processes import mapped_ahead
 from app.frames.schemas import stored_scale
 from app.frames.sequences import get_sequence
 from app.review.export_classes import (
@@ -514,16 +517,23 @@ def _write_cvat(
     archive: zipfile.ZipFile, storage: Storage, rows: list[Any], skipped: Skipped
 ) -> Iterator[int]:
     """CVAT for images 1.1: ``annotations.xml`` (each label one RLE ``<mask>``, holes kept;
-    its keypoints and validation keypoints as ``<points>``) with the images beside it."""
-    from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image
+    its keypoints and validation keypoints as ``<points>``) with the images beside it. The
+    pools' masks are made from their stored RLE in the service's processes (``mapped_ahead``),
+    those of labels saved before it was stored from their PNG in the readers' pool."""
+    from weldpool_core.annotations.cvat import CvatImage, cvat_document, cvat_image, cvat_rle_masks
 
     elements: list[Any] = []
     config, names = written_config(rows), file_names([row[0] for row in rows])
+    stored = [(row[1].mask_rle, row[1].mask_bbox) for row in rows if row[1].mask_rle is not None]
+    pools = mapped_ahead(cvat_rle_masks, stored, CVAT_CHUNK, CVAT_PROCESS_MIN)
 
     def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
-        return _cvat_mask(storage, row[1]), cvat_objects(row[1], config)
+        label = row[1]
+        unstored = _cvat_mask(storage, label) if label.mask_rle is None else None
+        return unstored, cvat_objects(label, config)
 
     for done, (frame, label, _, manual), path, made in _readable(storage, rows, skipped, shapes):
+        pool = next(pools) if label.mask_rle is not None else None
         if path is None:
             yield done
             continue
@@ -534,7 +544,7 @@ def _write_cvat(
             name=name,
             width=frame.width,
             height=frame.height,
-            mask=made[0],
+            mask=pool if label.mask_rle is not None else made[0],
             keypoints=label.keypoints or None,
             validation_keypoints=manual.keypoints if manual is not None else None,
             objects=made[1],
@@ -549,12 +559,9 @@ def _write_cvat(
 
 
 def _cvat_mask(storage: Storage, label: Label) -> Any:
-    """A label's ``CvatMask``, in the readers' pool: from the RLE and box stored with it (only
-    the box's columns laid out from the runs), else from its mask PNG."""
-    from weldpool_core.annotations.cvat import cvat_mask, cvat_rle_mask
+    """The ``CvatMask`` of a label saved before its RLE was stored, from its mask PNG."""
+    from weldpool_core.annotations.cvat import cvat_mask
 
-    if label.mask_rle is not None:
-        return cvat_rle_mask(label.mask_rle, label.mask_bbox)
     return cvat_mask(_stored_mask(storage, label))
 
 
@@ -568,6 +575,13 @@ def _write_labelme(
         return _readable(storage, rows, skipped, read)
 
     yield from write_labelme(archive, rows, readable, lambda label: _stored_mask(storage, label))
+
+
+CVAT_CHUNK = 16
+"""Labels per task a CVAT export sends to the service's processes (fewer round trips)."""
+CVAT_PROCESS_MIN = 128
+"""Stored masks from which a CVAT export starts the processes (their start takes seconds and
+~150 MB each); fewer are made in the writer's thread (under 0.5 ms each) unless they run."""
 
 
 WRITERS: dict[str, Writer] = {

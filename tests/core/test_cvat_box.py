@@ -7,7 +7,7 @@ import numpy as np
 
 from weldpool_core.annotations.cvat import cvat_box_mask, cvat_mask
 from weldpool_core.annotations.shapes import cvat_rle
-from weldpool_core.outline import coco_mask, rle_box, rle_counts, rle_mask
+from weldpool_core.outline import coco_mask, rle_boxed, rle_counts, rle_mask
 
 
 def _masks() -> list[np.ndarray]:
@@ -22,21 +22,27 @@ def _masks() -> list[np.ndarray]:
     return [ring, edges, speckled]
 
 
-def test_rle_box_is_the_decoded_mask_cropped_to_the_box() -> None:
+def test_the_rle_over_a_box_is_the_decoded_mask_cropped_to_the_box() -> None:
     for mask in _masks():
         coco = coco_mask(mask)
         x, y, w, h = coco.bbox
-        box = rle_box(coco.rle, coco.bbox)
+        boxed = rle_boxed(coco.rle, coco.bbox)
+        box = boxed.pixels
+        assert boxed.origin == (x, y) and boxed.size == mask.shape
         assert box.dtype == np.bool_ and box.flags.c_contiguous
         assert np.array_equal(box, rle_mask(coco.rle)[y : y + h, x : x + w])
         assert box[0].any() and box[-1].any() and box[:, 0].any() and box[:, -1].any()  # tight
+        for inner in ([x + 1, y + 2, w - 3, h - 2], [x + w // 2, y, w - w // 2, h // 2]):
+            left, top, width, height = inner  # a box cutting the mask: the pixels inside it
+            cut = rle_boxed(coco.rle, inner).pixels
+            assert np.array_equal(cut, mask[top : top + height, left : left + width])
 
 
 def test_the_cvat_mask_from_the_stored_box_is_the_one_from_the_whole_frame() -> None:
     for mask in _masks():
         coco = coco_mask(mask)
         whole = cvat_mask(mask)
-        from_box = cvat_box_mask(rle_box(coco.rle, coco.bbox), coco.bbox[0], coco.bbox[1])
+        from_box = cvat_box_mask(rle_boxed(coco.rle, coco.bbox).pixels, coco.bbox[0], coco.bbox[1])
         assert whole == from_box
         assert whole is not None
         # and CVAT's reader gives the mask back, holes kept
@@ -65,4 +71,4 @@ def test_the_runs_read_from_the_compressed_string_are_pycocotools_own() -> None:
     flat = np.repeat(np.arange(runs.size) % 2 == 1, runs)
     assert np.array_equal(flat.reshape(4000, 3000).T, mask)  # column-major, 0s first
     x, y, w, h = coco.bbox
-    assert np.array_equal(rle_box(coco.rle, coco.bbox), mask[y : y + h, x : x + w])
+    assert np.array_equal(rle_boxed(coco.rle, coco.bbox).pixels, mask[y : y + h, x : x + w])

@@ -139,6 +139,7 @@ def test_a_large_imports_label_work_in_processes_gives_the_same_labels(
     """From ``PROCESS_MIN`` labels the work (rasterise, encode, Algorithm 1) runs in processes
     and comes back in order: the masks, keypoints and validation keypoints are the ones the
     threads give, frame by frame."""
+    from app.core import processes
     from app.imports import pool, service
 
     monkeypatch.setattr(service, "PROCESS_MIN", 1)
@@ -146,7 +147,7 @@ def test_a_large_imports_label_work_in_processes_gives_the_same_labels(
     _, token = make_user("importer", Role.reviewer)
     result = start_import(client, token, exported.archive["coco"], "coco")["result"]
     assert result["labels"] == 3 and result["keypoints"] == 1 and result["refused"] == []
-    assert pool._processes is not None  # the processes did the work
+    assert processes.started()  # the processes did the work
     for frame, label in stored_labels(client, token):
         name = frame["original_name"]
         assert label is not None and (label_mask(label) == exported.masks[name]).all(), name

@@ -266,13 +266,21 @@ def cvat_box_mask(pixels: NDArray[np.bool_], left: int, top: int) -> CvatMask:
 
 def cvat_rle_mask(rle: dict[str, Any], box: Sequence[float] | None) -> CvatMask | None:
     """The ``CvatMask`` of a compressed COCO RLE (as ``CocoMask`` holds it): laid out from its
-    runs over its box ``[x, y, width, height]`` only, when the box is known (``rle_box``), else
-    from the whole decoded mask (None when it is empty)."""
-    from weldpool_core.outline import rle_box, rle_mask
+    runs over its box ``[x, y, width, height]`` only, when the box is known (``rle_boxed``),
+    else from the whole decoded mask (None when it is empty)."""
+    from weldpool_core.outline import rle_boxed, rle_mask
 
     if box and box[2] > 0 and box[3] > 0:
-        return cvat_box_mask(rle_box(rle, [int(v) for v in box]), int(box[0]), int(box[1]))
+        return cvat_box_mask(rle_boxed(rle, box).pixels, int(box[0]), int(box[1]))
     return cvat_mask(rle_mask(rle))
+
+
+def cvat_rle_masks(
+    stored: Sequence[tuple[dict[str, Any], Sequence[float] | None]],
+) -> list[CvatMask | None]:
+    """``cvat_rle_mask`` of several (RLE, box) pairs: one task of a process pool (an export's
+    masks, a few per round trip)."""
+    return [cvat_rle_mask(rle, box) for rle, box in stored]
 
 
 @dataclass(frozen=True)
