@@ -22,7 +22,7 @@ from weldpool_core.annotations.labelme import (
     labelme_mask,
     labelme_point,
 )
-from weldpool_core.outline import BoxedMask, rle_box
+from weldpool_core.outline import BoxedMask, rle_boxed
 
 if TYPE_CHECKING:
     import numpy as np
@@ -48,7 +48,7 @@ def object_shapes(label: Any, rows: Rows) -> list[dict[str, Any]]:
         name, attributes = obj.get("class"), obj.get("attributes", {})
         if name in rows.classes and obj.get("rle") and obj.get("bbox"):
             x, y = int(obj["bbox"][0]), int(obj["bbox"][1])
-            pixels = rle_box(obj["rle"], [int(v) for v in obj["bbox"]])
+            pixels = rle_boxed(obj["rle"], [int(v) for v in obj["bbox"]]).pixels
             shapes.append(_with_attributes(labelme_mask(name, pixels, x, y), attributes))
         elif name in rows.points and obj.get("points"):
             group += 1

@@ -16,7 +16,7 @@ import pytest
 from app.frames.multipart import StreamedForm
 from app.imports import uploads
 from app.imports.uploads import IMPORTS_DIR, keep_upload, upload_name
-from app.storage import Storage
+from app.storage import LocalStorage, Storage, open_storage
 from tests.helpers import make_settings
 from tests.s3 import bucket_keys
 
@@ -50,7 +50,7 @@ def _no_copy(*args: Any) -> None:
 def test_a_spooled_import_is_moved_into_place_not_copied(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage(tmp_path)
+    storage = LocalStorage(tmp_path)
     form, spooled = _spooled(storage)
     spool = Path(spooled.name)
     assert spool.parent == storage.scratch() and spool.suffix == ".part"  # swept if orphaned
@@ -65,7 +65,7 @@ def test_a_spooled_import_is_moved_into_place_not_copied(
 
 
 def test_a_form_closed_unmoved_leaves_no_spool(tmp_path: Path) -> None:
-    storage = Storage(tmp_path)
+    storage = LocalStorage(tmp_path)
     form, spooled = _spooled(storage)
     assert spooled.read() == DATA
     form.close()
@@ -73,7 +73,7 @@ def test_a_form_closed_unmoved_leaves_no_spool(tmp_path: Path) -> None:
 
 
 def test_an_upload_in_memory_or_elsewhere_is_copied(tmp_path: Path) -> None:
-    storage = Storage(tmp_path / "home")
+    storage = LocalStorage(tmp_path / "home")
     name = keep_upload(storage, io.BytesIO(DATA), ".zip")
     assert storage.local(upload_name(name)).read_bytes() == DATA
     elsewhere = tmp_path / "elsewhere.part"
@@ -86,7 +86,7 @@ def test_an_upload_in_memory_or_elsewhere_is_copied(tmp_path: Path) -> None:
 def test_on_an_object_store_the_moved_upload_is_published(
     tmp_path: Path, s3_endpoint: str, s3_url: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    storage = Storage.of(make_settings(tmp_path, storage_url=s3_url, s3_endpoint_url=s3_endpoint))
+    storage = open_storage(make_settings(tmp_path, storage_url=s3_url, s3_endpoint_url=s3_endpoint))
     form, spooled = _spooled(storage)
     monkeypatch.setattr(uploads.shutil, "copyfileobj", _no_copy)
     name = keep_upload(storage, spooled, ".zip")

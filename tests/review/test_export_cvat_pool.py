@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.core import processes
+from app.core import processes as core_processes
 from app.core.models import Frame, Label, LabelStatus, Split
 from app.review import export
 from app.review.export_classes import Rows, cvat_objects
@@ -91,7 +91,7 @@ def test_the_cvat_masks_are_built_in_the_pool_and_are_the_whole_frames(
     monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 16)
     data = b"".join(export.stream_export(storage, "cvat", rows))  # written in this thread
     assert built_in and threading.get_ident() not in built_in
-    assert processes.started()
+    assert core_processes.started()
     document = ET.fromstring(zipfile.ZipFile(io.BytesIO(data)).read("annotations.xml"))
     images = document.findall("image")
     assert len(images) == len(masks)
@@ -157,12 +157,12 @@ def test_the_cvat_xml_is_the_one_made_label_by_label(
     monkeypatch.setattr(export, "CVAT_CHUNK", 3)  # more tasks than are sent ahead
     monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 100 if processes == "few" else 1)
     if processes == "few":  # fewer than start the processes: made here, none started
-        monkeypatch.setattr(processes, "started", lambda: False)
-        monkeypatch.setattr(processes, "process_pool", _never)
+        monkeypatch.setattr(core_processes, "started", lambda: False)
+        monkeypatch.setattr(core_processes, "process_pool", _never)
     if processes == "broken":
-        monkeypatch.setattr(processes, "process_pool", _Broken)
+        monkeypatch.setattr(core_processes, "process_pool", _Broken)
     if processes == "not startable":
-        monkeypatch.setattr(processes, "process_pool", _refused)
+        monkeypatch.setattr(core_processes, "process_pool", _refused)
     data = b"".join(export.stream_export(storage, "cvat", rows))
     written = zipfile.ZipFile(io.BytesIO(data)).read("annotations.xml")
     assert written == _reference_xml(storage, rows)
