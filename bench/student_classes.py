@@ -16,14 +16,18 @@ distance in px). Everything but the classes is the same, and a student with clas
 pool from the same initial weights (the class head is made last).
 
 Settings kept small for a shared 2-core machine (say so with the figures): ``--steps`` (default
-300 instead of the library's 800), 10 evaluation rounds, no uncertainty draws.
+300 instead of the library's 800), 10 evaluation rounds, no uncertainty draws; ``--folds N``
+runs only the first N folds of each kind, and ``--from-logs`` makes the tables from the rows of
+runs split across processes.
 
     PYTHONPATH=. .venv/bin/python bench/student_classes.py [--steps 300] [--kinds loco within]
+        [--folds 1] [--from-logs LOG …]
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import tempfile
 import time
 from dataclasses import replace
@@ -80,7 +84,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         for kind in args.kinds:
-            for name, train, test in folds(frames, kind):
+            for name, train, test in folds(frames, kind)[: args.folds]:
                 for label, classes in (("pool only", ()), ("pool + 2 classes", CLASSES)):
                     student = StudentConfig(classes=classes)
                     folder = Path(scratch) / f"{name.replace(':', '-')}-{len(classes)}"
@@ -106,6 +110,16 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
                     }
                     print(row, flush=True)
                     rows.append(row)
+    return rows
+
+
+def logged_rows(logs: list[Path]) -> list[dict[str, Any]]:
+    """The rows earlier runs printed (one dict a line), in the order of the logs."""
+    rows = []
+    for log in logs:
+        for line in log.read_text().splitlines():
+            if line.startswith("{'kind'"):
+                rows.append(ast.literal_eval(line))
     return rows
 
 
@@ -159,17 +173,27 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300, help="optimiser steps per training")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"])
+    parser.add_argument(
+        "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
+    )
+    parser.add_argument("--folds", type=int, help="the first N folds of each kind only")
+    parser.add_argument(
+        "--from-logs",
+        nargs="+",
+        type=Path,
+        help="no training: the tables of the rows earlier runs printed (runs split by fold)",
+    )
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     started = time.perf_counter()
-    found = tables(run(args))
+    found = tables(logged_rows(args.from_logs) if args.from_logs else run(args))
     for table in found:
         print(table.markdown())
     print(f"{time.perf_counter() - started:.0f} s in all (steps {args.steps}, 10 rounds)")
     if not args.no_record:
         command = f"PYTHONPATH=. .venv/bin/python bench/student_classes.py --steps {args.steps}"
+        command += f" --folds {args.folds}" if args.folds else ""
         print(f"written to {record('bench/student_classes.py', found, command)}")
 
 

@@ -82,7 +82,9 @@ class LearnedClass:
         try:
             return cls(str(data["name"]), data["kind"], tuple(map(str, data.get("points", ()))))
         except (KeyError, TypeError):
-            raise InvalidInputError(f"A learned class is {{name, kind, points}}, not {data!r}.")
+            raise InvalidInputError(
+                f"A learned class is {{name, kind, points}}, not {data!r}."
+            ) from None
 
 
 def channel_slices(classes: Sequence[LearnedClass]) -> dict[str, slice]:
@@ -187,12 +189,8 @@ def class_targets(
     return torch.from_numpy(np.stack(planes)), torch.tensor(present, dtype=torch.float32)
 
 
-def unpack_truth(
-    truth: NDArray[np.uint8] | tuple[float, float], height: int, width: int
-) -> NDArray[np.bool_] | tuple[float, float]:
-    """A prepared frame-resolution truth as a bool mask or an ``(x, y)`` point."""
-    if isinstance(truth, tuple):
-        return truth
+def unpack_truth(truth: NDArray[np.uint8], height: int, width: int) -> NDArray[np.bool_]:
+    """A prepared frame-resolution mask truth (bit-packed) as a bool mask."""
     bits = np.unpackbits(truth, count=height * width)
     return bits.reshape(height, width).astype(bool)
 
@@ -257,7 +255,9 @@ def class_figures(
     ``sizes``: each frame's (height, width)."""
     figures: dict[str, dict[str, Any]] = {}
     for learned in classes:
-        frames, values, per_point, missed = 0, [], {n: [] for n in learned.points}, 0
+        frames, missed = 0, 0
+        values: list[float] = []
+        per_point: dict[str, list[float]] = {n: [] for n in learned.points}
         for output, truth_of, (height, width) in zip(outputs, truths, sizes, strict=True):
             truth = truth_of.get(learned.name)
             if truth is None:

@@ -38,10 +38,13 @@ def class_truths(
     for learned, where in zip(config.classes, channel_slices(config.classes).values(), strict=True):
         given = prepared.truths[where]
         if learned.segments:
-            if given[0] is not None:
-                truths[learned.name] = ClassTruth(mask=unpack_truth(given[0], height, width))
+            packed = given[0]
+            if packed is not None and not isinstance(packed, tuple):
+                truths[learned.name] = ClassTruth(mask=unpack_truth(packed, height, width))
             continue
-        points = {n: xy for n, xy in zip(learned.points, given, strict=True) if xy is not None}
+        points = {
+            n: xy for n, xy in zip(learned.points, given, strict=True) if isinstance(xy, tuple)
+        }
         if points:
             truths[learned.name] = ClassTruth(points=points)
     return truths
