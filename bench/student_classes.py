@@ -80,13 +80,13 @@ def with_classes(frame: TrainingFrame) -> TrainingFrame:
 
 def run(args: argparse.Namespace) -> list[dict[str, Any]]:
     frames = [with_classes(f) for f in real_frames()]
-    config = TrainConfig(device="cpu", steps=args.steps, rounds=10, seed=args.seed)
+    config = TrainConfig(device="cpu", steps=args.steps, rounds=args.rounds, seed=args.seed)
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         for kind in args.kinds:
             for name, train, test in folds(frames, kind)[: args.folds]:
                 for label, classes in (("pool only", ()), ("pool + 2 classes", CLASSES)):
-                    student = StudentConfig(classes=classes)
+                    student = StudentConfig(input_size=args.input_size, classes=classes)
                     folder = Path(scratch) / f"{name.replace(':', '-')}-{len(classes)}"
                     held = [frames[i] for i in test]
                     fold = train_and_score(
@@ -177,6 +177,8 @@ def main() -> None:
         "--kinds", nargs="+", default=["loco", "within"], choices=["loco", "within"]
     )
     parser.add_argument("--folds", type=int, help="the first N folds of each kind only")
+    parser.add_argument("--rounds", type=int, default=10, help="evaluation rounds per training")
+    parser.add_argument("--input-size", type=int, default=256, help="the student's input side")
     parser.add_argument(
         "--from-logs",
         nargs="+",
@@ -190,9 +192,13 @@ def main() -> None:
     found = tables(logged_rows(args.from_logs) if args.from_logs else run(args))
     for table in found:
         print(table.markdown())
-    print(f"{time.perf_counter() - started:.0f} s in all (steps {args.steps}, 10 rounds)")
+    print(
+        f"{time.perf_counter() - started:.0f} s in all (steps {args.steps}, {args.rounds} "
+        f"rounds, input {args.input_size})"
+    )
     if not args.no_record:
         command = f"PYTHONPATH=. .venv/bin/python bench/student_classes.py --steps {args.steps}"
+        command += f" --rounds {args.rounds} --input-size {args.input_size}"
         command += f" --folds {args.folds}" if args.folds else ""
         print(f"written to {record('bench/student_classes.py', found, command)}")
 

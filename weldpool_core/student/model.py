@@ -372,6 +372,9 @@ class ResNetVAE(nn.Module):
                 mean.shape, generator=generator, device=mean.device, dtype=mean.dtype
             )
             latent = mean + noise * torch.exp(0.5 * logvar)
+        if self.decoder.class_head is None:  # the pool alone, as before classes existed
+            mask_logits, heatmap_logits = self.decode(latent, skips)
+            return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
         mask_logits, heatmap_logits, class_logits = self.decode_all(latent, skips)
         return StudentOutput(mask_logits, heatmap_logits, mean, logvar, class_logits)
 
