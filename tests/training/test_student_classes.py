@@ -52,7 +52,8 @@ def _labelled_frames(client: TestClient, token: str, admin: str, count: int, spa
     of them two spatter instances; the teacher proposed a shrunk pool for each."""
     put = client.put("/api/v1/label-config", json=LAB | {"version": 0}, headers=auth(admin))
     assert put.status_code == 200, put.text
-    ids = frame_ids(client, token, random_images(numbered(count, first_seed=700), width=W, height=H))
+    images = random_images(numbered(count, first_seed=700), width=W, height=H)
+    ids = frame_ids(client, token, images)
     for index, frame_id in enumerate(ids):
         objects = [
             {"class": "wire", "mask_png": mask_b64(_wire())},
@@ -104,7 +105,7 @@ def _version(settings, session_factory, base: Path, name: str, pool: float, wire
     shutil.copytree(base, folder)
     weights = load_file(str(folder / "model.safetensors"))
     weights["decoder.head.bias"][0], weights["decoder.head.bias"][1] = pool, -30.0
-    weights["decoder.class_head.1.bias"][:] = wire
+    weights["decoder.class_head.2.bias"][:] = wire
     save_file(weights, str(folder / "model.safetensors"))
     with session_factory() as session:
         version = ModelVersion(

@@ -1,8 +1,10 @@
 """The label configuration's other classes as extra outputs of the student, beside the pool.
 
 A version learns the classes it is given (``StudentConfig.classes``; the app picks those with
-enough reviewed labels). Each becomes channels of an extra decoder head after the pool's, so
-the pool's head, its loss and its figures stay what they are without classes:
+enough reviewed labels). Each becomes channels of an extra decoder head after the pool's, which
+reads the decoder's last features detached (``model.Decoder``): the classes' loss trains that
+head alone, so the pool's weights, head, loss and figures are exactly what they are without
+classes (with the same seed), and a class can never lower what the pool learns:
 
 - a ``mask`` class, and an ``instances`` class as the union of its instances (a semantic mask),
   is one segmentation channel (BCE + Dice, as the pool's mask);

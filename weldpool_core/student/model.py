@@ -40,6 +40,8 @@ IMAGENET_STD = (0.229, 0.224, 0.225)
 STRIDE = 32
 """The encoder's output stride: the input size must be a multiple of it."""
 
+CLASS_HEAD_CHANNELS = 16
+"""Least width of the learned classes' head (``Decoder``)."""
 Aspect = Literal["letterbox", "resize"]
 KeypointSource = Literal["mask", "heatmap"]
 ModuleT = TypeVar("ModuleT", bound=nn.Module)
@@ -223,8 +225,10 @@ def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequen
 
 class Decoder(nn.Module):
     """Latent (stride 32) → two logit channels at the input size (see the module doc), and
-    ``extra`` more from a head of their own (a 3×3 conv stage and a 1×1 conv on the same
-    features) for the learned classes."""
+    ``extra`` more for the learned classes from a head of their own (two 3×3 conv stages and a
+    1×1 conv) on the same features, detached: the classes' loss never reaches the encoder and
+    decoder the pool uses, so a class cannot lower what the pool learns (with the same seed
+    the pool's weights train exactly as without classes)."""
 
     def __init__(
         self,
@@ -248,8 +252,13 @@ class Decoder(nn.Module):
         self.skips = nn.ModuleList(nn.Conv2d(c, inputs[i], 1) for i, c in enumerate(skip_channels))
         self.head = nn.Conv2d(previous, 2, 1)
         # made last, so a student with classes starts its pool with a pool-only one's weights
+        wide = max(previous, CLASS_HEAD_CHANNELS)
         self.class_head = (
-            nn.Sequential(_conv_bn_relu(previous, previous, 3), nn.Conv2d(previous, extra, 1))
+            nn.Sequential(
+                _conv_bn_relu(previous, wide, 3),
+                _conv_bn_relu(wide, wide, 3),
+                nn.Conv2d(wide, extra, 1),
+            )
             if extra
             else None
         )
@@ -268,10 +277,16 @@ class Decoder(nn.Module):
             if index < len(self.skips):
                 features = features + self.skips[index](skips[index])
             features = stage(features)
-        logits = self.head(features)
-        if self.class_head is not None:
-            logits = torch.cat([logits, self.class_head(features)], dim=1)
-        return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
+        logits = _upsample(self.head(features))
+        if self.class_head is None:
+            return logits
+        # upsampled apart, so the pool's logits are computed exactly as without classes
+        return torch.cat([logits, _upsample(self.class_head(features.detach()))], dim=1)
+
+
+def _upsample(logits: torch.Tensor) -> torch.Tensor:
+    """The decoder's last ×2 step (bilinear; see the module doc)."""
+    return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
 
 
 def _resnet_config(config: StudentConfig) -> ResNetConfig:
@@ -316,7 +331,7 @@ class ResNetVAE(nn.Module):
             # the heatmap is mostly 0: start it low (as CenterNet does)
             cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
             if self.decoder.class_head is not None:
-                last = cast(nn.Conv2d, self.decoder.class_head[1])
+                last = cast(nn.Conv2d, self.decoder.class_head[-1])
                 cast(torch.Tensor, last.bias).copy_(initial_bias(config.classes))
 
     def encoder_maps(self, images: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:

@@ -174,6 +174,23 @@ def class_student(tmp_path_factory: pytest.TempPathFactory) -> TrainResult:
     return train_student(frames, out, replace(TINY_STUDENT, classes=CLASSES), tiny_config())
 
 
+def test_a_class_never_changes_what_the_pool_learns(
+    class_student: TrainResult, tmp_path: Path
+) -> None:
+    """The class head reads the pool's features detached: with the same frames and seed the
+    pool's weights and figures are exactly those of a student without classes."""
+    from safetensors.torch import load_file
+
+    frames = [replace(_labelled(seed), classes={}) for seed in range(6)]
+    plain = train_student(frames, tmp_path / "plain", TINY_STUDENT, tiny_config())
+    ours = load_file(str(plain.model_dir / "model.safetensors"))
+    theirs = load_file(str(class_student.model_dir / "model.safetensors"))
+    assert set(theirs) - set(ours) == {k for k in theirs if k.startswith("decoder.class_head.")}
+    assert all(torch.equal(ours[key], theirs[key]) for key in ours)
+    pool = {k: v for k, v in class_student.metrics.items() if k != "classes"}
+    assert pool == plain.metrics and class_student.best_epoch == plain.best_epoch
+
+
 def test_a_student_with_classes_trains_predicts_and_reports_them(
     class_student: TrainResult,
 ) -> None:
