@@ -239,7 +239,7 @@ def test_the_extra_channels_learn_the_wire_and_its_tip(tmp_path: Path) -> None:
     to figures that an empty or a full channel, or a tip at the frame's centre, do not reach."""
     frames = [_labelled(seed) for seed in range(8)]
     unseen = [_labelled(seed) for seed in range(100, 106)]
-    config = tiny_config(epochs=None, steps=150, rounds=3)
+    config = tiny_config(epochs=None, steps=400, rounds=4)
     train_student(frames, tmp_path / "m", replace(TINY_STUDENT, classes=CLASSES), config)
     predictions = StudentPredictor.load(tmp_path / "m", "cpu").predict([f.image for f in unseen])
     truths = [f.classes for f in unseen]
