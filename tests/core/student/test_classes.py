@@ -253,3 +253,19 @@ def test_the_extra_channels_learn_the_wire_and_its_tip(tmp_path: Path) -> None:
         assert baseline["wire"]["IoU"] < 0.05
         assert learned["wire"]["IoU"] > 0.1
         assert learned["wire tip"]["distance_px"] < 0.5 * baseline["wire tip"]["distance_px"]
+
+
+def test_the_onnx_export_carries_the_classes_in_their_order(class_student: TrainResult) -> None:
+    from weldpool_core.cell.stream import StreamStudent
+    from weldpool_core.student.checkpoint import EXPORT_FILE
+    from weldpool_core.student.export import export_student
+
+    exported = export_student(class_student.model_dir, ["onnx"])
+    assert exported.differences["onnx"] < 1e-4  # every output, the classes' included
+    described = json.loads((class_student.model_dir / EXPORT_FILE).read_text())
+    assert described["classes"] == [c.as_dict() for c in CLASSES]
+    assert described["outputs"]["classes"].endswith("channels: wire, wire tip:tip")
+    student = StreamStudent(class_student.model_dir, backend="onnx")
+    batch, geometry = student.prepare(np.ascontiguousarray(_labelled(7).image[:, :, ::-1]))
+    student(batch, geometry)
+    assert student.extra is not None and student.extra.shape == (2, 64, 64)
