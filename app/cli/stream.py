@@ -158,6 +158,13 @@ def promoted_model_dir() -> tuple[Path, bool]:
     help="Run the quantized student (model.int8.onnx, weldpool export-student --format "
     "onnx-int8): 1.5–3× faster on a CPU, its masks checked against the float ones.",
 )
+@click.option(
+    "--classes",
+    "classes",
+    metavar="NAMES",
+    help="Learned classes whose geometry each record adds (comma-separated, e.g. wire,torch; "
+    "'none' for none). Default: every class the student learned beside the pool.",
+)
 @click.option("--realtime", is_flag=True, help="Read a file at its frame rate, dropping stale.")
 @click.option("--max-frames", type=click.IntRange(min=1), help="Stop after this many frames.")
 @click.option(
@@ -186,6 +193,7 @@ def stream_cmd(
     samples: int,
     sequential: bool,
     int8: bool,
+    classes: str | None,
     realtime: bool,
     max_frames: int | None,
     decoder_threads: int,
@@ -216,6 +224,7 @@ def stream_cmd(
         realtime=realtime,
         max_frames=max_frames,
         decoder_threads=decoder_threads or None,
+        classes=_class_names(classes),
     )
     outputs = _Outputs(quiet)
     started = time.perf_counter()
@@ -237,6 +246,14 @@ def stream_cmd(
         **outputs.summary(time.perf_counter() - started),
     }
     click.echo(json.dumps(report), err=True)
+
+
+def _class_names(text: str | None) -> tuple[str, ...] | None:
+    """``--classes``: None (every learned class), ``()`` for 'none', else the names."""
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    return () if names == ("none",) else names
 
 
 @main.command("opcua-certificate")

@@ -134,6 +134,12 @@ class Settings(BaseSettings):
         description="Labels annotators save await a reviewer's approval (or are sent back with "
         "a comment) and train only once approved; off: every saved label counts at once.",
     )
+    student_class_min_labels: int = Field(
+        default=10,
+        ge=0,
+        description="Reviewed labels a class other than the pool needs in the training frames "
+        "before a student learns it as extra outputs; 0: the pool alone.",
+    )
     retrain_every: int = Field(
         default=20,
         ge=0,

@@ -16,6 +16,11 @@ the frame's diagonal).
   ``MIOU_TOLERANCE``.
 No frames to measure on: not usable, with the reason.
 
+Learned classes (``app.training.classes``): the candidate's figures per class (IoU for mask and
+instances classes, point distance in px for points classes) on the measured frames that have the
+class labelled, in ``classes``; reported only, never part of the rule above: a class never
+decides a promotion.
+
 A fair yardstick: a label a reviewer accepted unchanged from a model's proposal *is* that
 model's output, so the model scores 1.0 on it and nobody can beat it there. Each comparison
 therefore leaves out the frames whose label was taken unchanged from one of the two models
@@ -40,7 +45,7 @@ from app.core.errors import ConflictError, InvalidInputError
 from app.core.models import Frame, Label, ModelVersion, Proposal
 from app.storage import Storage
 from app.storage.pixels import frame_rgb, load_mask
-from app.training import service
+from app.training import classes, service
 from weldpool_core.metrics import proposal_quality
 
 if TYPE_CHECKING:
@@ -94,9 +99,15 @@ Outputs: TypeAlias = "dict[int, tuple[np.ndarray, Any]]"
 
 
 def _student_outputs(
-    session: Session, storage: Storage, version: ModelVersion, frame_ids: list[int], device: str
+    session: Session,
+    storage: Storage,
+    version: ModelVersion,
+    frame_ids: list[int],
+    device: str,
+    answers: dict[int, dict[str, Any]] | None = None,
 ) -> Outputs:
-    """The version's mask and keypoints on each frame, predicted now."""
+    """The version's mask and keypoints on each frame, predicted now (and into ``answers``,
+    when given, its learned classes' answers)."""
     from weldpool_core.student.predict import StudentPredictor
 
     if version.checkpoint_path is None:
@@ -119,6 +130,8 @@ def _student_outputs(
             f"{version.name} cannot be measured: {exc.message.replace(home, '')}"
         ) from None
     predictions = predictor.predict(images)
+    if answers is not None:
+        answers.update({f: p.classes for f, p in zip(frame_ids, predictions, strict=True)})
     return {f: (p.mask, p.keypoints) for f, p in zip(frame_ids, predictions, strict=True)}
 
 
@@ -266,8 +279,10 @@ def measure(
             "more frames or put some in the validation split.",
         }
     ids = sorted(truth)
-    mine = _student_outputs(session, storage, candidate, ids, device)
+    answers: dict[int, dict[str, Any]] = {}
+    mine = _student_outputs(session, storage, candidate, ids, device, answers)
     verdict["candidate"] = _score(mine, truth, ids)
+    verdict["classes"] = classes.gate_figures(session, candidate, ids, answers)
     taken = taken_from(session, ids)
     accepted = [f for f in ids if taken.get(f, ("",))[0] == "teacher"]
     verdict["accepted_from_teacher"] = accepted

@@ -24,6 +24,7 @@ from app.proposals.record import STUDENT, record_proposal
 from app.storage import Storage, best_effort, open_storage
 from app.storage.pixels import frame_rgb, load_mask
 from app.training import gate, service
+from app.training.classes import with_classes
 from weldpool_core.active import disagreement as teacher_disagreement
 from weldpool_core.errors import InvalidInputError
 
@@ -176,9 +177,8 @@ def train_student_version(ctx: JobContext) -> dict[str, Any]:
     with ctx.session_factory() as session:
         training = _samples(session, storage, train_ids, skipped)
         _anything_left(training, skipped)
-        validation = [
-            sample for _, sample in _samples(session, storage, validation_ids or held_out, skipped)
-        ]
+        held = _samples(session, storage, validation_ids or held_out, skipped)
+        student, training, validation = with_classes(session, ctx.settings, student, training, held)
         pseudo = _pseudo_labels(ctx, session, storage, len(training))
         result = train_student(
             [sample for _, sample in training] + [frame for _, frame in pseudo],

@@ -4,6 +4,7 @@
 import { api, ApiError, isReviewer, waitForJob } from "./api.js";
 import { count, forced, gateLine, int8Line, metric, metricName, sequentialLine } from "./format.js";
 import { lineChart } from "./chart.js";
+import { classesTable } from "./model_classes.js";
 import { badge, formatDate, h, progressBar, toast } from "./ui.js";
 
 const list = document.getElementById("models");
@@ -97,7 +98,7 @@ async function promote(model) {
 }
 
 export function modelCard(model) {
-  const metrics = Object.entries(model.metrics ?? {});
+  const metrics = Object.entries(model.metrics ?? {}).filter(([name]) => name !== "classes"); // classesTable
   const charts = curveCharts(model.curve ?? []);
   return h("article", { class: `model-card${model.is_promoted ? " promoted" : ""}`, "data-testid": "model-card", "data-model-id": String(model.id) },
     h("header", {},
@@ -127,6 +128,7 @@ export function modelCard(model) {
         h("tbody", {}, metrics.length
           ? metrics.map(([name, value]) => h("tr", {}, h("th", { title: name }, metricName(name)), h("td", { class: "num" }, metric(name, value))))
           : h("tr", {}, h("td", { class: "muted" }, "no metrics recorded")))),
+      classesTable(model),
       h("div", { class: "charts" }, charts.length ? charts : h("p", { class: "muted" }, "no training curve recorded"))),
   );
 }

@@ -18,7 +18,9 @@ from one delivered frame to the next; ``reset()`` starts a new stream.
 reads (``record_fields``): capture time, frame index, keypoints in frame pixels, pool area,
 length, width and centroid (pixels, and millimetres with a scale), the width's rolling
 stability (``stability_cv``, ``unstable``: ``signature.RollingStability``), ambiguity, uncertainty,
-frames dropped before it, and the latency from capture to the record. Geometry is measured on
+frames dropped before it, the latency from capture to the record, and for a student that
+learned other classes beside the pool their geometry (``classes``: ``cell.class_geometry``; null
+for a pool-only student or when none is asked for). Geometry is measured on
 the model's mask placed in frame pixels (``geometry.pool_shape`` with origin and pixel size), so
 no full-resolution mask is made per frame. ``ambiguity`` is cheap and always there: the mask
 probability in doubt, Σ 2·min(p, 1 − p), relative to the pool's area (0 for a crisp mask; high
@@ -41,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from weldpool_core.cell.class_geometry import chosen_classes, class_geometry
 from weldpool_core.cell.smoothing import KeypointSmoother, SmoothingParams
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.geometry import pool_shape
@@ -326,6 +329,11 @@ class StreamStudent:
         ``samples`` > 0 (torch only, per-frame student only)."""
         return self._runner.run(batch, geometry, samples)
 
+    @property
+    def extra(self) -> NDArray[np.float32] | None:
+        """The last frame's learned-class probabilities (E×S×S; None without classes)."""
+        return self._runner.extra
+
 
 @dataclass(frozen=True)
 class StreamResult:
@@ -360,6 +368,7 @@ def record_fields() -> tuple[str, ...]:
         "uncertainty",
         "dropped",
         "latency_ms",
+        "classes",
     )
 
 
@@ -416,6 +425,7 @@ def analyse(
         "uncertainty": None if uncertainty is None else round(uncertainty, 4),
         "dropped": frame.dropped,
         "latency_ms": None,
+        "classes": None,
     }
     return StreamResult(record, frame, mask_probability, geometry, keypoints)
 
@@ -429,10 +439,14 @@ def run_stream(
     travel_deg: float | None = None,
     samples: int = 0,
     stop: threading.Event | None = None,
+    classes: tuple[str, ...] | None = None,
 ) -> Iterator[StreamResult]:
     """The student on every delivered frame of ``source``; each record ends with its latency
-    and carries the width's rolling stability (``analyse``)."""
+    and carries the width's rolling stability (``analyse``) and the geometry of the learned
+    ``classes`` (None: every class the student learned; ``cell.class_geometry``)."""
     stability = RollingStability()
+    learned = student.config.classes
+    chosen = chosen_classes(learned, classes)
     for frame in source:
         if stop is not None and stop.is_set():
             return
@@ -450,6 +464,9 @@ def run_stream(
             travel_deg=travel_deg,
             stability=stability,
         )
+        extra = student.extra
+        if chosen and extra is not None:
+            result.record["classes"] = class_geometry(extra, learned, chosen, geometry)
         result.record["latency_ms"] = round(1000.0 * (time.perf_counter() - frame.captured), 3)
         yield result
 
@@ -463,7 +480,8 @@ class StreamOptions:
     ``mm_per_px`` and ``travel_deg`` the record's millimetres and travel direction;
     ``samples`` the uncertainty's latent draws (the per-frame student on PyTorch only);
     ``realtime``, ``max_frames`` and ``decoder_threads`` how the source is read
-    (``FrameSource``).
+    (``FrameSource``); ``classes`` the learned classes whose geometry each record adds (None:
+    all the student learned; ``()``: none).
     """
 
     backend: str = "onnx"
@@ -478,6 +496,7 @@ class StreamOptions:
     realtime: bool = False
     max_frames: int | None = None
     decoder_threads: int | None = None
+    classes: tuple[str, ...] | None = None
 
 
 def _silent(_message: str) -> None:
@@ -532,6 +551,7 @@ def open_stream(
             travel_deg=options.travel_deg,
             samples=options.samples,
             stop=stop,
+            classes=options.classes,
         )
 
 

@@ -27,8 +27,8 @@ a resumed run identical to an uninterrupted one.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,6 +37,13 @@ import torch
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams, gaussian_window, heatmap_from_mask
 from weldpool_core.io import load_rgb8, read_mask
+from weldpool_core.student.classes import (
+    ClassTruth,
+    LearnedClass,
+    PreparedClasses,
+    class_targets,
+    prepare_classes,
+)
 from weldpool_core.student.model import Aspect
 
 if TYPE_CHECKING:
@@ -187,6 +194,8 @@ class TrainingFrame:
         name: a label for messages (a file stem or a frame id).
         weight: how much the frame counts in the loss against 1 for a reviewed label (a
             teacher pseudo-label counts less; 0 < weight ≤ 1).
+        classes: the frame's labels of other classes ({class name: truth}, full resolution),
+            for a student that learns them (``student.classes``).
     """
 
     image: NDArray[np.uint8]
@@ -194,6 +203,7 @@ class TrainingFrame:
     keypoints: NDArray[np.float64] | None = None
     name: str = ""
     weight: float = 1.0
+    classes: Mapping[str, ClassTruth] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         image, mask = np.asarray(self.image), np.asarray(self.mask)
@@ -226,6 +236,7 @@ class PreparedFrame:
         frame_keypoints: k×2 keypoints in frame pixels (for validation).
         frame_mask: the full-resolution mask, bit-packed (for validation).
         name: the frame's label.
+        classes: the learned classes' targets (None: a pool-only student).
     """
 
     image: NDArray[np.uint8]
@@ -237,6 +248,7 @@ class PreparedFrame:
     frame_mask: NDArray[np.uint8]
     name: str = ""
     weight: float = 1.0
+    classes: PreparedClasses | None = None
 
     def truth_mask(self) -> NDArray[np.bool_]:
         """The full-resolution ground-truth mask."""
@@ -246,9 +258,14 @@ class PreparedFrame:
 
 
 def prepare_frame(
-    frame: TrainingFrame, size: int, aspect: Aspect, heatmap: HeatmapParams
+    frame: TrainingFrame,
+    size: int,
+    aspect: Aspect,
+    heatmap: HeatmapParams,
+    learned: Sequence[LearnedClass] = (),
 ) -> PreparedFrame:
-    """Targets for one frame (keypoints from Algorithm 1 when not given), at model resolution."""
+    """Targets for one frame (keypoints from Algorithm 1 when not given), at model resolution;
+    with ``learned`` classes, theirs too."""
     height, width = frame.mask.shape
     geometry = FrameGeometry.fit(height, width, size, aspect)
     if frame.keypoints is not None and len(frame.keypoints):
@@ -271,6 +288,7 @@ def prepare_frame(
         frame_mask=np.packbits(frame.mask.astype(np.uint8), axis=None),
         name=frame.name,
         weight=frame.weight,
+        classes=prepare_classes(learned, frame.classes, geometry) if learned else None,
     )
 
 
@@ -370,13 +388,16 @@ def photometric(
 
 @dataclass(frozen=True)
 class TrainingTargets:
-    """One augmented example: input image in [0, 1] (3×S×S), its mask and heatmap (S×S), and
-    its loss weight (a batch: N×… tensors and N weights)."""
+    """One augmented example: input image in [0, 1] (3×S×S), its mask and heatmap (S×S), its
+    loss weight, and the learned classes' targets (E×S×S) with their presence flags (E) (a
+    batch: N×… tensors and N weights)."""
 
     image: torch.Tensor
     mask: torch.Tensor
     heatmap: torch.Tensor
     weight: torch.Tensor | None = None
+    classes: torch.Tensor | None = None
+    present: torch.Tensor | None = None
 
 
 def warp_targets(
@@ -407,6 +428,7 @@ def make_targets(
     image = frame.image.astype(np.float32)
     mask = frame.mask.astype(np.float32) / 255.0
     keypoints, covariances = frame.keypoints, frame.covariances
+    matrix = None
     if augmentation is not None and augmentation.enabled and rng is not None:
         matrix = random_affine(rng, image.shape[0], augmentation)
         image, mask, keypoints, covariances = warp_targets(
@@ -415,11 +437,16 @@ def make_targets(
         image = photometric(image, rng, augmentation)
     heatmap = render_heatmap(keypoints, covariances, mask, sigma_floor)
     pixels = np.clip(image, 0, 255) / np.float32(255)
+    classes = present = None
+    if frame.classes is not None:
+        classes, present = class_targets(frame.classes, image.shape[0], sigma_floor, matrix)
     return TrainingTargets(
         image=torch.from_numpy(np.ascontiguousarray(pixels.transpose(2, 0, 1))),
         mask=torch.from_numpy(np.ascontiguousarray(mask)),
         heatmap=torch.from_numpy(heatmap),
         weight=torch.tensor(frame.weight, dtype=torch.float32),
+        classes=classes,
+        present=present,
     )
 
 
@@ -447,6 +474,8 @@ class FrameSet(torch.utils.data.Dataset[TrainingTargets]):
 
 def collate(batch: Sequence[TrainingTargets]) -> TrainingTargets:
     """Stack examples into one batch."""
+    classes = [b.classes for b in batch if b.classes is not None]
+    present = [b.present for b in batch if b.present is not None]
     return TrainingTargets(
         image=torch.stack([b.image for b in batch]),
         mask=torch.stack([b.mask for b in batch]),
@@ -454,6 +483,8 @@ def collate(batch: Sequence[TrainingTargets]) -> TrainingTargets:
         weight=torch.stack(
             [b.weight if b.weight is not None else torch.tensor(1.0) for b in batch]
         ),
+        classes=torch.stack(classes) if len(classes) == len(batch) else None,
+        present=torch.stack(present) if len(present) == len(batch) else None,
     )
 
 

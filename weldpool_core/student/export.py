@@ -37,7 +37,7 @@ from weldpool_core.student.checkpoint import (
     ONNX_FILE,
     current_record,
 )
-from weldpool_core.student.model import ResNetVAE, fuse_batchnorm
+from weldpool_core.student.model import ResNetVAE, StudentConfig, fuse_batchnorm
 
 TORCHSCRIPT_FILE = "model.torchscript.pt"
 FORMATS = ("onnx", "torchscript")
@@ -53,11 +53,13 @@ class StudentExport(nn.Module):
         super().__init__()
         self.student = model
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean-latent mask probability and heatmap of a batch of frames."""
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Mean-latent mask probability and heatmap of a batch of frames, and for a student
+        with learned classes their probabilities (N×E×S×S, ``student.classes`` order)."""
         mean, _, skips = self.student.encode(image)
-        mask_logits, heatmap_logits = self.student.decode(mean, skips)
-        return torch.sigmoid(mask_logits), torch.sigmoid(heatmap_logits)
+        mask_logits, heatmap_logits, class_logits = self.student.decode_all(mean, skips)
+        answer = (torch.sigmoid(mask_logits), torch.sigmoid(heatmap_logits))
+        return answer if class_logits is None else (*answer, torch.sigmoid(class_logits))
 
 
 def export_module(model: ResNetVAE) -> StudentExport:
@@ -111,7 +113,7 @@ def export_onnx(model: ResNetVAE, path: Path) -> None:
             (example,),
             dynamo=True,
             input_names=["image"],
-            output_names=["mask", "heatmap"],
+            output_names=["mask", "heatmap"] + (["classes"] if model.config.classes else []),
             dynamic_shapes=({0: batch},),
             verbose=False,
         )
@@ -182,6 +184,21 @@ def _difference(model: ResNetVAE, outputs: Sequence[Any], images: torch.Tensor) 
     )
 
 
+def _class_outputs(config: StudentConfig) -> dict[str, str]:
+    """The ``classes`` output's description, naming each channel (none without classes)."""
+    if not config.classes:
+        return {}
+    names = [
+        c.name if c.segments else f"{c.name}:{point}"
+        for c in config.classes
+        for point in (c.points or ("",))
+    ]
+    return {
+        "classes": "float32 batch×E×S×S, learned classes' probabilities (masks ≥ 0.5; points "
+        f"at each heatmap's peak), channels: {', '.join(names)}"
+    }
+
+
 @dataclass(frozen=True)
 class ExportResult:
     """Written files and how far each format is from PyTorch (max absolute difference)."""
@@ -250,7 +267,9 @@ def export_student(
             "outputs": {
                 "mask": "float32 batch×S×S, pool probability (≥ 0.5 is the pool)",
                 "heatmap": "float32 batch×S×S, keypoint heatmap; keypoints are its modes",
+                **_class_outputs(config),
             },
+            **({"classes": [c.as_dict() for c in config.classes]} if config.classes else {}),
             "keypoints": config.k,
             "files": {name: path.name for name, path in files.items()},
             "max_abs_difference_to_pytorch": differences,

@@ -1,6 +1,7 @@
 """The student's training loss: ``mask_bce``·BCE + ``mask_dice``·Dice on the mask logits (+ an
 optional BCE on the band around the true outline) + ``heatmap``·a quality focal loss on the
-heatmap logits + β·KL (``weldpool_core.student.train`` explains each term and β's ramp)."""
+heatmap logits + β·KL (``weldpool_core.student.train`` explains each term and β's ramp), +
+``classes``·the learned classes' terms (``class_loss``) for a student with classes."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from weldpool_core.student.classes import channel_kinds
 from weldpool_core.student.data import TrainingTargets
 from weldpool_core.student.model import ResNetVAE, kl_divergence
 
@@ -23,6 +25,8 @@ class LossWeights:
     mask_boundary: float = 0.0
     """BCE on a band of ``BOUNDARY_BAND`` input pixels either side of the true outline,
     averaged over the band (0: off): where the mask's errors are, e.g. at the wire."""
+    classes: float = 1.0
+    """Weight of the learned classes' terms (``class_loss``); the pool's terms keep theirs."""
 
 
 BOUNDARY_BAND = 5
@@ -70,6 +74,27 @@ def heatmap_loss(
     return per_frame.sum() / mass.sum().clamp(min=1.0)
 
 
+def class_loss(
+    logits: torch.Tensor, target: torch.Tensor, present: torch.Tensor, segments: list[bool]
+) -> torch.Tensor:
+    """The learned classes' loss (N×E×S×S logits and targets, N×E presence flags): per
+    segmentation channel BCE + Dice, per point channel the heatmap's quality focal loss, each
+    over the frames that have the channel labelled only; summed over the channels."""
+    total = logits.new_zeros(())
+    for channel, segment in enumerate(segments):
+        weight = present[:, channel]
+        if not bool(weight.any()):
+            continue
+        own, truth = logits[:, channel], target[:, channel]
+        if segment:
+            bce = F.binary_cross_entropy_with_logits(own, truth, reduction="none")
+            total = total + _weighted_mean(bce.flatten(1).mean(1), weight)
+            total = total + dice_loss(own, truth, weight)
+        else:
+            total = total + heatmap_loss(own, truth, weight)
+    return total
+
+
 @dataclass
 class _Losses:
     total: torch.Tensor
@@ -97,4 +122,9 @@ def student_loss(
         mask = mask + weights.mask_boundary * _weighted_mean(per_frame, batch.weight)
     heat = weights.heatmap * heatmap_loss(output.heatmap_logits, batch.heatmap, batch.weight)
     kl = kl_divergence(output.mean, output.logvar)
-    return _Losses(mask + heat + beta * kl, mask, heat, kl)
+    total = mask + heat + beta * kl
+    if output.class_logits is not None and batch.classes is not None and batch.present is not None:
+        segments = channel_kinds(model.config.classes)
+        extra = class_loss(output.class_logits, batch.classes, batch.present, segments)
+        total = total + weights.classes * extra
+    return _Losses(total, mask, heat, kl)

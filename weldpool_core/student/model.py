@@ -33,12 +33,15 @@ from torch import nn
 from transformers import ResNetConfig, ResNetModel
 
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.classes import LearnedClass, initial_bias
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 STRIDE = 32
 """The encoder's output stride: the input size must be a multiple of it."""
 
+CLASS_HEAD_CHANNELS = 16
+"""Least width of the learned classes' head (``Decoder``)."""
 Aspect = Literal["letterbox", "resize"]
 KeypointSource = Literal["mask", "heatmap"]
 ModuleT = TypeVar("ModuleT", bound=nn.Module)
@@ -94,6 +97,9 @@ class StudentConfig:
         encoder_weights: where the ImageNet weights are, overriding the encoder's hub id.
         skips: how many of the encoder's finer maps (strides 16, 8, 4, in that order) feed the
             decoder beside the latent (default 2; see the module doc).
+        classes: the label configuration's other classes learned beside the pool, as extra
+            output channels of their own head (``student.classes``; default none: the pool
+            alone, the same network and saved configuration as before classes existed).
     """
 
     encoder: str = "resnet18"
@@ -107,6 +113,7 @@ class StudentConfig:
     encoder_weights: str | None = None
     skips: int = 2
     keypoints: KeypointSource = "mask"
+    classes: tuple[LearnedClass, ...] = ()
 
     def __post_init__(self) -> None:
         problems = []
@@ -124,8 +131,15 @@ class StudentConfig:
             problems.append(f"keypoints must be mask or heatmap, not {self.keypoints!r}")
         if len(self.decoder_channels) != 4 or min(self.decoder_channels) < 1:
             problems.append("decoder_channels must be four positive numbers")
+        if len({c.name for c in self.classes}) != len(self.classes):
+            problems.append("each learned class must be named once")
         if problems:
             raise InvalidInputError(f"Bad student configuration: {'; '.join(problems)}.")
+
+    @property
+    def extra_channels(self) -> int:
+        """Output channels of the learned classes (0 without classes)."""
+        return sum(c.channels for c in self.classes)
 
     @property
     def spec(self) -> EncoderSpec:
@@ -137,8 +151,13 @@ class StudentConfig:
         return max(8, round(base * self.width))
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (``from_dict`` reads it back)."""
-        return asdict(self)
+        """A JSON-ready dict (``from_dict`` reads it back); ``classes`` only when there are some,
+        so that a pool-only student saves what it saved before classes existed."""
+        data = asdict(self)
+        data.pop("classes")
+        if self.classes:
+            data["classes"] = [c.as_dict() for c in self.classes]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> StudentConfig:
@@ -151,6 +170,7 @@ class StudentConfig:
         values = BEFORE_THE_KEY | dict(data)
         if "decoder_channels" in values:
             values["decoder_channels"] = tuple(values["decoder_channels"])
+        values["classes"] = tuple(LearnedClass.from_dict(c) for c in values.get("classes") or ())
         return cls(**values)
 
 
@@ -184,12 +204,15 @@ class StudentOutput:
         heatmap_logits: N×H×W logits of the keypoint heatmap (``sigmoid`` gives [0, 1]).
         mean: N×C×h×w latent mean (h = H / 32).
         logvar: N×C×h×w latent log-variance.
+        class_logits: N×E×H×W logits of the learned classes' channels (``student.classes``),
+            None for a pool-only student.
     """
 
     mask_logits: torch.Tensor
     heatmap_logits: torch.Tensor
     mean: torch.Tensor
     logvar: torch.Tensor
+    class_logits: torch.Tensor | None = None
 
 
 def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequential:
@@ -201,13 +224,18 @@ def _conv_bn_relu(in_channels: int, out_channels: int, kernel: int) -> nn.Sequen
 
 
 class Decoder(nn.Module):
-    """Latent (stride 32) → two logit channels at the input size (see the module doc)."""
+    """Latent (stride 32) → two logit channels at the input size (see the module doc), and
+    ``extra`` more for the learned classes from a head of their own (two 3×3 conv stages and a
+    1×1 conv) on the same features, detached: the classes' loss never reaches the encoder and
+    decoder the pool uses, so a class cannot lower what the pool learns (with the same seed
+    the pool's weights train exactly as without classes)."""
 
     def __init__(
         self,
         latent_channels: int,
         channels: tuple[int, ...],
         skip_channels: tuple[int, ...] = (),
+        extra: int = 0,
     ) -> None:
         super().__init__()
         self.entry = _conv_bn_relu(latent_channels, channels[0], 1)
@@ -223,9 +251,21 @@ class Decoder(nn.Module):
         # a 1×1 projection before the stage's conv
         self.skips = nn.ModuleList(nn.Conv2d(c, inputs[i], 1) for i, c in enumerate(skip_channels))
         self.head = nn.Conv2d(previous, 2, 1)
+        # made last, so a student with classes starts its pool with a pool-only one's weights
+        wide = max(previous, CLASS_HEAD_CHANNELS)
+        self.class_head = (
+            nn.Sequential(
+                _conv_bn_relu(previous, wide, 3),
+                _conv_bn_relu(wide, wide, 3),
+                nn.Conv2d(wide, extra, 1),
+            )
+            if extra
+            else None
+        )
 
     def forward(self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()) -> torch.Tensor:
-        """Decode an N×C×h×w latent into N×2×32h×32w logits (mask, heatmap)."""
+        """Decode an N×C×h×w latent into N×(2 + extra)×32h×32w logits (mask, heatmap, then
+        the learned classes' channels)."""
         if len(skips) != len(self.skips):
             plural = "" if len(self.skips) == 1 else "s"
             raise ValueError(
@@ -237,8 +277,16 @@ class Decoder(nn.Module):
             if index < len(self.skips):
                 features = features + self.skips[index](skips[index])
             features = stage(features)
-        logits = self.head(features)
-        return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
+        logits = _upsample(self.head(features))
+        if self.class_head is None:
+            return logits
+        # upsampled apart, so the pool's logits are computed exactly as without classes
+        return torch.cat([logits, _upsample(self.class_head(features.detach()))], dim=1)
+
+
+def _upsample(logits: torch.Tensor) -> torch.Tensor:
+    """The decoder's last ×2 step (bilinear; see the module doc)."""
+    return F.interpolate(logits, scale_factor=2.0, mode="bilinear", align_corners=False)
 
 
 def _resnet_config(config: StudentConfig) -> ResNetConfig:
@@ -273,6 +321,7 @@ class ResNetVAE(nn.Module):
             config.latent_channels,
             tuple(config.channels(c) for c in config.decoder_channels),
             tuple(widths[2::-1][: config.skips]),
+            config.extra_channels,
         )
         self.register_buffer("pixel_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
         self.register_buffer("pixel_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
@@ -281,6 +330,9 @@ class ResNetVAE(nn.Module):
             cast(torch.Tensor, self.to_latent.bias).zero_()
             # the heatmap is mostly 0: start it low (as CenterNet does)
             cast(torch.Tensor, self.decoder.head.bias).copy_(torch.tensor([0.0, -4.0]))
+            if self.decoder.class_head is not None:
+                last = cast(nn.Conv2d, self.decoder.class_head[-1])
+                cast(torch.Tensor, last.bias).copy_(initial_bias(config.classes))
 
     def encoder_maps(self, images: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
         """The encoder's last feature map (N×F×S/32×S/32) of RGB images in [0, 1], and the
@@ -313,8 +365,16 @@ class ResNetVAE(nn.Module):
         self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Mask logits and heatmap logits (N×S×S each) of a latent (and the frame's skip maps)."""
+        mask_logits, heatmap_logits, _ = self.decode_all(latent, skips)
+        return mask_logits, heatmap_logits
+
+    def decode_all(
+        self, latent: torch.Tensor, skips: tuple[torch.Tensor, ...] = ()
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """``decode`` and the learned classes' logits (N×E×S×S; None without classes)."""
         logits = self.decoder(latent, skips)
-        return logits[:, 0], logits[:, 1]
+        extra = logits[:, 2:] if self.decoder.class_head is not None else None
+        return logits[:, 0], logits[:, 1], extra
 
     def forward(
         self, images: torch.Tensor, sample: bool = True, generator: torch.Generator | None = None
@@ -327,8 +387,11 @@ class ResNetVAE(nn.Module):
                 mean.shape, generator=generator, device=mean.device, dtype=mean.dtype
             )
             latent = mean + noise * torch.exp(0.5 * logvar)
-        mask_logits, heatmap_logits = self.decode(latent, skips)
-        return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
+        if self.decoder.class_head is None:  # the pool alone, as before classes existed
+            mask_logits, heatmap_logits = self.decode(latent, skips)
+            return StudentOutput(mask_logits, heatmap_logits, mean, logvar)
+        mask_logits, heatmap_logits, class_logits = self.decode_all(latent, skips)
+        return StudentOutput(mask_logits, heatmap_logits, mean, logvar, class_logits)
 
 
 def kl_divergence(mean: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:

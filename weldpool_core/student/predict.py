@@ -64,7 +64,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -76,6 +76,7 @@ from weldpool_core.heatmap import HeatmapParams, keypoints_from_mask
 from weldpool_core.io import to_rgb8
 from weldpool_core.keypoints import ModeParams, keypoints_from_heatmap
 from weldpool_core.student.checkpoint import load_codes, load_student
+from weldpool_core.student.classes import classes_to_frame
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.model import ResNetVAE, StudentConfig, channels_last, fuse_batchnorm
 
@@ -121,6 +122,8 @@ class StudentPrediction:
             when no samples were asked for.
         uncertainty_parts: its parts (``spread``, ``ambiguity``, ``novelty``), or None
             without samples.
+        classes: the learned classes' answers (``classes.classes_to_frame``: a bool mask, or
+            named points), empty for a pool-only student.
     """
 
     mask: NDArray[np.bool_]
@@ -128,6 +131,7 @@ class StudentPrediction:
     keypoints: NDArray[np.float64]
     uncertainty: float | None = None
     uncertainty_parts: dict[str, float | None] | None = None
+    classes: dict[str, Any] = field(default_factory=dict)
 
 
 def frames_to_batch(
@@ -380,13 +384,25 @@ class StudentPredictor:
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], list[dict[str, float | None] | None]]:
         """Model-resolution outputs of an N×3×S×S batch in [0, 1]: mask probability and heatmap
         (N×S×S each), and with ``samples`` > 0 each frame's uncertainty parts (else None)."""
+        masks, heatmaps, parts, _ = self.outputs_all(batch, samples, geometries)
+        return masks, heatmaps, parts
+
+    def outputs_all(
+        self, batch: torch.Tensor, samples: int = 0, geometries: Sequence[FrameGeometry] = ()
+    ) -> tuple[
+        NDArray[np.float32],
+        NDArray[np.float32],
+        list[dict[str, float | None] | None],
+        NDArray[np.float32] | None,
+    ]:
+        """``outputs`` and the learned classes' probabilities (N×E×S×S; None without)."""
         _check_samples(samples)
         batch = batch.to(self.device).contiguous(memory_format=torch.channels_last)
         autocast = torch.autocast(self.device.type, self.dtype, enabled=self.dtype != torch.float32)
         with torch.inference_mode(), autocast:
             features, skips = self.model.encoder_maps(batch)
             mean, logvar = self.model.posterior(features)
-            mask_logits, heatmap_logits = self.model.decode(mean, skips)
+            mask_logits, heatmap_logits, class_logits = self.model.decode_all(mean, skips)
             masks = torch.sigmoid(mask_logits.float()).cpu().numpy()
             parts: list[dict[str, float | None] | None] = [None] * len(batch)
             if samples:
@@ -411,16 +427,22 @@ class StudentPredictor:
                     for d, p, n in zip(inner, inner_plain, novel, strict=True)
                 ]
         heatmaps = torch.sigmoid(heatmap_logits.float()).cpu().numpy()
-        return masks, heatmaps, parts
+        extra = None
+        if class_logits is not None:
+            extra = torch.sigmoid(class_logits.float()).cpu().numpy()
+        return masks, heatmaps, parts, extra
 
     def _predict_batch(
         self, images: Sequence[NDArray[Any]], samples: int
     ) -> list[StudentPrediction]:
         batch, geometries = frames_to_batch(images, self.config)
-        masks, heatmaps, parts = self.outputs(batch, samples, geometries)
+        masks, heatmaps, parts, extra = self.outputs_all(batch, samples, geometries)
         results = []
         for i, geometry in enumerate(geometries):
             found = to_frame(masks[i], heatmaps[i], geometry, self.config)
+            if extra is not None:
+                answers = classes_to_frame(extra[i], self.config.classes, geometry)
+                found = replace(found, classes=answers)
             part = parts[i]
             if part is not None:
                 found = replace(found, uncertainty=uncertainty_of(part), uncertainty_parts=part)

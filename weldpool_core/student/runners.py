@@ -47,7 +47,10 @@ class RunnerOptions:
 
 
 class Runner(Protocol):
-    """One prepared frame → mask probability, heatmap (S×S) and the uncertainty (or None)."""
+    """One prepared frame → mask probability, heatmap (S×S) and the uncertainty (or None);
+    ``extra`` holds the last frame's learned-class probabilities (E×S×S; None without)."""
+
+    extra: NDArray[np.float32] | None
 
     def run(self, batch: NDArray[np.float32], geometry: FrameGeometry, samples: int) -> Answer: ...
 
@@ -71,6 +74,7 @@ class OnnxRunner:
     """The per-frame student on ONNX Runtime (``model.onnx``)."""
 
     file = ONNX_FILE
+    extra: NDArray[np.float32] | None = None
 
     def __init__(self, options: RunnerOptions) -> None:
         path = options.model_dir / self.file
@@ -83,7 +87,8 @@ class OnnxRunner:
 
     def run(self, batch: NDArray[np.float32], geometry: FrameGeometry, samples: int) -> Answer:
         _no_samples(samples, "The uncertainty needs the PyTorch backend.")
-        mask, heatmap = self._session.run(None, {"image": batch})
+        mask, heatmap, *classes = self._session.run(None, {"image": batch})
+        self.extra = classes[0][0] if classes else None
         return mask[0], heatmap[0], None
 
     def reset(self) -> None:
@@ -115,6 +120,8 @@ class Int8Runner(OnnxRunner):
 class TorchRunner:
     """The per-frame student in PyTorch; scores the uncertainty with ``samples`` > 0."""
 
+    extra: NDArray[np.float32] | None = None
+
     def __init__(self, options: RunnerOptions) -> None:
         from weldpool_core.student.predict import StudentPredictor
 
@@ -124,9 +131,10 @@ class TorchRunner:
     def run(self, batch: NDArray[np.float32], geometry: FrameGeometry, samples: int) -> Answer:
         import torch
 
-        masks, heatmaps, parts = self._predictor.outputs(
+        masks, heatmaps, parts, extra = self._predictor.outputs_all(
             torch.from_numpy(batch), samples, [geometry]
         )
+        self.extra = None if extra is None else extra[0]
         part = parts[0]
         return masks[0], heatmaps[0], None if part is None else uncertainty_of(part)
 
@@ -135,7 +143,10 @@ class TorchRunner:
 
 
 class SequentialRunner:
-    """The folder's sequential student, on ONNX Runtime or PyTorch, with its state."""
+    """The folder's sequential student, on ONNX Runtime or PyTorch, with its state (it draws
+    the pool alone: no learned classes)."""
+
+    extra: NDArray[np.float32] | None = None
 
     def __init__(self, options: RunnerOptions) -> None:
         from weldpool_core.student import sequential

@@ -52,14 +52,12 @@ from weldpool_core.device import resolve_device
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.heatmap import HeatmapParams
 from weldpool_core.io import to_rgb8
-from weldpool_core.metrics import proposal_quality
 from weldpool_core.student import checkpoint
 from weldpool_core.student.data import (
     Augmentation,
     FrameSet,
     PreparedFrame,
     TrainingFrame,
-    TrainingTargets,
     collate,
     prepare_frame,
     read_dataset,
@@ -77,8 +75,8 @@ from weldpool_core.student.predict import (
     familiar_distance,
     foreign_versions,
     frame_codes,
-    to_frame,
 )
+from weldpool_core.student.validation import to_device, validate
 
 ProgressCallback = Callable[[float, str], None]
 """``(fraction done in [0, 1], message) -> None``; raising from it cancels the training."""
@@ -270,7 +268,8 @@ def _prepare(
     prepared = []
     for index, sample in enumerate(samples):
         frame = as_training_frame(sample, index)
-        prepared.append(prepare_frame(frame, student.input_size, student.aspect, heatmap))
+        size, aspect = student.input_size, student.aspect
+        prepared.append(prepare_frame(frame, size, aspect, heatmap, student.classes))
         if (index + 1) % 50 == 0:
             report(f"prepared {index + 1} {what} frames")
     return prepared
@@ -303,35 +302,6 @@ def _schedule(config: TrainConfig, total_steps: int) -> Callable[[int], float]:
 def _beta(config: TrainConfig, step: int, total_steps: int) -> float:
     ramp = config.beta_warmup * total_steps
     return config.beta if ramp <= 0 else config.beta * min(1.0, step / ramp)
-
-
-def validate(
-    model: ResNetVAE, frames: Sequence[PreparedFrame], device: torch.device, batch_size: int
-) -> dict[str, Any]:
-    """``metrics.proposal_quality`` of the model's mean-latent outputs on ``frames``, at full
-    resolution (``per_image`` left out)."""
-    model.eval()
-    scored: dict[str, tuple[NDArray[Any], Any, NDArray[Any], Any]] = {}
-    with torch.inference_mode():
-        for start in range(0, len(frames), batch_size):
-            chunk = frames[start : start + batch_size]
-            images = np.stack([f.image for f in chunk]).transpose(0, 3, 1, 2)
-            batch = torch.from_numpy(images).to(device).float().div_(255.0)
-            batch = batch.contiguous(memory_format=torch.channels_last)
-            output = model(batch, sample=False)
-            masks = torch.sigmoid(output.mask_logits).cpu().numpy()
-            heatmaps = torch.sigmoid(output.heatmap_logits).cpu().numpy()
-            for offset, frame in enumerate(chunk):
-                found = to_frame(masks[offset], heatmaps[offset], frame.geometry, model.config)
-                scored[f"{start + offset}:{frame.name}"] = (
-                    found.mask,
-                    found.keypoints,
-                    frame.truth_mask(),
-                    frame.frame_keypoints,
-                )
-    metrics = proposal_quality(scored)
-    metrics.pop("per_image")
-    return metrics
 
 
 MAX_CODES = 512
@@ -527,7 +497,7 @@ def _train_round(
     beta = 0.0
     for step in range(first_step, last_step):
         draws = batch_draws(plan, len(dataset), config.batch_size, config.seed, step)
-        batch = _to_device(collate([dataset.draw(index, n) for n, index in draws]), device)
+        batch = to_device(collate([dataset.draw(index, n) for n, index in draws]), device)
         beta = _beta(config, step, plan.total_steps)
         losses = student_loss(run.model, batch, config.losses, beta, generator)
         run.optimizer.zero_grad(set_to_none=True)
@@ -541,17 +511,6 @@ def _train_round(
             f"{unit} {round_index + 1}/{plan.rounds} loss {sums[0] / (step - first_step + 1):.3g}",
         )
     return sums / max(1, last_step - first_step), beta
-
-
-def _to_device(batch: TrainingTargets, device: torch.device) -> TrainingTargets:
-    """A collated batch on ``device``, channels-last; per-pixel weights only where they vary."""
-    weighted = batch.weight is not None and bool((batch.weight != 1).any())
-    return TrainingTargets(
-        batch.image.to(device).contiguous(memory_format=torch.channels_last),
-        batch.mask.to(device),
-        batch.heatmap.to(device),
-        batch.weight.to(device) if weighted and batch.weight is not None else None,
-    )
 
 
 def _round_record(
