@@ -15,7 +15,7 @@ from safetensors.torch import load_file, save_file
 
 from app.core.models import ModelVersion, Proposal, Role
 from app.proposals.files import store_mask
-from app.storage import Storage
+from app.storage import LocalStorage
 from app.training import classes, gate
 from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
 from tests.factories import frame_ids, numbered, random_images
@@ -123,7 +123,7 @@ def _measure(settings, session_factory, candidate: int, incumbent: int) -> dict:
     with session_factory() as session:
         return gate.measure(
             session,
-            Storage(settings.home),
+            LocalStorage(settings.home),
             session.get_one(ModelVersion, candidate),
             session.get_one(ModelVersion, incumbent),
             "cpu",
@@ -140,7 +140,7 @@ def test_the_gate_reports_each_class_and_a_terrible_class_does_not_stop_a_better
         for frame_id in ids:
             mask = np.zeros((H, W), bool)
             mask[8:56, 10:86] = True  # the teacher's pool: IoU 0.66
-            path = store_mask(Storage(settings.home), mask)
+            path = store_mask(LocalStorage(settings.home), mask)
             session.add(Proposal(frame_id=frame_id, source="teacher", model_id="t", mask_path=path))
         from app.core.models import Frame, Split
 
