@@ -127,3 +127,19 @@ def add_frame(server: LiveServer, seed: int, *, teacher: bool = True) -> int:
         job = server.api("POST", "/teacher/runs", json={"frame_ids": [frame_id]}).json()
         assert server.wait_for_job(job["job_id"])["status"] == "succeeded"
     return frame_id
+
+
+def add_version(server: LiveServer, **columns: Any) -> int:
+    """A student version row written straight into the live server's SQLite database."""
+    from app.core.db import create_db_engine, create_session_factory
+    from app.core.models import ModelVersion
+
+    engine = create_db_engine(f"sqlite:///{(server.home / 'weldpool.sqlite3').resolve()}")
+    try:
+        with create_session_factory(engine)() as session:
+            version = ModelVersion(**columns)
+            session.add(version)
+            session.commit()
+            return version.id
+    finally:
+        engine.dispose()

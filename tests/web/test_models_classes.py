@@ -5,17 +5,15 @@ from the pool's metrics; a pool-only version shows no such table. One server of 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.pages import login
+from tests.factories import add_version
+from tests.pages import login, shoot
 from tests.web.server import LiveServer
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
-
-SHOTS = Path("/tmp/shots/i59s")
 
 
 @pytest.fixture(scope="module")
@@ -23,21 +21,6 @@ def own(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
     live = LiveServer(tmp_path_factory.mktemp("model-classes") / "home").start()
     yield live
     live.stop()
-
-
-def _add_version(server: LiveServer, **columns: Any) -> int:
-    from app.core.db import create_db_engine, create_session_factory
-    from app.core.models import ModelVersion
-
-    engine = create_db_engine(f"sqlite:///{(server.home / 'weldpool.sqlite3').resolve()}")
-    try:
-        with create_session_factory(engine)() as session:
-            version = ModelVersion(**columns)
-            session.add(version)
-            session.commit()
-            return version.id
-    finally:
-        engine.dispose()
 
 
 def test_the_models_page_shows_each_learned_class(page: Any, own: LiveServer) -> None:
@@ -62,10 +45,10 @@ def test_the_models_page_shows_each_learned_class(page: Any, own: LiveServer) ->
         "mED": 6.5,
         "classes": {"wire": {"kind": "mask", "frames": 1, "IoU": 0.7}},
     }
-    learned = _add_version(
+    learned = add_version(
         own, name="with-classes", config={"student": student}, gate=gate, metrics=metrics
     )
-    _add_version(own, name="pool-only", config={"student": {}}, metrics={"mIoU": 0.9})
+    add_version(own, name="pool-only", config={"student": {}}, metrics={"mIoU": 0.9})
     login(page, own, "rita")
     page.goto(f"{own.url}/models")
     page.wait_for_selector("body[data-ready]")
@@ -82,8 +65,5 @@ def test_the_models_page_shows_each_learned_class(page: Any, own: LiveServer) ->
     assert "[object Object]" not in card.inner_text()  # the classes are not a pool metric
     plain = page.locator("[data-testid=model-card]:has-text('pool-only')")
     assert plain.locator("[data-testid=model-classes]").count() == 0
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    for width, height in ((1280, 800), (1920, 1080)):
-        page.set_viewport_size({"width": width, "height": height})
-        card.scroll_into_view_if_needed()
-        page.screenshot(path=str(SHOTS / f"models-classes-{width}x{height}.png"))
+    card.scroll_into_view_if_needed()
+    shoot(page, "models-classes")

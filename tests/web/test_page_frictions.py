@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tests.factories import synthetic_png
+from tests.factories import add_version, synthetic_png
 from tests.helpers import corrected_label, image_bytes, write_video
 from tests.mqtt import clear_retained, unique_topic
 from tests.pages import login, shoot, wait_for_js, wait_until
@@ -31,21 +31,6 @@ def own(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
     live = LiveServer(tmp_path_factory.mktemp("frictions") / "home").start()
     yield live
     live.stop()
-
-
-def _add_version(server: LiveServer, **columns: Any) -> int:
-    from app.core.db import create_db_engine, create_session_factory
-    from app.core.models import ModelVersion
-
-    engine = create_db_engine(f"sqlite:///{(server.home / 'weldpool.sqlite3').resolve()}")
-    try:
-        with create_session_factory(engine)() as session:
-            version = ModelVersion(**columns)
-            session.add(version)
-            session.commit()
-            return version.id
-    finally:
-        engine.dispose()
 
 
 def _labelled(server: LiveServer, mask: np.ndarray, png: bytes, name: str, **form: str) -> int:
@@ -68,7 +53,7 @@ def test_models_page_forced_version_training_elsewhere_and_too_few_labels(
         "reason": f"Not promoted: {reason}.",
         "frames": [1, 2],
     }
-    _add_version(own, name="forced-v1", is_promoted=True, gate=gate)
+    add_version(own, name="forced-v1", is_promoted=True, gate=gate)
     mask = np.zeros((100, 160), bool)
     mask[30:70, 20:120] = True
     _labelled(own, mask, image_bytes(160, 100, seed=5), "one.png")
@@ -217,7 +202,7 @@ def test_live_view_placeholders_and_its_outputs_final_state(
     folder = tmp_path / "student"
     train_student(synthetic_frames(4), folder, TINY_STUDENT, tiny_config(epochs=1))
     shutil.copytree(folder, own.home / "models" / "live-v1")
-    version = _add_version(own, name="live-v1", checkpoint_path="models/live-v1")
+    version = add_version(own, name="live-v1", checkpoint_path="models/live-v1")
     login(page, own, "rita")
 
     # A first start, while the student is exported for ONNX Runtime (the answer held there).
