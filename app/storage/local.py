@@ -334,10 +334,14 @@ class LocalStorage:
 
     def _remove_if(self, relative: str, unclaimed: Unclaimed) -> bool:
         """Move the file aside, then remove it if its claim time says nobody claimed it; else
-        put it back. A claim made while it is aside finds no file and writes it again."""
+        put it back. A claim made while it is aside finds no file and writes it again. A file
+        already claimed is never moved: a reader that was just handed it (a video's probe after
+        its upload claimed the stored copy) must not find it gone for a moment."""
         try:
             final = self.absolute(relative)
-        except ValueError:  # a row naming a path outside the store: never touched
+            if not unclaimed(final.stat().st_mtime_ns):
+                return False
+        except (ValueError, FileNotFoundError):  # outside the store (never touched), or gone
             return False
         self.tmp.mkdir(parents=True, exist_ok=True)
         aside = self.tmp / f"{relative.replace('/', '~')}~{uuid.uuid4().hex}{_ASIDE}"

@@ -83,6 +83,20 @@ def test_a_claim_made_while_the_collector_looks_keeps_the_file(
     assert written == [True] and storage.absolute(relative).read_bytes() == data
 
 
+def test_a_claimed_file_is_never_moved_aside_even_for_a_moment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file claimed within the grace period is left where it is: a reader just handed it (a
+    video probed after its upload claimed the stored copy) found it gone while the collector
+    had it aside (the race test's 500)."""
+    storage = LocalStorage(tmp_path, grace_s=100)
+    relative = _stored(storage, b"just claimed")
+    moved: list[object] = []
+    monkeypatch.setattr(storage_module.os, "rename", lambda *args: moved.append(args))
+    assert storage.collect([relative], in_use=()) == []
+    assert moved == []
+
+
 def test_discard_keeps_a_file_another_writer_claimed_since(tmp_path: Path) -> None:
     """An aborted write removes the files it created, unless another writer claimed them
     after it (that writer's row may be about to commit)."""

@@ -37,3 +37,10 @@ def test_keypoints_are_flat_with_nan_for_a_missing_one_and_pairs_in_the_message(
 def test_a_model_the_gate_found_unusable_is_not_healthy() -> None:
     assert CellRecord.of(record(1), CellInfo("m", 2)).healthy
     assert not CellRecord.of(record(1), CellInfo("m", 2, model_usable=False)).healthy
+
+
+def test_a_records_learned_classes_ride_in_the_mqtt_message() -> None:
+    geometry = {"wire tip": {"tip": [412.5, 96.0]}, "wire": {"area_px": 830, "centroid": None}}
+    cell = CellRecord.of(record(4) | {"classes": geometry}, CellInfo("m", 2))
+    assert cell.message()["classes"] == geometry
+    assert "classes" not in CellRecord.of(record(4), CellInfo("m", 2)).message()

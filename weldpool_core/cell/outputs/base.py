@@ -105,6 +105,9 @@ class CellRecord:
     ambiguity: float
     latency_ms: float
     healthy: bool
+    classes: dict[str, Any] | None = None
+    """The learned classes' geometry (``cell.class_geometry``): in the MQTT message, where a
+    JSON object carries any class; the OPC UA variables stay the pool's."""
 
     @classmethod
     def of(cls, record: dict[str, Any], info: CellInfo) -> CellRecord:
@@ -130,10 +133,12 @@ class CellRecord:
             ambiguity=_number(record.get("ambiguity")),
             latency_ms=_number(record.get("latency_ms")),
             healthy=info.model_usable,
+            classes=record.get("classes"),
         )
 
     def message(self) -> dict[str, Any]:
-        """The compact JSON form (MQTT): NaN becomes null, keypoints pairs."""
+        """The compact JSON form (MQTT): NaN becomes null, keypoints pairs, and the learned
+        classes' geometry under ``classes`` when the student has any."""
 
         def clean(value: float) -> float | None:
             return None if math.isnan(value) else round(value, 3)
@@ -157,7 +162,7 @@ class CellRecord:
             "ambiguity": clean(self.ambiguity),
             "latency_ms": clean(self.latency_ms),
             "healthy": self.healthy,
-        }
+        } | ({} if self.classes is None else {"classes": self.classes})
 
 
 @dataclass
