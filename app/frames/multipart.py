@@ -5,8 +5,9 @@ temporary file; frame upload instead hands every file to its checks while the re
 is still arriving, so receiving and checking overlap. A video upload asks for its file spooled
 (``spool``): held in memory up to that size, then written to a temporary file off the event
 loop, and handed on as a file object; or (``spool_dir``) written straight to a named file in
-that folder, for a caller that moves it into its final place on the same filesystem (a label
-import's zip: written once, never copied). Both uploads read their forms here; the parsing
+that folder (a ``ScratchSpool``, hashed on the way when ``hashed``), for a caller that moves it
+into its final place on the same filesystem (a label import's zip, a video: written once, never
+copied). Both uploads read their forms here; the parsing
 itself is python-multipart's (Starlette's parser too); this module keeps Starlette's limits
 and adds the file names exactly as the client sent them.
 """
@@ -31,6 +32,7 @@ from starlette.requests import Request
 
 from app.core.bounds import MAX_ID
 from app.core.errors import InvalidInputError
+from app.storage.spool import ScratchSpool
 
 MAX_FIELD_BYTES = 1024 * 1024
 """The largest plain (non-file) field: a form's fields are ids and options, never data."""
@@ -58,14 +60,15 @@ class _Part:
     file_name: str | None = None
     data: list[bytes] = field(default_factory=list)
     size: int = 0
-    spool: Any = None  # a spooled part's SpooledTemporaryFile
+    spool: Any = None  # a spooled part's SpooledTemporaryFile or ScratchSpool
     written: int = 0  # bytes of it written to its spool so far
 
 
 class StreamedForm:
     """Plain fields of a multipart body; its files go to ``on_file(field, name, data)``: the
     bytes, or with ``spool`` a file object (rewound; ``close`` closes them all), with
-    ``spool_dir`` a named file there from the first byte (``close`` removes those not moved).
+    ``spool_dir`` a ``ScratchSpool`` there from the first byte, hashed as it is written when
+    ``hashed`` (``close`` removes those not moved).
 
     ``limit_hint`` ends the too-many-files sentence (the setting that sets ``max_files``)."""
 
@@ -79,6 +82,7 @@ class StreamedForm:
         spool: int | None = None,
         limit_hint: str = " (WELDPOOL_MAX_FILES_PER_REQUEST); send them in several requests",
         spool_dir: Path | None = None,
+        hashed: bool = False,
     ) -> None:
         self.fields: dict[str, str] = {}
         self._on_file = on_file
@@ -87,10 +91,10 @@ class StreamedForm:
         self._charset = charset
         self._part = _Part()
         self._spool_size, self._limit_hint = spool, limit_hint
-        self._spool_dir = spool_dir
+        self._spool_dir, self._hashed = spool_dir, hashed
         if spool_dir is not None:
             self._spool_size = 0  # on disk from the first byte
-        self._spools: list[IO[bytes]] = []
+        self._spools: list[IO[bytes] | ScratchSpool] = []
         self._pending: list[tuple[_Part, bytes]] = []  # spooled data not yet written
         self._finished: list[_Part] = []  # spooled parts whole, to hand on once written
 
@@ -188,9 +192,7 @@ class StreamedForm:
                 )
             part.file_name = raw_name if raw_name is not None else ""
             if self._spool_dir is not None:
-                part.spool = tempfile.NamedTemporaryFile(  # noqa: SIM115 (closed by close())
-                    dir=self._spool_dir, prefix="upload-", suffix=".part", delete=False
-                )
+                part.spool = ScratchSpool(self._spool_dir, hashed=self._hashed)
                 self._spools.append(part.spool)
             elif self._spool_size is not None:
                 part.spool = tempfile.SpooledTemporaryFile(max_size=self._spool_size)  # noqa: SIM115 (closed by close())
@@ -254,13 +256,19 @@ SPOOL_BYTES = 1024 * 1024
 
 @asynccontextmanager
 async def one_spooled_file(
-    request: Request, what: str, max_fields: int = 16, spool_dir: Path | None = None
+    request: Request,
+    what: str,
+    max_fields: int = 16,
+    spool_dir: Path | None = None,
+    *,
+    hashed: bool = False,
 ) -> AsyncIterator[tuple[dict[str, str], str, Any]]:
     """A form of one file part (``file``, spooled) and some fields, read from ``request``:
     yields the fields, the file's client name and the file; the spool is removed on the way
     out (unless the caller moved it), also when the request is cancelled. ``what`` names the
-    file in the errors; ``spool_dir``: the file is written to a named file there (``.name``),
-    never held in memory, for the caller to move into place (``StreamedForm``)."""
+    file in the errors; ``spool_dir``: the file is written to a ``ScratchSpool`` there, never
+    held in memory, for the caller to move into place (``hashed``: its ``sha256`` known once it
+    is whole; ``StreamedForm``)."""
     uploads: list[tuple[str, Any]] = []
     form = StreamedForm(
         lambda field, name, file: uploads.append((name, file)) if field == "file" else None,
@@ -269,6 +277,7 @@ async def one_spooled_file(
         spool=SPOOL_BYTES,
         limit_hint=f"; send one {what} per request",
         spool_dir=spool_dir,
+        hashed=hashed,
     )
     try:
         await form.read(request.headers.get("content-type", ""), request.stream())

@@ -410,7 +410,11 @@ async def upload_video(
 ) -> VideoAccepted:
     """Upload an MP4 or AVI video; a job extracts every n-th frame into the sequence (a new
     sequence named after the file when none is given)."""
-    async with one_spooled_file(request, "video", max_fields=64) as (fields, name, upload):
+    # spooled into the store's scratch folder and hashed on the way, then renamed into place
+    form = one_spooled_file(
+        request, "video", max_fields=64, spool_dir=storage.scratch(), hashed=True
+    )
+    async with form as (fields, name, upload):
         every_nth = optional_int(fields, "every_nth", 1) or 0
         sequence_id = optional_int(fields, "sequence_id")
         video = await run_in_threadpool(

@@ -15,6 +15,7 @@ from app.core.models import User, Video
 from app.frames.ingest import INGEST_POOL, CheckedFrame, name_problem, record_frames
 from app.frames.sequences import create_sequence, get_sequence, unique_sequence_name
 from app.storage import Storage
+from app.storage.spool import put_upload
 from weldpool_core.io import EXTENSIONS, MEDIA_TYPES, ImageInfo, encode_png
 from weldpool_core.video import probe_video, sniff_container
 
@@ -30,7 +31,9 @@ def store_video(
     user: User | None,
 ) -> Video:
     """Store a video file and record it, after checking that it decodes; the frames are
-    extracted separately (a job in the service, in-process on the command line)."""
+    extracted separately (a job in the service, in-process on the command line). An upload
+    spooled into the store's scratch folder is renamed into place, written once
+    (``put_upload``); the file goes again if the video is refused."""
     problem = name_problem(name)
     if problem:
         raise InvalidInputError(problem)
@@ -44,7 +47,7 @@ def store_video(
     if container is None:
         raise InvalidInputError("The file is not a video; upload an MP4 or AVI video.")
     source.seek(0)
-    stored, sha256, size = storage.put_stream(source, f".{container}", area="videos")
+    stored, sha256, size = put_upload(storage, source, f".{container}", "videos")
     try:
         info = probe_video(storage.absolute(stored.path))
         if sequence is None:

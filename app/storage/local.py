@@ -313,10 +313,27 @@ class LocalStorage:
     def put_stream(
         self, source: BinaryIO, extension: str, area: str
     ) -> tuple[StoredFile, str, int]:
-        """Copy a stream into the store, hashing it on the way; returns (file, sha256, size)."""
+        """Copy a stream into a temporary, hashing it on the way, then ``put_file`` it;
+        returns (file, sha256, size)."""
         temporary = self.temporary()
-        sha256, size = copy_hashed(source, temporary, flush=self.durable)
-        return self._install(temporary, content_path(area, sha256, extension)), sha256, size
+        sha256, size = copy_hashed(source, temporary)
+        return self.put_file(temporary, sha256, extension, area), sha256, size
+
+    def put_file(self, path: Path, sha256: str, extension: str, area: str) -> StoredFile:
+        """Flush a file of ``scratch()`` (when ``durable``) and link it under its content name
+        (the same inode: written once), or claim the same content when it is there; ``path``
+        is removed either way, and when this fails."""
+        relative = content_path(area, sha256, extension)
+        try:
+            if self._claimed(relative):
+                path.unlink()
+                return StoredFile(relative, created=False)
+            if self.durable:
+                _fsync(path)
+            return self._install(path, relative)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
 
     # --- removal: the one collector ----------------------------------------------------------
 

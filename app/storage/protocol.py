@@ -135,6 +135,15 @@ class Storage(Protocol):
         claim it; returns (file, sha256, size)."""
         ...
 
+    def put_file(self, path: Path, sha256: str, extension: str, area: str) -> StoredFile:
+        """Move a whole file of ``scratch()`` (the store's filesystem; ``sha256`` computed by
+        the caller as it was written) under its content name, written once, never copied: it
+        is renamed into place (an object store uploads it once, in parts past its threshold,
+        and keeps it as the cached copy), whole and durable before this returns; the same
+        content stored already is claimed instead and the file removed. ``path`` is gone when
+        this returns, also when it fails."""
+        ...
+
     def write(self, relative: str, data: bytes) -> Path:
         """Write (or replace) this machine's file at ``relative`` atomically; returns its
         path (a file derived from stored content, which any machine can make again)."""

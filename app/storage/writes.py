@@ -5,7 +5,6 @@ back only its own files; a deletion's files go once nobody claimed them within t
 from __future__ import annotations
 
 import hashlib
-import os
 import time
 from collections.abc import Callable, Collection, Iterable, Sequence
 from concurrent.futures import Executor, wait
@@ -74,9 +73,9 @@ def stage_all(
     return [staged for f in futures for staged in f.result()]
 
 
-def copy_hashed(source: BinaryIO, temporary: Path, *, flush: bool) -> tuple[str, int]:
-    """Copy a stream into ``temporary`` in chunks, hashing it on the way (``flush``: to disk
-    before returning); returns (sha256, size). The temporary goes if the copy fails."""
+def copy_hashed(source: BinaryIO, temporary: Path) -> tuple[str, int]:
+    """Copy a stream into ``temporary`` in chunks, hashing it on the way (``put_file`` flushes
+    it); returns (sha256, size). The temporary goes if the copy fails."""
     digest, size = hashlib.sha256(), 0
     try:
         with open(temporary, "wb") as handle:
@@ -84,9 +83,6 @@ def copy_hashed(source: BinaryIO, temporary: Path, *, flush: bool) -> tuple[str,
                 digest.update(chunk)
                 size += len(chunk)
                 handle.write(chunk)
-            if flush:
-                handle.flush()
-                os.fsync(handle.fileno())
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise

@@ -4,7 +4,7 @@ bounded read cache.
 
 The promises of ``app.storage.protocol`` hold on this backend too:
 
-- **Written whole before its row is committed.** ``stage``/``put``/``put_stream`` upload before
+- **Written whole before its row is committed.** ``stage``/``put``/``put_file`` upload before
   they return (one PUT, or a multipart upload that S3 makes visible only once complete), in the
   caller's threads: the ingest's disk threads upload while the rest of the request is checked.
 - **Content-addressed and claimed.** A claim is a copy of the object onto itself that sets its
@@ -211,8 +211,14 @@ class ObjectStorage:
         self, source: BinaryIO, extension: str, area: str
     ) -> tuple[StoredFile, str, int]:
         temporary = self.files.temporary()
-        sha256, size = copy_hashed(source, temporary, flush=False)
-        return self._install(temporary, content_path(area, sha256, extension)), sha256, size
+        sha256, size = copy_hashed(source, temporary)
+        return self.put_file(temporary, sha256, extension, area), sha256, size
+
+    def put_file(self, path: Path, sha256: str, extension: str, area: str) -> StoredFile:
+        """Upload a file of ``scratch()`` once (in parts past ``MULTIPART_BYTES``) unless the
+        same content is stored (then claim it); the file is renamed into the cache as its
+        copy either way, and removed when this fails."""
+        return self._install(path, content_path(area, sha256, extension))
 
     def write(self, relative: str, data: bytes) -> Path:
         """Write this machine's own file (a derived image under ``cache/``) atomically."""
