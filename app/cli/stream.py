@@ -210,7 +210,8 @@ def stream_cmd(
     from weldpool_core.cell.stream import StreamOptions, open_stream
 
     model_dir, usable = _checked_model_dir(model, record_path, samples, backend, sequential)
-    config, info = _cell_outputs(publish, cell, model_dir, usable, mm_per_px)
+    names = _class_names(classes)
+    config, info = _cell_outputs(publish, cell, model_dir, usable, mm_per_px, names)
     options = StreamOptions(
         backend=backend,
         device=device,
@@ -224,7 +225,7 @@ def stream_cmd(
         realtime=realtime,
         max_frames=max_frames,
         decoder_threads=decoder_threads or None,
-        classes=_class_names(classes),
+        classes=names,
     )
     outputs = _Outputs(quiet)
     started = time.perf_counter()
@@ -268,7 +269,7 @@ def opcua_certificate_cmd(folder: Path, host: str | None, days: int) -> None:
     sign-encrypt` in FOLDER (clients, e.g. the PLC, must be told to trust the certificate)."""
     import socket
 
-    from weldpool_core.cell.outputs.opcua import make_certificate
+    from weldpool_core.cell.outputs.opcua_security import make_certificate
 
     certificate, key = make_certificate(folder, host or socket.gethostname(), days)
     click.echo(f"--opcua-cert {certificate} --opcua-key {key}")
@@ -296,9 +297,16 @@ def _checked_model_dir(
 
 
 def _cell_outputs(
-    publish: str | None, cell: dict[str, Any], model_dir: Path, usable: bool, mm_per_px: Any
+    publish: str | None,
+    cell: dict[str, Any],
+    model_dir: Path,
+    usable: bool,
+    mm_per_px: Any,
+    classes: tuple[str, ...] | None,
 ) -> tuple[Any, Any]:
-    """The outputs the options ask for (ZeroMQ, OPC UA, MQTT), and what they know of the run."""
+    """The outputs the options ask for (ZeroMQ, OPC UA, MQTT), and what they know of the run
+    (``classes``: the ``--classes`` names, None for every learned class)."""
+    from weldpool_core.cell.class_geometry import chosen_classes
     from weldpool_core.cell.outputs import CellInfo, OutputsConfig
     from weldpool_core.student.checkpoint import read_student_config
 
@@ -322,12 +330,14 @@ def _cell_outputs(
             cell["mqtt_key"],
         ),
     )
+    student = read_student_config(model_dir)
     info = CellInfo(
         model=model_dir.name,
-        keypoints=read_student_config(model_dir).k,
+        keypoints=student.k,
         mm_per_px=mm_per_px,
         model_usable=usable,
         stale_ms=cell["stale_ms"],
+        classes=chosen_classes(student.classes, classes),
     )
     return config, info
 

@@ -239,11 +239,13 @@ def _open_outputs(view_args: dict[str, Any], config: Any) -> Any:
     from weldpool_core.student.checkpoint import read_student_config
 
     gate = view_args.get("gate") or {}
+    student = read_student_config(view_args["model_dir"])
     info = CellInfo(
         model=view_args["model_name"],
-        keypoints=read_student_config(view_args["model_dir"]).k,
+        keypoints=student.k,
         mm_per_px=view_args.get("mm_per_px"),
         model_usable=gate.get("usable") is not False,
+        classes=tuple(student.classes),  # the view's stream adds every learned class
     )
     return open_outputs(config, info)
 

@@ -1,5 +1,6 @@
 """The OPC UA server, read by a real asyncua client over TCP: values, units, subscriptions,
-health, read-only, security, and a port in use or a bad URL refused in one sentence."""
+health, read-only, security, the learned classes' variables, and a port in use or a bad URL
+refused in one sentence."""
 
 from __future__ import annotations
 
@@ -21,27 +22,40 @@ from tests.core.outputs.common import record
 from tests.helpers import run_cli
 from tests.mqtt import free_port
 from weldpool_core.cell.outputs import CellInfo, Outputs, Reporter
-from weldpool_core.cell.outputs.opcua import (
-    CERTIFICATE_FILE,
-    KEY_FILE,
-    NAMESPACE,
-    OpcUaOptions,
-    OpcUaServer,
-)
+from weldpool_core.cell.outputs.opcua import NAMESPACE, OpcUaOptions, OpcUaServer
+from weldpool_core.cell.outputs.opcua_security import CERTIFICATE_FILE, KEY_FILE
 from weldpool_core.errors import InvalidInputError
+from weldpool_core.student.classes import LearnedClass
+
+CLASSES = (LearnedClass("wire", "mask"), LearnedClass("torch", "points", ("tip", "nozzle")))
+"""A student's learned classes (``served`` with ``indirect=True``; none by default)."""
 
 
 @pytest.fixture
-def served() -> Iterator[tuple[OpcUaServer, str]]:
+def served(request: pytest.FixtureRequest) -> Iterator[tuple[OpcUaServer, str]]:
     port = free_port()
-    server = OpcUaServer(OpcUaOptions(f"opc.tcp://127.0.0.1:{port}"), CellInfo("tiny", 2, 0.1))
+    info = CellInfo("tiny", 2, 0.1, classes=getattr(request, "param", ()))
+    server = OpcUaServer(OpcUaOptions(f"opc.tcp://127.0.0.1:{port}"), info)
     yield server, f"opc.tcp://127.0.0.1:{port}/weldpool/"
     server.close()
 
 
-async def _node(client: Client, name: str) -> Any:
+async def _node(client: Client, name: str = "") -> Any:
+    """The node ``WeldPool.<name>`` (``WeldPool`` itself without a name)."""
     index = await client.get_namespace_index(NAMESPACE)
-    return client.get_node(ua.NodeId(f"WeldPool.{name}", index))
+    return client.get_node(ua.NodeId(f"WeldPool.{name}" if name else "WeldPool", index))
+
+
+async def _names(node: Any) -> list[str]:
+    return [(await child.read_browse_name()).Name for child in await node.get_children()]
+
+
+async def _wait_for_frame(client: Client, frame: int) -> None:
+    counter = await _node(client, "FrameCounter")
+    for _ in range(100):
+        if await counter.read_value() == frame:
+            return
+        await asyncio.sleep(0.02)
 
 
 def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
@@ -54,10 +68,7 @@ def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
     async def read() -> dict[str, Any]:
         async with Client(url) as client:
             width = await _node(client, "Width")
-            for _ in range(100):
-                if await (await _node(client, "FrameCounter")).read_value() == 7:
-                    break
-                await asyncio.sleep(0.02)
+            await _wait_for_frame(client, 7)
             unit = await (await _node(client, "Width.EngineeringUnits")).read_value()
             area_unit = await (await _node(client, "Area.EngineeringUnits")).read_value()
             value = await width.read_data_value()
@@ -75,6 +86,7 @@ def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
                 "unstable": await (await _node(client, "Unstable")).read_value(),
                 "status": await (await _node(client, "Status")).read_value(),
                 "model": await (await _node(client, "Model")).read_value(),
+                "children": await _names(await _node(client)),
             }
 
     got = asyncio.run(read())
@@ -87,6 +99,87 @@ def test_a_plc_reads_each_value_with_its_unit_description_and_capture_time(
     assert stamp == pytest.approx(sent["captured_at"], abs=1e-3)
     assert got["keypoints"][:2] == [17.0, 20.0] and all(math.isnan(v) for v in got["keypoints"][2:])
     assert (got["healthy"], got["status"], got["model"]) == (True, "ok", "tiny")
+    assert "Width" in got["children"] and "Classes" not in got["children"]  # a pool-only student
+
+
+CLASS_VALUES = (
+    "Classes.wire.AreaPx",
+    "Classes.wire.CentroidX",
+    "Classes.wire.CentroidY",
+    "Classes.torch.tip.X",
+    "Classes.torch.tip.Y",
+    "Classes.torch.nozzle.X",
+    "Classes.torch.nozzle.Y",
+)
+
+
+@pytest.mark.parametrize("served", [CLASSES], indirect=True, ids=["classes"])
+def test_each_learned_class_has_typed_variables_that_follow_the_frames(
+    served: tuple[OpcUaServer, str],
+) -> None:
+    """A folder ``Classes``, one object per class and per named point; each frame's geometry in
+    Double variables with units, stamped with its capture time; what the frame lacks (a point
+    not seen, the centroid of an empty mask) reads BadNoData."""
+    server, url = served
+    first = {
+        "wire": {"area_px": 830.0, "centroid": [120.5, 64.0]},
+        "torch": {"tip": [412.5, 96.0], "nozzle": None},
+    }
+    second = {
+        "wire": {"area_px": 0.0, "centroid": None},
+        "torch": {"tip": [10.0, 300.0], "nozzle": [7.0, 8.0]},
+    }
+    sent = [record(1) | {"classes": first}, record(2) | {"classes": second}]
+
+    async def read() -> dict[str, Any]:
+        found: dict[str, Any] = {}
+        async with Client(url) as client:
+            classes = await _node(client, "Classes")
+            found["folder"] = await classes.read_type_definition()
+            found["names"] = [
+                await _names(await _node(client, n))
+                for n in ("Classes", "Classes.torch", "Classes.torch.tip", "Classes.wire")
+            ]
+            found["types"] = {
+                await (await _node(client, n)).read_data_type_as_variant_type()
+                for n in CLASS_VALUES
+            }
+            found["units"] = [
+                (await (await _node(client, f"{n}.EngineeringUnits")).read_value()).DisplayName.Text
+                for n in ("Classes.wire.AreaPx", "Classes.torch.tip.Y")
+            ]
+            for frame, values in enumerate(sent, start=1):
+                server.send(values)
+                await _wait_for_frame(client, frame)
+                found[frame] = {
+                    n: await (await _node(client, n)).read_attribute(
+                        ua.AttributeIds.Value, raise_on_bad_status=False
+                    )
+                    for n in CLASS_VALUES
+                }
+        return found
+
+    found = asyncio.run(read())
+    assert found["folder"] == ua.NodeId(ua.ObjectIds.FolderType)
+    assert found["names"] == [
+        ["wire", "torch"],
+        ["tip", "nozzle"],
+        ["X", "Y"],
+        ["AreaPx", "CentroidX", "CentroidY"],
+    ]
+    assert found["types"] == {ua.VariantType.Double} and found["units"] == ["px²", "px"]
+
+    def values(frame: int) -> list[float]:
+        return [
+            v.Value.Value if v.StatusCode.is_good() else v.StatusCode.value
+            for v in found[frame].values()
+        ]
+
+    no_data = ua.StatusCodes.BadNoData
+    assert values(1) == [830.0, 120.5, 64.0, 412.5, 96.0, no_data, no_data]
+    assert values(2) == [0.0, no_data, no_data, 10.0, 300.0, 7.0, 8.0]
+    stamp = found[2]["Classes.torch.tip.X"].SourceTimestamp.replace(tzinfo=dt.UTC).timestamp()
+    assert stamp == pytest.approx(sent[1]["captured_at"], abs=1e-3)  # the frame's capture time
 
 
 def test_a_subscriber_sees_the_newest_frame_and_is_counted(served: tuple[OpcUaServer, str]) -> None:
@@ -120,43 +213,48 @@ def test_a_subscriber_sees_the_newest_frame_and_is_counted(served: tuple[OpcUaSe
     assert status.sent + status.skipped == 59 and status.added_p99_ms is not None
 
 
+@pytest.mark.parametrize("served", [CLASSES], indirect=True, ids=["classes"])
 def test_no_frame_for_a_while_turns_healthy_off_and_marks_values_uncertain(
     served: tuple[OpcUaServer, str],
 ) -> None:
+    """The pool's values and the learned classes' turn UncertainLastUsableValue."""
     server, url = served
     outputs = Outputs([server], CellInfo("tiny", 2, 0.1, stale_ms=300))
-    outputs.send(record(1, scaled=True))
+    geometry = {"torch": {"tip": [412.5, 96.0], "nozzle": None}}
+    outputs.send(record(1, scaled=True) | {"classes": geometry})
 
-    async def states() -> list[tuple[bool, str, bool]]:
+    async def states() -> list[tuple[bool, str, int, int]]:
         found = []
         async with Client(url) as client:
             healthy, status = await _node(client, "Healthy"), await _node(client, "Status")
-            width = await _node(client, "Width")
+            width, tip = await _node(client, "Width"), await _node(client, "Classes.torch.tip.X")
+
+            async def state() -> tuple[bool, str, int, int]:
+                codes = [
+                    (await node.read_attribute(ua.AttributeIds.Value, raise_on_bad_status=False))
+                    for node in (width, tip)
+                ]
+                return (
+                    await healthy.read_value(),
+                    await status.read_value(),
+                    codes[0].StatusCode.value,
+                    codes[1].StatusCode.value,
+                )
+
             for _ in range(2):
                 await asyncio.sleep(0.7)
-                value = await width.read_attribute(ua.AttributeIds.Value, raise_on_bad_status=False)
-                found.append(
-                    (
-                        await healthy.read_value(),
-                        await status.read_value(),
-                        value.StatusCode.is_good(),
-                    )
-                )
-                outputs.send(record(2, scaled=True))
+                found.append(await state())
+                outputs.send(record(2, scaled=True) | {"classes": geometry})
                 await asyncio.sleep(0.05)
-                found.append(
-                    (
-                        await healthy.read_value(),
-                        await status.read_value(),
-                        (await width.read_data_value()).StatusCode.is_good(),
-                    )
-                )
+                found.append(await state())
         return found
 
     found = asyncio.run(states())
     outputs._stop.set()
-    assert found[0][0] is False and found[0][1].startswith("no frame for") and not found[0][2]
-    assert found[1] == (True, "ok", True)  # the next frame makes it healthy again
+    uncertain, good = ua.StatusCodes.UncertainLastUsableValue, ua.StatusCodes.Good
+    assert found[0][0] is False and found[0][1].startswith("no frame for")
+    assert found[0][2:] == (uncertain, uncertain)
+    assert found[1] == (True, "ok", good, good)  # the next frame makes it healthy again
     assert found[2][0] is False  # and a second pause is told again
 
 
@@ -242,10 +340,7 @@ def test_a_frame_without_a_pool_says_no_data_rather_than_a_good_nan(
 
     async def read() -> tuple[Any, Any]:
         async with Client(url) as client:
-            for _ in range(100):
-                if await (await _node(client, "FrameCounter")).read_value() == 4:
-                    break
-                await asyncio.sleep(0.02)
+            await _wait_for_frame(client, 4)
             width = await (await _node(client, "Width")).read_attribute(
                 ua.AttributeIds.Value, raise_on_bad_status=False
             )

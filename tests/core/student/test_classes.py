@@ -233,6 +233,22 @@ def test_the_stream_adds_the_learned_classes_geometry(class_student: TrainResult
         list(stream(_Source(), student, classes=("spatter",)))  # type: ignore[arg-type]
 
 
+def test_the_cell_outputs_are_told_the_classes_chosen_with_classes(tmp_path: Path) -> None:
+    """`weldpool stream --classes`: the outputs (the OPC UA server's variables) get the classes
+    the records carry, before the first frame."""
+    from app.cli.stream import _cell_outputs, stream_cmd
+
+    checkpoint.save_config(tmp_path, replace(TINY_STUDENT, classes=CLASSES), {})
+    cell = {option.name: option.default for option in stream_cmd.params}
+
+    def chosen(names: tuple[str, ...] | None) -> object:
+        return _cell_outputs(None, cell, tmp_path, True, None, names)[1].classes
+
+    assert chosen(None) == CLASSES and chosen(("wire tip",)) == (TIP,) and chosen(()) == ()
+    with pytest.raises(InvalidInputError, match="did not learn the class 'spatter'"):
+        chosen(("spatter",))
+
+
 @pytest.mark.slow
 def test_the_extra_channels_learn_the_wire_and_its_tip(tmp_path: Path) -> None:
     """On synthetic frames the wire (a thin band, ~1.5 % of the frame) and its tip are learned

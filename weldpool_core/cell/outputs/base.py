@@ -12,7 +12,10 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from weldpool_core.student.classes import LearnedClass
 
 log = logging.getLogger("weldpool.outputs")
 
@@ -74,6 +77,9 @@ class CellInfo:
     model_usable: bool = True
     """False for a student the promotion gate found worse than the teacher (forced)."""
     stale_ms: float = STALE_MS
+    classes: tuple[LearnedClass, ...] = ()
+    """The learned classes whose geometry the records carry (``cell.class_geometry.chosen_classes``
+    of ``--classes``): the OPC UA server makes their variables before the first frame."""
 
     @property
     def length_unit(self) -> str:
@@ -106,8 +112,8 @@ class CellRecord:
     latency_ms: float
     healthy: bool
     classes: dict[str, Any] | None = None
-    """The learned classes' geometry (``cell.class_geometry``): in the MQTT message, where a
-    JSON object carries any class; the OPC UA variables stay the pool's."""
+    """The learned classes' geometry (``cell.class_geometry``): in the MQTT message, and in the
+    OPC UA variables under ``WeldPool.Classes`` (``outputs.opcua_classes``)."""
 
     @classmethod
     def of(cls, record: dict[str, Any], info: CellInfo) -> CellRecord:

@@ -11,9 +11,10 @@ the status code ``UncertainLastUsableValue``.
 The server runs its own asyncio loop on a thread. ``send`` only keeps the newest record and
 wakes the loop; the loop writes the newest record it finds, so a busy server skips frames
 (``skipped``) instead of queueing them, and the inference thread never waits for a client.
-Security: ``none`` (a lab bench) or ``sign-encrypt`` (Basic256Sha256 with the server's
-certificate and private key; clients must present certificates, which ``trust_dir`` limits to
-the ones found there).
+Security (``opcua_security``): ``none`` (a lab bench) or ``sign-encrypt`` (Basic256Sha256 with
+the server's certificate and private key; clients must present certificates, which
+``trust_dir`` limits to the ones found there). The learned classes' variables sit under
+``WeldPool.Classes`` (``opcua_classes``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import datetime as dt
 import errno
 import logging
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -40,6 +40,8 @@ from weldpool_core.cell.outputs.base import (
     OutputStatus,
     Reporter,
 )
+from weldpool_core.cell.outputs.opcua_classes import ClassVariable, class_layout
+from weldpool_core.cell.outputs.opcua_security import APPLICATION_URI, secure
 from weldpool_core.errors import InvalidInputError
 
 NAMESPACE = "urn:weldpool:stream"
@@ -152,6 +154,7 @@ class OpcUaServer:
         self._started = threading.Event()
         self._error: BaseException | None = None
         self._nodes: dict[str, Any] = {}
+        self._class_nodes: list[tuple[Any, ClassVariable]] = []
         self._server: Any = None
         self._stop_event: asyncio.Event | None = None
         self._abandoned = False
@@ -242,7 +245,7 @@ class OpcUaServer:
         server.set_endpoint(f"opc.tcp://{self.host}:{self.port}/weldpool/")
         server.set_server_name("weldpool stream")
         await server.set_application_uri(APPLICATION_URI)
-        await self._secure(server)
+        await secure(server, self.options, self.reporter)
         index = await server.register_namespace(NAMESPACE)
         await self._build(server, index)
         async with server:
@@ -263,40 +266,11 @@ class OpcUaServer:
                 await asyncio.sleep(CLOSE_LINGER_S)
         self._loop = None
 
-    async def _secure(self, server: Any) -> None:
-        ua = _ua()
-        options = self.options
-        if options.security == "none":
-            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
-            return
-        server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
-        await server.load_certificate(str(options.certificate))
-        await server.load_private_key(str(options.private_key))
-        if options.trust_dir is None:
-            self.reporter.problem(
-                "trust",
-                "sign-encrypt without --opcua-trust accepts any client certificate within its "
-                "dates (encrypted, not authenticated); give a folder of trusted certificates",
-            )
-        else:
-            from asyncua.crypto.truststore import TrustStore
-            from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
-
-            store = TrustStore([options.trust_dir], [])
-            await store.load()
-            checks = CertificateValidatorOptions  # the default checks dates only: trust too
-            validator = CertificateValidator(
-                checks.TRUSTED_VALIDATION | checks.PEER_CLIENT, trust_store=store
-            )
-            server.set_certificate_validator(validator)
-
     async def _build(self, server: Any, index: int) -> None:
+        """The ``WeldPool`` object, its variables, and the learned classes' (``_build_classes``)."""
         ua = _ua()
         pool = await server.nodes.objects.add_object(ua.NodeId(OBJECT, index), f"{index}:{OBJECT}")
-        await pool.write_attribute(
-            ua.AttributeIds.Description,
-            ua.DataValue(ua.Variant(ua.LocalizedText("The weld pool as the student sees it."))),
-        )
+        await _describe(pool, "The weld pool as the student sees it.")
         initial: dict[str, tuple[Any, Any]] = {
             "FrameCounter": (0, ua.VariantType.UInt64),
             "CaptureTime": (dt.datetime.now(dt.UTC), ua.VariantType.DateTime),
@@ -306,33 +280,46 @@ class OpcUaServer:
         }
         for spec in CELL_FIELDS:
             value, variant = initial.get(spec.name, (math.nan, ua.VariantType.Double))
-            node = await pool.add_variable(
-                ua.NodeId(f"{OBJECT}.{spec.name}", index), f"{index}:{spec.name}", value, variant
+            unit = "" if spec.name == "CaptureTime" else self.info.unit(spec)
+            node = await _add_value(
+                pool, index, (spec.name,), value, variant, spec.description, unit
             )
-            await node.write_attribute(
-                ua.AttributeIds.Description,
-                ua.DataValue(ua.Variant(ua.LocalizedText(spec.description))),
-            )
-            unit = self.info.unit(spec)
-            if unit and spec.name != "CaptureTime":
-                await node.add_property(
-                    ua.NodeId(f"{OBJECT}.{spec.name}.EngineeringUnits", index),
-                    "EngineeringUnits",
-                    _unit(unit),
-                    datatype=ua.NodeId(ua.ObjectIds.EUInformation),
-                )
             self._nodes[spec.name] = node.nodeid
         for name, text, description in (
             ("Status", "waiting for the first frame", "Why the stream is or is not healthy."),
             ("Model", self.info.model, "The student that makes the values."),
         ):
-            node = await pool.add_variable(
-                ua.NodeId(f"{OBJECT}.{name}", index), f"{index}:{name}", text
-            )
-            await node.write_attribute(
-                ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(description)))
-            )
+            string = ua.VariantType.String
+            node = await _add_value(pool, index, (name,), text, string, description, "")
             self._nodes[name] = node.nodeid
+        await self._build_classes(pool, index)
+
+    async def _build_classes(self, pool: Any, index: int) -> None:
+        """The learned classes' folder, objects and variables (``opcua_classes``)."""
+        ua = _ua()
+        objects, variables = class_layout(self.info.classes)
+        parents: dict[tuple[str, ...], Any] = {(): pool}
+        for item in objects:
+            parent, name = parents[item.path[:-1]], item.path[-1]
+            node_id, browse = ua.NodeId(_node_id(item.path), index), ua.QualifiedName(name, index)
+            if len(item.path) == 1:
+                node = await parent.add_folder(node_id, browse)
+            else:
+                node = await parent.add_object(node_id, browse)
+            await _describe(node, item.description)
+            parents[item.path] = node
+        for variable in variables:
+            parent = parents[variable.path[:-1]]
+            node = await _add_value(
+                parent,
+                index,
+                variable.path,
+                math.nan,
+                ua.VariantType.Double,
+                variable.description,
+                variable.unit,
+            )
+            self._class_nodes.append((node.nodeid, variable))
 
     async def _write_loop(self) -> None:
         assert self._wake is not None
@@ -370,13 +357,20 @@ class OpcUaServer:
             "Unstable": (cell.unstable, ua.VariantType.Boolean),
         }
         good, none = ua.StatusCode(ua.StatusCodes.Good), ua.StatusCode(ua.StatusCodes.BadNoData)
+        writes: list[tuple[Any, Any, Any]] = []
         for spec in CELL_FIELDS:
             value, variant = values.get(spec.name, (None, ua.VariantType.Double))
             if value is None:
                 value = getattr(cell, spec.key)
+            writes.append((self._nodes[spec.name], value, variant))
+        for node, variable in self._class_nodes:
+            writes.append((node, variable.value(cell.classes), ua.VariantType.Double))
+        # One frame's values in one run of writes that never yields to the loop: a client's
+        # read, served by the same loop, sees all of a frame or none of it.
+        for node, value, variant in writes:
             missing = isinstance(value, float) and math.isnan(value)  # no pool, no samples
             await self._server.write_attribute_value(
-                self._nodes[spec.name],
+                node,
                 ua.DataValue(
                     ua.Variant(value, variant),
                     StatusCode=none if missing else good,
@@ -393,8 +387,8 @@ class OpcUaServer:
         await self._write_flag(False)
         await self._write_text("Status", f"no frame for {quiet_ms:.0f} ms")
         self._last = None
-        for name in MEASUREMENTS:
-            node = self._nodes[name]
+        classes = [node for node, _variable in self._class_nodes]
+        for node in [self._nodes[name] for name in MEASUREMENTS] + classes:
             current = self._server.read_attribute_value(node)
             if not current.StatusCode.is_good():  # no data stays no data
                 continue
@@ -436,48 +430,43 @@ class OpcUaServer:
             self.reporter.resolved("behind", "the server keeps up with the frames again")
 
 
-APPLICATION_URI = "urn:weldpool:stream:server"
-CERTIFICATE_FILE = "weldpool-opcua-cert.der"
-KEY_FILE = "weldpool-opcua-key.pem"
+def _node_id(path: tuple[str, ...]) -> str:
+    """A variable's or object's string node id: its browse path under Objects, joined by dots."""
+    return ".".join((OBJECT, *path))
 
 
-def make_certificate(folder: Path, hostname: str, days: int = 365) -> tuple[Path, Path]:
-    """A self-signed certificate and private key for the server (``--opcua-security
-    sign-encrypt``): RSA 2048, the server's application URI and ``hostname`` in its subject
-    alternative names, as OPC UA clients check them. Clients must be told to trust it.
-    Refuses to overwrite files already there."""
-    from asyncua.crypto.cert_gen import (
-        dump_private_key_as_pem,
-        generate_private_key,
-        generate_self_signed_app_certificate,
+async def _describe(node: Any, text: str) -> None:
+    ua = _ua()
+    await node.write_attribute(
+        ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(text)))
     )
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
-    from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    if not folder.is_dir():
-        raise InvalidInputError(f"There is no folder {str(folder)!r}; create it first.")
-    certificate, key = folder / CERTIFICATE_FILE, folder / KEY_FILE
-    for path in (certificate, key):
-        if path.exists():
-            raise InvalidInputError(
-                f"{str(path)!r} exists already; move it or choose another folder."
-            )
-    private = generate_private_key()
-    names = [x509.UniformResourceIdentifier(APPLICATION_URI), x509.DNSName(hostname)]
-    cert = generate_self_signed_app_certificate(
-        private,
-        "weldpool stream",
-        {"organizationName": "weldpool"},
-        names,
-        [ExtendedKeyUsageOID.SERVER_AUTH],
-        days=days,
+
+async def _add_value(
+    parent: Any,
+    index: int,
+    path: tuple[str, ...],
+    value: Any,
+    variant: Any,
+    description: str,
+    unit: str,
+) -> Any:
+    """A read-only variable at ``path`` with its description and, with a unit, its
+    ``EngineeringUnits`` property."""
+    ua = _ua()
+    node_id = _node_id(path)
+    node = await parent.add_variable(
+        ua.NodeId(node_id, index), ua.QualifiedName(path[-1], index), value, variant
     )
-    descriptor = os.open(key, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)  # never readable
-    with os.fdopen(descriptor, "wb") as handle:
-        handle.write(dump_private_key_as_pem(private))
-    certificate.write_bytes(cert.public_bytes(serialization.Encoding.DER))
-    return certificate, key
+    await _describe(node, description)
+    if unit:
+        await node.add_property(
+            ua.NodeId(f"{node_id}.EngineeringUnits", index),
+            "EngineeringUnits",
+            _unit(unit),
+            datatype=ua.NodeId(ua.ObjectIds.EUInformation),
+        )
+    return node
 
 
 def _start_error(exc: BaseException, url: str) -> BaseException:
