@@ -193,8 +193,10 @@ def test_a_subscriber_sees_the_newest_frame_and_is_counted(served: tuple[OpcUaSe
     async def watch() -> tuple[int, int]:
         async with Client(url) as client:
             subscription = await client.create_subscription(10, Handler())
+            empty = server.status().subscribers  # created, watching nothing yet
             await subscription.subscribe_data_change(await _node(client, "FrameCounter"))
             counted = server.status().subscribers
+            assert empty == 0, "a stream waiting for its subscriber would start too soon"
             feeder = threading.Thread(
                 target=lambda: [(server.send(record(i)), time.sleep(0.002)) for i in range(1, 60)]
             )

@@ -190,9 +190,15 @@ class OpcUaServer:
                 asyncio.run_coroutine_threadsafe(self._write_stale(quiet_ms), loop)
 
     def subscriptions(self) -> int:
-        """Clients' subscriptions on this server (what a PLC opens to be told of changes)."""
+        """Clients' subscriptions on this server that watch at least one variable (what a PLC
+        opens to be told of changes). A subscription is created empty and its variables added
+        by a second request: counting it before then would let a stream waiting for its
+        subscriber start, and end, before the client had asked for any value."""
         server = self._server
-        return 0 if server is None else len(server.iserver.subscription_service.subscriptions)
+        if server is None:
+            return 0
+        subscriptions = server.iserver.subscription_service.subscriptions.values()
+        return sum(1 for s in subscriptions if _watched(s))
 
     def wait_for_subscriber(self, seconds: float) -> bool:
         """True once a client has subscribed; False after ``seconds`` without one."""
@@ -485,3 +491,9 @@ def _start_error(exc: BaseException, url: str) -> BaseException:
 def open_output(options: OpcUaOptions, info: CellInfo) -> OpcUaServer:
     """The OPC UA output of the registry (``weldpool_core.cell.outputs.OUTPUTS``)."""
     return OpcUaServer(options, info)
+
+
+def _watched(subscription: Any) -> int:
+    """How many variables an asyncua server subscription monitors (its monitored-item
+    service keeps them in a dict asyncua exposes no accessor for)."""
+    return len(getattr(subscription.monitored_item_srv, "_monitored_items", {}))
