@@ -81,6 +81,9 @@ def test_classes_with_enough_labels_are_learned_with_their_labels_as_truths(
         assert learned == (*LEARNED, LearnedClass("spatter", "instances"))
         assert classes.learned_classes(session, ids, 3) == LEARNED  # spatter on 2 frames only
         assert classes.learned_classes(session, ids, 0) == ()  # the setting's off switch
+        # Counted with the held-out frames, which measure it; one label at least trains it.
+        assert classes.learned_classes(session, ids, 3, training=ids[:1]) == LEARNED
+        assert classes.learned_classes(session, ids, 2, training=ids[2:]) == LEARNED  # spatter
         truths = classes.class_truths(session, ids, learned)
     first = truths[ids[0]]
     assert np.array_equal(first["wire"].mask, _wire())
