@@ -101,6 +101,26 @@ def class_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def test_the_held_out_frames_count_towards_a_class(
+    client: TestClient, session_factory, settings, make_user
+) -> None:
+    """Three labelled frames, two trained on and one held out: with three labels needed the
+    classes are learned (ten labelled frames of a lab, two held out, learn theirs)."""
+    _, admin = make_user("admin4", Role.admin)
+    _, token = make_user("labeller4", Role.reviewer)
+    ids = _labelled_frames(client, token, admin, 3, spatter=0)
+    settings.student_class_min_labels = 3
+    image = np.zeros((H, W), np.uint8)
+    samples = [(frame_id, (image, _pool(), None)) for frame_id in ids]
+    with session_factory() as session:
+        student, training, held = classes.with_classes(
+            session, settings, TINY_STUDENT, samples[:2], samples[2:]
+        )
+    assert student.classes == LEARNED
+    assert [frame.classes["wire tip"].points for _, frame in training] == [{"tip": (60.0, 9.0)}] * 2
+    assert np.array_equal(held[0].classes["wire"].mask, _wire())
+
+
 def _version(settings, session_factory, base: Path, name: str, pool: float, wire: float) -> int:
     """A copy of ``base`` whose pool head draws (+30) or not (−30) the whole frame, finds no
     keypoint, and whose class head draws the wire everywhere (+30) or nowhere (−30)."""
