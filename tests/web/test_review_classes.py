@@ -288,6 +288,7 @@ def test_a_wire_drawn_as_a_new_polygon(page: Any, server: LiveServer, classes: N
     wire = [(900, 395), (1270, 300), (1270, 345), (905, 420)]
     for corner in wire:
         page.mouse.click(*to_page(page, *corner))
+    shoot(page, "review-new-polygon")  # half drawn: dashed, its first corner larger
     page.mouse.click(*to_page(page, *wire[0]))  # the first corner closes it
     _wait_for_area(page, "wire")
     x, y, w, h = _objects(page)["wire"]["bbox"]
