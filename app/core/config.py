@@ -137,8 +137,9 @@ class Settings(BaseSettings):
     student_class_min_labels: int = Field(
         default=10,
         ge=0,
-        description="Reviewed labels a class other than the pool needs in the training frames "
-        "before a student learns it as extra outputs; 0: the pool alone.",
+        description="Reviewed labels a class other than the pool needs among a training's frames "
+        "(those it trains on and those held out to measure it) before a student learns it as "
+        "extra outputs; 0: the pool alone.",
     )
     retrain_every: int = Field(
         default=20,

@@ -1,11 +1,12 @@
 """Which of the label configuration's other classes a student learns, and their labels.
 
 A class of kind ``mask``, ``instances`` or ``points`` with at least
-``Settings.student_class_min_labels`` reviewed labels among the frames a student trains on
-becomes extra output channels of that version (``weldpool_core.student.classes``); the pool is
-learned as always. A points class's channels are its configured ``point_names``, else the point
-names its labels use (sorted). Labels give each class's truth from their stored ``objects``: a
-mask class's mask, an instances class's instances as one union, a points class's named points.
+``Settings.student_class_min_labels`` reviewed labels among the frames a student trains and is
+measured on (one at least among those it trains on) becomes extra output channels of that
+version (``weldpool_core.student.classes``); the pool is learned as always. A points class's
+channels are its configured ``point_names``, else the point names its labels use (sorted).
+Labels give each class's truth from their stored ``objects``: a mask class's mask, an instances
+class's instances as one union, a points class's named points.
 """
 
 from __future__ import annotations
@@ -43,10 +44,15 @@ def _objects(session: Session, frame_ids: list[int]) -> dict[int, list[dict[str,
 
 
 def learned_classes(
-    session: Session, frame_ids: list[int], min_labels: int
+    session: Session,
+    frame_ids: list[int],
+    min_labels: int,
+    training: list[int] | None = None,
 ) -> tuple[LearnedClass, ...]:
     """The configured classes with at least ``min_labels`` labelled frames among
-    ``frame_ids``, in the configuration's order (none when ``min_labels`` is 0)."""
+    ``frame_ids``, in the configuration's order (none when ``min_labels`` is 0). With
+    ``training`` (the part of ``frame_ids`` trained on, the rest measures), a class also needs
+    one label there: ten labelled frames of which two are held out still learn the class."""
     from weldpool_core.student.classes import KINDS, MAX_POINTS, LearnedClass
 
     if min_labels <= 0:
@@ -63,6 +69,10 @@ def learned_classes(
     for spec in labelconfig.current(session).config["classes"]:
         name, kind = spec["name"], spec.get("kind")
         if name == POOL or kind not in KINDS or counts[name] < min_labels:
+            continue
+        if training is not None and not any(
+            name in {str(o.get("class")) for o in objects.get(i, [])} for i in training
+        ):
             continue
         points = spec.get("point_names") or sorted(names.get(name, ()))
         if kind == "points" and not points:
@@ -124,14 +134,14 @@ def with_classes(
     training: list[Sample],
     validation: list[Sample],
 ) -> tuple[StudentConfig, list[Sample], list[Any]]:
-    """The student with the classes its training frames label often enough, its training
-    samples (``(frame id, sample)``) and validation samples, with their class labels; as given
-    (validation without ids) when no class qualifies."""
+    """The student with the classes its training and validation frames label often enough, its
+    training samples (``(frame id, sample)``) and validation samples, with their class labels;
+    as given (validation without ids) when no class qualifies."""
     ids = [frame_id for frame_id, _ in training]
-    classes = learned_classes(session, ids, settings.student_class_min_labels)
+    every = ids + [frame_id for frame_id, _ in validation]
+    classes = learned_classes(session, every, settings.student_class_min_labels, ids)
     if not classes:
         return student, training, [sample for _, sample in validation]
-    every = ids + [frame_id for frame_id, _ in validation]
     truths = class_truths(session, every, classes)
     held = [frame for _, frame in _with_truths(validation, truths)]
     return replace(student, classes=classes), _with_truths(training, truths), held

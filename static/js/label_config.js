@@ -1,6 +1,7 @@
 // The label configuration page (admins): the classes beside the built-in pool, their kind,
-// colour, hotkey and attributes, and the frame's tags and attributes; a save is a new version
-// (a stale one, or one removing a class labels hold, is the server's sentence).
+// colour, hotkey, attributes and a points class's point names, and the frame's tags and
+// attributes; a save is a new version (a stale one, or one removing a class labels hold, is the
+// server's sentence).
 
 import { api } from "./api.js";
 import { h, toast } from "./ui.js";
@@ -35,12 +36,16 @@ function classRow(spec) {
   const builtin = spec.name === "pool";
   const kind = h("select", { name: "kind", "data-testid": "class-kind", disabled: builtin, "aria-label": "Kind" },
     ...KINDS.map((k) => h("option", { value: k, selected: k === spec.kind }, k)));
+  // A points class's named points (the wire tip's "tip"), kept as the config has them.
+  const points = h("input", { name: "point_names", value: (spec.point_names ?? []).join(", "), maxlength: 2000, size: 10, placeholder: "e.g. tip", disabled: spec.kind !== "points", "data-testid": "class-points", "aria-label": "Point names" });
+  kind.addEventListener("change", () => { points.disabled = kind.value !== "points"; });
   const row = h("tr", { "data-testid": "class-row", "data-builtin": builtin ? "1" : "" },
     h("td", {}, h("input", { name: "name", value: spec.name, required: true, maxlength: 64, readonly: builtin, "data-testid": "class-name", "aria-label": "Name" })),
     h("td", {}, kind),
     h("td", {}, h("input", { type: "color", name: "color", value: spec.color ?? nextColor(), "data-testid": "class-color", "aria-label": "Colour" })),
     h("td", {}, h("input", { name: "hotkey", value: spec.hotkey ?? "", maxlength: 1, size: 2, "data-testid": "class-hotkey", "aria-label": "Hotkey" })),
     h("td", {}, h("input", { name: "attributes", value: formatAttributes(spec.attributes), maxlength: 2000, "data-testid": "class-attributes", "aria-label": "Attributes" })),
+    h("td", {}, points),
     h("td", { class: "actions" }, builtin ? h("span", { class: "muted" }, "built in")
       : h("button", { type: "button", class: "danger", "data-testid": "remove-class", onclick: () => row.remove() }, "Remove")));
   return row;
@@ -51,6 +56,8 @@ function read() {
     const value = (name) => row.querySelector(`[name=${name}]`).value.trim();
     const spec = { name: value("name"), kind: value("kind"), color: value("color"), attributes: parseAttributes(value("attributes")) };
     if (value("hotkey")) spec.hotkey = value("hotkey");
+    const names = value("point_names").split(",").map((n) => n.trim()).filter(Boolean);
+    if (spec.kind === "points" && names.length) spec.point_names = names;
     return spec;
   });
   const tags = document.getElementById("frame-tags").value.split(",").map((t) => t.trim()).filter(Boolean);

@@ -81,6 +81,9 @@ def test_classes_with_enough_labels_are_learned_with_their_labels_as_truths(
         assert learned == (*LEARNED, LearnedClass("spatter", "instances"))
         assert classes.learned_classes(session, ids, 3) == LEARNED  # spatter on 2 frames only
         assert classes.learned_classes(session, ids, 0) == ()  # the setting's off switch
+        # Counted with the held-out frames, which measure it; one label at least trains it.
+        assert classes.learned_classes(session, ids, 3, training=ids[:1]) == LEARNED
+        assert classes.learned_classes(session, ids, 2, training=ids[2:]) == LEARNED  # spatter
         truths = classes.class_truths(session, ids, learned)
     first = truths[ids[0]]
     assert np.array_equal(first["wire"].mask, _wire())
@@ -96,6 +99,26 @@ def class_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     student = replace(TINY_STUDENT, keypoints="heatmap", classes=LEARNED)
     train_student(synthetic_frames(4), out, student, tiny_config(epochs=1))
     return out
+
+
+def test_the_held_out_frames_count_towards_a_class(
+    client: TestClient, session_factory, settings, make_user
+) -> None:
+    """Three labelled frames, two trained on and one held out: with three labels needed the
+    classes are learned (ten labelled frames of a lab, two held out, learn theirs)."""
+    _, admin = make_user("admin4", Role.admin)
+    _, token = make_user("labeller4", Role.reviewer)
+    ids = _labelled_frames(client, token, admin, 3, spatter=0)
+    settings.student_class_min_labels = 3
+    image = np.zeros((H, W), np.uint8)
+    samples = [(frame_id, (image, _pool(), None)) for frame_id in ids]
+    with session_factory() as session:
+        student, training, held = classes.with_classes(
+            session, settings, TINY_STUDENT, samples[:2], samples[2:]
+        )
+    assert student.classes == LEARNED
+    assert [frame.classes["wire tip"].points for _, frame in training] == [{"tip": (60.0, 9.0)}] * 2
+    assert np.array_equal(held[0].classes["wire"].mask, _wire())
 
 
 def _version(settings, session_factory, base: Path, name: str, pool: float, wire: float) -> int:

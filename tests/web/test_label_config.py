@@ -13,13 +13,17 @@ from tests.web.server import LiveServer
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
-def _add(page: Any, name: str, kind: str, hotkey: str, attributes: str = "") -> None:
+def _add(
+    page: Any, name: str, kind: str, hotkey: str, attributes: str = "", points: str = ""
+) -> None:
     page.click("[data-testid=add-class]")
     row = page.locator("[data-testid=class-row]").last
     row.locator("[data-testid=class-name]").fill(name)
     row.locator("[data-testid=class-kind]").select_option(kind)
     row.locator("[data-testid=class-hotkey]").fill(hotkey)
     row.locator("[data-testid=class-attributes]").fill(attributes)
+    if points:  # the field opens for a points class alone
+        row.locator("[data-testid=class-points]").fill(points)
 
 
 def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveServer) -> None:
@@ -31,7 +35,8 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
     start = server.api("GET", "/label-config", user="ada").json()["version"]
     assert page.locator("[data-testid=class-row]").count() == 1  # the pool, built in
     _add(page, "wire", "mask", "w")
-    _add(page, "wire tip", "points", "t")
+    assert page.locator("[data-testid=class-points]").last.is_disabled()  # the wire: a mask
+    _add(page, "wire tip", "points", "t", points="tip, root")
     _add(page, "spatter", "instances", "s", "size:choice:small|large, hot:flag")
     page.fill("[data-testid=frame-tags]", "arc unstable, humping")
     shoot(page, "label-config")
@@ -49,12 +54,22 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
         {"name": "hot", "type": "flag"},
     ]
     assert saved["frame_tags"] == ["arc unstable", "humping"]
+    assert saved["classes"][2]["point_names"] == ["tip", "root"]
+    assert "point_names" not in saved["classes"][1]
+    # Loaded again and saved with a new tag, the point names stay as they were.
+    page.reload()
+    page.wait_for_selector("body[data-ready]")
+    page.fill("[data-testid=frame-tags]", "arc unstable, humping, porosity")
+    page.click("[data-testid=save-config]")
+    page.wait_for_selector(f"[data-testid=config-version]:has-text('Version {start + 2}')")
+    saved = server.api("GET", "/label-config", user="anna").json()
+    assert saved["classes"][2]["point_names"] == ["tip", "root"]
     _add(page, "Wire", "mask", "x")  # a second "wire": the server's sentence, nothing saved
     page.click("[data-testid=save-config]")
     page.locator("[data-testid=toast-error]", has_text="named 'Wire'").wait_for()
     shoot(page, "label-config-refused")
-    assert server.api("GET", "/label-config", user="ada").json()["version"] == start + 1
-    back = {"version": start + 1, "classes": [], "force": True}  # the pool alone again
+    assert server.api("GET", "/label-config", user="ada").json()["version"] == start + 2
+    back = {"version": start + 2, "classes": [], "force": True}  # the pool alone again
     assert server.api("PUT", "/label-config", user="ada", json=back).status_code == 200
 
 

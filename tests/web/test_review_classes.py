@@ -267,3 +267,48 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
     assert _layer(page) == "spatter 2"
     assert page.input_value("[data-testid=object-attribute][data-name=size]") == "small"
     shoot(page, "review-classes-real")
+
+
+def test_a_wire_drawn_as_a_new_polygon(page: Any, server: LiveServer, classes: None) -> None:
+    """On an empty layer the polygon tool's clicks are corners of a new polygon: the first
+    corner or Enter closes it, Esc drops one half drawn; the saved region is the polygon."""
+    frame = add_frame(server, 313)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.keyboard.press("w")
+    page.keyboard.press("7")
+    for corner in ((1000, 300), (1250, 300), (1250, 340)):
+        page.mouse.click(*to_page(page, *corner))
+    page.keyboard.press("Escape")  # half drawn: dropped, nothing filled
+    page.mouse.click(*to_page(page, 600, 600))
+    page.mouse.click(*to_page(page, 620, 600))
+    page.keyboard.press("Escape")
+    assert _objects(page)["wire"]["area"] == 0
+    wire = [(900, 395), (1270, 300), (1270, 345), (905, 420)]
+    for corner in wire:
+        page.mouse.click(*to_page(page, *corner))
+    shoot(page, "review-new-polygon")  # half drawn: dashed, its first corner larger
+    page.mouse.click(*to_page(page, *wire[0]))  # the first corner closes it
+    _wait_for_area(page, "wire")
+    x, y, w, h = _objects(page)["wire"]["bbox"]
+    assert (x, y) == (900, 300) and 370 <= w <= 372 and 120 <= h <= 122
+    # A second polygon on the same layer, closed by Enter: a second region of the wire.
+    area = _objects(page)["wire"]["area"]
+    for corner in ((100, 100), (140, 100), (140, 130)):
+        page.mouse.click(*to_page(page, *corner))
+    page.keyboard.press("Enter")
+    wait_for_js(
+        page,
+        "(area) => JSON.parse(document.querySelector('[data-testid=frame-canvas]').dataset"
+        ".objects).find((o) => o.name === 'wire').area > area",
+        arg=area,
+    )
+    page.uncheck("#advance")
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=toast-ok]", has_text="Saved as corrected").wait_for()
+    saved = server.api("GET", f"/frames/{frame}/label").json()["objects"]
+    region = _region(next(o for o in saved if o["class"] == "wire"))
+    assert region[400, 950] and region[320, 1260] and not region[330, 950]  # inside, corner, above
+    assert region[110, 130] and not region[125, 105]  # the triangle: its hypotenuse cuts the box
+    assert not region[600:, :].any()  # the dropped drafts left nothing

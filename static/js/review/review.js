@@ -26,7 +26,7 @@ import { render, timelineNote } from "./panel.js";
 import { ScaleRuler } from "./scale.js";
 import { Stage } from "./stage.js";
 import { S, changed, subscribe } from "./state.js";
-import { enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setOutlineTolerance, setTool, toolUsable } from "./tools.js";
+import { closePolygon, enableTools, endSession, local, onPointerDown, onPointerMove, onPointerUp, removeVertex, setBrushSize, setOutlineTolerance, setTool, toolUsable } from "./tools.js";
 import { saveValidation, toggleValidation } from "./validation.js";
 
 // --- proposals ------------------------------------------------------------------------------
@@ -65,6 +65,7 @@ export function onKey(event) {
     return;
   }
   if (TOOL_KEYS[key]) { setTool(TOOL_KEYS[key]); return; }
+  if (key === "enter" && S.stage.newPolygon) { event.preventDefault(); closePolygon(); return; }
   const actions = {
     "[": () => setBrushSize(Number($("brush-size").value) - 4),
     "]": () => setBrushSize(Number($("brush-size").value) + 4),
@@ -78,7 +79,7 @@ export function onKey(event) {
     v: () => toggleValidation(),
     l: () => !$("measure-scale").disabled && S.ruler.toggle(),
     p: () => cycleProposal(),
-    escape: () => { S.stage.draft = null; S.gesture = null; if (S.ruler.active) S.ruler.toggle(); else endSession(); },
+    escape: () => { S.stage.draft = null; S.stage.newPolygon = null; S.gesture = null; if (S.ruler.active) S.ruler.toggle(); else endSession(); },
     delete: () => deleteSelected(),
     backspace: () => deleteSelected(),
   };

@@ -46,6 +46,8 @@ export class Stage {
     /** The outline being edited (polygon tool): [{points: [[x, y]…], hole}], or null. */
     this.polygons = null;
     this.selectedVertex = null; // {polygon, index}
+    /** A new polygon being drawn corner by corner (polygon tool): {layer, points}, or null. */
+    this.newPolygon = null;
     /** The scale being measured: [[x, y]] or [[x, y], [x, y]] in frame pixels, or null. */
     this.ruler = null;
     this.cursor = null;
@@ -127,6 +129,14 @@ export class Stage {
     return extent * this.scale >= HANDLES_FROM;
   }
 
+  /** Whether the screen point is on the first corner of the new polygon (a click there closes it). */
+  onFirstCorner(sx, sy) {
+    const points = this.newPolygon?.points ?? [];
+    if (points.length < 3) return false;
+    const [px, py] = this.toScreen(...points[0]);
+    return Math.hypot(px - sx, py - sy) <= VERTEX_HIT;
+  }
+
   /** The outline vertex under the screen point, {polygon, index}, or null. */
   vertexAt(sx, sy) {
     if (!this.polygons) return null;
@@ -203,6 +213,7 @@ export class Stage {
     this.drawBox(this.draft, true);
     this.points.forEach((p) => this.drawPrompt(p));
     this.drawPolygons();
+    this.drawNewPolygon();
     if (this.display.keypoints) this.drawKeypoints();
     this.drawNamedPoints();
     this.drawRuler();
@@ -249,6 +260,31 @@ export class Stage {
         ctx.strokeRect(px - r, py - r, 2 * r, 2 * r);
       });
     }
+    ctx.restore();
+  }
+
+  /** The new polygon's corners joined by a dashed line, not yet closed. */
+  drawNewPolygon() {
+    const points = this.newPolygon?.points;
+    if (!points?.length) return;
+    const { ctx } = this;
+    ctx.save();
+    ctx.beginPath();
+    points.forEach(([x, y], i) => {
+      const [px, py] = this.toScreen(x, y);
+      if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
+    });
+    ctx.setLineDash([6, 4]);
+    ctx.lineWidth = 1.5;
+    ctx.strokeStyle = COLOURS.outline;
+    ctx.stroke();
+    ctx.setLineDash([]);
+    points.forEach(([x, y], i) => {
+      const [px, py] = this.toScreen(x, y);
+      const r = i === 0 ? 5 : 3.5; // the first corner, larger: click it to close
+      ctx.fillStyle = COLOURS.outline;
+      ctx.fillRect(px - r, py - r, 2 * r, 2 * r);
+    });
     ctx.restore();
   }
 

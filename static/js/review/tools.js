@@ -42,6 +42,7 @@ export function setTool(name) {
   $("brush-size").closest("label").hidden = name === "polygon";
   if (name !== "brush" && name !== "eraser") S.stage.cursor = null;
   S.stage.selectedVertex = null;
+  S.stage.newPolygon = null;
   showOutline();
   S.stage.requestRender();
 }
@@ -160,6 +161,7 @@ export function showOutline() {
   // Current: traced from this mask, or being traced or filled from it (pending).
   const current = outline && outline.layer === S.layer && (outline.mask === mask || (outline.mask === null && outline.base === mask));
   S.stage.polygons = editing && current ? outline.polygons : null;
+  if (!editing || S.stage.newPolygon?.layer !== S.layer) S.stage.newPolygon = null;
   if (editing && !current && S.edit) traceOutline(S.edit);
   if (S.stage.selectedVertex && !S.stage.polygons?.[S.stage.selectedVertex.polygon]?.points[S.stage.selectedVertex.index]) {
     S.stage.selectedVertex = null;
@@ -212,6 +214,32 @@ export function removeVertex({ polygon, index }) {
   });
   S.stage.selectedVertex = null;
   fillOutline(target);
+}
+
+// --- a new polygon, corner by corner (tool 7 away from the outline) --------------------------
+
+/** A corner of the new polygon at frame pixel (x, y); a click on its first corner closes it. */
+export function addCorner(x, y, sx, sy) {
+  if (S.stage.onFirstCorner(sx, sy)) { closePolygon(); return; }
+  const points = S.stage.newPolygon?.points ?? [];
+  S.stage.newPolygon = { layer: S.layer, points: [...points, clampToFrame([x, y])] };
+  S.stage.requestRender();
+}
+
+/** Close the new polygon (3 corners or more): it joins the edited layer's outline, filled by
+ *  the server as the outline's edits are. Returns whether there was one to close. */
+export function closePolygon() {
+  const points = S.stage.newPolygon?.points;
+  if (!points || points.length < 3) return false;
+  if (!S.stage.polygons || !S.edit.outline?.mask) {
+    toast("The outline is still being traced; close the polygon again in a moment.", "info");
+    return true;
+  }
+  S.stage.newPolygon = null;
+  fillOutline(editOutline((polygons) => polygons.push({ hole: false, points })));
+  showOutline();
+  S.stage.requestRender();
+  return true;
 }
 
 // --- pointer gestures on the canvas ---------------------------------------------------------
@@ -267,7 +295,13 @@ export function onPointerDown(event) {
     changed();
     return;
   }
-  if (S.tool === "polygon" && S.stage.polygons && S.edit.outline?.mask) {
+  if (S.tool === "polygon") {
+    const corner = { kind: "corner", sx, sy, lastX: sx, lastY: sy, moved: 0, x, y };
+    // Drawing a new polygon, or before the outline is traced: a click is a corner.
+    if (S.stage.newPolygon || !S.stage.polygons || !S.edit.outline?.mask) {
+      if (event.button === 0 && inside) S.gesture = corner;
+      return;
+    }
     const vertex = S.stage.vertexAt(sx, sy);
     if (vertex && event.button === 2) { S.gesture = null; removeVertex(vertex); return; }
     if (vertex && event.button === 0) {
@@ -285,7 +319,8 @@ export function onPointerDown(event) {
       S.stage.requestRender();
       return;
     }
-    return; // elsewhere: a drag pans
+    if (event.button === 0 && inside) S.gesture = corner; // elsewhere: a new polygon's first corner (a drag pans)
+    return;
   }
   if (!inside && S.tool !== "box") return;
   if (S.tool === "brush" || S.tool === "eraser") {
@@ -319,7 +354,7 @@ export function onPointerMove(event) {
     S.stage.canvas.classList.toggle("over-edge", S.tool === "polygon" && !S.stage.vertexAt(sx, sy) && S.stage.edgeAt(sx, sy) !== null);
     return;
   }
-  if (S.gesture.kind === "click") {
+  if (S.gesture.kind === "click" || S.gesture.kind === "corner") {
     S.gesture.moved = Math.max(S.gesture.moved, Math.hypot(sx - S.gesture.sx, sy - S.gesture.sy));
     if (S.gesture.moved > 4) S.gesture.kind = "pan";
   }
@@ -365,6 +400,8 @@ export function onPointerUp() {
   if (!done) return;
   if (done.kind === "click") {
     addClick(done.x, done.y, done.positive);
+  } else if (done.kind === "corner") {
+    addCorner(done.x, done.y, done.sx, done.sy);
   } else if (done.kind === "box") {
     const box = S.stage.draft;
     S.stage.draft = null;
