@@ -235,7 +235,8 @@ def _incumbent_classes(
         return None
     session, storage, device = context
     shared = classes.shared_classes(candidate, incumbent)
-    outputs, answers, figures = None, {}, {}
+    outputs, figures = None, {}
+    answers: dict[int, dict[str, Any]] = {}
     if shared:
         outputs = _student_outputs(session, storage, incumbent, ids, device, answers)
         figures = classes.gate_figures(session, incumbent, ids, answers, shared) or {}
@@ -249,11 +250,11 @@ def _against_incumbent(
     mine: Outputs,
     truth: dict[int, Any],
     fair: list[int],
-    incumbent: tuple[ModelVersion, Outputs | None],
+    compared: tuple[ModelVersion, Outputs | None],
 ) -> str | None:
     """Why the candidate does not beat the incumbent (with its outputs, when already run) on
     the labels neither of them proposed (None: it does)."""
-    incumbent, ran = incumbent
+    incumbent, ran = compared
     if not fair:
         return (
             f"every held-out label was accepted unchanged from {incumbent.name} or this "
