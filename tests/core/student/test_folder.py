@@ -10,10 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.core.student.common import TINY_STUDENT, tiny_config
 from weldpool_core.errors import InvalidInputError
 from weldpool_core.io import encode_mask_png
+from weldpool_core.student.checkpoint import read_student_config
 from weldpool_core.student.classes import LearnedClass
-from weldpool_core.student.folder import read_classes
+from weldpool_core.student.folder import read_classes, train_from_folder
 
 H, W = 32, 48
 
@@ -133,3 +135,21 @@ def test_what_it_cannot_read_is_one_sentence_naming_it(
         _, frames = read_classes(root, names)
         list(frames)
     assert message in caught.value.message and caught.value.message.count(". ") == 0
+
+
+def test_a_resumed_run_keeps_learning_its_classes(tmp_path: Path) -> None:
+    """``train_from_folder`` with ``classes`` records them; resumed without naming them, the
+    run reads the same classes again, and naming others is refused."""
+    data, out = _dataset(tmp_path / "data"), tmp_path / "model"
+    first = train_from_folder(
+        data, out, TINY_STUDENT, tiny_config(epochs=1), classes=["wire", "tip"]
+    )
+    assert set(first.metrics["classes"]) == {"wire", "tip"}
+    assert [c.name for c in read_student_config(out).classes] == ["wire", "tip"]
+    train_from_folder(data, out, None, tiny_config(epochs=2), resume=True)
+    last = json.loads((out / "metrics.json").read_text())["last"]
+    assert last["epoch"] == 2 and set(last["classes"]) == {"wire", "tip"}
+    # each held-out frame labels one of them: measured, so read from the DATASET again
+    assert sum(figures["frames"] for figures in last["classes"].values()) >= 1
+    with pytest.raises(InvalidInputError, match="another student configuration"):
+        train_from_folder(data, out, None, tiny_config(epochs=3), resume=True, classes=["wire"])
