@@ -213,7 +213,7 @@ def test_no_function_over_80_lines() -> None:
 
 
 LONG_MODULES = {
-    "weldpool_core/student/train.py": 656,
+    "weldpool_core/student/train.py": 643,
     "app/training/tasks.py": 611,
 }
 """Modules over ``MAX_MODULE_LINES`` and the lines each may have at most: they may only shrink

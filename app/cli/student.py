@@ -92,6 +92,12 @@ def _given(ctx: click.Context, *names: str) -> bool:
     help="ImageNet ResNet weights: a save_pretrained folder or a hub id in the local cache.",
 )
 @click.option("--no-pretrained", is_flag=True, help="Start the encoder from random weights.")
+@click.option(
+    "--classes",
+    "class_names",
+    help="Other classes to learn beside the pool, comma-separated: classes/<class>/ masks or "
+    "manifest.json points of DATASET (what the masks export writes).",
+)
 @click.pass_context
 @friendly_errors
 def train_cmd(
@@ -111,14 +117,19 @@ def train_cmd(
     device: str | None,
     encoder_weights: str | None,
     no_pretrained: bool,
+    class_names: str | None,
 ) -> None:
     """Train a student on DATASET (images/, masks/, optional keypoints/) into --out.
 
-    Keypoints come from keypoints/<stem>.json, else from Algorithm 1 on the mask. Writes the
-    best weights, config.json, metrics.json and curve.json; prints the best metrics as JSON.
+    Keypoints come from keypoints/<stem>.json, else from Algorithm 1 on the mask. --classes
+    wire,tip learns those classes too: classes/<class>/<stem>.png (a mask class),
+    classes/<class>/<stem>_<n>.png (instances), the points of manifest.json's objects (a
+    points class), as `weldpool export --format masks` writes them. Writes the best weights,
+    config.json, metrics.json and curve.json; prints the best metrics as JSON.
     """
+    from weldpool_core.student.folder import train_from_folder
     from weldpool_core.student.model import student_config
-    from weldpool_core.student.train import TrainConfig, train_from_folder
+    from weldpool_core.student.train import TrainConfig
 
     settings = load_settings()
     model_options = ("size", "input_size", "aspect", "skips", "encoder_weights", "no_pretrained")
@@ -147,7 +158,8 @@ def train_cmd(
         config = replace(config, steps=steps)
     bar = _ProgressBar()
     try:
-        result = train_from_folder(dataset, out_dir, student, config, bar, resume=resume)
+        names = [n.strip() for n in (class_names or "").split(",") if n.strip()]
+        result = train_from_folder(dataset, out_dir, student, config, bar, resume, names)
     finally:
         bar.close()
     summary = {

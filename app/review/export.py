@@ -70,6 +70,7 @@ from app.review.export_classes import (
     cvat_text,
     file_names,
     frame_fields,
+    manifest_classes,
     written_classes,
     written_config,
     yaml_name,
@@ -397,7 +398,11 @@ def _write_masks(
         yield done
     left_out = [{"frame_id": frame_id, "reason": reason} for frame_id, reason in skipped]
     archive.writestr(
-        "manifest.json", json.dumps({"frames": manifest, "skipped": left_out}, indent=1)
+        "manifest.json",
+        json.dumps(
+            {"classes": manifest_classes(config), "frames": manifest, "skipped": left_out},
+            indent=1,
+        ),
     )
 
 

@@ -259,6 +259,14 @@ def yolo_notes(rows: Rows) -> str:
     return "".join(lines)
 
 
+def manifest_classes(rows: Rows) -> list[dict[str, Any]]:
+    """The classes the masks export writes beside the pool, as its ``manifest.json`` declares
+    them for ``weldpool train --classes``: name, kind and a points class's ``point_names``."""
+    regions = [{"name": n, "kind": rows.specs[n]["kind"]} for n in rows.classes]
+    points = [{"name": n, "kind": "points", "point_names": p} for n, p in rows.points.items()]
+    return regions + points
+
+
 @dataclass
 class ClassFiles:
     """What the masks export writes of a label's objects: a PNG (0/255) per region object,

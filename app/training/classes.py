@@ -155,18 +155,26 @@ def version_classes(version: ModelVersion) -> tuple[LearnedClass, ...]:
     return tuple(LearnedClass.from_dict(c) for c in saved.get("classes") or ())
 
 
+def shared_classes(candidate: ModelVersion, incumbent: ModelVersion) -> tuple[LearnedClass, ...]:
+    """The candidate's classes that the incumbent learned too: the same name, kind and, for a
+    points class, the same points (so that both figures measure the same thing)."""
+    theirs = set(version_classes(incumbent))
+    return tuple(learned for learned in version_classes(candidate) if learned in theirs)
+
+
 def gate_figures(
     session: Session,
     version: ModelVersion,
     frame_ids: list[int],
     answers: dict[int, dict[str, Any]],
+    only: tuple[LearnedClass, ...] | None = None,
 ) -> dict[str, dict[str, Any]] | None:
-    """The version's figures per learned class on the gate's frames that have the class
-    labelled (``student.classes.class_figures``; None for a pool-only version). Reported
-    beside the pool's, never part of its promotion rule."""
+    """The version's figures per learned class (``only`` these, when given) on the gate's
+    frames that have the class labelled (``student.classes.class_figures``; None for a
+    pool-only version). Reported beside the pool's, never part of its promotion rule."""
     from weldpool_core.student.classes import class_figures
 
-    classes = version_classes(version)
+    classes = version_classes(version) if only is None else only
     if not classes:
         return None
     truths = class_truths(session, frame_ids, classes)

@@ -18,8 +18,10 @@ No frames to measure on: not usable, with the reason.
 
 Learned classes (``app.training.classes``): the candidate's figures per class (IoU for mask and
 instances classes, point distance in px for points classes) on the measured frames that have the
-class labelled, in ``classes``; reported only, never part of the rule above: a class never
-decides a promotion.
+class labelled, in ``classes``; with an incumbent, its figures on the same frames in
+``incumbent_classes`` (per candidate class; None where it did not learn that class, with the
+same kind and points). Reported only, never part of the rule above: a class never decides a
+promotion.
 
 A fair yardstick: a label a reviewer accepted unchanged from a model's proposal *is* that
 model's output, so the model scores 1.0 on it and nobody can beat it there. Each comparison
@@ -215,23 +217,54 @@ def _against_teacher(
     return reasons
 
 
+Context: TypeAlias = tuple[Session, Storage, str]
+"""The session, storage and device a verdict is measured with."""
+
+
+def _incumbent_classes(
+    context: Context,
+    verdict: dict[str, Any],
+    candidate: ModelVersion,
+    incumbent: ModelVersion | None,
+    ids: list[int],
+) -> Outputs | None:
+    """The incumbent's figures for each of the candidate's classes on the same frames, into
+    ``incumbent_classes`` (None for a class it did not learn); its outputs on ``ids`` when it
+    was run for them (the pool's comparison reuses them)."""
+    if incumbent is None or verdict["classes"] is None:
+        return None
+    session, storage, device = context
+    shared = classes.shared_classes(candidate, incumbent)
+    outputs, figures = None, {}
+    answers: dict[int, dict[str, Any]] = {}
+    if shared:
+        outputs = _student_outputs(session, storage, incumbent, ids, device, answers)
+        figures = classes.gate_figures(session, incumbent, ids, answers, shared) or {}
+    verdict["incumbent_classes"] = {name: figures.get(name) for name in verdict["classes"]}
+    return outputs
+
+
 def _against_incumbent(
-    context: tuple[Session, Storage, str],
+    context: Context,
     verdict: dict[str, Any],
     mine: Outputs,
     truth: dict[int, Any],
     fair: list[int],
-    incumbent: ModelVersion,
+    compared: tuple[ModelVersion, Outputs | None],
 ) -> str | None:
-    """Why the candidate does not beat the incumbent on the labels neither of them proposed
-    (None: it does)."""
+    """Why the candidate does not beat the incumbent (with its outputs, when already run) on
+    the labels neither of them proposed (None: it does)."""
+    incumbent, ran = compared
     if not fair:
         return (
             f"every held-out label was accepted unchanged from {incumbent.name} or this "
             "version, so they cannot be compared fairly; draw or correct some held-out labels"
         )
     session, storage, device = context
-    theirs = _score(_student_outputs(session, storage, incumbent, fair, device), truth, fair)
+    outputs = (
+        ran if ran is not None else _student_outputs(session, storage, incumbent, fair, device)
+    )
+    theirs = _score(outputs, truth, fair)
     verdict["incumbent_scores"] = theirs
     ours = _score(mine, truth, fair)
     if _better(ours, theirs):
@@ -283,6 +316,8 @@ def measure(
     mine = _student_outputs(session, storage, candidate, ids, device, answers)
     verdict["candidate"] = _score(mine, truth, ids)
     verdict["classes"] = classes.gate_figures(session, candidate, ids, answers)
+    context = (session, storage, device)
+    ran = _incumbent_classes(context, verdict, candidate, incumbent, ids)
     taken = taken_from(session, ids)
     accepted = [f for f in ids if taken.get(f, ("",))[0] == "teacher"]
     verdict["accepted_from_teacher"] = accepted
@@ -297,8 +332,7 @@ def measure(
     if usable and incumbent is not None:
         compared = {candidate.id, incumbent.id}
         fair = [f for f in ids if taken.get(f, ("", None))[1] not in compared]
-        context = (session, storage, device)
-        worse = _against_incumbent(context, verdict, mine, truth, fair, incumbent)
+        worse = _against_incumbent(context, verdict, mine, truth, fair, (incumbent, ran))
         better = worse is None
         reasons += [worse] if worse else []
     if usable and better:

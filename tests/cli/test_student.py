@@ -1,4 +1,5 @@
-"""`weldpool train`, `predict` and `export-student` through the real command line."""
+"""`weldpool train` (with `--classes`), `predict` and `export-student` through the real command
+line."""
 
 from __future__ import annotations
 
@@ -20,14 +21,23 @@ def run(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def _dataset(folder: Path, count: int = 6) -> Path:
-    for part in ("images", "masks", "keypoints"):
+    """Synthetic frames with the pool and its keypoints, and in the masks export's layout a
+    wire (a mask class) and its tip (a points class of manifest.json)."""
+    for part in ("images", "masks", "keypoints", "classes/wire"):
         (folder / part).mkdir(parents=True)
+    frames = []
     for seed in range(count):
         frame = synth_frame(seed, SynthParams(width=96, height=64))
         cv2.imwrite(str(folder / "images" / f"f{seed}.png"), frame.image)
         (folder / "masks" / f"f{seed}.png").write_bytes(encode_mask_png(frame.mask))
         record = {"keypoints": frame.keypoints.tolist()}
         (folder / "keypoints" / f"f{seed}.json").write_text(json.dumps(record))
+        wire = np.zeros((64, 96), bool)
+        wire[0:12, 40 + seed : 50 + seed] = True
+        (folder / "classes" / "wire" / f"f{seed}.png").write_bytes(encode_mask_png(wire))
+        tip = {"class": "tip", "points": {"end": [45.0 + seed, 12.0]}}
+        frames.append({"stem": f"f{seed}", "objects": [tip]})
+    (folder / "manifest.json").write_text(json.dumps({"frames": frames}))
     return folder
 
 
@@ -38,7 +48,7 @@ def model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     result = run(
         root, "train", str(data), "--out", str(root / "model"), "--epochs", "1",
         "--model", "light", "--input-size", "64", "--skips", "2", "--batch-size", "4",
-        "--device", "cpu",
+        "--device", "cpu", "--classes", "tip, wire",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
@@ -47,7 +57,14 @@ def model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     )
     assert "epoch 1/1" in result.stderr  # the progress bar
     # the model this module's tests predict with and export feeds two encoder maps forward
-    assert json.loads((root / "model" / "config.json").read_text())["student"]["skips"] == 2
+    student = json.loads((root / "model" / "config.json").read_text())["student"]
+    assert student["skips"] == 2
+    # --classes: the classes of the masks export's layout, in the order asked, in the config
+    assert student["classes"] == [
+        {"name": "tip", "kind": "points", "points": ["end"]},
+        {"name": "wire", "kind": "mask", "points": []},
+    ]
+    assert set(summary["metrics"]["classes"]) == {"tip", "wire"}
     return root / "model", data
 
 
@@ -101,13 +118,14 @@ def test_export_student_writes_checked_onnx(tmp_path: Path, model: tuple[Path, P
         (("train", "{tmp}/nowhere", "--out", "{tmp}/m"), "is not a DATASET folder"),
         (("predict", "{tmp}", "{tmp}/bad.png", "--out", "{tmp}/o"), "not a student model folder"),
         (("predict", "{model}", "{tmp}/bad.png", "--out", "{tmp}/o"), "bad.png: "),
+        (("train", "{data}", "--out", "{tmp}/m", "--classes", "arc"), "holds no class 'arc'"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(
     tmp_path: Path, model: tuple[Path, Path], args: tuple[str, ...], message: str
 ) -> None:
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
-    filled = [a.format(tmp=tmp_path, model=model[0]) for a in args]
+    filled = [a.format(tmp=tmp_path, model=model[0], data=model[1]) for a in args]
     result = run(tmp_path, *filled)
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and message in result.stderr

@@ -23,6 +23,7 @@ from tests.helpers import auth, corrected_label, image_bytes, make_settings, mas
 from tests.imports.common import H, W, label_mask, start_import, stored_labels, token_for, zipped
 from weldpool_core.io import decode_mask_png
 from weldpool_core.outline import rle_mask
+from weldpool_core.student.folder import read_classes
 
 CONFIG = {
     "version": 0,
@@ -319,6 +320,25 @@ def test_the_masks_layout_writes_a_folder_per_class(tmp_path) -> None:
         "arc",
     ]
     assert first["tags"] == ["night"] and first["attributes"] == FRAME_ATTRIBUTES
+    declared = json.loads(archive.read("manifest.json"))["classes"]
+    assert declared == [
+        {"name": "wire", "kind": "mask"},
+        {"name": "spatter", "kind": "instances"},
+        {"name": "wire tip", "kind": "points", "point_names": ["tip", "root"]},
+        {"name": "arc", "kind": "points", "point_names": ["left", "right"]},
+    ]
+    # `weldpool train --classes` reads the unzipped export as it is
+    archive.extractall(tmp_path / "dataset")
+    learned, frames = read_classes(tmp_path / "dataset", ["spatter", "wire tip", "wire"])
+    assert [(c.name, c.kind, c.points) for c in learned] == [
+        ("spatter", "instances", ()),
+        ("wire tip", "points", ("tip", "root")),
+        ("wire", "mask", ()),
+    ]
+    truths = {frame.name: frame.classes for frame in frames}[stem]
+    assert np.array_equal(truths["wire"].mask, WIRE)
+    assert np.array_equal(truths["spatter"].mask, SPATTER[0] | SPATTER[1])
+    assert dict(truths["wire tip"].points) == {"tip": (30.5, 12.25), "root": (40.0, 5.0)}
 
 
 def test_foreign_points_are_named_by_order_or_counted(client, make_user) -> None:

@@ -121,20 +121,25 @@ def test_the_held_out_frames_count_towards_a_class(
     assert np.array_equal(held[0].classes["wire"].mask, _wire())
 
 
-def _version(settings, session_factory, base: Path, name: str, pool: float, wire: float) -> int:
+def _version(
+    settings, session_factory, base: Path, name: str, pool: float, wire: float, learned=None
+) -> int:
     """A copy of ``base`` whose pool head draws (+30) or not (−30) the whole frame, finds no
-    keypoint, and whose class head draws the wire everywhere (+30) or nowhere (−30)."""
+    keypoint, and whose class head draws the wire everywhere (+30) or nowhere (−30); recorded
+    as having learned ``learned`` (default: what it was trained with)."""
     folder = Path(settings.home) / "models" / name
     shutil.copytree(base, folder)
     weights = load_file(str(folder / "model.safetensors"))
     weights["decoder.head.bias"][0], weights["decoder.head.bias"][1] = pool, -30.0
     weights["decoder.class_head.2.bias"][:] = wire
     save_file(weights, str(folder / "model.safetensors"))
+    student = read_student_config(folder)
+    student = student if learned is None else replace(student, classes=learned)
     with session_factory() as session:
         version = ModelVersion(
             name=name,
             checkpoint_path=f"models/{name}",
-            config={"student": read_student_config(folder).as_dict()},
+            config={"student": student.as_dict()},
             train_frame_ids=[],
         )
         session.add(version)
@@ -186,6 +191,53 @@ def test_the_gate_reports_each_class_and_a_terrible_class_does_not_stop_a_better
     assert tip["distance_px"] == pytest.approx(np.hypot(W, H))  # not found: the diagonal
     models = {m["name"]: m for m in client.get("/api/v1/models", headers=auth(token)).json()}
     assert models["no-wire"]["config"]["student"]["classes"][1]["points"] == ["tip"]
+
+
+def _validation_frames(client, settings, session_factory, token: str, admin: str) -> None:
+    """Three labelled frames of the validation split, with a shrunk teacher pool on each."""
+    from app.core.models import Frame, Split
+
+    ids = _labelled_frames(client, token, admin, 3, spatter=0)
+    with session_factory() as session:
+        for frame_id in ids:
+            mask = np.zeros((H, W), bool)
+            mask[8:56, 10:86] = True  # the teacher's pool: IoU 0.66
+            path = store_mask(LocalStorage(settings.home), mask)
+            session.add(Proposal(frame_id=frame_id, source="teacher", model_id="t", mask_path=path))
+            session.get_one(Frame, frame_id).split = Split.validation
+        session.commit()
+
+
+def test_the_gate_sets_the_incumbents_class_figures_beside_the_candidates(
+    client: TestClient, settings, session_factory, make_user, class_model: Path
+) -> None:
+    _, admin = make_user("admin4", Role.admin)
+    _, token = make_user("comparer", Role.reviewer)
+    _validation_frames(client, settings, session_factory, token, admin)
+    everywhere = _version(settings, session_factory, class_model, "wire-all", 30.0, 30.0)
+    nowhere = _version(settings, session_factory, class_model, "wire-none", 30.0, -30.0)
+    wire_only = (LearnedClass("wire", "mask"),)
+    partial = _version(settings, session_factory, class_model, "wire-only", 30.0, 30.0, wire_only)
+    plain = _version(settings, session_factory, class_model, "pool-only", 30.0, 30.0, ())
+    all_wire = pytest.approx(_wire().sum() / (W * H))
+
+    good = _measure(settings, session_factory, everywhere, nowhere)
+    assert good["classes"]["wire"]["IoU"] == all_wire
+    assert good["incumbent_classes"]["wire"] == {"kind": "mask", "frames": 3, "IoU": 0.0}
+    bad = _measure(settings, session_factory, nowhere, everywhere)  # the columns swap
+    assert bad["classes"]["wire"]["IoU"] == 0.0
+    assert bad["incumbent_classes"]["wire"]["IoU"] == all_wire
+    assert bad["incumbent_classes"]["wire tip"]["missed"] == 0  # its tip heatmap peaks
+    assert good["incumbent_classes"]["wire tip"]["missed"] == 3
+    # the pool's rule is the same with or without the incumbent's classes measured
+    assert good["promote"] is bad["promote"] and good["incumbent_scores"] == bad["incumbent_scores"]
+    # an incumbent that did not learn a class (with the same points) has no figure for it
+    lacking = _measure(settings, session_factory, nowhere, partial)
+    assert lacking["incumbent_classes"]["wire"]["IoU"] == all_wire
+    assert lacking["incumbent_classes"]["wire tip"] is None
+    none = _measure(settings, session_factory, everywhere, plain)
+    assert none["incumbent_classes"] == {"wire": None, "wire tip": None}
+    assert none["classes"] == good["classes"] and "incumbent_scores" in none
 
 
 @pytest.mark.slow

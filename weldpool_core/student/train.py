@@ -1,6 +1,6 @@
 """Training the student: frames in, a MODEL_DIR out (best checkpoint, metrics, curve).
 
-``train_student`` is the one entry point: the CLI feeds it a DATASET folder (``read_dataset``),
+``train_student`` is the one entry point: the CLI feeds it a DATASET folder (``folder``),
 the app's worker feeds it reviewed labels from memory. It prepares each frame once (targets at
 model resolution), then trains with AdamW under a warm-up + cosine learning-rate schedule and
 validates at regular intervals ("evaluation rounds") on held-out frames, at full resolution,
@@ -60,7 +60,6 @@ from weldpool_core.student.data import (
     TrainingFrame,
     collate,
     prepare_frame,
-    read_dataset,
 )
 from weldpool_core.student.losses import LossWeights, student_loss
 from weldpool_core.student.model import (
@@ -642,15 +641,3 @@ def train_student(
         validation_frames=len(held_out),
         pretrained_encoder=run.pretrained,
     )
-
-
-def train_from_folder(
-    dataset: str | Path,
-    out_dir: str | Path,
-    student: StudentConfig | None = None,
-    config: TrainConfig | None = None,
-    progress: ProgressCallback | None = None,
-    resume: bool = False,
-) -> TrainResult:
-    """``train_student`` on a DATASET folder (CONTRACT.md), frames read one at a time."""
-    return train_student(read_dataset(dataset), out_dir, student, config, progress, resume=resume)
