@@ -148,7 +148,7 @@ function renderFrameFields() {
 /** The other classes' masks and points on the stage, and what they are as data attributes. */
 export function drawLayers() {
   const stage = S.stage;
-  stage.layers = S.edit.objects.filter((o) => o.mask && lookOf(o.uid).visible).map((o) => ({ canvas: overlayOf(o).canvas, alpha: lookOf(o.uid).opacity }));
+  stage.layers = S.edit.objects.filter((o) => o.mask && lookOf(o.uid).visible).map((o) => ({ overlay: overlayOf(o), alpha: lookOf(o.uid).opacity }));
   stage.namedPoints = S.edit.objects.filter((o) => o.points && lookOf(o.uid).visible).flatMap((o) => Object.entries(o.points).map(([name, [x, y]]) => ({
     x, y, name, colour: colourOf(specOf(o)), alpha: lookOf(o.uid).opacity, selected: o.uid === S.layer && name === S.selectedPoint,
   })));

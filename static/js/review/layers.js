@@ -6,7 +6,7 @@
 // force) is shown read-only; the server keeps it until a save names it in `remove_retired`.
 
 import { commit } from "./history.js";
-import { Mask, MaskOverlay } from "./mask.js";
+import { Mask, ObjectOverlay } from "./mask.js";
 import { S, changed } from "./state.js";
 
 export const POOL = "pool";
@@ -108,18 +108,21 @@ export function setLook(uid, change) {
   LOOK.set(uid, { ...lookOf(uid), ...change });
 }
 
-const OVERLAYS = new Map(); // uid → MaskOverlay in its class's colour
+const OVERLAYS = new Map(); // uid → ObjectOverlay in its class's colour
 
-/** The overlay of an object's mask, painted from it when the mask is new. */
+/** The overlay of an object's mask (as big as its box), painted from it when the mask is new. */
 export function overlayOf(object) {
   let overlay = OVERLAYS.get(object.uid);
   if (!overlay) {
-    overlay = new MaskOverlay(S.frame.width, S.frame.height, colourOf(specOf(object)));
+    overlay = new ObjectOverlay(colourOf(specOf(object)));
     OVERLAYS.set(object.uid, overlay);
   }
   if (overlay.mask !== object.mask) overlay.paint(object.mask);
   return overlay;
 }
+
+/** Bytes the objects' masks and overlays hold now (what bench/review_layers_memory.py reads). */
+export const heldBytes = () => S.edit.objects.filter((o) => o.mask).reduce((sum, o) => sum + o.mask.data.byteLength + overlayOf(o).bytes, 0);
 
 // --- to and from the server ---------------------------------------------------------------------
 
