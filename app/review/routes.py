@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from fastapi import APIRouter, Query, status
@@ -19,6 +20,8 @@ from app.core.security import CurrentUser, ReviewerUser
 from app.frames.sequences import get_sequence
 from app.jobs.schemas import JobCreated
 from app.jobs.service import create_job
+from app.labelconfig import service as labelconfig
+from app.labelconfig.retired import Retired, retired
 from app.review import service
 from app.review.export import export_name, export_rows, export_size, stream_export
 from app.review.propagation import check_prompts
@@ -35,6 +38,7 @@ from app.review.schemas import (
     OutlineOut,
     PolygonIO,
     PropagateIn,
+    RetiredParts,
     ReviewIn,
     SegmentIn,
     SegmentOut,
@@ -137,7 +141,8 @@ def outline_mask(
     return OutlineMaskOut(mask_png=_b64(encode_mask_png(mask)), area=int(mask.sum()))
 
 
-def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # type: ignore[no-untyped-def]
+def _label_out(session: SessionDep, storage: StorageDep, label, user: User | None) -> LabelOut:  # type: ignore[no-untyped-def]
+    config = labelconfig.current(session)
     mask = None
     if label.mask_path:
         path = frame_file(storage, label.mask_path, label.frame_id, "label mask")
@@ -158,6 +163,7 @@ def _label_out(storage: StorageDep, label, user: User | None) -> LabelOut:  # ty
         objects=label.objects or [],
         tags=(label.frame_tags or {}).get("tags", []),
         attributes=(label.frame_tags or {}).get("attributes", {}),
+        retired=RetiredParts(**asdict(retired(config, label.objects, label.frame_tags))),
     )
 
 
@@ -171,7 +177,7 @@ def get_label(
     if label is None:
         raise NotFoundError(f"Frame {frame_id} has no label yet.")
     author = session.get(User, label.updated_by_id) if label.updated_by_id else None
-    return _label_out(storage, label, author)
+    return _label_out(session, storage, label, author)
 
 
 @router.put(
@@ -202,10 +208,15 @@ def put_label(
         keypoints=body.keypoints,
         proposal_id=body.proposal_id,
         review_stage=settings.review_stage,
-        others=service.OtherClasses(body.objects, body.tags, body.attributes),
+        others=service.OtherClasses(
+            body.objects,
+            body.tags,
+            body.attributes,
+            Retired(**body.remove_retired.model_dump()) if body.remove_retired else None,
+        ),
     )
     maybe_retrain(session, queue, settings.retrain_every, user)
-    return _label_out(storage, label, user)
+    return _label_out(session, storage, label, user)
 
 
 @router.post(
@@ -237,7 +248,7 @@ def review_label(
     )
     if body.decision == "approve":
         maybe_retrain(session, queue, settings.retrain_every, user)
-    return _label_out(storage, label, user)
+    return _label_out(session, storage, label, user)
 
 
 @router.get("/frames/{frame_id}/label/history", response_model=list[LabelRevisionOut])

@@ -138,6 +138,22 @@ class OutlineMaskOut(BaseModel):
     area: int = Field(description="Pixels inside the outline.")
 
 
+class RetiredParts(InputModel):
+    """Parts of a label that the label configuration no longer accepts (a class, tag or
+    attribute removed with ``force``): positions in the label's ``objects``, tag names,
+    attribute names. They stay stored until a save names them in ``remove_retired``."""
+
+    objects: list[int] = Field(default_factory=list, max_length=1000)
+    tags: list[str] = Field(default_factory=list, max_length=64)
+    attributes: list[str] = Field(default_factory=list, max_length=64)
+
+    @model_validator(mode="after")
+    def _positions(self) -> RetiredParts:
+        if any(not 0 <= p < 1000 for p in self.objects):
+            raise ValueError("an object's position is from 0 to 999")
+        return self
+
+
 class LabelIn(InputModel):
     """A reviewer's verdict; ``base_revision`` is the revision you saw (0: no label yet)."""
 
@@ -162,6 +178,12 @@ class LabelIn(InputModel):
     )
     attributes: dict[str, Any] | None = Field(
         default=None, description="The frame's attributes (omitted: as they are)."
+    )
+    remove_retired: RetiredParts | None = Field(
+        default=None,
+        description="Retired parts of the label (its `retired`, as read at base_revision) "
+        "to remove; any other retired part stays, whatever `objects`, `tags` and "
+        "`attributes` say.",
     )
 
     @model_validator(mode="after")
@@ -197,6 +219,11 @@ class LabelOut(BaseModel):
     )
     tags: list[str] = Field(default_factory=list, description="The frame's tags.")
     attributes: dict[str, Any] = Field(default_factory=dict, description="The frame's attributes.")
+    retired: RetiredParts = Field(
+        default_factory=RetiredParts,
+        description="What of `objects`, `tags` and `attributes` the label configuration no "
+        "longer accepts: kept and shown read-only until a save removes it (`remove_retired`).",
+    )
 
 
 class ReviewIn(InputModel):

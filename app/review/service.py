@@ -29,7 +29,9 @@ from app.core.models import (
 )
 from app.core.permissions import Action, may
 from app.labelconfig import facets as labelfacets
+from app.labelconfig import retired
 from app.labelconfig import service as labelconfig
+from app.labelconfig.retired import Retired
 from app.proposals.files import masks_in_use, store_mask_file
 from app.proposals.policy import pick
 from app.storage import Storage, StoredFile
@@ -347,26 +349,27 @@ def save_label(
 
 @dataclass(frozen=True)
 class OtherClasses:
-    """What a save says of the classes beside the pool (None: unchanged)."""
+    """What a save says of the classes beside the pool (None: unchanged), and which of the
+    label's retired parts (``labelconfig.retired``) it removes."""
 
     objects: list[dict[str, Any]] | None = None
     tags: list[str] | None = None
     attributes: dict[str, Any] | None = None
+    remove_retired: Retired | None = None
 
     def columns(self, session: Session, frame: Frame, label: Label | None) -> dict[str, Any]:
         """The label's ``objects`` and ``frame_tags``: the given ones checked against the
-        label configuration, the others as ``label`` holds them."""
+        label configuration, the others as ``label`` holds them; what the configuration
+        retired stays unless removed (the one rule, ``retired.Save``)."""
         objects = label.objects if label is not None else None
-        held = (label.frame_tags if label is not None else None) or {}
-        if self.objects is None and self.tags is None and self.attributes is None:
+        held = label.frame_tags if label is not None else None
+        given = (self.objects, self.tags, self.attributes, self.remove_retired)
+        if all(part is None for part in given):
             return {"objects": objects, "frame_tags": held or None}
-        config = labelconfig.current(session)
-        if self.objects is not None:
-            objects = labelconfig.checked_objects(config, self.objects, frame.height, frame.width)
-        tags = self.tags if self.tags is not None else held.get("tags", [])
-        attributes = self.attributes if self.attributes is not None else held.get("attributes", {})
-        frame_tags = labelconfig.checked_frame_fields(config, tags, attributes)
-        return {"objects": objects, "frame_tags": frame_tags}
+        save = retired.Save(
+            self.objects, self.tags, self.attributes, self.remove_retired or Retired()
+        )
+        return save.columns(labelconfig.current(session), objects, held, frame.height, frame.width)
 
 
 def saved_review(user: User, review_stage: bool) -> ReviewState | None:

@@ -312,3 +312,51 @@ def test_a_wire_drawn_as_a_new_polygon(page: Any, server: LiveServer, classes: N
     assert region[400, 950] and region[320, 1260] and not region[330, 950]  # inside, corner, above
     assert region[110, 130] and not region[125, 105]  # the triangle: its hypotenuse cuts the box
     assert not region[600:, :].any()  # the dropped drafts left nothing
+
+
+def _shown(page: Any, x: float, y: float) -> list[int]:
+    """The stage canvas's RGBA at frame pixel (x, y), as drawn."""
+    px, py = to_page(page, x, y)
+    return list(
+        page.evaluate(
+            "([px, py]) => { const c = document.querySelector('[data-testid=frame-canvas]');"
+            " const r = c.getBoundingClientRect(), s = c.width / r.width;"
+            " return Array.from(c.getContext('2d').getImageData(Math.floor((px - r.left) * s),"
+            " Math.floor((py - r.top) * s), 1, 1).data); }",
+            [px, py],
+        )
+    )
+
+
+def test_an_object_painted_beyond_its_first_box(
+    page: Any, server: LiveServer, classes: None
+) -> None:
+    """An object's overlay is as big as its box: a stroke outside the box grows it, and the
+    page shows, and saves, both strokes; the overlay holds a fraction of a frame's pixels."""
+    frame = add_frame(server, 313)
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.keyboard.press("x")
+    _brush(page, 12)
+    _stroke(page, (100, 100), (150, 100))
+    _stroke(page, (300, 160), (340, 160))  # beyond the first stroke's box and its margin
+    x, y, w, h = _objects(page)["spatter 1"]["bbox"]
+    assert (x, y) == (94, 94) and abs(x + w - 347) <= 1 and abs(y + h - 167) <= 1
+    page.wait_for_timeout(100)  # the next animation frame draws it
+    shown = [_shown(page, *p) for p in [(125, 100), (320, 160), (600, 500)]]
+    page.locator(
+        "[data-testid=layer-row][data-class=spatter] [data-testid=layer-visible]"
+    ).uncheck()
+    page.wait_for_timeout(100)
+    hidden = [_shown(page, *p) for p in [(125, 100), (320, 160), (600, 500)]]
+    assert shown[0] != hidden[0] and shown[1] != hidden[1]  # both strokes drawn
+    assert shown[2] == hidden[2]  # nothing drawn where nothing was painted
+    held = page.evaluate("async () => (await import('/static/js/review/layers.js')).heldBytes()")
+    overlay = held - 1280 * 800  # less the mask's own bytes
+    assert 0 < overlay < 1280 * 800 * 8 / 10  # a full-frame canvas and image hold 8 bytes a pixel
+    page.uncheck("#advance")
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=toast-ok]", has_text="Saved as corrected").wait_for()
+    region = _region(server.api("GET", f"/frames/{frame}/label").json()["objects"][0])
+    assert region[100, 125] and region[160, 320] and not region[130, 220]

@@ -6,7 +6,7 @@
 import { h } from "../ui.js";
 import { applyDisplay, setMaskVisible } from "./display.js";
 import { commit } from "./history.js";
-import { CONFIG, POOL, activeObject, classOf, colourOf, lookOf, objectName, overlayOf, removeObject, setLook, withObject } from "./layers.js";
+import { CONFIG, POOL, activeObject, classOf, colourOf, lookOf, objectName, overlayOf, removeObject, setLook, specOf, withObject } from "./layers.js";
 import { $, PAGE_KEYS } from "./page.js";
 import { pickClass, pickLayer } from "./picker.js";
 import { S } from "./state.js";
@@ -15,7 +15,8 @@ import { S } from "./state.js";
 export function renderClasses(parts) {
   if (!S.edit || !(parts.has("edit") || parts.has("layers"))) return;
   const configured = CONFIG.classes.length > 1 || CONFIG.frame_tags.length || CONFIG.frame_attributes.length;
-  $("classes-section").hidden = !configured && !S.edit.objects.length;
+  const retired = S.retired.tags.length || S.retired.attributes.length;
+  $("classes-section").hidden = !configured && !S.edit.objects.length && !retired;
   renderPicker();
   renderLayerList();
   renderObjectAttributes();
@@ -46,15 +47,18 @@ function renderPicker() {
   }));
 }
 
+const RETIRED_NOTE = "Its class was removed from the label configuration: shown read-only and kept on the label until you remove it (×) and save.";
+
 function layerRow(uid, spec, name, detail, look, onLook) {
   const row = h("li", {
-    class: `layer-row${uid === S.layer ? " active" : ""}`, "data-testid": "layer-row", "data-layer": uid, "data-class": spec.name,
-    "aria-current": uid === S.layer ? "true" : null, onclick: (event) => { if (!event.target.closest("input, button")) pickLayer(uid); },
+    class: `layer-row${uid === S.layer ? " active" : ""}${spec.retired ? " retired" : ""}`, "data-testid": "layer-row", "data-layer": uid, "data-class": spec.name,
+    "data-retired": spec.retired ? "true" : null, title: spec.retired ? RETIRED_NOTE : null,
+    "aria-current": uid === S.layer ? "true" : null, onclick: (event) => { if (!spec.retired && !event.target.closest("input, button")) pickLayer(uid); },
   },
   h("input", { type: "checkbox", checked: look.visible, "data-testid": "layer-visible", "aria-label": `Show ${name}`, onchange: (event) => onLook({ visible: event.target.checked }) }),
   swatch(colourOf(spec)), h("span", { class: "layer-name", title: name }, name, h("br"), h("span", { class: "muted small-text" }, detail)),
   h("input", { type: "range", min: 0, max: 1, step: 0.05, value: look.opacity, class: "layer-opacity", "data-testid": "layer-opacity", "aria-label": `Opacity of ${name}`, oninput: (event) => onLook({ opacity: Number(event.target.value) }) }));
-  if (uid !== POOL) row.append(h("button", { type: "button", class: "quiet tiny-btn", "data-testid": "layer-remove", title: `Remove ${name}`, onclick: () => removeObject(uid) }, "×"));
+  if (uid !== POOL) row.append(h("button", { type: "button", class: "quiet tiny-btn", "data-testid": "layer-remove", title: `Remove ${name}${spec.retired ? " from the label (its class was removed)" : ""}`, onclick: () => removeObject(uid) }, "×"));
   return row;
 }
 
@@ -65,9 +69,10 @@ function renderLayerList() {
     if ("opacity" in change) applyDisplay({ ...S.stage.display, maskOpacity: change.opacity });
   });
   const rows = S.edit.objects.map((o) => {
-    const spec = classOf(o.cls);
+    const spec = specOf(o);
     const names = spec.point_names;
-    const detail = o.points ? `${Object.keys(o.points).length}${names?.length ? ` of ${names.length}` : ""} points` : `${o.mask.area()} px`;
+    const size = o.points ? `${Object.keys(o.points).length}${names?.length ? ` of ${names.length}` : ""} points` : `${o.mask.area()} px`;
+    const detail = o.retired ? "class removed" : size;
     return layerRow(o.uid, spec, objectName(o), detail, lookOf(o.uid), (change) => { setLook(o.uid, change); drawLayers(); });
   });
   $("layer-list").replaceChildren(poolRow, ...rows);
@@ -122,14 +127,20 @@ function renderObjectAttributes() {
 
 function renderFrameFields() {
   const box = $("frame-fields");
-  box.hidden = !CONFIG.frame_tags.length && !CONFIG.frame_attributes.length;
+  const oldTags = S.edit.tags.filter((tag) => S.retired.tags.includes(tag));
+  const configured = new Set(CONFIG.frame_attributes.map((spec) => spec.name));
+  const oldAttributes = Object.entries(S.edit.attributes).filter(([name]) => !configured.has(name));
+  box.hidden = !CONFIG.frame_tags.length && !CONFIG.frame_attributes.length && !oldTags.length && !oldAttributes.length;
   if (box.hidden) return;
   const chosen = new Set(S.edit.tags);
   $("frame-tags").replaceChildren(...CONFIG.frame_tags.map((tag) => h("button", {
     type: "button", class: `chip${chosen.has(tag) ? " on" : ""}`, "aria-pressed": String(chosen.has(tag)), "data-testid": "frame-tag", "data-tag": tag,
     onclick: () => commit({ ...S.edit, tags: chosen.has(tag) ? S.edit.tags.filter((t) => t !== tag) : [...S.edit.tags, tag] }),
-  }, tag)));
-  $("frame-attributes").replaceChildren(...attributeRows(CONFIG.frame_attributes, S.edit.attributes, (attributes) => commit({ ...S.edit, attributes }), "frame-attribute"));
+  }, tag)), ...oldTags.map((tag) => h("span", { class: "chip retired", "data-testid": "retired-tag", "data-tag": tag, title: "This tag was removed from the label configuration: kept on the frame until you remove it (×) and save." },
+    `${tag} · tag removed `, h("button", { type: "button", class: "quiet tiny-btn", "aria-label": `Remove the tag ${tag}`, onclick: () => commit({ ...S.edit, tags: S.edit.tags.filter((t) => t !== tag) }) }, "×"))));
+  $("frame-attributes").replaceChildren(...attributeRows(CONFIG.frame_attributes, S.edit.attributes, (attributes) => commit({ ...S.edit, attributes }), "frame-attribute"),
+    ...oldAttributes.map(([name, value]) => h("p", { class: "retired-field small-text", "data-testid": "retired-attribute", "data-name": name, title: "This attribute was removed from the label configuration: kept until you remove it (×) and save." },
+      h("span", {}, `${name}: ${JSON.stringify(value)} · attribute removed `), h("button", { type: "button", class: "quiet tiny-btn", "aria-label": `Remove the attribute ${name}`, onclick: () => commit({ ...S.edit, attributes: withValue(S.edit.attributes, name, undefined) }) }, "×"))));
 }
 
 // --- the canvas ---------------------------------------------------------------------------------
@@ -137,13 +148,13 @@ function renderFrameFields() {
 /** The other classes' masks and points on the stage, and what they are as data attributes. */
 export function drawLayers() {
   const stage = S.stage;
-  stage.layers = S.edit.objects.filter((o) => o.mask && lookOf(o.uid).visible).map((o) => ({ canvas: overlayOf(o).canvas, alpha: lookOf(o.uid).opacity }));
+  stage.layers = S.edit.objects.filter((o) => o.mask && lookOf(o.uid).visible).map((o) => ({ overlay: overlayOf(o), alpha: lookOf(o.uid).opacity }));
   stage.namedPoints = S.edit.objects.filter((o) => o.points && lookOf(o.uid).visible).flatMap((o) => Object.entries(o.points).map(([name, [x, y]]) => ({
-    x, y, name, colour: colourOf(classOf(o.cls)), alpha: lookOf(o.uid).opacity, selected: o.uid === S.layer && name === S.selectedPoint,
+    x, y, name, colour: colourOf(specOf(o)), alpha: lookOf(o.uid).opacity, selected: o.uid === S.layer && name === S.selectedPoint,
   })));
   stage.canvas.dataset.layer = S.layer === POOL ? POOL : objectName(activeObject());
   stage.canvas.dataset.objects = JSON.stringify(S.edit.objects.map((o) => ({
-    name: objectName(o), class: o.cls, ...(o.points ? { points: o.points } : { area: o.mask.area(), bbox: o.mask.bbox() }),
+    name: objectName(o), class: o.cls, ...(o.retired ? { retired: true } : {}), ...(o.points ? { points: o.points } : { area: o.mask.area(), bbox: o.mask.bbox() }),
   })));
   stage.requestRender();
 }

@@ -1,11 +1,12 @@
 // The label's layers: the pool (the label's own mask and keypoints) and the objects of the
 // other configured classes (`/label-config`), which of them is edited, how each is shown, and
 // how they travel to and from the server. An object lives in the editing state (`S.edit.objects`:
-// {uid, cls, mask | points, attributes}) and is replaced, never changed, by an edit, so one
-// history undoes any layer.
+// {uid, cls, mask | points, attributes, retired?}) and is replaced, never changed, by an edit, so one
+// history undoes any layer. A retired object (its class removed from the configuration with
+// force) is shown read-only; the server keeps it until a save names it in `remove_retired`.
 
 import { commit } from "./history.js";
-import { Mask, MaskOverlay } from "./mask.js";
+import { Mask, ObjectOverlay } from "./mask.js";
 import { S, changed } from "./state.js";
 
 export const POOL = "pool";
@@ -25,7 +26,12 @@ export function setConfig(config) {
 /** The colour a class is drawn in: its own, the pool's as the page always drew it. */
 export const colourOf = (spec) => (spec?.name === POOL ? "#00c8ff" : spec?.color ?? PALETTE[0]);
 export const classOf = (name) => CONFIG.classes.find((spec) => spec.name === name) ?? null;
-export const kindOf = (layer = S.layer) => (layer === POOL ? "mask" : classOf(objectOf(S.edit, layer)?.cls)?.kind ?? "mask");
+/** What an object of the label is drawn as: its class, or, retired, a grey one of its shape. */
+export const specOf = (object) => (object.retired
+  ? { name: object.cls, kind: object.points ? "points" : "instances", color: RETIRED_COLOUR, attributes: [], retired: true }
+  : classOf(object.cls));
+export const RETIRED_COLOUR = "#868e96";
+export const kindOf = (layer = S.layer) => (layer === POOL ? "mask" : specOf(objectOf(S.edit, layer) ?? {})?.kind ?? "mask");
 export const objectOf = (edit, uid = S.layer) => (uid === POOL ? null : edit.objects.find((o) => o.uid === uid) ?? null);
 export const activeObject = () => objectOf(S.edit);
 
@@ -57,6 +63,7 @@ export const withObject = (edit, object) => ({ ...edit, objects: edit.objects.ma
 
 /** Make `uid` the edited layer (the pool, or an object on the frame). */
 export function selectLayer(uid) {
+  if (objectOf(S.edit, uid)?.retired) return; // read-only: shown, hidden or removed, never edited
   S.layer = uid === POOL || objectOf(S.edit, uid) ? uid : POOL;
   S.selectedPoint = null;
   changed("edit", "layers");
@@ -79,10 +86,14 @@ export function removeObject(uid) {
   LOOK.delete(uid);
 }
 
-/** The objects of class `name`, in order (an instance's number is its place here). */
-export const objectsOf = (name) => S.edit.objects.filter((o) => o.cls === name);
+/** The editable objects of class `name`, in order (an instance's number is its place here). */
+export const objectsOf = (name) => S.edit.objects.filter((o) => o.cls === name && !o.retired);
 
 export function objectName(object) {
+  if (object.retired) {
+    const same = S.edit.objects.filter((o) => o.retired && o.cls === object.cls);
+    return same.length > 1 ? `${object.cls} ${same.indexOf(object) + 1}` : object.cls;
+  }
   const spec = classOf(object.cls);
   if (spec?.kind !== "instances") return object.cls;
   return `${object.cls} ${objectsOf(object.cls).indexOf(object) + 1}`;
@@ -97,45 +108,72 @@ export function setLook(uid, change) {
   LOOK.set(uid, { ...lookOf(uid), ...change });
 }
 
-const OVERLAYS = new Map(); // uid → MaskOverlay in its class's colour
+const OVERLAYS = new Map(); // uid → ObjectOverlay in its class's colour
 
-/** The overlay of an object's mask, painted from it when the mask is new. */
+/** The overlay of an object's mask (as big as its box), painted from it when the mask is new. */
 export function overlayOf(object) {
   let overlay = OVERLAYS.get(object.uid);
   if (!overlay) {
-    overlay = new MaskOverlay(S.frame.width, S.frame.height, colourOf(classOf(object.cls)));
+    overlay = new ObjectOverlay(colourOf(specOf(object)));
     OVERLAYS.set(object.uid, overlay);
   }
   if (overlay.mask !== object.mask) overlay.paint(object.mask);
   return overlay;
 }
 
+/** Bytes the objects' masks and overlays hold now (what bench/review_layers_memory.py reads). */
+export const heldBytes = () => S.edit.objects.filter((o) => o.mask).reduce((sum, o) => sum + o.mask.data.byteLength + overlayOf(o).bytes, 0);
+
 // --- to and from the server ---------------------------------------------------------------------
 
-/** The label's objects as the editing state holds them (classes no longer configured are left
- *  out: the server keeps them while `objects` is not sent). */
+/** The label's objects as the editing state holds them, its retired ones (`label.retired`)
+ *  read-only; `S.retired` remembers where the server lists them, to name them when removed. */
 export function objectsFromLabel(label, width, height) {
   const objects = [];
-  for (const item of label?.objects ?? []) {
-    const spec = classOf(item.class);
-    if (!spec || spec.name === POOL) continue;
+  const retired = new Set(label?.retired?.objects ?? []);
+  S.retired = { objects: new Map(), tags: label?.retired?.tags ?? [], attributes: label?.retired?.attributes ?? [] };
+  for (const [position, item] of (label?.objects ?? []).entries()) {
+    const spec = retired.has(position) ? null : classOf(item.class);
+    if (!retired.has(position) && (!spec || spec.name === POOL)) continue;
     const object = { uid: newUid(), cls: item.class, attributes: { ...(item.attributes ?? {}) } };
-    if (spec.kind === "points") object.points = Object.fromEntries(Object.entries(item.points ?? {}).map(([k, p]) => [k, [...p]]));
+    if (spec === null) object.retired = true;
+    if (item.points) object.points = Object.fromEntries(Object.entries(item.points).map(([k, p]) => [k, [...p]]));
     else if (item.rle) object.mask = Mask.fromRle(item.rle.counts, width, height);
     else continue;
+    if (object.retired) S.retired.objects.set(object.uid, position);
     objects.push(object);
   }
   return objects;
 }
 
+/** After a save: where the server now lists the retired parts still shown (in their order). */
+export function adoptRetired(label) {
+  const shown = [...S.retired.objects.keys()].filter((uid) => objectOf(S.edit, uid));
+  const positions = label.retired?.objects ?? [];
+  S.retired = { objects: new Map(shown.map((uid, k) => [uid, positions[k]])), tags: label.retired?.tags ?? [], attributes: label.retired?.attributes ?? [] };
+}
+
+/** The retired parts the reviewer removed here (none: null): what `remove_retired` names. */
+function removedRetired() {
+  const removed = {
+    objects: [...S.retired.objects].filter(([uid]) => !objectOf(S.edit, uid)).map(([, position]) => position),
+    tags: S.retired.tags.filter((tag) => !S.edit.tags.includes(tag)),
+    attributes: S.retired.attributes.filter((name) => !(name in S.edit.attributes)),
+  };
+  return removed.objects.length || removed.tags.length || removed.attributes.length ? removed : null;
+}
+
 const isEmpty = (object) => (object.points ? !Object.keys(object.points).length : !object.mask.any());
 
 /** What a save sends beside the pool: `objects`, `tags`, `attributes`, each only when changed
- *  here (left out, the label keeps what it holds). Empty objects are not sent. */
+ *  here (left out, the label keeps what it holds), and the retired parts removed here. Empty
+ *  objects are not sent, nor retired ones (the server keeps those unless named). */
 export async function othersBody() {
   const body = {};
+  const removed = removedRetired();
+  if (removed) body.remove_retired = removed;
   if (S.edit.objects !== S.labelClean.objects) {
-    body.objects = await Promise.all(S.edit.objects.filter((o) => !isEmpty(o)).map(async (o) => {
+    body.objects = await Promise.all(S.edit.objects.filter((o) => !o.retired && !isEmpty(o)).map(async (o) => {
       const item = { class: o.cls };
       if (o.points) item.points = o.points;
       else item.mask_png = await o.mask.toPng();

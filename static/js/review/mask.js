@@ -157,8 +157,33 @@ const EDGE = [0, 230, 255, 255];
 /** "#rrggbb" as [r, g, b]. */
 export const rgb = (hex) => [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
 
+/** Draw the frame pixels x0..x1 × y0..y1 of `mask` into `out` (RGBA of a canvas whose top-left
+ *  is frame pixel (ox, oy), `span` pixels wide): the fill inside (or nothing, `filled` off), the
+ *  edge opaque, nothing outside the mask. */
+function drawMask(mask, out, ox, oy, span, { x0, y0, x1, y1 }, fill, edge, filled) {
+  const { width, height } = mask;
+  const m = mask.data;
+  for (let y = y0; y <= y1; y++) {
+    for (let x = x0; x <= x1; x++) {
+      const i = y * width + x;
+      const j = ((y - oy) * span + (x - ox)) * 4;
+      if (!m[i]) { out[j + 3] = 0; continue; }
+      const isEdge = x === 0 || y === 0 || x === width - 1 || y === height - 1
+        || !m[i - 1] || !m[i + 1] || !m[i - width] || !m[i + width];
+      if (!isEdge && !filled) { out[j + 3] = 0; continue; }
+      const c = isEdge ? edge : fill;
+      out[j] = c[0]; out[j + 1] = c[1]; out[j + 2] = c[2]; out[j + 3] = c[3];
+    }
+  }
+}
+
+/** `rect` one pixel wider on each side (a stroke changes its neighbours' edges), inside the frame. */
+const widened = (rect, width, height) => ({
+  x0: Math.max(0, rect.x0 - 1), y0: Math.max(0, rect.y0 - 1), x1: Math.min(width - 1, rect.x1 + 1), y1: Math.min(height - 1, rect.y1 + 1),
+});
+
 /** The mask drawn as a translucent fill (or none: outline only) with an opaque outline, on a
- * canvas of the frame's size. */
+ * canvas of the frame's size: the pool's overlay. */
 export class MaskOverlay {
   /** `colour` ("#rrggbb"): another class's overlay; none: the pool's. */
   constructor(width, height, colour = null) {
@@ -169,6 +194,8 @@ export class MaskOverlay {
     this.image = this.ctx.createImageData(width, height);
     this.mask = null;
     this.filled = true;
+    this.x = 0;
+    this.y = 0;
   }
 
   /** Fill the inside, or draw the outline only (what lies under the mask stays readable). */
@@ -183,24 +210,76 @@ export class MaskOverlay {
     const { width, height } = mask;
     const full = rect === null || mask !== this.mask;
     this.mask = mask;
-    const x0 = full ? 0 : Math.max(0, rect.x0 - 1);
-    const y0 = full ? 0 : Math.max(0, rect.y0 - 1);
-    const x1 = full ? width - 1 : Math.min(width - 1, rect.x1 + 1);
-    const y1 = full ? height - 1 : Math.min(height - 1, rect.y1 + 1);
-    const m = mask.data;
-    const out = this.image.data;
-    for (let y = y0; y <= y1; y++) {
-      for (let x = x0; x <= x1; x++) {
-        const i = y * width + x;
-        const j = i * 4;
-        if (!m[i]) { out[j + 3] = 0; continue; }
-        const edge = x === 0 || y === 0 || x === width - 1 || y === height - 1
-          || !m[i - 1] || !m[i + 1] || !m[i - width] || !m[i + width];
-        if (!edge && !this.filled) { out[j + 3] = 0; continue; }
-        const c = edge ? this.edge : this.fill;
-        out[j] = c[0]; out[j + 1] = c[1]; out[j + 2] = c[2]; out[j + 3] = c[3];
-      }
+    const area = full ? { x0: 0, y0: 0, x1: width - 1, y1: height - 1 } : widened(rect, width, height);
+    drawMask(mask, this.image.data, 0, 0, width, area, this.fill, this.edge, this.filled);
+    this.ctx.putImageData(this.image, 0, 0, area.x0, area.y0, area.x1 - area.x0 + 1, area.y1 - area.y0 + 1);
+  }
+
+  /** Bytes of pixels this overlay holds (its canvas and its image data). */
+  get bytes() {
+    return this.canvas.width * this.canvas.height * 8;
+  }
+}
+
+/** How far a box grows past a stroke that leaves it: a stroke outward does not regrow it at
+ *  every step. */
+const GROWTH = 32;
+
+/** An object's overlay, as MaskOverlay draws it, on a canvas only as big as the box of its
+ *  mask (none when empty), at frame pixel (x, y); grown when a stroke paints beyond it. Memory
+ *  follows the object's size, not the frame's. */
+export class ObjectOverlay {
+  constructor(colour) {
+    this.fill = [...rgb(colour), 110];
+    this.edge = [...rgb(colour), 255];
+    this.canvas = null;
+    this.image = null;
+    this.box = null; // {x0, y0, x1, y1} in frame pixels: what the canvas covers
+    this.mask = null;
+    this.x = 0;
+    this.y = 0;
+  }
+
+  /** Redraw everything (a new mask: the canvas fits its box again) or only `rect` (a stroke on
+   *  the same mask: the canvas grows first when the stroke leaves it). */
+  paint(mask, rect = null) {
+    const { width, height } = mask;
+    const full = rect === null || mask !== this.mask;
+    this.mask = mask;
+    if (full) {
+      const bbox = mask.bbox();
+      this.cover(bbox && widened({ x0: bbox[0], y0: bbox[1], x1: bbox[0] + bbox[2] - 1, y1: bbox[1] + bbox[3] - 1 }, width, height));
+      return;
     }
-    this.ctx.putImageData(this.image, 0, 0, x0, y0, x1 - x0 + 1, y1 - y0 + 1);
+    const area = widened(rect, width, height);
+    const box = this.box;
+    if (!box || area.x0 < box.x0 || area.y0 < box.y0 || area.x1 > box.x1 || area.y1 > box.y1) {
+      const grown = union(box, widened({ x0: area.x0 - GROWTH, y0: area.y0 - GROWTH, x1: area.x1 + GROWTH, y1: area.y1 + GROWTH }, width, height));
+      this.cover(grown);
+      return;
+    }
+    this.draw(area);
+  }
+
+  /** A canvas for `box` (null: none), drawn whole from the mask. */
+  cover(box) {
+    this.box = box;
+    if (!box) { this.canvas = this.image = null; return; }
+    this.x = box.x0;
+    this.y = box.y0;
+    this.canvas = new OffscreenCanvas(box.x1 - box.x0 + 1, box.y1 - box.y0 + 1);
+    this.ctx = this.canvas.getContext("2d");
+    this.image = this.ctx.createImageData(this.canvas.width, this.canvas.height);
+    this.draw(box);
+  }
+
+  draw(area) {
+    drawMask(this.mask, this.image.data, this.x, this.y, this.canvas.width, area, this.fill, this.edge, true);
+    this.ctx.putImageData(this.image, 0, 0, area.x0 - this.x, area.y0 - this.y, area.x1 - area.x0 + 1, area.y1 - area.y0 + 1);
+  }
+
+  /** Bytes of pixels this overlay holds (its canvas and its image data). */
+  get bytes() {
+    return this.canvas ? this.canvas.width * this.canvas.height * 8 : 0;
   }
 }

@@ -5,7 +5,7 @@ import { ApiError, REVIEW_STAGE, api, jobFromButton, waitForJob } from "../api.j
 import { badge, formatDate, h, toast } from "../ui.js";
 import { setHeatmapVisible } from "./display.js";
 import { commit, isProposal, labelDirty, manualDirty } from "./history.js";
-import { othersBody } from "./layers.js";
+import { adoptRetired, othersBody } from "./layers.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { S, changed } from "./state.js";
@@ -145,6 +145,7 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   const mask = rejected ? new Mask(S.frame.width, S.frame.height) : S.edit.mask;
   S.edit = { ...S.edit, mask, keypoints, outline: rejected ? null : S.edit.outline, maskEdited: false, kpEdited: false, session: null };
   S.labelClean = S.edit;
+  adoptRetired(label);
   changed("edit", "review", "frame", "propagate");
   loadHistory();
   const where = label.review === "awaiting" ? " — submitted for review" : label.review === "approved" && REVIEW_STAGE ? " — approved" : "";

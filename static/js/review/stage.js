@@ -31,7 +31,8 @@ export class Stage {
     this.showMask = true;
     this.showHeatmap = false;
     this.keypoints = [];
-    /** The other classes' masks under the pool's: [{canvas, alpha}]; their named points:
+    /** The other classes' masks under the pool's: [{overlay, alpha}], each overlay as big as its object
+     *  (mask.js ObjectOverlay, drawn at its x, y); their named points:
      *  [{x, y, name, colour, selected}]. */
     this.layers = [];
     this.namedPoints = [];
@@ -198,9 +199,10 @@ export class Stage {
       ctx.drawImage(this.heatmap, 0, 0, this.width, this.height);
       ctx.globalAlpha = 1;
     }
-    for (const layer of this.layers) {
-      ctx.globalAlpha = layer.alpha;
-      ctx.drawImage(layer.canvas, 0, 0);
+    for (const { overlay, alpha } of this.layers) { // each as big as its object (mask.js)
+      if (!overlay.canvas) continue;
+      ctx.globalAlpha = alpha;
+      ctx.drawImage(overlay.canvas, overlay.x, overlay.y);
     }
     ctx.globalAlpha = 1;
     if (this.showMask && this.overlay && this.display.maskOpacity > 0) {

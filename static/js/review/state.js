@@ -25,6 +25,7 @@ export const S = {
   manualRevision: 0, // the revision of the keypoints placed by hand as loaded or saved (0: none)
   past: [],
   future: [],
+  retired: { objects: new Map(), tags: [], attributes: [] }, // the label's retired parts: object uid → position, names (layers.js)
   layer: "pool", // the edited layer: "pool" or an object's uid (layers.js)
   selectedPoint: null, // the named point selected on a points layer
   tool: "positive",
