@@ -21,6 +21,7 @@ from app.core.models import (
     Label,
     LabelRevision,
     LabelStatus,
+    OverlapLabel,
     Proposal,
     ReviewState,
     Split,
@@ -353,9 +354,12 @@ class OtherClasses:
     tags: list[str] | None = None
     attributes: dict[str, Any] | None = None
 
-    def columns(self, session: Session, frame: Frame, label: Label | None) -> dict[str, Any]:
-        """The label's ``objects`` and ``frame_tags``: the given ones checked against the
-        label configuration, the others as ``label`` holds them."""
+    def columns(
+        self, session: Session, frame: Frame, label: Label | OverlapLabel | None
+    ) -> dict[str, Any]:
+        """The label's ``objects`` and ``frame_tags`` (the frame's label, or an annotator's
+        own): the given ones checked against the label configuration, the others as ``label``
+        holds them."""
         objects = label.objects if label is not None else None
         held = (label.frame_tags if label is not None else None) or {}
         if self.objects is None and self.tags is None and self.attributes is None:
