@@ -6,6 +6,7 @@ walks back across layers."""
 from __future__ import annotations
 
 import base64
+import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -267,3 +268,68 @@ def test_a_real_frame_with_several_classes(page: Any, server: LiveServer, classe
     assert _layer(page) == "spatter 2"
     assert page.input_value("[data-testid=object-attribute][data-name=size]") == "small"
     shoot(page, "review-classes-real")
+
+
+def _box(x: int, y: int, size: int = 60) -> list[list[list[int]]]:
+    return [[[x, y], [x + size, y], [x + size, y + size], [x, y + size]]]
+
+
+def _classes_apart(page: Any) -> list[str]:
+    box = page.locator("[data-testid=conflict-classes]")
+    wait_for_js(
+        page, "() => !!document.querySelector('[data-testid=conflict-classes]').dataset.classes"
+    )
+    names: list[str] = json.loads(box.get_attribute("data-classes"))
+    return names
+
+
+def test_conflict_keeps_or_takes_every_class(page: Any, server: LiveServer, classes: None) -> None:
+    """Only the pool edited here while ada changed the other classes and the tags: "overwrite
+    with mine" puts back my wire and tag (not only my pool), "take theirs" loads her objects."""
+    frame = add_frame(server, 313)
+    wire = {"class": "wire", "polygons": _box(100, 100)}
+    first = {"status": "accepted", "base_revision": 0, "objects": [wire], "tags": ["humping"]}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=first).status_code == 200
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.uncheck("#advance")
+    assert list(_objects(page)) == ["wire"]
+    page.keyboard.press("4")  # the brush, on the pool: nothing else changes here
+    _stroke(page, (600, 100), (700, 100))
+
+    spatter = {"class": "spatter", "polygons": _box(900, 500)}
+    theirs = {
+        "status": "accepted",
+        "base_revision": 1,
+        "objects": [spatter],
+        "tags": ["arc unstable"],
+    }
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=theirs).status_code == 200
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    assert _classes_apart(page) == ["pool", "spatter", "wire", "tags"]
+    assert "spatter, wire, tags" in page.inner_text("[data-testid=conflict-classes]")
+    shoot(page, "conflict-classes")
+    page.click("[data-testid=conflict-overwrite]")
+    page.locator("[data-testid=toast-ok]", has_text="revision 3").wait_for()
+    label = server.api("GET", f"/frames/{frame}/label").json()
+    assert label["revision"] == 3 and label["tags"] == ["humping"]
+    assert [o["class"] for o in label["objects"]] == ["wire"]  # hers is gone, mine is back
+    assert _region(label["objects"][0])[130, 130]
+
+    tip = {"class": "wire tip", "points": {"tip": [640, 400]}}
+    again = {"status": "accepted", "base_revision": 3, "objects": [spatter, tip], "tags": []}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=again).status_code == 200
+    page.click("[data-testid=frame-tag][data-tag=humping]")  # a change of mine: the tag off
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    assert _classes_apart(page) == ["pool", "spatter", "wire", "wire tip"]  # tags now alike
+    page.click("[data-testid=conflict-reload]")
+    wait_for_js(
+        page, "() => document.querySelector('[data-testid=frame-canvas]').dataset.revision === '4'"
+    )
+    assert sorted(_objects(page)) == ["spatter 1", "wire tip"]
+    assert _objects(page)["wire tip"]["points"]["tip"] == [640, 400]
+    assert page.is_hidden("[data-testid=dirty]")
+    assert server.api("GET", f"/frames/{frame}/label").json()["revision"] == 4

@@ -128,13 +128,21 @@ export function objectsFromLabel(label, width, height) {
   return objects;
 }
 
+/** The editing state's other classes of a label (or an annotator's own): objects, tags, attributes. */
+export const othersFromLabel = (label, width, height) => ({
+  objects: objectsFromLabel(label, width, height),
+  tags: [...(label?.tags ?? [])],
+  attributes: { ...(label?.attributes ?? {}) },
+});
+
 const isEmpty = (object) => (object.points ? !Object.keys(object.points).length : !object.mask.any());
 
 /** What a save sends beside the pool: `objects`, `tags`, `attributes`, each only when changed
- *  here (left out, the label keeps what it holds). Empty objects are not sent. */
-export async function othersBody() {
+ *  here (left out, the label keeps what it holds), or every one of them with `all` (mine kept
+ *  whole over a label saved meanwhile, an annotator's own label). Empty objects are not sent. */
+export async function othersBody({ all = false } = {}) {
   const body = {};
-  if (S.edit.objects !== S.labelClean.objects) {
+  if (all || S.edit.objects !== S.labelClean.objects) {
     body.objects = await Promise.all(S.edit.objects.filter((o) => !isEmpty(o)).map(async (o) => {
       const item = { class: o.cls };
       if (o.points) item.points = o.points;
@@ -143,7 +151,7 @@ export async function othersBody() {
       return item;
     }));
   }
-  if (S.edit.tags !== S.labelClean.tags) body.tags = S.edit.tags;
-  if (S.edit.attributes !== S.labelClean.attributes) body.attributes = S.edit.attributes;
+  if (all || S.edit.tags !== S.labelClean.tags) body.tags = S.edit.tags;
+  if (all || S.edit.attributes !== S.labelClean.attributes) body.attributes = S.edit.attributes;
   return body;
 }
