@@ -310,6 +310,8 @@ def test_conflict_keeps_or_takes_every_class(page: Any, server: LiveServer, clas
     page.locator("[data-testid=conflict-dialog]").wait_for()
     assert _classes_apart(page) == ["pool", "spatter", "wire", "tags"]
     assert "spatter, wire, tags" in page.inner_text("[data-testid=conflict-classes]")
+    assert page.inner_text("[data-testid=conflict-mine-others]") == "wire · tags humping"
+    assert page.inner_text("[data-testid=conflict-theirs-others]") == "spatter · tags arc unstable"
     shoot(page, "conflict-classes")
     page.click("[data-testid=conflict-overwrite]")
     page.locator("[data-testid=toast-ok]", has_text="revision 3").wait_for()
@@ -333,3 +335,87 @@ def test_conflict_keeps_or_takes_every_class(page: Any, server: LiveServer, clas
     assert _objects(page)["wire tip"]["points"]["tip"] == [640, 400]
     assert page.is_hidden("[data-testid=dirty]")
     assert server.api("GET", f"/frames/{frame}/label").json()["revision"] == 4
+
+
+def test_agreement_of_every_class(page: Any, server: LiveServer, classes: None) -> None:
+    """Anna and ada label one frame apart: rita's panel shows each class's agreement and the
+    tag and attribute that differ; anna's page loads her own objects and her "Save my label"
+    keeps them with the tag she adds."""
+    import numpy as np
+
+    from tests.helpers import mask_b64
+
+    frame = add_frame(server, 314, teacher=False)
+    ids = {u["username"]: u["id"] for u in server.api("GET", "/users", "ada").json()}
+    given = {"frame_ids": [frame], "user_ids": [ids["anna"], ids["ada"]]}
+    assert server.api("POST", "/frames/overlap", json=given).status_code == 200
+    pool = np.zeros((800, 1280), bool)
+    pool[300:500, 500:800] = True
+    tip = {"class": "wire tip", "points": {"tip": [640, 400]}}
+    anna = {
+        "mask_png": mask_b64(pool),
+        "objects": [
+            {"class": "wire", "polygons": _box(100, 100)},
+            {"class": "spatter", "polygons": _box(900, 500, 30)},
+            {"class": "spatter", "polygons": _box(1000, 600, 30)},
+            tip,
+        ],
+        "tags": ["humping"],
+        "attributes": {"visibility": "good"},
+    }
+    ada = {
+        "mask_png": mask_b64(pool),
+        "objects": [
+            {"class": "wire", "polygons": _box(130, 100)},
+            {"class": "spatter", "polygons": _box(900, 500, 30)},
+            {"class": "wire tip", "points": {"tip": [643, 404]}},  # (3, 4) off: 5 px
+        ],
+        "attributes": {"visibility": "poor"},
+    }
+    for user, body in (("anna", anna), ("ada", ada)):
+        saved = server.api("PUT", f"/frames/{frame}/overlap/mine", user, json=body)
+        assert saved.status_code == 200, saved.text
+    measured = server.api("GET", f"/frames/{frame}/overlap").json()
+    wire_iou = next(c["iou"] for c in measured["classes"] if c["class"] == "wire")
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    page.locator("[data-testid=agreement-classes]").wait_for()
+    rows = page.locator("[data-testid=agreement-class]")
+    texts = dict(
+        zip(
+            rows.evaluate_all("rows => rows.map(r => r.dataset.class)"),
+            rows.all_inner_texts(),
+            strict=True,
+        )
+    )
+    assert list(texts) == ["pool", "spatter", "wire", "wire tip"]
+    assert "IoU 1.000" in texts["pool"]
+    assert "1 object apart" in texts["spatter"]
+    assert f"IoU {wire_iou:.3f}" in texts["wire"] and 0 < wire_iou < 1
+    assert "tip 5.0 px" in texts["wire tip"]
+    differ = page.inner_text("[data-testid=agreement-differ]")
+    assert "tag “humping” and attribute “visibility”" in differ
+    shoot(page, "agreement-classes")
+
+    page.context.clear_cookies()
+    login(page, server, "anna")
+    page.goto(f"{server.url}/frames/{frame}")
+    page.locator("[data-testid=agreement-own]").wait_for()
+    wait_for_js(
+        page,
+        "() => JSON.parse(document.querySelector('[data-testid=frame-canvas]')"
+        ".dataset.objects).length === 4",
+    )
+    assert sorted(_objects(page)) == ["spatter 1", "spatter 2", "wire", "wire tip"]
+    page.click("[data-testid=frame-tag][data-tag='arc unstable']")
+    page.uncheck("#advance")
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=toast-ok]", has_text="Your label is saved").wait_for()
+    own = server.api("GET", f"/frames/{frame}/overlap", "anna").json()["labels"][0]
+    assert [o["class"] for o in own["objects"]] == ["wire", "spatter", "spatter", "wire tip"]
+    assert own["objects"][3]["points"] == {"tip": [640.0, 400.0]}
+    assert own["tags"] == ["arc unstable", "humping"] and own["attributes"] == {
+        "visibility": "good"
+    }
+    shoot(page, "agreement-own-classes")

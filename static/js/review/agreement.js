@@ -85,7 +85,8 @@ function classTable(data) {
 function differences(data) {
   if (data.labelled < 2 || !data.differ) return "";
   const { tags, attributes } = data.differ;
-  const parts = [tags.length ? `tags ${tags.join(", ")}` : "", attributes.length ? `attributes ${attributes.join(", ")}` : ""].filter(Boolean);
+  const named = (word, names) => (names.length ? `${word}${names.length > 1 ? "s" : ""} ${names.map((n) => `“${n}”`).join(", ")}` : "");
+  const parts = [named("tag", tags), named("attribute", attributes)].filter(Boolean);
   return h("p", { class: "small-text", "data-testid": "agreement-differ" },
     parts.length ? `They differ on the frame's ${parts.join(" and ")}.` : "They give the frame the same tags and attributes.");
 }

@@ -28,6 +28,8 @@ export async function showConflict(kind, error, { overwrite, take }) {
   const mine = kind === "reject" ? null : S.edit.mask;
   drawPreview($("conflict-mine"), mine, "#00e6ff");
   $("conflict-mine-text").textContent = kind === "reject" ? "Yours: rejected (no pool)" : `Yours: ${kind === "accept" && isProposal() ? "accepted" : "corrected"} · ${mine.area()} px`;
+  $("conflict-mine-others").textContent = othersText(S.edit.objects, S.edit.tags);
+  $("conflict-theirs-others").textContent = "";
   $("conflict-theirs-text").textContent = "Theirs: loading…";
   $("conflict-classes").textContent = "Comparing every class…";
   delete $("conflict-classes").dataset.classes; // the last conflict's
@@ -39,6 +41,7 @@ export async function showConflict(kind, error, { overwrite, take }) {
     let differs = "";
     if (theirMask && mine) differs = ` · differs from yours in ${pixelsApart(theirMask, mine)} px`;
     $("conflict-theirs-text").textContent = `Theirs: ${theirs.status} by ${theirs.updated_by ?? "?"}, ${formatDate(theirs.updated_at)}${theirMask ? ` · ${theirMask.area()} px` : ""}${differs}`;
+    $("conflict-theirs-others").textContent = othersText(objectsFromLabel(theirs, S.frame.width, S.frame.height), theirs.tags ?? []);
     const apart = differing(kind, mine, theirs, theirMask);
     const box = $("conflict-classes");
     box.dataset.classes = JSON.stringify(apart);
@@ -46,6 +49,14 @@ export async function showConflict(kind, error, { overwrite, take }) {
   } catch (problem) {
     $("conflict-theirs-text").textContent = `Theirs could not be loaded: ${problem.message}`;
   }
+}
+
+/** "wire, 2 spatter · tags humping": what a label holds beside the pool. */
+function othersText(objects, tags) {
+  const counts = new Map();
+  for (const o of objects) counts.set(o.cls, (counts.get(o.cls) ?? 0) + 1);
+  const classes = [...counts].map(([name, n]) => (n > 1 ? `${n} ${name}` : name)).join(", ");
+  return [classes, tags.length ? `tags ${tags.join(", ")}` : ""].filter(Boolean).join(" · ") || "no other class, no tag";
 }
 
 function pixelsApart(a, b) {
