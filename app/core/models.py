@@ -441,6 +441,10 @@ class OverlapLabel(Base):
     user_id: Mapped[int] = mapped_column(sa.ForeignKey("users.id", ondelete="CASCADE"), index=True)
     mask_path: Mapped[str | None] = mapped_column(sa.String(500))
     keypoints: Mapped[list[Any] | None] = mapped_column(JSONType)
+    # Her objects of the other classes and her frame tags and attributes, as ``Label`` holds
+    # them (NULL: the pool alone).
+    objects: Mapped[list[Any] | None] = mapped_column(JSONType)
+    frame_tags: Mapped[dict[str, Any] | None] = mapped_column(JSONType)
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
     updated_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime)
 

@@ -5,12 +5,15 @@
   label of it (``save_own``), which never trains and which the others do not see.
 - The frame's **agreement** is the mean over every pair of labelled annotators of the mask IoU,
   and of the keypoint distance (px: the mean distance from each keypoint of one to the nearest
-  of the other, both ways); ``run_agreement`` averages it per weld run over the frames with two
-  labels or more — the figure a lab quotes for its dataset.
+  of the other, both ways); each other class of the label configuration has its own figures
+  (``app.review.agreement_classes``), and the tags and attributes that differ are named;
+  ``run_agreement`` averages them per weld run over the frames with two labels or more — the
+  figures a lab quotes for its dataset.
 - ``settle`` makes the frame's label (approved, by the reviewer) from the label of the
   annotator he chose, or from all of them merged: a pixel is pool where at least half of the
-  labelled masks say so, and its keypoints are Algorithm 1's on that mask. Training takes the
-  frame's label only, as ever.
+  labelled masks say so, and its keypoints are Algorithm 1's on that mask. A chosen label brings
+  its objects, tags and attributes with it; a merged one leaves the frame label's as they are.
+  Training takes the frame's label only, as ever.
 """
 
 from __future__ import annotations
@@ -28,9 +31,17 @@ from app.core.errors import InvalidInputError, NotFoundError, PermissionDeniedEr
 from app.core.housekeeping import doom
 from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, User
 from app.core.permissions import Action, may
+from app.labelconfig import service as labelconfig
 from app.proposals.files import store_mask
 from app.proposals.policy import stored_iou
-from app.review.service import check_keypoints, current_label, frame_mask, save_label
+from app.review.agreement_classes import Figures, frame_class_agreement, mean_figures, nearest_px
+from app.review.service import (
+    OtherClasses,
+    check_keypoints,
+    current_label,
+    frame_mask,
+    save_label,
+)
 from app.storage import Storage
 from app.storage.pixels import load_mask
 from weldpool_core.heatmap import mask_keypoints
@@ -96,14 +107,18 @@ def save_own(
     user: User,
     mask_png: bytes,
     keypoints: list[list[float]] | None,
+    others: OtherClasses | None = None,
 ) -> OverlapLabel:
-    """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's);
+    """The annotator's own label of the frame (her mask; keypoints given, else Algorithm 1's;
+    her objects of the other classes, tags and attributes, each kept as it was when not given);
     the mask it replaces is left to the collector (no revision keeps it)."""
     row = own_row(session, frame.id, user)
     mask = frame_mask(frame, mask_png)
     if not mask.any():
         raise InvalidInputError("The mask is empty: draw the pool before saving.")
+    extra = (others or OtherClasses()).columns(session, frame, row)
     row.keypoints = check_keypoints(frame, keypoints) if keypoints else mask_keypoints(mask)
+    row.objects, row.frame_tags = extra["objects"], extra["frame_tags"]
     replaced, row.mask_path = row.mask_path, store_mask(storage, mask)
     if replaced and replaced != row.mask_path:
         doom(session, {replaced})
@@ -114,23 +129,22 @@ def save_own(
 
 @dataclass(frozen=True)
 class Agreement:
-    """How far a frame's labels agree: mean pairwise mask IoU and keypoint distance (px)."""
+    """How far a frame's labels agree: mean pairwise mask IoU and keypoint distance (px), each
+    other class's figures (``agreement_classes``) and the tags and attributes that differ."""
 
     labelled: int
     mask_iou: float | None
     keypoint_px: float | None
+    classes: list[Figures]
+    differ: dict[str, list[str]]
 
 
-def _keypoint_px(a: list[Any] | None, b: list[Any] | None) -> float | None:
-    """Mean distance from each keypoint of one set to the nearest of the other, both ways."""
-    if not a or not b:
-        return None
-    one = np.asarray(a, float)[:, None, :] - np.asarray(b, float)[None, :, :]
-    distances = np.linalg.norm(one, axis=2)
-    return float((distances.min(axis=1).mean() + distances.min(axis=0).mean()) / 2)
+def class_kinds(session: Session) -> dict[str, str]:
+    """Each configured class's kind, by name (what its agreement is measured by)."""
+    return {name: spec["kind"] for name, spec in labelconfig.current(session).classes().items()}
 
 
-def agreement_of(storage: Storage, rows: list[OverlapLabel]) -> Agreement:
+def agreement_of(storage: Storage, rows: list[OverlapLabel], kinds: dict[str, str]) -> Agreement:
     """The agreement of one frame's labelled rows (module doc)."""
     done = [r for r in rows if r.mask_path]
     ious: list[float] = []
@@ -138,12 +152,15 @@ def agreement_of(storage: Storage, rows: list[OverlapLabel]) -> Agreement:
     for a, b in itertools.combinations(done, 2):
         assert a.mask_path and b.mask_path
         ious.append(stored_iou(storage.existing(a.mask_path), storage.existing(b.mask_path)))
-        if (distance := _keypoint_px(a.keypoints, b.keypoints)) is not None:
+        if (distance := nearest_px(a.keypoints, b.keypoints)) is not None:
             distances.append(distance)
+    classes, differ = frame_class_agreement([(r.objects, r.frame_tags) for r in done], kinds)
     return Agreement(
         len(done),
         statistics.fmean(ious) if ious else None,
         statistics.fmean(distances) if distances else None,
+        classes,
+        differ if len(done) >= 2 else {"tags": [], "attributes": []},
     )
 
 
@@ -186,13 +203,19 @@ def settle(
         if picked is None:
             raise InvalidInputError(f"User {choose} has no label of frame {frame.id} to approve.")
         mask, keypoints = load_mask(storage, picked.mask_path or ""), picked.keypoints
+        held = picked.frame_tags or {}
+        others = OtherClasses(
+            objects=[_resent(o) for o in picked.objects or []],
+            tags=held.get("tags", []),
+            attributes=held.get("attributes", {}),
+        )
     else:
         if len(rows) < 2:
             raise InvalidInputError("Merging needs two labels or more; approve the one there is.")
         mask = merged_mask(storage, rows)
         if not mask.any():
             raise InvalidInputError("The labels share no pixel a majority agrees on.")
-        keypoints = None
+        keypoints, others = None, OtherClasses()
     label = current_label(session, frame.id)
     return save_label(
         session,
@@ -204,12 +227,24 @@ def settle(
         mask_png=encode_mask_png(mask),
         keypoints=keypoints,
         review_stage=review_stage,
+        others=others,
     )
 
 
+def _resent(item: dict[str, Any]) -> dict[str, Any]:
+    """A stored object as a save gives it (its region once, as RLE; area and box recomputed)."""
+    kept = ("class", "points", "attributes") if "points" in item else ("class", "attributes")
+    resent = {k: item[k] for k in kept if k in item}
+    if "rle" in item:
+        resent["rle"] = item["rle"]
+    return resent
+
+
 def run_agreement(session: Session, storage: Storage) -> list[dict[str, Any]]:
-    """Per weld run (and frames in none): the frames labelled by two annotators or more and
-    the mean of their agreement (mask IoU, keypoint distance in px)."""
+    """Per weld run (and frames in none): the frames labelled by two annotators or more, the
+    mean of their agreement (mask IoU, keypoint distance in px), each other class's figures
+    averaged over the frames that measure it, and how many frames' tags differ."""
+    kinds = class_kinds(session)
     rows = session.execute(
         sa.select(OverlapLabel, Frame.sequence_id, Sequence.name)
         .join(Frame, Frame.id == OverlapLabel.frame_id)
@@ -225,7 +260,7 @@ def run_agreement(session: Session, storage: Storage) -> list[dict[str, Any]]:
     per_run: dict[tuple[int | None, str | None], list[Agreement]] = {}
     for frame_id, labelled in frames.items():
         if len(labelled) >= 2:
-            per_run.setdefault(runs[frame_id], []).append(agreement_of(storage, labelled))
+            per_run.setdefault(runs[frame_id], []).append(agreement_of(storage, labelled, kinds))
     return [
         {
             "sequence_id": sequence_id,
@@ -233,8 +268,19 @@ def run_agreement(session: Session, storage: Storage) -> list[dict[str, Any]]:
             "frames": len(values),
             "mask_iou": statistics.fmean(v.mask_iou for v in values if v.mask_iou is not None),
             "keypoint_px": _mean([v.keypoint_px for v in values]),
+            "classes": _per_frame(values),
+            "tags_differ": sum(1 for v in values if v.differ["tags"]),
         }
         for (sequence_id, name), values in sorted(per_run.items(), key=lambda i: str(i[0][1]))
+    ]
+
+
+def _per_frame(values: list[Agreement]) -> list[Figures]:
+    """Each class's figures averaged over frames (``frames``: how many measure it)."""
+    frames = [{c["class"]: c | {"pairs": 1} for c in v.classes} for v in values]
+    return [
+        {k: v for k, v in c.items() if k != "pairs"} | {"frames": c["pairs"]}
+        for c in mean_figures(frames)
     ]
 
 

@@ -4,6 +4,7 @@ reviewer approves one label or merges them (``app.review.agreement``)."""
 from __future__ import annotations
 
 import base64
+from typing import Any
 
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
@@ -14,9 +15,11 @@ from app.core.errors import InvalidInputError
 from app.core.models import get_frame
 from app.core.permissions import Action, may
 from app.core.security import CurrentUser, ReviewerUser
+from app.labelconfig.service import MAX_OBJECTS
 from app.review import agreement
 from app.review.routes import _label_out, _png_bytes
 from app.review.schemas import MAX_KEYPOINTS, LabelOut
+from app.review.service import OtherClasses
 from app.system.doctor import frame_file
 from app.training.service import maybe_retrain
 
@@ -37,6 +40,18 @@ class OverlapGiven(BaseModel):
 class OwnLabelIn(InputModel):
     mask_png: str = Field(max_length=64 * 1024 * 1024, description="Her mask (base64 PNG).")
     keypoints: list[XY] | None = Field(default=None, max_length=MAX_KEYPOINTS)
+    objects: list[dict[str, Any]] | None = Field(
+        default=None,
+        max_length=MAX_OBJECTS,
+        description="Her objects of the other classes, as `PUT /frames/{id}/label` takes them "
+        "(omitted: kept as they are; `[]` removes them).",
+    )
+    tags: list[str] | None = Field(
+        default=None, max_length=64, description="Her frame tags (omitted: as they are)."
+    )
+    attributes: dict[str, Any] | None = Field(
+        default=None, description="Her frame attributes (omitted: as they are)."
+    )
 
 
 class OverlapLabelOut(BaseModel):
@@ -46,6 +61,27 @@ class OverlapLabelOut(BaseModel):
     updated_at: str | None
     mask_png: str | None = Field(default=None, description="Her mask (base64 PNG).")
     keypoints: list[list[float]] | None = None
+    objects: list[dict[str, Any]] = Field(default_factory=list, description="Her other objects.")
+    tags: list[str] = Field(default_factory=list, description="Her frame tags.")
+    attributes: dict[str, Any] = Field(default_factory=dict, description="Her frame attributes.")
+
+
+class ClassAgreementOut(BaseModel):
+    """One class's agreement, the mean over the pairs of annotators that drew it."""
+
+    class_: str = Field(alias="class", serialization_alias="class")
+    kind: str
+    pairs: int = Field(description="Pairs of annotators either of whom drew the class.")
+    iou: float | None = Field(description="Mask and instances: IoU of the class's union mask.")
+    count_diff: float | None = Field(description="Instances: how many objects more one drew.")
+    points_px: dict[str, float | None] = Field(
+        description="Points: per named point, the distance between the annotators' (px)."
+    )
+
+
+class DifferOut(BaseModel):
+    tags: list[str] = Field(description="Tags some labelled annotators gave and others did not.")
+    attributes: list[str] = Field(description="Frame attributes they do not all give alike.")
 
 
 class OverlapOut(BaseModel):
@@ -55,6 +91,12 @@ class OverlapOut(BaseModel):
     labelled: int
     mask_iou: float | None = Field(description="Mean mask IoU over every pair (reviewers).")
     keypoint_px: float | None = Field(description="Mean keypoint distance over every pair.")
+    classes: list[ClassAgreementOut] = Field(
+        default_factory=list, description="Each other class's agreement (reviewers)."
+    )
+    differ: DifferOut | None = Field(
+        default=None, description="The frame tags and attributes that differ (reviewers)."
+    )
 
 
 class SettleIn(InputModel):
@@ -78,9 +120,9 @@ def save_own(
     """Save one's own label of a frame given to several (it does not train, and the other
     annotators do not see it)."""
     frame = get_frame(session, frame_id)
-    row = agreement.save_own(
-        session, storage, frame, user, _png_bytes(body.mask_png, "mask_png"), body.keypoints
-    )
+    others = OtherClasses(objects=body.objects, tags=body.tags, attributes=body.attributes)
+    mask_png = _png_bytes(body.mask_png, "mask_png")
+    row = agreement.save_own(session, storage, frame, user, mask_png, body.keypoints, others)
     return _out(storage, row, user.username, with_mask=False)
 
 
@@ -96,6 +138,9 @@ def _out(storage: StorageDep, row, name: str, with_mask: bool) -> OverlapLabelOu
         updated_at=row.updated_at.isoformat() if row.updated_at else None,
         mask_png=mask,
         keypoints=row.keypoints,
+        objects=row.objects or [],
+        tags=(row.frame_tags or {}).get("tags", []),
+        attributes=(row.frame_tags or {}).get("attributes", {}),
     )
 
 
@@ -108,13 +153,15 @@ def frame_overlap(
     get_frame(session, frame_id)
     rows = agreement.frame_rows(session, frame_id)
     reviewer = may(user, Action.review)
-    measured = agreement.agreement_of(storage, [r for r, _ in rows])
+    measured = agreement.agreement_of(storage, [r for r, _ in rows], agreement.class_kinds(session))
     shown = rows if reviewer else [(r, n) for r, n in rows if r.user_id == user.id]
     return OverlapOut(
         labels=[_out(storage, r, n, with_mask=True) for r, n in shown],
         labelled=measured.labelled,
         mask_iou=measured.mask_iou if reviewer else None,
         keypoint_px=measured.keypoint_px if reviewer else None,
+        classes=[ClassAgreementOut.model_validate(c) for c in measured.classes] if reviewer else [],
+        differ=DifferOut(**measured.differ) if reviewer else None,
     )
 
 

@@ -21,6 +21,7 @@ from app.core.models import (
     Label,
     LabelRevision,
     LabelStatus,
+    OverlapLabel,
     Proposal,
     ReviewState,
     Split,
@@ -357,10 +358,13 @@ class OtherClasses:
     attributes: dict[str, Any] | None = None
     remove_retired: Retired | None = None
 
-    def columns(self, session: Session, frame: Frame, label: Label | None) -> dict[str, Any]:
-        """The label's ``objects`` and ``frame_tags``: the given ones checked against the
-        label configuration, the others as ``label`` holds them; what the configuration
-        retired stays unless removed (the one rule, ``retired.Save``)."""
+    def columns(
+        self, session: Session, frame: Frame, label: Label | OverlapLabel | None
+    ) -> dict[str, Any]:
+        """The label's ``objects`` and ``frame_tags`` (the frame's label, or an annotator's
+        own): the given ones checked against the label configuration, the others as ``label``
+        holds them; what the configuration retired stays unless removed (the one rule,
+        ``retired.Save``)."""
         objects = label.objects if label is not None else None
         held = label.frame_tags if label is not None else None
         given = (self.objects, self.tags, self.attributes, self.remove_retired)

@@ -13,6 +13,16 @@ export const score = (v) => (typeof v === "number" ? v.toFixed(2) : "–");
 export const mmPerPx = (v) => (typeof v === "number" ? String(Number(v.toPrecision(3))) : "–");
 /** Rates: a whole percent below 10 % shows one decimal ("87 %", "4.5 %"). */
 export const pct = (v) => (typeof v === "number" ? `${(100 * v).toFixed(100 * v < 10 ? 1 : 0)} %` : "–");
+/** One class's agreement between annotators (`/frames/{id}/overlap` `classes`): "IoU 0.333",
+ *  "IoU 0.250 · 1.0 objects apart", "tip 5.0 px · root 0.0 px". */
+export function classAgreement(c) {
+  if (c.kind === "points") {
+    const named = Object.entries(c.points_px ?? {});
+    return named.length ? named.map(([name, v]) => `${name} ${px(v)}`).join(" · ") : "no point both placed";
+  }
+  const apart = typeof c.count_diff === "number" ? ` · ${c.count_diff % 1 ? c.count_diff.toFixed(1) : c.count_diff} ${c.count_diff === 1 ? "object" : "objects"} apart` : "";
+  return `IoU ${iou(c.iou)}${apart}`;
+}
 /** "1 job", "3 jobs", "1 frame". */
 export const count = (n, word, plural = `${word}s`) => `${n} ${n === 1 ? word : plural}`;
 /** A duration given in seconds: "45 s", "9.5 min", "2.1 h". */

@@ -2,7 +2,7 @@
 
 import { api } from "./api.js";
 import { lineChart } from "./chart.js";
-import { count, iou, pct, px } from "./format.js";
+import { classAgreement, count, iou, pct, px } from "./format.js";
 import { peopleSection } from "./people.js";
 import { h } from "./ui.js";
 
@@ -70,8 +70,10 @@ function render(data) {
       `With them: mIoU ${iou(teacher.including_unchanged.mIoU)} over ${count(teacher.including_unchanged.frames, "frame")}.`) : "",
     h("h2", {}, "Agreement between annotators"),
     data.agreement?.length
-      ? table(["sequence", "frames", "mask IoU", "keypoints apart"],
-        data.agreement.map((r) => [r.sequence ?? "(no sequence)", String(r.frames), iou(r.mask_iou), px(r.keypoint_px)]),
+      ? table(["sequence", "frames", "mask IoU", "keypoints apart", "other classes", "tags differ"],
+        data.agreement.map((r) => [r.sequence ?? "(no sequence)", String(r.frames), iou(r.mask_iou), px(r.keypoint_px),
+          (r.classes ?? []).map((c) => `${c.class}: ${classAgreement(c)} (${count(c.frames, "frame")})`).join("; ") || "–",
+          `${r.tags_differ ?? 0} of ${count(r.frames, "frame")}`]),
         "agreement-table")
       : h("p", { class: "muted" }, "No frame has been labelled by two annotators yet (Frames page: select frames, “Give to several…”)."),
     classesSection(data.classes),

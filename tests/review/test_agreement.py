@@ -87,6 +87,8 @@ def test_labels_kept_apart_measured_and_merged(
             "frames": 1,
             "mask_iou": pytest.approx(seen["mask_iou"]),
             "keypoint_px": pytest.approx(seen["keypoint_px"]),
+            "classes": [],  # the pool alone is configured
+            "tags_differ": 0,
         }
     ]
 

@@ -6,6 +6,7 @@ walks back across layers."""
 from __future__ import annotations
 
 import base64
+import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -360,3 +361,154 @@ def test_an_object_painted_beyond_its_first_box(
     page.locator("[data-testid=toast-ok]", has_text="Saved as corrected").wait_for()
     region = _region(server.api("GET", f"/frames/{frame}/label").json()["objects"][0])
     assert region[100, 125] and region[160, 320] and not region[130, 220]
+
+
+def _box(x: int, y: int, size: int = 60) -> list[list[list[int]]]:
+    return [[[x, y], [x + size, y], [x + size, y + size], [x, y + size]]]
+
+
+def _classes_apart(page: Any) -> list[str]:
+    box = page.locator("[data-testid=conflict-classes]")
+    wait_for_js(
+        page, "() => !!document.querySelector('[data-testid=conflict-classes]').dataset.classes"
+    )
+    names: list[str] = json.loads(box.get_attribute("data-classes"))
+    return names
+
+
+def test_conflict_keeps_or_takes_every_class(page: Any, server: LiveServer, classes: None) -> None:
+    """Only the pool edited here while ada changed the other classes and the tags: "overwrite
+    with mine" puts back my wire and tag (not only my pool), "take theirs" loads her objects."""
+    frame = add_frame(server, 313)
+    wire = {"class": "wire", "polygons": _box(100, 100)}
+    first = {"status": "accepted", "base_revision": 0, "objects": [wire], "tags": ["humping"]}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=first).status_code == 200
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.uncheck("#advance")
+    assert list(_objects(page)) == ["wire"]
+    page.keyboard.press("4")  # the brush, on the pool: nothing else changes here
+    _stroke(page, (600, 100), (700, 100))
+
+    spatter = {"class": "spatter", "polygons": _box(900, 500)}
+    theirs = {
+        "status": "accepted",
+        "base_revision": 1,
+        "objects": [spatter],
+        "tags": ["arc unstable"],
+    }
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=theirs).status_code == 200
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    assert _classes_apart(page) == ["pool", "spatter", "wire", "tags"]
+    assert "spatter, wire, tags" in page.inner_text("[data-testid=conflict-classes]")
+    assert page.inner_text("[data-testid=conflict-mine-others]") == "wire · tags humping"
+    assert page.inner_text("[data-testid=conflict-theirs-others]") == "spatter · tags arc unstable"
+    shoot(page, "conflict-classes")
+    page.click("[data-testid=conflict-overwrite]")
+    page.locator("[data-testid=toast-ok]", has_text="revision 3").wait_for()
+    label = server.api("GET", f"/frames/{frame}/label").json()
+    assert label["revision"] == 3 and label["tags"] == ["humping"]
+    assert [o["class"] for o in label["objects"]] == ["wire"]  # hers is gone, mine is back
+    assert _region(label["objects"][0])[130, 130]
+
+    tip = {"class": "wire tip", "points": {"tip": [640, 400]}}
+    again = {"status": "accepted", "base_revision": 3, "objects": [spatter, tip], "tags": []}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=again).status_code == 200
+    page.click("[data-testid=frame-tag][data-tag=humping]")  # a change of mine: the tag off
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    assert _classes_apart(page) == ["pool", "spatter", "wire", "wire tip"]  # tags now alike
+    page.click("[data-testid=conflict-reload]")
+    wait_for_js(
+        page, "() => document.querySelector('[data-testid=frame-canvas]').dataset.revision === '4'"
+    )
+    assert sorted(_objects(page)) == ["spatter 1", "wire tip"]
+    assert _objects(page)["wire tip"]["points"]["tip"] == [640, 400]
+    assert page.is_hidden("[data-testid=dirty]")
+    assert server.api("GET", f"/frames/{frame}/label").json()["revision"] == 4
+
+
+def test_agreement_of_every_class(page: Any, server: LiveServer, classes: None) -> None:
+    """Anna and ada label one frame apart: rita's panel shows each class's agreement and the
+    tag and attribute that differ; anna's page loads her own objects and her "Save my label"
+    keeps them with the tag she adds."""
+    import numpy as np
+
+    from tests.helpers import mask_b64
+
+    frame = add_frame(server, 314, teacher=False)
+    ids = {u["username"]: u["id"] for u in server.api("GET", "/users", "ada").json()}
+    given = {"frame_ids": [frame], "user_ids": [ids["anna"], ids["ada"]]}
+    assert server.api("POST", "/frames/overlap", json=given).status_code == 200
+    pool = np.zeros((800, 1280), bool)
+    pool[300:500, 500:800] = True
+    tip = {"class": "wire tip", "points": {"tip": [640, 400]}}
+    anna = {
+        "mask_png": mask_b64(pool),
+        "objects": [
+            {"class": "wire", "polygons": _box(100, 100)},
+            {"class": "spatter", "polygons": _box(900, 500, 30)},
+            {"class": "spatter", "polygons": _box(1000, 600, 30)},
+            tip,
+        ],
+        "tags": ["humping"],
+        "attributes": {"visibility": "good"},
+    }
+    ada = {
+        "mask_png": mask_b64(pool),
+        "objects": [
+            {"class": "wire", "polygons": _box(130, 100)},
+            {"class": "spatter", "polygons": _box(900, 500, 30)},
+            {"class": "wire tip", "points": {"tip": [643, 404]}},  # (3, 4) off: 5 px
+        ],
+        "attributes": {"visibility": "poor"},
+    }
+    for user, body in (("anna", anna), ("ada", ada)):
+        saved = server.api("PUT", f"/frames/{frame}/overlap/mine", user, json=body)
+        assert saved.status_code == 200, saved.text
+    measured = server.api("GET", f"/frames/{frame}/overlap").json()
+    wire_iou = next(c["iou"] for c in measured["classes"] if c["class"] == "wire")
+
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    page.locator("[data-testid=agreement-classes]").wait_for()
+    rows = page.locator("[data-testid=agreement-class]")
+    texts = dict(
+        zip(
+            rows.evaluate_all("rows => rows.map(r => r.dataset.class)"),
+            rows.all_inner_texts(),
+            strict=True,
+        )
+    )
+    assert list(texts) == ["pool", "spatter", "wire", "wire tip"]
+    assert "IoU 1.000" in texts["pool"]
+    assert "1 object apart" in texts["spatter"]
+    assert f"IoU {wire_iou:.3f}" in texts["wire"] and 0 < wire_iou < 1
+    assert "tip 5.0 px" in texts["wire tip"]
+    differ = page.inner_text("[data-testid=agreement-differ]")
+    assert "tag “humping” and attribute “visibility”" in differ
+    shoot(page, "agreement-classes")
+
+    page.context.clear_cookies()
+    login(page, server, "anna")
+    page.goto(f"{server.url}/frames/{frame}")
+    page.locator("[data-testid=agreement-own]").wait_for()
+    wait_for_js(
+        page,
+        "() => JSON.parse(document.querySelector('[data-testid=frame-canvas]')"
+        ".dataset.objects).length === 4",
+    )
+    assert sorted(_objects(page)) == ["spatter 1", "spatter 2", "wire", "wire tip"]
+    page.click("[data-testid=frame-tag][data-tag='arc unstable']")
+    page.uncheck("#advance")
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=toast-ok]", has_text="Your label is saved").wait_for()
+    own = server.api("GET", f"/frames/{frame}/overlap", "anna").json()["labels"][0]
+    assert [o["class"] for o in own["objects"]] == ["wire", "spatter", "spatter", "wire tip"]
+    assert own["objects"][3]["points"] == {"tip": [640.0, 400.0]}
+    assert own["tags"] == ["arc unstable", "humping"] and own["attributes"] == {
+        "visibility": "good"
+    }
+    shoot(page, "agreement-own-classes")

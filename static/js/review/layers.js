@@ -127,11 +127,11 @@ export const heldBytes = () => S.edit.objects.filter((o) => o.mask).reduce((sum,
 // --- to and from the server ---------------------------------------------------------------------
 
 /** The label's objects as the editing state holds them, its retired ones (`label.retired`)
- *  read-only; `S.retired` remembers where the server lists them, to name them when removed. */
+ *  read-only, each with its `position` in the label (what `retiredOf` remembers). Pure: a label
+ *  only looked at (a conflict's, an annotator's) leaves `S.retired` as it is. */
 export function objectsFromLabel(label, width, height) {
   const objects = [];
   const retired = new Set(label?.retired?.objects ?? []);
-  S.retired = { objects: new Map(), tags: label?.retired?.tags ?? [], attributes: label?.retired?.attributes ?? [] };
   for (const [position, item] of (label?.objects ?? []).entries()) {
     const spec = retired.has(position) ? null : classOf(item.class);
     if (!retired.has(position) && (!spec || spec.name === POOL)) continue;
@@ -140,11 +140,20 @@ export function objectsFromLabel(label, width, height) {
     if (item.points) object.points = Object.fromEntries(Object.entries(item.points).map(([k, p]) => [k, [...p]]));
     else if (item.rle) object.mask = Mask.fromRle(item.rle.counts, width, height);
     else continue;
-    if (object.retired) S.retired.objects.set(object.uid, position);
+    if (object.retired) object.position = position;
     objects.push(object);
   }
   return objects;
 }
+
+/** Where the server lists the retired parts of the label being edited (`objects` from
+ *  `objectsFromLabel(label)`), to name them in `remove_retired` when the reviewer removes one;
+ *  `retiredOf(null, [])` for a label whose retired parts are not the frame label's. */
+export const retiredOf = (label, objects) => ({
+  objects: new Map(objects.filter((o) => o.retired).map((o) => [o.uid, o.position])),
+  tags: label?.retired?.tags ?? [],
+  attributes: label?.retired?.attributes ?? [],
+});
 
 /** After a save: where the server now lists the retired parts still shown (in their order). */
 export function adoptRetired(label) {
@@ -163,16 +172,24 @@ function removedRetired() {
   return removed.objects.length || removed.tags.length || removed.attributes.length ? removed : null;
 }
 
+/** The editing state's other classes of a label (or an annotator's own): objects, tags, attributes. */
+export const othersFromLabel = (label, width, height) => ({
+  objects: objectsFromLabel(label, width, height),
+  tags: [...(label?.tags ?? [])],
+  attributes: { ...(label?.attributes ?? {}) },
+});
+
 const isEmpty = (object) => (object.points ? !Object.keys(object.points).length : !object.mask.any());
 
 /** What a save sends beside the pool: `objects`, `tags`, `attributes`, each only when changed
- *  here (left out, the label keeps what it holds), and the retired parts removed here. Empty
- *  objects are not sent, nor retired ones (the server keeps those unless named). */
-export async function othersBody() {
+ *  here (left out, the label keeps what it holds), or every one of them with `all` (mine kept
+ *  whole over a label saved meanwhile, an annotator's own label), and the retired parts removed
+ *  here. Empty objects are not sent, nor retired ones (the server keeps those unless named). */
+export async function othersBody({ all = false } = {}) {
   const body = {};
   const removed = removedRetired();
   if (removed) body.remove_retired = removed;
-  if (S.edit.objects !== S.labelClean.objects) {
+  if (all || S.edit.objects !== S.labelClean.objects) {
     body.objects = await Promise.all(S.edit.objects.filter((o) => !o.retired && !isEmpty(o)).map(async (o) => {
       const item = { class: o.cls };
       if (o.points) item.points = o.points;
@@ -181,7 +198,7 @@ export async function othersBody() {
       return item;
     }));
   }
-  if (S.edit.tags !== S.labelClean.tags) body.tags = S.edit.tags;
-  if (S.edit.attributes !== S.labelClean.attributes) body.attributes = S.edit.attributes;
+  if (all || S.edit.tags !== S.labelClean.tags) body.tags = S.edit.tags;
+  if (all || S.edit.attributes !== S.labelClean.attributes) body.attributes = S.edit.attributes;
   return body;
 }

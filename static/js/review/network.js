@@ -5,7 +5,8 @@ import { ApiError, REVIEW_STAGE, api, jobFromButton, waitForJob } from "../api.j
 import { badge, formatDate, h, toast } from "../ui.js";
 import { setHeatmapVisible } from "./display.js";
 import { commit, isProposal, labelDirty, manualDirty } from "./history.js";
-import { adoptRetired, othersBody } from "./layers.js";
+import { showConflict } from "./conflict.js";
+import { adoptRetired, othersBody, othersFromLabel, retiredOf, selectLayer } from "./layers.js";
 import { Mask, MaskOverlay } from "./mask.js";
 import { $, CONTEXT, FRAME_ID } from "./page.js";
 import { S, changed } from "./state.js";
@@ -98,9 +99,10 @@ export function bindReview() {
 // --- verdicts -------------------------------------------------------------------------------
 
 /** One PUT's body: the verdict on the pool, with the other classes' objects and the frame's
- *  tags and attributes where they changed (one revision for all of them). */
-export async function verdictBody(kind, baseRevision) {
-  const from = { ...(S.proposal ? { proposal_id: S.proposal.id } : {}), ...(await othersBody()) };
+ *  tags and attributes where they changed, or all of them (`all`: mine kept whole over theirs);
+ *  one revision for all of them. */
+export async function verdictBody(kind, baseRevision, { all = false } = {}) {
+  const from = { ...(S.proposal ? { proposal_id: S.proposal.id } : {}), ...(await othersBody({ all })) };
   if (kind === "reject") return { status: "rejected", base_revision: baseRevision, ...from };
   if (kind === "accept" && isProposal()) return { status: "accepted", base_revision: baseRevision, ...from };
   const body = { status: "corrected", base_revision: baseRevision, mask_png: await S.edit.mask.toPng(), ...from };
@@ -109,7 +111,7 @@ export async function verdictBody(kind, baseRevision) {
   return body;
 }
 
-export async function saveLabel(kind, baseRevision = S.revision) {
+export async function saveLabel(kind, baseRevision = S.revision, { all = false } = {}) {
   if (S.validation) toggleValidation();
   await Promise.allSettled([...S.inflight]);
   if (S.overlapMine) { // given to several: her own label, kept apart (agreement.js)
@@ -126,12 +128,14 @@ export async function saveLabel(kind, baseRevision = S.revision) {
     if ($("advance").checked) await goNext({ afterSave: true });
     return;
   }
-  const body = await verdictBody(kind, baseRevision);
+  const body = await verdictBody(kind, baseRevision, { all });
   let label;
   try {
     label = await api(`/frames/${FRAME_ID}/label`, { method: "PUT", json: body });
   } catch (error) {
-    if (error instanceof ApiError && error.status === 409) return showConflict(kind, error);
+    if (error instanceof ApiError && error.status === 409) {
+      return showConflict(kind, error, { overwrite: (revision) => saveLabel(kind, revision, { all: true }), take: takeLabel });
+    }
     toast(error.message, "error");
     return;
   }
@@ -154,51 +158,24 @@ export async function saveLabel(kind, baseRevision = S.revision) {
   if ($("advance").checked) await goNext({ afterSave: true });
 }
 
-/** Someone saved first: say who and when, show their label beside mine, let the reviewer pick. */
-export async function showConflict(kind, error) {
-  const current = error.body?.revision ?? 0;
-  const by = error.body?.updated_by ?? "someone else";
-  $("conflict-text").textContent = `${by} saved this frame's label while you were working on it (it is now at revision ${current}). Reload to take theirs (your changes are dropped), or overwrite it with yours.`;
-  const dialog = $("conflict");
-  $("conflict-overwrite").onclick = () => { dialog.close(); saveLabel(kind, current); };
-  $("conflict-reload").onclick = () => { dialog.close(); S.leaving = true; location.reload(); };
-  $("conflict-cancel").onclick = () => dialog.close();
-  const mine = kind === "reject" ? null : S.edit.mask;
-  drawPreview($("conflict-mine"), mine, "#00e6ff");
-  $("conflict-mine-text").textContent = kind === "reject" ? "Yours: rejected (no pool)" : `Yours: ${kind === "accept" && isProposal() ? "accepted" : "corrected"} · ${mine.area()} px`;
-  $("conflict-theirs-text").textContent = "Theirs: loading…";
-  dialog.showModal();
-  try {
-    const theirs = await api(`/frames/${FRAME_ID}/label`);
-    const mask = theirs.mask_png ? await Mask.fromPng(theirs.mask_png, S.frame.width, S.frame.height) : null;
-    drawPreview($("conflict-theirs"), mask, "#ff922b");
-    let differs = "";
-    if (mask && mine) {
-      let n = 0;
-      for (let i = 0; i < mask.data.length; i++) n += mask.data[i] !== mine.data[i];
-      differs = ` · differs from yours in ${n} px`;
-    }
-    $("conflict-theirs-text").textContent = `Theirs: ${theirs.status} by ${theirs.updated_by ?? "?"}, ${formatDate(theirs.updated_at)}${mask ? ` · ${mask.area()} px` : ""}${differs}`;
-  } catch (problem) {
-    $("conflict-theirs-text").textContent = `Theirs could not be loaded: ${problem.message}`;
-  }
-}
-
-/** The frame with a mask's outline and a light fill, scaled into a small canvas. */
-export function drawPreview(canvas, mask, colour) {
-  const scale = Math.min(canvas.width / S.frame.width, canvas.height / S.frame.height);
-  const ctx = canvas.getContext("2d");
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
-  ctx.drawImage(S.stage.image, 0, 0, S.frame.width * scale, S.frame.height * scale);
-  if (!mask) return;
-  const layer = new MaskOverlay(S.frame.width, S.frame.height);
-  layer.paint(mask);
-  ctx.globalAlpha = 0.9;
-  ctx.drawImage(layer.canvas, 0, 0, S.frame.width * scale, S.frame.height * scale);
-  ctx.globalAlpha = 1;
-  ctx.strokeStyle = colour;
-  ctx.lineWidth = 3;
-  ctx.strokeRect(1.5, 1.5, S.frame.width * scale - 3, S.frame.height * scale - 3);
+/** Their label taken in place of mine after a conflict: every class of it, one undo step
+ *  (Undo brings mine back, unsaved). */
+function takeLabel(label, mask) {
+  const { width, height } = S.frame;
+  S.revision = label.revision;
+  S.labelStatus = label.status;
+  S.review = reviewOf(label);
+  S.loadedLabel = mask ? { mask, revision: label.revision } : null;
+  S.frame.status = label.status;
+  const keypoints = mask ? (label.keypoints ?? []).map((p) => [...p]) : [];
+  const others = othersFromLabel(label, width, height);
+  S.retired = retiredOf(label, others.objects); // theirs is the label now edited
+  commit({ ...S.edit, mask: mask ?? new Mask(width, height), keypoints, ...others, outline: null, maskEdited: false, kpEdited: false, session: null });
+  S.labelClean = S.edit;
+  selectLayer(S.layer);
+  changed("edit", "review", "frame", "propagate");
+  loadHistory();
+  toast(`Took ${label.updated_by ?? "their"}'s label (revision ${label.revision}); Undo brings yours back.`, "info");
 }
 
 // --- the queue ------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import { bindDisplay, prefs, setHeatmapVisible, setMaskVisible } from "./display
 import { commit, labelDirty, manualDirty, redo, undo } from "./history.js";
 import { deleteKeypoint } from "./keypoints.js";
 import { renderClasses } from "./classes.js";
-import { kindOf, objectsFromLabel, setConfig } from "./layers.js";
+import { kindOf, objectsFromLabel, retiredOf, setConfig } from "./layers.js";
 import { classForKey, pickClass } from "./picker.js";
 import { removePoint } from "./points.js";
 import { Mask, MaskOverlay } from "./mask.js";
@@ -197,6 +197,8 @@ export async function start() {
   S.stage.overlay = S.overlay;
   const rejected = label?.status === "rejected"; // "no pool here": nothing is drawn over it
   const keypoints = (labelMask ? label.keypoints : rejected ? [] : S.proposal?.keypoints) ?? [];
+  const objects = objectsFromLabel(label, width, height);
+  S.retired = retiredOf(label, objects);
   S.edit = {
     mask: labelMask ?? (rejected ? null : S.proposal?.mask) ?? new Mask(width, height),
     keypoints: keypoints.map((p) => [...p]),
@@ -205,7 +207,7 @@ export async function start() {
     outline: null,
     maskEdited: false,
     kpEdited: false,
-    objects: objectsFromLabel(label, width, height), // the other classes' (layers.js)
+    objects, // the other classes' (layers.js)
     tags: label?.tags ?? [],
     attributes: label?.attributes ?? {},
   };
