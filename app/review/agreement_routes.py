@@ -190,4 +190,4 @@ def settle(
         review_stage=settings.review_stage,
     )
     maybe_retrain(session, queue, settings.retrain_every, reviewer)
-    return _label_out(storage, label, reviewer)
+    return _label_out(session, storage, label, reviewer)

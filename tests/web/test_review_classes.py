@@ -334,7 +334,7 @@ def test_an_object_painted_beyond_its_first_box(
 ) -> None:
     """An object's overlay is as big as its box: a stroke outside the box grows it, and the
     page shows, and saves, both strokes; the overlay holds a fraction of a frame's pixels."""
-    frame = add_frame(server, 313)
+    frame = add_frame(server, 316)
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{frame}")
     open_review(page)
@@ -379,7 +379,7 @@ def _classes_apart(page: Any) -> list[str]:
 def test_conflict_keeps_or_takes_every_class(page: Any, server: LiveServer, classes: None) -> None:
     """Only the pool edited here while ada changed the other classes and the tags: "overwrite
     with mine" puts back my wire and tag (not only my pool), "take theirs" loads her objects."""
-    frame = add_frame(server, 313)
+    frame = add_frame(server, 317)
     wire = {"class": "wire", "polygons": _box(100, 100)}
     first = {"status": "accepted", "base_revision": 0, "objects": [wire], "tags": ["humping"]}
     assert server.api("PUT", f"/frames/{frame}/label", "ada", json=first).status_code == 200

@@ -4,6 +4,7 @@ changed save keeps them on the label, and only their × removes them."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator
 from typing import Any
 
@@ -29,6 +30,7 @@ AFTER = {  # spatter, "humping" and "note" removed with force
     "classes": [{"name": "wire", "kind": "mask", "color": "#40c057", "hotkey": "w"}],
     "frame_tags": ["arc unstable"],
 }
+SEEDS = itertools.count(331)  # one frame per test on the module's server
 
 
 def _box(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
@@ -44,7 +46,7 @@ def retired_frame(server: LiveServer) -> Iterator[int]:
     version = server.api("GET", "/label-config", user="ada").json()["version"]
     first = server.api("PUT", "/label-config", user="ada", json={**BEFORE, "version": version})
     assert first.status_code == 200, first.text
-    frame = add_frame(server, 331, teacher=False)
+    frame = add_frame(server, next(SEEDS), teacher=False)
     body = corrected_label(_box(500, 300, 700, 450)) | {
         "objects": [
             {"class": "spatter", "mask_png": mask_b64(_box(200, 150, 260, 200))},
@@ -134,3 +136,30 @@ def test_a_removed_class_shows_read_only_and_survives_a_changed_save(
     _save(page, 4)
     label = server.api("GET", f"/frames/{frame}/label").json()
     assert [o["class"] for o in label["objects"]] == ["wire"] and label["attributes"] == {}
+
+
+def test_a_conflict_overwritten_with_mine_keeps_the_retired_parts(
+    page: Any, server: LiveServer, retired_frame: int
+) -> None:
+    """The conflict dialog reads their label to say what differs; that look must not make the
+    page name the retired parts for removal: "Overwrite with mine" keeps them stored."""
+    frame = retired_frame
+    spatter = [o for o in server.api("GET", f"/frames/{frame}/label").json()["objects"]]
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.uncheck("#advance")
+    theirs = corrected_label(_box(520, 320, 720, 470)) | {"base_revision": 1}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=theirs).status_code == 200
+    page.keyboard.press("w")
+    page.keyboard.press("4")
+    page.locator("[data-testid=brush-size]").fill("16")
+    _stroke(page, (300, 600), (420, 600))
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    page.click("[data-testid=conflict-overwrite]")
+    page.locator("[data-testid=toast-ok]", has_text="revision 3").wait_for()
+    label = server.api("GET", f"/frames/{frame}/label").json()
+    assert [o["class"] for o in label["objects"]] == ["wire", "spatter", "spatter"]
+    assert label["objects"][1:] == spatter
+    assert label["tags"] == ["humping"] and label["attributes"] == {"note": "porous"}
