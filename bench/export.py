@@ -8,14 +8,15 @@ a different hand-drawn-like pool mask per label, as a 0/255 PNG), then times ``G
 /api/v1/export`` for each format in process (the whole request path, streamed): the time to the
 first byte, the time to the last, and the process's peak RSS and temporary files. The floor is
 the zip-copy of the same image and mask files into an in-memory zip (what any exporter must at
-least do); the ratio is the export's total over it. Median of ``--runs``. Labels carry the RLE,
-area, box and outlines that saving stores with them; ``yolo unstored`` is the YOLO export after
-the outlines are dropped (labels saved before revision 0011: every mask decoded from its RLE and
-traced during the export), ``coco unstored`` the COCO export after the RLE, area and box are
-dropped too (labels saved before revision 0008: every mask PNG decoded and encoded). With
-``--s3 ENDPOINT`` the same labels are stored in an object store (a fresh bucket) and exported
-by a process whose cache is cold (the home's copies removed before each run), beside the home
-folder's export (goal ≤ 1.5×).
+least do); the ratio is the export's total over it, and the writer's (the zip written in
+process, without the request around it) over it: the floor has no HTTP path. Median of
+``--runs``. Labels carry the RLE, area, box and outlines that saving stores with them; ``yolo
+unstored`` is the YOLO export after the outlines are dropped (labels saved before revision 0011:
+every mask decoded from its RLE and traced during the export), ``coco unstored`` the COCO export
+after the RLE, area and box are dropped too (labels saved before revision 0008: every mask PNG
+decoded and encoded). With ``--s3 ENDPOINT`` the same labels are stored in an object store (a
+fresh bucket) and exported by a process whose cache is cold (the home's copies removed before
+each run), beside the home folder's export (goal ≤ 1.5×).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from app.core.models import Frame, Label, LabelStatus, Role, Sequence, Split, Us
 from app.core.schema import migrate
 from app.core.security import hash_password, issue_token
 from app.main import create_app
+from app.review.export import export_rows, stream_export
 from app.storage import LocalStorage, Storage, open_storage
 from weldpool_core.io import encode_png
 from weldpool_core.outline import coco_mask, region_outlines
@@ -140,6 +142,22 @@ def floor_s(storage: Storage, files: list[str]) -> float:
 FORMATS = ("coco", "masks", "yolo", "cvat", "yolo unstored", "coco unstored")
 
 
+def writer_s(settings: Settings, fmt: str) -> float:
+    """The export's zip written in this process, without the request around it: what the
+    service itself does (rows loaded, files read, entries written), beside the floor; the
+    request's total adds the HTTP path (in process: the test client's thread hops)."""
+    engine = create_db_engine(settings.resolved_database_url)
+    try:
+        with create_session_factory(engine)() as session:
+            start = time.perf_counter()
+            rows = export_rows(session, None, None)
+            for _ in stream_export(open_storage(settings), fmt, rows):  # type: ignore[arg-type]
+                pass
+            return time.perf_counter() - start
+    finally:
+        engine.dispose()
+
+
 def export_times(
     settings: Settings, token: str, formats: tuple[str, ...], runs: int, cold: bool = False
 ) -> dict[str, tuple[float, float, int, int, float]]:
@@ -205,26 +223,39 @@ def main() -> None:
         formats = tuple(f.strip() for f in args.formats.split(","))
         if unknown := sorted(set(formats) - set(FORMATS)):
             sys.exit(f"unknown formats: {', '.join(unknown)}")
+        writers = {  # first: the unstored formats' runs drop the stored values for good
+            fmt: statistics.median(writer_s(settings, fmt) for _ in range(args.runs))
+            for fmt in formats
+            if " " not in fmt
+        }
         local = export_times(settings, token, formats, args.runs)
     print(f"{args.labels} labels, SQLite; zip-copy floor {floor * 1000:.0f} ms\n")
-    print("| format | first byte ms | total ms | × floor | MB | temporary files | CPU ms |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+    print(
+        "| format | first byte ms | total ms | × floor | writer ms | writer × floor | MB | "
+        "temporary files | CPU ms |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for fmt, (first, total, size, leftovers, cpu) in local.items():
+        writer = writers.get(fmt)
+        alone = "– | –" if writer is None else f"{writer * 1000:.0f} | {writer / floor:.2f}×"
         print(
             f"| {fmt} | {first * 1000:.0f} | {total * 1000:.0f} | {total / floor:.2f}× | "
-            f"{size / 1e6:.0f} | {leftovers} | {cpu * 1000:.0f} |",
+            f"{alone} | {size / 1e6:.0f} | {leftovers} | {cpu * 1000:.0f} |",
             flush=True,
         )
     if args.s3:
-        cold_exports(args, local)
+        cold_exports(args, local, writers)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"\npeak RSS of this process: {peak:.0f} MB")
 
 
 def cold_exports(
-    args: argparse.Namespace, local: dict[str, tuple[float, float, int, int, float]]
+    args: argparse.Namespace,
+    local: dict[str, tuple[float, float, int, int, float]],
+    writers: dict[str, float],
 ) -> None:
-    """The same exports from an object store, each from a cold cache, beside the local ones."""
+    """The same exports from an object store, each from a cold cache, beside the local ones:
+    the request, and the writer alone."""
     from storage import bucket  # bench/storage.py: a fresh bucket on the endpoint
 
     formats = tuple(f for f in ("coco", "masks", "cvat") if f in local)
@@ -237,16 +268,28 @@ def cold_exports(
         )
         token, _ = fill(settings, args.labels)
         remote = export_times(settings, token, formats, args.runs, cold=True)
+        alone = {
+            fmt: statistics.median(cold_writer_s(settings, fmt) for _ in range(args.runs))
+            for fmt in formats
+        }
     print(f"\nthe object store at {args.s3}, cache cold before each export\n")
-    print("| format | first byte ms | total ms | × local |")
-    print("|---|---:|---:|---:|")
+    print("| format | first byte ms | total ms | × local | writer ms | writer × local |")
+    print("|---|---:|---:|---:|---:|---:|")
     for fmt in formats:
         first, total, *_ = remote[fmt]
         print(
             f"| {fmt} (cold) | {first * 1000:.0f} | {total * 1000:.0f} | "
-            f"{total / local[fmt][1]:.2f}× |",
+            f"{total / local[fmt][1]:.2f}× | {alone[fmt] * 1000:.0f} | "
+            f"{alone[fmt] / writers[fmt]:.2f}× |",
             flush=True,
         )
+
+
+def cold_writer_s(settings: Settings, fmt: str) -> float:
+    """``writer_s`` after the home's cached copies of the store's files are removed."""
+    for area in ("frames", "artefacts"):
+        shutil.rmtree(settings.home / area, ignore_errors=True)
+    return writer_s(settings, fmt)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from weldpool_core.errors import InvalidInputError
-from weldpool_core.io import mask_gray, mask_level
+from weldpool_core.io import encode_mask_png, mask_gray, mask_level
 
 if TYPE_CHECKING:
     import cv2
@@ -463,3 +463,18 @@ def mask_record(
         "mask_bbox": coco.bbox,
         "mask_outlines": outlines,
     }
+
+
+def rle_mask_pngs(rles: list[dict[str, Any]]) -> list[bytes | None]:
+    """The mask PNG of each stored COCO RLE (``encode_mask_png`` of ``rle_boxed``: the file
+    saving wrote), None for a damaged one; a batch for the service's processes (a masks
+    export from a cold cache)."""
+    pngs: list[bytes | None] = []
+    for rle in rles:
+        try:
+            boxed = rle_boxed(rle)
+        except (ValueError, KeyError, TypeError):  # the label's file says what it is
+            pngs.append(None)
+        else:
+            pngs.append(encode_mask_png(boxed.pixels, boxed.size, boxed.origin))
+    return pngs

@@ -24,13 +24,9 @@ thread pool a few frames ahead of the writer (OpenCV and pycocotools release the
 for labels saved before their RLE, area and box were stored with them at save time. YOLO's
 polygons are stored with labels too (``Label.mask_outlines``); those of labels saved before
 are traced in the same pool, on masks decoded from the stored RLE (else the PNG). CVAT's
-pool masks are laid out from the stored RLE in the service's processes (``mapped_ahead``):
-in threads, their numpy work held the GIL against the writer.
-
-The masks layout copies each label's mask file where this machine holds it, and makes the PNG
-from the RLE stored with the label where it does not (the same pixels, without reading the
-store: a cold export from an object store makes no GET for masks); a label saved before its RLE
-was stored has its file read.
+pool masks, and the masks layout's PNGs where this machine lacks a label's mask file (a cold
+export from an object store GETs no mask), are made from the stored RLE in the service's
+processes (``mapped_ahead``): in threads, their numpy work held the GIL against the writer.
 
 A frame whose image, or a mask file the export must read, the store lost is left out of the zip:
 ``skipped.txt`` lists each such frame with what restores its file (the masks layout's
@@ -80,8 +76,7 @@ from app.review.export_classes import (
 from app.storage import EXPORTS_DIR, Storage
 from app.storage.pixels import load_mask
 from app.system.doctor import frame_file, frame_file_missing
-from weldpool_core.io import encode_mask_png
-from weldpool_core.outline import coco_mask, coco_mask_png, rle_boxed, rle_mask
+from weldpool_core.outline import coco_mask, coco_mask_png, rle_mask, rle_mask_pngs
 
 if TYPE_CHECKING:
     import numpy as np
@@ -151,20 +146,11 @@ def _stored_mask(storage: Storage, label: Label) -> NDArray[np.bool_]:
     return load_mask(storage, label.mask_path)
 
 
-def _mask_png(storage: Storage, label: Label) -> bytes | Path:
-    """A label's mask PNG for the masks layout: its file where this machine holds it (home, or
-    an object store's warm cache), else made from the RLE stored with the label: the same
-    pixels (both were made from one mask), and no read of the store (a cold export from an
-    object store GETs no mask). A label saved before its RLE was stored has its file read."""
+def _from_rle(storage: Storage, label: Label) -> bool:
+    """Whether the masks layout makes a label's PNG from its stored RLE (the same pixels): where
+    this machine lacks its file (a cold cache, a lost file); a file here is copied (cheaper)."""
     assert label.mask_path is not None  # accepted and corrected labels have a mask
-    if label.mask_rle is not None and not storage.local(label.mask_path).is_file():
-        try:
-            boxed = rle_boxed(label.mask_rle)
-        except (ValueError, KeyError, TypeError):  # a damaged RLE: the file says what it is
-            pass
-        else:
-            return encode_mask_png(boxed.pixels, boxed.size, boxed.origin)
-    return storage.existing(label.mask_path)
+    return label.mask_rle is not None and not storage.local(label.mask_path).is_file()
 
 
 def _query(
@@ -356,24 +342,38 @@ def _write_masks(
 ) -> Iterator[int]:
     manifest = []
     config = written_config(rows)
+    made = {row[0].id for row in rows if _from_rle(storage, row[1])}
+    stored = [row[1].mask_rle for row in rows if row[0].id in made]  # their PNGs: in processes
+    pngs = mapped_ahead(rle_mask_pngs, stored, POOL_CHUNK, POOL_PROCESS_MIN)
 
-    def read(row: Any) -> tuple[Path | bytes, ClassFiles]:  # in the readers' pool
-        return _mask_png(storage, row[1]), class_files(row[1], config, _stem(row[0]))
+    def read(row: Any) -> tuple[Path | None, ClassFiles]:  # in the readers' pool
+        file = None if row[0].id in made else storage.existing(row[1].mask_path)
+        return file, class_files(row[1], config, _stem(row[0]))
 
     for done, (frame, label, sequence, manual), image, files in _readable(
         storage, rows, skipped, read
     ):
+        png = next(pngs) if frame.id in made else None
         if image is None:
             yield done
             continue
         stem, (mask, classes) = _stem(frame), files
+        if png is not None:
+            mask = png
+        elif mask is None:  # made from a damaged RLE: its file instead, where it is here
+            try:
+                mask = frame_file(storage, label.mask_path, frame.id, "label mask")
+            except MissingFile as missing:
+                skipped.append((frame.id, missing.message))
+                yield done
+                continue
         archive.write(image, f"images/{stem}{_extension(frame)}")
         if isinstance(mask, bytes):
             archive.writestr(f"masks/{stem}.png", mask)
         else:
             archive.write(mask, f"masks/{stem}.png")
-        for path, png in classes.files:
-            archive.writestr(path, png)
+        for path, data in classes.files:
+            archive.writestr(path, data)
         archive.writestr(f"keypoints/{stem}.json", json.dumps({"keypoints": label.keypoints}))
         if manual is not None:
             archive.writestr(
@@ -530,7 +530,7 @@ def _write_cvat(
     elements: list[Any] = []
     config, names = written_config(rows), file_names([row[0] for row in rows])
     stored = [(row[1].mask_rle, row[1].mask_bbox) for row in rows if row[1].mask_rle is not None]
-    pools = mapped_ahead(cvat_rle_masks, stored, CVAT_CHUNK, CVAT_PROCESS_MIN)
+    pools = mapped_ahead(cvat_rle_masks, stored, POOL_CHUNK, POOL_PROCESS_MIN)
 
     def shapes(row: Any) -> tuple[Any, list[Any]]:  # in the readers' pool
         label = row[1]
@@ -582,11 +582,11 @@ def _write_labelme(
     yield from write_labelme(archive, rows, readable, lambda label: _stored_mask(storage, label))
 
 
-CVAT_CHUNK = 16
-"""Labels per task a CVAT export sends to the service's processes (fewer round trips)."""
-CVAT_PROCESS_MIN = 128
-"""Stored masks from which a CVAT export starts the processes (their start takes seconds and
-~150 MB each); fewer are made in the writer's thread (under 0.5 ms each) unless they run."""
+POOL_CHUNK = 16
+"""Labels per task a CVAT or masks export sends to the service's processes."""
+POOL_PROCESS_MIN = 128
+"""Masks to make from the stored RLE from which an export starts the processes (their start
+takes seconds and ~150 MB each); fewer are made in the writer's thread unless they run."""
 
 
 WRITERS: dict[str, Writer] = {

@@ -87,8 +87,8 @@ def test_the_cvat_masks_are_built_in_the_pool_and_are_the_whole_frames(
         return real(*args, **kwargs)
 
     monkeypatch.setattr(cvat, "cvat_rle_mask", recorded)  # this process's: the objects'
-    monkeypatch.setattr(export, "CVAT_CHUNK", 5)  # the pools: 16 stored, four tasks
-    monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 16)
+    monkeypatch.setattr(export, "POOL_CHUNK", 5)  # the pools: 16 stored, four tasks
+    monkeypatch.setattr(export, "POOL_PROCESS_MIN", 16)
     data = b"".join(export.stream_export(storage, "cvat", rows))  # written in this thread
     assert built_in and threading.get_ident() not in built_in
     assert core_processes.started()
@@ -154,8 +154,8 @@ def test_the_cvat_xml_is_the_one_made_label_by_label(
     (pools of labels with and without a stored RLE interleaved)."""
     storage = LocalStorage(tmp_path)
     rows, _ = _rows(storage, 23)
-    monkeypatch.setattr(export, "CVAT_CHUNK", 3)  # more tasks than are sent ahead
-    monkeypatch.setattr(export, "CVAT_PROCESS_MIN", 100 if processes == "few" else 1)
+    monkeypatch.setattr(export, "POOL_CHUNK", 3)  # more tasks than are sent ahead
+    monkeypatch.setattr(export, "POOL_PROCESS_MIN", 100 if processes == "few" else 1)
     if processes == "few":  # fewer than start the processes: made here, none started
         monkeypatch.setattr(core_processes, "started", lambda: False)
         monkeypatch.setattr(core_processes, "process_pool", _never)

@@ -9,11 +9,14 @@ import zipfile
 
 import cv2
 import numpy as np
+import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
+from app.core import processes as core_processes
 from app.core.config import Settings
 from app.core.models import Label, Role
+from app.review import export
 from tests.helpers import auth, corrected_label, image_bytes
 
 SIZES = [(100, 160), (77, 131), (64, 64), (120, 90)]
@@ -110,3 +113,46 @@ def test_a_label_saved_before_its_rle_has_its_file_copied_or_is_left_out_when_lo
     assert f"masks/{second:07d}.png" not in archive.namelist()
     skipped = archive.read("skipped.txt").decode()
     assert skipped.startswith(f"frame {second}: ") and lost in skipped
+
+
+@pytest.mark.parametrize("processes", ["running", "not started"])
+def test_the_pngs_made_in_the_processes_are_the_stored_files_in_order(
+    client: TestClient,
+    settings: Settings,
+    session_factory,
+    make_user,
+    monkeypatch: pytest.MonkeyPatch,
+    processes: str,
+) -> None:
+    """A cold masks export makes its PNGs in the service's processes a few tasks ahead of the
+    writer (or in its thread for a small export): each frame gets its own mask's file, byte for
+    byte, even where a frame between them is left out; a damaged RLE whose file is lost too
+    leaves its frame out."""
+    _, token = make_user(f"cold-{processes.replace(' ', '-')}", Role.reviewer)
+    masks = _labelled(client, token, 11)
+    ids = sorted(masks)
+    with session_factory() as session:
+        paths = {
+            r.frame_id: r.mask_path
+            for r in session.execute(sa.select(Label.frame_id, Label.mask_path))
+        }
+        session.execute(  # frame 4: a damaged RLE, and (below) its file lost
+            sa.update(Label)
+            .where(Label.frame_id == ids[4])
+            .values(mask_rle={"size": [1, 1], "counts": "0"})
+        )
+        session.commit()
+    stored = {f: (settings.home / paths[f]).read_bytes() for f in ids}
+    for path in paths.values():
+        (settings.home / path).unlink()
+    monkeypatch.setattr(export, "POOL_CHUNK", 3)
+    monkeypatch.setattr(export, "POOL_PROCESS_MIN", 1 if processes == "running" else 10**6)
+    archive = _exported(client, token)
+    assert core_processes.started() or processes == "not started"
+    for frame_id in ids:
+        name = f"masks/{frame_id:07d}.png"
+        if frame_id == ids[4]:
+            assert name not in archive.namelist()
+        else:
+            assert archive.read(name) == stored[frame_id]
+    assert archive.read("skipped.txt").decode().startswith(f"frame {ids[4]}: ")
