@@ -163,3 +163,33 @@ def test_a_conflict_overwritten_with_mine_keeps_the_retired_parts(
     assert [o["class"] for o in label["objects"]] == ["wire", "spatter", "spatter"]
     assert label["objects"][1:] == spatter
     assert label["tags"] == ["humping"] and label["attributes"] == {"note": "porous"}
+
+
+def test_their_label_taken_and_undone_names_no_retired_part_for_removal(
+    page: Any, server: LiveServer, retired_frame: int
+) -> None:
+    """ "Take theirs" loads their label (its retired objects with other uids); undo brings mine
+    back: a save then keeps every retired object, since no × was pressed on any."""
+    frame = retired_frame
+    spatter = [o for o in server.api("GET", f"/frames/{frame}/label").json()["objects"]]
+    login(page, server, "rita")
+    page.goto(f"{server.url}/frames/{frame}")
+    open_review(page)
+    page.uncheck("#advance")
+    theirs = corrected_label(_box(520, 320, 720, 470)) | {"base_revision": 1}
+    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=theirs).status_code == 200
+    page.keyboard.press("w")
+    page.keyboard.press("4")
+    page.locator("[data-testid=brush-size]").fill("16")
+    _stroke(page, (300, 600), (420, 600))
+    page.click("[data-testid=save]")
+    page.locator("[data-testid=conflict-dialog]").wait_for()
+    page.click("[data-testid=conflict-reload]")
+    wait_for_js(
+        page, "() => document.querySelector('[data-testid=frame-canvas]').dataset.revision === '2'"
+    )
+    page.keyboard.press("Control+z")  # mine again, unsaved
+    _save(page, 3)
+    label = server.api("GET", f"/frames/{frame}/label").json()
+    assert [o["class"] for o in label["objects"]] == ["wire", "spatter", "spatter"]
+    assert label["objects"][1:] == spatter

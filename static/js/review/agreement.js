@@ -29,7 +29,7 @@ export async function loadAgreement() {
     const mask = await Mask.fromPng(own.mask_png, S.frame.width, S.frame.height);
     const others = othersFromLabel(own, S.frame.width, S.frame.height);
     S.retired = retiredOf(null, []); // her own label: the frame label's retired parts are not in it
-    S.edit = { ...S.edit, mask, keypoints: (own.keypoints ?? []).map((p) => [...p]), ...others, maskEdited: false, kpEdited: false, session: null };
+    S.edit = { ...S.edit, mask, keypoints: (own.keypoints ?? []).map((p) => [...p]), ...others, removed: [], maskEdited: false, kpEdited: false, session: null };
     S.labelClean = S.edit;
     selectLayer(S.layer); // the pool again when the edited object was not hers
   }
@@ -97,7 +97,7 @@ async function show(label) {
   const mask = await Mask.fromPng(label.mask_png, S.frame.width, S.frame.height);
   const others = othersFromLabel(label, S.frame.width, S.frame.height);
   S.retired = retiredOf(null, []); // the frame label's retired parts stay stored unless removed there
-  commit({ ...S.edit, mask, keypoints: (label.keypoints ?? []).map((p) => [...p]), ...others, maskEdited: false, kpEdited: false, session: null });
+  commit({ ...S.edit, mask, keypoints: (label.keypoints ?? []).map((p) => [...p]), ...others, removed: [], maskEdited: false, kpEdited: false, session: null });
   selectLayer(S.layer);
   toast(`${label.username}'s label is shown.`, "info");
 }
@@ -118,6 +118,9 @@ async function settle(body, what) {
  *  it with her tags and attributes. */
 export async function saveOwn() {
   const body = { mask_png: await S.edit.mask.toPng(), ...(await othersBody({ all: true })) };
+  // Her own label starts from the frame's: what its configuration retired is not hers to send.
+  body.tags = body.tags.filter((tag) => !S.retired.tags.includes(tag));
+  body.attributes = Object.fromEntries(Object.entries(body.attributes).filter(([name]) => !S.retired.attributes.includes(name)));
   if (S.edit.keypoints.length && !(S.edit.maskEdited && !S.edit.kpEdited)) body.keypoints = S.edit.keypoints;
   try {
     await api(`/frames/${FRAME_ID}/overlap/mine`, { method: "PUT", json: body });

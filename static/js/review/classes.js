@@ -152,7 +152,8 @@ export function drawLayers() {
   stage.namedPoints = S.edit.objects.filter((o) => o.points && lookOf(o.uid).visible).flatMap((o) => Object.entries(o.points).map(([name, [x, y]]) => ({
     x, y, name, colour: colourOf(specOf(o)), alpha: lookOf(o.uid).opacity, selected: o.uid === S.layer && name === S.selectedPoint,
   })));
-  stage.canvas.dataset.layer = S.layer === POOL ? POOL : objectName(activeObject());
+  const active = activeObject(); // none while a label taken in place of mine is being set
+  stage.canvas.dataset.layer = active ? objectName(active) : POOL;
   stage.canvas.dataset.objects = JSON.stringify(S.edit.objects.map((o) => ({
     name: objectName(o), class: o.cls, ...(o.retired ? { retired: true } : {}), ...(o.points ? { points: o.points } : { area: o.mask.area(), bbox: o.mask.bbox() }),
   })));

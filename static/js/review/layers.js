@@ -80,8 +80,13 @@ export function addObject(name) {
   return object;
 }
 
+/** An object taken off the label; a retired one is also remembered in the editing state's
+ *  `removed` (the uids its × took off), so undo puts it back and a label loaded or taken in
+ *  place of this one names none of them. */
 export function removeObject(uid) {
-  commit({ ...S.edit, objects: S.edit.objects.filter((o) => o.uid !== uid) });
+  const retired = objectOf(S.edit, uid)?.retired;
+  const removed = retired ? [...(S.edit.removed ?? []), uid] : S.edit.removed;
+  commit({ ...S.edit, objects: S.edit.objects.filter((o) => o.uid !== uid), removed });
   if (S.layer === uid) selectLayer(POOL);
   LOOK.delete(uid);
 }
@@ -155,17 +160,24 @@ export const retiredOf = (label, objects) => ({
   attributes: label?.retired?.attributes ?? [],
 });
 
-/** After a save: where the server now lists the retired parts still shown (in their order). */
+/** After a save: where the server now lists the retired parts still shown (in their order);
+ *  where its list is not theirs one for one (a conflict overwritten, their retired parts kept
+ *  beside mine) none is named for removal any more: kept rather than the wrong one removed. */
 export function adoptRetired(label) {
-  const shown = [...S.retired.objects.keys()].filter((uid) => objectOf(S.edit, uid));
+  const shown = S.edit.objects.filter((o) => o.retired && S.retired.objects.has(o.uid)).map((o) => o.uid);
   const positions = label.retired?.objects ?? [];
-  S.retired = { objects: new Map(shown.map((uid, k) => [uid, positions[k]])), tags: label.retired?.tags ?? [], attributes: label.retired?.attributes ?? [] };
+  const paired = shown.length === positions.length ? shown.map((uid, k) => [uid, positions[k]]) : [];
+  S.retired = { objects: new Map(paired), tags: label.retired?.tags ?? [], attributes: label.retired?.attributes ?? [] };
+  S.edit = { ...S.edit, removed: [] }; // named in the save just made
+  S.labelClean = S.edit;
 }
 
-/** The retired parts the reviewer removed here (none: null): what `remove_retired` names. */
+/** The retired parts the reviewer removed here (none: null): what `remove_retired` names — the
+ *  objects whose × this editing state holds, where the label they were read from is the one
+ *  edited (their positions are its). */
 function removedRetired() {
   const removed = {
-    objects: [...S.retired.objects].filter(([uid]) => !objectOf(S.edit, uid)).map(([, position]) => position),
+    objects: (S.edit.removed ?? []).filter((uid) => S.retired.objects.has(uid)).map((uid) => S.retired.objects.get(uid)),
     tags: S.retired.tags.filter((tag) => !S.edit.tags.includes(tag)),
     attributes: S.retired.attributes.filter((name) => !(name in S.edit.attributes)),
   };
@@ -187,7 +199,7 @@ const isEmpty = (object) => (object.points ? !Object.keys(object.points).length 
  *  here. Empty objects are not sent, nor retired ones (the server keeps those unless named). */
 export async function othersBody({ all = false } = {}) {
   const body = {};
-  const removed = removedRetired();
+  const removed = all ? null : removedRetired(); // mine over theirs: their positions differ
   if (removed) body.remove_retired = removed;
   if (all || S.edit.objects !== S.labelClean.objects) {
     body.objects = await Promise.all(S.edit.objects.filter((o) => !o.retired && !isEmpty(o)).map(async (o) => {

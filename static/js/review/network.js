@@ -149,7 +149,7 @@ export async function saveLabel(kind, baseRevision = S.revision, { all = false }
   const mask = rejected ? new Mask(S.frame.width, S.frame.height) : S.edit.mask;
   S.edit = { ...S.edit, mask, keypoints, outline: rejected ? null : S.edit.outline, maskEdited: false, kpEdited: false, session: null };
   S.labelClean = S.edit;
-  adoptRetired(label);
+  adoptRetired(label); // and nothing named for removal any more
   changed("edit", "review", "frame", "propagate");
   loadHistory();
   const where = label.review === "awaiting" ? " — submitted for review" : label.review === "approved" && REVIEW_STAGE ? " — approved" : "";
@@ -170,7 +170,7 @@ function takeLabel(label, mask) {
   const keypoints = mask ? (label.keypoints ?? []).map((p) => [...p]) : [];
   const others = othersFromLabel(label, width, height);
   S.retired = retiredOf(label, others.objects); // theirs is the label now edited
-  commit({ ...S.edit, mask: mask ?? new Mask(width, height), keypoints, ...others, outline: null, maskEdited: false, kpEdited: false, session: null });
+  commit({ ...S.edit, mask: mask ?? new Mask(width, height), keypoints, ...others, removed: [], outline: null, maskEdited: false, kpEdited: false, session: null });
   S.labelClean = S.edit;
   selectLayer(S.layer);
   changed("edit", "review", "frame", "propagate");

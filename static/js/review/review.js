@@ -208,6 +208,7 @@ export async function start() {
     maskEdited: false,
     kpEdited: false,
     objects, // the other classes' (layers.js)
+    removed: [], // the retired ones' × taken here (layers.js)
     tags: label?.tags ?? [],
     attributes: label?.attributes ?? {},
   };
