@@ -232,11 +232,13 @@ def settle(
 
 
 def _resent(item: dict[str, Any]) -> dict[str, Any]:
-    """A stored object as a save gives it (its region once, as RLE; area and box recomputed)."""
+    """A stored object as a save gives it: its region once, as the polygons it was drawn as
+    (kept with it, and its RLE made from them again) or else its RLE; area and box recomputed."""
     kept = ("class", "points", "attributes") if "points" in item else ("class", "attributes")
     resent = {k: item[k] for k in kept if k in item}
-    if "rle" in item:
-        resent["rle"] = item["rle"]
+    region = "polygons" if item.get("polygons") is not None else "rle"
+    if region in item:
+        resent[region] = item[region]
     return resent
 
 

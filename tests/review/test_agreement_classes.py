@@ -107,3 +107,29 @@ def test_every_class_measured_and_kept(client: TestClient, make_user) -> None:
     assert [o["class"] for o in label["objects"]] == ["wire", "spatter", "torch"]
     assert label["objects"][2]["points"]["tip"] == [13.0, 14.0]
     assert label["tags"] == [] and label["attributes"] == {"joint": "fillet"}
+
+
+def test_an_approved_label_keeps_the_polygons_its_objects_were_drawn_as(
+    client: TestClient, make_user
+) -> None:
+    admin = make_user("ada", Role.admin)[1]
+    assert client.put("/api/v1/label-config", json=LAB, headers=auth(admin)).is_success
+    (frame,) = frame_ids(client, admin, random_images([("1", 1)]))
+    people = {name: make_user(name) for name in ("anna", "otto")}
+    given = {"frame_ids": [frame], "user_ids": [user.id for user, _ in people.values()]}
+    assert client.post("/api/v1/frames/overlap", json=given, headers=auth(admin)).is_success
+    drawn = {"class": "spatter", "polygons": [[[5, 20], [15, 20], [15, 30], [5, 30]]]}
+    body = {"mask_png": POOL, "objects": [drawn]}
+    url = f"/api/v1/frames/{frame}/overlap/mine"
+    assert client.put(url, json=body, headers=auth(people["anna"][1])).status_code == 200
+    own = client.get(f"/api/v1/frames/{frame}/overlap", headers=auth(people["anna"][1]))
+    stored = own.json()["labels"][0]["objects"][0]
+    assert stored["polygons"] and stored["rle"]
+    chosen = client.post(
+        f"/api/v1/frames/{frame}/overlap/settle",
+        json={"choose": people["anna"][0].id},
+        headers=auth(admin),
+    )
+    assert chosen.status_code == 200, chosen.text
+    (approved,) = chosen.json()["objects"]
+    assert approved["polygons"] == stored["polygons"] and approved["rle"] == stored["rle"]
