@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session
 from app.core.config import Settings
 from app.core.models import Frame, Label, ModelVersion
 from app.labelconfig import service as labelconfig
+from app.labelconfig.retired import object_retired
 from app.labelconfig.schemas import POOL
 from app.training.service import TRAINABLE_LABEL
 from weldpool_core.outline import rle_mask
@@ -57,7 +58,12 @@ def learned_classes(
 
     if min_labels <= 0:
         return ()
-    objects = _objects(session, frame_ids)
+    configured = labelconfig.current(session).config["classes"]
+    by_name = {spec["name"]: spec for spec in configured}
+    objects = {  # an object the configuration retired (a class re-kinded) is no label of it
+        frame: [o for o in held if not object_retired(by_name, o)]
+        for frame, held in _objects(session, frame_ids).items()
+    }
     counts: Counter[str] = Counter()
     names: dict[str, set[str]] = {}
     for held in objects.values():
@@ -66,7 +72,7 @@ def learned_classes(
         for item in held:
             names.setdefault(str(item.get("class")), set()).update(item.get("points") or {})
     learned = []
-    for spec in labelconfig.current(session).config["classes"]:
+    for spec in configured:
         name, kind = spec["name"], spec.get("kind")
         if name == POOL or kind not in KINDS or counts[name] < min_labels:
             continue

@@ -90,6 +90,12 @@ def test_classes_with_enough_labels_are_learned_with_their_labels_as_truths(
     assert first["wire tip"].points == {"tip": (60.0, 9.0)}
     assert first["spatter"].mask.sum() == 2 * 7 * 7  # the instances' union (vertices included)
     assert "spatter" not in truths[ids[2]]
+    # Spatter made a points class with force: its stored regions are retired, no labels of it.
+    spatter = {"name": "spatter", "kind": "points", "point_names": ["p"]}
+    changed = {"classes": [*LAB["classes"][:2], spatter], "version": 1, "force": True}
+    assert client.put("/api/v1/label-config", json=changed, headers=auth(admin)).is_success
+    with session_factory() as session:
+        assert classes.learned_classes(session, ids, 2) == LEARNED
 
 
 @pytest.fixture(scope="module")
