@@ -32,6 +32,7 @@ from app.core.housekeeping import doom
 from app.core.models import Frame, Label, LabelStatus, OverlapLabel, Sequence, User
 from app.core.permissions import Action, may
 from app.labelconfig import service as labelconfig
+from app.labelconfig.retired import retired
 from app.proposals.files import store_mask
 from app.proposals.policy import stored_iou
 from app.review.agreement_classes import Figures, frame_class_agreement, mean_figures, nearest_px
@@ -204,10 +205,17 @@ def settle(
             raise InvalidInputError(f"User {choose} has no label of frame {frame.id} to approve.")
         mask, keypoints = load_mask(storage, picked.mask_path or ""), picked.keypoints
         held = picked.frame_tags or {}
+        # What the configuration retired since she saved is not resent: the frame's label
+        # keeps its own retired parts, hers stay on her own label.
+        gone = retired(labelconfig.current(session), picked.objects, held)
         others = OtherClasses(
-            objects=[_resent(o) for o in picked.objects or []],
-            tags=held.get("tags", []),
-            attributes=held.get("attributes", {}),
+            objects=[
+                _resent(o) for i, o in enumerate(picked.objects or []) if i not in gone.objects
+            ],
+            tags=[t for t in held.get("tags", []) if t not in gone.tags],
+            attributes={
+                k: v for k, v in held.get("attributes", {}).items() if k not in gone.attributes
+            },
         )
     else:
         if len(rows) < 2:

@@ -133,3 +133,34 @@ def test_an_approved_label_keeps_the_polygons_its_objects_were_drawn_as(
     assert chosen.status_code == 200, chosen.text
     (approved,) = chosen.json()["objects"]
     assert approved["polygons"] == stored["polygons"] and approved["rle"] == stored["rle"]
+
+
+def test_an_annotator_label_with_parts_retired_since_is_approved_without_them(
+    client: TestClient, make_user
+) -> None:
+    admin = make_user("ada", Role.admin)[1]
+    assert client.put("/api/v1/label-config", json=LAB, headers=auth(admin)).is_success
+    (frame,) = frame_ids(client, admin, random_images([("1", 1)]))
+    people = {name: make_user(name) for name in ("anna", "otto")}
+    given = {"frame_ids": [frame], "user_ids": [user.id for user, _ in people.values()]}
+    assert client.post("/api/v1/frames/overlap", json=given, headers=auth(admin)).is_success
+    body = {"mask_png": POOL, **ANNA}
+    url = f"/api/v1/frames/{frame}/overlap/mine"
+    assert client.put(url, json=body, headers=auth(people["anna"][1])).status_code == 200
+    later = {  # spatter and the tag "humping" removed with force after she saved
+        "version": 1,
+        "force": True,
+        "classes": [c for c in LAB["classes"] if c["name"] != "spatter"],
+        "frame_tags": ["arc unstable"],
+        "frame_attributes": LAB["frame_attributes"],
+    }
+    assert client.put("/api/v1/label-config", json=later, headers=auth(admin)).is_success
+    chosen = client.post(
+        f"/api/v1/frames/{frame}/overlap/settle",
+        json={"choose": people["anna"][0].id},
+        headers=auth(admin),
+    )
+    assert chosen.status_code == 200, chosen.text
+    label = chosen.json()
+    assert [o["class"] for o in label["objects"]] == ["wire", "torch"]
+    assert label["tags"] == [] and label["attributes"] == {"joint": "butt"}
