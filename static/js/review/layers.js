@@ -141,7 +141,9 @@ export function objectsFromLabel(label, width, height) {
     const spec = retired.has(position) ? null : classOf(item.class);
     if (!retired.has(position) && (!spec || spec.name === POOL)) continue;
     const object = { uid: newUid(), cls: item.class, attributes: { ...(item.attributes ?? {}) } };
-    if (spec === null) object.retired = true;
+    // Of a class given the other shape since (an annotator's own label lists no `retired`).
+    const misfit = spec !== null && (spec.kind === "points") !== Boolean(item.points);
+    if (spec === null || misfit) object.retired = true;
     if (item.points) object.points = Object.fromEntries(Object.entries(item.points).map(([k, p]) => [k, [...p]]));
     else if (item.rle) object.mask = Mask.fromRle(item.rle.counts, width, height);
     else continue;
