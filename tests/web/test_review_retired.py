@@ -138,13 +138,10 @@ def test_a_removed_class_shows_read_only_and_survives_a_changed_save(
     assert [o["class"] for o in label["objects"]] == ["wire"] and label["attributes"] == {}
 
 
-def test_a_conflict_overwritten_with_mine_keeps_the_retired_parts(
-    page: Any, server: LiveServer, retired_frame: int
-) -> None:
-    """The conflict dialog reads their label to say what differs; that look must not make the
-    page name the retired parts for removal: "Overwrite with mine" keeps them stored."""
-    frame = retired_frame
-    spatter = [o for o in server.api("GET", f"/frames/{frame}/label").json()["objects"]]
+def _in_conflict(page: Any, server: LiveServer, frame: int) -> list[dict[str, Any]]:
+    """The frame open for rita, ada's label saved meanwhile (the pool alone), a wire painted
+    and saved: the conflict dialog open. Returns the retired spatter objects as stored."""
+    spatter = server.api("GET", f"/frames/{frame}/label").json()["objects"]
     login(page, server, "rita")
     page.goto(f"{server.url}/frames/{frame}")
     open_review(page)
@@ -157,6 +154,15 @@ def test_a_conflict_overwritten_with_mine_keeps_the_retired_parts(
     _stroke(page, (300, 600), (420, 600))
     page.click("[data-testid=save]")
     page.locator("[data-testid=conflict-dialog]").wait_for()
+    return spatter
+
+
+def test_a_conflict_overwritten_with_mine_keeps_the_retired_parts(
+    page: Any, server: LiveServer, retired_frame: int
+) -> None:
+    """The conflict dialog reads their label to say what differs; that look must not make the
+    page name the retired parts for removal: "Overwrite with mine" keeps them stored."""
+    frame, spatter = retired_frame, _in_conflict(page, server, retired_frame)
     page.click("[data-testid=conflict-overwrite]")
     page.locator("[data-testid=toast-ok]", has_text="revision 3").wait_for()
     label = server.api("GET", f"/frames/{frame}/label").json()
@@ -170,20 +176,7 @@ def test_their_label_taken_and_undone_names_no_retired_part_for_removal(
 ) -> None:
     """ "Take theirs" loads their label (its retired objects with other uids); undo brings mine
     back: a save then keeps every retired object, since no × was pressed on any."""
-    frame = retired_frame
-    spatter = [o for o in server.api("GET", f"/frames/{frame}/label").json()["objects"]]
-    login(page, server, "rita")
-    page.goto(f"{server.url}/frames/{frame}")
-    open_review(page)
-    page.uncheck("#advance")
-    theirs = corrected_label(_box(520, 320, 720, 470)) | {"base_revision": 1}
-    assert server.api("PUT", f"/frames/{frame}/label", "ada", json=theirs).status_code == 200
-    page.keyboard.press("w")
-    page.keyboard.press("4")
-    page.locator("[data-testid=brush-size]").fill("16")
-    _stroke(page, (300, 600), (420, 600))
-    page.click("[data-testid=save]")
-    page.locator("[data-testid=conflict-dialog]").wait_for()
+    frame, spatter = retired_frame, _in_conflict(page, server, retired_frame)
     page.click("[data-testid=conflict-reload]")
     wait_for_js(
         page, "() => document.querySelector('[data-testid=frame-canvas]').dataset.revision === '2'"
