@@ -276,6 +276,9 @@ export class Stage {
       const [px, py] = this.toScreen(x, y);
       if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
     });
+    ctx.lineWidth = 4; // a dark halo under the dashes: seen over any overlay of the same colour
+    ctx.strokeStyle = "rgba(0, 0, 0, 0.75)";
+    ctx.stroke();
     ctx.setLineDash([6, 4]);
     ctx.lineWidth = 1.5;
     ctx.strokeStyle = COLOURS.outline;
@@ -284,6 +287,8 @@ export class Stage {
     points.forEach(([x, y], i) => {
       const [px, py] = this.toScreen(x, y);
       const r = i === 0 ? 5 : 3.5; // the first corner, larger: click it to close
+      ctx.fillStyle = "rgba(0, 0, 0, 0.75)";
+      ctx.fillRect(px - r - 1.5, py - r - 1.5, 2 * r + 3, 2 * r + 3);
       ctx.fillStyle = COLOURS.outline;
       ctx.fillRect(px - r, py - r, 2 * r, 2 * r);
     });
