@@ -6,13 +6,16 @@ faster), then:
 
 1. ``POST /api/v1/frames`` of the 62 real WAAM frames (a throw-away `weldpool serve`, SQLite, no
    worker) on the home folder and on ``WELDPOOL_STORAGE_URL=s3://…``: frames/s, median of
-   ``--runs``, and the ratio (goal ≥ 0.7×).
+   ``--runs``, the ratio (goal ≥ 0.7×), and the web server's own CPU per frame. Two placements:
+   every process on every core (moto's CPU per PUT then competes with the server's), and the
+   store on a core of its own (moto pinned to the last core; the web server and the uploader
+   on the others, for home and S3 alike), as a store on another machine would be.
 2. The same 62 frames put straight into a bucket from 8 threads with boto3 (what the store
    uses) and with obstore (when installed): the client's share of the time.
 3. A click on a frame in a web process whose cache is cold (a fresh home, the frame written by
    another process): the object reads it makes (goal ≤ 1), and the second click's.
 
-    .venv/bin/python bench/storage.py [--runs 5]
+    PYTHONPATH=. .venv/bin/python bench/storage.py [--runs 5]
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from pathlib import Path
 import httpx
 from common import SHARED_DATA, admin_token, free_port, local_server
 from ingest import _salted, generated_frames, upload_run
+from results import Table, recorded
 
 REAL_FRAMES = SHARED_DATA / "waam" / "frames"
 os.environ.setdefault("AWS_ACCESS_KEY_ID", "bench")
@@ -43,21 +47,48 @@ os.environ.setdefault("AWS_REGION", "us-east-1")
 SERVER_PID = 0
 
 
-def server_cpu_s() -> float:
-    """CPU seconds the S3 server process has used (it shares this machine's two cores)."""
-    fields = Path(f"/proc/{SERVER_PID}/stat").read_text().rsplit(")", 1)[1].split()
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds process ``pid`` has used, its threads included (``/proc/<pid>/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def server_cpu_s() -> float:
+    """CPU seconds the S3 server process has used."""
+    return process_cpu_s(SERVER_PID)
+
+
+def web_server_pid() -> int:
+    """The `weldpool serve` that ``local_server`` started: this process's child running it."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            status = (entry / "status").read_text()
+            command = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        parent = next(int(v.split()[1]) for v in status.splitlines() if v.startswith("PPid:"))
+        if parent == os.getpid() and b"serve" in command:
+            return int(entry.name)
+    raise RuntimeError("the web server is not a child of this process")
+
+
 @contextmanager
-def moto_server() -> Iterator[str]:
+def moto_server(core: int | None = None, keep_alive: bool = False) -> Iterator[str]:
+    """moto on loopback: its standalone server (werkzeug: a new connection per request), or
+    with ``keep_alive`` its app behind waitress (``moto_waitress.py``); pinned to ``core``
+    when given."""
     global SERVER_PID
     port = free_port()
-    server = Path(sys.executable).with_name("moto_server")
+    waitress = [sys.executable, str(Path(__file__).with_name("moto_waitress.py")), str(port)]
+    werkzeug = [str(Path(sys.executable).with_name("moto_server")), "-H", "127.0.0.1"]
+    command = waitress if keep_alive else [*werkzeug, "-p", str(port)]
     process = subprocess.Popen(
-        [str(server), "-H", "127.0.0.1", "-p", str(port)],
+        command,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        preexec_fn=None if core is None else lambda: os.sched_setaffinity(0, {core}),
     )
     SERVER_PID = process.pid
     endpoint = f"http://127.0.0.1:{port}"
@@ -72,6 +103,18 @@ def moto_server() -> Iterator[str]:
     finally:
         process.terminate()
         process.wait(timeout=20)
+
+
+@contextmanager
+def on_cores(cores: set[int] | None) -> Iterator[None]:
+    """Run this process (and the processes it starts meanwhile) on ``cores`` only."""
+    before = os.sched_getaffinity(0)
+    if cores:
+        os.sched_setaffinity(0, cores)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
 
 
 def bucket(endpoint: str) -> str:
@@ -91,26 +134,76 @@ def machine_cpu_s() -> float:
 
 def ingest_rates(
     frames: list[tuple[str, bytes]], env: dict[str, str], runs: int, salt: int
-) -> dict[tuple[int, int], tuple[float, float, float]]:
-    """(frames/s, machine CPU ms a frame, the S3 server's CPU ms a frame) for (files per
-    request, clients): all in one request, half on each of two; medians of runs."""
-    rates: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
+) -> dict[tuple[int, int], tuple[float, ...]]:
+    """(frames/s, machine CPU ms a frame, the web server's CPU ms a frame, the S3 server's CPU
+    ms a frame) for (files per request, clients): all in one request, half on each of two;
+    medians of runs."""
+    rates: dict[tuple[int, int], list[tuple[float, ...]]] = {}
     configs = ((len(frames), 1), (-(-len(frames) // 2), 2))
     with local_server(env, worker=False) as (url, token):
+        web = web_server_pid()
+        meters = (machine_cpu_s, lambda: process_cpu_s(web), server_cpu_s)
         for run in range(runs):
             for batch, clients in configs:
                 salted = _salted(frames, salt + run * 10 + clients)
-                machine, server = machine_cpu_s(), server_cpu_s()
+                before = [meter() for meter in meters]
                 rate = upload_run(url, token, salted, batch, clients, f"b-{time.time_ns()}")
-                used = [
-                    (f() - s) * 1000 / len(frames)
-                    for f, s in ((machine_cpu_s, machine), (server_cpu_s, server))
-                ]
+                used = [(m() - b) * 1000 / len(frames) for m, b in zip(meters, before, strict=True)]
                 rates.setdefault((batch, clients), []).append((rate, *used))
     return {
-        config: tuple(statistics.median(v[i] for v in values) for i in range(3))  # type: ignore[misc]
+        config: tuple(statistics.median(v[i] for v in values) for i in range(4))
         for config, values in rates.items()
     }
+
+
+PLACEMENTS = {
+    "shared": (False, False),
+    "own-core": (True, False),
+    "own-core-keep-alive": (True, True),
+}
+"""Where moto runs and which server: (on a core of its own, behind waitress with keep-alive)."""
+
+
+def placement_words(store_core: int | None, keep_alive: bool) -> str:
+    server = "moto behind waitress (keep-alive)" if keep_alive else "moto_server (werkzeug)"
+    if store_core is None:
+        return f"{server}; every process on every core"
+    return f"{server} on core {store_core}; web server and uploader on the others"
+
+
+def ingest_rows(
+    frames: list[tuple[str, bytes]], runs: int, store_core: int | None, keep_alive: bool
+) -> list[list[str]]:
+    """Ingest to home and to moto, measured in turn with the same placement: every process on
+    every core, or the store on a core of its own (``store_core``; the web server and the
+    uploader on the others, for home and S3 alike)."""
+    others = os.sched_getaffinity(0) - {store_core} if store_core is not None else None
+    with moto_server(store_core, keep_alive) as endpoint, on_cores(others):
+        local = ingest_rates(frames, {}, runs, 1000)
+        s3_env = {
+            "WELDPOOL_STORAGE_URL": f"s3://{bucket(endpoint)}/lab",
+            "WELDPOOL_S3_ENDPOINT_URL": endpoint,
+        }
+        remote = ingest_rates(frames, s3_env, runs, 2000)
+    rows = []
+    for (batch, clients), (rate, cpu, web, _) in local.items():
+        other, other_cpu, other_web, moto = remote[(batch, clients)]
+        rows.append(
+            [
+                placement_words(store_core, keep_alive),
+                f"{batch} files × {clients}",
+                f"{rate:.1f}",
+                f"{other:.1f}",
+                f"**{other / rate:.2f}×**",
+                f"{web:.1f}",
+                f"{other_web:.1f}",
+                f"{other_web / web:.2f}×",
+                f"{cpu:.1f}",
+                f"{other_cpu:.1f}",
+                f"{moto:.1f}",
+            ]
+        )
+    return rows
 
 
 def client_put_ms(
@@ -209,6 +302,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--skip", nargs="*", default=(), choices=(*PLACEMENTS, "clients", "click"))
     args = parser.parse_args()
     if REAL_FRAMES.is_dir():
         frames = [(p.name, p.read_bytes()) for p in sorted(REAL_FRAMES.glob("*.png"))]
@@ -217,56 +311,64 @@ def main() -> None:
         print(f"({REAL_FRAMES} is absent: 62 generated frames instead)")
         frames, name = generated_frames(62), "62 generated frames"
     size = sum(len(d) for _, d in frames) / len(frames) / 1024
+    name = f"{name} ({size:.0f} KiB)"
+    print(
+        f"POST /api/v1/frames, median of {args.runs} runs; S3: moto's server on loopback. "
+        "CPU: ms a frame of the web server process, and of every process on this machine "
+        "(the web server, the uploader and, for S3, moto, whose share is given)"
+    )
+    cores = os.sched_getaffinity(0)
+    rows = [
+        row
+        for label, (own_core, keep_alive) in PLACEMENTS.items()
+        if label not in args.skip and (len(cores) > 1 or not own_core)
+        for row in ingest_rows(frames, args.runs, max(cores) if own_core else None, keep_alive)
+    ]
+    if rows:
+        columns = [
+            f"{name}: where the S3 server runs",
+            "files a request × clients",
+            "home frames/s",
+            "S3 frames/s",
+            "S3 / home (goal ≥ 0.7×)",
+            "web server CPU ms a frame, home",
+            "S3",
+            "S3 / home",
+            "machine CPU ms a frame, home",
+            "S3",
+            "of it moto",
+        ]
+        print(Table(columns[0], columns, rows, ["left"] * 2 + ["right"] * 9).markdown() + "\n")
     with moto_server() as endpoint:
-        local = ingest_rates(frames, {}, args.runs, 1000)
-        s3_env = {
-            "WELDPOOL_STORAGE_URL": f"s3://{bucket(endpoint)}/lab",
-            "WELDPOOL_S3_ENDPOINT_URL": endpoint,
-        }
-        remote = ingest_rates(frames, s3_env, args.runs, 2000)
-        print(
-            f"\nPOST /api/v1/frames, {name} ({size:.0f} KiB each), median of {args.runs} runs; "
-            "S3: moto's server on loopback"
-        )
-        cores = os.cpu_count() or 1
-        print(
-            f"CPU: ms a frame of every process on this machine ({cores} cores: the web process, "
-            "the uploader, and for S3 the S3 server, whose share is given); ceiling: the S3 rate "
-            "with every core busy, against home"
-        )
-        print(
-            f"{'files/request':>13} {'clients':>7} {'home frames/s':>14} {'S3 frames/s':>12} "
-            f"{'S3 / home':>10} {'home CPU':>9} {'S3 CPU':>7} {'of it S3 server':>16} "
-            f"{'ceiling':>8}"
-        )
-        for (batch, clients), (rate, cpu, _) in local.items():
-            other, other_cpu, server_cpu = remote[(batch, clients)]
-            ceiling = cores * 1000 / other_cpu / rate
-            print(
-                f"{batch:>13} {clients:>7} {rate:>14.1f} {other:>12.1f} {other / rate:>9.2f}x "
-                f"{cpu:>9.1f} {other_cpu:>7.1f} {server_cpu:>16.1f} {ceiling:>7.2f}x"
-            )
-
-        puts = client_put_ms(frames, endpoint, args.runs)
-        print(f"\n{len(frames)} frames put into a bucket from 8 threads, median of {args.runs}")
-        print(
-            f"{'client':<8} {'ms':>8} {'frames/s':>9} {'client CPU ms':>14} {'server CPU ms':>14}"
-        )
-        for label, (ms, client_cpu, server_cpu) in puts.items():
-            print(
-                f"{label:<8} {ms:>8.1f} {len(frames) / ms * 1000:>9.1f} {client_cpu:>14.0f} "
-                f"{server_cpu:>14.0f}"
-            )
-
-        frame = frames[len(frames) // 2][1]
-        print(
-            "\nA click in a web process with a cold cache (the frame stored by another process; "
-            f"sha {hashlib.sha256(frame).hexdigest()[:8]}, full-size random SAM2)"
-        )
-        print(f"{'click':<26} {'object reads':>12} {'ms':>8}")
-        for label, reads, ms in click_reads(endpoint, frame):
-            print(f"{label:<26} {reads:>12} {ms:>8.0f}")
+        if "clients" not in args.skip:
+            puts = client_put_ms(frames, endpoint, args.runs)
+            rows = [
+                [label, f"{ms:.1f}", f"{len(frames) / ms * 1000:.1f}", f"{cpu:.0f}", f"{moto:.0f}"]
+                for label, (ms, cpu, moto) in puts.items()
+            ]
+            columns = [
+                f"{len(frames)} frames put into a bucket from 8 threads, median of {args.runs}",
+                "ms",
+                "frames/s",
+                "client CPU ms",
+                "moto CPU ms",
+            ]
+            print(Table(columns[0], columns, rows).markdown() + "\n")
+        if "click" not in args.skip:
+            frame = frames[len(frames) // 2][1]
+            rows = [
+                [label, str(reads), f"{ms:.0f}"]
+                for label, reads, ms in click_reads(endpoint, frame)
+            ]
+            columns = [
+                "a click in a web process with a cold cache (the frame stored by another "
+                f"process; sha {hashlib.sha256(frame).hexdigest()[:8]}, full-size random SAM2)",
+                "object reads",
+                "ms",
+            ]
+            print(Table(columns[0], columns, rows).markdown())
 
 
 if __name__ == "__main__":
-    main()
+    with recorded(__file__):
+        main()

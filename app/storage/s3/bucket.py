@@ -2,13 +2,21 @@
 
 Every object's key is ``<prefix>/<relative path>``, the same relative path the database holds,
 so a row means the same file on every machine. A claim is the object's ``claimed`` metadata (a
-copy of the object onto itself sets it to now, and so its LastModified). The client is boto3
-(``bench/storage.py`` measures it beside obstore): the AWS SDK itself, thread-safe, with managed
-multipart transfers and the standard credential chain.
+copy of the object onto itself sets it to now, and so its LastModified).
+
+Two clients, one bucket: boto3 (the AWS SDK: claims, reads, listings, deletions, multipart
+uploads of files, and the standard credential chain) and obstore (Rust's ``object_store``) for
+the one request ingest makes per frame, the conditional PUT of bytes held in memory. botocore
+spends about 1.5–2.5 ms of Python per PUT, a third of all the web process does for a frame at
+home; obstore about 0.5 (``bench/storage.py``). obstore signs with boto3's credentials, and its
+failures are raised as botocore's (``botocore_error``), so the rest of the service knows one
+kind of store error.
 """
 
 from __future__ import annotations
 
+import datetime as dt
+import re
 import shutil
 import time
 from collections.abc import Iterable, Iterator
@@ -25,7 +33,6 @@ if TYPE_CHECKING:
 
 MULTIPART_BYTES = 64 * 1024 * 1024
 """Uploads and downloads above this go in parts (videos, exports); frames in one request."""
-_PRECONDITION_FAILED = {"PreconditionFailed", "ConditionalRequestConflict", "412"}
 
 
 def parse_url(url: str) -> tuple[str, str]:
@@ -57,6 +64,71 @@ def client_for(endpoint_url: str | None, region: str | None, waits: StoreWaits) 
     )
 
 
+@lru_cache(maxsize=16)
+def uploads_for(
+    bucket: str, endpoint_url: str | None, region: str | None, waits: StoreWaits
+) -> Any:
+    """obstore's client for ``bucket``, with boto3's credentials and the same waits: connect
+    within ``connect_s``, each attempt (the bytes' sending included) within ``read_s``."""
+    import boto3
+    from botocore.exceptions import NoCredentialsError
+    from obstore.auth.boto3 import Boto3CredentialProvider
+    from obstore.store import S3Store
+
+    session = boto3.Session()
+    if session.get_credentials() is None:
+        raise NoCredentialsError()
+    return S3Store(
+        bucket,
+        endpoint=endpoint_url or None,
+        region=region or session.region_name or "us-east-1",
+        # a store of its own (MinIO, Ceph) is addressed by path; AWS by host
+        virtual_hosted_style_request=not endpoint_url,
+        credential_provider=Boto3CredentialProvider(session),
+        client_options={
+            "allow_http": True,
+            "connect_timeout": dt.timedelta(seconds=waits.connect_s),
+            "timeout": dt.timedelta(seconds=waits.read_s),
+        },
+        retry_config={
+            "max_retries": waits.attempts - 1,
+            "retry_timeout": dt.timedelta(seconds=waits.longest_s),
+            "backoff": {
+                "init_backoff": dt.timedelta(milliseconds=100),
+                "max_backoff": dt.timedelta(seconds=2),
+                "base": 2.0,
+            },
+        },
+    )
+
+
+_STATUS = re.compile(r"status code: (\d{3})")
+_CODE = re.compile(r"<Code>([^<]{1,64})</Code>")
+
+
+def botocore_error(exc: Exception, operation: str, endpoint_url: str | None) -> Exception:
+    """An obstore failure as botocore would have raised it, so that one set of rules reads
+    every store error (``app.core.errors.store_outage``, the 503 of a request): the store's
+    answer as a ``ClientError`` with its status and code, no answer as a connection error."""
+    from botocore.exceptions import ClientError, EndpointConnectionError
+    from obstore.exceptions import PermissionDeniedError, UnauthenticatedError
+
+    text = str(exc)
+    status = _STATUS.search(text)
+    if isinstance(exc, PermissionDeniedError | UnauthenticatedError) or status:
+        number = int(status.group(1)) if status else 403
+        code = _CODE.search(text)
+        answer = {
+            "Error": {
+                "Code": code.group(1) if code else str(number),
+                "Message": "the store refused the upload" if number < 500 else "",
+            },
+            "ResponseMetadata": {"HTTPStatusCode": number},
+        }
+        return ClientError(answer, operation)
+    return EndpointConnectionError(endpoint_url=endpoint_url or "the object store")
+
+
 def missing(error: Exception) -> bool:
     """Whether a botocore error says the key (or bucket) is not there."""
     response = getattr(error, "response", None) or {}
@@ -85,9 +157,13 @@ def reason(exc: Exception, waits: StoreWaits) -> str:
 class Bucket:
     """The objects of one ``s3://bucket/prefix``, named by their relative paths."""
 
-    def __init__(self, url: str, client: Any, waits: StoreWaits) -> None:
+    def __init__(
+        self, url: str, endpoint_url: str | None, region: str | None, waits: StoreWaits
+    ) -> None:
         self.name, self.prefix = parse_url(url)
-        self.client = client
+        self.client = client_for(endpoint_url, region, waits)
+        self.endpoint_url = endpoint_url
+        self.region = region
         self.waits = waits
 
     def key(self, relative: str) -> str:
@@ -116,23 +192,27 @@ class Bucket:
     # --- writes and claims --------------------------------------------------------------
 
     def create(self, data: bytes, relative: str) -> int | None:
-        """Upload content unless its key exists (one conditional PUT, ``If-None-Match: *``);
-        returns the new object's claim time, or None when an object is there already."""
-        from botocore.exceptions import ClientError
+        """Upload content unless its key exists (one conditional PUT, ``If-None-Match: *``,
+        through obstore); returns the new object's claim time, or None when an object is there
+        already."""
+        import obstore
+        from obstore.exceptions import AlreadyExistsError, BaseError, PreconditionError
 
         claimed = time.time_ns()
+        uploads = uploads_for(self.name, self.endpoint_url, self.region, self.waits)
         try:
-            self.client.put_object(
-                Bucket=self.name,
-                Key=self.key(relative),
-                Body=data,
-                Metadata={"claimed": str(claimed)},
-                IfNoneMatch="*",
+            obstore.put(
+                uploads,
+                self.key(relative),
+                data,
+                attributes={"claimed": str(claimed)},
+                mode="create",
+                use_multipart=False,
             )
-        except ClientError as exc:
-            if str(exc.response.get("Error", {}).get("Code", "")) in _PRECONDITION_FAILED:
-                return None
-            raise
+        except (AlreadyExistsError, PreconditionError):  # 412, or 409: another's PUT of it
+            return None
+        except (BaseError, OSError) as exc:  # obstore raises a missing bucket as FileNotFound
+            raise botocore_error(exc, "PutObject", self.endpoint_url) from None
         return claimed
 
     def upload_file(self, path: Path, relative: str, claimed_ns: int) -> None:

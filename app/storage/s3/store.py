@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, BinaryIO
 from app.core.errors import MissingFile
 from app.storage.local import LocalStorage
 from app.storage.protocol import SHARED_AREAS, StagedFile, StoredFile
-from app.storage.s3.bucket import Bucket, client_for
+from app.storage.s3.bucket import Bucket
 from app.storage.s3.cache import CONTENT_AREAS, ObjectCache
 from app.storage.s3.published import POOL, Published
 from app.storage.s3.trash import Trash
@@ -60,8 +60,7 @@ class ObjectStorage:
         *,
         waits: StoreWaits,
     ) -> None:
-        client = client_for(endpoint_url, region or os.environ.get("AWS_REGION"), waits)
-        self.objects = Bucket(url, client, waits)
+        self.objects = Bucket(url, endpoint_url, region or os.environ.get("AWS_REGION"), waits)
         self.files = LocalStorage(home, grace_s, durable=False)
         self.cache = ObjectCache(self.files, self.objects, cache_bytes)
         self.trash = Trash(self.objects, self.cache)
