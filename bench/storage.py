@@ -21,7 +21,9 @@ faster), then:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
+import itertools
 import os
 import statistics
 import subprocess
@@ -58,8 +60,9 @@ def server_cpu_s() -> float:
     return process_cpu_s(SERVER_PID)
 
 
-def web_server_pid() -> int:
-    """The `weldpool serve` that ``local_server`` started: this process's child running it."""
+def web_server_pid(url: str) -> int:
+    """The `weldpool serve` that ``local_server`` started at ``url``: this process's child."""
+    port = url.rsplit(":", 1)[1].encode()
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
@@ -69,7 +72,7 @@ def web_server_pid() -> int:
         except OSError:
             continue
         parent = next(int(v.split()[1]) for v in status.splitlines() if v.startswith("PPid:"))
-        if parent == os.getpid() and b"serve" in command:
+        if parent == os.getpid() and b"serve" in command and port in command:
             return int(entry.name)
     raise RuntimeError("the web server is not a child of this process")
 
@@ -133,23 +136,29 @@ def machine_cpu_s() -> float:
 
 
 def ingest_rates(
-    frames: list[tuple[str, bytes]], env: dict[str, str], runs: int, salt: int
-) -> dict[tuple[int, int], tuple[float, ...]]:
+    frames: list[tuple[str, bytes]], stores: dict[str, dict[str, str]], runs: int
+) -> dict[tuple[str, int, int], tuple[float, ...]]:
     """(frames/s, machine CPU ms a frame, the web server's CPU ms a frame, the S3 server's CPU
-    ms a frame) for (files per request, clients): all in one request, half on each of two;
-    medians of runs."""
-    rates: dict[tuple[int, int], list[tuple[float, ...]]] = {}
+    ms a frame) for (store, files per request, clients): all in one request, half on each of
+    two; medians of runs. One `weldpool serve` per store, all up at once, and each run goes
+    through every store in turn, so that what else the machine does weighs on all alike."""
+    rates: dict[tuple[str, int, int], list[tuple[float, ...]]] = {}
     configs = ((len(frames), 1), (-(-len(frames) // 2), 2))
-    with local_server(env, worker=False) as (url, token):
-        web = web_server_pid()
-        meters = (machine_cpu_s, lambda: process_cpu_s(web), server_cpu_s)
+    with contextlib.ExitStack() as servers:
+        started = {}
+        for label, env in stores.items():
+            url, token = servers.enter_context(local_server(env, worker=False))
+            started[label] = (url, token, web_server_pid(url))
         for run in range(runs):
-            for batch, clients in configs:
-                salted = _salted(frames, salt + run * 10 + clients)
+            for (label, (url, token, web)), (batch, clients) in itertools.product(
+                started.items(), configs
+            ):
+                meters = (machine_cpu_s, lambda pid=web: process_cpu_s(pid), server_cpu_s)
+                salted = _salted(frames, run * 10 + clients)  # new content each run
                 before = [meter() for meter in meters]
                 rate = upload_run(url, token, salted, batch, clients, f"b-{time.time_ns()}")
                 used = [(m() - b) * 1000 / len(frames) for m, b in zip(meters, before, strict=True)]
-                rates.setdefault((batch, clients), []).append((rate, *used))
+                rates.setdefault((label, batch, clients), []).append((rate, *used))
     return {
         config: tuple(statistics.median(v[i] for v in values) for i in range(4))
         for config, values in rates.items()
@@ -179,15 +188,16 @@ def ingest_rows(
     uploader on the others, for home and S3 alike)."""
     others = os.sched_getaffinity(0) - {store_core} if store_core is not None else None
     with moto_server(store_core, keep_alive) as endpoint, on_cores(others):
-        local = ingest_rates(frames, {}, runs, 1000)
         s3_env = {
             "WELDPOOL_STORAGE_URL": f"s3://{bucket(endpoint)}/lab",
             "WELDPOOL_S3_ENDPOINT_URL": endpoint,
         }
-        remote = ingest_rates(frames, s3_env, runs, 2000)
+        rates = ingest_rates(frames, {"home": {}, "s3": s3_env}, runs)
     rows = []
-    for (batch, clients), (rate, cpu, web, _) in local.items():
-        other, other_cpu, other_web, moto = remote[(batch, clients)]
+    for (label, batch, clients), (rate, cpu, web, _) in rates.items():
+        if label != "home":
+            continue
+        other, other_cpu, other_web, moto = rates[("s3", batch, clients)]
         rows.append(
             [
                 placement_words(store_core, keep_alive),
@@ -283,7 +293,7 @@ def click_reads(endpoint: str, frame: bytes) -> list[tuple[str, int, float]]:
             frame_id = http.post("/api/v1/frames", files=upload, headers=headers).json()["stored"][
                 0
             ]["id"]
-        store = open_storage(reader)
+        store = open_storage(reader, for_requests=True)  # the web process's own store
         with TestClient(create_app(reader)) as http:
             for label in ("first click, cold cache", "second click"):
                 before = store.reads  # type: ignore[attr-defined]
