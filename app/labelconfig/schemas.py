@@ -122,12 +122,28 @@ class LabelConfigBody(InputModel):
         return self
 
 
+REVIEW_KEYS = "1234567arsnmhfvlp[] "
+"""The review page's own shortcuts (the page reads them from here): a class's hotkey is none of
+them, or pressing it would never pick the class."""
+
+
 class LabelConfigIn(LabelConfigBody):
     """A new configuration; ``version`` is the one it was edited from (0: the built-in pool
     alone); a stale one is a 409. ``force`` removes classes whose objects labels still hold."""
 
     version: int = Field(ge=0, le=MAX_ID)
     force: bool = False
+
+    @model_validator(mode="after")
+    def _free_hotkeys(self) -> LabelConfigIn:
+        """Only a new configuration is held to it: one saved before the rule still reads."""
+        for spec in self.classes:
+            if spec.hotkey and spec.hotkey.lower() in REVIEW_KEYS:
+                raise ValueError(
+                    f"the hotkey {spec.hotkey!r} of {spec.name!r} is one of the review page's "
+                    f"own shortcuts ({REVIEW_KEYS.strip()}, space); pick another key"
+                )
+        return self
 
 
 class LabelConfigOut(LabelConfigBody):

@@ -30,6 +30,7 @@ from app.core.security import (
     open_web_session,
     optional_user,
 )
+from app.labelconfig.schemas import REVIEW_KEYS
 from app.system.status import sam2_problem, teacher_problem
 from weldpool_core.heatmap import HeatmapParams
 
@@ -177,7 +178,14 @@ def home(request: Request, _user: LoggedIn) -> Response:
 def review(request: Request, frame_id: IdPath, _user: LoggedIn) -> Response:
     """Review one frame: mask, keypoints, click corrections, verdict; validation keypoints."""
     keypoints = HeatmapParams().k  # Algorithm 1's k: the validation set places as many
-    return render(request, "review.html", page="review", frame_id=frame_id, keypoints=keypoints)
+    return render(
+        request,
+        "review.html",
+        page="review",
+        frame_id=frame_id,
+        keypoints=keypoints,
+        page_keys=REVIEW_KEYS,
+    )
 
 
 @router.get("/sequences/{sequence_id}")

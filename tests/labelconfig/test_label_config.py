@@ -28,7 +28,7 @@ LAB = {
             "name": "spatter",
             "kind": "instances",
             "color": "#ff0000",
-            "hotkey": "s",
+            "hotkey": "x",
             "attributes": [
                 {"name": "size", "type": "choice", "options": ["small", "large"]},
                 {"name": "hot", "type": "flag"},
@@ -95,6 +95,8 @@ def test_the_pool_alone_until_an_admin_saves_a_version(client: TestClient, peopl
         ({"classes": [{"name": "wire", "kind": "lines"}]}, "kind"),
         ({"classes": [{"name": "wire", "kind": "mask", "color": "blue"}]}, "color"),
         ({"classes": [{"name": "wire", "kind": "mask", "hotkey": "ww"}]}, "hotkey"),
+        ({"classes": [{"name": "wire", "kind": "mask", "hotkey": "S"}]}, "review page's own"),
+        ({"classes": [{"name": "wire", "kind": "mask", "hotkey": "["}]}, "review page's own"),
         (
             {
                 "classes": [
@@ -138,6 +140,35 @@ def test_a_configuration_that_does_not_hold_is_refused(
     response = _put(client, people["admin"], change, 0)
     assert response.status_code in (400, 422), response.text
     assert words in str(response.json()["detail"]), response.json()
+
+
+def test_a_saved_hotkey_the_page_took_later_still_reads() -> None:
+    """The review page's keys hold a new configuration only: one saved before still reads."""
+    from app.labelconfig.schemas import LabelConfigIn, LabelConfigOut
+
+    saved = {"classes": [{"name": "wire", "kind": "mask", "hotkey": "s"}], "version": 3}
+    assert LabelConfigOut.model_validate(saved).classes[1].hotkey == "s"
+    with pytest.raises(ValueError, match="review page's own shortcuts"):
+        LabelConfigIn.model_validate(saved)
+
+
+def test_the_review_keys_are_the_keys_the_review_page_handles() -> None:
+    """``REVIEW_KEYS`` (the rule) and the page's handlers (``review.js``) name the same keys: a
+    shortcut added to the page without the rule would let a class take it."""
+    import re
+
+    from app.labelconfig.schemas import REVIEW_KEYS
+    from tests.helpers import REPO
+
+    script = (REPO / "static" / "js" / "review" / "review.js").read_text()
+    tools = re.search(r"TOOL_KEYS = \{([^}]*)\}", script)
+    actions = re.search(r"const actions = \{(.*?)\n  \};", script, re.S)
+    assert tools and actions
+    handled = set(re.findall(r"(\d):", tools.group(1)))
+    names = re.findall(r'^\s+"?([^\s"]+?)"?: ', actions.group(1), re.M)
+    handled |= {name for name in names if len(name) == 1}
+    handled.add(" ")  # held for panning
+    assert handled == set(REVIEW_KEYS)
 
 
 def test_objects_tags_and_attributes_are_stored_with_the_label(client: TestClient, people) -> None:

@@ -39,6 +39,10 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
     _add(page, "wire tip", "points", "t", points="tip, root")
     _add(page, "spatter", "instances", "s", "size:choice:small|large, hot:flag")
     page.fill("[data-testid=frame-tags]", "arc unstable, humping")
+    page.click("[data-testid=save-config]")  # "s" is the review page's Save: refused, in words
+    page.locator("[data-testid=toast-error]", has_text="review page's own shortcuts").wait_for()
+    assert server.api("GET", "/label-config", user="ada").json()["version"] == start
+    page.locator("[data-testid=class-row]").last.locator("[data-testid=class-hotkey]").fill("x")
     shoot(page, "label-config")
     page.click("[data-testid=save-config]")
     page.wait_for_selector(f"[data-testid=config-version]:has-text('Version {start + 1}')")
@@ -64,7 +68,7 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
     page.wait_for_selector(f"[data-testid=config-version]:has-text('Version {start + 2}')")
     saved = server.api("GET", "/label-config", user="anna").json()
     assert saved["classes"][2]["point_names"] == ["tip", "root"]
-    _add(page, "Wire", "mask", "x")  # a second "wire": the server's sentence, nothing saved
+    _add(page, "Wire", "mask", "z")  # a second "wire": the server's sentence, nothing saved
     page.click("[data-testid=save-config]")
     page.locator("[data-testid=toast-error]", has_text="named 'Wire'").wait_for()
     shoot(page, "label-config-refused")

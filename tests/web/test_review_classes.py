@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from app.labelconfig.schemas import REVIEW_KEYS
 from tests.factories import add_frame
 from tests.helpers import SHARED_DATA
 from tests.pages import canvas_data, login, open_review, shoot, to_page, wait_for_js
@@ -113,6 +114,8 @@ def test_every_class_is_edited_and_saved_in_one_put(
         "spatter",
     ]
     assert page.locator("[data-testid=class-option][data-class=wire] kbd").inner_text() == "w"
+    keys = page.evaluate("import('/static/js/review/page.js').then(m => [...m.PAGE_KEYS])")
+    assert sorted(keys) == sorted(REVIEW_KEYS)  # the page's own keys, as the server's rule says
 
     # The wire, picked by its hotkey, painted with the pool's brush: a horizontal stroke.
     page.keyboard.press("w")

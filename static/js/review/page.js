@@ -5,8 +5,9 @@ export const FRAME_ID = Number(document.getElementById("review").dataset.frameId
 export const K = Number(document.getElementById("review").dataset.keypoints);
 export const HISTORY_LIMIT = 40; // each step may hold a full-frame mask (1 MB at 1280×800)
 export const OUTLINE_TOLERANCE = 1; // pixels: a vertex where the boundary turns, not on every pixel (the page's Tolerance)
-/** Keys the page's own shortcuts take: a class's hotkey among them does not pick the class. */
-export const PAGE_KEYS = new Set([..."1234567arsnmhfvlp[]", " "]);
+/** Keys the page's own shortcuts take, as the server says (a new configuration's class hotkey
+ * is none of them; one saved before the rule is shown struck through and does not pick). */
+export const PAGE_KEYS = new Set(document.getElementById("review").dataset.pageKeys);
 export const $ = (id) => document.getElementById(id);
 
 /** The list's filters this frame was opened from: the queue that "next" walks. */
