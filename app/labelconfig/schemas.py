@@ -139,9 +139,12 @@ class LabelConfigIn(LabelConfigBody):
         """Only a new configuration is held to it: one saved before the rule still reads."""
         for spec in self.classes:
             if spec.hotkey and spec.hotkey.lower() in REVIEW_KEYS:
+                digits = [k for k in REVIEW_KEYS if k.isdigit()]
+                others = ", ".join(k for k in REVIEW_KEYS if not k.isdigit() and k != " ")
                 raise ValueError(
                     f"the hotkey {spec.hotkey!r} of {spec.name!r} is one of the review page's "
-                    f"own shortcuts ({REVIEW_KEYS.strip()}, space); pick another key"
+                    f"own shortcuts ({digits[0]}–{digits[-1]}, {others} and space); pick "
+                    "another key"
                 )
         return self
 
