@@ -69,8 +69,7 @@ class Settings(BaseSettings):
         default=10.0,
         gt=0,
         description="With an object store: how long a request's call (an upload, a read, "
-        "/health, the check at start) waits for its answer, per attempt (a frame's upload: "
-        "its sending included).",
+        "/health, the check at start) waits for its answer, per attempt.",
     )
     storage_request_attempts: int = Field(
         default=2,
@@ -83,8 +82,7 @@ class Settings(BaseSettings):
         default=60.0,
         gt=0,
         description="With an object store: how long a job's call (and the command line's) waits "
-        "for its answer, per attempt (a frame's upload: its sending included); workers may "
-        "wait longer than a person.",
+        "for its answer, per attempt; workers may wait longer than a person.",
     )
     storage_job_attempts: int = Field(
         default=5,

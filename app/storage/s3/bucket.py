@@ -29,6 +29,8 @@ from app.core.errors import without_addresses
 from app.storage.protocol import CHUNK
 
 if TYPE_CHECKING:
+    from obstore.store import ClientConfig
+
     from app.core.config import StoreWaits
 
 MULTIPART_BYTES = 64 * 1024 * 1024
@@ -68,8 +70,10 @@ def client_for(endpoint_url: str | None, region: str | None, waits: StoreWaits) 
 def uploads_for(
     bucket: str, endpoint_url: str | None, region: str | None, waits: StoreWaits
 ) -> Any:
-    """obstore's client for ``bucket``, with boto3's credentials and the same waits: connect
-    within ``connect_s``, each attempt (the bytes' sending included) within ``read_s``."""
+    """obstore's client for ``bucket`` as boto3's is made: its credentials, its CA bundle
+    (``AWS_CA_BUNDLE``), the bucket's own region where none is set (boto3 follows AWS's
+    redirect; obstore asks once), and the same waits: connect within ``connect_s``, each read
+    within ``read_s``."""
     import boto3
     from botocore.exceptions import NoCredentialsError
     from obstore.auth.boto3 import Boto3CredentialProvider
@@ -78,18 +82,24 @@ def uploads_for(
     session = boto3.Session()
     if session.get_credentials() is None:
         raise NoCredentialsError()
+    options: ClientConfig = {
+        "allow_http": True,
+        "connect_timeout": dt.timedelta(seconds=waits.connect_s),
+        "read_timeout": dt.timedelta(seconds=waits.read_s),
+        "timeout": dt.timedelta(hours=1),  # a stalled transfer is the read timeout's
+    }
+    bundle = session._session.get_config_variable("ca_bundle")  # boto3 has no public getter
+    if bundle:
+        options["root_certificate"] = Path(bundle).read_bytes()
     return S3Store(
         bucket,
         endpoint=endpoint_url or None,
-        region=region or session.region_name or "us-east-1",
-        # a store of its own (MinIO, Ceph) is addressed by path; AWS by host
-        virtual_hosted_style_request=not endpoint_url,
+        region=region or session.region_name or _bucket_region(bucket, endpoint_url, waits),
+        # a store of its own (MinIO, Ceph) is addressed by path; AWS by host, but for a name
+        # with dots (which the wildcard certificate does not cover)
+        virtual_hosted_style_request=not endpoint_url and "." not in bucket,
         credential_provider=Boto3CredentialProvider(session),
-        client_options={
-            "allow_http": True,
-            "connect_timeout": dt.timedelta(seconds=waits.connect_s),
-            "timeout": dt.timedelta(seconds=waits.read_s),
-        },
+        client_options=options,
         retry_config={
             "max_retries": waits.attempts - 1,
             "retry_timeout": dt.timedelta(seconds=waits.longest_s),
@@ -100,6 +110,18 @@ def uploads_for(
             },
         },
     )
+
+
+def _bucket_region(bucket: str, endpoint_url: str | None, waits: StoreWaits) -> str:
+    """The bucket's region as its store names it (one HEAD), us-east-1 when it names none."""
+    from botocore.exceptions import ClientError
+
+    try:
+        answer = client_for(endpoint_url, None, waits).head_bucket(Bucket=bucket)
+    except ClientError as exc:  # a 301 from another region's endpoint still names it
+        answer = exc.response
+    headers = answer.get("ResponseMetadata", {}).get("HTTPHeaders", {})
+    return str(headers.get("x-amz-bucket-region") or "us-east-1")
 
 
 _STATUS = re.compile(r"status code: (\d{3})")
