@@ -45,7 +45,7 @@ CONFIG = {
         {
             "name": "spatter",
             "kind": "instances",
-            "hotkey": "s",
+            "hotkey": "x",
             "attributes": [{"name": "size", "type": "choice", "options": ["small", "large"]}],
         },
     ],

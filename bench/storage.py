@@ -10,8 +10,9 @@ faster), then:
    every process on every core (moto's CPU per PUT then competes with the server's), and the
    store on a core of its own (moto pinned to the last core; the web server and the uploader
    on the others, for home and S3 alike), as a store on another machine would be.
-2. The same 62 frames put straight into a bucket from 8 threads with boto3 (what the store
-   uses) and with obstore (when installed): the client's share of the time.
+2. The same 62 frames put straight into a bucket from 8 threads, as ingest puts them (a
+   conditional PUT carrying its claim), with boto3 and with the store's obstore client: the
+   client's share of the time.
 3. A click on a frame in a web process whose cache is cold (a fresh home, the frame written by
    another process): the object reads it makes (goal ≤ 1), and the second click's.
 
@@ -219,31 +220,25 @@ def ingest_rows(
 def client_put_ms(
     frames: list[tuple[str, bytes]], endpoint: str, runs: int
 ) -> dict[str, tuple[float, float, float]]:
-    """(wall ms, client CPU ms, server CPU ms) to put every frame into a bucket from 8 threads,
-    per client, medians of runs."""
-    import boto3
-    from botocore.config import Config
+    """(wall ms, client CPU ms, server CPU ms) to put every frame into a bucket from 8 threads
+    as ingest does (a conditional PUT carrying its claim), through boto3 and through the
+    store's obstore client (``app/storage/s3/uploads.py``), medians of runs."""
+    from app.core.config import StoreWaits
+    from app.storage.s3 import uploads
+    from app.storage.s3.bucket import client_for
 
     name = bucket(endpoint)
-    boto = boto3.client("s3", endpoint_url=endpoint, config=Config(max_pool_connections=16))
-    clients = {
-        "boto3": lambda key, data: boto.put_object(Bucket=name, Key=key, Body=data),
-    }
-    try:
-        import obstore
-        from obstore.store import S3Store
+    waits = StoreWaits(connect_s=3.0, read_s=60.0, attempts=1)
+    boto = client_for(endpoint, "us-east-1", waits)
 
-        store = S3Store(
-            name,
-            endpoint=endpoint,
-            region="us-east-1",
-            access_key_id="bench",
-            secret_access_key="bench",
-            client_options={"allow_http": True},
-        )
-        clients["obstore"] = lambda key, data: obstore.put(store, key, data)
-    except ImportError:
-        print("(obstore is not installed: pip install obstore to compare it)")
+    def boto3_put(key: str, data: bytes) -> None:
+        claimed = {"claimed": str(time.time_ns())}
+        boto.put_object(Bucket=name, Key=key, Body=data, Metadata=claimed, IfNoneMatch="*")
+
+    def obstore_put(key: str, data: bytes) -> None:
+        uploads.create(boto, name, key, data, time.time_ns(), waits)
+
+    clients = {"boto3": boto3_put, "obstore (what ingest uses)": obstore_put}
     timings: dict[str, list[tuple[float, float, float]]] = {}
     with ThreadPoolExecutor(8) as pool:
         for run in range(runs):

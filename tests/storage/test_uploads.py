@@ -16,12 +16,12 @@ from pathlib import Path
 
 import boto3
 import pytest
-from botocore.exceptions import ClientError, EndpointConnectionError
+from botocore.exceptions import ClientError, EndpointConnectionError, ReadTimeoutError
 
 from app.core.config import StoreWaits
-from app.core.errors import failure_sentence, store_outage
-from app.storage.s3 import parse_url
-from app.storage.s3.bucket import Bucket, _bucket_region, reason, uploads_for
+from app.core.errors import ConfigurationError, failure_sentence, store_outage
+from app.storage.s3 import parse_url, uploads
+from app.storage.s3.bucket import Bucket, reason
 from tests.web.server import free_port
 
 WAITS = StoreWaits(connect_s=2.0, read_s=5.0, attempts=1)
@@ -44,18 +44,35 @@ def test_a_put_object_carries_its_claim_and_is_never_overwritten(
 
 
 @contextmanager
-def answering(status: int, code: str, tls: ssl.SSLContext | None = None) -> Iterator[str]:
-    """An HTTP server on 127.0.0.1 (HTTPS with ``tls``) that answers every PUT with ``status``
-    and an S3 error document naming ``code`` (none for a 200); yields its address."""
+def answering(
+    status: int, code: str, tls: ssl.SSLContext | None = None, puts: list[int] | None = None
+) -> Iterator[str]:
+    """An HTTP server on 127.0.0.1 (HTTPS with ``tls``) that answers a bucket's HEAD naming its
+    region, and every PUT with ``status`` and an S3 error document naming ``code`` (none for a
+    200), or never (status 0); ``puts`` counts the PUTs. Yields its address."""
     document = (
         f'<?xml version="1.0" encoding="UTF-8"?><Error><Code>{code}</Code>'
         "<Message>as the test says</Message></Error>"
     ).encode()
     document = document if status >= 300 else b""
+    closing = threading.Event()
 
     class Answer(http.server.BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def do_HEAD(self) -> None:
+            self.send_response(200)
+            self.send_header("x-amz-bucket-region", "eu-north-1")
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+
         def do_PUT(self) -> None:
             self.rfile.read(int(self.headers.get("Content-Length", 0)))
+            if puts is not None:
+                puts.append(1)
+            if status == 0:
+                closing.wait(30)
+                return
             self.send_response(status)
             self.send_header("Content-Type", "application/xml")
             self.send_header("ETag", '"0"')
@@ -67,6 +84,7 @@ def answering(status: int, code: str, tls: ssl.SSLContext | None = None) -> Iter
             pass
 
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Answer)
+    server.daemon_threads = True
     if tls is not None:
         server.socket = tls.wrap_socket(server.socket, server_side=True)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -74,6 +92,7 @@ def answering(status: int, code: str, tls: ssl.SSLContext | None = None) -> Iter
     try:
         yield f"{'https' if tls else 'http'}://127.0.0.1:{server.server_address[1]}"
     finally:
+        closing.set()
         server.shutdown()
         server.server_close()
 
@@ -105,6 +124,32 @@ def test_a_key_another_writer_holds_or_is_writing_is_not_an_error(status: int, c
         assert Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "a.png") is None
 
 
+def test_another_conflict_is_the_stores_error_not_a_key_that_is_there() -> None:
+    with answering(409, "OperationAborted") as endpoint, pytest.raises(ClientError) as raised:
+        Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "a.png")
+    assert raised.value.response["Error"]["Code"] == "OperationAborted"
+
+
+def test_a_store_that_never_answers_a_put_is_tried_as_often_as_the_waits_say() -> None:
+    """A timeout is retried (obstore retries none for a PUT) and reads as one."""
+    waits = StoreWaits(connect_s=1.0, read_s=0.5, attempts=3)
+    puts: list[int] = []
+    with answering(0, "", puts=puts) as endpoint, pytest.raises(ReadTimeoutError) as raised:
+        Bucket("s3://lab/f", endpoint, "us-east-1", waits).create(b"x", "a.png")
+    assert len(puts) == 3
+    assert store_outage(raised.value)
+    assert reason(raised.value, waits) == "it did not answer within 4.5 s"
+
+
+def test_a_503_is_tried_again_and_a_403_is_not() -> None:
+    waits = StoreWaits(connect_s=1.0, read_s=2.0, attempts=2)
+    for status, code, tries in ((503, "SlowDown", 2), (403, "AccessDenied", 1)):
+        puts: list[int] = []
+        with answering(status, code, puts=puts) as endpoint, pytest.raises(ClientError):
+            Bucket("s3://lab/f", endpoint, "us-east-1", waits).create(b"x", "a.png")
+        assert len(puts) == tries, code
+
+
 def test_a_store_that_does_not_answer_is_a_connection_error() -> None:
     nobody = f"http://127.0.0.1:{free_port()}"
     with pytest.raises(EndpointConnectionError) as raised:
@@ -113,13 +158,68 @@ def test_a_store_that_does_not_answer_is_a_connection_error() -> None:
     assert reason(raised.value, WAITS) == "nothing answers at its address"
 
 
-def test_a_bucket_in_another_region_is_found_when_none_is_set(s3_endpoint: str) -> None:
+def test_the_buckets_own_region_wins_over_the_configured_one(s3_endpoint: str) -> None:
     """boto3 follows AWS's redirect to a bucket's region; obstore is told it (one HEAD)."""
     name = f"far-{time.time_ns()}"
-    boto3.client("s3", endpoint_url=s3_endpoint).create_bucket(
-        Bucket=name, CreateBucketConfiguration={"LocationConstraint": "eu-west-1"}
+    client = boto3.client("s3", endpoint_url=s3_endpoint)
+    client.create_bucket(Bucket=name, CreateBucketConfiguration={"LocationConstraint": "eu-west-1"})
+    assert uploads.bucket_region(client, name, "us-west-2") == "eu-west-1"
+
+
+def test_on_aws_the_put_goes_to_the_buckets_host_in_its_region() -> None:
+    """No endpoint of its own: AWS, addressed by host (by path for a dotted name), in the
+    region the bucket's HEAD names (stubbed: nothing here reaches AWS)."""
+    from botocore.stub import Stubber
+
+    from app.storage.s3.bucket import client_for
+
+    for bucket, hosted in (("weldpool-lab", True), ("weld.pool", False)):
+        client = client_for(None, "us-west-2", WAITS)
+        with Stubber(client) as stub:
+            headers = {"x-amz-bucket-region": "eu-central-1"}
+            stub.add_response("head_bucket", {"ResponseMetadata": {"HTTPHeaders": headers}})
+            store, _ = uploads.uploads_for(bucket, client, WAITS)
+        config = store.config
+        assert "endpoint" not in config and config["region"] == "eu-central-1"
+        assert config.get("virtual_hosted_style_request") == str(hosted).lower(), bucket
+
+
+def test_refreshable_credentials_are_read_again_well_before_they_expire() -> None:
+    from botocore.credentials import Credentials as Static
+    from botocore.credentials import RefreshableCredentials
+
+    later = dt.datetime.now(dt.UTC) + dt.timedelta(minutes=20)
+    refreshable = RefreshableCredentials("a", "b", "t", later, lambda: {}, "test")
+    answer = uploads.Credentials(refreshable)()
+    assert answer["token"] == "t"
+    assert answer["expires_at"] <= dt.datetime.now(dt.UTC) + dt.timedelta(minutes=5)
+    assert uploads.Credentials(Static("a", "b"))()["expires_at"] is None  # never expire
+
+
+def test_credentials_that_cannot_be_had_are_boto3s_error(
+    s3_url: str, s3_endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An expired SSO token: the error boto3 would have raised, not the store's refusal."""
+    from botocore.exceptions import TokenRetrievalError
+
+    class Expired:
+        def get_frozen_credentials(self) -> None:
+            raise TokenRetrievalError(provider="sso", error_msg="the token expired")
+
+    bucket = Bucket(s3_url, s3_endpoint, "us-east-1", WAITS)
+    store, _ = uploads.uploads_for(bucket.name, bucket.client, WAITS)
+    failing = uploads.Credentials(Expired())
+    made = type(store)(
+        bucket.name,
+        endpoint=s3_endpoint,
+        region="us-east-1",
+        credential_provider=failing,
+        client_options={"allow_http": True},
+        retry_config={"max_retries": 0},
     )
-    assert _bucket_region(name, s3_endpoint, WAITS) == "eu-west-1"
+    monkeypatch.setattr(uploads, "uploads_for", lambda *args: (made, failing))
+    with pytest.raises(TokenRetrievalError):
+        bucket.create(b"x", "frames/a.png")
 
 
 def _authority(folder: Path) -> tuple[Path, ssl.SSLContext]:
@@ -165,11 +265,21 @@ def _authority(folder: Path) -> tuple[Path, ssl.SSLContext]:
 def test_a_store_behind_a_private_ca_is_trusted_through_aws_ca_bundle(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from botocore.exceptions import SSLError
+
+    from app.storage.s3.bucket import client_for
+
     authority, context = _authority(tmp_path)
     with answering(200, "", tls=context) as endpoint:
-        with pytest.raises(EndpointConnectionError):  # an unknown CA: no answer taken
+        with pytest.raises(SSLError):  # an unknown CA: boto3 refuses it, as ever
             Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "a.png")
         monkeypatch.setenv("AWS_CA_BUNDLE", str(authority))
-        uploads_for.cache_clear()
+        client_for.cache_clear()  # clients are made once a process, as the settings are read
+        uploads.uploads_for.cache_clear()
         assert Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "b.png")
-    uploads_for.cache_clear()
+        monkeypatch.setenv("AWS_CA_BUNDLE", str(tmp_path / "gone.pem"))
+        uploads.uploads_for.cache_clear()
+        with pytest.raises(ConfigurationError, match="CA bundle"):
+            Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "c.png")
+    client_for.cache_clear()
+    uploads.uploads_for.cache_clear()

@@ -5,18 +5,13 @@ so a row means the same file on every machine. A claim is the object's ``claimed
 copy of the object onto itself sets it to now, and so its LastModified).
 
 Two clients, one bucket: boto3 (the AWS SDK: claims, reads, listings, deletions, multipart
-uploads of files, and the standard credential chain) and obstore (Rust's ``object_store``) for
-the one request ingest makes per frame, the conditional PUT of bytes held in memory. botocore
-spends about 1.5–2.5 ms of Python per PUT, a third of all the web process does for a frame at
-home; obstore about 0.5 (``bench/storage.py``). obstore signs with boto3's credentials, and its
-failures are raised as botocore's (``botocore_error``), so the rest of the service knows one
-kind of store error.
+uploads of files, and the standard credential chain) and, for the one request ingest makes per
+frame (the conditional PUT of bytes held in memory), obstore, set up as boto3's client is and
+raising botocore's errors (``uploads.py``).
 """
 
 from __future__ import annotations
 
-import datetime as dt
-import re
 import shutil
 import time
 from collections.abc import Iterable, Iterator
@@ -27,10 +22,9 @@ from urllib.parse import urlparse
 
 from app.core.errors import without_addresses
 from app.storage.protocol import CHUNK
+from app.storage.s3 import uploads
 
 if TYPE_CHECKING:
-    from obstore.store import ClientConfig
-
     from app.core.config import StoreWaits
 
 MULTIPART_BYTES = 64 * 1024 * 1024
@@ -66,91 +60,6 @@ def client_for(endpoint_url: str | None, region: str | None, waits: StoreWaits) 
     )
 
 
-@lru_cache(maxsize=16)
-def uploads_for(
-    bucket: str, endpoint_url: str | None, region: str | None, waits: StoreWaits
-) -> Any:
-    """obstore's client for ``bucket`` as boto3's is made: its credentials, its CA bundle
-    (``AWS_CA_BUNDLE``), the bucket's own region where none is set (boto3 follows AWS's
-    redirect; obstore asks once), and the same waits: connect within ``connect_s``, each read
-    within ``read_s``."""
-    import boto3
-    from botocore.exceptions import NoCredentialsError
-    from obstore.auth.boto3 import Boto3CredentialProvider
-    from obstore.store import S3Store
-
-    session = boto3.Session()
-    if session.get_credentials() is None:
-        raise NoCredentialsError()
-    options: ClientConfig = {
-        "allow_http": True,
-        "connect_timeout": dt.timedelta(seconds=waits.connect_s),
-        "read_timeout": dt.timedelta(seconds=waits.read_s),
-        "timeout": dt.timedelta(hours=1),  # a stalled transfer is the read timeout's
-    }
-    bundle = session._session.get_config_variable("ca_bundle")  # boto3 has no public getter
-    if bundle:
-        options["root_certificate"] = Path(bundle).read_bytes()
-    return S3Store(
-        bucket,
-        endpoint=endpoint_url or None,
-        region=region or session.region_name or _bucket_region(bucket, endpoint_url, waits),
-        # a store of its own (MinIO, Ceph) is addressed by path; AWS by host, but for a name
-        # with dots (which the wildcard certificate does not cover)
-        virtual_hosted_style_request=not endpoint_url and "." not in bucket,
-        credential_provider=Boto3CredentialProvider(session),
-        client_options=options,
-        retry_config={
-            "max_retries": waits.attempts - 1,
-            "retry_timeout": dt.timedelta(seconds=waits.longest_s),
-            "backoff": {
-                "init_backoff": dt.timedelta(milliseconds=100),
-                "max_backoff": dt.timedelta(seconds=2),
-                "base": 2.0,
-            },
-        },
-    )
-
-
-def _bucket_region(bucket: str, endpoint_url: str | None, waits: StoreWaits) -> str:
-    """The bucket's region as its store names it (one HEAD), us-east-1 when it names none."""
-    from botocore.exceptions import ClientError
-
-    try:
-        answer = client_for(endpoint_url, None, waits).head_bucket(Bucket=bucket)
-    except ClientError as exc:  # a 301 from another region's endpoint still names it
-        answer = exc.response
-    headers = answer.get("ResponseMetadata", {}).get("HTTPHeaders", {})
-    return str(headers.get("x-amz-bucket-region") or "us-east-1")
-
-
-_STATUS = re.compile(r"status code: (\d{3})")
-_CODE = re.compile(r"<Code>([^<]{1,64})</Code>")
-
-
-def botocore_error(exc: Exception, operation: str, endpoint_url: str | None) -> Exception:
-    """An obstore failure as botocore would have raised it, so that one set of rules reads
-    every store error (``app.core.errors.store_outage``, the 503 of a request): the store's
-    answer as a ``ClientError`` with its status and code, no answer as a connection error."""
-    from botocore.exceptions import ClientError, EndpointConnectionError
-    from obstore.exceptions import PermissionDeniedError, UnauthenticatedError
-
-    text = str(exc)
-    status = _STATUS.search(text)
-    if isinstance(exc, PermissionDeniedError | UnauthenticatedError) or status:
-        number = int(status.group(1)) if status else 403
-        code = _CODE.search(text)
-        answer = {
-            "Error": {
-                "Code": code.group(1) if code else str(number),
-                "Message": "the store refused the upload" if number < 500 else "",
-            },
-            "ResponseMetadata": {"HTTPStatusCode": number},
-        }
-        return ClientError(answer, operation)
-    return EndpointConnectionError(endpoint_url=endpoint_url or "the object store")
-
-
 def missing(error: Exception) -> bool:
     """Whether a botocore error says the key (or bucket) is not there."""
     response = getattr(error, "response", None) or {}
@@ -184,8 +93,6 @@ class Bucket:
     ) -> None:
         self.name, self.prefix = parse_url(url)
         self.client = client_for(endpoint_url, region, waits)
-        self.endpoint_url = endpoint_url
-        self.region = region
         self.waits = waits
 
     def key(self, relative: str) -> str:
@@ -215,26 +122,13 @@ class Bucket:
 
     def create(self, data: bytes, relative: str) -> int | None:
         """Upload content unless its key exists (one conditional PUT, ``If-None-Match: *``,
-        through obstore); returns the new object's claim time, or None when an object is there
-        already."""
-        import obstore
-        from obstore.exceptions import AlreadyExistsError, BaseError, PreconditionError
-
+        through obstore: ``uploads.py``); returns the new object's claim time, or None when an
+        object is there already."""
         claimed = time.time_ns()
-        uploads = uploads_for(self.name, self.endpoint_url, self.region, self.waits)
-        try:
-            obstore.put(
-                uploads,
-                self.key(relative),
-                data,
-                attributes={"claimed": str(claimed)},
-                mode="create",
-                use_multipart=False,
-            )
-        except (AlreadyExistsError, PreconditionError):  # 412, or 409: another's PUT of it
+        if not uploads.create(
+            self.client, self.name, self.key(relative), data, claimed, self.waits
+        ):
             return None
-        except (BaseError, OSError) as exc:  # obstore raises a missing bucket as FileNotFound
-            raise botocore_error(exc, "PutObject", self.endpoint_url) from None
         return claimed
 
     def upload_file(self, path: Path, relative: str, claimed_ns: int) -> None:
