@@ -20,7 +20,7 @@ from tests.helpers import auth, run_cli, wait_for, write_video
 from weldpool_core.cell.stream import CapturedFrame, StreamResult
 from weldpool_core.student.data import FrameGeometry
 from weldpool_core.student.export import ensure_onnx
-from weldpool_core.student.train import train_student
+from weldpool_core.student.train import TrainResult, train_student
 
 
 @pytest.fixture(scope="module")
@@ -355,19 +355,19 @@ def test_an_int8_student_is_made_from_the_projects_frames_recorded_and_runs_live
     session_factory,
     settings: Settings,
     tmp_path: Path,
+    sure_student: TrainResult,
 ) -> None:
     """The models page's "Make int8": calibrated on the project's frames, checked against the
     float student, recorded on the version with both speeds; a failed record puts the earlier
-    file back; the live view runs it, only for a version that has one and not with sequential."""
+    file back; the live view runs it, only for a version that has one and not with sequential.
+    The student is the run's ``sure_student`` (trained long enough for crisp masks: int8 can
+    match it), copied into this home."""
     from tests.helpers import wait_for_job
     from weldpool_core.student.checkpoint import INT8_ONNX_FILE
     from weldpool_core.synth import SynthParams, synth_frame
 
-    crisp = tmp_path / "crisp"  # trained long enough for crisp masks: int8 can match it
-    config = tiny_config(epochs=None, steps=800, rounds=4)  # IoU 0.99 (0.965 after 100)
-    train_student(synthetic_frames(8), crisp, TINY_STUDENT, config)
     _, token = make_user("cell", Role.reviewer)
-    _promote(session_factory, crisp, settings.home)
+    _promote(session_factory, sure_student.model_dir, settings.home)
     video = str(write_video(tmp_path / "run.avi", 20, fps=30.0))
     early = client.post("/api/v1/models/1/int8", headers=auth(token))
     assert early.status_code == 400 and "at least 4 frames" in early.json()["detail"]

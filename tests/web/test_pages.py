@@ -1620,24 +1620,22 @@ def test_a_versions_sequential_cell_from_the_models_page_to_a_live_view(
     live.locator("[data-testid=live-stop]").click()
 
 
-def test_an_int8_student_from_the_models_page_to_a_live_view(page: Any, tmp_path: Path) -> None:
+def test_an_int8_student_from_the_models_page_to_a_live_view(
+    page: Any, tmp_path: Path, sure_student: Any
+) -> None:
     """ "Make int8" on a version's card: the job calibrates on the project's frames, the card
     then says how its masks agree with the float student's and how much faster it is here, and
     the live page runs it (not with sequential). Its own server: the project's frames are the
-    camera the int8 student is calibrated on."""
+    camera the int8 student is calibrated on. The student is the run's ``sure_student``
+    (trained long enough for crisp masks: int8 can match it), copied into that home."""
     import shutil
 
     from app.core.db import create_db_engine, create_session_factory
     from app.core.models import ModelVersion
-    from tests.core.student.common import TINY_STUDENT, synthetic_frames, tiny_config
-    from weldpool_core.student.train import train_student
 
     own = LiveServer(tmp_path / "home").start()
     try:
-        crisp = tmp_path / "crisp"  # trained long enough for crisp masks: int8 can match it
-        config = tiny_config(epochs=None, steps=800, rounds=4)  # IoU 0.99 (0.965 after 100)
-        train_student(synthetic_frames(8), crisp, TINY_STUDENT, config)
-        shutil.copytree(crisp, own.home / "models" / "student-v1")
+        shutil.copytree(sure_student.model_dir, own.home / "models" / "student-v1")
         engine = create_db_engine(f"sqlite:///{(own.home / 'weldpool.sqlite3').resolve()}")
         with create_session_factory(engine)() as session:
             session.add(

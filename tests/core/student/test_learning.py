@@ -1,9 +1,14 @@
 """The student learns: synthetic weld pools in, held-out mIoU and mED out (issue 6's bar).
 
-A few hundred 256×160 synthetic frames (75 weld runs at 4 times each), the light student at
-256² (letterboxed, so model pixels are frame pixels), 12 epochs on the CPU: about a minute on
-two uncontended cores. Held out: 40 frames of 40 other weld runs, scored at full resolution
+150 256×160 synthetic frames (75 weld runs at 2 times each), the light student at 256²
+(letterboxed, so model pixels are frame pixels), 12 epochs on the CPU: about 40 s on two
+uncontended cores. Held out: 40 frames of 40 other weld runs, scored at full resolution
 through ``StudentPredictor`` against the synthetic ground truth (Algorithm 1's keypoints).
+
+Issue 6 asks for mIoU ≥ 0.85 and mED ≤ 8 px; the test asks for more (0.88 and 6 px), since a
+student trained as long on masks shuffled between the frames reaches mIoU 0.83 and mED 6.8 px
+(it learns where pools usually are) and would pass 8 px. This one reaches 0.93 and 4.2 px
+(on half the frames the test first trained on, 300); an untrained one 0.21 and 85 px.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from weldpool_core.student.train import TrainConfig, train_student
 from weldpool_core.synth import SynthParams, synth_frame
 
 FRAME = SynthParams(width=256, height=160)
-TIMES = (0.0, 0.7, 1.4, 2.1)
+TIMES = (0.0, 1.4)
 
 
 @pytest.mark.slow
@@ -45,7 +50,7 @@ def test_the_light_student_learns_synthetic_pools_at_256(tmp_path: Path) -> None
         f"trained {len(frames)} frames in {seconds:.0f} s; held-out mIoU {miou:.3f}, "
         f"mED {scores.med:.2f} px, best epoch {result.best_epoch}"
     )
-    assert result.train_frames + result.validation_frames == 300
-    assert miou >= 0.85
-    assert scores.med is not None and scores.med <= 8.0 and scores.missed == 0
+    assert result.train_frames + result.validation_frames == 150
+    assert miou >= 0.88  # issue 6: 0.85; shuffled masks: 0.83
+    assert scores.med is not None and scores.med <= 6.0 and scores.missed == 0  # 8; 6.8
     assert all(p.uncertainty is not None and 0 <= p.uncertainty <= 1 for p in found)
