@@ -142,7 +142,8 @@ def ingest_rates(
     """(frames/s, machine CPU ms a frame, the web server's CPU ms a frame, the S3 server's CPU
     ms a frame) for (store, files per request, clients): all in one request, half on each of
     two; medians of runs. One `weldpool serve` per store, all up at once, and each run goes
-    through every store in turn, so that what else the machine does weighs on all alike."""
+    through every store in turn (which goes first alternates), so that what else the machine
+    does weighs on all alike."""
     rates: dict[tuple[str, int, int], list[tuple[float, ...]]] = {}
     configs = ((len(frames), 1), (-(-len(frames) // 2), 2))
     with contextlib.ExitStack() as servers:
@@ -151,9 +152,8 @@ def ingest_rates(
             url, token = servers.enter_context(local_server(env, worker=False))
             started[label] = (url, token, web_server_pid(url))
         for run in range(runs):
-            for (label, (url, token, web)), (batch, clients) in itertools.product(
-                started.items(), configs
-            ):
+            order = list(started.items())[:: 1 if run % 2 == 0 else -1]  # each first in turn
+            for (label, (url, token, web)), (batch, clients) in itertools.product(order, configs):
                 meters = (machine_cpu_s, lambda pid=web: process_cpu_s(pid), server_cpu_s)
                 salted = _salted(frames, run * 10 + clients)  # new content each run
                 before = [meter() for meter in meters]
