@@ -37,12 +37,8 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
     _add(page, "wire", "mask", "w")
     assert page.locator("[data-testid=class-points]").last.is_disabled()  # the wire: a mask
     _add(page, "wire tip", "points", "t", points="tip, root")
-    _add(page, "spatter", "instances", "s", "size:choice:small|large, hot:flag")
+    _add(page, "spatter", "instances", "x", "size:choice:small|large, hot:flag")
     page.fill("[data-testid=frame-tags]", "arc unstable, humping")
-    page.click("[data-testid=save-config]")  # "s" is the review page's Save: refused, in words
-    page.locator("[data-testid=toast-error]", has_text="review page's own shortcuts").wait_for()
-    assert server.api("GET", "/label-config", user="ada").json()["version"] == start
-    page.locator("[data-testid=class-row]").last.locator("[data-testid=class-hotkey]").fill("x")
     shoot(page, "label-config")
     page.click("[data-testid=save-config]")
     page.wait_for_selector(f"[data-testid=config-version]:has-text('Version {start + 1}')")
@@ -72,6 +68,13 @@ def test_an_admin_configures_wire_tip_spatter_and_a_tag(page: Any, server: LiveS
     page.click("[data-testid=save-config]")
     page.locator("[data-testid=toast-error]", has_text="named 'Wire'").wait_for()
     shoot(page, "label-config-refused")
+    assert server.api("GET", "/label-config", user="ada").json()["version"] == start + 2
+    page.locator("[data-testid=class-row]").last.locator("button").click()  # "Wire" goes
+    spatter = page.locator("[data-testid=class-row]").nth(3).locator("[data-testid=class-hotkey]")
+    spatter.fill("s")  # the review page's Save: refused, in words, nothing saved
+    page.click("[data-testid=save-config]")
+    page.locator("[data-testid=toast-error]", has_text="review page's own shortcuts").wait_for()
+    shoot(page, "label-config-hotkey-refused")
     assert server.api("GET", "/label-config", user="ada").json()["version"] == start + 2
     back = {"version": start + 2, "classes": [], "force": True}  # the pool alone again
     assert server.api("PUT", "/label-config", user="ada", json=back).status_code == 200
