@@ -54,7 +54,8 @@ def test_an_upload_to_a_store_that_never_answers_is_a_503_within_the_bound(
     client: TestClient, make_user, settings: Settings
 ) -> None:
     _, token = make_user("rev", Role.reviewer)
-    files = [("files", ("a.png", image_bytes(seed=1), "image/png"))]
+    # eight frames: ingest's threads wait on the store at once, not one after another
+    files = [("files", (f"{i}.png", image_bytes(seed=i), "image/png")) for i in range(8)]
     answer = within(
         _bound(settings), lambda: client.post("/api/v1/frames", files=files, headers=auth(token))
     )

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import datetime as dt
 import re
-import threading
 import time
 from functools import lru_cache
 from pathlib import Path
@@ -131,9 +130,6 @@ def bucket_region(client: Any, bucket: str, configured: str | None) -> str:
     return str(headers.get("x-amz-bucket-region") or configured or "us-east-1")
 
 
-_lock = threading.Lock()
-
-
 def create(
     client: Any, bucket: str, key: str, data: bytes, claimed: int, waits: StoreWaits
 ) -> bool:
@@ -144,8 +140,9 @@ def create(
     import obstore
     from obstore.exceptions import AlreadyExistsError, BaseError, PreconditionError
 
-    with _lock:  # one client per bucket, made once (its region asked once)
-        store, credentials = uploads_for(bucket, client, waits)
+    # one client per bucket and process (its region asked once); not under a lock, so that
+    # a store that hangs holds each of ingest's threads its own bound, at once
+    store, credentials = uploads_for(bucket, client, waits)
     for attempt in range(waits.attempts):
         try:
             obstore.put(
