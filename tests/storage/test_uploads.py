@@ -99,7 +99,12 @@ def answering(
 
 @pytest.mark.parametrize(
     ("status", "code", "outage"),
-    [(503, "SlowDown", True), (500, "InternalError", True), (403, "AccessDenied", False)],
+    [
+        (503, "SlowDown", True),
+        (500, "InternalError", True),
+        (403, "AccessDenied", False),
+        (301, "PermanentRedirect", False),  # another region's endpoint: obstore does not follow
+    ],
 )
 def test_the_stores_answer_is_the_botocore_error_the_rules_read(
     status: int, code: str, outage: bool
@@ -143,7 +148,7 @@ def test_a_store_that_never_answers_a_put_is_tried_as_often_as_the_waits_say() -
 
 def test_a_503_is_tried_again_and_a_403_is_not() -> None:
     waits = StoreWaits(connect_s=1.0, read_s=2.0, attempts=2)
-    for status, code, tries in ((503, "SlowDown", 2), (403, "AccessDenied", 1)):
+    for status, code, tries in ((503, "SlowDown", 2), (403, "AccessDenied", 1), (501, "", 1)):
         puts: list[int] = []
         with answering(status, code, puts=puts) as endpoint, pytest.raises(ClientError):
             Bucket("s3://lab/f", endpoint, "us-east-1", waits).create(b"x", "a.png")
@@ -163,7 +168,23 @@ def test_the_buckets_own_region_wins_over_the_configured_one(s3_endpoint: str) -
     name = f"far-{time.time_ns()}"
     client = boto3.client("s3", endpoint_url=s3_endpoint)
     client.create_bucket(Bucket=name, CreateBucketConfiguration={"LocationConstraint": "eu-west-1"})
-    assert uploads.bucket_region(client, name, "us-west-2") == "eu-west-1"
+    assert uploads.bucket_region(client, name) == "eu-west-1"
+
+
+def test_a_head_naming_no_region_leaves_the_clients_and_a_failing_one_guesses_none() -> None:
+    """A store that names no region (some S3 servers): the client's own, as boto3 signs with;
+    a HEAD that fails for the moment (503) fails the making of the client, kept by nobody."""
+    from botocore.stub import Stubber
+
+    from app.storage.s3.bucket import client_for
+
+    client = client_for("http://127.0.0.1:9", "eu-west-1", WAITS)
+    with Stubber(client) as stub:
+        stub.add_response("head_bucket", {})
+        assert uploads.bucket_region(client, "lab") == "eu-west-1"
+        stub.add_client_error("head_bucket", "SlowDown", http_status_code=503)
+        with pytest.raises(ClientError):
+            uploads.bucket_region(client, "lab")
 
 
 def test_on_aws_the_put_goes_to_the_buckets_host_in_its_region() -> None:
@@ -182,6 +203,12 @@ def test_on_aws_the_put_goes_to_the_buckets_host_in_its_region() -> None:
         config = store.config
         assert "endpoint" not in config and config["region"] == "eu-central-1"
         assert config.get("virtual_hosted_style_request") == str(hosted).lower(), bucket
+    private = "https://bucket.vpce-1a2b.s3.us-east-1.vpce.amazonaws.com"  # PrivateLink: as is
+    client = client_for(private, "us-east-1", WAITS)
+    with Stubber(client) as stub:
+        stub.add_response("head_bucket", {})
+        config = uploads.uploads_for("weldpool-lab", client, WAITS)[0].config
+    assert config["endpoint"] == private and config["virtual_hosted_style_request"] == "false"
 
 
 def test_refreshable_credentials_are_read_again_well_before_they_expire() -> None:

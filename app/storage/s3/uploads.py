@@ -37,6 +37,7 @@ log = structlog.get_logger(__name__)
 
 _STATUS = re.compile(r"status code: (\d{3})")
 _CODE = re.compile(r"<Code>([^<]{1,64})</Code>")
+_MESSAGE = re.compile(r"<Message>([^<]{1,200})</Message>")
 _CONFLICTS = {"PreconditionFailed", "ConditionalRequestConflict"}
 """The store's words for "this key is there, or being written": the caller claims it."""
 _RETRIED_CODES = {"SlowDown", "Throttling", "RequestTimeout", "RequestTimeTooSkewed"}
@@ -45,22 +46,15 @@ _RETRIED_CODES = {"SlowDown", "Throttling", "RequestTimeout", "RequestTimeTooSke
 class Credentials:
     """boto3's credentials for obstore. obstore keeps an answer until its ``expires_at``; an
     answer from refreshable credentials (instance roles, SSO, AssumeRole) is kept 5 minutes,
-    well within the 10 that botocore leaves them at least. A failure to get them is kept, to be
-    raised as botocore raised it."""
+    well within the 10 that botocore leaves them at least."""
 
     def __init__(self, credentials: Any) -> None:
         self.credentials = credentials
-        self.failure: Exception | None = None
 
     def __call__(self) -> dict[str, Any]:
         from botocore.credentials import RefreshableCredentials
 
-        try:
-            frozen = self.credentials.get_frozen_credentials()
-        except Exception as exc:
-            self.failure = exc
-            raise
-        self.failure = None
+        frozen = self.credentials.get_frozen_credentials()
         refreshable = isinstance(self.credentials, RefreshableCredentials)
         return {
             "access_key_id": frozen.access_key,
@@ -70,6 +64,16 @@ class Credentials:
             if refreshable
             else None,
         }
+
+    def raise_boto3s_error(self) -> None:
+        """After obstore could not get them: raise what boto3 raises getting them here (an
+        expired SSO token, no instance role), in this thread; nothing when they come now."""
+        self.credentials.get_frozen_credentials()
+
+
+_AWS = re.compile(r"^https://s3([.-][a-z0-9-]+)?\.amazonaws\.com/?$")
+"""AWS's own S3 endpoints, as boto3 resolves them when none is configured (obstore makes the
+same from the region; China's and any other are given to it as they are)."""
 
 
 @lru_cache(maxsize=16)
@@ -85,7 +89,7 @@ def uploads_for(bucket: str, client: Any, waits: StoreWaits) -> tuple[S3Store, C
         raise NoCredentialsError()
     credentials = Credentials(found)
     endpoint = str(client.meta.endpoint_url)
-    aws = endpoint.split("://", 1)[-1].split("/", 1)[0].endswith(".amazonaws.com")
+    aws = _AWS.match(endpoint) is not None  # a configured one (MinIO, PrivateLink) is used as is
     options: ClientConfig = {
         "allow_http": True,
         "connect_timeout": dt.timedelta(seconds=waits.connect_s),
@@ -108,7 +112,7 @@ def uploads_for(bucket: str, client: Any, waits: StoreWaits) -> tuple[S3Store, C
     )
     store = S3Store(
         bucket,
-        region=bucket_region(client, bucket, session.region_name),
+        region=bucket_region(client, bucket),
         credential_provider=credentials,  # type: ignore[arg-type]
         client_options=options,
         retry_config={"max_retries": 0, "retry_timeout": dt.timedelta(seconds=waits.longest_s)},
@@ -117,17 +121,21 @@ def uploads_for(bucket: str, client: Any, waits: StoreWaits) -> tuple[S3Store, C
     return store, credentials
 
 
-def bucket_region(client: Any, bucket: str, configured: str | None) -> str:
-    """The bucket's region as its store names it (one HEAD), else the configured one, else
-    us-east-1."""
+def bucket_region(client: Any, bucket: str) -> str:
+    """The bucket's region as its store names it (one HEAD), else the client's own, else
+    us-east-1. A store that fails the HEAD (5xx, throttling) fails this too: nothing is
+    guessed and kept."""
     from botocore.exceptions import ClientError
 
     try:
         answer = client.head_bucket(Bucket=bucket)
-    except ClientError as exc:  # a 301 or 403 still names it
+    except ClientError as exc:  # a 301 or 403 from AWS still names it
         answer = exc.response
+        headers = answer.get("ResponseMetadata", {}).get("HTTPHeaders", {})
+        if "x-amz-bucket-region" not in headers and _retried(exc):
+            raise
     headers = answer.get("ResponseMetadata", {}).get("HTTPHeaders", {})
-    return str(headers.get("x-amz-bucket-region") or configured or "us-east-1")
+    return str(headers.get("x-amz-bucket-region") or client.meta.region_name or "us-east-1")
 
 
 def create(
@@ -138,7 +146,12 @@ def create(
     Tried ``waits.attempts`` times on no answer, a timeout, a 5xx or throttling: safe, as an
     attempt that landed makes the next one find the key."""
     import obstore
-    from obstore.exceptions import AlreadyExistsError, BaseError, PreconditionError
+    from obstore.exceptions import (
+        AlreadyExistsError,
+        BaseError,
+        PreconditionError,
+        UnauthenticatedError,
+    )
 
     # one client per bucket and process (its region asked once); not under a lock, so that
     # a store that hangs holds each of ingest's threads its own bound, at once
@@ -159,9 +172,9 @@ def create(
             if code is None or code.group(1) in _CONFLICTS:
                 return False
             error = botocore_error(exc, client.meta.endpoint_url)  # another 409 or 412
-        except (BaseError, OSError, ValueError) as exc:
-            if credentials.failure is not None:  # boto3's own error (e.g. an expired token)
-                raise credentials.failure from None
+        except (BaseError, OSError) as exc:
+            if isinstance(exc, UnauthenticatedError) and "credential" in str(exc).lower():
+                credentials.raise_boto3s_error()  # boto3's own words; else a passing glitch
             error = botocore_error(exc, client.meta.endpoint_url)
         log.warning("storage.put_failed", key=key, attempt=attempt + 1, error=_words(error))
         if not _retried(error) or attempt + 1 == waits.attempts:
@@ -183,14 +196,21 @@ def botocore_error(exc: Exception, endpoint_url: str | None) -> Exception:
 
     text = str(exc)
     status = _STATUS.search(text)
+    number = int(status.group(1)) if status else None
+    if number is None and "redirect" in text.lower():
+        number = 301  # another region's endpoint (obstore does not follow it)
     error: Exception
-    if isinstance(exc, PermissionDeniedError | UnauthenticatedError) or status:
-        number = int(status.group(1)) if status else 403
-        code = _CODE.search(text)
+    if isinstance(exc, UnauthenticatedError) and "credential" in text.lower():
+        # obstore could not get the credentials, but boto3 then could: a passing glitch
+        error = EndpointConnectionError(endpoint_url=endpoint_url or "the object store")
+    elif isinstance(exc, PermissionDeniedError | UnauthenticatedError) or number:
+        number = number or 403
+        code, message = _CODE.search(text), _MESSAGE.search(text)
+        default = "PermanentRedirect" if number == 301 else str(number)
         answer = {
             "Error": {
-                "Code": code.group(1) if code else str(number),
-                "Message": "the store refused the upload" if number < 500 else "",
+                "Code": code.group(1) if code else default,
+                "Message": message.group(1) if message else "",
             },
             "ResponseMetadata": {"HTTPStatusCode": number},
         }
@@ -208,5 +228,6 @@ def _retried(error: Exception) -> bool:
     response = getattr(error, "response", None)
     if response is None:
         return True  # no answer or a timeout
-    status = int(response["ResponseMetadata"]["HTTPStatusCode"])
-    return status >= 500 or response["Error"]["Code"] in _RETRIED_CODES
+    status = int(response.get("ResponseMetadata", {}).get("HTTPStatusCode") or 0)
+    code = response.get("Error", {}).get("Code")
+    return status in {500, 502, 503, 504} or code in _RETRIED_CODES
