@@ -54,7 +54,14 @@ def without_server_paths(text: str, home: Path) -> str:
 _STORE_CLIENTS = ("botocore", "boto3", "s3transfer")
 
 
-_OUTAGE_CODES = {"SlowDown", "ServiceUnavailable", "InternalError", "RequestTimeout", "Throttling"}
+_OUTAGE_CODES = {
+    "SlowDown",
+    "ServiceUnavailable",
+    "InternalError",
+    "RequestTimeout",
+    "Throttling",
+    "ConditionalRequestConflict",  # another writer's PUT of the same key, under way for long
+}
 _NO_ANSWER = {"ConnectionError", "HTTPClientError"}
 """botocore's exceptions for a store that did not answer (connection refused or closed, timeouts):
 every one derives from one of these."""

@@ -70,6 +70,13 @@ def answering(
             self.rfile.read(int(self.headers.get("Content-Length", 0)))
             if puts is not None:
                 puts.append(1)
+            if "x-amz-copy-source" in self.headers:  # a claim: the key is not there (yet)
+                missing = b"<Error><Code>NoSuchKey</Code><Message>none</Message></Error>"
+                self.send_response(404)
+                self.send_header("Content-Length", str(len(missing)))
+                self.end_headers()
+                self.wfile.write(missing)
+                return
             if status == 0:
                 closing.wait(30)
                 return
@@ -310,3 +317,20 @@ def test_a_store_behind_a_private_ca_is_trusted_through_aws_ca_bundle(
             Bucket("s3://lab/f", endpoint, "us-east-1", WAITS).create(b"x", "c.png")
     client_for.cache_clear()
     uploads.uploads_for.cache_clear()
+
+
+def test_a_key_another_writer_keeps_writing_is_an_outage_not_a_500(tmp_path: Path) -> None:
+    """409 to every PUT and no object to claim: tried a few times with pauses, then the store's
+    conflict, which a request answers with a 503 and a job waits out."""
+    from app.storage.s3 import ObjectStorage
+
+    puts: list[int] = []
+    with answering(409, "ConditionalRequestConflict", puts=puts) as endpoint:
+        store = ObjectStorage(tmp_path, "s3://lab/f", 60.0, endpoint, waits=WAITS)
+        started = time.monotonic()
+        with pytest.raises(ClientError) as raised:
+            store.put(b"x" * 10, "ab" * 32, ".png")
+    assert raised.value.response["Error"]["Code"] == "ConditionalRequestConflict"
+    assert store_outage(raised.value)
+    assert len(puts) == 16  # eight conditional PUTs, each followed by a claim that found none
+    assert time.monotonic() - started >= 2.0  # with pauses between them, not a busy loop

@@ -126,13 +126,20 @@ class ObjectStorage:
     def _create_or_claim(self, data: bytes, relative: str) -> int | None:
         """Upload content unless its key exists; returns the new object's claim time, or None
         when the stored one was claimed."""
-        for _ in range(8):  # another writer's object can appear (or go) between two requests
+        for attempt in range(8):  # another writer's object can appear (or go) meanwhile
             claimed = self.objects.create(data, relative)
             if claimed is not None:
                 return claimed
             if self._claimed(relative):
                 return None
-        raise OSError(f"{relative} could neither be claimed nor written; check the store.")
+            time.sleep(min(1.0, 0.02 * 2**attempt))  # another writer's PUT is under way
+        from botocore.exceptions import ClientError
+
+        conflict = {
+            "Error": {"Code": "ConditionalRequestConflict", "Message": "written meanwhile"},
+            "ResponseMetadata": {"HTTPStatusCode": 409},
+        }
+        raise ClientError(conflict, "PutObject")  # the store's, for a while: an outage
 
     def _install(self, temporary: Path, relative: str) -> StoredFile:
         """Upload a written temporary unless the same content is stored (then claim it); the
